@@ -1,1 +1,55 @@
-//! placeholder
+//! # worlds — what a world *is*
+//!
+//! World descriptions (serde + TOML), the seeded `park` generator for the paper's scene,
+//! procedural meshes and textures for every class, glTF import/export and validation.
+//! This crate depends on no other crate of the workspace.
+//!
+//! ```
+//! use worlds::{generate::{park, ParkParams}, validate::validate};
+//! let world = park(&ParkParams::default(), 7).unwrap();
+//! assert!(validate(&world, std::path::Path::new(".")).is_empty());
+//! let text = world.to_toml();
+//! let again = worlds::parse(&text, "park.toml".as_ref()).unwrap();
+//! assert_eq!(world, again);
+//! ```
+
+pub mod description;
+pub mod error;
+pub mod generate;
+pub mod gltf_io;
+pub mod mesh;
+pub mod texture;
+pub mod validate;
+
+use std::path::Path;
+
+pub use description::*;
+pub use error::{Problem, WorldError};
+
+/// Parses and validates world TOML text; `file` names the source in errors and resolves
+/// relative mesh paths.
+pub fn parse(text: &str, file: &Path) -> Result<World, WorldError> {
+    let world: World = toml::from_str(text)
+        .map_err(|e| WorldError::Parse { file: file.to_path_buf(), message: e.to_string().trim_end().to_string() })?;
+    let base = file.parent().unwrap_or(Path::new("."));
+    let mut problems = validate::validate(&world, base);
+    if problems.is_empty() {
+        Ok(world)
+    } else {
+        for p in &mut problems {
+            p.line = validate::locate_line(text, &p.field);
+        }
+        Err(WorldError::Invalid { file: file.to_path_buf(), problems })
+    }
+}
+
+/// Reads, parses and validates a world file.
+pub fn load(path: &Path) -> Result<World, WorldError> {
+    let text = std::fs::read_to_string(path).map_err(|source| WorldError::Read { file: path.to_path_buf(), source })?;
+    parse(&text, path)
+}
+
+/// Writes a world as TOML.
+pub fn save(world: &World, path: &Path) -> Result<(), WorldError> {
+    std::fs::write(path, world.to_toml()).map_err(|source| WorldError::Write { file: path.to_path_buf(), source })
+}

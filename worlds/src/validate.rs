@@ -1,0 +1,267 @@
+//! Validation: a world that loads is one the simulator can run without surprises.
+
+use std::collections::HashMap;
+use std::path::Path;
+
+use crate::description::{Footprint, Material, ObjectClass, Shape, World, WORLD_FORMAT_VERSION};
+use crate::error::Problem;
+
+/// Instance id reserved for the ground in instance images.
+pub const GROUND_INSTANCE_ID: u16 = u16::MAX;
+
+/// Clearance the robot's route keeps from obstacle footprints: half the Pioneer 2-AT's
+/// diagonal (0.63 x 0.50 m body) is 0.40 m, plus a margin for path-following error.
+pub const ROBOT_ROUTE_CLEARANCE_M: f64 = 0.5;
+/// Clearance of people's routes from obstacles (a walking person's half width).
+pub const PERSON_ROUTE_CLEARANCE_M: f64 = 0.3;
+
+/// Checks a world; `base_dir` resolves relative mesh paths. Returns every problem found.
+pub fn validate(world: &World, base_dir: &Path) -> Vec<Problem> {
+    let mut out = Vec::new();
+    let mut push = |field: String, message: String| out.push(Problem { field, line: None, message });
+
+    if world.format_version != WORLD_FORMAT_VERSION {
+        push(
+            "format_version".into(),
+            format!("unsupported version {} (this build reads {WORLD_FORMAT_VERSION})", world.format_version),
+        );
+    }
+    let g = &world.ground;
+    if !(g.max_m[0] > g.min_m[0] && g.max_m[1] > g.min_m[1]) || !all_finite(&[g.min_m[0], g.min_m[1], g.max_m[0], g.max_m[1]]) {
+        push("ground".into(), "max_m must be greater than min_m in x and y".into());
+    }
+    check_colour(&mut push, "ground.appearance.colour", &g.appearance.colour);
+
+    let mut ids: HashMap<u16, String> = HashMap::new();
+    let mut check_id = |push: &mut dyn FnMut(String, String), id: u16, field: String| {
+        if id == 0 || id == GROUND_INSTANCE_ID {
+            push(field.clone(), format!("id {id} is reserved (0 = nothing, {GROUND_INSTANCE_ID} = ground)"));
+        } else if let Some(prev) = ids.insert(id, field.clone()) {
+            push(field, format!("id {id} is already used by {prev}"));
+        }
+    };
+
+    for (i, o) in world.objects.iter().enumerate() {
+        let f = format!("objects[{i}]");
+        check_id(&mut push, o.id, format!("{f}.id"));
+        if !all_finite(&[o.pose.x, o.pose.y, o.pose.yaw_deg]) {
+            push(format!("{f}.pose"), "pose must be finite".into());
+        }
+        for (name, v) in shape_sizes(&o.shape) {
+            if !(v.is_finite() && v > 0.0) {
+                push(format!("{f}.shape.{name}"), format!("must be positive, got {v}"));
+            }
+        }
+        if let Shape::Board { bottom_m, squares, .. } = o.shape {
+            if !(bottom_m.is_finite() && bottom_m >= 0.0) {
+                push(format!("{f}.shape.bottom_m"), format!("must be >= 0, got {bottom_m}"));
+            }
+            if squares[0] < 2 || squares[1] < 2 {
+                push(format!("{f}.shape.squares"), "a checkerboard needs at least 2 x 2 squares".into());
+            }
+        }
+        let expected = expected_shape(o.class);
+        if let Some(kind) = expected
+            && kind != o.shape.kind()
+        {
+            push(format!("{f}.shape.kind"), format!("class {} needs shape kind \"{kind}\", got \"{}\"", o.class.name(), o.shape.kind()));
+        }
+        if o.class == ObjectClass::Person || o.class == ObjectClass::Ground {
+            push(format!("{f}.class"), format!("class {} is not a static object (people go in [[people]])", o.class.name()));
+        }
+        check_colour(&mut push, &format!("{f}.appearance.colour"), &o.appearance.colour);
+        if let Some(mesh) = &o.mesh {
+            if let Err(msg) = check_mesh(base_dir, mesh) {
+                push(format!("{f}.mesh"), msg);
+            }
+        }
+        let (lo, hi) = o.shape.footprint(&o.pose).bounds();
+        if lo[0] < g.min_m[0] || lo[1] < g.min_m[1] || hi[0] > g.max_m[0] || hi[1] > g.max_m[1] {
+            push(format!("{f}.pose"), "object extends beyond the ground".into());
+        }
+    }
+
+    // Overlaps between static objects.
+    let footprints: Vec<Footprint> = world.objects.iter().map(|o| o.shape.footprint(&o.pose)).collect();
+    for i in 0..footprints.len() {
+        for j in (i + 1)..footprints.len() {
+            if footprints[i].gap(&footprints[j]) <= 0.0 {
+                push(
+                    format!("objects[{j}]"),
+                    format!("object {} overlaps object {} (objects[{i}])", world.objects[j].id, world.objects[i].id),
+                );
+            }
+        }
+    }
+
+    for (i, p) in world.people.iter().enumerate() {
+        let f = format!("people[{i}]");
+        check_id(&mut push, p.id, format!("{f}.id"));
+        for (name, v) in [
+            ("speed_mps", p.speed_mps),
+            ("height_m", p.height_m),
+            ("hip_half_width_m", p.hip_half_width_m),
+            ("leg_radius_m", p.leg_radius_m),
+            ("stride_m", p.stride_m),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                push(format!("{f}.{name}"), format!("must be positive, got {v}"));
+            }
+        }
+        if !(p.start_time_s.is_finite() && p.start_time_s >= 0.0) {
+            push(format!("{f}.start_time_s"), format!("must be >= 0, got {}", p.start_time_s));
+        }
+        if p.height_m.is_finite() && p.height_m < 0.8 {
+            push(format!("{f}.height_m"), "a person shorter than 0.8 m has no legs at the laser's height".into());
+        }
+        check_colour(&mut push, &format!("{f}.shirt.colour"), &p.shirt.colour);
+        check_colour(&mut push, &format!("{f}.trousers.colour"), &p.trousers.colour);
+        check_route(&mut push, &format!("{f}.route"), &p.route, &world.objects, &footprints, PERSON_ROUTE_CLEARANCE_M);
+    }
+
+    let r = &world.robot;
+    if !all_finite(&[r.start.x, r.start.y, r.start.yaw_deg]) {
+        push("robot.start".into(), "pose must be finite".into());
+    }
+    if r.laps == 0 {
+        push("robot.laps".into(), "must be at least 1".into());
+    }
+    check_route(&mut push, "robot.route", &r.route, &world.objects, &footprints, ROBOT_ROUTE_CLEARANCE_M);
+    for (i, fp) in footprints.iter().enumerate() {
+        if fp.distance_to_point([r.start.x, r.start.y]) < ROBOT_ROUTE_CLEARANCE_M {
+            push("robot.start".into(), format!("robot starts inside or touching object {}", world.objects[i].id));
+        }
+    }
+    out
+}
+
+fn check_route(
+    push: &mut dyn FnMut(String, String),
+    field: &str,
+    route: &crate::description::Route,
+    objects: &[crate::description::StaticObject],
+    footprints: &[Footprint],
+    clearance: f64,
+) {
+    if route.waypoints.len() < 2 {
+        push(format!("{field}.waypoints"), "a route needs at least 2 waypoints".into());
+        return;
+    }
+    if route.waypoints.iter().any(|w| !all_finite(w)) {
+        push(format!("{field}.waypoints"), "waypoints must be finite".into());
+        return;
+    }
+    for (k, (a, b)) in route.segments().iter().enumerate() {
+        for (i, fp) in footprints.iter().enumerate() {
+            let d = fp.distance_to_segment(*a, *b);
+            if d < clearance {
+                push(
+                    format!("{field}.waypoints[{k}]"),
+                    format!(
+                        "segment {k} ({:.2}, {:.2}) -> ({:.2}, {:.2}) passes {d:.2} m from object {} (needs {clearance:.2} m clearance)",
+                        a[0], a[1], b[0], b[1], objects[i].id
+                    ),
+                );
+            }
+        }
+    }
+}
+
+fn expected_shape(class: ObjectClass) -> Option<&'static str> {
+    match class {
+        ObjectClass::Tree => Some("trunk"),
+        ObjectClass::Palm => Some("palm"),
+        ObjectClass::Post => Some("post"),
+        ObjectClass::Wall => Some("wall"),
+        ObjectClass::Checkerboard => Some("board"),
+        ObjectClass::Ground | ObjectClass::Person => None,
+    }
+}
+
+fn shape_sizes(shape: &Shape) -> Vec<(&'static str, f64)> {
+    match *shape {
+        Shape::Trunk { radius_m, height_m, canopy_radius_m, canopy_height_m } => vec![
+            ("radius_m", radius_m),
+            ("height_m", height_m),
+            ("canopy_radius_m", canopy_radius_m),
+            ("canopy_height_m", canopy_height_m),
+        ],
+        Shape::Palm { radius_m, height_m, crown_radius_m } => {
+            vec![("radius_m", radius_m), ("height_m", height_m), ("crown_radius_m", crown_radius_m)]
+        }
+        Shape::Post { radius_m, height_m } => vec![("radius_m", radius_m), ("height_m", height_m)],
+        Shape::Wall { length_m, thickness_m, height_m } => {
+            vec![("length_m", length_m), ("thickness_m", thickness_m), ("height_m", height_m)]
+        }
+        Shape::Board { width_m, height_m, .. } => vec![("width_m", width_m), ("height_m", height_m)],
+    }
+}
+
+fn check_colour(push: &mut dyn FnMut(String, String), field: &str, c: &[f64; 3]) {
+    if c.iter().any(|v| !(0.0..=1.0).contains(v)) {
+        push(field.into(), format!("colour components must be in [0, 1], got {c:?}"));
+    }
+}
+
+fn check_mesh(base_dir: &Path, mesh: &str) -> Result<(), String> {
+    let path = base_dir.join(mesh);
+    if !path.exists() {
+        return Err(format!("mesh file {} does not exist", path.display()));
+    }
+    crate::gltf_io::import_mesh(&path).map(|_| ()).map_err(|e| format!("{} is not a readable glTF/.glb mesh: {e}", path.display()))
+}
+
+fn all_finite(v: &[f64]) -> bool {
+    v.iter().all(|x| x.is_finite())
+}
+
+/// Finds the 1-based line where `field` (e.g. `objects[3].shape.radius_m`) is defined in
+/// `text`, by locating the n-th `[[objects]]` table and then the key inside it.
+pub fn locate_line(text: &str, field: &str) -> Option<usize> {
+    let (head, rest) = match field.split_once('[') {
+        Some((h, r)) => (h, r),
+        None => {
+            let key = field.split('.').next()?;
+            return text.lines().position(|l| {
+                let t = l.trim();
+                t == format!("[{key}]") || t.starts_with(&format!("{key} ")) || t.starts_with(&format!("{key}="))
+            })
+            .map(|i| i + 1);
+        }
+    };
+    if head.contains('.') {
+        // Nested arrays (robot.route.waypoints[k]): point at the parent table.
+        let table = head.rsplit_once('.').map(|(t, _)| t)?;
+        return text.lines().position(|l| l.trim() == format!("[{table}]")).map(|i| i + 1);
+    }
+    let (idx, tail) = rest.split_once(']')?;
+    let idx: usize = idx.parse().ok()?;
+    let header = format!("[[{head}]]");
+    let start = text.lines().enumerate().filter(|(_, l)| l.trim() == header).nth(idx)?.0;
+    let key = tail.trim_start_matches('.').split('.').next_back().filter(|k| !k.is_empty());
+    if let Some(key) = key {
+        for (i, l) in text.lines().enumerate().skip(start + 1) {
+            let t = l.trim();
+            if t.starts_with("[[") && !t.starts_with(&format!("[[{head}.")) {
+                break;
+            }
+            if t.starts_with(&format!("{key} ")) || t.starts_with(&format!("{key}=")) || t.contains(&format!(" {key} =")) || t.contains(&format!("{{ {key} =")) {
+                return Some(i + 1);
+            }
+        }
+    }
+    Some(start + 1)
+}
+
+/// Materials that make sense for each class; used by the generator and by docs.
+pub fn default_material(class: ObjectClass) -> Material {
+    match class {
+        ObjectClass::Tree => Material::Bark,
+        ObjectClass::Palm => Material::PalmBark,
+        ObjectClass::Post => Material::Paint,
+        ObjectClass::Wall => Material::Brick,
+        ObjectClass::Person => Material::Clothes,
+        ObjectClass::Ground => Material::Grass,
+        ObjectClass::Checkerboard => Material::Checker,
+    }
+}

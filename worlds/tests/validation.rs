@@ -1,0 +1,152 @@
+//! Every kind of bad world file gets a clear error naming the file, the line or field and
+//! the problem — never a panic.
+
+use std::path::{Path, PathBuf};
+
+use worlds::{WorldError, generate::{ParkParams, park}};
+
+fn good_text() -> String {
+    park(&ParkParams::default(), 11).unwrap().to_toml()
+}
+
+fn parse(text: &str) -> Result<worlds::World, WorldError> {
+    worlds::parse(text, Path::new("/tmp/objslam-test/bad_world.toml"))
+}
+
+fn message(text: &str) -> String {
+    let err = parse(text).expect_err("world should be rejected");
+    let msg = err.to_string();
+    assert!(msg.contains("bad_world.toml"), "error does not name the file: {msg}");
+    msg
+}
+
+#[test]
+fn good_world_parses() {
+    parse(&good_text()).unwrap();
+}
+
+#[test]
+fn syntax_error_names_line() {
+    let text = good_text().replacen("[ground]", "[ground", 1);
+    let msg = message(&text);
+    assert!(msg.contains("line"), "{msg}");
+}
+
+#[test]
+fn missing_field_is_named() {
+    let text = good_text().replacen("speed_mps = ", "not_speed = ", 1);
+    let msg = message(&text);
+    assert!(msg.contains("speed_mps") || msg.contains("not_speed"), "{msg}");
+    assert!(msg.contains("line"), "{msg}");
+}
+
+#[test]
+fn unknown_class_is_named() {
+    let text = good_text().replacen("class = \"post\"", "class = \"lamppost\"", 1);
+    let msg = message(&text);
+    assert!(msg.contains("lamppost") && msg.contains("line"), "{msg}");
+}
+
+#[test]
+fn negative_size_is_named() {
+    let world = park(&ParkParams::default(), 11).unwrap();
+    let mut bad = world.clone();
+    let i = bad.objects.iter().position(|o| o.class == worlds::ObjectClass::Tree).unwrap();
+    if let worlds::Shape::Trunk { radius_m, .. } = &mut bad.objects[i].shape {
+        *radius_m = -0.2;
+    }
+    let msg = message(&bad.to_toml());
+    assert!(msg.contains(&format!("objects[{i}].shape.radius_m")) && msg.contains("positive"), "{msg}");
+    let err = parse(&bad.to_toml()).unwrap_err();
+    assert!(err.problems()[0].line.is_some(), "no line for {:?}", err.problems());
+}
+
+#[test]
+fn zero_size_is_named() {
+    let mut bad = park(&ParkParams::default(), 11).unwrap();
+    let i = bad.objects.iter().position(|o| o.class == worlds::ObjectClass::Wall).unwrap();
+    if let worlds::Shape::Wall { height_m, .. } = &mut bad.objects[i].shape {
+        *height_m = 0.0;
+    }
+    let msg = message(&bad.to_toml());
+    assert!(msg.contains("height_m") && msg.contains("positive"), "{msg}");
+}
+
+#[test]
+fn overlapping_objects_are_named() {
+    let mut bad = park(&ParkParams::default(), 11).unwrap();
+    let trees: Vec<usize> = bad.objects.iter().enumerate().filter(|(_, o)| o.class == worlds::ObjectClass::Tree).map(|(i, _)| i).collect();
+    let (a, b) = (trees[0], trees[1]);
+    bad.objects[b].pose = bad.objects[a].pose;
+    let msg = message(&bad.to_toml());
+    assert!(msg.contains("overlaps"), "{msg}");
+}
+
+#[test]
+fn route_through_obstacle_is_named() {
+    let mut bad = park(&ParkParams::default(), 11).unwrap();
+    let tree = bad.objects.iter().find(|o| o.class == worlds::ObjectClass::Tree).unwrap().pose;
+    bad.robot.route.waypoints.insert(1, [tree.x, tree.y]);
+    let msg = message(&bad.to_toml());
+    assert!(msg.contains("robot.route") && msg.contains("clearance"), "{msg}");
+}
+
+#[test]
+fn missing_mesh_file_is_named() {
+    let mut bad = park(&ParkParams::default(), 11).unwrap();
+    bad.objects[0].mesh = Some("meshes/nowhere.glb".into());
+    let msg = message(&bad.to_toml());
+    assert!(msg.contains("objects[0].mesh") && msg.contains("does not exist"), "{msg}");
+}
+
+#[test]
+fn mesh_that_is_not_gltf_is_named() {
+    let dir = std::env::temp_dir().join(format!("objslam-worlds-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(dir.join("fake.glb"), b"this is not a glTF file").unwrap();
+    let mut bad = park(&ParkParams::default(), 11).unwrap();
+    bad.objects[0].mesh = Some("fake.glb".into());
+    let file: PathBuf = dir.join("world.toml");
+    let err = worlds::parse(&bad.to_toml(), &file).unwrap_err();
+    let msg = err.to_string();
+    assert!(msg.contains("objects[0].mesh") && msg.contains("not a readable glTF"), "{msg}");
+}
+
+#[test]
+fn user_glb_mesh_loads() {
+    // A world exported as .glb is a valid user mesh for an object.
+    let dir = std::env::temp_dir().join(format!("objslam-worlds-ok-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut world = park(&ParkParams::default(), 11).unwrap();
+    let small = worlds::mesh::object_parts(&world.objects[1]);
+    std::fs::write(dir.join("tree.glb"), worlds::gltf_io::parts_to_glb(&small)).unwrap();
+    world.objects[1].mesh = Some("tree.glb".into());
+    let file = dir.join("world.toml");
+    std::fs::write(&file, world.to_toml()).unwrap();
+    let loaded = worlds::load(&file).unwrap();
+    let mesh = worlds::gltf_io::import_object_mesh(&file, loaded.objects[1].mesh.as_deref().unwrap()).unwrap();
+    assert_eq!(mesh.vertex_count(), small.iter().map(|p| p.mesh.vertex_count()).sum::<usize>());
+}
+
+#[test]
+fn duplicate_ids_are_named() {
+    let mut bad = park(&ParkParams::default(), 11).unwrap();
+    bad.objects[1].id = bad.objects[0].id;
+    let msg = message(&bad.to_toml());
+    assert!(msg.contains("already used"), "{msg}");
+}
+
+#[test]
+fn unreadable_file_is_named() {
+    let err = worlds::load(Path::new("/nonexistent/world.toml")).unwrap_err();
+    assert!(err.to_string().contains("/nonexistent/world.toml"));
+}
+
+#[test]
+fn bad_generator_parameters_are_named() {
+    let p = ParkParams { tree_radius_m: [0.4, 0.1], ..Default::default() };
+    let err = park(&p, 1).unwrap_err();
+    assert!(err.to_string().contains("tree_radius_m"), "{err}");
+    let crowded = ParkParams { area_m2: 120.0, trees: 400, ..Default::default() };
+    assert!(park(&crowded, 1).is_err());
+}
