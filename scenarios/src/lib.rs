@@ -1,1 +1,12 @@
-//! placeholder
+//! # scenarios — scenario runner, scoring, reports and the `objslam` CLI
+//!
+//! Joins the crates: worlds are simulated by `sim`, the stream feeds `slam`, and the
+//! results are scored against ground truth. The `objslam` binary is a thin layer over
+//! this library.
+//!
+//! ```no_run
+//! let world = worlds::generate::park(&Default::default(), 7).unwrap();
+//! scenarios::plot::draw_map(&world, &scenarios::plot::Overlays::default(), "map.png".as_ref()).unwrap();
+//! ```
+
+pub mod plot;

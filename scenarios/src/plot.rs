@@ -1,0 +1,250 @@
+//! Top-view maps: the world by class, routes, and (for runs) estimated landmarks with
+//! 2-sigma ellipses and trajectories. PNG through plotters, text in embedded DejaVu Sans so
+//! it renders the same on any machine.
+
+use std::path::Path;
+use std::sync::Once;
+
+use plotters::prelude::*;
+use plotters::style::FontStyle;
+use worlds::{ObjectClass, Shape, World};
+
+/// Error from drawing a plot.
+#[derive(Debug, thiserror::Error)]
+#[error("{}: cannot draw plot: {message}", file.display())]
+pub struct PlotError {
+    pub file: std::path::PathBuf,
+    pub message: String,
+}
+
+/// Makes "sans-serif" available to plotters from embedded font bytes (once per process).
+pub fn register_fonts() {
+    static ONCE: Once = Once::new();
+    ONCE.call_once(|| {
+        let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, dejavu::sans::regular());
+        let _ = plotters::style::register_font("sans-serif", FontStyle::Bold, dejavu::sans::bold());
+    });
+}
+
+/// Colour of each class in maps.
+pub fn class_colour(class: ObjectClass) -> RGBColor {
+    match class {
+        ObjectClass::Tree => RGBColor(34, 139, 34),
+        ObjectClass::Palm => RGBColor(218, 165, 32),
+        ObjectClass::Post => RGBColor(90, 60, 160),
+        ObjectClass::Wall => RGBColor(160, 82, 45),
+        ObjectClass::Person => RGBColor(220, 20, 60),
+        ObjectClass::Ground => RGBColor(200, 230, 190),
+        ObjectClass::Checkerboard => RGBColor(0, 0, 0),
+    }
+}
+
+/// An estimated landmark to draw: position, 2x2 covariance (row-major) and a label.
+#[derive(Debug, Clone)]
+pub struct LandmarkMark {
+    pub position: [f64; 2],
+    pub covariance: [[f64; 2]; 2],
+    pub label: String,
+    /// Drawn in red when the scorer found something wrong with it (false or duplicate).
+    pub flagged: bool,
+}
+
+/// What to draw over the world.
+#[derive(Debug, Clone, Default)]
+pub struct Overlays {
+    pub title: String,
+    pub landmarks: Vec<LandmarkMark>,
+    /// (legend name, colour, path)
+    pub trajectories: Vec<(String, RGBColor, Vec<[f64; 2]>)>,
+    pub people_tracks: Vec<Vec<[f64; 2]>>,
+    /// Draw the planned routes (world plots) or not (run maps show driven paths instead).
+    pub routes: bool,
+}
+
+/// Draws a top view of `world` with `overlays` into a PNG at `path`.
+pub fn draw_map(world: &World, overlays: &Overlays, path: &Path) -> Result<(), PlotError> {
+    register_fonts();
+    let err = |e: &dyn std::fmt::Display| PlotError { file: path.to_path_buf(), message: e.to_string() };
+    let (min, max) = (world.ground.min_m, world.ground.max_m);
+    let margin = 1.0;
+    let (x0, x1, y0, y1) = (min[0] - margin, max[0] + margin, min[1] - margin, max[1] + margin);
+    let width_px = 1200u32;
+    let plot_w = width_px - 90;
+    let height_px = ((plot_w as f64) * (y1 - y0) / (x1 - x0)) as u32 + 130;
+    let root = BitMapBackend::new(path, (width_px, height_px)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| err(&e))?;
+    let mut chart = ChartBuilder::on(&root)
+        .caption(&overlays.title, ("sans-serif", 22).into_font())
+        .margin(15)
+        .x_label_area_size(35)
+        .y_label_area_size(45)
+        .build_cartesian_2d(x0..x1, y0..y1)
+        .map_err(|e| err(&e))?;
+    chart
+        .configure_mesh()
+        .x_desc("x (m)")
+        .y_desc("y (m)")
+        .light_line_style(WHITE.mix(0.0))
+        .label_style(("sans-serif", 13))
+        .draw()
+        .map_err(|e| err(&e))?;
+    let px_per_m = plot_w as f64 / (x1 - x0) * 0.97;
+
+    chart
+        .draw_series(std::iter::once(Rectangle::new([(min[0], min[1]), (max[0], max[1])], class_colour(ObjectClass::Ground).filled())))
+        .map_err(|e| err(&e))?;
+
+    // Canopies first (faint), then footprints.
+    for o in &world.objects {
+        if let Shape::Trunk { canopy_radius_m, .. } = o.shape {
+            let r = (canopy_radius_m * px_per_m) as i32;
+            chart
+                .draw_series(std::iter::once(Circle::new((o.pose.x, o.pose.y), r, class_colour(ObjectClass::Tree).mix(0.12).filled())))
+                .map_err(|e| err(&e))?;
+        }
+    }
+    let mut legend_done = std::collections::BTreeSet::new();
+    for o in &world.objects {
+        let colour = class_colour(o.class);
+        let fp = o.shape.footprint(&o.pose);
+        let series: Vec<DynElement<'static, BitMapBackend, (f64, f64)>> = match fp {
+            worlds::Footprint::Circle { centre, radius } => {
+                vec![Circle::new((centre[0], centre[1]), ((radius * px_per_m) as i32).max(3), colour.filled()).into_dyn()]
+            }
+            worlds::Footprint::Rect { .. } => {
+                let c = fp.corners();
+                vec![Polygon::new(c.iter().map(|p| (p[0], p[1])).collect::<Vec<_>>(), colour.filled()).into_dyn()]
+            }
+        };
+        let anno = chart.draw_series(series).map_err(|e| err(&e))?;
+        if legend_done.insert(o.class) {
+            anno.label(o.class.name()).legend(move |(x, y)| Circle::new((x + 8, y), 5, colour.filled()));
+        }
+    }
+
+    if overlays.routes {
+        let mut pts: Vec<(f64, f64)> = world.robot.route.waypoints.iter().map(|p| (p[0], p[1])).collect();
+        if world.robot.route.looping {
+            pts.push(pts[0]);
+        }
+        chart
+            .draw_series(LineSeries::new(pts, BLUE.stroke_width(2)))
+            .map_err(|e| err(&e))?
+            .label(format!("robot route ({} laps)", world.robot.laps))
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], BLUE.stroke_width(2)));
+        let s = world.robot.start;
+        let (dx, dy) = (s.yaw_rad().cos() * 1.0, s.yaw_rad().sin() * 1.0);
+        chart
+            .draw_series(std::iter::once(PathElement::new(vec![(s.x, s.y), (s.x + dx, s.y + dy)], BLUE.stroke_width(4))))
+            .map_err(|e| err(&e))?;
+        for (i, p) in world.people.iter().enumerate() {
+            let mut pts: Vec<(f64, f64)> = p.route.waypoints.iter().map(|w| (w[0], w[1])).collect();
+            if p.route.looping && pts.len() > 2 {
+                pts.push(pts[0]);
+            }
+            let colour = class_colour(ObjectClass::Person);
+            let a = chart.draw_series(DashedLineSeries::new(pts, 6, 4, colour.stroke_width(2))).map_err(|e| err(&e))?;
+            if i == 0 {
+                a.label("person walk").legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour.stroke_width(2)));
+            }
+        }
+    }
+    for track in &overlays.people_tracks {
+        chart
+            .draw_series(LineSeries::new(track.iter().map(|p| (p[0], p[1])), class_colour(ObjectClass::Person).mix(0.35)))
+            .map_err(|e| err(&e))?;
+    }
+    for (name, colour, path) in &overlays.trajectories {
+        let c = *colour;
+        chart
+            .draw_series(LineSeries::new(path.iter().map(|p| (p[0], p[1])), c.stroke_width(2)))
+            .map_err(|e| err(&e))?
+            .label(name.clone())
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], c.stroke_width(2)));
+    }
+    for (i, lm) in overlays.landmarks.iter().enumerate() {
+        let colour = if lm.flagged { RED } else { BLACK };
+        let ellipse = sigma_ellipse(lm.position, lm.covariance, 2.0, 48);
+        let a = chart.draw_series(std::iter::once(PathElement::new(ellipse, colour.stroke_width(2)))).map_err(|e| err(&e))?;
+        if i == 0 {
+            a.label("landmark (2σ)").legend(|(x, y)| Cross::new((x + 8, y), 5, BLACK.stroke_width(2)));
+        }
+        chart
+            .draw_series(std::iter::once(Cross::new((lm.position[0], lm.position[1]), 5, colour.stroke_width(2))))
+            .map_err(|e| err(&e))?;
+        chart
+            .draw_series(std::iter::once(Text::new(lm.label.clone(), (lm.position[0] + 0.3, lm.position[1] + 0.3), ("sans-serif", 12).into_font())))
+            .map_err(|e| err(&e))?;
+    }
+
+    // Scale bar: 5 m in the lower left corner of the ground.
+    let bar = 5.0;
+    let (bx, by) = (min[0] + 0.5, min[1] - 0.5);
+    chart
+        .draw_series(std::iter::once(PathElement::new(vec![(bx, by), (bx + bar, by)], BLACK.stroke_width(4))))
+        .map_err(|e| err(&e))?;
+    for t in [bx, bx + bar] {
+        chart
+            .draw_series(std::iter::once(PathElement::new(vec![(t, by - 0.2), (t, by + 0.2)], BLACK.stroke_width(2))))
+            .map_err(|e| err(&e))?;
+    }
+    chart
+        .draw_series(std::iter::once(Text::new(format!("{bar:.0} m"), (bx + bar + 0.3, by + 0.25), ("sans-serif", 15).into_font())))
+        .map_err(|e| err(&e))?;
+
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperRight)
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .label_font(("sans-serif", 14))
+        .draw()
+        .map_err(|e| err(&e))?;
+    root.present().map_err(|e| err(&e))?;
+    Ok(())
+}
+
+/// Points of the `k`-sigma ellipse of a 2-D Gaussian.
+pub fn sigma_ellipse(mean: [f64; 2], cov: [[f64; 2]; 2], k: f64, n: usize) -> Vec<(f64, f64)> {
+    // Eigen-decomposition of a symmetric 2x2 in closed form.
+    let (a, b, c) = (cov[0][0], 0.5 * (cov[0][1] + cov[1][0]), cov[1][1]);
+    let tr = a + c;
+    let det = a * c - b * b;
+    let disc = ((tr * tr / 4.0) - det).max(0.0).sqrt();
+    let (l1, l2) = ((tr / 2.0 + disc).max(0.0), (tr / 2.0 - disc).max(0.0));
+    let angle = if b.abs() > 1e-15 { (l1 - a).atan2(b) } else if a >= c { 0.0 } else { std::f64::consts::FRAC_PI_2 };
+    let (s, co) = angle.sin_cos();
+    (0..=n)
+        .map(|i| {
+            let t = std::f64::consts::TAU * i as f64 / n as f64;
+            let (u, v) = (k * l1.sqrt() * t.cos(), k * l2.sqrt() * t.sin());
+            (mean[0] + co * u - s * v, mean[1] + s * u + co * v)
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sigma_ellipse_of_axis_aligned_covariance() {
+        let pts = sigma_ellipse([1.0, 2.0], [[4.0, 0.0], [0.0, 1.0]], 2.0, 4);
+        // Semi-axes 2*2 = 4 along x and 2*1 = 2 along y.
+        assert!((pts[0].0 - 5.0).abs() < 1e-9 && (pts[0].1 - 2.0).abs() < 1e-9);
+        assert!((pts[1].0 - 1.0).abs() < 1e-9 && (pts[1].1 - 4.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn world_map_renders_to_png() {
+        let world = worlds::generate::park(&Default::default(), 5).unwrap();
+        let dir = std::env::temp_dir().join(format!("objslam-plot-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("map.png");
+        draw_map(&world, &Overlays { title: "park".into(), routes: true, ..Default::default() }, &path).unwrap();
+        let img = image::open(&path).unwrap().to_rgb8();
+        // Tree green must appear (objects were drawn), and white margins exist.
+        let green = img.pixels().filter(|p| p.0 == [34, 139, 34]).count();
+        assert!(green > 50, "only {green} tree-coloured pixels");
+    }
+}
