@@ -187,7 +187,7 @@ pub fn object_parts(o: &StaticObject) -> Vec<MeshPart> {
     let a = o.appearance.clone();
     match o.shape {
         Shape::Trunk { radius_m, height_m, canopy_radius_m, canopy_height_m } => {
-            let trunk = cylinder(radius_m * 1.08, radius_m * 0.8, 0.0, height_m, TRUNK_SEGMENTS, tile_size_m(Material::Bark));
+            let trunk = trunk_mesh(radius_m, 0.8, height_m, tile_size_m(Material::Bark));
             let foliage = Appearance {
                 material: Material::Foliage,
                 colour: [0.20 + 0.1 * (a.colour[0] - 0.3), 0.36, 0.14],
@@ -203,7 +203,7 @@ pub fn object_parts(o: &StaticObject) -> Vec<MeshPart> {
             vec![part("trunk", trunk, a), part("canopy", canopy, foliage)]
         }
         Shape::Palm { radius_m, height_m, crown_radius_m } => {
-            let trunk = cylinder(radius_m * 1.15, radius_m * 0.85, 0.0, height_m, TRUNK_SEGMENTS, tile_size_m(Material::PalmBark));
+            let trunk = trunk_mesh(radius_m, 0.85, height_m, tile_size_m(Material::PalmBark));
             let mut crown = TriMesh::default();
             let fronds = 9;
             for k in 0..fronds {
@@ -236,6 +236,27 @@ pub fn object_parts(o: &StaticObject) -> Vec<MeshPart> {
             parts
         }
     }
+}
+
+/// Height up to which trunks are straight cylinders of their nominal radius, so the
+/// physics collider (a cylinder) and the rendered mesh agree where the laser and the
+/// camera see them; above it the trunk tapers.
+pub const STRAIGHT_TRUNK_M: f64 = 1.5;
+
+/// A trunk: straight up to [`STRAIGHT_TRUNK_M`], then tapering to `top_ratio` x radius.
+fn trunk_mesh(radius: f64, top_ratio: f64, height: f64, tile: [f64; 2]) -> TriMesh {
+    let straight = STRAIGHT_TRUNK_M.min(height);
+    let mut m = cylinder(radius, radius, 0.0, straight, TRUNK_SEGMENTS, tile);
+    if height > straight {
+        let mut upper = cylinder(radius, radius * top_ratio, straight, height - straight, TRUNK_SEGMENTS, tile);
+        // Continue the texture where the lower part ends.
+        let dv = -straight / tile[1];
+        for uv in &mut upper.uvs {
+            uv[1] += dv as f32;
+        }
+        m.append(&upper);
+    }
+    m
 }
 
 /// One drooping palm frond: a strip of quads arching out from the crown.

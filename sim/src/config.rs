@@ -1,0 +1,243 @@
+//! Simulator settings, with the facts of REFERENCES.md as defaults, and their checks.
+
+use serde::{Deserialize, Serialize};
+
+use crate::SimError;
+
+/// Everything the simulator needs besides the world and the seed.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SimConfig {
+    /// Fixed physics rate. Sensor messages are stamped with the first physics step at or
+    /// after their nominal time, so timestamps jitter by less than one physics period.
+    pub physics_rate_hz: f64,
+    pub robot: RobotConfig,
+    pub laser: LaserConfig,
+    pub odometry: OdometryConfig,
+    /// Stop after this much simulated time even if the route is not finished.
+    pub max_duration_s: Option<f64>,
+}
+
+impl Default for SimConfig {
+    fn default() -> Self {
+        SimConfig {
+            physics_rate_hz: 100.0,
+            robot: RobotConfig::default(),
+            laser: LaserConfig::default(),
+            odometry: OdometryConfig::default(),
+            max_duration_s: None,
+        }
+    }
+}
+
+/// The Pioneer 2-AT (ARIA p2at.p) and its path-following controller.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RobotConfig {
+    /// Body length x width (m).
+    pub length_m: f64,
+    pub width_m: f64,
+    pub body_height_m: f64,
+    pub max_speed_mps: f64,
+    pub max_turn_rate_dps: f64,
+    pub cruise_speed_mps: f64,
+    /// Pure-pursuit look-ahead distance.
+    pub lookahead_m: f64,
+    /// Stop while the laser sees something closer than this ahead (people crossing).
+    pub safety_stop_m: f64,
+}
+
+impl Default for RobotConfig {
+    fn default() -> Self {
+        RobotConfig {
+            length_m: 0.626,
+            width_m: 0.505,
+            body_height_m: 0.28,
+            max_speed_mps: 1.2,
+            max_turn_rate_dps: 300.0,
+            cruise_speed_mps: 0.5,
+            lookahead_m: 0.8,
+            safety_stop_m: 0.7,
+        }
+    }
+}
+
+/// Resolution of a SICK LMS2xx scan.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum AngularResolution {
+    #[serde(rename = "0.25")]
+    Quarter,
+    #[serde(rename = "0.5")]
+    Half,
+    #[serde(rename = "1")]
+    One,
+}
+
+impl AngularResolution {
+    pub fn degrees(self) -> f64 {
+        match self {
+            AngularResolution::Quarter => 0.25,
+            AngularResolution::Half => 0.5,
+            AngularResolution::One => 1.0,
+        }
+    }
+}
+
+/// A SICK LMS-style 2-D laser.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LaserConfig {
+    pub fov_deg: f64,
+    pub resolution_deg: AngularResolution,
+    /// 8, 16 or 32 m (mm units) or 80 m (cm units), as the LMS2xx range modes.
+    pub max_range_m: f64,
+    pub min_range_m: f64,
+    pub range_noise_sigma_m: f64,
+    pub rate_hz: f64,
+    /// Mounting on the robot (base frame, REP-103): forward, left, height.
+    pub mount_xyz_m: [f64; 3],
+    pub mount_yaw_deg: f64,
+}
+
+impl Default for LaserConfig {
+    fn default() -> Self {
+        LaserConfig {
+            fov_deg: 180.0,
+            resolution_deg: AngularResolution::Half,
+            max_range_m: 80.0,
+            min_range_m: 0.05,
+            range_noise_sigma_m: 0.01,
+            rate_hz: 10.0,
+            mount_xyz_m: [0.16, 0.0, 0.4],
+            mount_yaw_deg: 0.0,
+        }
+    }
+}
+
+impl LaserConfig {
+    pub fn beam_count(&self) -> usize {
+        (self.fov_deg / self.resolution_deg.degrees()).round() as usize + 1
+    }
+
+    pub fn angle_min_rad(&self) -> f64 {
+        -self.fov_deg.to_radians() / 2.0
+    }
+
+    pub fn angle_increment_rad(&self) -> f64 {
+        self.resolution_deg.degrees().to_radians()
+    }
+
+    /// Range quantisation of the unit: millimetres up to 32 m, centimetres in 80 m mode.
+    pub fn quantum_m(&self) -> f64 {
+        if self.max_range_m > 32.0 { 0.01 } else { 0.001 }
+    }
+}
+
+/// Wheel odometry and its error model.
+///
+/// Per run, systematic errors are drawn once (as Stage does): a distance scale error
+/// `N(0, scale_sigma)`, a turn scale error `N(0, turn_scale_sigma)` and a heading drift per
+/// metre `N(0, bias_sigma_rad_per_m)`. Per step, Gaussian noise grows with the step's
+/// distance d and turn a: sigma_d^2 = k_dd d^2 + k_da a^2, sigma_a^2 = k_ad d^2 + k_aa a^2.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct OdometryConfig {
+    pub rate_hz: f64,
+    pub scale_sigma: f64,
+    pub turn_scale_sigma: f64,
+    pub bias_sigma_rad_per_m: f64,
+    /// Per-step noise coefficients (variance per squared metre / radian).
+    pub k_dd: f64,
+    pub k_da: f64,
+    pub k_ad: f64,
+    pub k_aa: f64,
+}
+
+impl Default for OdometryConfig {
+    fn default() -> Self {
+        OdometryConfig {
+            rate_hz: 20.0,
+            scale_sigma: 0.01,
+            turn_scale_sigma: 0.02,
+            bias_sigma_rad_per_m: 0.002,
+            k_dd: 0.0025,
+            k_da: 0.0001,
+            k_ad: 0.0005,
+            k_aa: 0.0025,
+        }
+    }
+}
+
+impl OdometryConfig {
+    /// No error at all: integrates to the ground-truth path.
+    pub fn noiseless() -> Self {
+        OdometryConfig { scale_sigma: 0.0, turn_scale_sigma: 0.0, bias_sigma_rad_per_m: 0.0, k_dd: 0.0, k_da: 0.0, k_ad: 0.0, k_aa: 0.0, ..Default::default() }
+    }
+}
+
+impl SimConfig {
+    /// Checks every setting; the error names the field.
+    pub fn check(&self) -> Result<(), SimError> {
+        let bad = |field: &str, message: String| Err(SimError::Config { field: field.into(), message });
+        let positive = [
+            ("physics_rate_hz", self.physics_rate_hz),
+            ("laser.rate_hz", self.laser.rate_hz),
+            ("laser.fov_deg", self.laser.fov_deg),
+            ("laser.max_range_m", self.laser.max_range_m),
+            ("odometry.rate_hz", self.odometry.rate_hz),
+            ("robot.length_m", self.robot.length_m),
+            ("robot.width_m", self.robot.width_m),
+            ("robot.body_height_m", self.robot.body_height_m),
+            ("robot.max_speed_mps", self.robot.max_speed_mps),
+            ("robot.max_turn_rate_dps", self.robot.max_turn_rate_dps),
+            ("robot.cruise_speed_mps", self.robot.cruise_speed_mps),
+            ("robot.lookahead_m", self.robot.lookahead_m),
+        ];
+        for (field, v) in positive {
+            if !(v.is_finite() && v > 0.0) {
+                return bad(field, format!("must be positive, got {v}"));
+            }
+        }
+        let non_negative = [
+            ("laser.min_range_m", self.laser.min_range_m),
+            ("laser.range_noise_sigma_m", self.laser.range_noise_sigma_m),
+            ("robot.safety_stop_m", self.robot.safety_stop_m),
+            ("odometry.scale_sigma", self.odometry.scale_sigma),
+            ("odometry.turn_scale_sigma", self.odometry.turn_scale_sigma),
+            ("odometry.bias_sigma_rad_per_m", self.odometry.bias_sigma_rad_per_m),
+            ("odometry.k_dd", self.odometry.k_dd),
+            ("odometry.k_da", self.odometry.k_da),
+            ("odometry.k_ad", self.odometry.k_ad),
+            ("odometry.k_aa", self.odometry.k_aa),
+        ];
+        for (field, v) in non_negative {
+            if !(v.is_finite() && v >= 0.0) {
+                return bad(field, format!("must be zero or positive, got {v}"));
+            }
+        }
+        if self.laser.rate_hz > self.physics_rate_hz || self.odometry.rate_hz > self.physics_rate_hz {
+            return bad("physics_rate_hz", format!("{} Hz is slower than a sensor; sensors cannot outpace physics", self.physics_rate_hz));
+        }
+        if ![8.0, 16.0, 32.0, 80.0].contains(&self.laser.max_range_m) {
+            return bad("laser.max_range_m", format!("the LMS2xx range modes are 8, 16, 32 and 80 m, got {}", self.laser.max_range_m));
+        }
+        if self.laser.fov_deg > 180.0 {
+            return bad("laser.fov_deg", format!("an LMS2xx sees at most 180 deg, got {}", self.laser.fov_deg));
+        }
+        if self.laser.beam_count() < 2 {
+            return bad("laser.fov_deg", "fewer than 2 beams".into());
+        }
+        if self.laser.min_range_m >= self.laser.max_range_m {
+            return bad("laser.min_range_m", "must be below max_range_m".into());
+        }
+        if self.robot.cruise_speed_mps > self.robot.max_speed_mps {
+            return bad("robot.cruise_speed_mps", format!("exceeds max_speed_mps {}", self.robot.max_speed_mps));
+        }
+        if let Some(d) = self.max_duration_s
+            && !(d.is_finite() && d > 0.0)
+        {
+            return bad("max_duration_s", format!("must be positive, got {d}"));
+        }
+        Ok(())
+    }
+}
