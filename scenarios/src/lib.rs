@@ -9,4 +9,6 @@
 //! scenarios::plot::draw_map(&world, &scenarios::plot::Overlays::default(), "map.png".as_ref()).unwrap();
 //! ```
 
+pub mod foxglove;
 pub mod plot;
+pub mod record;

@@ -18,6 +18,22 @@ enum Command {
     /// Generate, check, export and plot worlds.
     #[command(subcommand)]
     World(WorldCommand),
+    /// Simulate a world and write a sensor log (JSON lines, TUM, MCAP) that other SLAM
+    /// systems can read.
+    Record {
+        /// A world file, or the name of a preset (`park`).
+        input: String,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Stop after this many simulated seconds (default: when the route is done).
+        #[arg(long)]
+        duration: Option<f64>,
+        /// TOML file of simulator settings (see `sim::SimConfig`).
+        #[arg(long)]
+        sim_config: Option<PathBuf>,
+        #[arg(long)]
+        out: PathBuf,
+    },
 }
 
 #[derive(Subcommand)]
@@ -62,7 +78,59 @@ fn run(cli: Cli) -> Result<()> {
     match cli.command {
         None => anyhow::bail!("no command given; see `objslam --help`"),
         Some(Command::World(cmd)) => world(cmd),
+        Some(Command::Record { input, seed, duration, sim_config, out }) => record(&input, seed, duration, sim_config, &out),
     }
+}
+
+/// A world from a file path, or generated from a preset name with the seed.
+fn load_world(input: &str, seed: u64) -> Result<worlds::World> {
+    let path = std::path::Path::new(input);
+    if !path.exists() && worlds::generate::PRESETS.contains(&input) {
+        return Ok(worlds::generate::preset(input, None, seed)?);
+    }
+    Ok(worlds::load(path)?)
+}
+
+fn progress_bar(len: u64, what: &str) -> indicatif::ProgressBar {
+    let bar = indicatif::ProgressBar::new(len);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} s simulated, {elapsed} elapsed, ETA {eta}")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
+    bar.set_message(what.to_string());
+    bar
+}
+
+fn record(input: &str, seed: u64, duration: Option<f64>, sim_config: Option<PathBuf>, out: &std::path::Path) -> Result<()> {
+    let world = load_world(input, seed)?;
+    let mut config = match sim_config {
+        Some(path) => {
+            let text = std::fs::read_to_string(&path).with_context(|| format!("{}: cannot read", path.display()))?;
+            toml::from_str::<sim::SimConfig>(&text).with_context(|| format!("{}: bad simulator settings", path.display()))?
+        }
+        None => sim::SimConfig::default(),
+    };
+    if duration.is_some() {
+        config.max_duration_s = duration;
+    }
+    let bar = progress_bar(0, "recording");
+    let summary = scenarios::record::record(&world, &config, seed, out, |t, total| {
+        bar.set_length(total.ceil() as u64);
+        bar.set_position((t.floor() as u64).min(total.ceil() as u64));
+    })?;
+    bar.finish_and_clear();
+    println!(
+        "recorded {:.1} s in {:.2} s ({:.0}x real time): {} scans, {} odometry messages, {} collisions -> {}",
+        summary.sim_seconds,
+        summary.wall_seconds,
+        summary.sim_seconds / summary.wall_seconds.max(1e-9),
+        summary.scans,
+        summary.odometry,
+        summary.collisions,
+        out.display()
+    );
+    Ok(())
 }
 
 fn world(cmd: WorldCommand) -> Result<()> {

@@ -1,0 +1,121 @@
+//! MCAP output with Foxglove's JSON schemas (LaserScan, FrameTransform, PosesInFrame), so
+//! recordings open in Foxglove and in the Rerun viewer without extra tooling.
+
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::BufWriter;
+use std::path::{Path, PathBuf};
+
+use serde_json::{Value, json};
+
+/// Errors writing an MCAP file.
+#[derive(Debug, thiserror::Error)]
+#[error("{}: cannot write MCAP: {message}", file.display())]
+pub struct McapError {
+    pub file: PathBuf,
+    pub message: String,
+}
+
+/// Writes Foxglove-schema JSON messages to an MCAP file.
+pub struct McapWriter {
+    writer: mcap::Writer<BufWriter<File>>,
+    channels: BTreeMap<String, u16>,
+    sequence: u32,
+    file: PathBuf,
+}
+
+/// A Foxglove `Time`.
+pub fn timestamp(t: f64) -> Value {
+    let sec = t.floor();
+    json!({"sec": sec as u64, "nsec": ((t - sec) * 1e9).round().min(999_999_999.0) as u64})
+}
+
+/// Quaternion (x, y, z, w) of a rotation about z.
+pub fn yaw_quaternion(yaw: f64) -> [f64; 4] {
+    [0.0, 0.0, (yaw / 2.0).sin(), (yaw / 2.0).cos()]
+}
+
+pub fn pose_json(x: f64, y: f64, z: f64, q: [f64; 4]) -> Value {
+    json!({"position": {"x": x, "y": y, "z": z}, "orientation": {"x": q[0], "y": q[1], "z": q[2], "w": q[3]}})
+}
+
+fn schema(name: &str) -> Value {
+    let time = json!({"type": "object", "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}}});
+    let vec3 = json!({"type": "object", "properties": {"x": {"type": "number"}, "y": {"type": "number"}, "z": {"type": "number"}}});
+    let quat = json!({"type": "object", "properties": {"x": {"type": "number"}, "y": {"type": "number"}, "z": {"type": "number"}, "w": {"type": "number"}}});
+    let pose = json!({"type": "object", "properties": {"position": vec3, "orientation": quat}});
+    match name {
+        "foxglove.LaserScan" => json!({
+            "title": name, "type": "object",
+            "properties": {
+                "timestamp": time, "frame_id": {"type": "string"}, "pose": pose,
+                "start_angle": {"type": "number"}, "end_angle": {"type": "number"},
+                "ranges": {"type": "array", "items": {"type": "number"}},
+                "intensities": {"type": "array", "items": {"type": "number"}}
+            }
+        }),
+        "foxglove.FrameTransform" => json!({
+            "title": name, "type": "object",
+            "properties": {
+                "timestamp": time, "parent_frame_id": {"type": "string"}, "child_frame_id": {"type": "string"},
+                "translation": vec3, "rotation": quat
+            }
+        }),
+        "foxglove.PosesInFrame" => json!({
+            "title": name, "type": "object",
+            "properties": {"timestamp": time, "frame_id": {"type": "string"}, "poses": {"type": "array", "items": pose}}
+        }),
+        "foxglove.CompressedImage" => json!({
+            "title": name, "type": "object",
+            "properties": {"timestamp": time, "frame_id": {"type": "string"}, "data": {"type": "string", "contentEncoding": "base64"}, "format": {"type": "string"}}
+        }),
+        "foxglove.CameraCalibration" => json!({
+            "title": name, "type": "object",
+            "properties": {
+                "timestamp": time, "frame_id": {"type": "string"}, "width": {"type": "integer"}, "height": {"type": "integer"},
+                "distortion_model": {"type": "string"}, "D": {"type": "array", "items": {"type": "number"}},
+                "K": {"type": "array", "items": {"type": "number"}}, "R": {"type": "array", "items": {"type": "number"}},
+                "P": {"type": "array", "items": {"type": "number"}}
+            }
+        }),
+        "foxglove.SceneUpdate" => json!({"title": name, "type": "object"}),
+        _ => json!({"title": name, "type": "object"}),
+    }
+}
+
+impl McapWriter {
+    pub fn create(path: &Path) -> Result<Self, McapError> {
+        let err = |e: &dyn std::fmt::Display| McapError { file: path.to_path_buf(), message: e.to_string() };
+        let file = File::create(path).map_err(|e| err(&e))?;
+        let writer = mcap::Writer::new(BufWriter::new(file)).map_err(|e| err(&e))?;
+        Ok(McapWriter { writer, channels: BTreeMap::new(), sequence: 0, file: path.to_path_buf() })
+    }
+
+    fn err(&self, e: &dyn std::fmt::Display) -> McapError {
+        McapError { file: self.file.clone(), message: e.to_string() }
+    }
+
+    /// Writes one message on `topic` with Foxglove schema `schema_name`, logged at `t`.
+    pub fn write(&mut self, topic: &str, schema_name: &str, t: f64, message: &Value) -> Result<(), McapError> {
+        let channel = match self.channels.get(topic) {
+            Some(&c) => c,
+            None => {
+                let data = serde_json::to_vec(&schema(schema_name)).expect("schemas serialise");
+                let schema_id = self.writer.add_schema(schema_name, "jsonschema", &data).map_err(|e| self.err(&e))?;
+                let c = self.writer.add_channel(schema_id, topic, "json", &BTreeMap::new()).map_err(|e| self.err(&e))?;
+                self.channels.insert(topic.to_string(), c);
+                c
+            }
+        };
+        self.sequence += 1;
+        let time = (t * 1e9).round() as u64;
+        let header = mcap::records::MessageHeader { channel_id: channel, sequence: self.sequence, log_time: time, publish_time: time };
+        let data = serde_json::to_vec(message).expect("JSON values serialise");
+        self.writer.write_to_known_channel(&header, &data).map_err(|e| self.err(&e))
+    }
+
+    pub fn finish(mut self) -> Result<(), McapError> {
+        self.writer.finish().map_err(|e| McapError { file: self.file.clone(), message: e.to_string() })?;
+        Ok(())
+    }
+}

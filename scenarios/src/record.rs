@@ -1,0 +1,211 @@
+//! `objslam record`: a sensor log that other SLAM systems can read (schema in the README).
+//!
+//! - `laser.jsonl`: one scan per line, like ROS LaserScan (`null` = no return);
+//! - `odometry.jsonl`: incremental odometry (t, dx, dy, dtheta) in the previous robot frame;
+//! - `ground_truth.tum`: the robot base pose in TUM format at the odometry rate;
+//! - `laser_truth.jsonl`: per scan, the instance id each beam hit (scoring only);
+//! - `sensors.json`: sensor mountings and rates; `world.toml`: the world;
+//! - `collisions.jsonl`: robot contacts; `metadata.json`: seed, configuration, versions;
+//! - `run.mcap`: the same with Foxglove schemas (LaserScan, FrameTransform, PosesInFrame).
+
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+
+use serde_json::json;
+use sim::{SensorEvent, SimConfig, Simulation};
+
+use crate::foxglove::{McapWriter, pose_json, timestamp, yaw_quaternion};
+
+/// Errors while recording.
+#[derive(Debug, thiserror::Error)]
+pub enum RecordError {
+    #[error("{}: {source}", file.display())]
+    Io { file: PathBuf, source: std::io::Error },
+    #[error(transparent)]
+    Sim(#[from] sim::SimError),
+    #[error(transparent)]
+    Mcap(#[from] crate::foxglove::McapError),
+}
+
+/// What a recording contains.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct RecordSummary {
+    pub sim_seconds: f64,
+    pub wall_seconds: f64,
+    pub scans: usize,
+    pub odometry: usize,
+    pub collisions: usize,
+}
+
+struct Out {
+    file: PathBuf,
+    w: BufWriter<File>,
+}
+
+impl Out {
+    fn create(dir: &Path, name: &str) -> Result<Self, RecordError> {
+        let file = dir.join(name);
+        let f = File::create(&file).map_err(|source| RecordError::Io { file: file.clone(), source })?;
+        Ok(Out { file, w: BufWriter::new(f) })
+    }
+
+    fn line(&mut self, s: &str) -> Result<(), RecordError> {
+        writeln!(self.w, "{s}").map_err(|source| RecordError::Io { file: self.file.clone(), source })
+    }
+
+    fn finish(mut self) -> Result<(), RecordError> {
+        self.w.flush().map_err(|source| RecordError::Io { file: self.file.clone(), source })
+    }
+}
+
+/// A TUM trajectory line: `timestamp tx ty tz qx qy qz qw`.
+pub fn tum_line(t: f64, x: f64, y: f64, yaw: f64) -> String {
+    let q = yaw_quaternion(yaw);
+    format!("{t:.6} {x:.6} {y:.6} 0.000000 {:.9} {:.9} {:.9} {:.9}", q[0], q[1], q[2], q[3])
+}
+
+/// The sensor mountings as written to `sensors.json`.
+pub fn sensors_json(config: &SimConfig) -> serde_json::Value {
+    let l = &config.laser;
+    json!({
+        "base_frame": "base_link",
+        "laser": {
+            "frame_id": "laser",
+            "parent_frame_id": "base_link",
+            "translation_m": l.mount_xyz_m,
+            "yaw_deg": l.mount_yaw_deg,
+            "fov_deg": l.fov_deg,
+            "resolution_deg": l.resolution_deg.degrees(),
+            "beams": l.beam_count(),
+            "angle_min_rad": l.angle_min_rad(),
+            "angle_increment_rad": l.angle_increment_rad(),
+            "range_min_m": l.min_range_m,
+            "range_max_m": l.max_range_m,
+            "range_noise_sigma_m": l.range_noise_sigma_m,
+            "range_quantum_m": l.quantum_m(),
+            "rate_hz": l.rate_hz
+        },
+        "odometry": {"frame_id": "base_link", "rate_hz": config.odometry.rate_hz, "error_model": config.odometry},
+        "robot": config.robot,
+    })
+}
+
+/// Records a run of `world` into `out`. `progress` is called with (sim time, nominal
+/// duration) now and then.
+pub fn record(
+    world: &worlds::World,
+    config: &SimConfig,
+    seed: u64,
+    out: &Path,
+    mut progress: impl FnMut(f64, f64),
+) -> Result<RecordSummary, RecordError> {
+    std::fs::create_dir_all(out).map_err(|source| RecordError::Io { file: out.to_path_buf(), source })?;
+    let started = std::time::Instant::now();
+    let mut sim = Simulation::new(world, config, seed)?;
+    let nominal = config.max_duration_s.unwrap_or_else(|| sim.nominal_duration_s());
+
+    let write_file = |name: &str, text: String| {
+        let file = out.join(name);
+        std::fs::write(&file, text).map_err(|source| RecordError::Io { file, source })
+    };
+    write_file("world.toml", world.to_toml())?;
+    write_file("sensors.json", serde_json::to_string_pretty(&sensors_json(config)).expect("JSON"))?;
+
+    let mut laser = Out::create(out, "laser.jsonl")?;
+    let mut laser_truth = Out::create(out, "laser_truth.jsonl")?;
+    let mut odometry = Out::create(out, "odometry.jsonl")?;
+    let mut tum = Out::create(out, "ground_truth.tum")?;
+    tum.line("# objslam ground truth: robot base pose in the world frame; timestamp tx ty tz qx qy qz qw")?;
+    let mut mcap = McapWriter::create(&out.join("run.mcap"))?;
+    let [mx, my, mz] = config.laser.mount_xyz_m;
+    let laser_q = yaw_quaternion(config.laser.mount_yaw_deg.to_radians());
+
+    let (mut scans, mut odos) = (0, 0);
+    let mut last_progress = -1.0;
+    while let Some(event) = sim.next_event() {
+        match &event {
+            SensorEvent::Odometry { odometry: o, truth } => {
+                odos += 1;
+                odometry.line(&serde_json::to_string(o).expect("JSON"))?;
+                let r = truth.robot;
+                tum.line(&tum_line(o.t, r.x, r.y, r.theta))?;
+                let q = yaw_quaternion(r.theta);
+                mcap.write(
+                    "/tf",
+                    "foxglove.FrameTransform",
+                    o.t,
+                    &json!({"timestamp": timestamp(o.t), "parent_frame_id": "world", "child_frame_id": "base_link",
+                            "translation": {"x": r.x, "y": r.y, "z": 0.0}, "rotation": {"x": q[0], "y": q[1], "z": q[2], "w": q[3]}}),
+                )?;
+                mcap.write(
+                    "/ground_truth/pose",
+                    "foxglove.PosesInFrame",
+                    o.t,
+                    &json!({"timestamp": timestamp(o.t), "frame_id": "world", "poses": [pose_json(r.x, r.y, 0.0, q)]}),
+                )?;
+            }
+            SensorEvent::Laser { scan, beams, truth } => {
+                scans += 1;
+                laser.line(&serde_json::to_string(scan).expect("JSON"))?;
+                laser_truth.line(&serde_json::to_string(&json!({"t": scan.t, "hit_ids": beams.hit_ids})).expect("JSON"))?;
+                let end = scan.angle_min + scan.angle_increment * (scan.ranges.len() as f64 - 1.0);
+                // Foxglove draws non-finite ranges as no return.
+                let ranges: Vec<f64> = scan.ranges.iter().map(|r| if r.is_finite() { *r } else { -1.0 }).collect();
+                mcap.write(
+                    "/laser",
+                    "foxglove.LaserScan",
+                    scan.t,
+                    &json!({"timestamp": timestamp(scan.t), "frame_id": "laser", "pose": pose_json(0.0, 0.0, 0.0, [0.0, 0.0, 0.0, 1.0]),
+                            "start_angle": scan.angle_min, "end_angle": end, "ranges": ranges, "intensities": []}),
+                )?;
+                if scans == 1 {
+                    mcap.write(
+                        "/tf_static",
+                        "foxglove.FrameTransform",
+                        scan.t,
+                        &json!({"timestamp": timestamp(scan.t), "parent_frame_id": "base_link", "child_frame_id": "laser",
+                                "translation": {"x": mx, "y": my, "z": mz}, "rotation": {"x": laser_q[0], "y": laser_q[1], "z": laser_q[2], "w": laser_q[3]}}),
+                    )?;
+                }
+                let people: Vec<_> = truth.people.iter().map(|p| pose_json(p.x, p.y, 0.0, yaw_quaternion(p.heading))).collect();
+                mcap.write("/ground_truth/people", "foxglove.PosesInFrame", scan.t, &json!({"timestamp": timestamp(scan.t), "frame_id": "world", "poses": people}))?;
+            }
+        }
+        let t = event.time();
+        if t - last_progress >= 1.0 {
+            progress(t, nominal);
+            last_progress = t;
+        }
+    }
+    progress(sim.time(), nominal);
+    let mut collisions = Out::create(out, "collisions.jsonl")?;
+    for c in sim.collisions() {
+        collisions.line(&serde_json::to_string(c).expect("JSON"))?;
+    }
+    collisions.finish()?;
+    for f in [laser, laser_truth, odometry, tum] {
+        f.finish()?;
+    }
+    mcap.finish()?;
+    let summary = RecordSummary {
+        sim_seconds: sim.time(),
+        wall_seconds: started.elapsed().as_secs_f64(),
+        scans,
+        odometry: odos,
+        collisions: sim.collisions().len(),
+    };
+    write_file(
+        "metadata.json",
+        serde_json::to_string_pretty(&json!({
+            "tool": "objslam record",
+            "version": env!("CARGO_PKG_VERSION"),
+            "seed": seed,
+            "world": {"name": world.name, "seed": world.seed},
+            "sim_config": config,
+            "summary": summary,
+        }))
+        .expect("JSON"),
+    )?;
+    Ok(summary)
+}
