@@ -76,7 +76,11 @@ fn main() {
 
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
-        None => anyhow::bail!("no command given; see `objslam --help`"),
+        // The main job until scenarios land: simulate the paper's park and record it.
+        None => {
+            eprintln!("no command given: recording the default park world (see `objslam --help`)");
+            record("park", 1, None, None, std::path::Path::new("runs/record-park-1"))
+        }
         Some(Command::World(cmd)) => world(cmd),
         Some(Command::Record { input, seed, duration, sim_config, out }) => record(&input, seed, duration, sim_config, &out),
     }
