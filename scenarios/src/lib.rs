@@ -12,3 +12,5 @@
 pub mod foxglove;
 pub mod plot;
 pub mod record;
+pub mod scenario;
+pub mod score;

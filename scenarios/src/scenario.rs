@@ -1,0 +1,221 @@
+//! Scenario files: which world, which sensors, which calibration and pipeline settings,
+//! and the pass criteria. A library of scenarios ships in `scenarios/*.toml` and is
+//! embedded in the binary, so `objslam run` needs nothing on disk.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+/// Errors from loading or checking a scenario.
+#[derive(Debug, thiserror::Error)]
+pub enum ScenarioError {
+    #[error("{}: cannot read: {source}", file.display())]
+    Read { file: PathBuf, source: std::io::Error },
+    #[error("{}: {message}", file.display())]
+    Parse { file: PathBuf, message: String },
+    #[error("{}: {field}: {message}", file.display())]
+    Invalid { file: PathBuf, field: String, message: String },
+    #[error("unknown scenario {name:?}: not a file and not one of the built-in scenarios ({})", available.join(", "))]
+    Unknown { name: String, available: Vec<String> },
+    #[error("{}: world: {source}", file.display())]
+    World { file: PathBuf, source: worlds::WorldError },
+}
+
+/// Where the world comes from.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WorldSource {
+    /// A generator preset (`park`)...
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub preset: Option<String>,
+    /// ... or a world file, relative to the scenario file.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub file: Option<String>,
+    /// Seed of the generated world; absent: the world seed follows the run seed, so a
+    /// Monte Carlo study also varies the world.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub seed: Option<u64>,
+    /// Generator parameters overriding the preset's defaults.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub params: Option<worlds::generate::ParkParams>,
+}
+
+/// The calibration (laser <- camera extrinsics) the pipeline is given.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CalibrationChoice {
+    /// `true`: the simulator's exact extrinsics; `perturbed`: the true ones with seeded
+    /// errors of the sigmas below; `estimated`: run the Zhang & Pless calibration first;
+    /// anything else: a `calibration.json` file path.
+    pub mode: String,
+    #[serde(default)]
+    pub rotation_sigma_deg: f64,
+    #[serde(default)]
+    pub translation_sigma_m: f64,
+}
+
+impl Default for CalibrationChoice {
+    fn default() -> Self {
+        CalibrationChoice { mode: "true".into(), rotation_sigma_deg: 0.0, translation_sigma_m: 0.0 }
+    }
+}
+
+/// Criteria a run must meet to pass; absent criteria are not checked.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PassCriteria {
+    pub max_wrong_associations: Option<usize>,
+    /// Landmarks on posts, palms, people, walls or nothing.
+    pub max_false_landmarks: Option<usize>,
+    /// For baseline scenarios that must reproduce a failure: at least this many landmarks
+    /// on things that are not trees.
+    pub min_false_landmarks: Option<usize>,
+    pub max_duplicate_landmarks: Option<usize>,
+    /// Fraction of trees seen that must be mapped.
+    pub min_tree_recall: Option<f64>,
+    pub max_ate_rmse_m: Option<f64>,
+    pub max_landmark_rmse_m: Option<f64>,
+    pub max_collisions: Option<usize>,
+}
+
+/// A scenario file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Scenario {
+    pub name: String,
+    #[serde(default)]
+    pub description: String,
+    /// Default run seed (`--seed` overrides).
+    #[serde(default = "default_seed")]
+    pub seed: u64,
+    pub world: WorldSource,
+    /// Simulator settings: robot, laser, odometry noise, duration.
+    #[serde(default)]
+    pub sim: sim::SimConfig,
+    #[serde(default)]
+    pub calibration: CalibrationChoice,
+    /// Pipeline settings (association method, thresholds, model), passed to the runner.
+    #[serde(default)]
+    pub pipeline: toml::Table,
+    #[serde(default)]
+    pub pass: PassCriteria,
+}
+
+fn default_seed() -> u64 {
+    1
+}
+
+/// The built-in scenario library, embedded at compile time.
+pub const LIBRARY: &[(&str, &str)] = &[
+    ("paper_park", include_str!("../paper_park.toml")),
+    ("posts_near_trees", include_str!("../posts_near_trees.toml")),
+    ("crowd", include_str!("../crowd.toml")),
+    ("long_loop", include_str!("../long_loop.toml")),
+    ("laser_only", include_str!("../laser_only.toml")),
+];
+
+/// The default scenario of `objslam run`.
+pub const DEFAULT_SCENARIO: &str = "paper_park";
+
+impl Scenario {
+    /// Parses and checks scenario text; `file` names it in errors.
+    pub fn parse(text: &str, file: &Path) -> Result<Scenario, ScenarioError> {
+        let s: Scenario = toml::from_str(text).map_err(|e| ScenarioError::Parse { file: file.to_path_buf(), message: e.to_string().trim_end().to_string() })?;
+        s.check(file)?;
+        Ok(s)
+    }
+
+    /// Loads a scenario by file path or built-in name. Returns it with its base directory.
+    pub fn load(name_or_path: &str) -> Result<(Scenario, PathBuf), ScenarioError> {
+        let path = Path::new(name_or_path);
+        if path.exists() {
+            let text = std::fs::read_to_string(path).map_err(|source| ScenarioError::Read { file: path.to_path_buf(), source })?;
+            let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
+            return Ok((Scenario::parse(&text, path)?, base));
+        }
+        let key = name_or_path.trim_end_matches(".toml");
+        match LIBRARY.iter().find(|(n, _)| *n == key) {
+            Some((n, text)) => Ok((Scenario::parse(text, Path::new(&format!("<built-in>/{n}.toml")))?, PathBuf::from("."))),
+            None => Err(ScenarioError::Unknown { name: name_or_path.into(), available: LIBRARY.iter().map(|(n, _)| n.to_string()).collect() }),
+        }
+    }
+
+    fn check(&self, file: &Path) -> Result<(), ScenarioError> {
+        let bad = |field: &str, message: String| Err(ScenarioError::Invalid { file: file.to_path_buf(), field: field.into(), message });
+        match (&self.world.preset, &self.world.file) {
+            (Some(_), Some(_)) => return bad("world", "give either `preset` or `file`, not both".into()),
+            (None, None) => return bad("world", "needs `preset` (e.g. \"park\") or `file`".into()),
+            (Some(p), None) if !worlds::generate::PRESETS.contains(&p.as_str()) => {
+                return bad("world.preset", format!("unknown preset {p:?}; available: {}", worlds::generate::PRESETS.join(", ")));
+            }
+            (None, Some(_)) if self.world.params.is_some() => return bad("world.params", "generator parameters only apply to a preset".into()),
+            _ => {}
+        }
+        if let Some(p) = &self.world.params
+            && let Err(e) = p.check()
+        {
+            return bad("world.params", e.to_string());
+        }
+        if let Err(e) = self.sim.check() {
+            return bad("sim", e.to_string());
+        }
+        match self.calibration.mode.as_str() {
+            "true" | "estimated" => {}
+            "perturbed" => {
+                if !(self.calibration.rotation_sigma_deg >= 0.0 && self.calibration.translation_sigma_m >= 0.0) {
+                    return bad("calibration", "perturbation sigmas must be zero or positive".into());
+                }
+            }
+            _ => {}
+        }
+        if let Some(r) = self.pass.min_tree_recall
+            && !(0.0..=1.0).contains(&r)
+        {
+            return bad("pass.min_tree_recall", format!("must be in [0, 1], got {r}"));
+        }
+        Ok(())
+    }
+
+    /// Builds the world for a run seed.
+    pub fn world(&self, base_dir: &Path, run_seed: u64) -> Result<worlds::World, ScenarioError> {
+        let file = base_dir.join(format!("{}.toml", self.name));
+        if let Some(preset) = &self.world.preset {
+            worlds::generate::preset(preset, self.world.params.as_ref(), self.world.seed.unwrap_or(run_seed))
+                .map_err(|source| ScenarioError::World { file, source })
+        } else {
+            let path = base_dir.join(self.world.file.as_deref().unwrap_or_default());
+            worlds::load(&path).map_err(|source| ScenarioError::World { file, source })
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_library_scenario_parses_and_builds_its_world() {
+        for (name, _) in LIBRARY {
+            let (s, base) = Scenario::load(name).unwrap();
+            assert_eq!(&s.name, name);
+            s.world(&base, s.seed).unwrap();
+        }
+    }
+
+    #[test]
+    fn malformed_scenarios_get_clear_errors() {
+        let f = Path::new("bad.toml");
+        let e = Scenario::parse("name = \"x\"\n[world]\npreset = \"jungle\"\n", f).unwrap_err().to_string();
+        assert!(e.contains("bad.toml") && e.contains("world.preset") && e.contains("jungle"), "{e}");
+        let e = Scenario::parse("name = \"x\"\n[world]\n", f).unwrap_err().to_string();
+        assert!(e.contains("needs `preset`"), "{e}");
+        let e = Scenario::parse("name = \"x\"\n[world]\npreset = \"park\"\n[sim.laser]\nrate_hz = -1.0\n", f).unwrap_err().to_string();
+        assert!(e.contains("laser.rate_hz"), "{e}");
+        let e = Scenario::parse("name = \"x\"\n[world]\npreset = \"park\"\n[pass]\nmin_tree_recall = 2.0\n", f).unwrap_err().to_string();
+        assert!(e.contains("min_tree_recall"), "{e}");
+        let e = Scenario::parse("name = \"x\"\nwrld = 3\n", f).unwrap_err().to_string();
+        assert!(e.contains("wrld") && e.contains("line"), "{e}");
+        let e = Scenario::load("no_such_scenario").unwrap_err().to_string();
+        assert!(e.contains("paper_park"), "{e}");
+    }
+}

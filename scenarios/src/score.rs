@@ -1,0 +1,204 @@
+//! Scoring against ground truth: trajectory error, landmark error after optimal
+//! assignment, map content per class, wrong associations, duplicates, NEES.
+
+use serde::{Deserialize, Serialize};
+
+/// Root-mean-square of the position differences of time-aligned pose pairs (ATE without
+/// alignment: both trajectories live in the world frame, starting from the same pose).
+pub fn ate_rmse(estimate: &[[f64; 2]], truth: &[[f64; 2]]) -> f64 {
+    let n = estimate.len().min(truth.len());
+    if n == 0 {
+        return f64::NAN;
+    }
+    let s: f64 = (0..n).map(|i| (estimate[i][0] - truth[i][0]).powi(2) + (estimate[i][1] - truth[i][1]).powi(2)).sum();
+    (s / n as f64).sqrt()
+}
+
+/// Minimum-cost assignment of rows to columns (rows <= columns or not; unassigned rows get
+/// `None`), by the Hungarian algorithm (Kuhn-Munkres, O(n^3)). Costs must be finite.
+pub fn hungarian(cost: &[Vec<f64>]) -> Vec<Option<usize>> {
+    let rows = cost.len();
+    if rows == 0 {
+        return vec![];
+    }
+    let cols = cost[0].len();
+    if cols == 0 {
+        return vec![None; rows];
+    }
+    // Square the problem with a large cost for dummy cells.
+    let n = rows.max(cols);
+    let big = cost.iter().flatten().fold(0.0f64, |m, &c| m.max(c.abs())) * 10.0 + 1.0;
+    let c = |i: usize, j: usize| if i < rows && j < cols { cost[i][j] } else { big };
+    // Potentials formulation with 1-based indices (row 0 / column 0 are sentinels).
+    let mut u = vec![0.0; n + 1];
+    let mut v = vec![0.0; n + 1];
+    let mut p = vec![0usize; n + 1];
+    let mut way = vec![0usize; n + 1];
+    for i in 1..=n {
+        p[0] = i;
+        let mut j0 = 0;
+        let mut minv = vec![f64::INFINITY; n + 1];
+        let mut used = vec![false; n + 1];
+        loop {
+            used[j0] = true;
+            let i0 = p[j0];
+            let mut delta = f64::INFINITY;
+            let mut j1 = 0;
+            for j in 1..=n {
+                if !used[j] {
+                    let cur = c(i0 - 1, j - 1) - u[i0] - v[j];
+                    if cur < minv[j] {
+                        minv[j] = cur;
+                        way[j] = j0;
+                    }
+                    if minv[j] < delta {
+                        delta = minv[j];
+                        j1 = j;
+                    }
+                }
+            }
+            for j in 0..=n {
+                if used[j] {
+                    u[p[j]] += delta;
+                    v[j] -= delta;
+                } else {
+                    minv[j] -= delta;
+                }
+            }
+            j0 = j1;
+            if p[j0] == 0 {
+                break;
+            }
+        }
+        loop {
+            let j1 = way[j0];
+            p[j0] = p[j1];
+            j0 = j1;
+            if j0 == 0 {
+                break;
+            }
+        }
+    }
+    let mut result = vec![None; rows];
+    for j in 1..=n {
+        let i = p[j];
+        if i >= 1 && i <= rows && j <= cols {
+            result[i - 1] = Some(j - 1);
+        }
+    }
+    result
+}
+
+/// Counts of mapped landmarks by the class of the object they truly belong to.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct MapContent {
+    /// Trees the robot's laser hit at least once.
+    pub trees_seen: usize,
+    /// Distinct trees with at least one landmark on them.
+    pub trees_mapped: usize,
+    pub posts: usize,
+    pub palms: usize,
+    pub people: usize,
+    pub walls: usize,
+    /// Landmarks on nothing at all (spurious).
+    pub nothing: usize,
+}
+
+/// Association outcome counts.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct AssociationCounts {
+    /// Observations associated with an existing landmark.
+    pub total: usize,
+    /// Of those, ones whose true object differs from the landmark's object.
+    pub wrong: usize,
+}
+
+/// Wilson score interval for a binomial proportion (95% for z = 1.96).
+pub fn wilson_interval(successes: usize, n: usize, z: f64) -> (f64, f64) {
+    if n == 0 {
+        return (0.0, 1.0);
+    }
+    let n_f = n as f64;
+    let p = successes as f64 / n_f;
+    let denom = 1.0 + z * z / n_f;
+    let centre = (p + z * z / (2.0 * n_f)) / denom;
+    let half = z * ((p * (1.0 - p) / n_f) + z * z / (4.0 * n_f * n_f)).sqrt() / denom;
+    ((centre - half).max(0.0), (centre + half).min(1.0))
+}
+
+/// Normalised estimation error squared of a pose error `e` (x, y, theta) with covariance
+/// `p` (3x3 row-major); `None` if `p` is not positive definite.
+pub fn nees3(e: [f64; 3], p: [[f64; 3]; 3]) -> Option<f64> {
+    // Solve P x = e by Cholesky.
+    let mut l = [[0.0f64; 3]; 3];
+    for i in 0..3 {
+        for j in 0..=i {
+            let mut s = p[i][j];
+            for k in 0..j {
+                s -= l[i][k] * l[j][k];
+            }
+            if i == j {
+                if s <= 0.0 {
+                    return None;
+                }
+                l[i][i] = s.sqrt();
+            } else {
+                l[i][j] = s / l[j][j];
+            }
+        }
+    }
+    let mut y = [0.0; 3];
+    for i in 0..3 {
+        let mut s = e[i];
+        for k in 0..i {
+            s -= l[i][k] * y[k];
+        }
+        y[i] = s / l[i][i];
+    }
+    Some(y.iter().map(|v| v * v).sum())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn hungarian_finds_the_optimal_assignment() {
+        let cost = vec![vec![4.0, 1.0, 3.0], vec![2.0, 0.0, 5.0], vec![3.0, 2.0, 2.0]];
+        let a = hungarian(&cost);
+        let total: f64 = a.iter().enumerate().map(|(i, j)| cost[i][j.unwrap()]).sum();
+        assert_eq!(total, 5.0); // 1 + 2 + 2
+        // Brute force over all permutations agrees.
+        let perms = [[0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]];
+        let best = perms.iter().map(|p| (0..3).map(|i| cost[i][p[i]]).sum::<f64>()).fold(f64::INFINITY, f64::min);
+        assert_eq!(total, best);
+    }
+
+    #[test]
+    fn hungarian_handles_rectangular_problems() {
+        let cost = vec![vec![1.0, 9.0], vec![9.0, 1.0], vec![5.0, 5.0]];
+        let a = hungarian(&cost);
+        assert_eq!(a.iter().filter(|x| x.is_some()).count(), 2);
+        assert_eq!(a[0], Some(0));
+        assert_eq!(a[1], Some(1));
+        assert_eq!(a[2], None);
+    }
+
+    #[test]
+    fn wilson_interval_contains_the_proportion() {
+        let (lo, hi) = wilson_interval(5, 100, 1.96);
+        assert!(lo < 0.05 && hi > 0.05 && lo > 0.0 && hi < 0.15);
+        let (lo, hi) = wilson_interval(0, 20, 1.96);
+        assert_eq!(lo, 0.0);
+        assert!(hi > 0.1 && hi < 0.2);
+    }
+
+    #[test]
+    fn nees_of_identity_covariance_is_squared_norm() {
+        let n = nees3([1.0, 2.0, 2.0], [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]).unwrap();
+        assert!((n - 9.0).abs() < 1e-12);
+        let n = nees3([2.0, 0.0, 0.0], [[4.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]).unwrap();
+        assert!((n - 1.0).abs() < 1e-12);
+        assert!(nees3([1.0, 0.0, 0.0], [[0.0; 3]; 3]).is_none());
+    }
+}
