@@ -8,4 +8,5 @@
 //! - online phase: [`clustering`] (laser), [`segmentation`] (laser-camera), [`object_model`],
 //!   [`kl`] and [`association`] (KL, NN, JCBB), [`ekf`] (EKF-SLAM).
 
+pub mod calibration;
 pub mod gmm;
