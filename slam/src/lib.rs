@@ -9,4 +9,6 @@
 //!   [`kl`] and [`association`] (KL, NN, JCBB), [`ekf`] (EKF-SLAM).
 
 pub mod calibration;
+pub mod ekf;
 pub mod gmm;
+pub mod messages;

@@ -1,0 +1,190 @@
+//! EKF-SLAM over the robot pose (x, y, theta) and 2-D point landmarks.
+//!
+//! State layout: `[x, y, theta, l1x, l1y, l2x, l2y, ...]`. Prediction touches only the
+//! robot block and its cross-covariances (O(n)); an update uses the sparsity of the
+//! observation Jacobian (O(n²) per observation). Updates are in Joseph form (expanded as
+//! `P - K(HP) - (HP)ᵀKᵀ + K S Kᵀ`, which equals `(I-KH)P(I-KH)ᵀ + KRKᵀ` for any gain
+//! and costs O(n²)), followed by symmetrisation.
+
+pub mod motion;
+pub mod observation;
+
+use nalgebra::{DMatrix, DVector, Matrix2, Matrix3, Vector2, Vector3};
+use serde::{Deserialize, Serialize};
+
+pub use motion::{AckermannMotionModel, MotionModel, OdometryMotionModel};
+pub use observation::RangeBearingModel;
+
+use crate::messages::wrap_angle;
+
+/// Errors from the filter.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum EkfError {
+    #[error("innovation covariance is not positive definite")]
+    NotPositiveDefinite,
+    #[error("no landmark with index {0}")]
+    UnknownLandmark(usize),
+    #[error("observation is not finite")]
+    NonFinite,
+}
+
+/// The filter state.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Ekf {
+    pub x: DVector<f64>,
+    pub p: DMatrix<f64>,
+}
+
+impl Ekf {
+    /// A filter at `pose` with covariance `pose_cov` and no landmarks.
+    pub fn new(pose: Vector3<f64>, pose_cov: Matrix3<f64>) -> Self {
+        let mut p = DMatrix::zeros(3, 3);
+        p.view_mut((0, 0), (3, 3)).copy_from(&pose_cov);
+        Ekf { x: DVector::from_column_slice(pose.as_slice()), p }
+    }
+
+    pub fn landmark_count(&self) -> usize {
+        (self.x.len() - 3) / 2
+    }
+
+    pub fn pose(&self) -> Vector3<f64> {
+        Vector3::new(self.x[0], self.x[1], self.x[2])
+    }
+
+    pub fn pose_covariance(&self) -> Matrix3<f64> {
+        self.p.fixed_view::<3, 3>(0, 0).into_owned()
+    }
+
+    pub fn landmark(&self, i: usize) -> Vector2<f64> {
+        Vector2::new(self.x[3 + 2 * i], self.x[4 + 2 * i])
+    }
+
+    pub fn landmark_covariance(&self, i: usize) -> Matrix2<f64> {
+        self.p.fixed_view::<2, 2>(3 + 2 * i, 3 + 2 * i).into_owned()
+    }
+
+    /// Prediction with a motion model and its control.
+    pub fn predict(&mut self, model: &dyn MotionModel, control: &[f64]) {
+        let (next, f, q) = model.predict(&self.pose(), control);
+        self.x[0] = next.x;
+        self.x[1] = next.y;
+        self.x[2] = next.z;
+        let n = self.x.len();
+        let prr = self.pose_covariance();
+        let new_rr = f * prr * f.transpose() + q;
+        self.p.fixed_view_mut::<3, 3>(0, 0).copy_from(&new_rr);
+        if n > 3 {
+            let prl = self.p.view((0, 3), (3, n - 3)).into_owned();
+            let new_rl = f * prl;
+            self.p.view_mut((0, 3), (3, n - 3)).copy_from(&new_rl);
+            self.p.view_mut((3, 0), (n - 3, 3)).copy_from(&new_rl.transpose());
+        }
+    }
+
+    /// Predicted observation of landmark `i`, its Jacobians (robot 2x3, landmark 2x2) and
+    /// innovation covariance `S`.
+    pub fn predict_observation(&self, model: &RangeBearingModel, i: usize) -> (Vector2<f64>, nalgebra::Matrix2x3<f64>, Matrix2<f64>, Matrix2<f64>) {
+        let (z, hr, hl) = model.observe(&self.pose(), &self.landmark(i));
+        let li = 3 + 2 * i;
+        let prr = self.pose_covariance();
+        let pll = self.landmark_covariance(i);
+        let prl = self.p.fixed_view::<3, 2>(0, li).into_owned();
+        let s = hr * prr * hr.transpose() + hr * prl * hl.transpose() + hl * prl.transpose() * hr.transpose() + hl * pll * hl.transpose() + model.noise();
+        (z, hr, hl, s)
+    }
+
+    /// Squared Mahalanobis distance of observation `z` to landmark `i`.
+    pub fn mahalanobis2(&self, model: &RangeBearingModel, i: usize, z: &Vector2<f64>) -> f64 {
+        let (zp, _, _, s) = self.predict_observation(model, i);
+        let nu = Vector2::new(z.x - zp.x, wrap_angle(z.y - zp.y));
+        match s.try_inverse() {
+            Some(si) => (nu.transpose() * si * nu)[(0, 0)],
+            None => f64::INFINITY,
+        }
+    }
+
+    /// Updates with observation `z` (range, bearing) of landmark `i`.
+    pub fn update(&mut self, model: &RangeBearingModel, i: usize, z: &Vector2<f64>) -> Result<(), EkfError> {
+        if i >= self.landmark_count() {
+            return Err(EkfError::UnknownLandmark(i));
+        }
+        if !(z.x.is_finite() && z.y.is_finite()) {
+            return Err(EkfError::NonFinite);
+        }
+        let (zp, hr, hl, s) = self.predict_observation(model, i);
+        let nu = Vector2::new(z.x - zp.x, wrap_angle(z.y - zp.y));
+        let li = 3 + 2 * i;
+        let n = self.x.len();
+        // P Hᵀ from the five columns H touches.
+        let mut pht = DMatrix::zeros(n, 2);
+        for r in 0..n {
+            for k in 0..2 {
+                let mut acc = 0.0;
+                for c in 0..3 {
+                    acc += self.p[(r, c)] * hr[(k, c)];
+                }
+                for c in 0..2 {
+                    acc += self.p[(r, li + c)] * hl[(k, c)];
+                }
+                pht[(r, k)] = acc;
+            }
+        }
+        let s_chol = s.cholesky().ok_or(EkfError::NotPositiveDefinite)?;
+        let s_inv = s_chol.inverse();
+        let k = &pht * s_inv; // n x 2
+        self.x += &k * nu;
+        self.x[2] = wrap_angle(self.x[2]);
+        // Joseph form, expanded: P - K (HP) - (HP)ᵀ Kᵀ + K S Kᵀ, with HP = (PHᵀ)ᵀ.
+        let ks = &k * s; // n x 2
+        let ht_p = pht.transpose(); // 2 x n
+        // P -= K HP + PHᵀ Kᵀ - K S Kᵀ, using rank-2 updates.
+        self.p.gemm(-1.0, &k, &ht_p, 1.0);
+        self.p.gemm(-1.0, &pht, &k.transpose(), 1.0);
+        self.p.gemm(1.0, &ks, &k.transpose(), 1.0);
+        self.symmetrise();
+        Ok(())
+    }
+
+    /// Adds a landmark from observation `z` with full cross-covariances; returns its index.
+    pub fn add_landmark(&mut self, model: &RangeBearingModel, z: &Vector2<f64>) -> usize {
+        let (l, gr, gz) = model.inverse(&self.pose(), z);
+        let n = self.x.len();
+        let mut x = DVector::zeros(n + 2);
+        x.rows_mut(0, n).copy_from(&self.x);
+        x[n] = l.x;
+        x[n + 1] = l.y;
+        let mut p = DMatrix::zeros(n + 2, n + 2);
+        p.view_mut((0, 0), (n, n)).copy_from(&self.p);
+        // P_lx = Gr P_rx ; P_ll = Gr P_rr Grᵀ + Gz R Gzᵀ.
+        let prx = self.p.view((0, 0), (3, n)).into_owned();
+        let plx = gr * prx;
+        p.view_mut((n, 0), (2, n)).copy_from(&plx);
+        p.view_mut((0, n), (n, 2)).copy_from(&plx.transpose());
+        let pll = gr * self.pose_covariance() * gr.transpose() + gz * model.noise() * gz.transpose();
+        p.view_mut((n, n), (2, 2)).copy_from(&pll);
+        self.x = x;
+        self.p = p;
+        self.landmark_count() - 1
+    }
+
+    /// Removes landmark `i` (its rows and columns), shifting later indices down.
+    pub fn remove_landmark(&mut self, i: usize) {
+        let li = 3 + 2 * i;
+        self.x = self.x.clone().remove_rows(li, 2);
+        self.p = self.p.clone().remove_rows(li, 2).remove_columns(li, 2);
+    }
+
+    fn symmetrise(&mut self) {
+        let n = self.p.nrows();
+        for r in 0..n {
+            for c in (r + 1)..n {
+                let m = 0.5 * (self.p[(r, c)] + self.p[(c, r)]);
+                self.p[(r, c)] = m;
+                self.p[(c, r)] = m;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;
