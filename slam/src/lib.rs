@@ -9,6 +9,7 @@
 //!   [`kl`] and [`association`] (KL, NN, JCBB), [`ekf`] (EKF-SLAM).
 
 pub mod calibration;
+pub mod clustering;
 pub mod ekf;
 pub mod gmm;
 pub mod messages;
