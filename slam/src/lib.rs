@@ -8,6 +8,7 @@
 //! - online phase: [`clustering`] (laser), [`segmentation`] (laser-camera), [`object_model`],
 //!   [`kl`] and [`association`] (KL, NN, JCBB), [`ekf`] (EKF-SLAM).
 
+pub mod association;
 pub mod calibration;
 pub mod clustering;
 pub mod ekf;
