@@ -12,5 +12,6 @@
 pub mod foxglove;
 pub mod plot;
 pub mod record;
+pub mod run;
 pub mod scenario;
 pub mod score;

@@ -18,6 +18,20 @@ enum Command {
     /// Generate, check, export and plot worlds.
     #[command(subcommand)]
     World(WorldCommand),
+    /// Run a scenario (default: the paper's experiment) and score it against ground truth.
+    Run {
+        /// A scenario file or built-in name (paper_park, posts_near_trees, crowd,
+        /// long_loop, laser_only).
+        scenario: Option<String>,
+        #[arg(long)]
+        seed: Option<u64>,
+        /// Association method: combined (the paper), nn, jcbb or appearance.
+        #[arg(long)]
+        method: Option<String>,
+        /// Output directory (default runs/<scenario>-<seed>).
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
     /// Simulate a world and write a sensor log (JSON lines, TUM, MCAP) that other SLAM
     /// systems can read.
     Record {
@@ -76,12 +90,14 @@ fn main() {
 
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
-        // The main job until scenarios land: simulate the paper's park and record it.
+        // The main job. The paper's default scenario needs the camera pipeline, which is
+        // not built yet; until then run the position-only baseline on the paper's world.
         None => {
-            eprintln!("no command given: recording the default park world (see `objslam --help`)");
-            record("park", 1, None, None, std::path::Path::new("runs/record-park-1"))
+            eprintln!("no command given: running the built-in scenario laser_only (see `objslam --help`)");
+            run_scenario(Some("laser_only"), None, None, None)
         }
         Some(Command::World(cmd)) => world(cmd),
+        Some(Command::Run { scenario, seed, method, out }) => run_scenario(scenario.as_deref(), seed, method.as_deref(), out),
         Some(Command::Record { input, seed, duration, sim_config, out }) => record(&input, seed, duration, sim_config, &out),
     }
 }
@@ -104,6 +120,32 @@ fn progress_bar(len: u64, what: &str) -> indicatif::ProgressBar {
     );
     bar.set_message(what.to_string());
     bar
+}
+
+fn parse_method(name: &str) -> Result<slam::association::AssociationMethod> {
+    slam::association::AssociationMethod::from_name(name)
+        .ok_or_else(|| anyhow::anyhow!("unknown method {name:?}; use one of combined, nn, jcbb, appearance"))
+}
+
+fn run_scenario(scenario: Option<&str>, seed: Option<u64>, method: Option<&str>, out: Option<PathBuf>) -> Result<()> {
+    let name = scenario.unwrap_or(scenarios::scenario::DEFAULT_SCENARIO);
+    let (sc, base) = scenarios::scenario::Scenario::load(name)?;
+    let method = method.map(parse_method).transpose()?;
+    let seed = seed.unwrap_or(sc.seed);
+    let out = out.unwrap_or_else(|| PathBuf::from(format!("runs/{}-{seed}", sc.name)));
+    let bar = progress_bar(0, &format!("running {}", sc.name));
+    let options = scenarios::run::RunOptions { seed: Some(seed), method, out: Some(out.clone()) };
+    let outcome = scenarios::run::run(&sc, &base, &options, |t, total| {
+        bar.set_length(total.ceil() as u64);
+        bar.set_position((t.floor() as u64).min(total.ceil() as u64));
+    })?;
+    bar.finish_and_clear();
+    print!("{}", scenarios::run::summary_table(&outcome.metrics));
+    println!("  outputs in {}", out.display());
+    if !outcome.metrics.passed {
+        std::process::exit(1);
+    }
+    Ok(())
 }
 
 fn record(input: &str, seed: u64, duration: Option<f64>, sim_config: Option<PathBuf>, out: &std::path::Path) -> Result<()> {

@@ -14,3 +14,4 @@ pub mod clustering;
 pub mod ekf;
 pub mod gmm;
 pub mod messages;
+pub mod pipeline;

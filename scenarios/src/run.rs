@@ -1,0 +1,442 @@
+//! The runner: feeds the simulator's stream into the online pipeline, scores the result
+//! against ground truth and writes the run's outputs.
+
+use std::collections::{BTreeMap, HashMap};
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+use serde_json::json;
+use sim::{SensorEvent, Simulation};
+use slam::association::AssociationMethod;
+use slam::pipeline::{Pipeline, PipelineConfig};
+use worlds::ObjectClass;
+
+use crate::scenario::{Scenario, ScenarioError};
+use crate::score::{self, AssociationCounts, MapContent};
+
+/// Errors of a run.
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    #[error(transparent)]
+    Scenario(#[from] ScenarioError),
+    #[error(transparent)]
+    Sim(#[from] sim::SimError),
+    #[error("{}: pipeline settings: {message}", file.display())]
+    Pipeline { file: PathBuf, message: String },
+    #[error("method {method}: {message}")]
+    Method { method: String, message: String },
+    #[error("{}: {source}", file.display())]
+    Io { file: PathBuf, source: std::io::Error },
+    #[error(transparent)]
+    Plot(#[from] crate::plot::PlotError),
+    #[error(transparent)]
+    Mcap(#[from] crate::foxglove::McapError),
+}
+
+/// Segmentation quality against the rendered masks (absent without a camera).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct SegmentationScore {
+    pub precision: Option<f64>,
+    pub recall: Option<f64>,
+}
+
+/// Everything `metrics.json` holds. Field meanings are documented in the README.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Metrics {
+    pub scenario: String,
+    pub seed: u64,
+    pub method: String,
+    pub sim_seconds: f64,
+    pub wall_seconds: f64,
+    pub realtime_factor: f64,
+    pub ate_rmse_m: f64,
+    pub landmark_rmse_m: Option<f64>,
+    pub map: MapContent,
+    pub landmarks: usize,
+    pub associations: AssociationCounts,
+    pub duplicate_landmarks: usize,
+    /// Landmarks on posts, palms, people, walls or nothing.
+    pub false_landmarks: usize,
+    pub segmentation: SegmentationScore,
+    /// Average NEES of the robot pose over the run (3 dof: consistent near 3).
+    pub anees: f64,
+    pub collisions: usize,
+    pub route_completed: bool,
+    pub passed: bool,
+    /// Which pass criteria failed, in words.
+    pub failures: Vec<String>,
+}
+
+/// Options of one run.
+#[derive(Debug, Clone, Default)]
+pub struct RunOptions {
+    pub seed: Option<u64>,
+    pub method: Option<AssociationMethod>,
+    /// Where to write outputs; `None` writes nothing (Monte Carlo runs).
+    pub out: Option<PathBuf>,
+}
+
+/// Result of a run, with what the reports need.
+pub struct RunOutcome {
+    pub metrics: Metrics,
+    pub resolved: serde_json::Value,
+}
+
+/// Which object a cluster truly belongs to: the most frequent instance id of its beams
+/// (0 if the beams hit nothing known).
+fn true_object(hit_ids: &[u16], first: usize, last: usize) -> u16 {
+    let mut counts: BTreeMap<u16, usize> = BTreeMap::new();
+    for &id in &hit_ids[first..=last] {
+        *counts.entry(id).or_default() += 1;
+    }
+    counts.into_iter().max_by_key(|(id, n)| (*n, *id != 0)).map(|(id, _)| id).unwrap_or(0)
+}
+
+/// Resolves the pipeline settings of a scenario, with a method override.
+pub fn pipeline_config(scenario: &Scenario, method: Option<AssociationMethod>) -> Result<PipelineConfig, RunError> {
+    let file = PathBuf::from(format!("{}.toml", scenario.name));
+    let mut config: PipelineConfig = scenario
+        .pipeline
+        .clone()
+        .try_into()
+        .map_err(|e: toml::de::Error| RunError::Pipeline { file, message: e.to_string() })?;
+    if let Some(m) = method {
+        config.method = m;
+    }
+    // The laser's mounting is known to the robot: the observation model uses it.
+    config.sensor.mount_x = scenario.sim.laser.mount_xyz_m[0];
+    config.sensor.mount_y = scenario.sim.laser.mount_xyz_m[1];
+    Ok(config)
+}
+
+/// Runs a scenario once.
+pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progress: impl FnMut(f64, f64)) -> Result<RunOutcome, RunError> {
+    let seed = options.seed.unwrap_or(scenario.seed);
+    let config = pipeline_config(scenario, options.method)?;
+    if config.method.uses_appearance() {
+        return Err(RunError::Method {
+            method: config.method.name().into(),
+            message: "needs the camera and appearance models, which this build does not have yet; use --method nn or --method jcbb".into(),
+        });
+    }
+    let world = scenario.world(base_dir, seed)?;
+    let started = std::time::Instant::now();
+    let mut sim = Simulation::new(&world, &scenario.sim, sim::derive_seed(seed, "sim"))?;
+    let nominal = scenario.sim.max_duration_s.unwrap_or_else(|| sim.nominal_duration_s());
+    let start = world.robot.start;
+    let mut pipeline = Pipeline::new(config.clone(), [start.x, start.y, start.yaw_rad()]);
+
+    let mut est_path: Vec<(f64, [f64; 3])> = Vec::new();
+    let mut gt_path: Vec<(f64, [f64; 3])> = Vec::new();
+    let mut nees_sum = 0.0;
+    let mut nees_n = 0usize;
+    // Per landmark id: the true object of each observation.
+    let mut landmark_objects: HashMap<u32, Vec<u16>> = HashMap::new();
+    // Existing-landmark associations: (landmark id, true object of the observation).
+    let mut associations: Vec<(u32, u16)> = Vec::new();
+    let mut trees_seen: std::collections::BTreeSet<u16> = Default::default();
+    let mut people_tracks: BTreeMap<u16, Vec<[f64; 2]>> = BTreeMap::new();
+    let tree_ids: std::collections::BTreeSet<u16> = world.objects.iter().filter(|o| o.class == ObjectClass::Tree).map(|o| o.id).collect();
+    let mut last_progress = -1.0;
+
+    while let Some(event) = sim.next_event() {
+        match &event {
+            SensorEvent::Odometry { odometry, truth } => {
+                pipeline.on_odometry(&slam::messages::OdometryIncrement { t: odometry.t, dx: odometry.dx, dy: odometry.dy, dtheta: odometry.dtheta });
+                let est = pipeline.pose();
+                let r = truth.robot;
+                est_path.push((odometry.t, est.pose));
+                gt_path.push((odometry.t, [r.x, r.y, r.theta]));
+                let e = [est.pose[0] - r.x, est.pose[1] - r.y, sim::wrap_angle(est.pose[2] - r.theta)];
+                if let Some(n) = score::nees3(e, est.covariance) {
+                    nees_sum += n;
+                    nees_n += 1;
+                }
+            }
+            SensorEvent::Laser { scan, beams, truth } => {
+                let s = slam::messages::LaserScan {
+                    t: scan.t,
+                    angle_min: scan.angle_min,
+                    angle_increment: scan.angle_increment,
+                    range_min: scan.range_min,
+                    range_max: scan.range_max,
+                    ranges: scan.ranges.clone(),
+                };
+                let result = pipeline.on_scan(&s);
+                for (ci, c) in result.clusters.iter().enumerate() {
+                    let obj = true_object(&beams.hit_ids, c.first_beam, c.last_beam);
+                    if tree_ids.contains(&obj) {
+                        trees_seen.insert(obj);
+                    }
+                    if let Some(id) = result.assigned[ci] {
+                        let objs = landmark_objects.entry(id).or_default();
+                        if !objs.is_empty() {
+                            associations.push((id, obj));
+                        }
+                        objs.push(obj);
+                    }
+                }
+                // Trees the laser could have clustered but the size filter dropped are
+                // still "seen" if several beams hit them within clustering range.
+                let mut counts: BTreeMap<u16, usize> = BTreeMap::new();
+                for (i, id) in beams.hit_ids.iter().enumerate() {
+                    if tree_ids.contains(id) && beams.true_ranges[i] <= config.clustering.max_range_m {
+                        *counts.entry(*id).or_default() += 1;
+                    }
+                }
+                for (id, n) in counts {
+                    if n >= config.clustering.min_points {
+                        trees_seen.insert(id);
+                    }
+                }
+                for p in &truth.people {
+                    people_tracks.entry(p.id).or_default().push([p.x, p.y]);
+                }
+            }
+        }
+        let t = event.time();
+        if t - last_progress >= 1.0 {
+            progress(t, nominal);
+            last_progress = t;
+        }
+    }
+    progress(sim.time(), nominal);
+    let wall = started.elapsed().as_secs_f64();
+
+    // The object each landmark stands on: the majority of its observations' objects.
+    let landmark_object: HashMap<u32, u16> = landmark_objects
+        .iter()
+        .map(|(id, objs)| {
+            let mut counts: BTreeMap<u16, usize> = BTreeMap::new();
+            for o in objs {
+                *counts.entry(*o).or_default() += 1;
+            }
+            (*id, counts.into_iter().max_by_key(|(o, n)| (*n, *o != 0)).map(|(o, _)| o).unwrap_or(0))
+        })
+        .collect();
+    let wrong = associations.iter().filter(|(id, obj)| landmark_object.get(id) != Some(obj)).count();
+    let mut map = MapContent { trees_seen: trees_seen.len(), ..Default::default() };
+    let mut per_object: BTreeMap<u16, usize> = BTreeMap::new();
+    for lm in pipeline.landmarks() {
+        let obj = landmark_object.get(&lm.id).copied().unwrap_or(0);
+        *per_object.entry(obj).or_default() += 1;
+        match world.class_of(obj) {
+            Some(ObjectClass::Tree) => {}
+            Some(ObjectClass::Post) => map.posts += 1,
+            Some(ObjectClass::Palm) => map.palms += 1,
+            Some(ObjectClass::Person) => map.people += 1,
+            Some(ObjectClass::Wall) => map.walls += 1,
+            _ => map.nothing += 1,
+        }
+    }
+    map.trees_mapped = per_object.keys().filter(|id| tree_ids.contains(id)).count();
+    let duplicates: usize = per_object.iter().filter(|(id, _)| **id != 0).map(|(_, n)| n.saturating_sub(1)).sum();
+    let false_landmarks = map.posts + map.palms + map.people + map.walls + map.nothing;
+
+    // Landmark RMSE after optimal assignment to static objects' centres (gated at 2 m).
+    let statics: Vec<&worlds::StaticObject> = world.objects.iter().filter(|o| matches!(o.class, ObjectClass::Tree | ObjectClass::Post | ObjectClass::Palm)).collect();
+    let lms = pipeline.landmarks();
+    let cost: Vec<Vec<f64>> = lms.iter().map(|l| statics.iter().map(|o| ((l.position[0] - o.pose.x).powi(2) + (l.position[1] - o.pose.y).powi(2)).sqrt()).collect()).collect();
+    let assignment = score::hungarian(&cost);
+    let matched: Vec<f64> = assignment.iter().enumerate().filter_map(|(i, j)| j.map(|j| cost[i][j])).filter(|d| *d <= 2.0).collect();
+    let landmark_rmse = (!matched.is_empty()).then(|| (matched.iter().map(|d| d * d).sum::<f64>() / matched.len() as f64).sqrt());
+
+    let est_xy: Vec<[f64; 2]> = est_path.iter().map(|(_, p)| [p[0], p[1]]).collect();
+    let gt_xy: Vec<[f64; 2]> = gt_path.iter().map(|(_, p)| [p[0], p[1]]).collect();
+    let mut metrics = Metrics {
+        scenario: scenario.name.clone(),
+        seed,
+        method: config.method.name().into(),
+        sim_seconds: sim.time(),
+        wall_seconds: wall,
+        realtime_factor: sim.time() / wall.max(1e-9),
+        ate_rmse_m: score::ate_rmse(&est_xy, &gt_xy),
+        landmark_rmse_m: landmark_rmse,
+        map,
+        landmarks: lms.len(),
+        associations: AssociationCounts { total: associations.len(), wrong },
+        duplicate_landmarks: duplicates,
+        false_landmarks,
+        segmentation: SegmentationScore::default(),
+        anees: if nees_n > 0 { nees_sum / nees_n as f64 } else { f64::NAN },
+        collisions: sim.collisions().len(),
+        route_completed: sim.route_progress() > 0.99,
+        passed: false,
+        failures: vec![],
+    };
+    metrics.failures = check_pass(scenario, &metrics);
+    metrics.passed = metrics.failures.is_empty();
+
+    let resolved = json!({
+        "scenario": scenario,
+        "seed": seed,
+        "sim_seed": sim::derive_seed(seed, "sim"),
+        "world": world,
+        "pipeline": config,
+    });
+
+    if let Some(out) = &options.out {
+        write_outputs(out, &world, &pipeline, &metrics, &resolved, &est_path, &gt_path, &people_tracks, &landmark_object)?;
+    }
+    Ok(RunOutcome { metrics, resolved })
+}
+
+/// Checks the scenario's pass criteria; returns the failures in words.
+pub fn check_pass(scenario: &Scenario, m: &Metrics) -> Vec<String> {
+    let p = &scenario.pass;
+    let mut f = Vec::new();
+    if let Some(max) = p.max_wrong_associations
+        && m.associations.wrong > max
+    {
+        f.push(format!("{} wrong associations (max {max})", m.associations.wrong));
+    }
+    if let Some(max) = p.max_false_landmarks
+        && m.false_landmarks > max
+    {
+        f.push(format!("{} false landmarks (max {max})", m.false_landmarks));
+    }
+    if let Some(min) = p.min_false_landmarks
+        && m.false_landmarks < min
+    {
+        f.push(format!("{} false landmarks (expected at least {min})", m.false_landmarks));
+    }
+    if let Some(max) = p.max_duplicate_landmarks
+        && m.duplicate_landmarks > max
+    {
+        f.push(format!("{} duplicate landmarks (max {max})", m.duplicate_landmarks));
+    }
+    if let Some(min) = p.min_tree_recall {
+        let recall = if m.map.trees_seen == 0 { 1.0 } else { m.map.trees_mapped as f64 / m.map.trees_seen as f64 };
+        if recall < min {
+            f.push(format!("tree recall {recall:.2} ({} of {} seen; min {min})", m.map.trees_mapped, m.map.trees_seen));
+        }
+    }
+    if let Some(max) = p.max_ate_rmse_m
+        && !(m.ate_rmse_m <= max)
+    {
+        f.push(format!("ATE RMSE {:.3} m (max {max})", m.ate_rmse_m));
+    }
+    if let Some(max) = p.max_landmark_rmse_m
+        && m.landmark_rmse_m.is_some_and(|r| r > max)
+    {
+        f.push(format!("landmark RMSE {:.3} m (max {max})", m.landmark_rmse_m.unwrap_or(f64::NAN)));
+    }
+    if let Some(max) = p.max_collisions
+        && m.collisions > max
+    {
+        f.push(format!("{} collisions (max {max})", m.collisions));
+    }
+    if !m.route_completed {
+        f.push("the robot did not complete its route".into());
+    }
+    f
+}
+
+#[allow(clippy::too_many_arguments)]
+fn write_outputs(
+    out: &Path,
+    world: &worlds::World,
+    pipeline: &Pipeline,
+    metrics: &Metrics,
+    resolved: &serde_json::Value,
+    est: &[(f64, [f64; 3])],
+    gt: &[(f64, [f64; 3])],
+    people_tracks: &BTreeMap<u16, Vec<[f64; 2]>>,
+    landmark_object: &HashMap<u32, u16>,
+) -> Result<(), RunError> {
+    std::fs::create_dir_all(out).map_err(|source| RunError::Io { file: out.to_path_buf(), source })?;
+    let write = |name: &str, text: String| {
+        let file = out.join(name);
+        std::fs::write(&file, text).map_err(|source| RunError::Io { file, source })
+    };
+    write("metrics.json", serde_json::to_string_pretty(metrics).expect("JSON"))?;
+    write(
+        "metadata.json",
+        serde_json::to_string_pretty(&json!({
+            "tool": "objslam run",
+            "version": env!("CARGO_PKG_VERSION"),
+            "seed": metrics.seed,
+            "configuration": resolved,
+        }))
+        .expect("JSON"),
+    )?;
+    let tum = |path: &[(f64, [f64; 3])]| {
+        let mut s = String::from("# timestamp tx ty tz qx qy qz qw\n");
+        for (t, p) in path {
+            s.push_str(&crate::record::tum_line(*t, p[0], p[1], p[2]));
+            s.push('\n');
+        }
+        s
+    };
+    write("trajectory_est.tum", tum(est))?;
+    write("trajectory_gt.tum", tum(gt))?;
+    let decisions: String = pipeline.decisions().iter().map(|d| serde_json::to_string(d).expect("JSON") + "\n").collect();
+    write("decisions.jsonl", decisions)?;
+    let landmarks: Vec<_> = pipeline
+        .landmarks()
+        .iter()
+        .map(|l| {
+            let obj = landmark_object.get(&l.id).copied().unwrap_or(0);
+            json!({"landmark": l, "true_object": obj, "true_class": world.class_of(obj).map(|c| c.name()).unwrap_or("nothing")})
+        })
+        .collect();
+    write("landmarks.json", serde_json::to_string_pretty(&landmarks).expect("JSON"))?;
+
+    // The map picture: ground truth by class, landmarks with 2-sigma ellipses (red when
+    // on something other than a tree), both trajectories and people's tracks.
+    let marks = pipeline
+        .landmarks()
+        .iter()
+        .map(|l| {
+            let obj = landmark_object.get(&l.id).copied().unwrap_or(0);
+            let flagged = world.class_of(obj) != Some(ObjectClass::Tree);
+            crate::plot::LandmarkMark { position: l.position, covariance: l.covariance, label: format!("L{}", l.id), flagged }
+        })
+        .collect();
+    let overlays = crate::plot::Overlays {
+        title: format!(
+            "{} / {} / seed {}: {} landmarks, {} wrong associations, {} false, {} duplicates",
+            metrics.scenario, metrics.method, metrics.seed, metrics.landmarks, metrics.associations.wrong, metrics.false_landmarks, metrics.duplicate_landmarks
+        ),
+        landmarks: marks,
+        trajectories: vec![
+            ("true path".into(), plotters::style::RGBColor(0, 0, 200), gt.iter().map(|(_, p)| [p[0], p[1]]).collect()),
+            ("estimated path".into(), plotters::style::RGBColor(230, 120, 0), est.iter().map(|(_, p)| [p[0], p[1]]).collect()),
+        ],
+        people_tracks: people_tracks.values().cloned().collect(),
+        routes: false,
+    };
+    crate::plot::draw_map(world, &overlays, &out.join("map.png"))?;
+
+    let mut mcap = crate::foxglove::McapWriter::create(&out.join("run.mcap"))?;
+    for ((t, e), (_, g)) in est.iter().zip(gt) {
+        use crate::foxglove::{pose_json, timestamp, yaw_quaternion};
+        mcap.write("/estimate/pose", "foxglove.PosesInFrame", *t, &json!({"timestamp": timestamp(*t), "frame_id": "world", "poses": [pose_json(e[0], e[1], 0.0, yaw_quaternion(e[2]))]}))?;
+        mcap.write("/ground_truth/pose", "foxglove.PosesInFrame", *t, &json!({"timestamp": timestamp(*t), "frame_id": "world", "poses": [pose_json(g[0], g[1], 0.0, yaw_quaternion(g[2]))]}))?;
+    }
+    let t_end = est.last().map_or(0.0, |(t, _)| *t);
+    let lm_poses: Vec<_> = pipeline.landmarks().iter().map(|l| crate::foxglove::pose_json(l.position[0], l.position[1], 0.0, [0.0, 0.0, 0.0, 1.0])).collect();
+    mcap.write("/estimate/landmarks", "foxglove.PosesInFrame", t_end, &json!({"timestamp": crate::foxglove::timestamp(t_end), "frame_id": "world", "poses": lm_poses}))?;
+    mcap.finish()?;
+    Ok(())
+}
+
+/// Short summary table for the terminal.
+pub fn summary_table(m: &Metrics) -> String {
+    let recall = if m.map.trees_seen == 0 { 1.0 } else { m.map.trees_mapped as f64 / m.map.trees_seen as f64 };
+    let mut s = String::new();
+    s.push_str(&format!("scenario {}  method {}  seed {}\n", m.scenario, m.method, m.seed));
+    s.push_str(&format!("  simulated {:.1} s in {:.2} s ({:.0}x real time)\n", m.sim_seconds, m.wall_seconds, m.realtime_factor));
+    s.push_str(&format!("  trees mapped      {:>4} of {} seen ({:.0}%)\n", m.map.trees_mapped, m.map.trees_seen, 100.0 * recall));
+    s.push_str(&format!("  false landmarks   {:>4} (posts {}, palms {}, people {}, walls {}, nothing {})\n", m.false_landmarks, m.map.posts, m.map.palms, m.map.people, m.map.walls, m.map.nothing));
+    s.push_str(&format!("  duplicates        {:>4}\n", m.duplicate_landmarks));
+    s.push_str(&format!("  associations      {:>4} ({} wrong)\n", m.associations.total, m.associations.wrong));
+    s.push_str(&format!("  ATE RMSE          {:>8.3} m\n", m.ate_rmse_m));
+    if let Some(r) = m.landmark_rmse_m {
+        s.push_str(&format!("  landmark RMSE     {r:>8.3} m\n"));
+    }
+    s.push_str(&format!("  ANEES             {:>8.2}\n", m.anees));
+    s.push_str(&format!("  collisions        {:>4}\n", m.collisions));
+    s.push_str(&format!("  {}\n", if m.passed { "PASSED".to_string() } else { format!("FAILED: {}", m.failures.join("; ")) }));
+    s
+}
