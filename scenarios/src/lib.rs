@@ -10,6 +10,7 @@
 //! ```
 
 pub mod foxglove;
+pub mod montecarlo;
 pub mod plot;
 pub mod record;
 pub mod run;

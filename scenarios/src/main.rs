@@ -32,6 +32,8 @@ enum Command {
         #[arg(long)]
         out: Option<PathBuf>,
     },
+    /// Monte Carlo association-failure studies (parallel, resumable, shardable).
+    Montecarlo(MontecarloArgs),
     /// Simulate a world and write a sensor log (JSON lines, TUM, MCAP) that other SLAM
     /// systems can read.
     Record {
@@ -45,6 +47,48 @@ enum Command {
         /// TOML file of simulator settings (see `sim::SimConfig`).
         #[arg(long)]
         sim_config: Option<PathBuf>,
+        #[arg(long)]
+        out: PathBuf,
+    },
+}
+
+#[derive(clap::Args)]
+#[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
+struct MontecarloArgs {
+    #[command(subcommand)]
+    command: Option<MontecarloCommand>,
+    /// Scenario file or built-in name.
+    #[arg(required = true)]
+    scenario: Option<String>,
+    /// Runs per method and parameter value.
+    #[arg(long, default_value_t = 100)]
+    runs: usize,
+    /// Comma-separated association methods.
+    #[arg(long, default_value = "combined,nn,jcbb,appearance")]
+    methods: String,
+    /// PARAM=A..B:STEPS, a dotted path into the scenario (repeatable), e.g.
+    /// sim.odometry.scale_sigma=0.0..0.05:6 or world.params.post_distance_m=0.5..3:6.
+    #[arg(long)]
+    vary: Vec<String>,
+    /// Base seed: run r gets a seed derived from (seed, r).
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Run only slice K of N (0-based); defaults to the Slurm array / Kubernetes index
+    /// from the environment when present.
+    #[arg(long)]
+    shard: Option<String>,
+    /// Number of shards when the index comes from JOB_COMPLETION_INDEX.
+    #[arg(long)]
+    shard_count: Option<usize>,
+    #[arg(long)]
+    out: Option<PathBuf>,
+}
+
+#[derive(Subcommand)]
+enum MontecarloCommand {
+    /// Merge shard directories into one study.
+    Merge {
+        dirs: Vec<PathBuf>,
         #[arg(long)]
         out: PathBuf,
     },
@@ -98,6 +142,7 @@ fn run(cli: Cli) -> Result<()> {
         }
         Some(Command::World(cmd)) => world(cmd),
         Some(Command::Run { scenario, seed, method, out }) => run_scenario(scenario.as_deref(), seed, method.as_deref(), out),
+        Some(Command::Montecarlo(args)) => montecarlo(args),
         Some(Command::Record { input, seed, duration, sim_config, out }) => record(&input, seed, duration, sim_config, &out),
     }
 }
@@ -120,6 +165,88 @@ fn progress_bar(len: u64, what: &str) -> indicatif::ProgressBar {
     );
     bar.set_message(what.to_string());
     bar
+}
+
+fn montecarlo(args: MontecarloArgs) -> Result<()> {
+    use scenarios::montecarlo as mc;
+    if let Some(MontecarloCommand::Merge { dirs, out }) = args.command {
+        let (plan, runs) = mc::merge(&dirs, &out)?;
+        let rows = mc::summarise(&plan, &runs);
+        mc::write_summary(&plan, &rows, &out)?;
+        print_summary(&rows);
+        println!("merged {} runs from {} directories into {}", runs.len(), dirs.len(), out.display());
+        return Ok(());
+    }
+    let scenario = args.scenario.expect("clap requires a scenario without a subcommand");
+    let methods: Vec<String> = args.methods.split(',').map(|m| m.trim().to_string()).filter(|m| !m.is_empty()).collect();
+    for m in &methods {
+        parse_method(m)?;
+    }
+    let vary = args.vary.iter().map(|v| mc::Vary::parse(v)).collect::<Result<Vec<_>, _>>()?;
+    // Check the scenario and every parameter value before starting hundreds of runs.
+    let (sc, _) = scenarios::scenario::Scenario::load(&scenario)?;
+    for v in &vary {
+        for x in &v.values {
+            mc::apply_param(&sc, &v.param, *x)?;
+        }
+    }
+    let shard = match &args.shard {
+        Some(s) => mc::Shard::parse(s)?,
+        None => mc::Shard::from_env(|k| std::env::var(k).ok(), args.shard_count)?.unwrap_or(mc::Shard::all()),
+    };
+    let plan = mc::StudyPlan { scenario: scenario.clone(), base_seed: args.seed, runs: args.runs, methods, vary };
+    let out = args.out.unwrap_or_else(|| PathBuf::from(format!("runs/montecarlo-{}-{}", sc.name, args.seed)));
+    let bar = indicatif::ProgressBar::new(0);
+    bar.set_style(indicatif::ProgressStyle::with_template("study [{bar:40}] {pos}/{len} runs, {msg}, {elapsed} elapsed, ETA {eta}").expect("valid template").progress_chars("=> "));
+    let started = std::time::Instant::now();
+    let first_done = std::sync::Mutex::new(None::<usize>);
+    let records = mc::run_study(&plan, shard, &out, |done, total| {
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+        let mut first = first_done.lock().unwrap_or_else(|p| p.into_inner());
+        let base = *first.get_or_insert(done);
+        let minutes = started.elapsed().as_secs_f64() / 60.0;
+        if minutes > 0.0 {
+            bar.set_message(format!("{:.1} runs/min", (done - base) as f64 / minutes));
+        }
+    })?;
+    bar.finish_and_clear();
+    let rows = mc::summarise(&plan, &records);
+    mc::write_summary(&plan, &rows, &out)?;
+    print_summary(&rows);
+    let errors = records.iter().filter(|r| r.error.is_some()).count();
+    println!(
+        "{} runs ({} with errors) in {:.1} s; shard {}/{}; results in {}",
+        records.len(),
+        errors,
+        started.elapsed().as_secs_f64(),
+        shard.index,
+        shard.count,
+        out.display()
+    );
+    if let Some(e) = records.iter().find_map(|r| r.error.as_ref()) {
+        println!("first error: {e}");
+    }
+    Ok(())
+}
+
+fn print_summary(rows: &[scenarios::montecarlo::SummaryRow]) {
+    println!("{:<12} {:<32} {:>5} {:>8} {:>16} {:>8} {:>8} {:>8}", "method", "parameters", "runs", "fail", "95% CI", "wrong", "false", "ATE m");
+    for r in rows {
+        let params: Vec<String> = r.params.iter().map(|(p, v)| format!("{}={v:.3}", p.rsplit('.').next().unwrap_or(p))).collect();
+        println!(
+            "{:<12} {:<32} {:>5} {:>7.1}% {:>7.1}-{:<7.1}% {:>8.2} {:>8.2} {:>8.3}",
+            r.method,
+            params.join(" "),
+            r.runs,
+            100.0 * r.failure_rate,
+            100.0 * r.failure_rate_ci95.0,
+            100.0 * r.failure_rate_ci95.1,
+            r.mean_wrong_associations,
+            r.mean_false_landmarks,
+            r.mean_ate_rmse_m
+        );
+    }
 }
 
 fn parse_method(name: &str) -> Result<slam::association::AssociationMethod> {

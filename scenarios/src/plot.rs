@@ -248,3 +248,70 @@ mod tests {
         assert!(green > 50, "only {green} tree-coloured pixels");
     }
 }
+
+/// Failure rate against the first varied parameter, one line per method, with 95%
+/// intervals; written as PNG and SVG.
+pub fn failure_rate_plot(
+    plan: &crate::montecarlo::StudyPlan,
+    rows: &[crate::montecarlo::SummaryRow],
+    png: &Path,
+    svg: &Path,
+) -> Result<(), PlotError> {
+    register_fonts();
+    draw_failure_rate(BitMapBackend::new(png, (900, 600)).into_drawing_area(), plan, rows).map_err(|message| PlotError { file: png.to_path_buf(), message })?;
+    draw_failure_rate(SVGBackend::new(svg, (900, 600)).into_drawing_area(), plan, rows).map_err(|message| PlotError { file: svg.to_path_buf(), message })?;
+    Ok(())
+}
+
+fn draw_failure_rate<DB: DrawingBackend>(
+    root: DrawingArea<DB, plotters::coord::Shift>,
+    plan: &crate::montecarlo::StudyPlan,
+    rows: &[crate::montecarlo::SummaryRow],
+) -> Result<(), String> {
+    let e = |x: &dyn std::fmt::Display| x.to_string();
+    root.fill(&WHITE).map_err(|x| e(&x))?;
+    let param = plan.vary.first().map(|v| v.param.clone()).unwrap_or_else(|| "method".into());
+    let xs: Vec<f64> = match plan.vary.first() {
+        Some(v) => v.values.clone(),
+        None => (0..plan.methods.len()).map(|i| i as f64).collect(),
+    };
+    let (lo, hi) = xs.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| (a.min(*x), b.max(*x)));
+    let pad = if hi > lo { 0.05 * (hi - lo) } else { 0.5 };
+    let mut chart = ChartBuilder::on(&root)
+        .caption(format!("{}: association-failure rate ({} runs per point, 95% CI)", plan.scenario, plan.runs), ("sans-serif", 20))
+        .margin(15)
+        .x_label_area_size(45)
+        .y_label_area_size(55)
+        .build_cartesian_2d((lo - pad)..(hi + pad), -0.02f64..1.02f64)
+        .map_err(|x| e(&x))?;
+    chart.configure_mesh().x_desc(param.clone()).y_desc("failure rate").label_style(("sans-serif", 14)).draw().map_err(|x| e(&x))?;
+    let palette = [RGBColor(0, 114, 178), RGBColor(213, 94, 0), RGBColor(0, 158, 115), RGBColor(204, 121, 167), RGBColor(86, 180, 233), RGBColor(230, 159, 0)];
+    // One series per (method, values of the other varied parameters).
+    let mut series: std::collections::BTreeMap<String, Vec<(f64, f64, f64, f64)>> = Default::default();
+    for (i, r) in rows.iter().enumerate() {
+        let x = match plan.vary.first() {
+            Some(_) => r.params[0].1,
+            None => plan.methods.iter().position(|m| *m == r.method).unwrap_or(i) as f64,
+        };
+        let others: Vec<String> = r.params.iter().skip(1).map(|(p, v)| format!("{p}={v}")).collect();
+        let name = if others.is_empty() { r.method.clone() } else { format!("{} ({})", r.method, others.join(", ")) };
+        if r.failure_rate.is_finite() {
+            series.entry(name).or_default().push((x, r.failure_rate, r.failure_rate_ci95.0, r.failure_rate_ci95.1));
+        }
+    }
+    for (k, (name, pts)) in series.iter().enumerate() {
+        let colour = palette[k % palette.len()];
+        chart
+            .draw_series(LineSeries::new(pts.iter().map(|p| (p.0, p.1)), colour.stroke_width(2)))
+            .map_err(|x| e(&x))?
+            .label(name.clone())
+            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour.stroke_width(2)));
+        chart.draw_series(pts.iter().map(|p| Circle::new((p.0, p.1), 4, colour.filled()))).map_err(|x| e(&x))?;
+        chart
+            .draw_series(pts.iter().map(|p| ErrorBar::new_vertical(p.0, p.2, p.1, p.3, colour.stroke_width(1), 8)))
+            .map_err(|x| e(&x))?;
+    }
+    chart.configure_series_labels().position(SeriesLabelPosition::UpperLeft).background_style(WHITE.mix(0.85)).border_style(BLACK).label_font(("sans-serif", 14)).draw().map_err(|x| e(&x))?;
+    root.present().map_err(|x| e(&x))?;
+    Ok(())
+}

@@ -48,7 +48,9 @@ pub struct Metrics {
     pub method: String,
     pub sim_seconds: f64,
     pub wall_seconds: f64,
+    #[serde(with = "crate::score::nan_as_null")]
     pub realtime_factor: f64,
+    #[serde(with = "crate::score::nan_as_null")]
     pub ate_rmse_m: f64,
     pub landmark_rmse_m: Option<f64>,
     pub map: MapContent,
@@ -59,6 +61,7 @@ pub struct Metrics {
     pub false_landmarks: usize,
     pub segmentation: SegmentationScore,
     /// Average NEES of the robot pose over the run (3 dof: consistent near 3).
+    #[serde(with = "crate::score::nan_as_null")]
     pub anees: f64,
     pub collisions: usize,
     pub route_completed: bool,

@@ -202,3 +202,17 @@ mod tests {
         assert!(nees3([1.0, 0.0, 0.0], [[0.0; 3]; 3]).is_none());
     }
 }
+
+/// Serde helpers for figures that may be undefined: NaN is written as `null` (JSON has no
+/// NaN) and read back as NaN.
+pub mod nan_as_null {
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    pub fn serialize<S: Serializer>(v: &f64, s: S) -> Result<S::Ok, S::Error> {
+        if v.is_finite() { s.serialize_f64(*v) } else { s.serialize_none() }
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+        Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
+    }
+}

@@ -1,0 +1,474 @@
+//! Monte Carlo studies of association failures: many seeded runs per method and parameter
+//! value, in parallel, resumable, fault-isolated and shardable across batch schedulers.
+//!
+//! A study is an ordered list of jobs (parameter values x methods x run index). Run `r`
+//! gets seed `derive(base seed, r)` whatever the method and parameter values (common random
+//! numbers make the comparison sharper), so a study gives the same results however it is
+//! split into shards. Each finished run is appended to `runs.jsonl` as one line written in
+//! one call; a study started again skips the jobs already there, and a truncated last line
+//! (a killed process) is dropped.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::fs::OpenOptions;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use slam::association::AssociationMethod;
+
+use crate::run::{Metrics, RunOptions};
+use crate::scenario::Scenario;
+use crate::score::wilson_interval;
+
+/// Errors of a study.
+#[derive(Debug, thiserror::Error)]
+pub enum StudyError {
+    #[error("--vary {spec:?}: {message} (expected PARAM=A..B:STEPS, e.g. sim.odometry.scale_sigma=0.0..0.05:6)")]
+    Vary { spec: String, message: String },
+    #[error("--shard {spec:?}: {message} (expected K/N with 0 <= K < N)")]
+    Shard { spec: String, message: String },
+    #[error("{}: {message}", file.display())]
+    File { file: PathBuf, message: String },
+    #[error("{}: this directory holds a different study ({message}); use a new --out directory", dir.display())]
+    Mismatch { dir: PathBuf, message: String },
+    #[error(transparent)]
+    Scenario(#[from] crate::scenario::ScenarioError),
+    #[error(transparent)]
+    Plot(#[from] crate::plot::PlotError),
+}
+
+/// One varied parameter: a dotted path into the scenario and its values.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Vary {
+    pub param: String,
+    pub values: Vec<f64>,
+}
+
+impl Vary {
+    /// Parses `PARAM=A..B:STEPS` (STEPS values evenly spaced from A to B inclusive).
+    pub fn parse(spec: &str) -> Result<Vary, StudyError> {
+        let bad = |message: &str| StudyError::Vary { spec: spec.into(), message: message.into() };
+        let (param, range) = spec.split_once('=').ok_or_else(|| bad("missing '='"))?;
+        let (range, steps) = range.split_once(':').ok_or_else(|| bad("missing ':STEPS'"))?;
+        let (a, b) = range.split_once("..").ok_or_else(|| bad("missing 'A..B'"))?;
+        let a: f64 = a.trim().parse().map_err(|_| bad("A is not a number"))?;
+        let b: f64 = b.trim().parse().map_err(|_| bad("B is not a number"))?;
+        let steps: usize = steps.trim().parse().map_err(|_| bad("STEPS is not a whole number"))?;
+        if steps == 0 || !a.is_finite() || !b.is_finite() {
+            return Err(bad("STEPS must be at least 1 and A, B finite"));
+        }
+        if param.trim().is_empty() {
+            return Err(bad("empty parameter name"));
+        }
+        let values = if steps == 1 { vec![a] } else { (0..steps).map(|i| a + (b - a) * i as f64 / (steps - 1) as f64).collect() };
+        Ok(Vary { param: param.trim().into(), values })
+    }
+}
+
+/// The plan of a study: everything that determines its jobs.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StudyPlan {
+    pub scenario: String,
+    pub base_seed: u64,
+    pub runs: usize,
+    pub methods: Vec<String>,
+    pub vary: Vec<Vary>,
+}
+
+/// One job of a study.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Job {
+    /// Position in the study's full job list.
+    pub index: usize,
+    pub method: String,
+    /// (parameter, value) for each varied parameter.
+    pub params: Vec<(String, f64)>,
+    pub run: usize,
+    pub seed: u64,
+}
+
+impl Job {
+    /// Stable identity of a job across processes and shards.
+    pub fn key(&self) -> String {
+        let params: Vec<String> = self.params.iter().map(|(p, v)| format!("{p}={v}")).collect();
+        format!("method={};{};run={}", self.method, params.join(";"), self.run)
+    }
+}
+
+/// One line of `runs.jsonl`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RunRecord {
+    pub key: String,
+    pub job: Job,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub metrics: Option<Metrics>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
+}
+
+impl RunRecord {
+    /// An association failure: one or more wrong associations or false landmarks.
+    pub fn failed_association(&self) -> Option<bool> {
+        self.metrics.as_ref().map(|m| m.associations.wrong > 0 || m.false_landmarks > 0)
+    }
+}
+
+/// Every job of a plan, in order: parameter values (outer), methods, then runs (inner).
+pub fn jobs(plan: &StudyPlan) -> Vec<Job> {
+    let mut combos: Vec<Vec<(String, f64)>> = vec![vec![]];
+    for v in &plan.vary {
+        combos = combos.into_iter().flat_map(|c| v.values.iter().map(move |x| { let mut c = c.clone(); c.push((v.param.clone(), *x)); c })).collect();
+    }
+    let mut out = Vec::new();
+    for params in &combos {
+        for method in &plan.methods {
+            for run in 0..plan.runs {
+                out.push(Job { index: out.len(), method: method.clone(), params: params.clone(), run, seed: sim::derive_seed(plan.base_seed, &format!("run-{run}")) });
+            }
+        }
+    }
+    out
+}
+
+/// Sets a dotted path (`sim.odometry.scale_sigma`) in the scenario to `value`. A 2-element
+/// range (such as `world.params.post_distance_m`) is set to `[value, value]`.
+pub fn apply_param(scenario: &Scenario, path: &str, value: f64) -> Result<Scenario, StudyError> {
+    let bad = |message: String| StudyError::Vary { spec: format!("{path}={value}"), message };
+    let mut root = toml::Value::try_from(scenario).map_err(|e| bad(e.to_string()))?;
+    let parts: Vec<&str> = path.split('.').collect();
+    set_path(&mut root, &parts, value).map_err(|m| bad(m))?;
+    let text = toml::to_string(&root).map_err(|e| bad(e.to_string()))?;
+    Scenario::parse(&text, Path::new(&format!("{}[{path}={value}]", scenario.name))).map_err(|e| bad(e.to_string()))
+}
+
+fn set_path(node: &mut toml::Value, parts: &[&str], value: f64) -> Result<(), String> {
+    let table = node.as_table_mut().ok_or_else(|| format!("{} is not a table", parts[0]))?;
+    if parts.len() == 1 {
+        let new = match table.get(parts[0]) {
+            Some(toml::Value::Array(a)) if a.len() == 2 => toml::Value::Array(vec![toml::Value::Float(value), toml::Value::Float(value)]),
+            Some(toml::Value::Integer(_)) => toml::Value::Integer(value.round() as i64),
+            Some(toml::Value::Float(_)) | None => toml::Value::Float(value),
+            Some(other) => return Err(format!("{} is a {}, not a number", parts[0], other.type_str())),
+        };
+        table.insert(parts[0].to_string(), new);
+        return Ok(());
+    }
+    let child = table.entry(parts[0].to_string()).or_insert_with(|| toml::Value::Table(Default::default()));
+    set_path(child, &parts[1..], value).map_err(|m| format!("{}.{m}", parts[0]))
+}
+
+/// Which slice of the jobs this process runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Shard {
+    pub index: usize,
+    pub count: usize,
+}
+
+impl Shard {
+    pub fn all() -> Self {
+        Shard { index: 0, count: 1 }
+    }
+
+    pub fn parse(spec: &str) -> Result<Shard, StudyError> {
+        let bad = |message: &str| StudyError::Shard { spec: spec.into(), message: message.into() };
+        let (k, n) = spec.split_once('/').ok_or_else(|| bad("missing '/'"))?;
+        let index: usize = k.trim().parse().map_err(|_| bad("K is not a whole number"))?;
+        let count: usize = n.trim().parse().map_err(|_| bad("N is not a whole number"))?;
+        if count == 0 || index >= count {
+            return Err(bad("needs 0 <= K < N"));
+        }
+        Ok(Shard { index, count })
+    }
+
+    /// The shard from a batch scheduler's environment: Slurm job arrays
+    /// (`SLURM_ARRAY_TASK_ID`, `SLURM_ARRAY_TASK_MIN`, `SLURM_ARRAY_TASK_COUNT`) or
+    /// Kubernetes Indexed Jobs (`JOB_COMPLETION_INDEX`, with the count from `count`).
+    pub fn from_env(env: impl Fn(&str) -> Option<String>, count: Option<usize>) -> Result<Option<Shard>, StudyError> {
+        let num = |name: &str| -> Result<Option<usize>, StudyError> {
+            env(name).map(|v| v.trim().parse::<usize>().map_err(|_| StudyError::Shard { spec: format!("{name}={v}"), message: "not a whole number".into() })).transpose()
+        };
+        if let Some(id) = num("SLURM_ARRAY_TASK_ID")? {
+            let min = num("SLURM_ARRAY_TASK_MIN")?.unwrap_or(0);
+            let n = num("SLURM_ARRAY_TASK_COUNT")?.or(count).ok_or_else(|| StudyError::Shard { spec: "SLURM_ARRAY_TASK_ID".into(), message: "no SLURM_ARRAY_TASK_COUNT and no --shard-count".into() })?;
+            let spec = format!("{}/{n}", id.saturating_sub(min));
+            return Shard::parse(&spec).map(Some);
+        }
+        if let Some(id) = num("JOB_COMPLETION_INDEX")? {
+            let n = count.ok_or_else(|| StudyError::Shard { spec: "JOB_COMPLETION_INDEX".into(), message: "Kubernetes does not say how many indexes there are: pass --shard-count (the Job's completions)".into() })?;
+            return Shard::parse(&format!("{id}/{n}")).map(Some);
+        }
+        Ok(None)
+    }
+
+    pub fn contains(&self, job: &Job) -> bool {
+        job.index % self.count == self.index
+    }
+}
+
+/// Reads `runs.jsonl`, dropping a truncated last line (and truncating the file to the last
+/// complete line so appends start clean).
+pub fn read_runs(path: &Path) -> Result<Vec<RunRecord>, StudyError> {
+    let text = match std::fs::read_to_string(path) {
+        Ok(t) => t,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(vec![]),
+        Err(e) => return Err(StudyError::File { file: path.into(), message: e.to_string() }),
+    };
+    let complete = match text.rfind('\n') {
+        Some(i) => &text[..=i],
+        None => "",
+    };
+    if complete.len() != text.len() {
+        let f = OpenOptions::new().write(true).open(path).map_err(|e| StudyError::File { file: path.into(), message: e.to_string() })?;
+        f.set_len(complete.len() as u64).map_err(|e| StudyError::File { file: path.into(), message: e.to_string() })?;
+    }
+    complete
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty())
+        .map(|(i, l)| serde_json::from_str(l).map_err(|e| StudyError::File { file: path.into(), message: format!("line {}: {e}", i + 1) }))
+        .collect()
+}
+
+/// Runs (the remaining jobs of) a study into `out`. `progress(done, total)` is called as
+/// runs finish. Returns every record of this shard's jobs.
+pub fn run_study(plan: &StudyPlan, shard: Shard, out: &Path, progress: impl Fn(usize, usize) + Sync) -> Result<Vec<RunRecord>, StudyError> {
+    std::fs::create_dir_all(out).map_err(|e| StudyError::File { file: out.into(), message: e.to_string() })?;
+    let plan_file = out.join("study.json");
+    match std::fs::read_to_string(&plan_file) {
+        Ok(text) => {
+            let existing: StudyPlan = serde_json::from_str(&text).map_err(|e| StudyError::File { file: plan_file.clone(), message: e.to_string() })?;
+            if &existing != plan {
+                return Err(StudyError::Mismatch { dir: out.into(), message: format!("it was started as {}", serde_json::to_string(&existing).unwrap_or_default()) });
+            }
+        }
+        Err(_) => std::fs::write(&plan_file, serde_json::to_string_pretty(plan).expect("JSON")).map_err(|e| StudyError::File { file: plan_file.clone(), message: e.to_string() })?,
+    }
+    let (base_scenario, base_dir) = Scenario::load(&plan.scenario)?;
+    let runs_file = out.join("runs.jsonl");
+    let existing = read_runs(&runs_file)?;
+    let done: BTreeSet<String> = existing.iter().map(|r| r.key.clone()).collect();
+    let mine: Vec<Job> = jobs(plan).into_iter().filter(|j| shard.contains(j)).collect();
+    let todo: Vec<&Job> = mine.iter().filter(|j| !done.contains(&j.key())).collect();
+    let total = mine.len();
+    let finished = std::sync::atomic::AtomicUsize::new(total - todo.len());
+    progress(finished.load(std::sync::atomic::Ordering::Relaxed), total);
+    let file = Mutex::new(OpenOptions::new().create(true).append(true).open(&runs_file).map_err(|e| StudyError::File { file: runs_file.clone(), message: e.to_string() })?);
+    let new: Vec<RunRecord> = todo
+        .par_iter()
+        .map(|job| {
+            let record = run_job(&base_scenario, &base_dir, job);
+            let line = serde_json::to_string(&record).expect("JSON") + "\n";
+            {
+                let mut f = file.lock().unwrap_or_else(|p| p.into_inner());
+                // One write of the whole line: a kill leaves at most one partial line, which
+                // the next start drops.
+                if let Err(e) = f.write_all(line.as_bytes()).and_then(|_| f.flush()) {
+                    eprintln!("warning: {}: cannot append run {}: {e}", runs_file.display(), job.key());
+                }
+            }
+            let n = finished.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+            progress(n, total);
+            record
+        })
+        .collect();
+    let keys: BTreeSet<String> = mine.iter().map(|j| j.key()).collect();
+    let mut all: Vec<RunRecord> = existing.into_iter().filter(|r| keys.contains(&r.key)).chain(new).collect();
+    all.sort_by_key(|r| r.job.index);
+    Ok(all)
+}
+
+/// Runs one job; errors and panics become the record's error.
+pub fn run_job(base: &Scenario, base_dir: &Path, job: &Job) -> RunRecord {
+    let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| -> Result<Metrics, String> {
+        let mut scenario = base.clone();
+        for (p, v) in &job.params {
+            scenario = apply_param(&scenario, p, *v).map_err(|e| e.to_string())?;
+        }
+        let method = AssociationMethod::from_name(&job.method).ok_or_else(|| format!("unknown method {:?}", job.method))?;
+        let options = RunOptions { seed: Some(job.seed), method: Some(method), out: None };
+        crate::run::run(&scenario, base_dir, &options, |_, _| {}).map(|o| o.metrics).map_err(|e| e.to_string())
+    }));
+    let (metrics, error) = match result {
+        Ok(Ok(m)) => (Some(m), None),
+        Ok(Err(e)) => (None, Some(e)),
+        Err(panic) => {
+            let msg = panic.downcast_ref::<&str>().map(|s| s.to_string()).or_else(|| panic.downcast_ref::<String>().cloned()).unwrap_or_else(|| "panic".into());
+            (None, Some(format!("panicked: {msg}")))
+        }
+    };
+    RunRecord { key: job.key(), job: job.clone(), metrics, error }
+}
+
+/// Merges shard directories into `out`: runs de-duplicated by job and ordered by job index.
+pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<(StudyPlan, Vec<RunRecord>), StudyError> {
+    let mut plan: Option<StudyPlan> = None;
+    let mut by_key: BTreeMap<String, RunRecord> = BTreeMap::new();
+    for d in dirs {
+        let f = d.join("study.json");
+        let text = std::fs::read_to_string(&f).map_err(|e| StudyError::File { file: f.clone(), message: e.to_string() })?;
+        let p: StudyPlan = serde_json::from_str(&text).map_err(|e| StudyError::File { file: f.clone(), message: e.to_string() })?;
+        match &plan {
+            Some(existing) if existing != &p => return Err(StudyError::Mismatch { dir: d.clone(), message: "shards of different studies cannot be merged".into() }),
+            _ => plan = Some(p),
+        }
+        for r in read_runs(&d.join("runs.jsonl"))? {
+            by_key.entry(r.key.clone()).or_insert(r);
+        }
+    }
+    let plan = plan.ok_or_else(|| StudyError::File { file: out.into(), message: "no shard directories given".into() })?;
+    let mut runs: Vec<RunRecord> = by_key.into_values().collect();
+    runs.sort_by_key(|r| r.job.index);
+    std::fs::create_dir_all(out).map_err(|e| StudyError::File { file: out.into(), message: e.to_string() })?;
+    std::fs::write(out.join("study.json"), serde_json::to_string_pretty(&plan).expect("JSON")).map_err(|e| StudyError::File { file: out.into(), message: e.to_string() })?;
+    let lines: String = runs.iter().map(|r| serde_json::to_string(r).expect("JSON") + "\n").collect();
+    std::fs::write(out.join("runs.jsonl"), lines).map_err(|e| StudyError::File { file: out.into(), message: e.to_string() })?;
+    Ok((plan, runs))
+}
+
+/// One summary row: a method at one set of parameter values.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SummaryRow {
+    pub method: String,
+    pub params: Vec<(String, f64)>,
+    pub runs: usize,
+    pub errors: usize,
+    /// Runs with one or more wrong associations or false landmarks.
+    pub failures: usize,
+    #[serde(with = "crate::score::nan_as_null")]
+    pub failure_rate: f64,
+    pub failure_rate_ci95: (f64, f64),
+    #[serde(with = "crate::score::nan_as_null")]
+    pub mean_wrong_associations: f64,
+    #[serde(with = "crate::score::nan_as_null")]
+    pub mean_false_landmarks: f64,
+    #[serde(with = "crate::score::nan_as_null")]
+    pub mean_ate_rmse_m: f64,
+}
+
+/// Summarises runs per method and parameter values, in plan order.
+pub fn summarise(plan: &StudyPlan, runs: &[RunRecord]) -> Vec<SummaryRow> {
+    let mut groups: BTreeMap<(usize, String), Vec<&RunRecord>> = BTreeMap::new();
+    let all = jobs(plan);
+    for r in runs {
+        // Group by the index of the job's first run in the plan, which orders groups as
+        // the plan does.
+        let first = r.job.index - r.job.run;
+        groups.entry((first, r.job.method.clone())).or_default().push(r);
+    }
+    groups
+        .into_iter()
+        .map(|((first, method), rs)| {
+            let ok: Vec<&Metrics> = rs.iter().filter_map(|r| r.metrics.as_ref()).collect();
+            let failures = rs.iter().filter(|r| r.failed_association() == Some(true)).count();
+            let n = ok.len();
+            let mean = |f: &dyn Fn(&Metrics) -> f64| if n == 0 { f64::NAN } else { ok.iter().map(|m| f(m)).sum::<f64>() / n as f64 };
+            SummaryRow {
+                method,
+                params: all[first].params.clone(),
+                runs: rs.len(),
+                errors: rs.len() - n,
+                failures,
+                failure_rate: if n == 0 { f64::NAN } else { failures as f64 / n as f64 },
+                failure_rate_ci95: wilson_interval(failures, n, 1.96),
+                mean_wrong_associations: mean(&|m| m.associations.wrong as f64),
+                mean_false_landmarks: mean(&|m| m.false_landmarks as f64),
+                mean_ate_rmse_m: mean(&|m| m.ate_rmse_m),
+            }
+        })
+        .collect()
+}
+
+/// Writes `summary.csv`, `summary.json` and the failure-rate plots (PNG and SVG).
+pub fn write_summary(plan: &StudyPlan, rows: &[SummaryRow], out: &Path) -> Result<(), StudyError> {
+    let io = |f: PathBuf, e: std::io::Error| StudyError::File { file: f, message: e.to_string() };
+    let mut csv = String::from("method");
+    for v in &plan.vary {
+        csv.push(',');
+        csv.push_str(&v.param);
+    }
+    csv.push_str(",runs,errors,failures,failure_rate,failure_rate_ci95_low,failure_rate_ci95_high,mean_wrong_associations,mean_false_landmarks,mean_ate_rmse_m\n");
+    for r in rows {
+        csv.push_str(&r.method);
+        for (_, v) in &r.params {
+            csv.push_str(&format!(",{v}"));
+        }
+        csv.push_str(&format!(
+            ",{},{},{},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6}\n",
+            r.runs, r.errors, r.failures, r.failure_rate, r.failure_rate_ci95.0, r.failure_rate_ci95.1, r.mean_wrong_associations, r.mean_false_landmarks, r.mean_ate_rmse_m
+        ));
+    }
+    std::fs::write(out.join("summary.csv"), csv).map_err(|e| io(out.join("summary.csv"), e))?;
+    std::fs::write(out.join("summary.json"), serde_json::to_string_pretty(&serde_json::json!({"study": plan, "rows": rows})).expect("JSON")).map_err(|e| io(out.join("summary.json"), e))?;
+    crate::plot::failure_rate_plot(plan, rows, &out.join("failure_rate.png"), &out.join("failure_rate.svg"))?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn vary_specs_parse_or_fail_clearly() {
+        let v = Vary::parse("sim.odometry.scale_sigma=0.0..0.04:5").unwrap();
+        assert_eq!(v.param, "sim.odometry.scale_sigma");
+        assert_eq!(v.values, vec![0.0, 0.01, 0.02, 0.03, 0.04]);
+        for bad in ["x", "x=1..2", "x=1:3", "x=a..2:3", "=1..2:3", "x=1..2:0"] {
+            assert!(Vary::parse(bad).is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn shards_partition_the_jobs() {
+        let plan = StudyPlan { scenario: "laser_only".into(), base_seed: 1, runs: 7, methods: vec!["nn".into(), "jcbb".into()], vary: vec![Vary::parse("sim.odometry.scale_sigma=0..0.02:3").unwrap()] };
+        let all = jobs(&plan);
+        assert_eq!(all.len(), 42);
+        let mut seen = BTreeSet::new();
+        for k in 0..4 {
+            let s = Shard { index: k, count: 4 };
+            for j in all.iter().filter(|j| s.contains(j)) {
+                assert!(seen.insert(j.key()), "job in two shards");
+            }
+        }
+        assert_eq!(seen.len(), all.len());
+        // The run's seed depends on the run index only.
+        assert_eq!(all[0].seed, all[7].seed);
+        assert_ne!(all[0].seed, all[1].seed);
+    }
+
+    #[test]
+    fn shard_from_scheduler_environment() {
+        let env = |pairs: &'static [(&'static str, &'static str)]| move |k: &str| pairs.iter().find(|(n, _)| *n == k).map(|(_, v)| v.to_string());
+        assert_eq!(Shard::from_env(env(&[("SLURM_ARRAY_TASK_ID", "4"), ("SLURM_ARRAY_TASK_MIN", "1"), ("SLURM_ARRAY_TASK_COUNT", "8")]), None).unwrap(), Some(Shard { index: 3, count: 8 }));
+        assert_eq!(Shard::from_env(env(&[("JOB_COMPLETION_INDEX", "2")]), Some(5)).unwrap(), Some(Shard { index: 2, count: 5 }));
+        assert!(Shard::from_env(env(&[("JOB_COMPLETION_INDEX", "2")]), None).is_err());
+        assert_eq!(Shard::from_env(env(&[]), None).unwrap(), None);
+        assert!(Shard::parse("3/3").is_err());
+    }
+
+    #[test]
+    fn parameters_apply_to_the_scenario() {
+        let (s, _) = Scenario::load("laser_only").unwrap();
+        let s2 = apply_param(&s, "sim.odometry.scale_sigma", 0.07).unwrap();
+        assert_eq!(s2.sim.odometry.scale_sigma, 0.07);
+        let s3 = apply_param(&s, "world.params.post_distance_m", 1.25).unwrap();
+        assert_eq!(s3.world.params.unwrap().post_distance_m, [1.25, 1.25]);
+        assert!(apply_param(&s, "sim.laser.rate_hz", -1.0).is_err());
+        assert!(apply_param(&s, "name.x", 1.0).is_err());
+    }
+
+    #[test]
+    fn truncated_last_line_is_dropped() {
+        let dir = std::env::temp_dir().join(format!("objslam-mc-trunc-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let f = dir.join("runs.jsonl");
+        let job = Job { index: 0, method: "nn".into(), params: vec![], run: 0, seed: 1 };
+        let rec = RunRecord { key: job.key(), job, metrics: None, error: Some("x".into()) };
+        let line = serde_json::to_string(&rec).unwrap();
+        std::fs::write(&f, format!("{line}\n{}", &line[..20])).unwrap();
+        let runs = read_runs(&f).unwrap();
+        assert_eq!(runs.len(), 1);
+        assert_eq!(std::fs::read_to_string(&f).unwrap(), format!("{line}\n"));
+    }
+}

@@ -1,0 +1,97 @@
+//! Monte Carlo studies: sharding, merging, resuming and fault isolation.
+
+use std::path::{Path, PathBuf};
+
+use scenarios::montecarlo::{self as mc, RunRecord, Shard, StudyPlan, Vary};
+
+/// A short copy of the laser_only scenario in a temporary directory.
+fn short_scenario(dir: &Path) -> String {
+    std::fs::create_dir_all(dir).unwrap();
+    let (mut sc, _) = scenarios::scenario::Scenario::load("laser_only").unwrap();
+    sc.name = "laser_only_short".into();
+    sc.sim.max_duration_s = Some(12.0);
+    // A 12 s run does not finish the route; only check what a short run can show.
+    sc.pass = Default::default();
+    let path = dir.join("laser_only_short.toml");
+    std::fs::write(&path, toml::to_string(&sc).unwrap()).unwrap();
+    path.to_string_lossy().into_owned()
+}
+
+fn assert_same(a: &[String], b: &[String]) {
+    assert_eq!(a.len(), b.len(), "different numbers of runs");
+    for (x, y) in a.iter().zip(b) {
+        assert_eq!(x, y, "runs differ");
+    }
+}
+
+/// Records without the wall-clock fields, which legitimately differ between runs.
+fn comparable(runs: &[RunRecord]) -> Vec<String> {
+    runs.iter()
+        .map(|r| {
+            let mut r = r.clone();
+            if let Some(m) = &mut r.metrics {
+                m.wall_seconds = 0.0;
+                m.realtime_factor = 0.0;
+            }
+            serde_json::to_string(&r).unwrap()
+        })
+        .collect()
+}
+
+#[test]
+fn sharded_merged_study_equals_the_unsharded_one_and_resumes() {
+    let root: PathBuf = std::env::temp_dir().join(format!("objslam-mc-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+    let scenario = short_scenario(&root);
+    // `combined` cannot run in this build: its runs must be recorded as errors while the
+    // others go on.
+    let plan = StudyPlan {
+        scenario,
+        base_seed: 5,
+        runs: 3,
+        methods: vec!["nn".into(), "jcbb".into(), "combined".into()],
+        vary: vec![Vary::parse("sim.odometry.scale_sigma=0.0..0.03:2").unwrap()],
+    };
+    let whole = mc::run_study(&plan, Shard::all(), &root.join("whole"), |_, _| {}).unwrap();
+    assert_eq!(whole.len(), 18);
+    assert_eq!(whole.iter().filter(|r| r.error.is_some()).count(), 6, "the combined runs error");
+    assert!(whole.iter().filter(|r| r.job.method != "combined").all(|r| r.metrics.is_some()));
+
+    // Resuming a finished study runs nothing new.
+    let lines_before = std::fs::read_to_string(root.join("whole/runs.jsonl")).unwrap().lines().count();
+    let again = mc::run_study(&plan, Shard::all(), &root.join("whole"), |_, _| {}).unwrap();
+    assert_same(&comparable(&again), &comparable(&whole));
+    assert_eq!(std::fs::read_to_string(root.join("whole/runs.jsonl")).unwrap().lines().count(), lines_before);
+
+    // Three shards, merged, give the same runs and the same summary.
+    let dirs: Vec<PathBuf> = (0..3).map(|k| root.join(format!("shard-{k}"))).collect();
+    for (k, d) in dirs.iter().enumerate() {
+        mc::run_study(&plan, Shard { index: k, count: 3 }, d, |_, _| {}).unwrap();
+    }
+    let (merged_plan, merged) = mc::merge(&dirs, &root.join("merged")).unwrap();
+    assert_eq!(merged_plan, plan);
+    assert_same(&comparable(&merged), &comparable(&whole));
+    let a = mc::summarise(&plan, &whole);
+    let b = mc::summarise(&plan, &merged);
+    assert_eq!(serde_json::to_string(&a).unwrap(), serde_json::to_string(&b).unwrap());
+    mc::write_summary(&plan, &b, &root.join("merged")).unwrap();
+    for f in ["summary.csv", "summary.json", "failure_rate.png", "failure_rate.svg"] {
+        assert!(root.join("merged").join(f).exists(), "{f} missing");
+    }
+    let csv = std::fs::read_to_string(root.join("merged/summary.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 1 + 6, "{csv}");
+
+    // A study interrupted mid-way (simulated by deleting lines) finishes the rest.
+    let partial = root.join("partial");
+    std::fs::create_dir_all(&partial).unwrap();
+    std::fs::copy(root.join("whole/study.json"), partial.join("study.json")).unwrap();
+    let text = std::fs::read_to_string(root.join("whole/runs.jsonl")).unwrap();
+    let keep: String = text.lines().take(7).map(|l| format!("{l}\n")).collect::<String>() + "{\"key\":\"trunc";
+    std::fs::write(partial.join("runs.jsonl"), keep).unwrap();
+    let resumed = mc::run_study(&plan, Shard::all(), &partial, |_, _| {}).unwrap();
+    assert_same(&comparable(&resumed), &comparable(&whole));
+
+    // A different plan in the same directory is refused.
+    let other = StudyPlan { runs: 4, ..plan.clone() };
+    assert!(mc::run_study(&other, Shard::all(), &root.join("whole"), |_, _| {}).is_err());
+}
