@@ -22,6 +22,7 @@
 //! assert_eq!(scans, 11); // 10 Hz, first scan at t = 0
 //! ```
 
+pub mod camera_model;
 pub mod config;
 pub mod controller;
 pub mod laser;
