@@ -136,7 +136,12 @@ pub fn jobs(plan: &StudyPlan) -> Vec<Job> {
 /// range (such as `world.params.post_distance_m`) is set to `[value, value]`.
 pub fn apply_param(scenario: &Scenario, path: &str, value: f64) -> Result<Scenario, StudyError> {
     let bad = |message: String| StudyError::Vary { spec: format!("{path}={value}"), message };
-    let mut root = toml::Value::try_from(scenario).map_err(|e| bad(e.to_string()))?;
+    // Spell out the generator's defaults so a parameter the scenario left out has its type.
+    let mut scenario = scenario.clone();
+    if path.starts_with("world.params.") && scenario.world.params.is_none() && scenario.world.preset.is_some() {
+        scenario.world.params = Some(Default::default());
+    }
+    let mut root = toml::Value::try_from(&scenario).map_err(|e| bad(e.to_string()))?;
     let parts: Vec<&str> = path.split('.').collect();
     set_path(&mut root, &parts, value).map_err(|m| bad(m))?;
     let text = toml::to_string(&root).map_err(|e| bad(e.to_string()))?;

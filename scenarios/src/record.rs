@@ -35,6 +35,9 @@ pub struct RecordSummary {
     pub wall_seconds: f64,
     pub scans: usize,
     pub odometry: usize,
+    pub camera_frames: usize,
+    /// The adapter that rendered the camera frames.
+    pub renderer: Option<String>,
     pub collisions: usize,
 }
 
@@ -57,6 +60,12 @@ impl Out {
     fn finish(mut self) -> Result<(), RecordError> {
         self.w.flush().map_err(|source| RecordError::Io { file: self.file.clone(), source })
     }
+}
+
+/// Standard base64 for embedding PNGs in JSON messages.
+pub fn base64(bytes: &[u8]) -> String {
+    use base64::Engine;
+    base64::engine::general_purpose::STANDARD.encode(bytes)
 }
 
 /// A TUM trajectory line: `timestamp tx ty tz qx qy qz qw`.
@@ -87,8 +96,56 @@ pub fn sensors_json(config: &SimConfig) -> serde_json::Value {
             "rate_hz": l.rate_hz
         },
         "odometry": {"frame_id": "base_link", "rate_hz": config.odometry.rate_hz, "error_model": config.odometry},
+        "camera": camera_json(config),
         "robot": config.robot,
     })
+}
+
+/// The camera's mounting, intrinsics and the laser <- camera extrinsics for `sensors.json`.
+pub fn camera_json(config: &SimConfig) -> serde_json::Value {
+    let c = &config.camera;
+    let k = c.intrinsics();
+    let base = c.base_from_camera();
+    let e = c.laser_from_camera(&config.laser);
+    json!({
+        "enabled": c.enabled,
+        "frame_id": "camera_optical",
+        "parent_frame_id": "base_link",
+        "convention": "optical frame: z forward, x right, y down",
+        "width": c.width,
+        "height": c.height,
+        "K": k.k(),
+        "rate_hz": c.rate_hz,
+        "mount_xyz_m": c.mount_xyz_m,
+        "mount_pitch_deg": c.mount_pitch_deg,
+        "mount_yaw_deg": c.mount_yaw_deg,
+        "base_from_camera": {"rotation": base.r, "translation_m": base.t},
+        "laser_from_camera": {"description": "P_laser = Phi P_camera + Delta (the paper's extrinsics)", "Phi": e.r, "Delta_m": e.t},
+    })
+}
+
+/// Fast PNG encoding (recordings write many frames).
+pub fn write_png(path: &Path, width: u32, height: u32, color: image::ExtendedColorType, bytes: &[u8]) -> Result<(), RecordError> {
+    use image::ImageEncoder;
+    let file = File::create(path).map_err(|source| RecordError::Io { file: path.to_path_buf(), source })?;
+    let enc = image::codecs::png::PngEncoder::new_with_quality(BufWriter::new(file), image::codecs::png::CompressionType::Fast, image::codecs::png::FilterType::Sub);
+    enc.write_image(bytes, width, height, color).map_err(|e| RecordError::Io { file: path.to_path_buf(), source: std::io::Error::other(e.to_string()) })
+}
+
+/// Writes a camera frame's images: colour, 16-bit instance ids, 8-bit classes and 16-bit
+/// depth in millimetres (0 = nothing). Returns the file names relative to `dir`'s parent.
+pub fn write_camera_frame(dir: &Path, index: usize, frame: &sim::camera::CameraFrame) -> Result<[String; 4], RecordError> {
+    let img = &frame.image;
+    let names = [format!("camera/{index:06}.png"), format!("camera/{index:06}_instance.png"), format!("camera/{index:06}_class.png"), format!("camera/{index:06}_depth.png")];
+    let root = dir.parent().unwrap_or(dir);
+    write_png(&root.join(&names[0]), img.width, img.height, image::ExtendedColorType::Rgb8, &img.rgb)?;
+    // 16-bit PNG samples are big-endian.
+    let inst: Vec<u8> = img.instance.iter().flat_map(|v| v.to_be_bytes()).collect();
+    write_png(&root.join(&names[1]), img.width, img.height, image::ExtendedColorType::L16, &inst)?;
+    write_png(&root.join(&names[2]), img.width, img.height, image::ExtendedColorType::L8, &img.class)?;
+    let depth: Vec<u8> = img.depth_m.iter().flat_map(|d| (if d.is_finite() { (d * 1000.0).round().clamp(1.0, 65535.0) as u16 } else { 0 }).to_be_bytes()).collect();
+    write_png(&root.join(&names[3]), img.width, img.height, image::ExtendedColorType::L16, &depth)?;
+    Ok(names)
 }
 
 /// Records a run of `world` into `out`. `progress` is called with (sim time, nominal
@@ -118,6 +175,12 @@ pub fn record(
     let mut tum = Out::create(out, "ground_truth.tum")?;
     tum.line("# objslam ground truth: robot base pose in the world frame; timestamp tx ty tz qx qy qz qw")?;
     let mut mcap = McapWriter::create(&out.join("run.mcap"))?;
+    let mut camera_log = Out::create(out, "camera.jsonl")?;
+    let camera_dir = out.join("camera");
+    if config.camera.enabled {
+        std::fs::create_dir_all(&camera_dir).map_err(|source| RecordError::Io { file: camera_dir.clone(), source })?;
+    }
+    let mut frames = 0usize;
     let [mx, my, mz] = config.laser.mount_xyz_m;
     let laser_q = yaw_quaternion(config.laser.mount_yaw_deg.to_radians());
 
@@ -171,6 +234,30 @@ pub fn record(
                 let people: Vec<_> = truth.people.iter().map(|p| pose_json(p.x, p.y, 0.0, yaw_quaternion(p.heading))).collect();
                 mcap.write("/ground_truth/people", "foxglove.PosesInFrame", scan.t, &json!({"timestamp": timestamp(scan.t), "frame_id": "world", "poses": people}))?;
             }
+            SensorEvent::Camera { frame, .. } => {
+                let names = write_camera_frame(&camera_dir, frames, frame)?;
+                let k = frame.intrinsics;
+                let pose = frame.world_from_camera;
+                camera_log.line(
+                    &serde_json::to_string(&json!({
+                        "t": frame.t, "image": names[0], "instance": names[1], "class": names[2], "depth_mm": names[3],
+                        "K": k.k(), "width": k.width, "height": k.height,
+                        "world_from_camera": {"rotation": pose.r, "translation_m": pose.t}
+                    }))
+                    .expect("JSON"),
+                )?;
+                let png = std::fs::read(out.join(&names[0])).map_err(|source| RecordError::Io { file: out.join(&names[0]), source })?;
+                mcap.write("/camera/image", "foxglove.CompressedImage", frame.t, &json!({"timestamp": timestamp(frame.t), "frame_id": "camera_optical", "format": "png", "data": base64(&png)}))?;
+                mcap.write(
+                    "/camera/calibration",
+                    "foxglove.CameraCalibration",
+                    frame.t,
+                    &json!({"timestamp": timestamp(frame.t), "frame_id": "camera_optical", "width": k.width, "height": k.height, "distortion_model": "plumb_bob",
+                            "D": [0.0, 0.0, 0.0, 0.0, 0.0], "K": [k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0],
+                            "R": [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0], "P": [k.fx, 0.0, k.cx, 0.0, 0.0, k.fy, k.cy, 0.0, 0.0, 0.0, 1.0, 0.0]}),
+                )?;
+                frames += 1;
+            }
         }
         let t = event.time();
         if t - last_progress >= 1.0 {
@@ -184,7 +271,7 @@ pub fn record(
         collisions.line(&serde_json::to_string(c).expect("JSON"))?;
     }
     collisions.finish()?;
-    for f in [laser, laser_truth, odometry, tum] {
+    for f in [laser, laser_truth, odometry, tum, camera_log] {
         f.finish()?;
     }
     mcap.finish()?;
@@ -193,6 +280,8 @@ pub fn record(
         wall_seconds: started.elapsed().as_secs_f64(),
         scans,
         odometry: odos,
+        camera_frames: frames,
+        renderer: sim.camera().map(|c| c.adapter().to_string()),
         collisions: sim.collisions().len(),
     };
     write_file(

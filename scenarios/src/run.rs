@@ -124,7 +124,12 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
     }
     let world = scenario.world(base_dir, seed)?;
     let started = std::time::Instant::now();
-    let mut sim = Simulation::new(&world, &scenario.sim, sim::derive_seed(seed, "sim"))?;
+    // Position-only methods never look at images: skip rendering them.
+    let mut sim_config = scenario.sim.clone();
+    if !config.method.uses_appearance() {
+        sim_config.camera.enabled = false;
+    }
+    let mut sim = Simulation::new(&world, &sim_config, sim::derive_seed(seed, "sim"))?;
     let nominal = scenario.sim.max_duration_s.unwrap_or_else(|| sim.nominal_duration_s());
     let start = world.robot.start;
     let mut pipeline = Pipeline::new(config.clone(), [start.x, start.y, start.yaw_rad()]);
@@ -196,6 +201,7 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
                     people_tracks.entry(p.id).or_default().push([p.x, p.y]);
                 }
             }
+            SensorEvent::Camera { .. } => {}
         }
         let t = event.time();
         if t - last_progress >= 1.0 {

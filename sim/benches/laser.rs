@@ -11,8 +11,10 @@ fn main() {
 #[divan::bench]
 fn scan_361_beams_park(bencher: Bencher) {
     let world = worlds::generate::park(&Default::default(), 1).unwrap();
-    let sim = Simulation::new(&world, &SimConfig::default(), 1).unwrap();
-    let mut laser = sim::laser::Laser::new(&SimConfig::default().laser, 1);
+    let mut config = SimConfig::default();
+    config.camera.enabled = false;
+    let sim = Simulation::new(&world, &config, 1).unwrap();
+    let mut laser = sim::laser::Laser::new(&config.laser, 1);
     let pose = sim.ground_truth().robot;
     let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
     // Each iteration hands the scan to a one-thread pool (a few microseconds of the figure).
@@ -24,7 +26,9 @@ fn scan_361_beams_park(bencher: Bencher) {
 fn park_route_without_camera(bencher: Bencher) {
     let world = worlds::generate::park(&Default::default(), 1).unwrap();
     bencher.bench_local(|| {
-        let mut s = Simulation::new(&world, &SimConfig::default(), 1).unwrap();
+        let mut config = SimConfig::default();
+        config.camera.enabled = false;
+        let mut s = Simulation::new(&world, &config, 1).unwrap();
         while s.next_event().is_some() {}
         s.time()
     });

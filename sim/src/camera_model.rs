@@ -13,6 +13,8 @@ use crate::messages::Pose2D;
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct CameraConfig {
+    /// Whether the simulator renders camera frames at all (position-only runs skip them).
+    pub enabled: bool,
     pub width: u32,
     pub height: u32,
     /// Horizontal field of view; fx = fy from it, principal point at the image centre.
@@ -32,6 +34,7 @@ pub struct CameraConfig {
 impl Default for CameraConfig {
     fn default() -> Self {
         CameraConfig {
+            enabled: true,
             width: 640,
             height: 480,
             hfov_deg: 60.0,

@@ -14,6 +14,7 @@ pub struct SimConfig {
     pub robot: RobotConfig,
     pub laser: LaserConfig,
     pub odometry: OdometryConfig,
+    pub camera: crate::camera_model::CameraConfig,
     /// Stop after this much simulated time even if the route is not finished.
     pub max_duration_s: Option<f64>,
 }
@@ -25,6 +26,7 @@ impl Default for SimConfig {
             robot: RobotConfig::default(),
             laser: LaserConfig::default(),
             odometry: OdometryConfig::default(),
+            camera: crate::camera_model::CameraConfig::default(),
             max_duration_s: None,
         }
     }
@@ -232,6 +234,12 @@ impl SimConfig {
         }
         if self.robot.cruise_speed_mps > self.robot.max_speed_mps {
             return bad("robot.cruise_speed_mps", format!("exceeds max_speed_mps {}", self.robot.max_speed_mps));
+        }
+        if let Err(message) = self.camera.check() {
+            return bad("camera", message);
+        }
+        if self.camera.rate_hz > self.physics_rate_hz {
+            return bad("camera.rate_hz", format!("{} Hz is faster than physics", self.camera.rate_hz));
         }
         if let Some(d) = self.max_duration_s
             && !(d.is_finite() && d > 0.0)

@@ -22,6 +22,7 @@
 //! assert_eq!(scans, 11); // 10 Hz, first scan at t = 0
 //! ```
 
+pub mod camera;
 pub mod camera_model;
 pub mod config;
 pub mod controller;
@@ -48,6 +49,8 @@ pub enum SimError {
     Config { field: String, message: String },
     #[error("world: {0}")]
     World(#[from] worlds::WorldError),
+    #[error("camera: {0}")]
+    Camera(#[from] camera::CameraError),
 }
 
 /// Derives independent seeds for each random source from the run seed, so adding a
@@ -101,6 +104,9 @@ pub struct Simulation {
     odometry: OdometryModel,
     laser_schedule: Schedule,
     odometry_schedule: Schedule,
+    camera: Option<camera::CameraSensor>,
+    camera_schedule: Schedule,
+    camera_error: Option<String>,
     step: u64,
     dt: f64,
     pending: VecDeque<SensorEvent>,
@@ -128,6 +134,9 @@ impl Simulation {
             odometry: OdometryModel::new(&config.odometry, derive_seed(seed, "odometry")),
             laser_schedule: Schedule::new(config.laser.rate_hz),
             odometry_schedule: Schedule::new(config.odometry.rate_hz),
+            camera: if config.camera.enabled { Some(camera::CameraSensor::new(world, &config.camera, derive_seed(seed, "camera"))?) } else { None },
+            camera_schedule: Schedule::new(config.camera.rate_hz),
+            camera_error: None,
             scene,
             follower,
             step: 0,
@@ -173,6 +182,16 @@ impl Simulation {
     /// Nominal duration of the run: route length over cruise speed (for progress bars).
     pub fn nominal_duration_s(&self) -> f64 {
         self.follower.total_length() / self.config.robot.cruise_speed_mps
+    }
+
+    /// The camera, when enabled.
+    pub fn camera(&self) -> Option<&camera::CameraSensor> {
+        self.camera.as_ref()
+    }
+
+    /// A rendering failure that stopped the camera mid-run, if any.
+    pub fn camera_error(&self) -> Option<&str> {
+        self.camera_error.as_deref()
     }
 
     pub fn laser(&self) -> &Laser {
@@ -235,7 +254,19 @@ impl Simulation {
         if self.laser_schedule.due(t) {
             let (scan, beams) = self.laser.scan(&self.scene, &truth.robot, t);
             self.last_scan = Some(scan.clone());
-            self.pending.push_back(SensorEvent::Laser { scan, beams, truth });
+            self.pending.push_back(SensorEvent::Laser { scan, beams, truth: truth.clone() });
+        }
+        if let Some(cam) = &mut self.camera
+            && self.camera_schedule.due(t)
+        {
+            match cam.capture(t, &truth.robot, &truth.people) {
+                Ok(frame) => self.pending.push_back(SensorEvent::Camera { frame: Box::new(frame), truth }),
+                Err(e) => {
+                    // A lost GPU device ends the camera, not the run; the error is kept.
+                    self.camera_error = Some(e.to_string());
+                    self.camera = None;
+                }
+            }
         }
     }
 }

@@ -104,6 +104,8 @@ pub struct Collision {
 pub enum SensorEvent {
     Odometry { odometry: Odometry, truth: GroundTruth },
     Laser { scan: LaserScan, beams: LaserTruth, truth: GroundTruth },
+    /// A camera frame; its instance, class and depth images are ground truth.
+    Camera { frame: Box<crate::camera::CameraFrame>, truth: GroundTruth },
 }
 
 impl SensorEvent {
@@ -111,12 +113,13 @@ impl SensorEvent {
         match self {
             SensorEvent::Odometry { odometry, .. } => odometry.t,
             SensorEvent::Laser { scan, .. } => scan.t,
+            SensorEvent::Camera { frame, .. } => frame.t,
         }
     }
 
     pub fn truth(&self) -> &GroundTruth {
         match self {
-            SensorEvent::Odometry { truth, .. } | SensorEvent::Laser { truth, .. } => truth,
+            SensorEvent::Odometry { truth, .. } | SensorEvent::Laser { truth, .. } | SensorEvent::Camera { truth, .. } => truth,
         }
     }
 }

@@ -1,6 +1,13 @@
 //! Sensor and robot behaviour on small hand-built worlds with known answers.
 
 use sim::{LaserConfig, OdometryConfig, SensorEvent, SimConfig, Simulation};
+
+/// Default settings without the camera (these tests are about physics, laser, odometry).
+fn cfg() -> SimConfig {
+    let mut c = SimConfig::default();
+    c.camera.enabled = false;
+    c
+}
 use worlds::*;
 
 fn appearance(material: Material) -> Appearance {
@@ -45,7 +52,7 @@ fn first_scan(world: &World, config: &SimConfig, seed: u64) -> (sim::LaserScan, 
 fn beam_on_known_trunk_returns_analytic_distance() {
     let mut w = empty_world();
     w.objects.push(tree(7, 6.0, 0.0, 0.3));
-    let config = SimConfig::default();
+    let config = cfg();
     let (scan, truth) = first_scan(&w, &config, 3);
     // Centre beam (index 180) points straight ahead from the laser at x = 0.16.
     let expected = 6.0 - 0.3 - 0.16;
@@ -76,7 +83,7 @@ fn beam_on_known_trunk_returns_analytic_distance() {
 fn range_noise_has_the_configured_spread() {
     let mut w = empty_world();
     w.objects.push(tree(7, 6.0, 0.0, 0.3));
-    let mut config = SimConfig::default();
+    let mut config = cfg();
     config.laser.max_range_m = 8.0; // mm quantisation, so the noise dominates
     let mut errors = Vec::new();
     for seed in 0..200 {
@@ -93,7 +100,7 @@ fn range_noise_has_the_configured_spread() {
 fn no_return_beyond_maximum_range() {
     let mut w = empty_world();
     w.objects.push(tree(7, 12.0, 0.0, 0.3));
-    let mut config = SimConfig::default();
+    let mut config = cfg();
     config.laser.max_range_m = 8.0;
     let (scan, truth) = first_scan(&w, &config, 1);
     assert!(scan.ranges.iter().all(|r| r.is_infinite()), "a return beyond 8 m");
@@ -121,7 +128,7 @@ fn person_legs_block_beams() {
         shirt: appearance(Material::Clothes),
         trousers: appearance(Material::Clothes),
     });
-    let (_, truth) = first_scan(&w, &SimConfig::default(), 1);
+    let (_, truth) = first_scan(&w, &cfg(), 1);
     let legs: Vec<usize> = truth.hit_ids.iter().enumerate().filter(|(_, id)| **id == 30).map(|(i, _)| i).collect();
     assert!(!legs.is_empty(), "no beam hit the legs");
     // Two separate legs: two runs of beams with a gap between.
@@ -131,7 +138,7 @@ fn person_legs_block_beams() {
     let tree_beams = truth.hit_ids.iter().filter(|&&id| id == 7).count();
     let mut w2 = w.clone();
     w2.people.clear();
-    let (_, clear) = first_scan(&w2, &SimConfig::default(), 1);
+    let (_, clear) = first_scan(&w2, &cfg(), 1);
     assert!(clear.hit_ids.iter().filter(|&&id| id == 7).count() >= tree_beams);
     for i in &legs {
         assert!((truth.true_ranges[*i] - (4.0 - 0.16)).abs() < 0.15);
@@ -141,7 +148,7 @@ fn person_legs_block_beams() {
 #[test]
 fn noiseless_odometry_integrates_to_the_true_path() {
     let world = worlds::generate::park(&Default::default(), 3).unwrap();
-    let config = SimConfig { odometry: OdometryConfig::noiseless(), max_duration_s: Some(60.0), ..Default::default() };
+    let config = SimConfig { odometry: OdometryConfig::noiseless(), max_duration_s: Some(60.0), ..cfg() };
     let mut s = Simulation::new(&world, &config, 9).unwrap();
     let mut pose: Option<sim::Pose2D> = None;
     let mut n = 0;
@@ -162,7 +169,7 @@ fn noiseless_odometry_integrates_to_the_true_path() {
 #[test]
 fn noisy_odometry_drifts() {
     let world = worlds::generate::park(&Default::default(), 3).unwrap();
-    let config = SimConfig { max_duration_s: Some(60.0), ..Default::default() };
+    let config = SimConfig { max_duration_s: Some(60.0), ..cfg() };
     let mut s = Simulation::new(&world, &config, 9).unwrap();
     let mut pose: Option<sim::Pose2D> = None;
     let mut last = None;
@@ -183,7 +190,7 @@ fn noisy_odometry_drifts() {
 #[test]
 fn controller_completes_the_park_route_without_collision() {
     let world = worlds::generate::park(&Default::default(), 1).unwrap();
-    let mut s = Simulation::new(&world, &SimConfig::default(), 1).unwrap();
+    let mut s = Simulation::new(&world, &cfg(), 1).unwrap();
     while s.next_event().is_some() {}
     assert!(s.route_progress() > 0.99, "stopped at {:.2} of the route", s.route_progress());
     assert!(s.collisions().is_empty(), "collisions: {:?}", s.collisions());
@@ -199,7 +206,7 @@ fn collision_with_an_obstacle_is_recorded() {
     let mut w = empty_world();
     w.robot.route.waypoints = vec![[0.0, 0.0], [6.0, 0.0]];
     w.objects.push(tree(9, 3.0, 0.0, 0.3));
-    let mut config = SimConfig { max_duration_s: Some(20.0), ..Default::default() };
+    let mut config = SimConfig { max_duration_s: Some(20.0), ..cfg() };
     config.robot.safety_stop_m = 0.0;
     let mut s = Simulation::new(&w, &config, 1).unwrap();
     while s.next_event().is_some() {}
@@ -211,15 +218,15 @@ fn collision_with_an_obstacle_is_recorded() {
 #[test]
 fn bad_settings_are_named() {
     let w = empty_world();
-    let mut c = SimConfig::default();
+    let mut c = cfg();
     c.laser.rate_hz = -10.0;
     let e = Simulation::new(&w, &c, 1).err().unwrap().to_string();
     assert!(e.contains("laser.rate_hz"), "{e}");
-    let mut c = SimConfig::default();
+    let mut c = cfg();
     c.laser.fov_deg = 0.1;
     let e = Simulation::new(&w, &c, 1).err().unwrap().to_string();
     assert!(e.contains("beams"), "{e}");
-    let mut c = SimConfig::default();
+    let mut c = cfg();
     c.laser = LaserConfig { max_range_m: 50.0, ..Default::default() };
     let e = Simulation::new(&w, &c, 1).err().unwrap().to_string();
     assert!(e.contains("max_range_m"), "{e}");

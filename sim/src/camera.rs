@@ -1,0 +1,156 @@
+//! The camera sensor: renders the world from the robot's camera with the `render` crate,
+//! people posed at the frame's instant, with exact instance, class and depth images.
+
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+use render::{InstanceHandle, Lighting, MeshData, Renderer, RendererConfig, TextureData};
+use worlds::World;
+use worlds::mesh::{MeshPart, TriMesh, person_parts, static_world_parts};
+
+pub use crate::camera_model::{CameraConfig, Intrinsics, Rigid};
+use crate::messages::{PersonState, Pose2D};
+use crate::people::leg_pose;
+
+/// Errors of the camera.
+#[derive(Debug, thiserror::Error)]
+pub enum CameraError {
+    #[error("camera settings: {0}")]
+    Config(String),
+    #[error("renderer: {0}")]
+    Render(#[from] render::RenderError),
+}
+
+/// One camera frame: the image and its exactly aligned ground truth.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CameraFrame {
+    pub t: f64,
+    pub intrinsics: Intrinsics,
+    /// World <- camera optical frame (ground truth).
+    pub world_from_camera: Rigid,
+    /// Colour, instance, class and depth images (see `render::Frame`).
+    pub image: render::Frame,
+}
+
+struct PersonInstances {
+    id: u16,
+    left: InstanceHandle,
+    right: InstanceHandle,
+    body: InstanceHandle,
+    head: InstanceHandle,
+}
+
+/// A camera rendering one world.
+pub struct CameraSensor {
+    pub config: CameraConfig,
+    renderer: Renderer,
+    world: World,
+    people: Vec<PersonInstances>,
+    rng: ChaCha8Rng,
+    pub lighting: Lighting,
+}
+
+fn mesh_data(m: &TriMesh) -> MeshData {
+    MeshData { positions: m.positions.clone(), normals: m.normals.clone(), uvs: m.uvs.clone(), indices: m.indices.clone() }
+}
+
+fn texture_data(part: &MeshPart) -> TextureData {
+    let t = worlds::texture::generate(&part.appearance);
+    TextureData { width: t.width, height: t.height, rgba: t.rgba }
+}
+
+/// Column-major transform: rotation about z by `yaw`, then about the (rotated) y axis by
+/// `pitch`, then translation.
+fn transform(t: [f64; 3], yaw: f64, pitch: f64) -> [[f32; 4]; 4] {
+    let (sy, cy) = yaw.sin_cos();
+    let (sp, cp) = pitch.sin_cos();
+    // R = Rz(yaw) * Ry(pitch)
+    let r = [[cy * cp, -sy, cy * sp], [sy * cp, cy, sy * sp], [-sp, 0.0, cp]];
+    let mut m = [[0.0f32; 4]; 4];
+    for c in 0..3 {
+        for row in 0..3 {
+            m[c][row] = r[row][c] as f32;
+        }
+    }
+    m[3] = [t[0] as f32, t[1] as f32, t[2] as f32, 1.0];
+    m
+}
+
+impl CameraSensor {
+    /// Uploads the world's meshes and textures. `seed` drives image noise and exposure.
+    pub fn new(world: &World, config: &CameraConfig, seed: u64) -> Result<Self, CameraError> {
+        config.check().map_err(CameraError::Config)?;
+        let mut renderer = Renderer::new(&RendererConfig { width: config.width, height: config.height })?;
+        for part in static_world_parts(world) {
+            let mesh = renderer.add_mesh(&mesh_data(&part.mesh))?;
+            let tex = renderer.add_texture(&texture_data(&part))?;
+            renderer.add_instance(mesh, tex, render::IDENTITY, part.instance_id, part.class.id());
+        }
+        let mut people = Vec::new();
+        for p in &world.people {
+            let parts = person_parts(p);
+            let mut add = |part: &MeshPart| -> Result<InstanceHandle, CameraError> {
+                let mesh = renderer.add_mesh(&mesh_data(&part.mesh))?;
+                let tex = renderer.add_texture(&texture_data(part))?;
+                Ok(renderer.add_instance(mesh, tex, render::IDENTITY, part.instance_id, part.class.id()))
+            };
+            people.push(PersonInstances { id: p.id, left: add(&parts.left_leg)?, right: add(&parts.right_leg)?, body: add(&parts.body)?, head: add(&parts.head)? });
+        }
+        Ok(CameraSensor { config: config.clone(), renderer, world: world.clone(), people, rng: ChaCha8Rng::seed_from_u64(seed), lighting: Lighting::default() })
+    }
+
+    /// The adapter rendering the images.
+    pub fn adapter(&self) -> render::AdapterSummary {
+        self.renderer.adapter_info().clone()
+    }
+
+    /// Poses the people as in `people` (states from the simulator).
+    pub fn pose_people(&mut self, people: &[PersonState]) {
+        for s in people {
+            let Some(inst) = self.people.iter().find(|p| p.id == s.id) else { continue };
+            let Some(p) = self.world.people.iter().find(|p| p.id == s.id) else { continue };
+            for (handle, side) in [(inst.left, 1.0), (inst.right, -1.0)] {
+                let (hip, swing) = leg_pose(p, s, side);
+                // Positive swing moves the foot forward: a rotation of -swing about y.
+                self.renderer.set_transform(handle, transform(hip, s.heading, -swing));
+            }
+            let body = transform([s.x, s.y, 0.0], s.heading, 0.0);
+            self.renderer.set_transform(inst.body, body);
+            self.renderer.set_transform(inst.head, body);
+        }
+    }
+
+    /// Renders from an arbitrary camera pose (datasets, calibration).
+    pub fn render_from(&mut self, t: f64, world_from_camera: Rigid) -> Result<CameraFrame, CameraError> {
+        let k = self.config.intrinsics();
+        let camera = render::Camera {
+            fx: k.fx as f32,
+            fy: k.fy as f32,
+            cx: k.cx as f32,
+            cy: k.cy as f32,
+            world_from_camera: world_from_camera.to_mat4(),
+            near_m: 0.05,
+            far_m: 500.0,
+        };
+        let mut lighting = self.lighting;
+        if self.config.exposure_sigma > 0.0 {
+            let n = Normal::new(1.0, self.config.exposure_sigma).expect("finite sigma");
+            lighting.exposure *= (n.sample(&mut self.rng) as f32).max(0.1);
+        }
+        let mut image = self.renderer.render(&camera, &lighting)?;
+        if self.config.noise_sigma > 0.0 {
+            let n = Normal::new(0.0, self.config.noise_sigma).expect("finite sigma");
+            for v in &mut image.rgb {
+                *v = (*v as f64 + n.sample(&mut self.rng)).round().clamp(0.0, 255.0) as u8;
+            }
+        }
+        Ok(CameraFrame { t, intrinsics: k, world_from_camera, image })
+    }
+
+    /// Renders the robot's view at `robot` with `people` posed.
+    pub fn capture(&mut self, t: f64, robot: &Pose2D, people: &[PersonState]) -> Result<CameraFrame, CameraError> {
+        self.pose_people(people);
+        let pose = self.config.world_from_camera(robot);
+        self.render_from(t, pose)
+    }
+}
