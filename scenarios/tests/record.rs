@@ -34,6 +34,30 @@ fn record_writes_a_readable_consistent_log() {
     let meta: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("metadata.json")).unwrap()).unwrap();
     assert_eq!(meta["seed"], 4);
 
+    // Camera frames: 5 Hz, each with aligned instance, class and depth images.
+    let cam = std::fs::read_to_string(dir.join("camera.jsonl")).unwrap();
+    let frames: Vec<serde_json::Value> = cam.lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    assert_eq!(frames.len(), 51);
+    assert_eq!(summary.camera_frames, 51);
+    let f = &frames[10];
+    let rgb = image::open(dir.join(f["image"].as_str().unwrap())).unwrap().to_rgb8();
+    let inst = image::open(dir.join(f["instance"].as_str().unwrap())).unwrap().to_luma16();
+    let class = image::open(dir.join(f["class"].as_str().unwrap())).unwrap().to_luma8();
+    assert_eq!((rgb.width(), rgb.height()), (640, 480));
+    assert_eq!((inst.width(), inst.height()), (640, 480));
+    for (i, c) in inst.pixels().zip(class.pixels()) {
+        let id = i.0[0];
+        let expected = match id {
+            0 => 0,
+            worlds::validate::GROUND_INSTANCE_ID => worlds::ObjectClass::Ground.id(),
+            id => world.class_of(id).expect("ids from the world").id(),
+        };
+        assert_eq!(c.0[0], expected);
+    }
+    assert!(inst.pixels().any(|p| p.0[0] != 0 && p.0[0] != worlds::validate::GROUND_INSTANCE_ID), "no object in view");
+    assert_eq!(f["K"][0][0].as_f64().unwrap(), sensors["camera"]["K"][0][0].as_f64().unwrap());
+    assert!(sensors["camera"]["laser_from_camera"]["Phi"].is_array());
+
     // The MCAP file reads back with Foxglove schemas on the expected topics.
     let bytes = std::fs::read(dir.join("run.mcap")).unwrap();
     let mut per_topic: BTreeMap<String, (String, usize)> = BTreeMap::new();
@@ -47,4 +71,6 @@ fn record_writes_a_readable_consistent_log() {
     assert_eq!(per_topic["/laser"], ("foxglove.LaserScan".to_string(), 101));
     assert_eq!(per_topic["/tf"].0, "foxglove.FrameTransform");
     assert_eq!(per_topic["/ground_truth/pose"].0, "foxglove.PosesInFrame");
+    assert_eq!(per_topic["/camera/image"], ("foxglove.CompressedImage".to_string(), 51));
+    assert_eq!(per_topic["/camera/calibration"].0, "foxglove.CameraCalibration");
 }

@@ -1,0 +1,97 @@
+//! The camera against the laser and the ground truth: what the laser hits, carried into the
+//! image with the extrinsics (the paper's Phi, Delta) and K, lands on the same object.
+
+use sim::{SensorEvent, SimConfig, Simulation};
+
+#[test]
+fn laser_points_projected_with_extrinsics_land_on_their_objects_pixels() {
+    let world = worlds::generate::park(&Default::default(), 2006).unwrap();
+    let config = SimConfig { max_duration_s: Some(30.0), ..Default::default() };
+    let mut s = Simulation::new(&world, &config, 2).unwrap();
+    eprintln!("renderer: {}", s.camera().unwrap().adapter());
+    // P_camera = Phi^-1 (P_laser - Delta)
+    let camera_from_laser = config.camera.laser_from_camera(&config.laser).inverse();
+    let k = config.camera.intrinsics();
+    let mut last_beams: Option<(Vec<u16>, Vec<f64>, sim::LaserScan)> = None;
+    let (mut checked, mut agreed) = (0usize, 0usize);
+    let (mut depth_checked, mut depth_agreed) = (0usize, 0usize);
+    while let Some(e) = s.next_event() {
+        match e {
+            // Laser and camera share time stamps at 5 Hz (the laser runs at 10 Hz).
+            SensorEvent::Laser { scan, beams, .. } => last_beams = Some((beams.hit_ids, beams.true_ranges, scan)),
+            SensorEvent::Camera { frame, .. } => {
+                let Some((ids, ranges, scan)) = &last_beams else { continue };
+                if (scan.t - frame.t).abs() > 1e-9 {
+                    continue;
+                }
+                for (i, &id) in ids.iter().enumerate() {
+                    if id == 0 || !ranges[i].is_finite() || ranges[i] > 15.0 {
+                        continue;
+                    }
+                    let a = scan.angle_min + scan.angle_increment * i as f64;
+                    // Pull the point 2 mm back along the beam so it is in front of the surface.
+                    let r = ranges[i] - 0.002;
+                    let p_laser = [r * a.cos(), r * a.sin(), 0.0];
+                    let p_cam = camera_from_laser.apply(p_laser);
+                    let Some(px) = k.project(p_cam) else { continue };
+                    let (u, v) = (px[0].floor(), px[1].floor());
+                    if u < 0.0 || v < 0.0 || u >= k.width as f64 || v >= k.height as f64 {
+                        continue;
+                    }
+                    let seen = frame.image.instance_at(u as u32, v as u32);
+                    checked += 1;
+                    if seen == id {
+                        agreed += 1;
+                    } else {
+                        // Only acceptable at an object's silhouette edge.
+                        let near_edge = (-1i64..=1).flat_map(|du| (-1i64..=1).map(move |dv| (du, dv))).any(|(du, dv)| {
+                            let (uu, vv) = (u as i64 + du, v as i64 + dv);
+                            uu >= 0 && vv >= 0 && uu < k.width as i64 && vv < k.height as i64 && frame.image.instance_at(uu as u32, vv as u32) == id
+                        });
+                        assert!(near_edge, "beam {i} hit {id} at {r:.2} m but pixel ({u}, {v}) shows {seen} at t = {}", frame.t);
+                    }
+                    // The rendered depth agrees with the laser point's depth, within what one
+                    // pixel spans (z / fx) — except at grazing incidence, where a pixel's
+                    // footprint covers a range of depths; count those.
+                    if seen == id {
+                        let d = frame.image.depth_at(u as u32, v as u32) as f64;
+                        let tolerance = 0.01 + 2.0 * p_cam[2] / k.fx;
+                        depth_checked += 1;
+                        if (d - p_cam[2]).abs() < tolerance {
+                            depth_agreed += 1;
+                        }
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+    assert!(checked > 200, "only {checked} laser points fell in the image");
+    assert!(agreed as f64 >= 0.97 * checked as f64, "{agreed} of {checked} agreed");
+    assert!(depth_agreed as f64 >= 0.95 * depth_checked as f64, "depth agreed for {depth_agreed} of {depth_checked}");
+}
+
+#[test]
+fn class_image_follows_the_instance_image() {
+    let world = worlds::generate::park(&Default::default(), 2006).unwrap();
+    let mut config = SimConfig { max_duration_s: Some(0.5), ..Default::default() };
+    config.camera.width = 320;
+    config.camera.height = 240;
+    let mut s = Simulation::new(&world, &config, 2).unwrap();
+    let mut frames = 0;
+    while let Some(e) = s.next_event() {
+        if let SensorEvent::Camera { frame, .. } = e {
+            frames += 1;
+            for (i, &id) in frame.image.instance.iter().enumerate() {
+                let class = frame.image.class[i];
+                let expected = match id {
+                    0 => 0,
+                    worlds::validate::GROUND_INSTANCE_ID => worlds::ObjectClass::Ground.id(),
+                    id => world.class_of(id).expect("instance ids come from the world").id(),
+                };
+                assert_eq!(class, expected, "pixel {i}: instance {id}");
+            }
+        }
+    }
+    assert_eq!(frames, 3);
+}
