@@ -9,6 +9,7 @@
 //! scenarios::plot::draw_map(&world, &scenarios::plot::Overlays::default(), "map.png".as_ref()).unwrap();
 //! ```
 
+pub mod dataset;
 pub mod foxglove;
 pub mod montecarlo;
 pub mod plot;

@@ -1,0 +1,360 @@
+//! `objslam dataset`: training images with exact labels for the paper's offline phase.
+//!
+//! Viewpoints at varied distances, heights and angles around objects of the wanted
+//! classes, plus background views, under varied sun and exposure. Per image: the RGB PNG,
+//! 16-bit instance and 8-bit class masks, per-patch labels (the fraction of each L x L
+//! patch covered by the wanted classes), K and the camera pose; `dataset.json` lists them
+//! and `annotations.json` holds COCO instance annotations with RLE masks.
+
+use std::path::{Path, PathBuf};
+
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+use serde_json::json;
+use sim::camera::{CameraConfig, CameraSensor, Rigid};
+use worlds::{ObjectClass, World};
+
+use crate::record::{RecordError, write_png};
+
+/// Version of `dataset.json`.
+pub const DATASET_FORMAT_VERSION: u32 = 1;
+
+#[derive(Debug, thiserror::Error)]
+pub enum DatasetError {
+    #[error("{0}")]
+    Config(String),
+    #[error(transparent)]
+    Camera(#[from] sim::camera::CameraError),
+    #[error(transparent)]
+    Write(#[from] RecordError),
+    #[error("{}: {message}", file.display())]
+    Io { file: PathBuf, message: String },
+}
+
+/// Dataset settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DatasetConfig {
+    pub images: usize,
+    pub seed: u64,
+    /// Classes whose pixels are labelled positive in the patch labels.
+    pub classes: Vec<ObjectClass>,
+    pub patch_size: u32,
+    /// Fraction of background views (no wanted object targeted).
+    pub background_fraction: f64,
+    pub camera: CameraConfig,
+    /// Camera distance from the targeted object (m).
+    pub distance_m: [f64; 2],
+    /// Camera height above the ground (m).
+    pub height_m: [f64; 2],
+}
+
+impl Default for DatasetConfig {
+    fn default() -> Self {
+        DatasetConfig {
+            images: 100,
+            seed: 1,
+            classes: vec![ObjectClass::Tree],
+            patch_size: 9,
+            background_fraction: 0.25,
+            camera: CameraConfig::default(),
+            distance_m: [1.5, 8.0],
+            height_m: [0.4, 1.6],
+        }
+    }
+}
+
+/// One image's entry in `dataset.json`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ImageEntry {
+    pub id: usize,
+    pub image: String,
+    pub instance: String,
+    pub class: String,
+    pub patches: String,
+    /// "object" (aimed at an object of a wanted class) or "background".
+    pub kind: String,
+    pub target_instance: Option<u16>,
+    /// World <- camera optical frame.
+    pub world_from_camera: Rigid,
+    pub sun_direction: [f32; 3],
+    pub exposure: f32,
+    /// Time at which people were posed.
+    pub people_time_s: f64,
+}
+
+/// The manifest.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Manifest {
+    pub format_version: u32,
+    pub seed: u64,
+    pub world: String,
+    pub classes: Vec<ObjectClass>,
+    pub patch_size: u32,
+    pub width: u32,
+    pub height: u32,
+    pub k: [[f64; 3]; 3],
+    pub renderer: String,
+    pub images: Vec<ImageEntry>,
+}
+
+/// Per-patch labels of one image.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PatchLabels {
+    pub patch_size: u32,
+    pub rows: u32,
+    pub cols: u32,
+    /// Row-major fractions in [0, 1] of each patch's pixels that belong to a wanted class.
+    pub fractions: Vec<f32>,
+}
+
+/// Fraction of each `l` x `l` patch whose class is one of `wanted` (partial patches at the
+/// right and bottom edges are dropped, as the paper's 640/9 x 480/9 grid does).
+pub fn patch_labels(class: &[u8], width: u32, height: u32, l: u32, wanted: &[u8]) -> PatchLabels {
+    let (cols, rows) = (width / l, height / l);
+    let mut fractions = vec![0.0f32; (rows * cols) as usize];
+    for r in 0..rows {
+        for c in 0..cols {
+            let mut n = 0u32;
+            for y in r * l..(r + 1) * l {
+                for x in c * l..(c + 1) * l {
+                    n += wanted.contains(&class[(y * width + x) as usize]) as u32;
+                }
+            }
+            fractions[(r * cols + c) as usize] = n as f32 / (l * l) as f32;
+        }
+    }
+    PatchLabels { patch_size: l, rows, cols, fractions }
+}
+
+/// COCO run-length encoding (uncompressed): counts of alternating runs of 0 and 1 in
+/// column-major order, starting with 0s.
+pub fn rle_encode(mask: &[bool], width: u32, height: u32) -> Vec<u32> {
+    let mut counts = Vec::new();
+    let mut current = false;
+    let mut run = 0u32;
+    for x in 0..width {
+        for y in 0..height {
+            let v = mask[(y * width + x) as usize];
+            if v != current {
+                counts.push(run);
+                run = 0;
+                current = v;
+            }
+            run += 1;
+        }
+    }
+    counts.push(run);
+    counts
+}
+
+/// Decodes [`rle_encode`]'s counts back into a row-major mask.
+pub fn rle_decode(counts: &[u32], width: u32, height: u32) -> Vec<bool> {
+    let mut mask = vec![false; (width * height) as usize];
+    let mut i = 0u32;
+    let mut value = false;
+    for &c in counts {
+        for k in i..i + c {
+            let (x, y) = (k / height, k % height);
+            mask[(y * width + x) as usize] = value;
+        }
+        i += c;
+        value = !value;
+    }
+    mask
+}
+
+/// A camera at `eye` looking at `target`, image rows level.
+pub fn look_at(eye: [f64; 3], target: [f64; 3]) -> Rigid {
+    let sub = [target[0] - eye[0], target[1] - eye[1], target[2] - eye[2]];
+    let norm = |v: [f64; 3]| {
+        let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt().max(1e-12);
+        [v[0] / l, v[1] / l, v[2] / l]
+    };
+    let cross = |a: [f64; 3], b: [f64; 3]| [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+    let z = norm(sub);
+    let x = norm(cross(z, [0.0, 0.0, 1.0]));
+    let y = cross(z, x);
+    Rigid { r: [[x[0], y[0], z[0]], [x[1], y[1], z[1]], [x[2], y[2], z[2]]], t: eye }
+}
+
+/// Makes a dataset of `world` in `out`. `progress(done, total)` after each image.
+pub fn make_dataset(world: &World, world_name: &str, config: &DatasetConfig, out: &Path, progress: impl Fn(usize, usize)) -> Result<Manifest, DatasetError> {
+    if config.images == 0 {
+        return Err(DatasetError::Config("--images must be at least 1".into()));
+    }
+    if config.patch_size == 0 || config.patch_size > config.camera.width.min(config.camera.height) {
+        return Err(DatasetError::Config(format!("patch size {} does not fit a {}x{} image", config.patch_size, config.camera.width, config.camera.height)));
+    }
+    let targets: Vec<&worlds::StaticObject> = world.objects.iter().filter(|o| config.classes.contains(&o.class)).collect();
+    if targets.is_empty() && config.background_fraction < 1.0 {
+        return Err(DatasetError::Config(format!("the world has no object of the classes {:?}", config.classes.iter().map(|c| c.name()).collect::<Vec<_>>())));
+    }
+    for dir in ["images", "masks", "labels"] {
+        std::fs::create_dir_all(out.join(dir)).map_err(|e| DatasetError::Io { file: out.join(dir), message: e.to_string() })?;
+    }
+    let mut cam = CameraSensor::new(world, &config.camera, sim::derive_seed(config.seed, "dataset-camera"))?;
+    let base_lighting = cam.lighting;
+    let k = config.camera.intrinsics();
+    let (w, h) = (config.camera.width, config.camera.height);
+    let wanted: Vec<u8> = config.classes.iter().map(|c| c.id()).collect();
+    let footprints: Vec<worlds::Footprint> = world.objects.iter().map(|o| o.shape.footprint(&o.pose)).collect();
+    let g = &world.ground;
+    let mut entries = Vec::new();
+    let mut coco_images = Vec::new();
+    let mut coco_annotations = Vec::new();
+    for i in 0..config.images {
+        let mut rng = ChaCha8Rng::seed_from_u64(sim::derive_seed(config.seed, &format!("dataset-image-{i}")));
+        let background = targets.is_empty() || rng.random_range(0.0..1.0) < config.background_fraction;
+        // Pick a viewpoint clear of every object and inside the ground.
+        let mut chosen = None;
+        for _ in 0..1000 {
+            let height = rng.random_range(config.height_m[0]..=config.height_m[1]);
+            let (eye, target, target_id) = if background {
+                let eye = [rng.random_range(g.min_m[0]..g.max_m[0]), rng.random_range(g.min_m[1]..g.max_m[1]), height];
+                let yaw: f64 = rng.random_range(0.0..std::f64::consts::TAU);
+                (eye, [eye[0] + yaw.cos(), eye[1] + yaw.sin(), height - rng.random_range(0.0..0.3)], None)
+            } else {
+                let o = targets[rng.random_range(0..targets.len())];
+                let d = rng.random_range(config.distance_m[0]..=config.distance_m[1]);
+                let a: f64 = rng.random_range(0.0..std::f64::consts::TAU);
+                let eye = [o.pose.x + d * a.cos(), o.pose.y + d * a.sin(), height];
+                let aim_h = rng.random_range(0.3..(o.shape.top_m().min(2.5)).max(0.4));
+                let jitter = 0.15 * d;
+                let target = [o.pose.x + rng.random_range(-jitter..=jitter) * 0.3, o.pose.y + rng.random_range(-jitter..=jitter) * 0.3, aim_h];
+                (eye, target, Some(o.id))
+            };
+            let inside = eye[0] > g.min_m[0] + 0.3 && eye[0] < g.max_m[0] - 0.3 && eye[1] > g.min_m[1] + 0.3 && eye[1] < g.max_m[1] - 0.3;
+            if inside && footprints.iter().all(|f| f.distance_to_point([eye[0], eye[1]]) > 0.3) {
+                chosen = Some((eye, target, target_id));
+                break;
+            }
+        }
+        let Some((eye, target, target_id)) = chosen else {
+            return Err(DatasetError::Config(format!("no free viewpoint found for image {i}; the world is too crowded")));
+        };
+        // Lighting variation: sun azimuth and elevation, exposure.
+        let az: f64 = rng.random_range(0.0..std::f64::consts::TAU);
+        let el: f64 = rng.random_range(0.3..1.3);
+        let sun = [(-el.cos() * az.cos()) as f32, (-el.cos() * az.sin()) as f32, (-el.sin()) as f32];
+        let exposure = rng.random_range(0.75..1.25) as f32;
+        cam.lighting = render::Lighting { sun_direction: sun, exposure, ..base_lighting };
+        let people_time = rng.random_range(0.0..120.0);
+        let people: Vec<sim::PersonState> = world.people.iter().map(|p| sim::people::person_state(p, people_time)).collect();
+        cam.pose_people(&people);
+        let pose = look_at(eye, target);
+        let frame = cam.render_from(0.0, pose)?;
+        let img = &frame.image;
+
+        let stem = format!("{i:06}");
+        let names = [format!("images/{stem}.png"), format!("masks/{stem}_instance.png"), format!("masks/{stem}_class.png"), format!("labels/{stem}_patches.json")];
+        write_png(&out.join(&names[0]), w, h, image::ExtendedColorType::Rgb8, &img.rgb)?;
+        let inst: Vec<u8> = img.instance.iter().flat_map(|v| v.to_ne_bytes()).collect();
+        write_png(&out.join(&names[1]), w, h, image::ExtendedColorType::L16, &inst)?;
+        write_png(&out.join(&names[2]), w, h, image::ExtendedColorType::L8, &img.class)?;
+        let labels = patch_labels(&img.class, w, h, config.patch_size, &wanted);
+        std::fs::write(out.join(&names[3]), serde_json::to_string(&labels).expect("JSON")).map_err(|e| DatasetError::Io { file: out.join(&names[3]), message: e.to_string() })?;
+
+        // COCO: one annotation per visible object instance (not ground, not sky).
+        coco_images.push(json!({"id": i, "file_name": names[0], "width": w, "height": h}));
+        let mut ids: Vec<u16> = img.instance.iter().copied().filter(|&id| id != 0 && id != worlds::validate::GROUND_INSTANCE_ID).collect();
+        ids.sort_unstable();
+        ids.dedup();
+        for id in ids {
+            let mask: Vec<bool> = img.instance.iter().map(|&v| v == id).collect();
+            let (mut x0, mut y0, mut x1, mut y1) = (u32::MAX, u32::MAX, 0, 0);
+            let mut area = 0u32;
+            for y in 0..h {
+                for x in 0..w {
+                    if mask[(y * w + x) as usize] {
+                        x0 = x0.min(x);
+                        y0 = y0.min(y);
+                        x1 = x1.max(x);
+                        y1 = y1.max(y);
+                        area += 1;
+                    }
+                }
+            }
+            let class = world.class_of(id).map(|c| c.id()).unwrap_or(0);
+            coco_annotations.push(json!({
+                "id": coco_annotations.len() + 1,
+                "image_id": i,
+                "category_id": class,
+                "instance_id": id,
+                "bbox": [x0, y0, x1 - x0 + 1, y1 - y0 + 1],
+                "area": area,
+                "iscrowd": 0,
+                "segmentation": {"counts": rle_encode(&mask, w, h), "size": [h, w]},
+            }));
+        }
+        entries.push(ImageEntry {
+            id: i,
+            image: names[0].clone(),
+            instance: names[1].clone(),
+            class: names[2].clone(),
+            patches: names[3].clone(),
+            kind: if background { "background".into() } else { "object".into() },
+            target_instance: target_id,
+            world_from_camera: pose,
+            sun_direction: sun,
+            exposure,
+            people_time_s: people_time,
+        });
+        progress(i + 1, config.images);
+    }
+    let manifest = Manifest {
+        format_version: DATASET_FORMAT_VERSION,
+        seed: config.seed,
+        world: world_name.into(),
+        classes: config.classes.clone(),
+        patch_size: config.patch_size,
+        width: w,
+        height: h,
+        k: k.k(),
+        renderer: cam.adapter().to_string(),
+        images: entries,
+    };
+    let write = |name: &str, v: &serde_json::Value| std::fs::write(out.join(name), serde_json::to_string_pretty(v).expect("JSON")).map_err(|e| DatasetError::Io { file: out.join(name), message: e.to_string() });
+    write("dataset.json", &serde_json::to_value(&manifest).expect("JSON"))?;
+    let categories: Vec<_> = ObjectClass::ALL.iter().filter(|c| **c != ObjectClass::Ground).map(|c| json!({"id": c.id(), "name": c.name(), "supercategory": "object"})).collect();
+    write("annotations.json", &json!({"info": {"description": format!("objslam dataset of {world_name}"), "version": "1.0"}, "images": coco_images, "annotations": coco_annotations, "categories": categories}))?;
+    std::fs::write(out.join("world.toml"), world.to_toml()).map_err(|e| DatasetError::Io { file: out.join("world.toml"), message: e.to_string() })?;
+    Ok(manifest)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rle_round_trips_column_major() {
+        let (w, h) = (5, 3);
+        let mask: Vec<bool> = (0..15).map(|i| [1, 2, 7, 8, 12].contains(&i)).collect();
+        let counts = rle_encode(&mask, w, h);
+        assert_eq!(rle_decode(&counts, w, h), mask);
+        // Column-major: the first column (rows 0, 1, 2) is pixels 0, 5, 10: all false.
+        assert!(counts[0] >= 3);
+        assert_eq!(counts.iter().sum::<u32>(), 15);
+    }
+
+    #[test]
+    fn patch_labels_count_wanted_pixels() {
+        let (w, h) = (6, 3);
+        let mut class = vec![0u8; 18];
+        for y in 0..3 {
+            class[y * 6] = 2; // first column is tree
+            class[y * 6 + 4] = 4; // a post pixel column
+        }
+        let l = patch_labels(&class, w, h, 3, &[2]);
+        assert_eq!((l.rows, l.cols), (1, 2));
+        assert!((l.fractions[0] - 1.0 / 3.0).abs() < 1e-6);
+        assert_eq!(l.fractions[1], 0.0);
+    }
+
+    #[test]
+    fn look_at_points_the_optical_axis_at_the_target() {
+        let r = look_at([0.0, 0.0, 1.0], [5.0, 0.0, 1.0]);
+        // Optical z (third column) along +x, x (first column) along -y, y along -z.
+        assert!((r.r[0][2] - 1.0).abs() < 1e-12 && (r.r[1][0] + 1.0).abs() < 1e-12 && (r.r[2][1] + 1.0).abs() < 1e-12);
+    }
+}

@@ -1,0 +1,82 @@
+//! `objslam dataset`: the manifest and the COCO file parse and agree with the masks.
+
+use scenarios::dataset::{DatasetConfig, Manifest, PatchLabels, make_dataset, patch_labels, rle_decode};
+
+#[test]
+fn manifest_coco_and_patch_labels_agree_with_the_masks() {
+    let dir = std::env::temp_dir().join(format!("objslam-dataset-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let world = worlds::generate::park(&Default::default(), 4).unwrap();
+    let mut config = DatasetConfig { images: 8, seed: 2, ..Default::default() };
+    config.camera.width = 180;
+    config.camera.height = 135;
+    let made = make_dataset(&world, "park seed 4", &config, &dir, |_, _| {}).unwrap();
+    let manifest: Manifest = serde_json::from_str(&std::fs::read_to_string(dir.join("dataset.json")).unwrap()).unwrap();
+    assert_eq!(manifest, made);
+    assert_eq!(manifest.images.len(), 8);
+    assert!(manifest.images.iter().any(|e| e.kind == "object") && manifest.images.iter().any(|e| e.kind == "background"));
+    let coco: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("annotations.json")).unwrap()).unwrap();
+    assert_eq!(coco["images"].as_array().unwrap().len(), 8);
+    let mut trees_seen = 0;
+    for entry in &manifest.images {
+        let inst = image::open(dir.join(&entry.instance)).unwrap().to_luma16();
+        let class = image::open(dir.join(&entry.class)).unwrap().to_luma8();
+        let (w, h) = (inst.width(), inst.height());
+        assert_eq!((w, h), (180, 135));
+        // Patch labels equal the fraction of tree pixels recomputed from the class mask.
+        let stored: PatchLabels = serde_json::from_str(&std::fs::read_to_string(dir.join(&entry.patches)).unwrap()).unwrap();
+        let again = patch_labels(class.as_raw(), w, h, 9, &[worlds::ObjectClass::Tree.id()]);
+        assert_eq!(stored, again);
+        assert_eq!((stored.rows, stored.cols), (15, 20));
+        // Every object instance in the mask has exactly one annotation whose RLE decodes
+        // to that instance's pixels, with a matching box, area and category.
+        let anns: Vec<&serde_json::Value> = coco["annotations"].as_array().unwrap().iter().filter(|a| a["image_id"] == entry.id).collect();
+        let mut ids: Vec<u16> = inst.pixels().map(|p| p.0[0]).filter(|&id| id != 0 && id != worlds::validate::GROUND_INSTANCE_ID).collect();
+        ids.sort_unstable();
+        ids.dedup();
+        assert_eq!(anns.len(), ids.len());
+        for a in anns {
+            let id = a["instance_id"].as_u64().unwrap() as u16;
+            let counts: Vec<u32> = a["segmentation"]["counts"].as_array().unwrap().iter().map(|c| c.as_u64().unwrap() as u32).collect();
+            assert_eq!(a["segmentation"]["size"], serde_json::json!([h, w]));
+            let mask = rle_decode(&counts, w, h);
+            let truth: Vec<bool> = inst.pixels().map(|p| p.0[0] == id).collect();
+            assert_eq!(mask, truth, "RLE of instance {id}");
+            let area = truth.iter().filter(|b| **b).count() as u64;
+            assert_eq!(a["area"].as_u64().unwrap(), area);
+            let b = a["bbox"].as_array().unwrap().iter().map(|v| v.as_u64().unwrap() as u32).collect::<Vec<_>>();
+            for (i, &on) in truth.iter().enumerate() {
+                if on {
+                    let (x, y) = (i as u32 % w, i as u32 / w);
+                    assert!(x >= b[0] && x < b[0] + b[2] && y >= b[1] && y < b[1] + b[3]);
+                }
+            }
+            let expected_class = world.class_of(id).unwrap().id() as u64;
+            assert_eq!(a["category_id"].as_u64().unwrap(), expected_class);
+            if expected_class == worlds::ObjectClass::Tree.id() as u64 {
+                trees_seen += 1;
+            }
+        }
+        // The camera pose is a proper rotation.
+        let r = entry.world_from_camera.r;
+        let det = r[0][0] * (r[1][1] * r[2][2] - r[1][2] * r[2][1]) - r[0][1] * (r[1][0] * r[2][2] - r[1][2] * r[2][0]) + r[0][2] * (r[1][0] * r[2][1] - r[1][1] * r[2][0]);
+        assert!((det - 1.0).abs() < 1e-9);
+    }
+    assert!(trees_seen >= 4, "object views should show trees");
+    // Object views show their target.
+    for entry in manifest.images.iter().filter(|e| e.kind == "object") {
+        let inst = image::open(dir.join(&entry.instance)).unwrap().to_luma16();
+        assert!(inst.pixels().any(|p| Some(p.0[0]) == entry.target_instance), "image {} misses its target", entry.id);
+    }
+}
+
+#[test]
+fn bad_dataset_settings_are_errors() {
+    let world = worlds::generate::park(&Default::default(), 4).unwrap();
+    let dir = std::env::temp_dir().join(format!("objslam-dataset-bad-{}", std::process::id()));
+    let none = DatasetConfig { images: 0, ..Default::default() };
+    assert!(make_dataset(&world, "w", &none, &dir, |_, _| {}).is_err());
+    let no_class = DatasetConfig { images: 1, classes: vec![worlds::ObjectClass::Checkerboard], ..Default::default() };
+    let e = make_dataset(&world, "w", &no_class, &dir, |_, _| {}).unwrap_err().to_string();
+    assert!(e.contains("checkerboard"), "{e}");
+}
