@@ -95,3 +95,43 @@ fn class_image_follows_the_instance_image() {
     }
     assert_eq!(frames, 3);
 }
+
+#[test]
+fn a_checkerboard_shows_its_squares() {
+    use worlds::*;
+    let mut world = worlds::generate::park(&Default::default(), 2006).unwrap();
+    world.objects.clear();
+    world.people.clear();
+    world.objects.push(StaticObject {
+        id: 500,
+        class: ObjectClass::Checkerboard,
+        // Facing -x, towards a camera at the origin looking along +x.
+        pose: Pose2 { x: 2.5, y: 0.0, yaw_deg: 180.0 },
+        shape: Shape::Board { width_m: 0.8, height_m: 0.6, bottom_m: 0.25, squares: [8, 6] },
+        appearance: Appearance { material: Material::Checker, colour: [0.95, 0.95, 0.95], texture_seed: 0 },
+        mesh: None,
+    });
+    let mut config = sim::camera::CameraConfig { mount_pitch_deg: 0.0, ..Default::default() };
+    config.enabled = true;
+    let mut cam = sim::camera::CameraSensor::new(&world, &config, 1).unwrap();
+    let robot = sim::Pose2D { x: 0.0, y: 0.0, theta: 0.0 };
+    let frame = cam.capture(0.0, &robot, &[]).unwrap();
+    // Walk along the image row through the board's middle (board centre height 0.55 m =
+    // the camera's height, so the centre row), counting dark/light changes on the board.
+    let v = 240 + 25; // inside a row of squares (a square edge lies on the centre row)
+    let mut changes = 0;
+    let mut last: Option<bool> = None;
+    for u in 0..640 {
+        if frame.image.instance_at(u, v) != 500 {
+            continue;
+        }
+        let dark = frame.image.rgb_at(u, v)[0] < 100;
+        if let Some(l) = last
+            && l != dark
+        {
+            changes += 1;
+        }
+        last = Some(dark);
+    }
+    assert_eq!(changes, 7, "8 squares across give 7 dark/light edges");
+}

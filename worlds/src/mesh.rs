@@ -220,12 +220,14 @@ pub fn object_parts(o: &StaticObject) -> Vec<MeshPart> {
             let tile = tile_size_m(a.material);
             vec![part("wall", cuboid([0.0, 0.0, height_m / 2.0], [length_m / 2.0, thickness_m / 2.0, height_m / 2.0], tile), a)]
         }
-        Shape::Board { width_m, height_m, bottom_m, .. } => {
-            // Facing +x; the pattern texture spans the face exactly once.
+        Shape::Board { width_m, height_m, bottom_m, squares } => {
+            // Facing +x. The checker texture holds 2 x 2 squares, so the face's UVs run
+            // over squares/2 repeats to show squares[0] x squares[1] squares exactly.
             let mut board = cuboid([0.0, 0.0, bottom_m + height_m / 2.0], [0.01, width_m / 2.0, height_m / 2.0], [width_m, height_m]);
             for uv in &mut board.uvs {
-                uv[0] = uv[0] * 0.5 + 0.5;
-                uv[1] = uv[1] * 0.5 + 0.5;
+                // With the tile equal to the face's size, cuboid UVs span [-0.5, 0.5].
+                uv[0] = (uv[0] + 0.5) * squares[0] as f32 / 2.0;
+                uv[1] = (uv[1] + 0.5) * squares[1] as f32 / 2.0;
             }
             let stand = cuboid([0.0, 0.0, bottom_m / 2.0], [0.02, 0.02, bottom_m / 2.0], [1.0, 1.0]);
             let grey = Appearance { material: Material::Concrete, colour: [0.4, 0.4, 0.4], texture_seed: 0 };

@@ -132,7 +132,11 @@ fn shade(material: Material, base: [f64; 3], seed: u64, u: f64, v: f64) -> [f64;
             scale(base, 0.8 + 0.1 * weave + 0.3 * folds)
         }
         Material::Skin => scale(base, 0.95 + 0.1 * value_noise(seed, u * 8.0, v * 8.0, 8, 8)),
-        Material::Checker => base,
+        // A 2 x 2 tile of squares; boards repeat it (see the board's UVs). `base` is the
+        // light squares' colour, the dark ones are near black.
+        Material::Checker => {
+            if (u < 0.5) != (v < 0.5) { [0.05, 0.05, 0.05] } else { base }
+        }
     }
 }
 
