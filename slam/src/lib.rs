@@ -10,6 +10,7 @@
 
 pub mod association;
 pub mod calibration;
+pub mod checkerboard;
 pub mod clustering;
 pub mod ekf;
 pub mod gmm;
