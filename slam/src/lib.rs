@@ -14,5 +14,6 @@ pub mod checkerboard;
 pub mod clustering;
 pub mod ekf;
 pub mod gmm;
+pub mod kl;
 pub mod messages;
 pub mod pipeline;
