@@ -223,32 +223,6 @@ pub fn sigma_ellipse(mean: [f64; 2], cov: [[f64; 2]; 2], k: f64, n: usize) -> Ve
         .collect()
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn sigma_ellipse_of_axis_aligned_covariance() {
-        let pts = sigma_ellipse([1.0, 2.0], [[4.0, 0.0], [0.0, 1.0]], 2.0, 4);
-        // Semi-axes 2*2 = 4 along x and 2*1 = 2 along y.
-        assert!((pts[0].0 - 5.0).abs() < 1e-9 && (pts[0].1 - 2.0).abs() < 1e-9);
-        assert!((pts[1].0 - 1.0).abs() < 1e-9 && (pts[1].1 - 4.0).abs() < 1e-9);
-    }
-
-    #[test]
-    fn world_map_renders_to_png() {
-        let world = worlds::generate::park(&Default::default(), 5).unwrap();
-        let dir = std::env::temp_dir().join(format!("objslam-plot-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let path = dir.join("map.png");
-        draw_map(&world, &Overlays { title: "park".into(), routes: true, ..Default::default() }, &path).unwrap();
-        let img = image::open(&path).unwrap().to_rgb8();
-        // Tree green must appear (objects were drawn), and white margins exist.
-        let green = img.pixels().filter(|p| p.0 == [34, 139, 34]).count();
-        assert!(green > 50, "only {green} tree-coloured pixels");
-    }
-}
-
 /// Failure rate against the first varied parameter, one line per method, with 95%
 /// intervals; written as PNG and SVG.
 pub fn failure_rate_plot(
@@ -314,4 +288,30 @@ fn draw_failure_rate<DB: DrawingBackend>(
     chart.configure_series_labels().position(SeriesLabelPosition::UpperLeft).background_style(WHITE.mix(0.85)).border_style(BLACK).label_font(("sans-serif", 14)).draw().map_err(|x| e(&x))?;
     root.present().map_err(|x| e(&x))?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sigma_ellipse_of_axis_aligned_covariance() {
+        let pts = sigma_ellipse([1.0, 2.0], [[4.0, 0.0], [0.0, 1.0]], 2.0, 4);
+        // Semi-axes 2*2 = 4 along x and 2*1 = 2 along y.
+        assert!((pts[0].0 - 5.0).abs() < 1e-9 && (pts[0].1 - 2.0).abs() < 1e-9);
+        assert!((pts[1].0 - 1.0).abs() < 1e-9 && (pts[1].1 - 4.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn world_map_renders_to_png() {
+        let world = worlds::generate::park(&Default::default(), 5).unwrap();
+        let dir = std::env::temp_dir().join(format!("objslam-plot-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("map.png");
+        draw_map(&world, &Overlays { title: "park".into(), routes: true, ..Default::default() }, &path).unwrap();
+        let img = image::open(&path).unwrap().to_rgb8();
+        // Tree green must appear (objects were drawn), and white margins exist.
+        let green = img.pixels().filter(|p| p.0 == [34, 139, 34]).count();
+        assert!(green > 50, "only {green} tree-coloured pixels");
+    }
 }

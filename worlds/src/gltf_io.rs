@@ -55,7 +55,7 @@ pub fn parts_to_glb(parts: &[MeshPart]) -> Vec<u8> {
     let mut textures = Vec::new();
 
     let mut push_view = |bin: &mut Vec<u8>, bytes: &[u8], target: Option<u32>| -> usize {
-        while bin.len() % 4 != 0 {
+        while !bin.len().is_multiple_of(4) {
             bin.push(0);
         }
         let offset = bin.len();
@@ -112,7 +112,7 @@ pub fn parts_to_glb(parts: &[MeshPart]) -> Vec<u8> {
     let children: Vec<usize> = (0..nodes.len()).collect();
     let h = std::f64::consts::FRAC_1_SQRT_2;
     nodes.push(json!({"name": "world_z_up", "rotation": [-h, 0.0, 0.0, h], "children": children}));
-    while bin.len() % 4 != 0 {
+    while !bin.len().is_multiple_of(4) {
         bin.push(0);
     }
     let root = json!({
@@ -146,7 +146,7 @@ fn encode_png(t: &texture::Texture) -> Vec<u8> {
 /// GLB container: 12-byte header, JSON chunk padded with spaces, BIN chunk padded with 0.
 fn glb_bytes(root: &Value, bin: &[u8]) -> Vec<u8> {
     let mut json = serde_json::to_vec(root).expect("JSON values always serialise");
-    while json.len() % 4 != 0 {
+    while !json.len().is_multiple_of(4) {
         json.push(b' ');
     }
     let total = 12 + 8 + json.len() + 8 + bin.len();

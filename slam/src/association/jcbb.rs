@@ -72,7 +72,7 @@ impl Search<'_> {
             return;
         }
         for j in 0..self.ekf.landmark_count() {
-            if !self.prep.individual[i][j] || h.iter().any(|x| *x == Some(j)) {
+            if !self.prep.individual[i][j] || h.contains(&Some(j)) {
                 continue;
             }
             h[i] = Some(j);
