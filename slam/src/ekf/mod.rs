@@ -2,9 +2,9 @@
 //!
 //! State layout: `[x, y, theta, l1x, l1y, l2x, l2y, ...]`. Prediction touches only the
 //! robot block and its cross-covariances (O(n)); an update uses the sparsity of the
-//! observation Jacobian (O(n²) per observation). Updates are in Joseph form (expanded as
-//! `P - K(HP) - (HP)ᵀKᵀ + K S Kᵀ`, which equals `(I-KH)P(I-KH)ᵀ + KRKᵀ` for any gain
-//! and costs O(n²)), followed by symmetrisation.
+//! observation Jacobian (O(n²) per observation, one pass over P). Updates are in Joseph
+//! form, expanded as `P - K(HP) - (HP)ᵀKᵀ + K S Kᵀ`, which equals
+//! `(I-KH)P(I-KH)ᵀ + KRKᵀ` for any gain, evaluated so that P stays exactly symmetric.
 
 pub mod motion;
 pub mod observation;
@@ -134,14 +134,23 @@ impl Ekf {
         let k = &pht * s_inv; // n x 2
         self.x += &k * nu;
         self.x[2] = wrap_angle(self.x[2]);
-        // Joseph form, expanded: P - K (HP) - (HP)ᵀ Kᵀ + K S Kᵀ, with HP = (PHᵀ)ᵀ.
-        let ks = &k * s; // n x 2
-        let ht_p = pht.transpose(); // 2 x n
-        // P -= K HP + PHᵀ Kᵀ - K S Kᵀ, using rank-2 updates.
-        self.p.gemm(-1.0, &k, &ht_p, 1.0);
-        self.p.gemm(-1.0, &pht, &k.transpose(), 1.0);
-        self.p.gemm(1.0, &ks, &k.transpose(), 1.0);
-        self.symmetrise();
+        // Joseph form, expanded: P - K (HP) - (HP)ᵀ Kᵀ + K S Kᵀ, with HP = (PHᵀ)ᵀ = Wᵀ.
+        // One pass over P: entry (i, j) gets g(i, j) + g(j, i) with
+        // g(i, j) = -K_i·W_j + ½ (KS)_i·K_j, a sum that is bitwise the same at (j, i), so P
+        // stays exactly symmetric without a separate symmetrisation pass.
+        let ks = &k * s;
+        let kr: Vec<[f64; 2]> = (0..n).map(|r| [k[(r, 0)], k[(r, 1)]]).collect();
+        let wr: Vec<[f64; 2]> = (0..n).map(|r| [pht[(r, 0)], pht[(r, 1)]]).collect();
+        let ksr: Vec<[f64; 2]> = (0..n).map(|r| [ks[(r, 0)], ks[(r, 1)]]).collect();
+        for j in 0..n {
+            let (kj, wj, ksj) = (kr[j], wr[j], ksr[j]);
+            let col = &mut self.p.as_mut_slice()[j * n..(j + 1) * n];
+            for (((pij, ki), wi), ksi) in col.iter_mut().zip(&kr).zip(&wr).zip(&ksr) {
+                let gij = -(ki[0] * wj[0] + ki[1] * wj[1]) + 0.5 * (ksi[0] * kj[0] + ksi[1] * kj[1]);
+                let gji = -(kj[0] * wi[0] + kj[1] * wi[1]) + 0.5 * (ksj[0] * ki[0] + ksj[1] * ki[1]);
+                *pij += gij + gji;
+            }
+        }
         Ok(())
     }
 
@@ -172,17 +181,6 @@ impl Ekf {
         let li = 3 + 2 * i;
         self.x = self.x.clone().remove_rows(li, 2);
         self.p = self.p.clone().remove_rows(li, 2).remove_columns(li, 2);
-    }
-
-    fn symmetrise(&mut self) {
-        let n = self.p.nrows();
-        for r in 0..n {
-            for c in (r + 1)..n {
-                let m = 0.5 * (self.p[(r, c)] + self.p[(c, r)]);
-                self.p[(r, c)] = m;
-                self.p[(c, r)] = m;
-            }
-        }
     }
 }
 
