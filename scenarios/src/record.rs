@@ -138,13 +138,18 @@ pub fn write_camera_frame(dir: &Path, index: usize, frame: &sim::camera::CameraF
     let img = &frame.image;
     let names = [format!("camera/{index:06}.png"), format!("camera/{index:06}_instance.png"), format!("camera/{index:06}_class.png"), format!("camera/{index:06}_depth.png")];
     let root = dir.parent().unwrap_or(dir);
-    write_png(&root.join(&names[0]), img.width, img.height, image::ExtendedColorType::Rgb8, &img.rgb)?;
     // The image crate takes 16-bit samples in native byte order (it writes PNG's big-endian).
     let inst: Vec<u8> = img.instance.iter().flat_map(|v| v.to_ne_bytes()).collect();
-    write_png(&root.join(&names[1]), img.width, img.height, image::ExtendedColorType::L16, &inst)?;
-    write_png(&root.join(&names[2]), img.width, img.height, image::ExtendedColorType::L8, &img.class)?;
     let depth: Vec<u8> = img.depth_m.iter().flat_map(|d| (if d.is_finite() { (d * 1000.0).round().clamp(1.0, 65535.0) as u16 } else { 0 }).to_ne_bytes()).collect();
-    write_png(&root.join(&names[3]), img.width, img.height, image::ExtendedColorType::L16, &depth)?;
+    // Encoding dominates recording time: the four images in parallel.
+    let jobs: [(&String, image::ExtendedColorType, &[u8]); 4] = [
+        (&names[0], image::ExtendedColorType::Rgb8, &img.rgb),
+        (&names[1], image::ExtendedColorType::L16, &inst),
+        (&names[2], image::ExtendedColorType::L8, &img.class),
+        (&names[3], image::ExtendedColorType::L16, &depth),
+    ];
+    use rayon::prelude::*;
+    jobs.par_iter().map(|(name, color, bytes)| write_png(&root.join(name), img.width, img.height, *color, bytes)).collect::<Result<Vec<()>, RecordError>>()?;
     Ok(names)
 }
 
