@@ -341,3 +341,65 @@ mod tests {
         assert!((n - Vector3::new(0.0, 0.0, 2.0)).norm() < 1e-9, "{n}");
     }
 }
+
+#[cfg(test)]
+mod synthetic {
+    use super::*;
+
+    /// Renders a board (squares of `s` m, `cols` x `rows` squares, centred on the origin of
+    /// its plane) seen by K from pose (R, t) (camera <- board), 4x4 supersampled.
+    fn render(k: &Matrix3<f64>, r: &Matrix3<f64>, t: &Vector3<f64>, s: f64, cols: i32, rows: i32, w: usize, h: usize) -> Vec<u8> {
+        let kinv = k.try_inverse().unwrap();
+        let n = r.column(2).into_owned();
+        let mut out = vec![0u8; w * h * 3];
+        for y in 0..h {
+            for x in 0..w {
+                let mut acc = 0.0f64;
+                for sy in 0..4 {
+                    for sx in 0..4 {
+                        let px = Vector3::new(x as f64 + (sx as f64 + 0.5) / 4.0, y as f64 + (sy as f64 + 0.5) / 4.0, 1.0);
+                        let ray = kinv * px;
+                        // Intersect with the board plane n . (P - t) = 0.
+                        let lam = n.dot(t) / n.dot(&ray);
+                        let p = ray * lam - t;
+                        let local = r.transpose() * p;
+                        let (bx, by) = (local.x / s + cols as f64 / 2.0, local.y / s + rows as f64 / 2.0);
+                        let v = if bx < 0.0 || by < 0.0 || bx >= cols as f64 || by >= rows as f64 {
+                            180.0
+                        } else if (bx.floor() as i32 + by.floor() as i32) % 2 == 0 {
+                            240.0
+                        } else {
+                            15.0
+                        };
+                        acc += v;
+                    }
+                }
+                let v = (acc / 16.0).round() as u8;
+                out[3 * (y * w + x)..3 * (y * w + x) + 3].copy_from_slice(&[v, v, v]);
+            }
+        }
+        out
+    }
+
+    /// The detector alone, on ideal (supersampled, exactly projected) images: isolates its
+    /// error from the renderer's.
+    #[test]
+    fn turned_board_plane_from_an_ideal_image() {
+        let k = Matrix3::new(554.256, 0.0, 320.0, 0.0, 554.256, 240.0, 0.0, 0.0, 1.0);
+        for yaw_deg in [0.0f64, 15.0, 30.0] {
+            let yaw = yaw_deg.to_radians();
+            // Board axes: x right, y down, z away from the camera, turned about y.
+            let r = Matrix3::new(yaw.cos(), 0.0, yaw.sin(), 0.0, 1.0, 0.0, -yaw.sin(), 0.0, yaw.cos());
+            let t = Vector3::new(0.0, 0.0, 2.5);
+            let img = render(&k, &r, &t, 0.1, 8, 6, 640, 480);
+            let det = detect(&img, 640, 480, (7, 5), 0.1, &k).unwrap();
+            let n_true = r.column(2).into_owned();
+            let truth = n_true * n_true.dot(&t);
+            let angle = det.plane.normalize().dot(&truth.normalize()).abs().min(1.0).acos().to_degrees();
+            // Measured: 0.10, 0.03 and 0.22 deg; 0.1, 0.3 and 7 mm.
+            assert!(angle < 0.3, "yaw {yaw_deg}: normal off by {angle} deg");
+            assert!((det.plane.norm() - truth.norm()).abs() < 0.01, "yaw {yaw_deg}: distance {} vs {}", det.plane.norm(), truth.norm());
+            assert!(det.rms_px < 0.2);
+        }
+    }
+}
