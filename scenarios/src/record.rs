@@ -125,16 +125,20 @@ pub fn camera_json(config: &SimConfig) -> serde_json::Value {
 }
 
 /// Fast PNG encoding (recordings write many frames).
-pub fn write_png(path: &Path, width: u32, height: u32, color: image::ExtendedColorType, bytes: &[u8]) -> Result<(), RecordError> {
+pub fn write_png(path: &Path, width: u32, height: u32, color: image::ExtendedColorType, bytes: &[u8]) -> Result<Vec<u8>, RecordError> {
     use image::ImageEncoder;
-    let file = File::create(path).map_err(|source| RecordError::Io { file: path.to_path_buf(), source })?;
-    let enc = image::codecs::png::PngEncoder::new_with_quality(BufWriter::new(file), image::codecs::png::CompressionType::Fast, image::codecs::png::FilterType::Sub);
-    enc.write_image(bytes, width, height, color).map_err(|e| RecordError::Io { file: path.to_path_buf(), source: std::io::Error::other(e.to_string()) })
+    let io = |e: std::io::Error| RecordError::Io { file: path.to_path_buf(), source: e };
+    let mut png = Vec::new();
+    let enc = image::codecs::png::PngEncoder::new_with_quality(&mut png, image::codecs::png::CompressionType::Fast, image::codecs::png::FilterType::Sub);
+    enc.write_image(bytes, width, height, color).map_err(|e| io(std::io::Error::other(e.to_string())))?;
+    std::fs::write(path, &png).map_err(io)?;
+    Ok(png)
 }
 
 /// Writes a camera frame's images: colour, 16-bit instance ids, 8-bit classes and 16-bit
-/// depth in millimetres (0 = nothing). Returns the file names relative to `dir`'s parent.
-pub fn write_camera_frame(dir: &Path, index: usize, frame: &sim::camera::CameraFrame) -> Result<[String; 4], RecordError> {
+/// depth in millimetres (0 = nothing). Returns the file names relative to `dir`'s parent
+/// and the colour PNG's bytes (for the MCAP).
+pub fn write_camera_frame(dir: &Path, index: usize, frame: &sim::camera::CameraFrame) -> Result<([String; 4], Vec<u8>), RecordError> {
     let img = &frame.image;
     let names = [format!("camera/{index:06}.png"), format!("camera/{index:06}_instance.png"), format!("camera/{index:06}_class.png"), format!("camera/{index:06}_depth.png")];
     let root = dir.parent().unwrap_or(dir);
@@ -149,8 +153,8 @@ pub fn write_camera_frame(dir: &Path, index: usize, frame: &sim::camera::CameraF
         (&names[3], image::ExtendedColorType::L16, &depth),
     ];
     use rayon::prelude::*;
-    jobs.par_iter().map(|(name, color, bytes)| write_png(&root.join(name), img.width, img.height, *color, bytes)).collect::<Result<Vec<()>, RecordError>>()?;
-    Ok(names)
+    let mut pngs = jobs.par_iter().map(|(name, color, bytes)| write_png(&root.join(name), img.width, img.height, *color, bytes)).collect::<Result<Vec<Vec<u8>>, RecordError>>()?;
+    Ok((names, pngs.swap_remove(0)))
 }
 
 /// Records a run of `world` into `out`. `progress` is called with (sim time, nominal
@@ -240,7 +244,7 @@ pub fn record(
                 mcap.write("/ground_truth/people", "foxglove.PosesInFrame", scan.t, &json!({"timestamp": timestamp(scan.t), "frame_id": "world", "poses": people}))?;
             }
             SensorEvent::Camera { frame, .. } => {
-                let names = write_camera_frame(&camera_dir, frames, frame)?;
+                let (names, png) = write_camera_frame(&camera_dir, frames, frame)?;
                 let k = frame.intrinsics;
                 let pose = frame.world_from_camera;
                 camera_log.line(
@@ -251,7 +255,6 @@ pub fn record(
                     }))
                     .expect("JSON"),
                 )?;
-                let png = std::fs::read(out.join(&names[0])).map_err(|source| RecordError::Io { file: out.join(&names[0]), source })?;
                 mcap.write("/camera/image", "foxglove.CompressedImage", frame.t, &json!({"timestamp": timestamp(frame.t), "frame_id": "camera_optical", "format": "png", "data": base64(&png)}))?;
                 mcap.write(
                     "/camera/calibration",

@@ -39,11 +39,8 @@ fn rendered_checkerboards_are_detected_with_their_planes() {
         let r = Matrix3::from_fn(|a, c| cam_from_world.r[a][c]);
         let n_c = r * n_w;
         let p_c = Vector3::from(cam_from_world.apply([p_w.x, p_w.y, p_w.z]));
-        let mut truth = n_c * n_c.dot(&p_c);
-        if truth.z < 0.0 && n_c.dot(&p_c) < 0.0 {
-            truth = -truth;
-        }
-        let truth = if n_c.dot(&p_c) < 0.0 { -n_c * (-n_c).dot(&p_c) } else { truth };
+        // N = n (n . p) does not depend on the sign of n.
+        let truth = n_c * n_c.dot(&p_c);
         let angle = det.plane.normalize().dot(&truth.normalize()).clamp(-1.0, 1.0).acos().to_degrees();
         let distance = (det.plane.norm() - truth.norm()).abs();
         eprintln!("board {i}: angle {angle:.3} deg, distance est {:.4} true {:.4}, rms {:.3}", det.plane.norm(), truth.norm(), det.rms_px);
