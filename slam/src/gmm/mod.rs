@@ -1,8 +1,47 @@
 //! Gaussian mixture models: the plain density ([`Gmm`]) shared by the classifier, the object
-//! models and the KL association, and (in submodules) its variational Bayesian learning.
+//! models and the KL association; its variational Bayesian learning ([`vbem`], with the
+//! model search in [`search`]); and the Student-t predictive density ([`predictive`]).
+//!
+//! ```
+//! use nalgebra::DMatrix;
+//! use slam::gmm::{fit, VbOptions};
+//! // Two well separated 1-D clusters.
+//! let data = DMatrix::from_fn(200, 1, |i, _| if i % 2 == 0 { (i % 7) as f64 * 0.1 } else { 10.0 + (i % 5) as f64 * 0.1 });
+//! let model = fit(&data, None, &VbOptions::default()).unwrap();
+//! assert_eq!(model.effective_components(0.01), 2);
+//! ```
 
-use nalgebra::{DMatrix, DVector};
+pub mod predictive;
+pub mod search;
+pub mod vbem;
+
+use nalgebra::{Cholesky, DMatrix, DVector};
 use serde::{Deserialize, Serialize};
+
+pub use predictive::{StudentT, StudentTMixture};
+pub use search::{fit, fit_with_history, VbGmm, VbOptions};
+pub use vbem::{VbComponent, VbPrior};
+
+/// What can go wrong fitting or evaluating a mixture.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum GmmError {
+    #[error("no data: a mixture needs at least one point with at least one dimension")]
+    NoData,
+    #[error("data value at row {row}, column {column} is not a finite number")]
+    NotFinite { row: usize, column: usize },
+    #[error("dimension mismatch: expected {expected}, found {found}")]
+    Dimension { expected: usize, found: usize },
+    #[error("bad prior: {0}")]
+    BadPrior(String),
+    #[error("bad options: {0}")]
+    BadOptions(String),
+    #[error("the mixture has no components")]
+    EmptyModel,
+    #[error("component {component}: matrix is not positive definite")]
+    NotPositiveDefinite { component: usize },
+    #[error("numerical failure: {0}")]
+    Numerical(String),
+}
 
 /// One Gaussian component of a mixture: weight `pi_s`, mean `mu_s`, covariance `Gamma_s`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -23,4 +62,103 @@ impl Gmm {
     pub fn dims(&self) -> usize {
         self.components.first().map_or(0, |c| c.mean.len())
     }
+
+    /// Mean and covariance of the whole mixture.
+    pub fn moments(&self) -> (DVector<f64>, DMatrix<f64>) {
+        let d = self.dims();
+        let total: f64 = self.components.iter().map(|c| c.weight).sum();
+        let mut mean = DVector::zeros(d);
+        for c in &self.components {
+            mean += &c.mean * (c.weight / total);
+        }
+        let mut cov = DMatrix::zeros(d, d);
+        for c in &self.components {
+            let dm = &c.mean - &mean;
+            cov += (&c.covariance + &dm * dm.transpose()) * (c.weight / total);
+        }
+        (mean, cov)
+    }
+
+    /// Prepares the mixture for fast repeated density evaluation.
+    pub fn evaluator(&self) -> Result<GmmEvaluator, GmmError> {
+        GmmEvaluator::new(self)
+    }
 }
+
+/// A mixture with each component's Cholesky-whitening matrix and log normaliser, for
+/// evaluating ln p(x) at many points.
+#[derive(Debug, Clone)]
+pub struct GmmEvaluator {
+    dims: usize,
+    /// Per component: ln w - D/2 ln 2 pi - 1/2 ln |Gamma|.
+    log_norm: Vec<f64>,
+    means: Vec<DVector<f64>>,
+    /// C^-1 with C C^T = Gamma: |C^-1 (x - mu)|^2 is the Mahalanobis distance.
+    whiten: Vec<DMatrix<f64>>,
+}
+
+impl GmmEvaluator {
+    pub fn new(g: &Gmm) -> Result<Self, GmmError> {
+        if g.components.is_empty() {
+            return Err(GmmError::EmptyModel);
+        }
+        let d = g.dims();
+        let mut out = GmmEvaluator { dims: d, log_norm: vec![], means: vec![], whiten: vec![] };
+        for (k, c) in g.components.iter().enumerate() {
+            if c.mean.len() != d || c.covariance.shape() != (d, d) {
+                return Err(GmmError::Dimension { expected: d, found: c.mean.len() });
+            }
+            let chol = Cholesky::new(c.covariance.clone()).ok_or(GmmError::NotPositiveDefinite { component: k })?;
+            let ln_det = 2.0 * chol.l_dirty().diagonal().iter().map(|v| v.ln()).sum::<f64>();
+            let whiten = chol.l().solve_lower_triangular(&DMatrix::identity(d, d)).ok_or(GmmError::NotPositiveDefinite { component: k })?;
+            out.log_norm.push(c.weight.max(f64::MIN_POSITIVE).ln() - 0.5 * d as f64 * (2.0 * std::f64::consts::PI).ln() - 0.5 * ln_det);
+            out.means.push(c.mean.clone());
+            out.whiten.push(whiten);
+        }
+        Ok(out)
+    }
+
+    pub fn dims(&self) -> usize {
+        self.dims
+    }
+
+    /// ln p(x) for one point given as a slice of length D.
+    pub fn log_density(&self, x: &[f64]) -> f64 {
+        let mut terms = [0.0f64; 64];
+        let mut heap = Vec::new();
+        let k = self.means.len();
+        let buf: &mut [f64] = if k <= terms.len() {
+            &mut terms[..k]
+        } else {
+            heap.resize(k, 0.0);
+            &mut heap
+        };
+        let d = self.dims;
+        for (c, slot) in buf.iter_mut().enumerate() {
+            let (m, w) = (&self.means[c], &self.whiten[c]);
+            let mut maha = 0.0;
+            // C^-1 is lower triangular: row i uses columns 0..=i.
+            for i in 0..d {
+                let mut y = 0.0;
+                for j in 0..=i {
+                    y += w[(i, j)] * (x[j] - m[j]);
+                }
+                maha += y * y;
+            }
+            *slot = self.log_norm[c] - 0.5 * maha;
+        }
+        log_sum_exp(buf)
+    }
+}
+
+/// ln sum exp(v), stable for large negative values; -inf for an empty slice.
+pub fn log_sum_exp(v: &[f64]) -> f64 {
+    let mx = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    if !mx.is_finite() {
+        return mx;
+    }
+    mx + v.iter().map(|x| (x - mx).exp()).sum::<f64>().ln()
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,233 @@
+//! Model selection: a birth-death search over the number of components driven by the
+//! variational lower bound (as in ACFR's libcluster), and a fixed-K mode seeded by k-means++.
+
+use nalgebra::{DMatrix, SymmetricEigen};
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+use super::vbem::{self, check_data, Run, VbComponent, VbPrior};
+use super::GmmError;
+
+/// How a mixture is fitted.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct VbOptions {
+    /// Upper limit on the number of components (the search stops growing there; the
+    /// fixed-K mode uses exactly this many).
+    pub max_components: usize,
+    /// Fit exactly `max_components` components (k-means++ start) instead of searching.
+    pub fixed_k: bool,
+    /// VBEM stops when the bound's relative gain in one iteration is below this.
+    pub tolerance: f64,
+    pub max_iterations: usize,
+    /// A split is kept when it raises the bound by more than this fraction of |bound|.
+    pub split_gain: f64,
+    /// Components with fewer than this many points' worth of responsibility are deleted.
+    pub min_points: f64,
+    /// Seed of the k-means++ start (fixed-K mode only; the search is deterministic).
+    pub seed: u64,
+}
+
+impl Default for VbOptions {
+    fn default() -> Self {
+        VbOptions { max_components: 10, fixed_k: false, tolerance: 1e-7, max_iterations: 1000, split_gain: 1e-5, min_points: 1.0, seed: 0 }
+    }
+}
+
+/// A fitted variational Bayesian GMM: the posterior over weights, means and precisions.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct VbGmm {
+    pub prior: VbPrior,
+    pub components: Vec<VbComponent>,
+    /// The full lower bound on ln p(X) (PRML 10.70, constants included), in nats.
+    pub lower_bound: f64,
+    /// VBEM iterations summed over the whole search.
+    pub iterations: usize,
+    /// Number of training points.
+    pub points: usize,
+    /// The training data's responsibility-weighted counts per component (N_k).
+    pub counts: Vec<f64>,
+}
+
+impl VbGmm {
+    pub fn dims(&self) -> usize {
+        self.prior.dims()
+    }
+
+    /// Expected mixing weights E[pi_k] = alpha_k / sum alpha.
+    pub fn weights(&self) -> Vec<f64> {
+        let s: f64 = self.components.iter().map(|c| c.alpha).sum();
+        self.components.iter().map(|c| c.alpha / s).collect()
+    }
+
+    /// Components whose expected weight exceeds `min_weight`.
+    pub fn effective_components(&self, min_weight: f64) -> usize {
+        self.weights().iter().filter(|&&w| w > min_weight).count()
+    }
+}
+
+/// Fits a VB-GMM to `data` (rows are points) with `prior` (default: [`VbPrior::from_data`]).
+pub fn fit(data: &DMatrix<f64>, prior: Option<&VbPrior>, options: &VbOptions) -> Result<VbGmm, GmmError> {
+    fit_with_history(data, prior, options).map(|(g, _)| g)
+}
+
+/// Like [`fit`], also returning the bound after every VBEM iteration of the final run.
+pub fn fit_with_history(data: &DMatrix<f64>, prior: Option<&VbPrior>, options: &VbOptions) -> Result<(VbGmm, Vec<f64>), GmmError> {
+    check_data(data)?;
+    if options.max_components == 0 {
+        return Err(GmmError::BadOptions("max_components must be at least 1".into()));
+    }
+    if !(options.tolerance >= 0.0 && options.split_gain >= 0.0 && options.min_points >= 0.0) {
+        return Err(GmmError::BadOptions("tolerance, split_gain and min_points must be zero or positive".into()));
+    }
+    let prior = match prior {
+        Some(p) => {
+            p.check(data.ncols())?;
+            p.clone()
+        }
+        None => VbPrior::from_data(data)?,
+    };
+    let run = if options.fixed_k { fixed_k(data, &prior, options)? } else { birth_death(data, &prior, options)? };
+    let model = VbGmm { counts: run.stats.nk.clone(), components: run.comps, lower_bound: run.bound, iterations: run.iterations, points: data.nrows(), prior };
+    Ok((model, run.history))
+}
+
+/// Drops components whose responsibility mass is below `min_points` and renormalises.
+fn prune(r: &DMatrix<f64>, min_points: f64) -> Option<DMatrix<f64>> {
+    let keep: Vec<usize> = (0..r.ncols()).filter(|&k| r.column(k).sum() >= min_points).collect();
+    if keep.len() == r.ncols() || keep.is_empty() {
+        return None;
+    }
+    let mut out = r.select_columns(&keep);
+    for i in 0..out.nrows() {
+        let s: f64 = out.row(i).sum();
+        if s > 0.0 {
+            out.row_mut(i).unscale_mut(s);
+        } else {
+            out.row_mut(i).fill(1.0 / keep.len() as f64);
+        }
+    }
+    Some(out)
+}
+
+/// Runs VBEM, deleting emptied components (and re-running) until none empties.
+fn run_pruned(data: &DMatrix<f64>, r: DMatrix<f64>, prior: &VbPrior, options: &VbOptions, total_iterations: &mut usize) -> Result<Run, GmmError> {
+    let mut run = vbem::run(data, r, prior, options.max_iterations, options.tolerance)?;
+    *total_iterations += run.iterations;
+    while let Some(r) = prune(&run.r, options.min_points) {
+        run = vbem::run(data, r, prior, options.max_iterations, options.tolerance)?;
+        *total_iterations += run.iterations;
+    }
+    Ok(run)
+}
+
+/// Splits component `c` along the principal axis of its covariance: its points (those
+/// for which it is the most responsible component) on the positive side move to a new one.
+fn split(data: &DMatrix<f64>, run: &Run, c: usize) -> Option<DMatrix<f64>> {
+    let (n, k) = (data.nrows(), run.r.ncols());
+    let eig = SymmetricEigen::new(run.stats.s[c].clone());
+    let (axis, _) = eig.eigenvalues.iter().enumerate().fold((0, f64::NEG_INFINITY), |(bi, bv), (i, &v)| if v > bv { (i, v) } else { (bi, bv) });
+    let v = eig.eigenvectors.column(axis);
+    let xbar = &run.stats.xbar[c];
+    let mut r = run.r.clone().insert_column(k, 0.0);
+    let (mut moved, mut stayed) = (0usize, 0usize);
+    for i in 0..n {
+        let row = run.r.row(i);
+        let owner = row.iter().enumerate().fold((0, f64::NEG_INFINITY), |(bi, bv), (j, &x)| if x > bv { (j, x) } else { (bi, bv) }).0;
+        if owner != c {
+            continue;
+        }
+        let proj: f64 = (0..data.ncols()).map(|j| (data[(i, j)] - xbar[j]) * v[j]).sum();
+        if proj > 0.0 {
+            r[(i, k)] = r[(i, c)];
+            r[(i, c)] = 0.0;
+            moved += 1;
+        } else {
+            stayed += 1;
+        }
+    }
+    (moved >= 2 && stayed >= 2).then_some(r)
+}
+
+/// Birth-death search: start with one component; try splitting components, worst share
+/// of the bound first; keep a split when VBEM on all data raises the bound; stop when no
+/// split is kept or `max_components` is reached.
+fn birth_death(data: &DMatrix<f64>, prior: &VbPrior, options: &VbOptions) -> Result<Run, GmmError> {
+    let mut total = 0usize;
+    let mut best = run_pruned(data, DMatrix::from_element(data.nrows(), 1, 1.0), prior, options, &mut total)?;
+    'grow: while best.comps.len() < options.max_components {
+        let mut order: Vec<usize> = (0..best.comps.len()).collect();
+        order.sort_by(|&a, &b| best.shares[a].total_cmp(&best.shares[b]).then(a.cmp(&b)));
+        for c in order {
+            let Some(r) = split(data, &best, c) else { continue };
+            let candidate = run_pruned(data, r, prior, options, &mut total)?;
+            if candidate.bound > best.bound + options.split_gain * best.bound.abs() && candidate.comps.len() > best.comps.len() {
+                best = candidate;
+                continue 'grow;
+            }
+        }
+        break;
+    }
+    best.iterations = total;
+    Ok(best)
+}
+
+/// Fixed-K mode: k-means++ seeds, a few Lloyd iterations, then VBEM from the hard labels.
+fn fixed_k(data: &DMatrix<f64>, prior: &VbPrior, options: &VbOptions) -> Result<Run, GmmError> {
+    let (n, d) = data.shape();
+    let k = options.max_components.min(n);
+    let mut rng = ChaCha8Rng::seed_from_u64(options.seed);
+    let dist2 = |i: usize, c: &[f64]| -> f64 { (0..d).map(|j| (data[(i, j)] - c[j]).powi(2)).sum() };
+    let row = |i: usize| -> Vec<f64> { (0..d).map(|j| data[(i, j)]).collect() };
+    let mut centres = vec![row(rng.random_range(0..n))];
+    let mut nearest: Vec<f64> = (0..n).map(|i| dist2(i, &centres[0])).collect();
+    while centres.len() < k {
+        let total: f64 = nearest.iter().sum();
+        let pick = if total > 0.0 {
+            let mut u = rng.random_range(0.0..total);
+            let mut idx = n - 1;
+            for (i, &w) in nearest.iter().enumerate() {
+                if u < w {
+                    idx = i;
+                    break;
+                }
+                u -= w;
+            }
+            idx
+        } else {
+            rng.random_range(0..n)
+        };
+        centres.push(row(pick));
+        for (i, best) in nearest.iter_mut().enumerate() {
+            *best = best.min(dist2(i, centres.last().expect("just pushed")));
+        }
+    }
+    let mut labels = vec![0usize; n];
+    for _ in 0..10 {
+        for (i, l) in labels.iter_mut().enumerate() {
+            *l = (0..k).min_by(|&a, &b| dist2(i, &centres[a]).total_cmp(&dist2(i, &centres[b]))).expect("k >= 1");
+        }
+        let mut sums = vec![vec![0.0; d]; k];
+        let mut counts = vec![0usize; k];
+        for (i, &l) in labels.iter().enumerate() {
+            counts[l] += 1;
+            for j in 0..d {
+                sums[l][j] += data[(i, j)];
+            }
+        }
+        for c in 0..k {
+            if counts[c] > 0 {
+                centres[c] = sums[c].iter().map(|s| s / counts[c] as f64).collect();
+            }
+        }
+    }
+    let mut r = DMatrix::zeros(n, k);
+    for (i, &l) in labels.iter().enumerate() {
+        r[(i, l)] = 1.0;
+    }
+    let mut total = 0;
+    let mut run = run_pruned(data, r, prior, options, &mut total)?;
+    run.iterations = total;
+    Ok(run)
+}

@@ -1,0 +1,340 @@
+//! One run of variational Bayesian EM for a full-covariance Gaussian mixture with a fixed
+//! set of components (PRML 10.2). The model search over the number of components lives in
+//! [`super::search`].
+//!
+//! Priors: Dirichlet(alpha0) on the weights (the paper's lambda_0), Wishart(W0, nu0) on the
+//! precisions (the paper's B_0 = W0^-1 and alpha_0 = nu0), Normal(m0, (beta0 Lambda)^-1) on
+//! the means. The lower bound is the full PRML 10.70, constants included, so bounds of fits
+//! with different numbers of components compare directly.
+
+use nalgebra::{Cholesky, DMatrix, DVector, Dyn};
+use serde::{Deserialize, Serialize};
+use statrs::function::gamma::{digamma, ln_gamma};
+
+use super::GmmError;
+
+const LN_2PI: f64 = 1.837_877_066_409_345_5;
+const LN_PI: f64 = 1.144_729_885_849_400_2;
+
+/// The conjugate prior of the mixture (paper eq. 3; DESIGN.md `VbPrior`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct VbPrior {
+    /// Symmetric Dirichlet concentration on the weights (paper lambda_0).
+    pub alpha0: f64,
+    /// Scale of the mean's precision relative to the component precision.
+    pub beta0: f64,
+    /// Wishart degrees of freedom (paper alpha_0); must exceed D - 1.
+    pub nu0: f64,
+    /// Prior mean of every component.
+    pub m0: DVector<f64>,
+    /// Inverse Wishart scale W0^-1 (paper B_0): roughly nu0 times the expected covariance.
+    pub w0_inv: DMatrix<f64>,
+}
+
+impl VbPrior {
+    /// The default prior for `data` (rows are points): alpha0 = 1, beta0 = 1, nu0 = D,
+    /// m0 = the data mean, W0^-1 = the data covariance plus a small ridge (so duplicate or
+    /// collinear points still give a positive definite scale). The same choice as
+    /// scikit-learn's BayesianGaussianMixture apart from alpha0 (the paper's symmetric
+    /// Dirichlet with lambda_0 = 1 rather than 1/K).
+    pub fn from_data(data: &DMatrix<f64>) -> Result<VbPrior, GmmError> {
+        check_data(data)?;
+        let (n, d) = data.shape();
+        let mean = DVector::from_iterator(d, data.column_iter().map(|c| c.sum() / n as f64));
+        let mut cov = DMatrix::zeros(d, d);
+        for i in 0..d {
+            let ci = data.column(i).add_scalar(-mean[i]);
+            for j in 0..=i {
+                let cj = data.column(j).add_scalar(-mean[j]);
+                let v = ci.dot(&cj) / n as f64;
+                cov[(i, j)] = v;
+                cov[(j, i)] = v;
+            }
+        }
+        let scale = cov.trace() / d as f64;
+        let ridge = if scale > 0.0 { 1e-6 * scale } else { 1e-6 * (1.0 + mean.norm_squared() / d as f64) };
+        for i in 0..d {
+            cov[(i, i)] += ridge;
+        }
+        Ok(VbPrior { alpha0: 1.0, beta0: 1.0, nu0: d as f64, m0: mean, w0_inv: cov })
+    }
+
+    /// A prior taken from another model (the paper's footnote 2): its overall mean and
+    /// covariance, with `nu0` degrees of freedom of confidence.
+    pub fn from_gmm(g: &super::Gmm, nu0: f64) -> Result<VbPrior, GmmError> {
+        let d = g.dims();
+        if d == 0 {
+            return Err(GmmError::EmptyModel);
+        }
+        let (mean, cov) = g.moments();
+        let prior = VbPrior { alpha0: 1.0, beta0: 1.0, nu0, m0: mean, w0_inv: cov * nu0.max(d as f64) / d as f64 };
+        prior.check(d)?;
+        Ok(prior)
+    }
+
+    pub fn dims(&self) -> usize {
+        self.m0.len()
+    }
+
+    /// Checks that the prior is proper for data of dimension `d`.
+    pub fn check(&self, d: usize) -> Result<(), GmmError> {
+        if self.m0.len() != d || self.w0_inv.shape() != (d, d) {
+            return Err(GmmError::Dimension { expected: d, found: self.m0.len() });
+        }
+        if !(self.alpha0 > 0.0 && self.beta0 > 0.0 && self.alpha0.is_finite() && self.beta0.is_finite()) {
+            return Err(GmmError::BadPrior("alpha0 and beta0 must be positive".into()));
+        }
+        if !(self.nu0 > d as f64 - 1.0) || !self.nu0.is_finite() {
+            return Err(GmmError::BadPrior(format!("nu0 = {} must exceed D - 1 = {}", self.nu0, d as f64 - 1.0)));
+        }
+        if self.m0.iter().chain(self.w0_inv.iter()).any(|v| !v.is_finite()) {
+            return Err(GmmError::BadPrior("m0 and W0^-1 must be finite".into()));
+        }
+        if Cholesky::new(self.w0_inv.clone()).is_none() {
+            return Err(GmmError::BadPrior("W0^-1 is not positive definite".into()));
+        }
+        Ok(())
+    }
+}
+
+/// The variational posterior of one component: Dirichlet count `alpha`, mean precision
+/// scale `beta`, mean `mean` (m_k), Wishart dof `nu` and inverse scale `w_inv` (W_k^-1).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct VbComponent {
+    pub alpha: f64,
+    pub beta: f64,
+    pub nu: f64,
+    pub mean: DVector<f64>,
+    pub w_inv: DMatrix<f64>,
+}
+
+/// Responsibility-weighted statistics of the data for each component.
+#[derive(Debug, Clone)]
+pub(crate) struct Stats {
+    pub nk: Vec<f64>,
+    pub xbar: Vec<DVector<f64>>,
+    pub s: Vec<DMatrix<f64>>,
+    /// sum_n r_nk ln r_nk per component (the entropy term of q(Z)).
+    pub r_ln_r: Vec<f64>,
+}
+
+/// Validates a data matrix: at least one point, at least one dimension, all finite.
+pub(crate) fn check_data(data: &DMatrix<f64>) -> Result<(), GmmError> {
+    if data.nrows() == 0 || data.ncols() == 0 {
+        return Err(GmmError::NoData);
+    }
+    if let Some(pos) = data.iter().position(|v| !v.is_finite()) {
+        let n = data.nrows();
+        return Err(GmmError::NotFinite { row: pos % n, column: pos / n });
+    }
+    Ok(())
+}
+
+/// M-step: sufficient statistics from responsibilities `r` (N x K), then the posterior.
+pub(crate) fn m_step(data: &DMatrix<f64>, r: &DMatrix<f64>, prior: &VbPrior) -> (Vec<VbComponent>, Stats) {
+    let (n, d) = data.shape();
+    let k = r.ncols();
+    let mut stats = Stats { nk: Vec::with_capacity(k), xbar: Vec::with_capacity(k), s: Vec::with_capacity(k), r_ln_r: Vec::with_capacity(k) };
+    let mut comps = Vec::with_capacity(k);
+    let mut z = DMatrix::<f64>::zeros(n, d);
+    for kk in 0..k {
+        let rk = r.column(kk);
+        let nk: f64 = rk.sum();
+        let r_ln_r: f64 = rk.iter().map(|&v| if v > 0.0 { v * v.ln() } else { 0.0 }).sum();
+        let (xbar, s) = if nk > 1e-300 {
+            let xbar = data.tr_mul(&rk) / nk;
+            // Z = diag(sqrt r) (X - 1 xbar^T): S = Z^T Z / N_k, accurate far from the origin.
+            for j in 0..d {
+                let (src, mut dst) = (data.column(j), z.column_mut(j));
+                for i in 0..n {
+                    dst[i] = rk[i].sqrt() * (src[i] - xbar[j]);
+                }
+            }
+            let mut s = z.tr_mul(&z) / nk;
+            s = (&s + s.transpose()) * 0.5;
+            (xbar, s)
+        } else {
+            (prior.m0.clone(), DMatrix::zeros(d, d))
+        };
+        let beta = prior.beta0 + nk;
+        let dx = &xbar - &prior.m0;
+        let w_inv = &prior.w0_inv + &s * nk + &dx * dx.transpose() * (prior.beta0 * nk / beta);
+        comps.push(VbComponent {
+            alpha: prior.alpha0 + nk,
+            beta,
+            nu: prior.nu0 + nk,
+            mean: (&prior.m0 * prior.beta0 + &xbar * nk) / beta,
+            w_inv: (&w_inv + w_inv.transpose()) * 0.5,
+        });
+        stats.nk.push(nk);
+        stats.xbar.push(xbar);
+        stats.s.push(s);
+        stats.r_ln_r.push(r_ln_r);
+    }
+    (comps, stats)
+}
+
+/// Per-component expectations the E-step and the bound share.
+struct Expect {
+    /// E[ln pi_k]
+    ln_pi: f64,
+    /// E[ln |Lambda_k|]
+    ln_lambda: f64,
+    /// ln |W_k|
+    ln_w: f64,
+    chol: Cholesky<f64, Dyn>,
+}
+
+fn expectations(comps: &[VbComponent]) -> Result<Vec<Expect>, GmmError> {
+    let alpha_sum: f64 = comps.iter().map(|c| c.alpha).sum();
+    let dig_sum = digamma(alpha_sum);
+    comps
+        .iter()
+        .enumerate()
+        .map(|(k, c)| {
+            let d = c.mean.len();
+            let chol = Cholesky::new(c.w_inv.clone()).ok_or(GmmError::NotPositiveDefinite { component: k })?;
+            let ln_w = -2.0 * chol.l_dirty().diagonal().iter().map(|v| v.ln()).sum::<f64>();
+            let ln_lambda = (1..=d).map(|i| digamma((c.nu + 1.0 - i as f64) / 2.0)).sum::<f64>() + d as f64 * std::f64::consts::LN_2 + ln_w;
+            Ok(Expect { ln_pi: digamma(c.alpha) - dig_sum, ln_lambda, ln_w, chol })
+        })
+        .collect()
+}
+
+/// E-step: responsibilities r_nk by log-sum-exp of ln rho_nk (PRML 10.46-10.49).
+pub(crate) fn e_step(data: &DMatrix<f64>, comps: &[VbComponent]) -> Result<DMatrix<f64>, GmmError> {
+    let (n, d) = data.shape();
+    let k = comps.len();
+    let ex = expectations(comps)?;
+    let mut log_rho = DMatrix::<f64>::zeros(n, k);
+    for (kk, (c, e)) in comps.iter().zip(&ex).enumerate() {
+        // (x - m)^T W (x - m) = |C^-1 (x - m)|^2 with C C^T = W^-1: Y = X C^-T - 1 (C^-1 m)^T.
+        let c_inv = e.chol.l().solve_lower_triangular(&DMatrix::identity(d, d)).ok_or(GmmError::NotPositiveDefinite { component: kk })?;
+        let y = data * c_inv.transpose();
+        let shift = &c_inv * &c.mean;
+        let mut quad = vec![0.0; n];
+        for j in 0..d {
+            let (col, s) = (y.column(j), shift[j]);
+            for i in 0..n {
+                let v = col[i] - s;
+                quad[i] += v * v;
+            }
+        }
+        let base = e.ln_pi + 0.5 * e.ln_lambda - 0.5 * d as f64 * LN_2PI - 0.5 * d as f64 / c.beta;
+        let mut out = log_rho.column_mut(kk);
+        for i in 0..n {
+            out[i] = base - 0.5 * c.nu * quad[i];
+        }
+    }
+    // Normalise each row in the log domain.
+    let mut r = log_rho;
+    for i in 0..n {
+        let mut mx = f64::NEG_INFINITY;
+        for kk in 0..k {
+            mx = mx.max(r[(i, kk)]);
+        }
+        let mut s = 0.0;
+        for kk in 0..k {
+            s += (r[(i, kk)] - mx).exp();
+        }
+        let lse = mx + s.ln();
+        for kk in 0..k {
+            r[(i, kk)] = (r[(i, kk)] - lse).exp();
+        }
+    }
+    Ok(r)
+}
+
+/// ln B(W, nu), the Wishart normaliser (PRML B.79), from ln |W|.
+fn ln_wishart_norm(ln_w: f64, nu: f64, d: usize) -> f64 {
+    let df = d as f64;
+    -0.5 * nu * ln_w - (0.5 * nu * df * std::f64::consts::LN_2 + 0.25 * df * (df - 1.0) * LN_PI + (1..=d).map(|i| ln_gamma((nu + 1.0 - i as f64) / 2.0)).sum::<f64>())
+}
+
+/// The full variational lower bound (PRML 10.70-10.77, constants included) and each
+/// component's share of it (every term except the Dirichlet normalisers).
+pub(crate) fn lower_bound(prior: &VbPrior, comps: &[VbComponent], stats: &Stats) -> Result<(f64, Vec<f64>), GmmError> {
+    let d = prior.dims();
+    let df = d as f64;
+    let k = comps.len();
+    let ex = expectations(comps)?;
+    let prior_chol = Cholesky::new(prior.w0_inv.clone()).ok_or(GmmError::BadPrior("W0^-1 is not positive definite".into()))?;
+    let ln_w0 = -2.0 * prior_chol.l_dirty().diagonal().iter().map(|v| v.ln()).sum::<f64>();
+    let ln_b0 = ln_wishart_norm(ln_w0, prior.nu0, d);
+    let mut shares = Vec::with_capacity(k);
+    for (kk, (c, e)) in comps.iter().zip(&ex).enumerate() {
+        let nk = stats.nk[kk];
+        let tr_sw = e.chol.solve(&stats.s[kk]).trace();
+        let dx = &stats.xbar[kk] - &c.mean;
+        let q_x = dx.dot(&e.chol.solve(&dx));
+        let dm = &c.mean - &prior.m0;
+        let q_m = dm.dot(&e.chol.solve(&dm));
+        let tr_w0w = e.chol.solve(&prior.w0_inv).trace();
+        let mut l = 0.0;
+        // 10.71 E[ln p(X | Z, mu, Lambda)]
+        l += 0.5 * nk * (e.ln_lambda - df / c.beta - c.nu * tr_sw - c.nu * q_x - df * LN_2PI);
+        // 10.72 E[ln p(Z | pi)]
+        l += nk * e.ln_pi;
+        // 10.73 E[ln p(pi)] without ln C(alpha0)
+        l += (prior.alpha0 - 1.0) * e.ln_pi;
+        // 10.74 E[ln p(mu, Lambda)]
+        l += 0.5 * (df * (prior.beta0 / (2.0 * std::f64::consts::PI)).ln() + e.ln_lambda - df * prior.beta0 / c.beta - prior.beta0 * c.nu * q_m) + ln_b0
+            + 0.5 * (prior.nu0 - df - 1.0) * e.ln_lambda
+            - 0.5 * c.nu * tr_w0w;
+        // 10.75 -E[ln q(Z)]
+        l -= stats.r_ln_r[kk];
+        // 10.76 -E[ln q(pi)] without ln C(alpha)
+        l -= (c.alpha - 1.0) * e.ln_pi;
+        // 10.77 -E[ln q(mu, Lambda)]
+        let entropy_wishart = -ln_wishart_norm(e.ln_w, c.nu, d) - 0.5 * (c.nu - df - 1.0) * e.ln_lambda + 0.5 * c.nu * df;
+        l -= 0.5 * e.ln_lambda + 0.5 * df * (c.beta / (2.0 * std::f64::consts::PI)).ln() - 0.5 * df - entropy_wishart;
+        shares.push(l);
+    }
+    let alpha_sum: f64 = comps.iter().map(|c| c.alpha).sum();
+    let ln_c_alpha0 = ln_gamma(k as f64 * prior.alpha0) - k as f64 * ln_gamma(prior.alpha0);
+    let ln_c_alpha = ln_gamma(alpha_sum) - comps.iter().map(|c| ln_gamma(c.alpha)).sum::<f64>();
+    let total = shares.iter().sum::<f64>() + ln_c_alpha0 - ln_c_alpha;
+    if !total.is_finite() {
+        return Err(GmmError::Numerical("the lower bound is not finite".into()));
+    }
+    Ok((total, shares))
+}
+
+/// Result of running VBEM from given responsibilities.
+#[derive(Debug, Clone)]
+pub(crate) struct Run {
+    pub comps: Vec<VbComponent>,
+    pub stats: Stats,
+    pub r: DMatrix<f64>,
+    pub bound: f64,
+    pub shares: Vec<f64>,
+    pub iterations: usize,
+    /// The bound after every iteration (for the monotonicity check).
+    pub history: Vec<f64>,
+}
+
+/// Runs VBEM from responsibilities `r` until the bound's relative gain falls below
+/// `tolerance` or `max_iterations` is reached.
+pub(crate) fn run(data: &DMatrix<f64>, mut r: DMatrix<f64>, prior: &VbPrior, max_iterations: usize, tolerance: f64) -> Result<Run, GmmError> {
+    let mut history = Vec::new();
+    let mut last: Option<(Vec<VbComponent>, Stats, DMatrix<f64>, f64, Vec<f64>)> = None;
+    for it in 0..max_iterations.max(1) {
+        let (comps, stats) = m_step(data, &r, prior);
+        let (bound, shares) = lower_bound(prior, &comps, &stats)?;
+        history.push(bound);
+        let converged = match &last {
+            Some((.., prev, _)) => bound - prev <= tolerance * bound.abs(),
+            None => false,
+        };
+        let next_r = e_step(data, &comps)?;
+        let done = converged || it + 1 == max_iterations.max(1);
+        let current_r = std::mem::replace(&mut r, next_r);
+        last = Some((comps, stats, current_r, bound, shares));
+        if done {
+            break;
+        }
+    }
+    let (comps, stats, r_used, bound, shares) = last.expect("at least one iteration");
+    let iterations = history.len();
+    Ok(Run { comps, stats, r: r_used, bound, shares, iterations, history })
+}
