@@ -11,8 +11,10 @@
 pub mod association;
 pub mod calibration;
 pub mod checkerboard;
+pub mod classifier;
 pub mod clustering;
 pub mod ekf;
+pub mod features;
 pub mod gmm;
 pub mod kl;
 pub mod messages;

@@ -1,0 +1,404 @@
+//! The patch classifier (paper section 3.3) and the appearance model file that carries it.
+//!
+//! Two VB-GMMs are learnt on patch features: one for object patches, one for everything
+//! else. Each is used through the Gaussian approximation of its Student-t predictive
+//! density; a patch z is an object patch when
+//! R = w_obj p(z | obj) / (w_obj p(z | obj) + w_bg p(z | bg)) exceeds a threshold (0.5),
+//! with w the classes' proportions in the training data.
+
+use std::path::Path;
+
+use nalgebra::DMatrix;
+use rand::seq::SliceRandom;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+use crate::features::{raw_patches, FeatureConfig, FeatureError, FeatureExtractor, ImageRef, PatchFeatures, PatchRect, Pca};
+use crate::gmm::{self, GmmError, GmmEvaluator, StudentTMixture, VbGmm, VbOptions};
+
+/// Version of the appearance model file layout; files with another version are refused.
+pub const MODEL_FORMAT_VERSION: u32 = 1;
+
+#[derive(Debug, thiserror::Error)]
+pub enum ModelError {
+    #[error("{file}: {message}")]
+    Io { file: String, message: String },
+    #[error("{file}: not an appearance model: {message}")]
+    Parse { file: String, message: String },
+    #[error("{file}: model format_version {found}, this objslam reads version {expected}; retrain the model")]
+    Version { file: String, found: u32, expected: u32 },
+    #[error("{file}: inconsistent model: {message}")]
+    Inconsistent { file: String, message: String },
+    #[error(transparent)]
+    Feature(#[from] FeatureError),
+    #[error(transparent)]
+    Gmm(#[from] GmmError),
+    #[error("training: {0}")]
+    Training(String),
+}
+
+/// Patch precision, recall and F1 against ground-truth labels.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+pub struct PatchScores {
+    pub true_positives: u64,
+    pub false_positives: u64,
+    pub false_negatives: u64,
+    pub true_negatives: u64,
+}
+
+impl PatchScores {
+    pub fn add(&mut self, predicted: bool, truth: bool) {
+        match (predicted, truth) {
+            (true, true) => self.true_positives += 1,
+            (true, false) => self.false_positives += 1,
+            (false, true) => self.false_negatives += 1,
+            (false, false) => self.true_negatives += 1,
+        }
+    }
+    /// TP / (TP + FP); 1 when nothing was predicted positive.
+    pub fn precision(&self) -> f64 {
+        let p = self.true_positives + self.false_positives;
+        if p == 0 { 1.0 } else { self.true_positives as f64 / p as f64 }
+    }
+    /// TP / (TP + FN); 1 when there was nothing to find.
+    pub fn recall(&self) -> f64 {
+        let p = self.true_positives + self.false_negatives;
+        if p == 0 { 1.0 } else { self.true_positives as f64 / p as f64 }
+    }
+    pub fn f1(&self) -> f64 {
+        let (p, r) = (self.precision(), self.recall());
+        if p + r == 0.0 { 0.0 } else { 2.0 * p * r / (p + r) }
+    }
+}
+
+/// How a model was trained, recorded in the file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct TrainingSummary {
+    pub images: usize,
+    pub object_patches: usize,
+    pub background_patches: usize,
+    /// Patches used to fit each mixture (a deterministic subsample).
+    pub fitted_object_patches: usize,
+    pub fitted_background_patches: usize,
+    pub pca_explained_variance: f64,
+    pub seed: u64,
+    /// Held-out scores, when the trainer had held-out images.
+    pub heldout: Option<PatchScores>,
+}
+
+/// The output of the offline phase: features, both class models and their proportions.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AppearanceModel {
+    pub format_version: u32,
+    pub extractor: FeatureExtractor,
+    pub object: VbGmm,
+    pub background: VbGmm,
+    /// w_obj: the object class's share of the training patches.
+    pub object_weight: f64,
+    /// R above this is an object patch.
+    pub threshold: f64,
+    pub training: TrainingSummary,
+}
+
+impl AppearanceModel {
+    /// Reads a model file; a missing, corrupt or other-version file is a clear error.
+    pub fn load(path: &Path) -> Result<Self, ModelError> {
+        let file = path.display().to_string();
+        let text = std::fs::read_to_string(path).map_err(|e| ModelError::Io { file: file.clone(), message: e.to_string() })?;
+        Self::from_json(&text, &file)
+    }
+
+    /// Parses a model from JSON text; `file` names it in errors.
+    pub fn from_json(text: &str, file: &str) -> Result<Self, ModelError> {
+        #[derive(Deserialize)]
+        struct VersionOnly {
+            format_version: Option<u32>,
+        }
+        let v: VersionOnly = serde_json::from_str(text).map_err(|e| ModelError::Parse { file: file.into(), message: e.to_string() })?;
+        match v.format_version {
+            Some(MODEL_FORMAT_VERSION) => {}
+            Some(found) => return Err(ModelError::Version { file: file.into(), found, expected: MODEL_FORMAT_VERSION }),
+            None => return Err(ModelError::Parse { file: file.into(), message: "missing field `format_version`".into() }),
+        }
+        let model: AppearanceModel = serde_json::from_str(text).map_err(|e| ModelError::Parse { file: file.into(), message: e.to_string() })?;
+        let inconsistent = |message: String| ModelError::Inconsistent { file: file.into(), message };
+        let d = model.extractor.dims();
+        if model.extractor.pca.input_dims() != model.extractor.config.raw_dims() {
+            return Err(inconsistent("the PCA does not match the patch size and filter bank".into()));
+        }
+        if model.object.dims() != d || model.background.dims() != d {
+            return Err(inconsistent(format!("class models are {}- and {}-dimensional, features are {d}-dimensional", model.object.dims(), model.background.dims())));
+        }
+        if !(model.object_weight > 0.0 && model.object_weight < 1.0) || !(0.0..=1.0).contains(&model.threshold) {
+            return Err(inconsistent("object_weight must lie in (0, 1) and threshold in [0, 1]".into()));
+        }
+        PatchClassifier::new(&model).map_err(|e| inconsistent(e.to_string()))?;
+        Ok(model)
+    }
+
+    /// Writes the model as JSON.
+    pub fn save(&self, path: &Path) -> Result<(), ModelError> {
+        let text = serde_json::to_string(self).map_err(|e| ModelError::Io { file: path.display().to_string(), message: e.to_string() })?;
+        std::fs::write(path, text).map_err(|e| ModelError::Io { file: path.display().to_string(), message: e.to_string() })
+    }
+}
+
+/// The classifier ready to run: both predictive densities prepared for evaluation.
+#[derive(Debug, Clone)]
+pub struct PatchClassifier {
+    object: GmmEvaluator,
+    background: GmmEvaluator,
+    ln_w_obj: f64,
+    ln_w_bg: f64,
+    pub threshold: f64,
+}
+
+impl PatchClassifier {
+    pub fn new(model: &AppearanceModel) -> Result<Self, GmmError> {
+        let object = StudentTMixture::new(&model.object)?.gaussian_approximation()?.evaluator()?;
+        let background = StudentTMixture::new(&model.background)?.gaussian_approximation()?.evaluator()?;
+        Ok(PatchClassifier { object, background, ln_w_obj: model.object_weight.ln(), ln_w_bg: (1.0 - model.object_weight).ln(), threshold: model.threshold })
+    }
+
+    /// R for one feature row.
+    pub fn posterior(&self, z: &[f64]) -> f64 {
+        let a = self.ln_w_obj + self.object.log_density(z);
+        let b = self.ln_w_bg + self.background.log_density(z);
+        1.0 / (1.0 + (b - a).exp())
+    }
+
+    /// R for every row of `features`.
+    pub fn posteriors(&self, features: &PatchFeatures) -> Vec<f64> {
+        let mut row = vec![0.0; features.z.ncols()];
+        (0..features.z.nrows())
+            .map(|i| {
+                for (j, v) in row.iter_mut().enumerate() {
+                    *v = features.z[(i, j)];
+                }
+                self.posterior(&row)
+            })
+            .collect()
+    }
+
+    /// Object / background decision for every row.
+    pub fn classify(&self, features: &PatchFeatures) -> Vec<bool> {
+        self.posteriors(features).into_iter().map(|r| r > self.threshold).collect()
+    }
+}
+
+/// One training image: pixels and the fraction of each patch (row-major over the grid)
+/// that belongs to the object class.
+pub struct LabelledImage {
+    pub width: u32,
+    pub height: u32,
+    pub rgb: Vec<u8>,
+    pub fractions: Vec<f32>,
+}
+
+/// Training settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct TrainingOptions {
+    pub features: FeatureConfig,
+    /// PCA dimension d.
+    pub pca_dims: usize,
+    /// Raw patches sampled (evenly over the images) to fit the PCA.
+    pub pca_samples: usize,
+    /// Patches per class given to VBEM (a deterministic random subsample).
+    pub max_patches_per_class: usize,
+    /// A patch is an object patch when at least this fraction of it is object.
+    pub label_fraction: f64,
+    pub vb: VbOptions,
+    pub threshold: f64,
+    pub seed: u64,
+}
+
+impl Default for TrainingOptions {
+    fn default() -> Self {
+        TrainingOptions { features: FeatureConfig::default(), pca_dims: 10, pca_samples: 20_000, max_patches_per_class: 20_000, label_fraction: 0.5, vb: VbOptions::default(), threshold: 0.5, seed: 1 }
+    }
+}
+
+/// Trains an appearance model. `images` is called with an index and returns that image
+/// (so they need not all be in memory); `progress` gets (stage, done, total).
+pub fn train(count: usize, images: impl Fn(usize) -> Result<LabelledImage, ModelError>, options: &TrainingOptions, progress: impl Fn(&str, usize, usize)) -> Result<AppearanceModel, ModelError> {
+    if count == 0 {
+        return Err(ModelError::Training("no training images".into()));
+    }
+    let cfg = &options.features;
+    let l = cfg.patch_size;
+    // Pass 1: sample raw patches for the PCA.
+    let per_image = options.pca_samples.div_ceil(count).max(1);
+    let mut rng = ChaCha8Rng::seed_from_u64(options.seed);
+    let mut sample_rows: Vec<f64> = Vec::new();
+    let mut sampled = 0usize;
+    for i in 0..count {
+        progress("pca", i, count);
+        let img = images(i)?;
+        let image = ImageRef::new(img.width, img.height, &img.rgb)?;
+        let rect = PatchRect::whole(&image, l);
+        let raw = raw_patches(&image, cfg, &rect);
+        let mut idx: Vec<usize> = (0..raw.nrows()).collect();
+        idx.shuffle(&mut rng);
+        for &r in idx.iter().take(per_image) {
+            sample_rows.extend(raw.row(r).iter());
+            sampled += 1;
+        }
+    }
+    let pca = Pca::fit(&DMatrix::from_row_slice(sampled, cfg.raw_dims(), &sample_rows), options.pca_dims)?;
+    drop(sample_rows);
+    let extractor = FeatureExtractor::new(cfg.clone(), pca)?;
+    // Pass 2: features of every patch, split by label.
+    let (mut obj, mut bg): (Vec<f64>, Vec<f64>) = (Vec::new(), Vec::new());
+    let d = extractor.dims();
+    for i in 0..count {
+        progress("features", i, count);
+        let img = images(i)?;
+        let image = ImageRef::new(img.width, img.height, &img.rgb)?;
+        let f = extractor.features(&image, None)?;
+        let (cols, _) = image.grid(l);
+        if img.fractions.len() != f.z.nrows() {
+            return Err(ModelError::Training(format!("image {i}: {} patch labels for {} patches", img.fractions.len(), f.z.nrows())));
+        }
+        for k in 0..f.z.nrows() {
+            let (c, r) = f.rect.patch(k);
+            let target = if img.fractions[(r * cols + c) as usize] as f64 >= options.label_fraction { &mut obj } else { &mut bg };
+            target.extend(f.z.row(k).iter());
+        }
+    }
+    let (n_obj, n_bg) = (obj.len() / d, bg.len() / d);
+    if n_obj < d + 1 || n_bg < d + 1 {
+        return Err(ModelError::Training(format!("need at least {} patches of each class, found {n_obj} object and {n_bg} background", d + 1)));
+    }
+    let subsample = |rows: &[f64], n: usize, rng: &mut ChaCha8Rng| -> DMatrix<f64> {
+        let mut idx: Vec<usize> = (0..n).collect();
+        idx.shuffle(rng);
+        idx.truncate(options.max_patches_per_class.max(1));
+        idx.sort_unstable();
+        let flat: Vec<f64> = idx.iter().flat_map(|&i| rows[i * d..(i + 1) * d].iter().copied()).collect();
+        DMatrix::from_row_slice(idx.len(), d, &flat)
+    };
+    let obj_data = subsample(&obj, n_obj, &mut rng);
+    let bg_data = subsample(&bg, n_bg, &mut rng);
+    progress("object model", 0, 2);
+    let object = gmm::fit(&obj_data, None, &options.vb)?;
+    progress("background model", 1, 2);
+    let background = gmm::fit(&bg_data, None, &options.vb)?;
+    progress("done", 2, 2);
+    Ok(AppearanceModel {
+        format_version: MODEL_FORMAT_VERSION,
+        object_weight: n_obj as f64 / (n_obj + n_bg) as f64,
+        threshold: options.threshold,
+        training: TrainingSummary {
+            images: count,
+            object_patches: n_obj,
+            background_patches: n_bg,
+            fitted_object_patches: obj_data.nrows(),
+            fitted_background_patches: bg_data.nrows(),
+            pca_explained_variance: extractor.pca.explained_variance,
+            seed: options.seed,
+            heldout: None,
+        },
+        extractor,
+        object,
+        background,
+    })
+}
+
+/// Scores a model's patch decisions on labelled images.
+pub fn evaluate(model: &AppearanceModel, count: usize, images: impl Fn(usize) -> Result<LabelledImage, ModelError>, label_fraction: f64) -> Result<PatchScores, ModelError> {
+    let classifier = PatchClassifier::new(model)?;
+    let l = model.extractor.config.patch_size;
+    let mut scores = PatchScores::default();
+    for i in 0..count {
+        let img = images(i)?;
+        let image = ImageRef::new(img.width, img.height, &img.rgb)?;
+        let f = model.extractor.features(&image, None)?;
+        let (cols, _) = image.grid(l);
+        for (k, predicted) in classifier.classify(&f).into_iter().enumerate() {
+            let (c, r) = f.rect.patch(k);
+            scores.add(predicted, img.fractions[(r * cols + c) as usize] as f64 >= label_fraction);
+        }
+    }
+    Ok(scores)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Synthetic scenes: brown vertically striped "trunks" on green textured "grass".
+    fn scene(seed: u64, w: u32, h: u32) -> LabelledImage {
+        let mut s = seed.wrapping_mul(2654435761).wrapping_add(1);
+        let mut next = move || {
+            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (s >> 33) as u32
+        };
+        let x0 = next() % (w / 2);
+        let tw = 18 + next() % 30;
+        let mut rgb = Vec::with_capacity((w * h * 3) as usize);
+        let mut mask = vec![false; (w * h) as usize];
+        for y in 0..h {
+            for x in 0..w {
+                let n = (next() % 30) as u8;
+                if x >= x0 && x < x0 + tw {
+                    mask[(y * w + x) as usize] = true;
+                    let stripe = if (x - x0) % 4 < 2 { 0 } else { 25 };
+                    rgb.extend([90 + stripe + n, 60 + stripe / 2 + n / 2, 35 + n / 3]);
+                } else {
+                    rgb.extend([40 + n / 2, 110 + n, 40 + n / 3]);
+                }
+            }
+        }
+        let l = 9;
+        let (cols, rows) = (w / l, h / l);
+        let mut fractions = vec![0.0f32; (cols * rows) as usize];
+        for r in 0..rows {
+            for c in 0..cols {
+                let mut k = 0;
+                for y in r * l..(r + 1) * l {
+                    for x in c * l..(c + 1) * l {
+                        k += mask[(y * w + x) as usize] as u32;
+                    }
+                }
+                fractions[(r * cols + c) as usize] = k as f32 / 81.0;
+            }
+        }
+        LabelledImage { width: w, height: h, rgb, fractions }
+    }
+
+    #[test]
+    fn trains_and_separates_synthetic_trunks_from_grass() {
+        let options = TrainingOptions { pca_dims: 6, max_patches_per_class: 3000, vb: VbOptions { max_components: 4, ..Default::default() }, ..Default::default() };
+        let model = train(6, |i| Ok(scene(i as u64, 160, 120)), &options, |_, _, _| {}).unwrap();
+        let scores = evaluate(&model, 4, |i| Ok(scene(100 + i as u64, 160, 120)), 0.5).unwrap();
+        assert!(scores.f1() > 0.9, "{scores:?}: F1 {}", scores.f1());
+        assert!(model.object_weight > 0.05 && model.object_weight < 0.5);
+    }
+
+    #[test]
+    fn model_files_round_trip_and_bad_files_are_clear_errors() {
+        let options = TrainingOptions { pca_dims: 4, max_patches_per_class: 1000, vb: VbOptions { max_components: 2, ..Default::default() }, ..Default::default() };
+        let model = train(2, |i| Ok(scene(i as u64, 90, 63)), &options, |_, _, _| {}).unwrap();
+        let text = serde_json::to_string(&model).unwrap();
+        assert_eq!(AppearanceModel::from_json(&text, "m.json").unwrap(), model);
+        let old = text.replacen("\"format_version\":1", "\"format_version\":99", 1);
+        let err = AppearanceModel::from_json(&old, "m.json").unwrap_err().to_string();
+        assert!(err.contains("m.json") && err.contains("99"), "{err}");
+        let err = AppearanceModel::from_json(&text[..text.len() / 2], "cut.json").unwrap_err().to_string();
+        assert!(err.starts_with("cut.json"), "{err}");
+        let err = AppearanceModel::from_json("{\"format_version\":1}", "empty.json").unwrap_err().to_string();
+        assert!(err.contains("empty.json") && err.contains("missing field"), "{err}");
+    }
+
+    #[test]
+    fn scores_count_correctly() {
+        let mut s = PatchScores::default();
+        for (p, t) in [(true, true), (true, true), (true, false), (false, true), (false, false)] {
+            s.add(p, t);
+        }
+        assert!((s.precision() - 2.0 / 3.0).abs() < 1e-12 && (s.recall() - 2.0 / 3.0).abs() < 1e-12);
+        assert!((s.f1() - 2.0 / 3.0).abs() < 1e-12);
+    }
+}

@@ -1,0 +1,262 @@
+//! The Gabor filter bank that gives patches their texture channels.
+//!
+//! Kernel (OpenCV's `getGaborKernel` convention): exp(-(x_r^2 + gamma^2 y_r^2) / (2 sigma^2))
+//! cos(2 pi x_r / lambda + psi) with x_r = x cos(theta) + y sin(theta), y_r = -x sin(theta)
+//! + y cos(theta). Two changes, both so that the channels carry texture and not brightness
+//! (the colour channels already do): the Gaussian envelope times a constant is subtracted
+//! so the kernel sums to zero, and the kernel is scaled to unit L1 norm, so a response lies
+//! in [-1, 1] for intensities in [0, 1]. A channel is the response's magnitude.
+//! Orientations 0 and 90 degrees are separable and filtered as two 1-D passes.
+
+use serde::{Deserialize, Serialize};
+
+/// One filter of the bank.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GaborFilter {
+    /// Orientation of the carrier, degrees (0 responds to vertical stripes).
+    pub theta_deg: f64,
+    /// Carrier wavelength, pixels.
+    pub lambda_px: f64,
+    /// Envelope standard deviation along the carrier, pixels.
+    pub sigma_px: f64,
+    /// Envelope aspect ratio (across / along the carrier).
+    pub gamma: f64,
+    /// Carrier phase, radians.
+    pub psi: f64,
+}
+
+impl GaborFilter {
+    /// Kernel half-width: 2.5 envelope standard deviations along the longer axis.
+    pub fn radius(&self) -> usize {
+        (2.5 * self.sigma_px * (1.0f64).max(1.0 / self.gamma)).ceil() as usize
+    }
+
+    /// The filter as two 1-D kernels (horizontal, vertical) when its orientation allows.
+    pub fn separable(&self) -> Option<(Vec<f32>, Vec<f32>)> {
+        let t = self.theta_deg.rem_euclid(180.0);
+        let r = self.radius() as i64;
+        let carrier: Vec<f64> = (-r..=r).map(|x| self.carrier_1d(x as f64)).collect();
+        let across: Vec<f64> = (-r..=r).map(|y| (-(self.gamma * y as f64).powi(2) / (2.0 * self.sigma_px.powi(2))).exp()).collect();
+        let norm = carrier.iter().map(|v| v.abs()).sum::<f64>() * across.iter().sum::<f64>();
+        let (a, b): (Vec<f32>, Vec<f32>) = (carrier.iter().map(|v| (v / norm) as f32).collect(), across.iter().map(|&v| v as f32).collect());
+        if t.abs() < 1e-9 {
+            Some((a, b))
+        } else if (t - 90.0).abs() < 1e-9 {
+            Some((b, a))
+        } else {
+            None
+        }
+    }
+
+    /// Zero-mean carrier times envelope along the carrier axis.
+    fn carrier_1d(&self, x: f64) -> f64 {
+        let r = self.radius() as i64;
+        let env = |x: f64| (-x * x / (2.0 * self.sigma_px.powi(2))).exp();
+        let wave = |x: f64| (2.0 * std::f64::consts::PI * x / self.lambda_px + self.psi).cos();
+        let (s_wave, s_env): (f64, f64) = (-r..=r).map(|x| x as f64).fold((0.0, 0.0), |(a, b), x| (a + env(x) * wave(x), b + env(x)));
+        env(x) * (wave(x) - s_wave / s_env)
+    }
+
+    /// The full 2-D kernel, row-major, side 2 * radius + 1.
+    pub fn kernel_2d(&self) -> Vec<f32> {
+        let r = self.radius() as i64;
+        let (st, ct) = self.theta_deg.to_radians().sin_cos();
+        let env = |x: f64, y: f64| {
+            let (xr, yr) = (x * ct + y * st, -x * st + y * ct);
+            ((-(xr * xr + self.gamma.powi(2) * yr * yr) / (2.0 * self.sigma_px.powi(2))).exp(), (2.0 * std::f64::consts::PI * xr / self.lambda_px + self.psi).cos())
+        };
+        let pts: Vec<(f64, f64)> = (-r..=r).flat_map(|y| (-r..=r).map(move |x| (x as f64, y as f64))).collect();
+        let (sw, se) = pts.iter().fold((0.0, 0.0), |(a, b), &(x, y)| {
+            let (e, w) = env(x, y);
+            (a + e * w, b + e)
+        });
+        let k: Vec<f64> = pts
+            .iter()
+            .map(|&(x, y)| {
+                let (e, w) = env(x, y);
+                e * (w - sw / se)
+            })
+            .collect();
+        let norm: f64 = k.iter().map(|v| v.abs()).sum();
+        k.iter().map(|v| (v / norm) as f32).collect()
+    }
+}
+
+/// The bank: the paper used two orientations and two scales.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GaborBank {
+    pub filters: Vec<GaborFilter>,
+}
+
+impl Default for GaborBank {
+    /// Orientations 0 and 90 degrees; wavelengths 4 and 8 px (bark furrows and leaf
+    /// litter at the distances the robot sees them); sigma = lambda / 2 (about one octave
+    /// of bandwidth); gamma = 0.5; psi = 0.
+    fn default() -> Self {
+        let mut filters = Vec::new();
+        for lambda_px in [4.0, 8.0] {
+            for theta_deg in [0.0, 90.0] {
+                filters.push(GaborFilter { theta_deg, lambda_px, sigma_px: lambda_px / 2.0, gamma: 0.5, psi: 0.0 });
+            }
+        }
+        GaborBank { filters }
+    }
+}
+
+impl GaborBank {
+    pub fn len(&self) -> usize {
+        self.filters.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.filters.is_empty()
+    }
+
+    /// Largest kernel half-width: the margin a crop needs for exact responses.
+    pub fn radius(&self) -> usize {
+        self.filters.iter().map(|f| f.radius()).max().unwrap_or(0)
+    }
+
+    /// |response| of every filter on a grey plane, with replicated borders.
+    pub fn apply(&self, grey: &Plane) -> Vec<Plane> {
+        self.filters
+            .iter()
+            .map(|f| {
+                let mut out = match f.separable() {
+                    Some((h, v)) => convolve_cols(&convolve_rows(grey, &h), &v),
+                    None => convolve_2d(grey, &f.kernel_2d(), f.radius()),
+                };
+                out.data.iter_mut().for_each(|v| *v = v.abs());
+                out
+            })
+            .collect()
+    }
+}
+
+/// A single-channel f32 image, row-major.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Plane {
+    pub width: usize,
+    pub height: usize,
+    pub data: Vec<f32>,
+}
+
+/// Horizontal 1-D convolution (correlation; the kernels are symmetric or antisymmetric and
+/// used consistently) with replicated borders.
+pub fn convolve_rows(src: &Plane, kernel: &[f32]) -> Plane {
+    let r = kernel.len() / 2;
+    let (w, h) = (src.width, src.height);
+    let mut out = vec![0.0f32; w * h];
+    let mut padded = vec![0.0f32; w + 2 * r];
+    for y in 0..h {
+        let row = &src.data[y * w..(y + 1) * w];
+        padded[..r].fill(row[0]);
+        padded[r..r + w].copy_from_slice(row);
+        padded[r + w..].fill(row[w - 1]);
+        let dst = &mut out[y * w..(y + 1) * w];
+        for (k, &kv) in kernel.iter().enumerate() {
+            let src = &padded[k..k + w];
+            for (d, s) in dst.iter_mut().zip(src) {
+                *d += kv * s;
+            }
+        }
+    }
+    Plane { width: w, height: h, data: out }
+}
+
+/// Vertical 1-D convolution with replicated borders.
+pub fn convolve_cols(src: &Plane, kernel: &[f32]) -> Plane {
+    let r = kernel.len() as i64 / 2;
+    let (w, h) = (src.width, src.height);
+    let mut out = vec![0.0f32; w * h];
+    for y in 0..h {
+        let dst = &mut out[y * w..(y + 1) * w];
+        for (k, &kv) in kernel.iter().enumerate() {
+            let sy = (y as i64 + k as i64 - r).clamp(0, h as i64 - 1) as usize;
+            let srow = &src.data[sy * w..(sy + 1) * w];
+            for (d, s) in dst.iter_mut().zip(srow) {
+                *d += kv * s;
+            }
+        }
+    }
+    Plane { width: w, height: h, data: out }
+}
+
+/// Full 2-D correlation with replicated borders (orientations that are not separable).
+pub fn convolve_2d(src: &Plane, kernel: &[f32], r: usize) -> Plane {
+    let side = 2 * r + 1;
+    let (w, h) = (src.width, src.height);
+    let mut out = Plane { width: w, height: h, data: vec![0.0; w * h] };
+    for ky in 0..side {
+        let row_kernel = &kernel[ky * side..(ky + 1) * side];
+        let shifted = Plane {
+            width: w,
+            height: h,
+            data: (0..h).flat_map(|y| {
+                let sy = (y as i64 + ky as i64 - r as i64).clamp(0, h as i64 - 1) as usize;
+                src.data[sy * w..(sy + 1) * w].iter().copied()
+            }).collect(),
+        };
+        let part = convolve_rows(&shifted, row_kernel);
+        for (o, p) in out.data.iter_mut().zip(part.data) {
+            *o += p;
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn random_plane(w: usize, h: usize) -> Plane {
+        let mut s = 12345u64;
+        let data = (0..w * h)
+            .map(|_| {
+                s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+                (s >> 40) as f32 / (1u64 << 24) as f32
+            })
+            .collect();
+        Plane { width: w, height: h, data }
+    }
+
+    #[test]
+    fn separable_filters_equal_their_full_2d_kernels() {
+        let img = random_plane(40, 31);
+        for f in GaborBank::default().filters {
+            let (hk, vk) = f.separable().expect("0 and 90 degrees are separable");
+            let sep = convolve_cols(&convolve_rows(&img, &hk), &vk);
+            let full = convolve_2d(&img, &f.kernel_2d(), f.radius());
+            let err = sep.data.iter().zip(&full.data).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+            assert!(err < 1e-5, "theta {} lambda {}: {err}", f.theta_deg, f.lambda_px);
+        }
+    }
+
+    #[test]
+    fn kernels_have_no_dc_and_unit_l1_norm() {
+        for theta_deg in [0.0, 30.0, 90.0, 135.0] {
+            let f = GaborFilter { theta_deg, lambda_px: 6.0, sigma_px: 3.0, gamma: 0.5, psi: 0.0 };
+            let k = f.kernel_2d();
+            assert!(k.iter().sum::<f32>().abs() < 1e-5);
+            assert!((k.iter().map(|v| v.abs()).sum::<f32>() - 1.0).abs() < 1e-5);
+        }
+        // A flat image gives no response.
+        let flat = Plane { width: 20, height: 20, data: vec![0.7; 400] };
+        for p in GaborBank::default().apply(&flat) {
+            assert!(p.data.iter().all(|v| v.abs() < 1e-5));
+        }
+    }
+
+    #[test]
+    fn orientation_selects_stripe_direction() {
+        // Vertical stripes of period 4 px excite theta = 0 at lambda 4, not theta = 90.
+        let (w, h) = (48, 48);
+        let data = (0..w * h).map(|i| if (i % w) % 4 < 2 { 1.0 } else { 0.0 }).collect();
+        let img = Plane { width: w, height: h, data };
+        let out = GaborBank::default().apply(&img);
+        let centre = |p: &Plane| p.data[24 * w + 24];
+        assert!(centre(&out[0]) > 10.0 * centre(&out[1]).max(1e-6), "{} vs {}", centre(&out[0]), centre(&out[1]));
+    }
+}

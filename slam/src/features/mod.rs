@@ -1,0 +1,357 @@
+//! Patch features (paper section 3.1): the image is cut into L x L patches; each pixel gets
+//! its colour and G Gabor magnitudes, so a patch is an L*L*(3+G) vector; PCA projects it to
+//! d dimensions (the appearance z_A); the norms of the four neighbours' z_A (up, down,
+//! left, right) are appended, giving the (d + 4)-dimensional [`PatchFeature`] rows.
+//!
+//! A caller that needs only some patches (the online phase classifies only the image
+//! columns a laser cluster projects to) passes a [`PatchRect`]: only that region, one
+//! patch ring around it (for the neighbour norms) and the filter margin are processed, and
+//! the result equals the whole-image computation for those patches.
+//!
+//! ```
+//! use slam::features::{FeatureConfig, ImageRef, PatchRect, raw_patches};
+//! let rgb = vec![128u8; 36 * 27 * 3];
+//! let image = ImageRef::new(36, 27, &rgb).unwrap();
+//! let config = FeatureConfig::default();
+//! let raw = raw_patches(&image, &config, &PatchRect::whole(&image, config.patch_size));
+//! assert_eq!(raw.shape(), (4 * 3, 9 * 9 * (3 + 4)));
+//! ```
+
+pub mod gabor;
+pub mod pca;
+
+use nalgebra::DMatrix;
+use serde::{Deserialize, Serialize};
+
+pub use gabor::{GaborBank, GaborFilter, Plane};
+pub use pca::Pca;
+
+/// What can go wrong computing features.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum FeatureError {
+    #[error("image data has {found} bytes, {width}x{height} RGB needs {expected}")]
+    ImageSize { width: u32, height: u32, expected: usize, found: usize },
+    #[error("image {width}x{height} is smaller than one {patch_size}x{patch_size} patch")]
+    TooSmall { width: u32, height: u32, patch_size: u32 },
+    #[error("patch rectangle {rect:?} lies outside the {cols}x{rows} patch grid")]
+    Rect { rect: PatchRect, cols: u32, rows: u32 },
+    #[error("PCA expects {expected}-dimensional patch vectors, this configuration gives {found}")]
+    PcaMismatch { expected: usize, found: usize },
+    #[error("training: {0}")]
+    Training(String),
+}
+
+/// A borrowed 8-bit RGB image, row-major.
+#[derive(Debug, Clone, Copy)]
+pub struct ImageRef<'a> {
+    pub width: u32,
+    pub height: u32,
+    pub rgb: &'a [u8],
+}
+
+impl<'a> ImageRef<'a> {
+    pub fn new(width: u32, height: u32, rgb: &'a [u8]) -> Result<Self, FeatureError> {
+        let expected = width as usize * height as usize * 3;
+        if rgb.len() != expected {
+            return Err(FeatureError::ImageSize { width, height, expected, found: rgb.len() });
+        }
+        Ok(ImageRef { width, height, rgb })
+    }
+
+    /// Patch grid size (cols, rows); partial patches at the right and bottom are dropped.
+    pub fn grid(&self, patch_size: u32) -> (u32, u32) {
+        (self.width / patch_size, self.height / patch_size)
+    }
+}
+
+/// A rectangle of patches: columns `col0..col1`, rows `row0..row1` (end exclusive).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct PatchRect {
+    pub col0: u32,
+    pub col1: u32,
+    pub row0: u32,
+    pub row1: u32,
+}
+
+impl PatchRect {
+    pub fn whole(image: &ImageRef, patch_size: u32) -> PatchRect {
+        let (cols, rows) = image.grid(patch_size);
+        PatchRect { col0: 0, col1: cols, row0: 0, row1: rows }
+    }
+
+    /// Whole-height columns `col0..col1` (the online phase's laser columns).
+    pub fn columns(image: &ImageRef, patch_size: u32, col0: u32, col1: u32) -> PatchRect {
+        let (_, rows) = image.grid(patch_size);
+        PatchRect { col0, col1, row0: 0, row1: rows }
+    }
+
+    pub fn cols(&self) -> u32 {
+        self.col1 - self.col0
+    }
+
+    pub fn rows(&self) -> u32 {
+        self.row1 - self.row0
+    }
+
+    pub fn len(&self) -> usize {
+        self.cols() as usize * self.rows() as usize
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// (col, row) of the i-th patch, row-major within the rectangle.
+    pub fn patch(&self, i: usize) -> (u32, u32) {
+        (self.col0 + (i as u32 % self.cols()), self.row0 + (i as u32 / self.cols()))
+    }
+
+    fn grown(&self, cols: u32, rows: u32) -> PatchRect {
+        PatchRect { col0: self.col0.saturating_sub(1), col1: (self.col1 + 1).min(cols), row0: self.row0.saturating_sub(1), row1: (self.row1 + 1).min(rows) }
+    }
+
+    fn check(&self, image: &ImageRef, patch_size: u32) -> Result<(), FeatureError> {
+        let (cols, rows) = image.grid(patch_size);
+        if cols == 0 || rows == 0 {
+            return Err(FeatureError::TooSmall { width: image.width, height: image.height, patch_size });
+        }
+        if self.col0 >= self.col1 || self.row0 >= self.row1 || self.col1 > cols || self.row1 > rows {
+            return Err(FeatureError::Rect { rect: *self, cols, rows });
+        }
+        Ok(())
+    }
+}
+
+/// Patch size and filter bank (the parts of the feature pipeline fixed before training).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FeatureConfig {
+    /// Patch side L in pixels (the paper: 9).
+    pub patch_size: u32,
+    pub bank: GaborBank,
+}
+
+impl Default for FeatureConfig {
+    fn default() -> Self {
+        FeatureConfig { patch_size: 9, bank: GaborBank::default() }
+    }
+}
+
+impl FeatureConfig {
+    /// Length of a raw patch vector, L * L * (3 + G).
+    pub fn raw_dims(&self) -> usize {
+        (self.patch_size * self.patch_size) as usize * (3 + self.bank.len())
+    }
+}
+
+/// Raw patch vectors (rows, row-major over `rect`): per pixel r, g, b in [0, 1] then the
+/// G Gabor magnitudes. `rect` must lie in the image's grid.
+pub fn raw_patches(image: &ImageRef, config: &FeatureConfig, rect: &PatchRect) -> DMatrix<f64> {
+    let l = config.patch_size as usize;
+    let g = config.bank.len();
+    let (w, h) = (image.width as usize, image.height as usize);
+    let margin = config.bank.radius();
+    let (x0, x1) = (rect.col0 as usize * l, rect.col1 as usize * l);
+    let (y0, y1) = (rect.row0 as usize * l, rect.row1 as usize * l);
+    let (cx0, cx1) = (x0.saturating_sub(margin), (x1 + margin).min(w));
+    let (cy0, cy1) = (y0.saturating_sub(margin), (y1 + margin).min(h));
+    let (cw, ch) = (cx1 - cx0, cy1 - cy0);
+    let mut grey = Plane { width: cw, height: ch, data: vec![0.0; cw * ch] };
+    for y in 0..ch {
+        let src = &image.rgb[((cy0 + y) * w + cx0) * 3..((cy0 + y) * w + cx1) * 3];
+        for (x, px) in src.chunks_exact(3).enumerate() {
+            grey.data[y * cw + x] = (px[0] as f32 + px[1] as f32 + px[2] as f32) * (1.0 / 765.0);
+        }
+    }
+    let responses = config.bank.apply(&grey);
+    let dims = l * l * (3 + g);
+    let n = rect.len();
+    // Filled row-major then transposed once: contiguous writes.
+    let mut rows = vec![0.0f64; n * dims];
+    for i in 0..n {
+        let (c, r) = rect.patch(i);
+        let out = &mut rows[i * dims..(i + 1) * dims];
+        let mut o = 0;
+        for py in 0..l {
+            let y = r as usize * l + py;
+            for px in 0..l {
+                let x = c as usize * l + px;
+                let p = &image.rgb[(y * w + x) * 3..(y * w + x) * 3 + 3];
+                out[o] = p[0] as f64 / 255.0;
+                out[o + 1] = p[1] as f64 / 255.0;
+                out[o + 2] = p[2] as f64 / 255.0;
+                let ci = (y - cy0) * cw + (x - cx0);
+                for (k, resp) in responses.iter().enumerate() {
+                    out[o + 3 + k] = resp.data[ci] as f64;
+                }
+                o += 3 + g;
+            }
+        }
+    }
+    DMatrix::from_row_slice(n, dims, &rows)
+}
+
+/// Feature rows of the patches in a rectangle.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PatchFeatures {
+    pub rect: PatchRect,
+    /// One row per patch (row-major over `rect`): z_A (d values) then the neighbour norms
+    /// up, down, left, right.
+    pub z: DMatrix<f64>,
+}
+
+impl PatchFeatures {
+    /// Row index of patch (col, row), if it lies in the rectangle.
+    pub fn index(&self, col: u32, row: u32) -> Option<usize> {
+        let r = &self.rect;
+        (col >= r.col0 && col < r.col1 && row >= r.row0 && row < r.row1).then(|| ((row - r.row0) * r.cols() + (col - r.col0)) as usize)
+    }
+}
+
+/// The trained feature pipeline: configuration plus PCA (stored in model files).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FeatureExtractor {
+    pub config: FeatureConfig,
+    pub pca: Pca,
+}
+
+/// Name of one feature dimension, for CSV headers.
+pub fn feature_names(d: usize) -> Vec<String> {
+    (0..d).map(|i| format!("z{i}")).chain(["norm_up", "norm_down", "norm_left", "norm_right"].map(String::from)).collect()
+}
+
+impl FeatureExtractor {
+    pub fn new(config: FeatureConfig, pca: Pca) -> Result<Self, FeatureError> {
+        if pca.input_dims() != config.raw_dims() {
+            return Err(FeatureError::PcaMismatch { expected: pca.input_dims(), found: config.raw_dims() });
+        }
+        Ok(FeatureExtractor { config, pca })
+    }
+
+    /// Dimension of a feature row: d + 4.
+    pub fn dims(&self) -> usize {
+        self.pca.dims() + 4
+    }
+
+    /// Features of the patches in `rect` (the whole grid when `None`). A neighbour outside
+    /// the grid contributes the patch's own norm.
+    pub fn features(&self, image: &ImageRef, rect: Option<PatchRect>) -> Result<PatchFeatures, FeatureError> {
+        let l = self.config.patch_size;
+        let rect = rect.unwrap_or_else(|| PatchRect::whole(image, l));
+        rect.check(image, l)?;
+        let (cols, rows) = image.grid(l);
+        let big = rect.grown(cols, rows);
+        let za = self.pca.project(&raw_patches(image, &self.config, &big));
+        let d = self.pca.dims();
+        let norms: Vec<f64> = (0..za.nrows()).map(|i| za.row(i).norm()).collect();
+        let big_index = |c: u32, r: u32| ((r - big.row0) * big.cols() + (c - big.col0)) as usize;
+        let mut z = DMatrix::zeros(rect.len(), d + 4);
+        for i in 0..rect.len() {
+            let (c, r) = rect.patch(i);
+            let me = big_index(c, r);
+            for j in 0..d {
+                z[(i, j)] = za[(me, j)];
+            }
+            let own = norms[me];
+            let up = if r > 0 { norms[big_index(c, r - 1)] } else { own };
+            let down = if r + 1 < rows { norms[big_index(c, r + 1)] } else { own };
+            let left = if c > 0 { norms[big_index(c - 1, r)] } else { own };
+            let right = if c + 1 < cols { norms[big_index(c + 1, r)] } else { own };
+            z[(i, d)] = up;
+            z[(i, d + 1)] = down;
+            z[(i, d + 2)] = left;
+            z[(i, d + 3)] = right;
+        }
+        Ok(PatchFeatures { rect, z })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn textured_image(w: u32, h: u32, seed: u64) -> Vec<u8> {
+        let mut s = seed;
+        (0..w * h)
+            .flat_map(|i| {
+                let (x, y) = (i % w, i / w);
+                s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+                let noise = (s >> 59) as u8;
+                let stripe = if (x / 3 + y / 5) % 2 == 0 { 60 } else { 0 };
+                [(x * 2 % 200) as u8 + noise, (y * 3 % 180) as u8 + stripe, 90 + noise]
+            })
+            .collect()
+    }
+
+    fn extractor(image: &ImageRef) -> FeatureExtractor {
+        let config = FeatureConfig::default();
+        let raw = raw_patches(image, &config, &PatchRect::whole(image, 9));
+        FeatureExtractor::new(config, Pca::fit(&raw, 6).unwrap()).unwrap()
+    }
+
+    #[test]
+    fn column_subset_equals_the_whole_image_computation() {
+        let (w, h) = (130, 100);
+        let rgb = textured_image(w, h, 1);
+        let image = ImageRef::new(w, h, &rgb).unwrap();
+        let fx = extractor(&image);
+        let whole = fx.features(&image, None).unwrap();
+        for (c0, c1) in [(0, 2), (5, 8), (12, 14), (13, 14)] {
+            let part = fx.features(&image, Some(PatchRect::columns(&image, 9, c0, c1))).unwrap();
+            for i in 0..part.rect.len() {
+                let (c, r) = part.rect.patch(i);
+                let j = whole.index(c, r).unwrap();
+                let diff = (part.z.row(i) - whole.z.row(j)).amax();
+                assert!(diff < 1e-9, "patch ({c},{r}) differs by {diff}");
+            }
+        }
+    }
+
+    #[test]
+    fn feature_rows_have_d_plus_4_values_and_neighbour_norms() {
+        let (w, h) = (90, 45);
+        let rgb = textured_image(w, h, 2);
+        let image = ImageRef::new(w, h, &rgb).unwrap();
+        let fx = extractor(&image);
+        let f = fx.features(&image, None).unwrap();
+        assert_eq!(f.z.shape(), (10 * 5, 6 + 4));
+        let norm = |c: u32, r: u32| f.z.row(f.index(c, r).unwrap()).columns(0, 6).norm();
+        let i = f.index(4, 2).unwrap();
+        assert!((f.z[(i, 6)] - norm(4, 1)).abs() < 1e-12);
+        assert!((f.z[(i, 7)] - norm(4, 3)).abs() < 1e-12);
+        assert!((f.z[(i, 8)] - norm(3, 2)).abs() < 1e-12);
+        assert!((f.z[(i, 9)] - norm(5, 2)).abs() < 1e-12);
+        // At the top-left corner the missing neighbours use the patch's own norm.
+        let i0 = f.index(0, 0).unwrap();
+        assert!((f.z[(i0, 6)] - norm(0, 0)).abs() < 1e-12 && (f.z[(i0, 8)] - norm(0, 0)).abs() < 1e-12);
+    }
+
+    #[test]
+    fn pca_explains_the_variance_it_keeps_and_back_projects() {
+        let (w, h) = (90, 90);
+        let rgb = textured_image(w, h, 3);
+        let image = ImageRef::new(w, h, &rgb).unwrap();
+        let config = FeatureConfig::default();
+        let raw = raw_patches(&image, &config, &PatchRect::whole(&image, 9));
+        let full = Pca::fit(&raw, raw.nrows() - 1).unwrap();
+        assert!((full.explained_variance - 1.0).abs() < 1e-9);
+        // With all directions kept, back-projection reproduces a patch.
+        let z = full.project(&raw.rows(3, 1).into_owned());
+        let back = full.back_project(z.row(0).transpose().as_slice());
+        assert!((back - raw.row(3).transpose()).amax() < 1e-8);
+        let small = Pca::fit(&raw, 3).unwrap();
+        assert!(small.explained_variance > 0.0 && small.explained_variance < 1.0);
+        assert!(small.variances.windows(2).all(|v| v[0] >= v[1]));
+    }
+
+    #[test]
+    fn bad_images_and_rects_are_errors() {
+        assert!(matches!(ImageRef::new(10, 10, &[0u8; 10]), Err(FeatureError::ImageSize { .. })));
+        let rgb = vec![0u8; 40 * 40 * 3];
+        let image = ImageRef::new(40, 40, &rgb).unwrap();
+        let fx = extractor(&ImageRef::new(130, 100, &textured_image(130, 100, 1)).unwrap());
+        assert!(matches!(fx.features(&image, Some(PatchRect { col0: 3, col1: 9, row0: 0, row1: 1 })), Err(FeatureError::Rect { .. })));
+        let tiny = vec![0u8; 5 * 5 * 3];
+        assert!(matches!(fx.features(&ImageRef::new(5, 5, &tiny).unwrap(), None), Err(FeatureError::TooSmall { .. })));
+    }
+}

@@ -1,0 +1,78 @@
+//! Principal component analysis of raw patch vectors (the paper's dimensionality
+//! reduction), with back-projection for the appearance mosaics of figure 3.
+
+use nalgebra::{DMatrix, DVector, SymmetricEigen};
+use serde::{Deserialize, Serialize};
+
+use super::FeatureError;
+
+/// A fitted PCA: `mean` (D) and the leading eigenvectors as columns of `basis` (D x d).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Pca {
+    pub mean: DVector<f64>,
+    pub basis: DMatrix<f64>,
+    /// Variance along each kept direction.
+    pub variances: Vec<f64>,
+    /// Fraction of the total variance the kept directions explain.
+    pub explained_variance: f64,
+}
+
+impl Pca {
+    /// Fits on `data` (rows are samples) keeping `dims` directions.
+    pub fn fit(data: &DMatrix<f64>, dims: usize) -> Result<Pca, FeatureError> {
+        let (n, d) = data.shape();
+        if n < 2 {
+            return Err(FeatureError::Training("PCA needs at least two samples".into()));
+        }
+        if dims == 0 || dims > d {
+            return Err(FeatureError::Training(format!("PCA dimension {dims} must be between 1 and {d}")));
+        }
+        let mean = DVector::from_iterator(d, data.column_iter().map(|c| c.sum() / n as f64));
+        let mut centred = data.clone();
+        for (j, mut col) in centred.column_iter_mut().enumerate() {
+            col.add_scalar_mut(-mean[j]);
+        }
+        let cov = centred.tr_mul(&centred) / (n as f64 - 1.0);
+        let eig = SymmetricEigen::new(cov);
+        let mut order: Vec<usize> = (0..d).collect();
+        order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]).then(a.cmp(&b)));
+        let total: f64 = eig.eigenvalues.iter().map(|v| v.max(0.0)).sum();
+        let mut basis = DMatrix::zeros(d, dims);
+        let mut variances = Vec::with_capacity(dims);
+        for (k, &i) in order.iter().take(dims).enumerate() {
+            let mut v = eig.eigenvectors.column(i).into_owned();
+            // Sign convention: the largest-magnitude entry is positive (reproducible files).
+            let imax = v.iamax();
+            if v[imax] < 0.0 {
+                v.neg_mut();
+            }
+            basis.set_column(k, &v);
+            variances.push(eig.eigenvalues[i].max(0.0));
+        }
+        let explained_variance = if total > 0.0 { variances.iter().sum::<f64>() / total } else { 1.0 };
+        Ok(Pca { mean, basis, variances, explained_variance })
+    }
+
+    pub fn input_dims(&self) -> usize {
+        self.mean.len()
+    }
+
+    pub fn dims(&self) -> usize {
+        self.basis.ncols()
+    }
+
+    /// Projects rows of `data` (N x D) to N x d.
+    pub fn project(&self, data: &DMatrix<f64>) -> DMatrix<f64> {
+        let mut out = data * &self.basis;
+        let shift = self.basis.tr_mul(&self.mean);
+        for (j, mut col) in out.column_iter_mut().enumerate() {
+            col.add_scalar_mut(-shift[j]);
+        }
+        out
+    }
+
+    /// Maps a d-dimensional appearance vector back to a raw patch vector.
+    pub fn back_project(&self, z: &[f64]) -> DVector<f64> {
+        &self.mean + &self.basis * DVector::from_column_slice(&z[..self.dims()])
+    }
+}
