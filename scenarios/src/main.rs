@@ -71,7 +71,58 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
+    /// Learn the appearance model (PCA, object and background VB-GMMs) from an
+    /// `objslam dataset` directory; prints held-out patch precision, recall and F1.
+    Train {
+        #[arg(long)]
+        dataset: PathBuf,
+        #[arg(long)]
+        out: PathBuf,
+        /// Also write every patch's feature row and label to this CSV file.
+        #[arg(long)]
+        export_features: Option<PathBuf>,
+        /// PCA dimension d.
+        #[arg(long, default_value_t = 10)]
+        pca_dims: usize,
+        /// Most mixture components per class.
+        #[arg(long, default_value_t = 10)]
+        max_components: usize,
+        /// Hold out every N-th image for scoring (0: none).
+        #[arg(long, default_value_t = 5)]
+        heldout_every: usize,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
+    /// Classify an image's patches with a model and draw the object patches over it.
+    Segment {
+        #[arg(long)]
+        model: PathBuf,
+        image: PathBuf,
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Variational Bayesian Gaussian mixtures on any numeric CSV.
+    #[command(subcommand)]
+    Gmm(GmmCommand),
 }
+
+#[derive(Subcommand)]
+enum GmmCommand {
+    /// Fit a VB-GMM (birth-death search over the number of components, or fixed K).
+    Fit {
+        data: PathBuf,
+        #[arg(long, default_value_t = 10)]
+        max_components: usize,
+        /// Use exactly --max-components components instead of searching.
+        #[arg(long)]
+        fixed_k: bool,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        #[arg(long)]
+        out: PathBuf,
+    },
+}
+
 
 #[derive(clap::Args)]
 #[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
@@ -166,6 +217,9 @@ fn run(cli: Cli) -> Result<()> {
         Some(Command::Montecarlo(args)) => montecarlo(args),
         Some(Command::Dataset { world, preset, images, seed, classes, patch_size, out }) => dataset(world, preset, images, seed, &classes, patch_size, &out),
         Some(Command::Record { input, seed, duration, sim_config, out }) => record(&input, seed, duration, sim_config, &out),
+        Some(Command::Train { dataset, out, export_features, pca_dims, max_components, heldout_every, seed }) => train(&dataset, &out, export_features.as_deref(), pca_dims, max_components, heldout_every, seed),
+        Some(Command::Segment { model, image, out }) => segment(&model, &image, &out),
+        Some(Command::Gmm(GmmCommand::Fit { data, max_components, fixed_k, seed, out })) => gmm_fit(&data, max_components, fixed_k, seed, &out),
     }
 }
 
@@ -396,5 +450,54 @@ fn world(cmd: WorldCommand) -> Result<()> {
             eprintln!("wrote {}", out.display());
         }
     }
+    Ok(())
+}
+
+fn train(dataset: &std::path::Path, out: &std::path::Path, export: Option<&std::path::Path>, pca_dims: usize, max_components: usize, heldout_every: usize, seed: u64) -> Result<()> {
+    let options = slam::classifier::TrainingOptions { pca_dims, seed, vb: slam::gmm::VbOptions { max_components, ..Default::default() }, ..Default::default() };
+    let bar = indicatif::ProgressBar::new(1);
+    bar.set_style(indicatif::ProgressStyle::with_template("train {msg:>18} [{bar:40}] {pos}/{len}, {elapsed} elapsed").expect("valid template").progress_chars("=> "));
+    let started = std::time::Instant::now();
+    let model = scenarios::train::train_from_dataset(dataset, &options, heldout_every, |stage, done, total| {
+        bar.set_message(stage.to_string());
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+    })?;
+    bar.finish_and_clear();
+    model.save(out)?;
+    let t = &model.training;
+    println!("trained on {} images in {:.1} s -> {}", t.images, started.elapsed().as_secs_f64(), out.display());
+    println!("  PCA: {} -> {} dimensions, {:.1}% of the variance", model.extractor.config.raw_dims(), model.extractor.pca.dims(), 100.0 * t.pca_explained_variance);
+    println!("  object: {} patches ({} fitted), {} components; background: {} patches ({} fitted), {} components; w_obj = {:.3}",
+        t.object_patches, t.fitted_object_patches, model.object.effective_components(1e-3), t.background_patches, t.fitted_background_patches, model.background.effective_components(1e-3), model.object_weight);
+    match &t.heldout {
+        Some(s) => println!("  held-out patches: precision {:.3}, recall {:.3}, F1 {:.3} ({} object patches of {})", s.precision(), s.recall(), s.f1(), s.true_positives + s.false_negatives, s.true_positives + s.false_negatives + s.false_positives + s.true_negatives),
+        None => println!("  no held-out images (--heldout-every 0)"),
+    }
+    if let Some(csv) = export {
+        let rows = scenarios::train::export_features(dataset, &model, options.label_fraction, csv)?;
+        println!("  {rows} feature rows -> {}", csv.display());
+    }
+    Ok(())
+}
+
+fn segment(model: &std::path::Path, image: &std::path::Path, out: &std::path::Path) -> Result<()> {
+    let model = slam::classifier::AppearanceModel::load(model)?;
+    let (objects, total) = scenarios::train::segment_image(&model, image, out)?;
+    println!("{objects} of {total} patches classified as object -> {}", out.display());
+    Ok(())
+}
+
+fn gmm_fit(data: &std::path::Path, max_components: usize, fixed_k: bool, seed: u64, out: &std::path::Path) -> Result<()> {
+    let options = slam::gmm::VbOptions { max_components, fixed_k, seed, ..Default::default() };
+    let started = std::time::Instant::now();
+    let model = scenarios::train::gmm_fit_csv(data, &options)?;
+    let secs = started.elapsed().as_secs_f64();
+    std::fs::write(out, serde_json::to_string_pretty(&model)?).with_context(|| format!("writing {}", out.display()))?;
+    println!("{} points x {} dimensions, fitted in {secs:.2} s", model.points, model.dims());
+    println!("  lower bound: {:.6} nats (full PRML 10.70 bound on ln p(X), all constant terms included; {:.6} per point)", model.lower_bound, model.lower_bound / model.points as f64);
+    println!("  components: {} with weight above 1e-3 ({} kept)", model.effective_components(1e-3), model.components.len());
+    println!("  VBEM iterations: {}", model.iterations);
+    println!("  -> {}", out.display());
     Ok(())
 }

@@ -1,0 +1,173 @@
+//! The offline phase from an `objslam dataset` directory: train the appearance model with
+//! held-out scoring, export the feature matrix, draw classified patches over an image, and
+//! fit a VB-GMM to any numeric CSV.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use nalgebra::DMatrix;
+use slam::classifier::{self, AppearanceModel, LabelledImage, ModelError, PatchClassifier, TrainingOptions};
+use slam::features::{feature_names, ImageRef};
+use slam::gmm::{self, VbGmm, VbOptions};
+
+use crate::dataset::{Manifest, PatchLabels};
+
+#[derive(Debug, thiserror::Error)]
+pub enum TrainError {
+    #[error("{}: {message}", file.display())]
+    File { file: PathBuf, message: String },
+    #[error("{}: line {line}: {message}", file.display())]
+    Csv { file: PathBuf, line: usize, message: String },
+    #[error(transparent)]
+    Model(#[from] ModelError),
+    #[error(transparent)]
+    Gmm(#[from] gmm::GmmError),
+}
+
+fn file_err(file: &Path, message: impl ToString) -> TrainError {
+    TrainError::File { file: file.to_path_buf(), message: message.to_string() }
+}
+
+/// Reads `DIR/dataset.json`.
+pub fn read_manifest(dir: &Path) -> Result<Manifest, TrainError> {
+    let path = dir.join("dataset.json");
+    let text = std::fs::read_to_string(&path).map_err(|e| file_err(&path, e))?;
+    serde_json::from_str(&text).map_err(|e| file_err(&path, format!("not an objslam dataset manifest: {e}")))
+}
+
+/// Loads image `i` of a dataset with its patch labels.
+pub fn load_image(dir: &Path, manifest: &Manifest, i: usize) -> Result<LabelledImage, TrainError> {
+    let entry = &manifest.images[i];
+    let img_path = dir.join(&entry.image);
+    let rgb = image::open(&img_path).map_err(|e| file_err(&img_path, e))?.to_rgb8();
+    let labels_path = dir.join(&entry.patches);
+    let text = std::fs::read_to_string(&labels_path).map_err(|e| file_err(&labels_path, e))?;
+    let labels: PatchLabels = serde_json::from_str(&text).map_err(|e| file_err(&labels_path, e))?;
+    let (w, h) = rgb.dimensions();
+    if labels.cols != w / labels.patch_size || labels.rows != h / labels.patch_size || labels.fractions.len() != (labels.cols * labels.rows) as usize {
+        return Err(file_err(&labels_path, format!("a {}x{} grid of {} px patches does not fit the {w}x{h} image", labels.cols, labels.rows, labels.patch_size)));
+    }
+    Ok(LabelledImage { width: w, height: h, rgb: rgb.into_raw(), fractions: labels.fractions })
+}
+
+fn model_error(e: TrainError) -> ModelError {
+    match e {
+        TrainError::Model(m) => m,
+        other => ModelError::Training(other.to_string()),
+    }
+}
+
+/// Trains on a dataset, holding out every `heldout_every`-th image (0: none) for scoring.
+pub fn train_from_dataset(dir: &Path, options: &TrainingOptions, heldout_every: usize, progress: impl Fn(&str, usize, usize)) -> Result<AppearanceModel, TrainError> {
+    let manifest = read_manifest(dir)?;
+    if manifest.patch_size != options.features.patch_size {
+        return Err(file_err(&dir.join("dataset.json"), format!("patch_size is {}, the model uses {}", manifest.patch_size, options.features.patch_size)));
+    }
+    let (train_ids, test_ids): (Vec<usize>, Vec<usize>) = (0..manifest.images.len()).partition(|i| heldout_every == 0 || i % heldout_every != heldout_every - 1);
+    let load = |ids: &Vec<usize>, k: usize| load_image(dir, &manifest, ids[k]).map_err(model_error);
+    let mut model = classifier::train(train_ids.len(), |k| load(&train_ids, k), options, &progress)?;
+    if !test_ids.is_empty() {
+        progress("held-out scoring", 0, 1);
+        let scores = classifier::evaluate(&model, test_ids.len(), |k| load(&test_ids, k), options.label_fraction)?;
+        model.training.heldout = Some(scores);
+    }
+    Ok(model)
+}
+
+/// Writes every patch's feature row with its label fraction and label to a CSV file.
+pub fn export_features(dir: &Path, model: &AppearanceModel, label_fraction: f64, out: &Path) -> Result<usize, TrainError> {
+    let manifest = read_manifest(dir)?;
+    let file = std::fs::File::create(out).map_err(|e| file_err(out, e))?;
+    let mut w = std::io::BufWriter::new(file);
+    let names = feature_names(model.extractor.pca.dims());
+    let io = |e: std::io::Error| file_err(out, e);
+    writeln!(w, "image,col,row,{},fraction,label", names.join(",")).map_err(io)?;
+    let l = model.extractor.config.patch_size;
+    let mut rows = 0;
+    for i in 0..manifest.images.len() {
+        let img = load_image(dir, &manifest, i)?;
+        let image = ImageRef::new(img.width, img.height, &img.rgb).map_err(ModelError::from)?;
+        let f = model.extractor.features(&image, None).map_err(ModelError::from)?;
+        let (cols, _) = image.grid(l);
+        for k in 0..f.z.nrows() {
+            let (c, r) = f.rect.patch(k);
+            let frac = img.fractions[(r * cols + c) as usize];
+            let values: Vec<String> = f.z.row(k).iter().map(|v| format!("{v}")).collect();
+            writeln!(w, "{i},{c},{r},{},{frac},{}", values.join(","), (frac as f64 >= label_fraction) as u8).map_err(io)?;
+            rows += 1;
+        }
+    }
+    w.flush().map_err(io)?;
+    Ok(rows)
+}
+
+/// Classifies every patch of an image and draws the object patches over it (tinted, with
+/// their outlines). Returns (object patches, all patches).
+pub fn segment_image(model: &AppearanceModel, image_path: &Path, out: &Path) -> Result<(usize, usize), TrainError> {
+    let mut rgb = image::open(image_path).map_err(|e| file_err(image_path, e))?.to_rgb8();
+    let (w, h) = rgb.dimensions();
+    let classifier = PatchClassifier::new(model).map_err(ModelError::from)?;
+    let f = {
+        let image = ImageRef::new(w, h, rgb.as_raw()).map_err(ModelError::from)?;
+        model.extractor.features(&image, None).map_err(ModelError::from)?
+    };
+    let l = model.extractor.config.patch_size;
+    let decisions = classifier.classify(&f);
+    for (k, &object) in decisions.iter().enumerate() {
+        if !object {
+            continue;
+        }
+        let (c, r) = f.rect.patch(k);
+        for y in r * l..(r + 1) * l {
+            for x in c * l..(c + 1) * l {
+                let p = rgb.get_pixel_mut(x, y);
+                let edge = x == c * l || y == r * l || x + 1 == (c + 1) * l || y + 1 == (r + 1) * l;
+                *p = if edge { image::Rgb([255, 40, 40]) } else { image::Rgb([((p[0] as u16 + 255) / 2) as u8, p[1] / 2, p[2] / 2]) };
+            }
+        }
+    }
+    rgb.save(out).map_err(|e| file_err(out, e))?;
+    Ok((decisions.iter().filter(|&&d| d).count(), decisions.len()))
+}
+
+/// Reads a numeric CSV (an optional header row of non-numbers; blank lines skipped).
+pub fn read_csv(path: &Path) -> Result<DMatrix<f64>, TrainError> {
+    let text = std::fs::read_to_string(path).map_err(|e| file_err(path, e))?;
+    let mut values = Vec::new();
+    let mut cols = None;
+    let mut rows = 0;
+    for (i, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let fields: Vec<&str> = line.split(',').map(str::trim).collect();
+        let parsed: Result<Vec<f64>, _> = fields.iter().map(|f| f.parse::<f64>()).collect();
+        let row = match parsed {
+            Ok(r) => r,
+            Err(_) if cols.is_none() && rows == 0 && fields.iter().all(|f| f.parse::<f64>().is_err()) => continue, // header
+            Err(_) => {
+                let bad = fields.iter().position(|f| f.parse::<f64>().is_err()).unwrap_or(0);
+                return Err(TrainError::Csv { file: path.into(), line: i + 1, message: format!("field {} ({:?}) is not a number", bad + 1, fields[bad]) });
+            }
+        };
+        if let Some(bad) = row.iter().position(|v| !v.is_finite()) {
+            return Err(TrainError::Csv { file: path.into(), line: i + 1, message: format!("field {} is not finite", bad + 1) });
+        }
+        match cols {
+            None => cols = Some(row.len()),
+            Some(c) if c != row.len() => return Err(TrainError::Csv { file: path.into(), line: i + 1, message: format!("{} fields, earlier rows have {c}", row.len()) }),
+            _ => {}
+        }
+        values.extend(row);
+        rows += 1;
+    }
+    let cols = cols.ok_or_else(|| file_err(path, "no numeric rows"))?;
+    Ok(DMatrix::from_row_slice(rows, cols, &values))
+}
+
+/// Fits a VB-GMM to a CSV file.
+pub fn gmm_fit_csv(path: &Path, options: &VbOptions) -> Result<VbGmm, TrainError> {
+    let data = read_csv(path)?;
+    Ok(gmm::fit(&data, None, options)?)
+}
