@@ -91,6 +91,8 @@ pub struct TrainingSummary {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct AppearanceModel {
     pub format_version: u32,
+    /// Name of the object class the model finds ("tree").
+    pub object_class: String,
     pub extractor: FeatureExtractor,
     pub object: VbGmm,
     pub background: VbGmm,
@@ -212,11 +214,13 @@ pub struct TrainingOptions {
     pub vb: VbOptions,
     pub threshold: f64,
     pub seed: u64,
+    /// Name recorded in the model for the object class.
+    pub object_class: String,
 }
 
 impl Default for TrainingOptions {
     fn default() -> Self {
-        TrainingOptions { features: FeatureConfig::default(), pca_dims: 10, pca_samples: 20_000, max_patches_per_class: 20_000, label_fraction: 0.5, vb: VbOptions::default(), threshold: 0.5, seed: 1 }
+        TrainingOptions { features: FeatureConfig::default(), pca_dims: 10, pca_samples: 20_000, max_patches_per_class: 20_000, label_fraction: 0.5, vb: VbOptions::default(), threshold: 0.5, seed: 1, object_class: "tree".into() }
     }
 }
 
@@ -288,6 +292,7 @@ pub fn train(count: usize, images: impl Fn(usize) -> Result<LabelledImage, Model
     progress("done", 2, 2);
     Ok(AppearanceModel {
         format_version: MODEL_FORMAT_VERSION,
+        object_class: options.object_class.clone(),
         object_weight: n_obj as f64 / (n_obj + n_bg) as f64,
         threshold: options.threshold,
         training: TrainingSummary {

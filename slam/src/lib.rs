@@ -18,4 +18,6 @@ pub mod features;
 pub mod gmm;
 pub mod kl;
 pub mod messages;
+pub mod object_model;
 pub mod pipeline;
+pub mod segmentation;

@@ -3,16 +3,23 @@
 //!
 //! With a position-only method (`nn`, `jcbb`) every cluster whose size fits a trunk is an
 //! observation: posts and people's legs can become landmarks, which is the failure the
-//! paper argues against. Appearance methods take their observations from the laser-camera
-//! segmentation instead (see [`Pipeline::on_scan_with_objects`]).
+//! paper argues against. The appearance methods (`combined`, the paper's, and
+//! `appearance`) take their observations from the laser-camera segmentation of the latest
+//! camera image: only clusters segmented as objects are observed, each with an object
+//! model, and association compares models by KL divergence.
 
-use nalgebra::{Matrix3, Vector2, Vector3};
+use nalgebra::{DMatrix, Matrix2, Matrix3, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::association::{AssociationDecision, AssociationMethod, Candidate, Choice, chi2_quantile, jcbb::jcbb, nn::nearest_neighbour};
+use crate::classifier::{AppearanceModel, PatchClassifier};
 use crate::clustering::{Cluster, ClusteringConfig, cluster};
 use crate::ekf::{Ekf, OdometryMotionModel, RangeBearingModel};
+use crate::features::ImageRef;
+use crate::gmm::{Gmm, StudentTMixture};
 use crate::messages::{LaserScan, OdometryIncrement};
+use crate::object_model::{fit_observation, ObjectModel, ObjectModelConfig, ObjectObservation};
+use crate::segmentation::{segment_cluster, CameraGeometry, SegmentationConfig};
 
 /// Pipeline settings.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -31,6 +38,10 @@ pub struct PipelineConfig {
     pub jcbb_probability: f64,
     /// Initial pose standard deviations (m, m, rad).
     pub initial_pose_sigma: [f64; 3],
+    pub segmentation: SegmentationConfig,
+    pub object_model: ObjectModelConfig,
+    /// A scan is segmented with the latest image only if that image is at most this old (s).
+    pub image_max_age_s: f64,
 }
 
 impl Default for PipelineConfig {
@@ -44,6 +55,9 @@ impl Default for PipelineConfig {
             new_landmark_probability: 0.999,
             jcbb_probability: 0.99,
             initial_pose_sigma: [1e-3, 1e-3, 1e-3],
+            segmentation: SegmentationConfig::default(),
+            object_model: ObjectModelConfig::default(),
+            image_max_age_s: 0.02,
         }
     }
 }
@@ -80,14 +94,65 @@ pub struct ScanResult {
     pub assigned: Vec<Option<u32>>,
 }
 
+/// What the appearance methods need: the trained model, ready to classify, and the camera.
+pub struct Appearance {
+    pub model: AppearanceModel,
+    classifier: PatchClassifier,
+    /// The classifier's object density (appearance only): prior for object models.
+    general: Gmm,
+    pub camera: CameraGeometry,
+}
+
+impl Appearance {
+    pub fn new(model: AppearanceModel, camera: CameraGeometry) -> Result<Self, crate::gmm::GmmError> {
+        let classifier = PatchClassifier::new(&model)?;
+        let general = StudentTMixture::new(&model.object)?.gaussian_approximation()?;
+        Ok(Appearance { model, classifier, general, camera })
+    }
+}
+
+/// The latest camera image.
+struct StoredImage {
+    t: f64,
+    width: u32,
+    height: u32,
+    rgb: Vec<u8>,
+}
+
+/// The patch decisions of one segmented image, for scoring against masks.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SegmentationRecord {
+    /// Time of the image.
+    pub t_image: f64,
+    pub patch_size: u32,
+    /// (col, row, classified as object) for every patch classified.
+    pub cells: Vec<(u32, u32, bool)>,
+    /// Per segmented cluster: its index in the scan and whether it was taken as an object.
+    pub clusters: Vec<(usize, bool)>,
+}
+
 /// The online SLAM pipeline.
 pub struct Pipeline {
     pub config: PipelineConfig,
     ekf: Ekf,
     landmarks: Vec<Landmark>,
+    /// Object model per landmark (appearance methods).
+    objects: Vec<Option<ObjectModel>>,
     decisions: Vec<AssociationDecision>,
     poses: Vec<PoseEstimate>,
     t: f64,
+    appearance: Option<Appearance>,
+    image: Option<StoredImage>,
+    segmentations: Vec<SegmentationRecord>,
+}
+
+/// Errors of the online pipeline.
+#[derive(Debug, thiserror::Error)]
+pub enum PipelineError {
+    #[error("association method `{0}` needs camera images and an appearance model; give the pipeline an `Appearance`")]
+    NeedsAppearance(&'static str),
+    #[error("image is {width}x{height} with {found} bytes; RGB needs {expected}")]
+    Image { width: u32, height: u32, expected: usize, found: usize },
 }
 
 impl Pipeline {
@@ -95,9 +160,43 @@ impl Pipeline {
     pub fn new(config: PipelineConfig, pose: [f64; 3]) -> Self {
         let s = config.initial_pose_sigma;
         let ekf = Ekf::new(Vector3::from(pose), Matrix3::from_diagonal(&Vector3::new(s[0] * s[0], s[1] * s[1], s[2] * s[2])));
-        let mut p = Pipeline { config, ekf, landmarks: Vec::new(), decisions: Vec::new(), poses: Vec::new(), t: 0.0 };
+        let mut p = Pipeline { config, ekf, landmarks: Vec::new(), objects: Vec::new(), decisions: Vec::new(), poses: Vec::new(), t: 0.0, appearance: None, image: None, segmentations: Vec::new() };
         p.record_pose();
         p
+    }
+
+    /// A pipeline for any method; the appearance methods need `appearance`.
+    pub fn with_appearance(config: PipelineConfig, pose: [f64; 3], appearance: Option<Appearance>) -> Result<Self, PipelineError> {
+        if config.method.uses_appearance() && appearance.is_none() {
+            return Err(PipelineError::NeedsAppearance(config.method.name()));
+        }
+        let mut p = Pipeline::new(config, pose);
+        p.appearance = appearance;
+        Ok(p)
+    }
+
+    /// Stores a camera image (8-bit RGB, row-major) for the next scans to segment.
+    pub fn on_image(&mut self, t: f64, width: u32, height: u32, rgb: Vec<u8>) -> Result<(), PipelineError> {
+        let expected = width as usize * height as usize * 3;
+        if rgb.len() != expected {
+            return Err(PipelineError::Image { width, height, expected, found: rgb.len() });
+        }
+        self.image = Some(StoredImage { t, width, height, rgb });
+        Ok(())
+    }
+
+    /// Segmentation records since the last call (for scoring).
+    pub fn take_segmentations(&mut self) -> Vec<SegmentationRecord> {
+        std::mem::take(&mut self.segmentations)
+    }
+
+    /// Object model of landmark `id`, if it has one.
+    pub fn object_model(&self, id: u32) -> Option<&ObjectModel> {
+        self.objects.get(id as usize).and_then(|o| o.as_ref())
+    }
+
+    pub fn appearance(&self) -> Option<&Appearance> {
+        self.appearance.as_ref()
     }
 
     pub fn on_odometry(&mut self, o: &OdometryIncrement) {
@@ -106,11 +205,172 @@ impl Pipeline {
         self.record_pose();
     }
 
-    /// Position-only processing of a scan: every size-compatible cluster is an observation.
+    /// Processes a scan. Position-only methods: every size-compatible cluster is an
+    /// observation. Appearance methods: the clusters are segmented in the latest image (if
+    /// it is recent enough) and only objects are observed.
     pub fn on_scan(&mut self, scan: &LaserScan) -> ScanResult {
         let clusters = cluster(scan, &self.config.clustering);
+        if self.config.method.uses_appearance() {
+            return self.on_scan_with_appearance(scan.t, clusters);
+        }
         let keep = vec![true; clusters.len()];
         self.on_scan_with_objects(scan.t, clusters, &keep, "unknown")
+    }
+
+    /// Map-frame position of a laser-frame point, and the rotation robot -> map.
+    fn to_map(&self, p: [f64; 2]) -> ([f64; 2], Matrix2<f64>) {
+        let pose = self.ekf.pose();
+        let (s, c) = pose.z.sin_cos();
+        let (lx, ly) = (self.config.sensor.mount_x + p[0], self.config.sensor.mount_y + p[1]);
+        ([pose.x + c * lx - s * ly, pose.y + s * lx + c * ly], Matrix2::new(c, -s, s, c))
+    }
+
+    /// Segments the clusters in the stored image and builds object observations.
+    fn observe_objects(&mut self, t: f64, clusters: &[Cluster]) -> Vec<(usize, ObjectObservation)> {
+        let (Some(app), Some(img)) = (&self.appearance, &self.image) else { return Vec::new() };
+        if (t - img.t).abs() > self.config.image_max_age_s {
+            return Vec::new();
+        }
+        let Ok(image) = ImageRef::new(img.width, img.height, &img.rgb) else { return Vec::new() };
+        let extractor = &app.model.extractor;
+        let l = extractor.config.patch_size;
+        let mut record = SegmentationRecord { t_image: img.t, patch_size: l, cells: Vec::new(), clusters: Vec::new() };
+        let mut out = Vec::new();
+        for (ci, c) in clusters.iter().enumerate() {
+            if c.occluded {
+                continue;
+            }
+            let Ok(Some(seg)) = segment_cluster(c, &image, extractor, &app.classifier, &app.camera, &self.config.segmentation) else { continue };
+            for (i, &o) in seg.object.iter().enumerate() {
+                let (col, row) = seg.rect.patch(i);
+                if !record.cells.iter().any(|&(a, b, _)| a == col && b == row) {
+                    record.cells.push((col, row, o));
+                }
+            }
+            record.clusters.push((ci, seg.is_object));
+            if !seg.is_object {
+                continue;
+            }
+            let rows_idx = seg.object_rows();
+            let da = seg.features.z.ncols();
+            let (centre, rot) = self.to_map(c.centre);
+            let mut rows = DMatrix::zeros(rows_idx.len(), da + 3);
+            let mut cells = Vec::with_capacity(rows_idx.len());
+            let mut n = 0;
+            for &i in &rows_idx {
+                let (col, row) = seg.rect.patch(i);
+                let (u, v) = ((col as f64 + 0.5) * l as f64, (row as f64 + 0.5) * l as f64);
+                let Some(p) = app.camera.point_on_object_plane(u, v, c.centre) else { continue };
+                let d = rot * Vector2::new(p.x - c.centre[0], p.y - c.centre[1]);
+                for j in 0..da {
+                    rows[(n, j)] = seg.features.z[(i, j)];
+                }
+                rows[(n, da)] = d.x;
+                rows[(n, da + 1)] = d.y;
+                rows[(n, da + 2)] = p.z;
+                cells.push((col, row));
+                n += 1;
+            }
+            if n < 2 {
+                continue;
+            }
+            let rows = rows.rows(0, n).into_owned();
+            out.push((ci, ObjectObservation { centre, rows, cells, centre_covariance: Matrix2::zeros() }));
+        }
+        self.segmentations.push(record);
+        out
+    }
+
+    /// Covariance (map frame) of the offset between an observation at (range, bearing) and
+    /// landmark `j`: the innovation covariance mapped through the polar-to-Cartesian Jacobian.
+    fn offset_covariance(&self, j: usize, z: &Vector2<f64>) -> Matrix2<f64> {
+        let (_, _, _, s) = self.ekf.predict_observation(&self.config.sensor, j);
+        let theta = self.ekf.pose().z;
+        let (r, b) = (z.x, z.y);
+        let (sb, cb) = b.sin_cos();
+        let (st, ct) = theta.sin_cos();
+        let polar = Matrix2::new(cb, -r * sb, sb, r * cb);
+        let jz = Matrix2::new(ct, -st, st, ct) * polar;
+        jz * s * jz.transpose()
+    }
+
+    /// Appearance methods: segmentation, object models and KL association.
+    fn on_scan_with_appearance(&mut self, t: f64, clusters: Vec<Cluster>) -> ScanResult {
+        self.t = t;
+        let observations = self.observe_objects(t, &clusters);
+        let mut assigned = vec![None; clusters.len()];
+        let method = self.config.method;
+        let cfg = self.config.object_model.clone();
+        let gate = chi2_quantile(2, self.config.new_landmark_probability);
+        let n_before = self.ekf.landmark_count();
+        let pca_dims = self.appearance.as_ref().map_or(0, |a| a.model.extractor.pca.dims());
+        // Decide every observation against the landmarks that existed before this scan.
+        let mut plans = Vec::new();
+        for (ci, obs) in observations {
+            let general = self.appearance.as_ref().map(|a| a.general.clone());
+            let Ok(fitted) = fit_observation(&obs, general.as_ref(), &cfg) else { continue };
+            let z = Vector2::new(clusters[ci].range_m, clusters[ci].bearing_rad);
+            let mut candidates = Vec::new();
+            for j in 0..n_before {
+                let m2 = self.ekf.mahalanobis2(&self.config.sensor, j, &z);
+                if method == AssociationMethod::Combined && m2 > gate {
+                    continue;
+                }
+                let Some(model) = &self.objects[j] else { continue };
+                let lm = self.ekf.landmark(j);
+                let kl = model.kl_from(&fitted, obs.centre, [lm.x, lm.y], &self.offset_covariance(j, &z), method == AssociationMethod::Appearance).ok();
+                candidates.push(Candidate { landmark: self.landmarks[j].id, mahalanobis2: m2, kl });
+            }
+            let best = candidates.iter().filter_map(|c| c.kl.filter(|k| k.is_finite() && *k < cfg.kl_threshold).map(|k| (c.landmark, k))).min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+            plans.push((ci, obs, fitted, z, candidates, best.map(|b| b.0)));
+        }
+        let mut new_ones = Vec::new();
+        for (ci, obs, fitted, z, candidates, best) in plans {
+            let choice = match best {
+                Some(id) => {
+                    let j = id as usize;
+                    if self.ekf.update(&self.config.sensor, j, &z).is_ok() {
+                        let lm = self.ekf.landmark(j);
+                        if let Some(m) = self.objects[j].as_mut() {
+                            let _ = m.update(&obs, [lm.x, lm.y], pca_dims);
+                        }
+                        let l = &mut self.landmarks[j];
+                        l.diameter_m = (l.diameter_m * l.observations as f64 + clusters[ci].diameter_m) / (l.observations + 1) as f64;
+                        l.observations += 1;
+                        assigned[ci] = Some(id);
+                        Choice::Existing { landmark: id }
+                    } else {
+                        Choice::Rejected
+                    }
+                }
+                None => {
+                    new_ones.push((ci, self.decisions.len(), obs, fitted, z));
+                    Choice::Rejected // replaced below once the id exists
+                }
+            };
+            self.decisions.push(AssociationDecision { t, observation: ci, candidates, choice, method });
+        }
+        let class = self.appearance.as_ref().map_or("object".to_string(), |a| a.model.object_class.clone());
+        for (ci, decision, obs, fitted, z) in new_ones {
+            let j = self.ekf.add_landmark(&self.config.sensor, &z);
+            let id = self.landmarks.len() as u32;
+            debug_assert_eq!(j, self.landmarks.len());
+            let lm = self.ekf.landmark(j);
+            // Re-centre the model's positions on the landmark estimate.
+            let mut model = ObjectModel::new(&obs, fitted, pca_dims);
+            let d = model.gmm.dims();
+            for c in &mut model.gmm.components {
+                c.mean[d - 3] += obs.centre[0] - lm.x;
+                c.mean[d - 2] += obs.centre[1] - lm.y;
+            }
+            self.landmarks.push(Landmark { id, position: [0.0; 2], covariance: [[0.0; 2]; 2], class: class.clone(), observations: 1, diameter_m: clusters[ci].diameter_m });
+            self.objects.push(Some(model));
+            assigned[ci] = Some(id);
+            self.decisions[decision].choice = Choice::New { landmark: id };
+        }
+        self.refresh_landmarks();
+        self.record_pose();
+        ScanResult { t, clusters, assigned }
     }
 
     /// Processes clusters of which only those with `is_object[i]` are observations of
@@ -166,6 +426,7 @@ impl Pipeline {
             let id = self.landmarks.len() as u32;
             debug_assert_eq!(j, self.landmarks.len());
             self.landmarks.push(Landmark { id, position: [0.0; 2], covariance: [[0.0; 2]; 2], class: class.to_string(), observations: 1, diameter_m: clusters[ci].diameter_m });
+            self.objects.push(None);
             assigned[ci] = Some(id);
             self.decisions[first_decision + k].choice = Choice::New { landmark: id };
         }

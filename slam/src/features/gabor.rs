@@ -27,46 +27,72 @@ pub struct GaborFilter {
 }
 
 impl GaborFilter {
-    /// Kernel half-width: 2.5 envelope standard deviations along the longer axis.
-    pub fn radius(&self) -> usize {
-        (2.5 * self.sigma_px * (1.0f64).max(1.0 / self.gamma)).ceil() as usize
+    /// Kernel half-width along the carrier: 2.5 envelope standard deviations.
+    pub fn carrier_radius(&self) -> usize {
+        (2.5 * self.sigma_px).ceil() as usize
     }
 
-    /// The filter as two 1-D kernels (horizontal, vertical) when its orientation allows.
-    pub fn separable(&self) -> Option<(Vec<f32>, Vec<f32>)> {
+    /// Kernel half-width across the carrier: 2.5 standard deviations of the envelope
+    /// there (sigma / gamma).
+    pub fn across_radius(&self) -> usize {
+        (2.5 * self.sigma_px / self.gamma.min(1.0)).ceil() as usize
+    }
+
+    /// Largest half-width: the margin a crop needs for exact responses.
+    pub fn radius(&self) -> usize {
+        self.carrier_radius().max(self.across_radius())
+    }
+
+    fn orientation(&self) -> Option<bool> {
         let t = self.theta_deg.rem_euclid(180.0);
-        let r = self.radius() as i64;
-        let carrier: Vec<f64> = (-r..=r).map(|x| self.carrier_1d(x as f64)).collect();
-        let across: Vec<f64> = (-r..=r).map(|y| (-(self.gamma * y as f64).powi(2) / (2.0 * self.sigma_px.powi(2))).exp()).collect();
-        let norm = carrier.iter().map(|v| v.abs()).sum::<f64>() * across.iter().sum::<f64>();
-        let (a, b): (Vec<f32>, Vec<f32>) = (carrier.iter().map(|v| (v / norm) as f32).collect(), across.iter().map(|&v| v as f32).collect());
         if t.abs() < 1e-9 {
-            Some((a, b))
+            Some(false)
         } else if (t - 90.0).abs() < 1e-9 {
-            Some((b, a))
+            Some(true)
         } else {
             None
         }
     }
 
+    /// Half-widths (x, y) of the kernel's support: rectangular for 0 and 90 degrees,
+    /// square otherwise.
+    pub fn support(&self) -> (usize, usize) {
+        match self.orientation() {
+            Some(false) => (self.carrier_radius(), self.across_radius()),
+            Some(true) => (self.across_radius(), self.carrier_radius()),
+            None => (self.radius(), self.radius()),
+        }
+    }
+
+    /// The filter as two 1-D kernels (horizontal, vertical) when its orientation allows.
+    pub fn separable(&self) -> Option<(Vec<f32>, Vec<f32>)> {
+        let rotated = self.orientation()?;
+        let (rc, ra) = (self.carrier_radius() as i64, self.across_radius() as i64);
+        let carrier: Vec<f64> = (-rc..=rc).map(|x| self.carrier_1d(x as f64)).collect();
+        let across: Vec<f64> = (-ra..=ra).map(|y| (-(self.gamma * y as f64).powi(2) / (2.0 * self.sigma_px.powi(2))).exp()).collect();
+        let norm = carrier.iter().map(|v| v.abs()).sum::<f64>() * across.iter().sum::<f64>();
+        let (a, b): (Vec<f32>, Vec<f32>) = (carrier.iter().map(|v| (v / norm) as f32).collect(), across.iter().map(|&v| v as f32).collect());
+        Some(if rotated { (b, a) } else { (a, b) })
+    }
+
     /// Zero-mean carrier times envelope along the carrier axis.
     fn carrier_1d(&self, x: f64) -> f64 {
-        let r = self.radius() as i64;
+        let r = self.carrier_radius() as i64;
         let env = |x: f64| (-x * x / (2.0 * self.sigma_px.powi(2))).exp();
         let wave = |x: f64| (2.0 * std::f64::consts::PI * x / self.lambda_px + self.psi).cos();
         let (s_wave, s_env): (f64, f64) = (-r..=r).map(|x| x as f64).fold((0.0, 0.0), |(a, b), x| (a + env(x) * wave(x), b + env(x)));
         env(x) * (wave(x) - s_wave / s_env)
     }
 
-    /// The full 2-D kernel, row-major, side 2 * radius + 1.
+    /// The full 2-D kernel over [`Self::support`], row-major.
     pub fn kernel_2d(&self) -> Vec<f32> {
-        let r = self.radius() as i64;
+        let (rx, ry) = (self.support().0 as i64, self.support().1 as i64);
         let (st, ct) = self.theta_deg.to_radians().sin_cos();
         let env = |x: f64, y: f64| {
             let (xr, yr) = (x * ct + y * st, -x * st + y * ct);
             ((-(xr * xr + self.gamma.powi(2) * yr * yr) / (2.0 * self.sigma_px.powi(2))).exp(), (2.0 * std::f64::consts::PI * xr / self.lambda_px + self.psi).cos())
         };
-        let pts: Vec<(f64, f64)> = (-r..=r).flat_map(|y| (-r..=r).map(move |x| (x as f64, y as f64))).collect();
+        let pts: Vec<(f64, f64)> = (-ry..=ry).flat_map(|y| (-rx..=rx).map(move |x| (x as f64, y as f64))).collect();
         let (sw, se) = pts.iter().fold((0.0, 0.0), |(a, b), &(x, y)| {
             let (e, w) = env(x, y);
             (a + e * w, b + e)
@@ -126,7 +152,7 @@ impl GaborBank {
             .map(|f| {
                 let mut out = match f.separable() {
                     Some((h, v)) => convolve_cols(&convolve_rows(grey, &h), &v),
-                    None => convolve_2d(grey, &f.kernel_2d(), f.radius()),
+                    None => convolve_2d(grey, &f.kernel_2d(), f.support()),
                 };
                 out.data.iter_mut().for_each(|v| *v = v.abs());
                 out
@@ -185,12 +211,13 @@ pub fn convolve_cols(src: &Plane, kernel: &[f32]) -> Plane {
 }
 
 /// Full 2-D correlation with replicated borders (orientations that are not separable).
-pub fn convolve_2d(src: &Plane, kernel: &[f32], r: usize) -> Plane {
+pub fn convolve_2d(src: &Plane, kernel: &[f32], (rx, r): (usize, usize)) -> Plane {
+    let side_x = 2 * rx + 1;
     let side = 2 * r + 1;
     let (w, h) = (src.width, src.height);
     let mut out = Plane { width: w, height: h, data: vec![0.0; w * h] };
     for ky in 0..side {
-        let row_kernel = &kernel[ky * side..(ky + 1) * side];
+        let row_kernel = &kernel[ky * side_x..(ky + 1) * side_x];
         let shifted = Plane {
             width: w,
             height: h,
@@ -228,7 +255,7 @@ mod tests {
         for f in GaborBank::default().filters {
             let (hk, vk) = f.separable().expect("0 and 90 degrees are separable");
             let sep = convolve_cols(&convolve_rows(&img, &hk), &vk);
-            let full = convolve_2d(&img, &f.kernel_2d(), f.radius());
+            let full = convolve_2d(&img, &f.kernel_2d(), f.support());
             let err = sep.data.iter().zip(&full.data).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
             assert!(err < 1e-5, "theta {} lambda {}: {err}", f.theta_deg, f.lambda_px);
         }

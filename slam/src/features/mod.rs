@@ -147,9 +147,18 @@ impl FeatureConfig {
 /// Raw patch vectors (rows, row-major over `rect`): per pixel r, g, b in [0, 1] then the
 /// G Gabor magnitudes. `rect` must lie in the image's grid.
 pub fn raw_patches(image: &ImageRef, config: &FeatureConfig, rect: &PatchRect) -> DMatrix<f64> {
+    let buf = raw_patch_buffer(image, config, rect);
+    let dims = config.raw_dims();
+    // The buffer is row-major N x dims, i.e. column-major dims x N.
+    DMatrix::from_iterator(dims, rect.len(), buf.into_iter().map(f64::from)).transpose()
+}
+
+/// [`raw_patches`] as a row-major f32 buffer (the fast path of feature extraction).
+fn raw_patch_buffer(image: &ImageRef, config: &FeatureConfig, rect: &PatchRect) -> Vec<f32> {
     let l = config.patch_size as usize;
     let g = config.bank.len();
-    let (w, h) = (image.width as usize, image.height as usize);
+    let w = image.width as usize;
+    let h = image.height as usize;
     let margin = config.bank.radius();
     let (x0, x1) = (rect.col0 as usize * l, rect.col1 as usize * l);
     let (y0, y1) = (rect.row0 as usize * l, rect.row1 as usize * l);
@@ -164,31 +173,33 @@ pub fn raw_patches(image: &ImageRef, config: &FeatureConfig, rect: &PatchRect) -
         }
     }
     let responses = config.bank.apply(&grey);
-    let dims = l * l * (3 + g);
+    let stride = 3 + g;
+    let dims = l * l * stride;
     let n = rect.len();
-    // Filled row-major then transposed once: contiguous writes.
-    let mut rows = vec![0.0f64; n * dims];
-    for i in 0..n {
+    let mut rows = vec![0.0f32; n * dims];
+    for (i, out) in rows.chunks_exact_mut(dims).enumerate() {
         let (c, r) = rect.patch(i);
-        let out = &mut rows[i * dims..(i + 1) * dims];
-        let mut o = 0;
+        let (px0, py0) = (c as usize * l, r as usize * l);
         for py in 0..l {
-            let y = r as usize * l + py;
+            let y = py0 + py;
+            let rgb = &image.rgb[(y * w + px0) * 3..(y * w + px0 + l) * 3];
+            let ci = (y - cy0) * cw + (px0 - cx0);
+            let dst = &mut out[py * l * stride..(py + 1) * l * stride];
             for px in 0..l {
-                let x = c as usize * l + px;
-                let p = &image.rgb[(y * w + x) * 3..(y * w + x) * 3 + 3];
-                out[o] = p[0] as f64 / 255.0;
-                out[o + 1] = p[1] as f64 / 255.0;
-                out[o + 2] = p[2] as f64 / 255.0;
-                let ci = (y - cy0) * cw + (x - cx0);
-                for (k, resp) in responses.iter().enumerate() {
-                    out[o + 3 + k] = resp.data[ci] as f64;
+                let o = px * stride;
+                dst[o] = rgb[px * 3] as f32 * (1.0 / 255.0);
+                dst[o + 1] = rgb[px * 3 + 1] as f32 * (1.0 / 255.0);
+                dst[o + 2] = rgb[px * 3 + 2] as f32 * (1.0 / 255.0);
+            }
+            for (k, resp) in responses.iter().enumerate() {
+                let src = &resp.data[ci..ci + l];
+                for px in 0..l {
+                    dst[px * stride + 3 + k] = src[px];
                 }
-                o += 3 + g;
             }
         }
     }
-    DMatrix::from_row_slice(n, dims, &rows)
+    rows
 }
 
 /// Feature rows of the patches in a rectangle.
@@ -241,7 +252,7 @@ impl FeatureExtractor {
         rect.check(image, l)?;
         let (cols, rows) = image.grid(l);
         let big = rect.grown(cols, rows);
-        let za = self.pca.project(&raw_patches(image, &self.config, &big));
+        let za = self.pca.project_rows_f32(&raw_patch_buffer(image, &self.config, &big), big.len());
         let d = self.pca.dims();
         let norms: Vec<f64> = (0..za.nrows()).map(|i| za.row(i).norm()).collect();
         let big_index = |c: u32, r: u32| ((r - big.row0) * big.cols() + (c - big.col0)) as usize;

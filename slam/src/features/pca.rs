@@ -71,6 +71,18 @@ impl Pca {
         out
     }
 
+    /// Projects `n` row-major f32 raw vectors (the feature extractor's fast path: one
+    /// single-precision matrix product) to N x d.
+    pub fn project_rows_f32(&self, rows: &[f32], n: usize) -> DMatrix<f64> {
+        let dims = self.input_dims();
+        debug_assert_eq!(rows.len(), n * dims);
+        let x = nalgebra::DMatrixView::<f32>::from_slice(rows, dims, n);
+        let basis_t = DMatrix::<f32>::from_fn(self.dims(), dims, |i, j| self.basis[(j, i)] as f32);
+        let zt = basis_t * x;
+        let shift = self.basis.tr_mul(&self.mean);
+        DMatrix::from_fn(n, self.dims(), |i, j| zt[(j, i)] as f64 - shift[j])
+    }
+
     /// Maps a d-dimensional appearance vector back to a raw patch vector.
     pub fn back_project(&self, z: &[f64]) -> DVector<f64> {
         &self.mean + &self.basis * DVector::from_column_slice(&z[..self.dims()])

@@ -11,6 +11,7 @@
 //! assert_eq!(model.effective_components(0.01), 2);
 //! ```
 
+pub mod bench_data;
 pub mod predictive;
 pub mod search;
 pub mod vbem;

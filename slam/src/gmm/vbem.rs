@@ -137,6 +137,7 @@ pub(crate) fn m_step(data: &DMatrix<f64>, r: &DMatrix<f64>, prior: &VbPrior) -> 
     let mut stats = Stats { nk: Vec::with_capacity(k), xbar: Vec::with_capacity(k), s: Vec::with_capacity(k), r_ln_r: Vec::with_capacity(k) };
     let mut comps = Vec::with_capacity(k);
     let mut z = DMatrix::<f64>::zeros(n, d);
+    let mut sqrt_r = vec![0.0; n];
     for kk in 0..k {
         let rk = r.column(kk);
         let nk: f64 = rk.sum();
@@ -144,10 +145,14 @@ pub(crate) fn m_step(data: &DMatrix<f64>, r: &DMatrix<f64>, prior: &VbPrior) -> 
         let (xbar, s) = if nk > 1e-300 {
             let xbar = data.tr_mul(&rk) / nk;
             // Z = diag(sqrt r) (X - 1 xbar^T): S = Z^T Z / N_k, accurate far from the origin.
+            for (i, v) in sqrt_r.iter_mut().enumerate() {
+                *v = rk[i].sqrt();
+            }
             for j in 0..d {
                 let (src, mut dst) = (data.column(j), z.column_mut(j));
-                for i in 0..n {
-                    dst[i] = rk[i].sqrt() * (src[i] - xbar[j]);
+                let (src, dst) = (src.as_slice(), dst.as_mut_slice());
+                for ((o, &x), &w) in dst.iter_mut().zip(src).zip(&sqrt_r) {
+                    *o = w * (x - xbar[j]);
                 }
             }
             let mut s = z.tr_mul(&z) / nk;
@@ -215,31 +220,34 @@ pub(crate) fn e_step(data: &DMatrix<f64>, comps: &[VbComponent]) -> Result<DMatr
         let mut quad = vec![0.0; n];
         for j in 0..d {
             let (col, s) = (y.column(j), shift[j]);
-            for i in 0..n {
-                let v = col[i] - s;
-                quad[i] += v * v;
+            for (q, &v) in quad.iter_mut().zip(col.as_slice()) {
+                *q += (v - s) * (v - s);
             }
         }
         let base = e.ln_pi + 0.5 * e.ln_lambda - 0.5 * d as f64 * LN_2PI - 0.5 * d as f64 / c.beta;
         let mut out = log_rho.column_mut(kk);
-        for i in 0..n {
-            out[i] = base - 0.5 * c.nu * quad[i];
+        for (o, &q) in out.as_mut_slice().iter_mut().zip(&quad) {
+            *o = base - 0.5 * c.nu * q;
         }
     }
-    // Normalise each row in the log domain.
+    // Normalise each row in the log domain (column-wise passes over contiguous columns).
     let mut r = log_rho;
-    for i in 0..n {
-        let mut mx = f64::NEG_INFINITY;
-        for kk in 0..k {
-            mx = mx.max(r[(i, kk)]);
+    let mut mx = vec![f64::NEG_INFINITY; n];
+    for col in r.column_iter() {
+        for (m, &v) in mx.iter_mut().zip(col.as_slice()) {
+            *m = m.max(v);
         }
-        let mut s = 0.0;
-        for kk in 0..k {
-            s += (r[(i, kk)] - mx).exp();
+    }
+    let mut sum = vec![0.0; n];
+    for mut col in r.column_iter_mut() {
+        for ((v, &m), s) in col.as_mut_slice().iter_mut().zip(&mx).zip(sum.iter_mut()) {
+            *v = (*v - m).exp();
+            *s += *v;
         }
-        let lse = mx + s.ln();
-        for kk in 0..k {
-            r[(i, kk)] = (r[(i, kk)] - lse).exp();
+    }
+    for mut col in r.column_iter_mut() {
+        for (v, &s) in col.as_mut_slice().iter_mut().zip(&sum) {
+            *v /= s;
         }
     }
     Ok(r)

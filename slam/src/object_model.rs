@@ -1,0 +1,348 @@
+//! Per-object models (paper section 4.2): an object's segmented patches, their features
+//! augmented with the patches' global positions, and a VB-GMM over them (DESIGN.md `p_L`).
+//!
+//! Positions are stored relative to the object's landmark (x, y in the map frame, metres;
+//! h, the height above the laser plane), so a model stays attached to its landmark when the
+//! EKF moves it. When an observation is compared with a landmark, the observation's
+//! positions are shifted into the landmark's frame and their x-y covariance is widened by
+//! the uncertainty of that offset (pose, landmark and measurement), so the KL divergence
+//! weighs position exactly as much as the filter can know it.
+
+use nalgebra::{DMatrix, DVector, Matrix2};
+use serde::{Deserialize, Serialize};
+
+use crate::features::Pca;
+use crate::gmm::{self, Component, GmmError, Gmm, StudentTMixture, VbOptions, VbPrior};
+use crate::kl::{self, KlError, PreparedGmm};
+
+/// How object models are learnt and compared.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ObjectModelConfig {
+    /// Components per object model (fixed K is faster than the search; the paper's
+    /// footnote 2). 0 searches by birth-death.
+    pub components: usize,
+    /// Standard deviation (m) added to a model's x-y spread: the patches of one view lie in
+    /// one plane, the object has depth.
+    pub position_floor_m: f64,
+    /// An observation joins the candidate with the smallest KL below this (nats).
+    pub kl_threshold: f64,
+    /// Keep at most this many patches per object for its appearance mosaic.
+    pub mosaic_patches: usize,
+}
+
+impl Default for ObjectModelConfig {
+    fn default() -> Self {
+        ObjectModelConfig { components: 2, position_floor_m: 0.1, kl_threshold: 40.0, mosaic_patches: 400 }
+    }
+}
+
+/// One segmented object observation: feature rows (appearance z, then x, y relative to the
+/// observation's centre, then h) and where each patch sits in the image grid.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ObjectObservation {
+    /// Map-frame position of the observed object's centre.
+    pub centre: [f64; 2],
+    /// Rows: [z (d + 4) | dx | dy | h].
+    pub rows: DMatrix<f64>,
+    /// (col, row) of each patch in the image's patch grid.
+    pub cells: Vec<(u32, u32)>,
+    /// Covariance of `centre` (2x2, map frame).
+    pub centre_covariance: Matrix2<f64>,
+}
+
+impl ObjectObservation {
+    pub fn appearance_dims(&self) -> usize {
+        self.rows.ncols() - 3
+    }
+}
+
+/// The appearance patches kept for the mosaic of figure 3: z_A per cell of one view.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MosaicView {
+    pub cells: Vec<(u32, u32)>,
+    /// PCA coordinates z_A (d values) per cell.
+    pub appearance: Vec<Vec<f64>>,
+}
+
+/// A mapped object's model.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ObjectModel {
+    /// Density over [z | x, y relative to the landmark | h].
+    pub gmm: Gmm,
+    /// Patches merged into the model so far (N of eq. 5).
+    pub patches: f64,
+    pub observations: usize,
+    /// The view with the most object patches.
+    pub mosaic: MosaicView,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ObjectModelError {
+    #[error(transparent)]
+    Gmm(#[from] GmmError),
+    #[error(transparent)]
+    Kl(#[from] KlError),
+    #[error("observation has {0} patches; an object model needs at least 2")]
+    TooFewPatches(usize),
+}
+
+/// Fits the density of one observation (rows with positions relative to its centre).
+/// `general` (the classifier's object model, appearance only) supplies the appearance
+/// block of the prior (the paper's footnote 2).
+pub fn fit_observation(obs: &ObjectObservation, general: Option<&Gmm>, config: &ObjectModelConfig) -> Result<Gmm, ObjectModelError> {
+    let n = obs.rows.nrows();
+    if n < 2 {
+        return Err(ObjectModelError::TooFewPatches(n));
+    }
+    let d = obs.rows.ncols();
+    let mut prior = VbPrior::from_data(&obs.rows)?;
+    if let Some(g) = general {
+        let da = g.dims().min(d - 3);
+        let (_, cov) = g.moments();
+        for i in 0..da {
+            for j in 0..da {
+                prior.w0_inv[(i, j)] = cov[(i, j)];
+            }
+            // Decouple the appearance block from positions in the prior.
+            for j in da..d {
+                prior.w0_inv[(i, j)] = 0.0;
+                prior.w0_inv[(j, i)] = 0.0;
+            }
+        }
+        prior.check(d)?;
+    }
+    let options = VbOptions { max_components: config.components.max(1).min(n), fixed_k: config.components > 0, max_iterations: 200, tolerance: 1e-6, seed: 0, ..Default::default() };
+    let vb = gmm::fit(&obs.rows, Some(&prior), &options)?;
+    let mut g = StudentTMixture::new(&vb)?.gaussian_approximation()?;
+    let floor = config.position_floor_m.powi(2);
+    for c in &mut g.components {
+        c.covariance[(d - 3, d - 3)] += floor;
+        c.covariance[(d - 2, d - 2)] += floor;
+    }
+    // Drop components without weight: they add nothing and slow the KL.
+    g.components.retain(|c| c.weight > 1e-3);
+    let s: f64 = g.components.iter().map(|c| c.weight).sum();
+    g.components.iter_mut().for_each(|c| c.weight /= s);
+    Ok(g)
+}
+
+/// `g` with its x-y dimensions (at `xy`, `xy + 1`) shifted by `shift` and widened by `extra`.
+fn shifted(g: &Gmm, xy: usize, shift: [f64; 2], extra: &Matrix2<f64>) -> Gmm {
+    let mut out = g.clone();
+    for c in &mut out.components {
+        c.mean[xy] += shift[0];
+        c.mean[xy + 1] += shift[1];
+        for i in 0..2 {
+            for j in 0..2 {
+                c.covariance[(xy + i, xy + j)] += extra[(i, j)];
+            }
+        }
+    }
+    out
+}
+
+/// The mixture's marginal over its first `dims` dimensions.
+pub fn marginal(g: &Gmm, dims: usize) -> Gmm {
+    Gmm {
+        components: g
+            .components
+            .iter()
+            .map(|c| Component { weight: c.weight, mean: c.mean.rows(0, dims).into_owned(), covariance: c.covariance.view((0, 0), (dims, dims)).into_owned() })
+            .collect(),
+    }
+}
+
+impl ObjectModel {
+    /// A new object's model from its first observation (`fitted` from [`fit_observation`]).
+    pub fn new(obs: &ObjectObservation, fitted: Gmm, pca_dims: usize) -> Self {
+        ObjectModel { gmm: fitted, patches: obs.rows.nrows() as f64, observations: 1, mosaic: mosaic_view(obs, pca_dims) }
+    }
+
+    /// KL(observation || this model) with the observation placed relative to a landmark at
+    /// `landmark` whose offset from the observation has covariance `offset_covariance`.
+    /// With `appearance_only`, positions are marginalised out of both densities.
+    pub fn kl_from(&self, fitted_obs: &Gmm, obs_centre: [f64; 2], landmark: [f64; 2], offset_covariance: &Matrix2<f64>, appearance_only: bool) -> Result<f64, ObjectModelError> {
+        let d = self.gmm.dims();
+        let (f, g) = if appearance_only {
+            (marginal(fitted_obs, d - 3), marginal(&self.gmm, d - 3))
+        } else {
+            (shifted(fitted_obs, d - 3, [obs_centre[0] - landmark[0], obs_centre[1] - landmark[1]], offset_covariance), self.gmm.clone())
+        };
+        Ok(kl::kl_variational(&PreparedGmm::new(&f)?, &PreparedGmm::new(&g)?)?)
+    }
+
+    /// Merges an associated observation (eq. 5 on sufficient statistics): each patch is
+    /// shared among this model's components by responsibility; per component the counts,
+    /// means and second moments add up:
+    /// pi_s <- (M pi_s^new + N pi_s) / (M + N), mu_s <- (M_s mu_s^new + N_s mu_s) / (M_s + N_s),
+    /// Gamma_s from the summed second moments.
+    pub fn update(&mut self, obs: &ObjectObservation, landmark: [f64; 2], pca_dims: usize) -> Result<(), ObjectModelError> {
+        let d = self.gmm.dims();
+        let (xy, m) = (d - 3, obs.rows.nrows());
+        let shift = [obs.centre[0] - landmark[0], obs.centre[1] - landmark[1]];
+        let eval = self.gmm.evaluator()?;
+        let k = self.gmm.components.len();
+        let singles: Vec<_> = self.gmm.components.iter().map(|c| Gmm { components: vec![Component { weight: c.weight, ..c.clone() }] }.evaluator()).collect::<Result<_, _>>()?;
+        let mut mass = vec![0.0; k];
+        let mut sum = vec![DVector::zeros(d); k];
+        let mut sq = vec![DMatrix::zeros(d, d); k];
+        let mut x = vec![0.0; d];
+        for i in 0..m {
+            for (j, v) in x.iter_mut().enumerate() {
+                *v = obs.rows[(i, j)];
+            }
+            x[xy] += shift[0];
+            x[xy + 1] += shift[1];
+            let total = eval.log_density(&x);
+            let xv = DVector::from_column_slice(&x);
+            for s in 0..k {
+                let r = (singles[s].log_density(&x) - total).exp();
+                if r > 0.0 {
+                    mass[s] += r;
+                    sum[s] += &xv * r;
+                    sq[s] += &xv * xv.transpose() * r;
+                }
+            }
+        }
+        let n = self.patches;
+        for (s, c) in self.gmm.components.iter_mut().enumerate() {
+            let ns = c.weight * n;
+            let ms = mass[s];
+            if ms <= 0.0 {
+                c.weight = ns / (n + m as f64);
+                continue;
+            }
+            let second_old = (&c.covariance + &c.mean * c.mean.transpose()) * ns;
+            let mean = (&c.mean * ns + &sum[s]) / (ns + ms);
+            let second = (second_old + &sq[s]) / (ns + ms);
+            let cov = second - &mean * mean.transpose();
+            c.covariance = (&cov + cov.transpose()) * 0.5;
+            c.mean = mean;
+            c.weight = (ns + ms) / (n + m as f64);
+        }
+        self.patches = n + m as f64;
+        self.observations += 1;
+        if obs.rows.nrows() > self.mosaic.cells.len() {
+            self.mosaic = mosaic_view(obs, pca_dims);
+        }
+        Ok(())
+    }
+}
+
+fn mosaic_view(obs: &ObjectObservation, pca_dims: usize) -> MosaicView {
+    MosaicView { cells: obs.cells.clone(), appearance: (0..obs.rows.nrows()).map(|i| obs.rows.row(i).columns(0, pca_dims).iter().copied().collect()).collect() }
+}
+
+/// Figure 3 (right): the mosaic's patches back-projected through the PCA eigenvectors into
+/// RGB, laid out as they were seen. Returns (width, height, RGB8); empty cells are black.
+pub fn render_mosaic(view: &MosaicView, pca: &Pca, patch_size: u32, channels: usize) -> (u32, u32, Vec<u8>) {
+    if view.cells.is_empty() {
+        return (0, 0, Vec::new());
+    }
+    let l = patch_size as usize;
+    let (c0, c1) = (view.cells.iter().map(|c| c.0).min().unwrap_or(0), view.cells.iter().map(|c| c.0).max().unwrap_or(0));
+    let (r0, r1) = (view.cells.iter().map(|c| c.1).min().unwrap_or(0), view.cells.iter().map(|c| c.1).max().unwrap_or(0));
+    let (w, h) = (((c1 - c0 + 1) as usize * l), ((r1 - r0 + 1) as usize * l));
+    let mut rgb = vec![0u8; w * h * 3];
+    for (cell, z) in view.cells.iter().zip(&view.appearance) {
+        let raw = pca.back_project(z);
+        let (ox, oy) = ((cell.0 - c0) as usize * l, (cell.1 - r0) as usize * l);
+        for py in 0..l {
+            for px in 0..l {
+                let base = (py * l + px) * channels;
+                let o = ((oy + py) * w + ox + px) * 3;
+                for ch in 0..3 {
+                    rgb[o + ch] = (raw[base + ch].clamp(0.0, 1.0) * 255.0).round() as u8;
+                }
+            }
+        }
+    }
+    (w as u32, h as u32, rgb)
+}
+
+/// "Find objects that look like this": mapped objects ranked by the appearance-only KL
+/// from an example's density (smallest first).
+pub fn rank_by_appearance(example: &Gmm, objects: &[(u32, &ObjectModel)]) -> Result<Vec<(u32, f64)>, ObjectModelError> {
+    let da = example.dims();
+    let f = PreparedGmm::new(example)?;
+    let mut out = Vec::with_capacity(objects.len());
+    for (id, m) in objects {
+        let g = marginal(&m.gmm, da);
+        out.push((*id, kl::kl_variational(&f, &PreparedGmm::new(&g)?)?));
+    }
+    out.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+    use rand_distr::{Distribution, Normal};
+
+    /// An observation of an object with appearance centred on `look` (3-D here), patches
+    /// spread over 0.3 m width and 1.5 m height, centred at `centre`.
+    fn observation(seed: u64, look: [f64; 3], centre: [f64; 2], n: usize) -> ObjectObservation {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let noise = Normal::new(0.0, 0.3).unwrap();
+        let rows = DMatrix::from_fn(n, 6, |i, j| match j {
+            0..=2 => look[j] + noise.sample(&mut rng),
+            3 => 0.1 * noise.sample(&mut rng),
+            4 => 0.3 * ((i % 5) as f64 / 4.0 - 0.5),
+            _ => 1.5 * (i as f64 / n as f64),
+        });
+        ObjectObservation { centre, rows, cells: (0..n as u32).map(|i| (i % 5, i / 5)).collect(), centre_covariance: Matrix2::identity() * 0.01 }
+    }
+
+    #[test]
+    fn kl_is_small_for_the_same_object_and_large_for_another() {
+        let config = ObjectModelConfig::default();
+        let tree = observation(1, [1.0, 0.0, 0.0], [5.0, 2.0], 60);
+        let model = ObjectModel::new(&tree, fit_observation(&tree, None, &config).unwrap(), 3);
+        let again = observation(2, [1.0, 0.0, 0.0], [5.1, 2.05], 50);
+        let post = observation(3, [-1.0, 1.5, 0.5], [5.1, 2.05], 50);
+        let cov = Matrix2::identity() * 0.02;
+        let same = model.kl_from(&fit_observation(&again, None, &config).unwrap(), again.centre, [5.0, 2.0], &cov, false).unwrap();
+        let other = model.kl_from(&fit_observation(&post, None, &config).unwrap(), post.centre, [5.0, 2.0], &cov, false).unwrap();
+        assert!(same < 10.0 && other > 2.0 * same + 10.0, "same {same}, other {other}");
+        // The same object far from the landmark is far in KL too (position counts)...
+        let far = model.kl_from(&fit_observation(&again, None, &config).unwrap(), [9.0, 2.0], [5.0, 2.0], &cov, false).unwrap();
+        assert!(far > 2.0 * same + 10.0, "far {far}");
+        // ...unless positions are marginalised out.
+        let far_app = model.kl_from(&fit_observation(&again, None, &config).unwrap(), [9.0, 2.0], [5.0, 2.0], &cov, true).unwrap();
+        assert!(far_app < same.max(1.0) * 2.0, "appearance only {far_app}");
+    }
+
+    #[test]
+    fn update_merges_sufficient_statistics() {
+        let config = ObjectModelConfig { components: 1, position_floor_m: 0.0, ..Default::default() };
+        let a = observation(4, [1.0, 0.0, 0.0], [0.0, 0.0], 40);
+        let b = observation(5, [2.0, 0.0, 0.0], [0.0, 0.0], 60);
+        let mut model = ObjectModel::new(&a, fit_observation(&a, None, &config).unwrap(), 3);
+        let before = model.gmm.components[0].mean[0];
+        model.update(&b, [0.0, 0.0], 3).unwrap();
+        let after = model.gmm.components[0].mean[0];
+        // With one component every patch joins it: the mean is the count-weighted mean.
+        let mean_b = b.rows.column(0).mean();
+        assert!(((after - (40.0 * before + 60.0 * mean_b) / 100.0) / after).abs() < 1e-9, "{after}");
+        assert_eq!(model.patches, 100.0);
+        assert_eq!(model.observations, 2);
+        assert!((model.gmm.components[0].weight - 1.0).abs() < 1e-12);
+        // The mosaic keeps the larger view.
+        assert_eq!(model.mosaic.cells.len(), 60);
+    }
+
+    #[test]
+    fn ranking_puts_the_look_alike_first() {
+        let config = ObjectModelConfig::default();
+        let objs: Vec<ObjectObservation> = vec![observation(6, [1.0, 0.0, 0.0], [0.0, 0.0], 50), observation(7, [-2.0, 1.0, 0.0], [3.0, 0.0], 50), observation(8, [0.0, 3.0, 1.0], [6.0, 0.0], 50)];
+        let models: Vec<ObjectModel> = objs.iter().map(|o| ObjectModel::new(o, fit_observation(o, None, &config).unwrap(), 3)).collect();
+        let example = observation(9, [-2.0, 1.0, 0.0], [0.0, 0.0], 40);
+        let ex = marginal(&fit_observation(&example, None, &config).unwrap(), 3);
+        let refs: Vec<(u32, &ObjectModel)> = models.iter().enumerate().map(|(i, m)| (i as u32, m)).collect();
+        let ranked = rank_by_appearance(&ex, &refs).unwrap();
+        assert_eq!(ranked[0].0, 1);
+    }
+}
