@@ -250,9 +250,23 @@ pub fn train(count: usize, images: impl Fn(usize) -> Result<LabelledImage, Model
             sampled += 1;
         }
     }
+    // Equalise the channels' variances (see `FeatureConfig::channel_gain`).
+    let stride = 3 + cfg.bank.len();
+    let mut gains = Vec::with_capacity(stride);
+    for ch in 0..stride {
+        let vals = sample_rows.iter().skip(ch).step_by(stride);
+        let (n, sum, sq) = vals.fold((0.0f64, 0.0f64, 0.0f64), |(n, s, q), &v| (n + 1.0, s + v, q + v * v));
+        let var = (sq / n - (sum / n).powi(2)).max(0.0);
+        gains.push(if var > 1e-12 { (1.0 / var.sqrt()) as f32 } else { 1.0 });
+    }
+    for (i, v) in sample_rows.iter_mut().enumerate() {
+        *v *= gains[i % stride] as f64;
+    }
+    let mut cfg = cfg.clone();
+    cfg.channel_gain = gains;
     let pca = Pca::fit(&DMatrix::from_row_slice(sampled, cfg.raw_dims(), &sample_rows), options.pca_dims)?;
     drop(sample_rows);
-    let extractor = FeatureExtractor::new(cfg.clone(), pca)?;
+    let extractor = FeatureExtractor::new(cfg, pca)?;
     // Pass 2: features of every patch, split by label.
     let (mut obj, mut bg): (Vec<f64>, Vec<f64>) = (Vec::new(), Vec::new());
     let d = extractor.dims();

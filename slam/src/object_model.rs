@@ -11,7 +11,7 @@
 use nalgebra::{DMatrix, DVector, Matrix2};
 use serde::{Deserialize, Serialize};
 
-use crate::features::Pca;
+use crate::features::FeatureExtractor;
 use crate::gmm::{self, Component, GmmError, Gmm, StudentTMixture, VbOptions, VbPrior};
 use crate::kl::{self, KlError, PreparedGmm};
 
@@ -29,11 +29,14 @@ pub struct ObjectModelConfig {
     pub kl_threshold: f64,
     /// Keep at most this many patches per object for its appearance mosaic.
     pub mosaic_patches: usize,
+    /// Leading appearance dimensions (PCA coordinates) the model uses; a few strong
+    /// directions estimate far better from one view's patches than all of them.
+    pub appearance_dims: usize,
 }
 
 impl Default for ObjectModelConfig {
     fn default() -> Self {
-        ObjectModelConfig { components: 2, position_floor_m: 0.1, kl_threshold: 40.0, mosaic_patches: 400 }
+        ObjectModelConfig { components: 1, position_floor_m: 0.1, kl_threshold: 80.0, mosaic_patches: 400, appearance_dims: 4 }
     }
 }
 
@@ -43,8 +46,10 @@ impl Default for ObjectModelConfig {
 pub struct ObjectObservation {
     /// Map-frame position of the observed object's centre.
     pub centre: [f64; 2],
-    /// Rows: [z (d + 4) | dx | dy | h].
+    /// Rows: [leading appearance dims | dx | dy | h].
     pub rows: DMatrix<f64>,
+    /// Full PCA coordinates z_A of each patch (for the mosaic).
+    pub appearance: Vec<Vec<f64>>,
     /// (col, row) of each patch in the image's patch grid.
     pub cells: Vec<(u32, u32)>,
     /// Covariance of `centre` (2x2, map frame).
@@ -230,13 +235,15 @@ impl ObjectModel {
     }
 }
 
-fn mosaic_view(obs: &ObjectObservation, pca_dims: usize) -> MosaicView {
-    MosaicView { cells: obs.cells.clone(), appearance: (0..obs.rows.nrows()).map(|i| obs.rows.row(i).columns(0, pca_dims).iter().copied().collect()).collect() }
+fn mosaic_view(obs: &ObjectObservation, _pca_dims: usize) -> MosaicView {
+    MosaicView { cells: obs.cells.clone(), appearance: obs.appearance.clone() }
 }
 
 /// Figure 3 (right): the mosaic's patches back-projected through the PCA eigenvectors into
 /// RGB, laid out as they were seen. Returns (width, height, RGB8); empty cells are black.
-pub fn render_mosaic(view: &MosaicView, pca: &Pca, patch_size: u32, channels: usize) -> (u32, u32, Vec<u8>) {
+pub fn render_mosaic(view: &MosaicView, extractor: &FeatureExtractor) -> (u32, u32, Vec<u8>) {
+    let (pca, patch_size, channels) = (&extractor.pca, extractor.config.patch_size, 3 + extractor.config.bank.len());
+    let gains = extractor.config.gains();
     if view.cells.is_empty() {
         return (0, 0, Vec::new());
     }
@@ -253,7 +260,7 @@ pub fn render_mosaic(view: &MosaicView, pca: &Pca, patch_size: u32, channels: us
                 let base = (py * l + px) * channels;
                 let o = ((oy + py) * w + ox + px) * 3;
                 for ch in 0..3 {
-                    rgb[o + ch] = (raw[base + ch].clamp(0.0, 1.0) * 255.0).round() as u8;
+                    rgb[o + ch] = ((raw[base + ch] / gains[ch] as f64).clamp(0.0, 1.0) * 255.0).round() as u8;
                 }
             }
         }
@@ -293,7 +300,8 @@ mod tests {
             4 => 0.3 * ((i % 5) as f64 / 4.0 - 0.5),
             _ => 1.5 * (i as f64 / n as f64),
         });
-        ObjectObservation { centre, rows, cells: (0..n as u32).map(|i| (i % 5, i / 5)).collect(), centre_covariance: Matrix2::identity() * 0.01 }
+        let appearance = (0..n).map(|i| rows.row(i).columns(0, 3).iter().copied().collect()).collect();
+        ObjectObservation { centre, rows, appearance, cells: (0..n as u32).map(|i| (i % 5, i / 5)).collect(), centre_covariance: Matrix2::identity() * 0.01 }
     }
 
     #[test]

@@ -42,6 +42,11 @@ pub struct PipelineConfig {
     pub object_model: ObjectModelConfig,
     /// A scan is segmented with the latest image only if that image is at most this old (s).
     pub image_max_age_s: f64,
+    /// A new landmark is tentative until observed this many times (1: at once); ...
+    pub confirm_observations: usize,
+    /// ...and is deleted if that has not happened within this many seconds. Walking
+    /// people never stay where they were seen, so they never become landmarks.
+    pub confirm_window_s: f64,
 }
 
 impl Default for PipelineConfig {
@@ -58,6 +63,8 @@ impl Default for PipelineConfig {
             segmentation: SegmentationConfig::default(),
             object_model: ObjectModelConfig::default(),
             image_max_age_s: 0.02,
+            confirm_observations: 8,
+            confirm_window_s: 4.0,
         }
     }
 }
@@ -75,6 +82,12 @@ pub struct Landmark {
     pub observations: usize,
     /// Mean fitted diameter of the clusters associated with it.
     pub diameter_m: f64,
+    /// Time the landmark was created.
+    #[serde(default)]
+    pub created_t: f64,
+    /// Whether it has been observed often enough to count as mapped.
+    #[serde(default)]
+    pub confirmed: bool,
 }
 
 /// One estimated pose with its covariance.
@@ -141,6 +154,8 @@ pub struct Pipeline {
     decisions: Vec<AssociationDecision>,
     poses: Vec<PoseEstimate>,
     t: f64,
+    /// Id of the next landmark (ids are never reused after a tentative one is deleted).
+    next_id: u32,
     appearance: Option<Appearance>,
     image: Option<StoredImage>,
     segmentations: Vec<SegmentationRecord>,
@@ -160,7 +175,7 @@ impl Pipeline {
     pub fn new(config: PipelineConfig, pose: [f64; 3]) -> Self {
         let s = config.initial_pose_sigma;
         let ekf = Ekf::new(Vector3::from(pose), Matrix3::from_diagonal(&Vector3::new(s[0] * s[0], s[1] * s[1], s[2] * s[2])));
-        let mut p = Pipeline { config, ekf, landmarks: Vec::new(), objects: Vec::new(), decisions: Vec::new(), poses: Vec::new(), t: 0.0, appearance: None, image: None, segmentations: Vec::new() };
+        let mut p = Pipeline { config, ekf, landmarks: Vec::new(), objects: Vec::new(), decisions: Vec::new(), poses: Vec::new(), t: 0.0, next_id: 0, appearance: None, image: None, segmentations: Vec::new() };
         p.record_pose();
         p
     }
@@ -192,7 +207,8 @@ impl Pipeline {
 
     /// Object model of landmark `id`, if it has one.
     pub fn object_model(&self, id: u32) -> Option<&ObjectModel> {
-        self.objects.get(id as usize).and_then(|o| o.as_ref())
+        let j = self.landmarks.iter().position(|l| l.id == id)?;
+        self.objects.get(j).and_then(|o| o.as_ref())
     }
 
     pub fn appearance(&self) -> Option<&Appearance> {
@@ -252,7 +268,9 @@ impl Pipeline {
                 continue;
             }
             let rows_idx = seg.object_rows();
-            let da = seg.features.z.ncols();
+            let da = self.config.object_model.appearance_dims.min(seg.features.z.ncols());
+            let pca_dims = extractor.pca.dims();
+            let mut appearance = Vec::with_capacity(rows_idx.len());
             let (centre, rot) = self.to_map(c.centre);
             let mut rows = DMatrix::zeros(rows_idx.len(), da + 3);
             let mut cells = Vec::with_capacity(rows_idx.len());
@@ -268,6 +286,7 @@ impl Pipeline {
                 rows[(n, da)] = d.x;
                 rows[(n, da + 1)] = d.y;
                 rows[(n, da + 2)] = p.z;
+                appearance.push(seg.features.z.row(i).columns(0, pca_dims).iter().copied().collect());
                 cells.push((col, row));
                 n += 1;
             }
@@ -275,7 +294,7 @@ impl Pipeline {
                 continue;
             }
             let rows = rows.rows(0, n).into_owned();
-            out.push((ci, ObjectObservation { centre, rows, cells, centre_covariance: Matrix2::zeros() }));
+            out.push((ci, ObjectObservation { centre, rows, appearance, cells, centre_covariance: Matrix2::zeros() }));
         }
         self.segmentations.push(record);
         out
@@ -322,13 +341,13 @@ impl Pipeline {
                 candidates.push(Candidate { landmark: self.landmarks[j].id, mahalanobis2: m2, kl });
             }
             let best = candidates.iter().filter_map(|c| c.kl.filter(|k| k.is_finite() && *k < cfg.kl_threshold).map(|k| (c.landmark, k))).min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
-            plans.push((ci, obs, fitted, z, candidates, best.map(|b| b.0)));
+            let best = best.and_then(|(id, _)| self.landmarks.iter().position(|l| l.id == id).map(|j| (id, j)));
+            plans.push((ci, obs, fitted, z, candidates, best));
         }
         let mut new_ones = Vec::new();
         for (ci, obs, fitted, z, candidates, best) in plans {
             let choice = match best {
-                Some(id) => {
-                    let j = id as usize;
+                Some((id, j)) => {
                     if self.ekf.update(&self.config.sensor, j, &z).is_ok() {
                         let lm = self.ekf.landmark(j);
                         if let Some(m) = self.objects[j].as_mut() {
@@ -353,7 +372,8 @@ impl Pipeline {
         let class = self.appearance.as_ref().map_or("object".to_string(), |a| a.model.object_class.clone());
         for (ci, decision, obs, fitted, z) in new_ones {
             let j = self.ekf.add_landmark(&self.config.sensor, &z);
-            let id = self.landmarks.len() as u32;
+            let id = self.next_id;
+            self.next_id += 1;
             debug_assert_eq!(j, self.landmarks.len());
             let lm = self.ekf.landmark(j);
             // Re-centre the model's positions on the landmark estimate.
@@ -363,7 +383,7 @@ impl Pipeline {
                 c.mean[d - 3] += obs.centre[0] - lm.x;
                 c.mean[d - 2] += obs.centre[1] - lm.y;
             }
-            self.landmarks.push(Landmark { id, position: [0.0; 2], covariance: [[0.0; 2]; 2], class: class.clone(), observations: 1, diameter_m: clusters[ci].diameter_m });
+            self.landmarks.push(Landmark { id, position: [0.0; 2], covariance: [[0.0; 2]; 2], class: class.clone(), observations: 1, diameter_m: clusters[ci].diameter_m, created_t: t, confirmed: self.config.confirm_observations <= 1 });
             self.objects.push(Some(model));
             assigned[ci] = Some(id);
             self.decisions[decision].choice = Choice::New { landmark: id };
@@ -423,9 +443,10 @@ impl Pipeline {
         let first_decision = self.decisions.len() - idx.len();
         for (k, ci) in new_ones {
             let j = self.ekf.add_landmark(&self.config.sensor, &zs[k]);
-            let id = self.landmarks.len() as u32;
+            let id = self.next_id;
+            self.next_id += 1;
             debug_assert_eq!(j, self.landmarks.len());
-            self.landmarks.push(Landmark { id, position: [0.0; 2], covariance: [[0.0; 2]; 2], class: class.to_string(), observations: 1, diameter_m: clusters[ci].diameter_m });
+            self.landmarks.push(Landmark { id, position: [0.0; 2], covariance: [[0.0; 2]; 2], class: class.to_string(), observations: 1, diameter_m: clusters[ci].diameter_m, created_t: t, confirmed: self.config.confirm_observations <= 1 });
             self.objects.push(None);
             assigned[ci] = Some(id);
             self.decisions[first_decision + k].choice = Choice::New { landmark: id };
@@ -436,6 +457,24 @@ impl Pipeline {
     }
 
     fn refresh_landmarks(&mut self) {
+        // Confirm landmarks seen often enough; delete tentative ones that timed out.
+        let (need, window, t) = (self.config.confirm_observations, self.config.confirm_window_s, self.t);
+        for lm in &mut self.landmarks {
+            if !lm.confirmed && lm.observations >= need {
+                lm.confirmed = true;
+            }
+        }
+        let mut j = 0;
+        while j < self.landmarks.len() {
+            let lm = &self.landmarks[j];
+            if !lm.confirmed && t - lm.created_t > window {
+                self.ekf.remove_landmark(j);
+                self.landmarks.remove(j);
+                self.objects.remove(j);
+            } else {
+                j += 1;
+            }
+        }
         for (i, lm) in self.landmarks.iter_mut().enumerate() {
             let p = self.ekf.landmark(i);
             let c = self.ekf.landmark_covariance(i);
@@ -459,8 +498,14 @@ impl Pipeline {
         *self.poses.last().expect("a pose is recorded at construction")
     }
 
+    /// Every landmark in the filter, tentative ones included.
     pub fn landmarks(&self) -> &[Landmark] {
         &self.landmarks
+    }
+
+    /// The map: confirmed landmarks only.
+    pub fn mapped_landmarks(&self) -> Vec<Landmark> {
+        self.landmarks.iter().filter(|l| l.confirmed).cloned().collect()
     }
 
     pub fn decisions(&self) -> &[AssociationDecision] {

@@ -129,15 +129,26 @@ pub struct FeatureConfig {
     /// Patch side L in pixels (the paper: 9).
     pub patch_size: u32,
     pub bank: GaborBank,
+    /// Gain per channel (r, g, b, then the Gabor magnitudes) applied before the PCA; empty
+    /// means 1. Training sets each to 1 / the channel's standard deviation, so the faint
+    /// Gabor magnitudes are not drowned by colour in the principal components.
+    #[serde(default)]
+    pub channel_gain: Vec<f32>,
 }
 
 impl Default for FeatureConfig {
     fn default() -> Self {
-        FeatureConfig { patch_size: 9, bank: GaborBank::default() }
+        FeatureConfig { patch_size: 9, bank: GaborBank::default(), channel_gain: Vec::new() }
     }
 }
 
 impl FeatureConfig {
+    /// The gain of every channel (1 where none is set).
+    pub fn gains(&self) -> Vec<f32> {
+        let n = 3 + self.bank.len();
+        if self.channel_gain.len() == n { self.channel_gain.clone() } else { vec![1.0; n] }
+    }
+
     /// Length of a raw patch vector, L * L * (3 + G).
     pub fn raw_dims(&self) -> usize {
         (self.patch_size * self.patch_size) as usize * (3 + self.bank.len())
@@ -174,6 +185,8 @@ fn raw_patch_buffer(image: &ImageRef, config: &FeatureConfig, rect: &PatchRect) 
     }
     let responses = config.bank.apply(&grey);
     let stride = 3 + g;
+    let gain = config.gains();
+    let (gr, gg, gb) = (gain[0] / 255.0, gain[1] / 255.0, gain[2] / 255.0);
     let dims = l * l * stride;
     let n = rect.len();
     let mut rows = vec![0.0f32; n * dims];
@@ -187,14 +200,15 @@ fn raw_patch_buffer(image: &ImageRef, config: &FeatureConfig, rect: &PatchRect) 
             let dst = &mut out[py * l * stride..(py + 1) * l * stride];
             for px in 0..l {
                 let o = px * stride;
-                dst[o] = rgb[px * 3] as f32 * (1.0 / 255.0);
-                dst[o + 1] = rgb[px * 3 + 1] as f32 * (1.0 / 255.0);
-                dst[o + 2] = rgb[px * 3 + 2] as f32 * (1.0 / 255.0);
+                dst[o] = rgb[px * 3] as f32 * gr;
+                dst[o + 1] = rgb[px * 3 + 1] as f32 * gg;
+                dst[o + 2] = rgb[px * 3 + 2] as f32 * gb;
             }
             for (k, resp) in responses.iter().enumerate() {
                 let src = &resp.data[ci..ci + l];
+                let gk = gain[3 + k];
                 for px in 0..l {
-                    dst[px * stride + 3 + k] = src[px];
+                    dst[px * stride + 3 + k] = src[px] * gk;
                 }
             }
         }
@@ -233,6 +247,9 @@ pub fn feature_names(d: usize) -> Vec<String> {
 
 impl FeatureExtractor {
     pub fn new(config: FeatureConfig, pca: Pca) -> Result<Self, FeatureError> {
+        if !config.channel_gain.is_empty() && config.channel_gain.len() != 3 + config.bank.len() {
+            return Err(FeatureError::Training(format!("{} channel gains for {} channels", config.channel_gain.len(), 3 + config.bank.len())));
+        }
         if pca.input_dims() != config.raw_dims() {
             return Err(FeatureError::PcaMismatch { expected: pca.input_dims(), found: config.raw_dims() });
         }

@@ -155,7 +155,8 @@ pub(crate) fn m_step(data: &DMatrix<f64>, r: &DMatrix<f64>, prior: &VbPrior) -> 
                     *o = w * (x - xbar[j]);
                 }
             }
-            let mut s = z.tr_mul(&z) / nk;
+            // An explicit transpose lets the product go through the blocked GEMM kernel.
+            let mut s = (z.transpose() * &z) / nk;
             s = (&s + s.transpose()) * 0.5;
             (xbar, s)
         } else {
@@ -345,4 +346,17 @@ pub(crate) fn run(data: &DMatrix<f64>, mut r: DMatrix<f64>, prior: &VbPrior, max
     let (comps, stats, r_used, bound, shares) = last.expect("at least one iteration");
     let iterations = history.len();
     Ok(Run { comps, stats, r: r_used, bound, shares, iterations, history })
+}
+
+/// The full lower bound of the posterior that responsibilities `r` (N x K) imply: one
+/// M-step, then PRML 10.70. Lets another implementation's solution (e.g. scikit-learn's
+/// `predict_proba`) be scored with the same bound.
+pub fn bound_at_responsibilities(data: &DMatrix<f64>, r: &DMatrix<f64>, prior: &VbPrior) -> Result<f64, GmmError> {
+    check_data(data)?;
+    prior.check(data.ncols())?;
+    if r.nrows() != data.nrows() {
+        return Err(GmmError::Dimension { expected: data.nrows(), found: r.nrows() });
+    }
+    let (comps, stats) = m_step(data, r, prior);
+    Ok(lower_bound(prior, &comps, &stats)?.0)
 }
