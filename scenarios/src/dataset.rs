@@ -42,6 +42,10 @@ pub struct DatasetConfig {
     pub patch_size: u32,
     /// Fraction of background views (no wanted object targeted).
     pub background_fraction: f64,
+    /// Fraction of background views aimed at a distractor (a post, palm, wall or person)
+    /// rather than anywhere: the hard negatives a classifier must learn.
+    #[serde(default = "default_distractor_fraction")]
+    pub distractor_fraction: f64,
     pub camera: CameraConfig,
     /// Camera distance from the targeted object (m).
     pub distance_m: [f64; 2],
@@ -56,12 +60,17 @@ impl Default for DatasetConfig {
             seed: 1,
             classes: vec![ObjectClass::Tree],
             patch_size: 9,
-            background_fraction: 0.25,
+            background_fraction: 0.3,
+            distractor_fraction: default_distractor_fraction(),
             camera: CameraConfig::default(),
             distance_m: [1.5, 8.0],
             height_m: [0.4, 1.6],
         }
     }
+}
+
+fn default_distractor_fraction() -> f64 {
+    0.7
 }
 
 /// One image's entry in `dataset.json`.
@@ -206,44 +215,67 @@ pub fn make_dataset(world: &World, world_name: &str, config: &DatasetConfig, out
     for i in 0..config.images {
         let mut rng = ChaCha8Rng::seed_from_u64(sim::derive_seed(config.seed, &format!("dataset-image-{i}")));
         let background = targets.is_empty() || rng.random_range(0.0..1.0) < config.background_fraction;
-        // Pick a viewpoint clear of every object and inside the ground.
-        let mut chosen = None;
-        for _ in 0..1000 {
-            let height = rng.random_range(config.height_m[0]..=config.height_m[1]);
-            let (eye, target, target_id) = if background {
-                let eye = [rng.random_range(g.min_m[0]..g.max_m[0]), rng.random_range(g.min_m[1]..g.max_m[1]), height];
-                let yaw: f64 = rng.random_range(0.0..std::f64::consts::TAU);
-                (eye, [eye[0] + yaw.cos(), eye[1] + yaw.sin(), height - rng.random_range(0.0..0.3)], None)
-            } else {
-                let o = targets[rng.random_range(0..targets.len())];
-                let d = rng.random_range(config.distance_m[0]..=config.distance_m[1]);
-                let a: f64 = rng.random_range(0.0..std::f64::consts::TAU);
-                let eye = [o.pose.x + d * a.cos(), o.pose.y + d * a.sin(), height];
-                let aim_h = rng.random_range(0.3..(o.shape.top_m().min(2.5)).max(0.4));
-                let jitter = 0.15 * d;
-                let target = [o.pose.x + rng.random_range(-jitter..=jitter) * 0.3, o.pose.y + rng.random_range(-jitter..=jitter) * 0.3, aim_h];
-                (eye, target, Some(o.id))
-            };
-            let inside = eye[0] > g.min_m[0] + 0.3 && eye[0] < g.max_m[0] - 0.3 && eye[1] > g.min_m[1] + 0.3 && eye[1] < g.max_m[1] - 0.3;
-            if inside && footprints.iter().all(|f| f.distance_to_point([eye[0], eye[1]]) > 0.3) {
-                chosen = Some((eye, target, target_id));
-                break;
-            }
-        }
-        let Some((eye, target, target_id)) = chosen else {
-            return Err(DatasetError::Config(format!("no free viewpoint found for image {i}; the world is too crowded")));
-        };
-        // Lighting variation: sun azimuth and elevation, exposure.
-        let az: f64 = rng.random_range(0.0..std::f64::consts::TAU);
-        let el: f64 = rng.random_range(0.3..1.3);
-        let sun = [(-el.cos() * az.cos()) as f32, (-el.cos() * az.sin()) as f32, (-el.sin()) as f32];
-        let exposure = rng.random_range(0.75..1.25) as f32;
-        cam.lighting = render::Lighting { sun_direction: sun, exposure, ..base_lighting };
         let people_time = rng.random_range(0.0..120.0);
         let people: Vec<sim::PersonState> = world.people.iter().map(|p| sim::people::person_state(p, people_time)).collect();
-        cam.pose_people(&people);
-        let pose = look_at(eye, target);
-        let frame = cam.render_from(0.0, pose)?;
+        // Distractors: static objects of other classes, and people where they stand now.
+        let distractor = (background && rng.random_range(0.0..1.0) < config.distractor_fraction).then(|| {
+            let mut spots: Vec<([f64; 2], f64)> = world.objects.iter().filter(|o| !config.classes.contains(&o.class) && o.class != ObjectClass::Wall).map(|o| ([o.pose.x, o.pose.y], o.shape.top_m().min(2.0))).collect();
+            spots.extend(people.iter().map(|p| ([p.x, p.y], 1.2)));
+            spots.extend(world.objects.iter().filter(|o| o.class == ObjectClass::Wall).map(|o| ([o.pose.x, o.pose.y], 1.0)));
+            spots
+        });
+        // An object view is redrawn from another viewpoint when its target is hidden
+        // behind something else (up to 20 tries).
+        let mut tries = 0;
+        let (frame, pose, sun, exposure, target_id) = loop {
+            // Pick a viewpoint clear of every object and inside the ground.
+            let mut chosen = None;
+            for _ in 0..1000 {
+                let height = rng.random_range(config.height_m[0]..=config.height_m[1]);
+                let (eye, target, target_id) = if let Some(spots) = distractor.as_ref().filter(|s| !s.is_empty()) {
+                    let (p, top) = spots[rng.random_range(0..spots.len())];
+                    let d = rng.random_range(config.distance_m[0]..=config.distance_m[1]);
+                    let a: f64 = rng.random_range(0.0..std::f64::consts::TAU);
+                    let eye = [p[0] + d * a.cos(), p[1] + d * a.sin(), height];
+                    (eye, [p[0], p[1], rng.random_range(0.3..top.max(0.4))], None)
+                } else if background {
+                    let eye = [rng.random_range(g.min_m[0]..g.max_m[0]), rng.random_range(g.min_m[1]..g.max_m[1]), height];
+                    let yaw: f64 = rng.random_range(0.0..std::f64::consts::TAU);
+                    (eye, [eye[0] + yaw.cos(), eye[1] + yaw.sin(), height - rng.random_range(0.0..0.3)], None)
+                } else {
+                    let o = targets[rng.random_range(0..targets.len())];
+                    let d = rng.random_range(config.distance_m[0]..=config.distance_m[1]);
+                    let a: f64 = rng.random_range(0.0..std::f64::consts::TAU);
+                    let eye = [o.pose.x + d * a.cos(), o.pose.y + d * a.sin(), height];
+                    let aim_h = rng.random_range(0.3..(o.shape.top_m().min(2.5)).max(0.4));
+                    let jitter = 0.15 * d;
+                    let target = [o.pose.x + rng.random_range(-jitter..=jitter) * 0.3, o.pose.y + rng.random_range(-jitter..=jitter) * 0.3, aim_h];
+                    (eye, target, Some(o.id))
+                };
+                let inside = eye[0] > g.min_m[0] + 0.3 && eye[0] < g.max_m[0] - 0.3 && eye[1] > g.min_m[1] + 0.3 && eye[1] < g.max_m[1] - 0.3;
+                if inside && footprints.iter().all(|f| f.distance_to_point([eye[0], eye[1]]) > 0.3) {
+                    chosen = Some((eye, target, target_id));
+                    break;
+                }
+            }
+            let Some((eye, target, target_id)) = chosen else {
+                return Err(DatasetError::Config(format!("no free viewpoint found for image {i}; the world is too crowded")));
+            };
+            // Lighting variation: sun azimuth and elevation, exposure.
+            let az: f64 = rng.random_range(0.0..std::f64::consts::TAU);
+            let el: f64 = rng.random_range(0.3..1.3);
+            let sun = [(-el.cos() * az.cos()) as f32, (-el.cos() * az.sin()) as f32, (-el.sin()) as f32];
+            let exposure = rng.random_range(0.75..1.25) as f32;
+            cam.lighting = render::Lighting { sun_direction: sun, exposure, ..base_lighting };
+            cam.pose_people(&people);
+            let pose = look_at(eye, target);
+            let frame = cam.render_from(0.0, pose)?;
+            tries += 1;
+            let hidden = target_id.is_some_and(|id| !frame.image.instance.contains(&id));
+            if !hidden || tries >= 20 {
+                break (frame, pose, sun, exposure, target_id);
+            }
+        };
         let img = &frame.image;
 
         let stem = format!("{i:06}");

@@ -9,9 +9,12 @@
 //! scenarios::plot::draw_map(&world, &scenarios::plot::Overlays::default(), "map.png".as_ref()).unwrap();
 //! ```
 
+pub mod calibrate;
+pub mod appearance;
 pub mod dataset;
 pub mod foxglove;
 pub mod montecarlo;
+pub mod objects;
 pub mod plot;
 pub mod record;
 pub mod run;

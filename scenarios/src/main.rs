@@ -71,6 +71,23 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
+    /// Laser-camera extrinsic calibration (Zhang & Pless) on a scenario's checkerboard
+    /// session; prints the errors against the simulator's true extrinsics.
+    Calibrate {
+        /// A scenario file or built-in name (default: calibration).
+        scenario: Option<String>,
+        /// Number of board poses (default: the scenario's session).
+        #[arg(long)]
+        poses: Option<usize>,
+        /// Session seed (default: the scenario's seed).
+        #[arg(long)]
+        seed: Option<u64>,
+        #[arg(long, default_value = "calibration.json")]
+        out: PathBuf,
+        /// Write each pose's camera image here, detected corners marked.
+        #[arg(long)]
+        images: Option<PathBuf>,
+    },
     /// Learn the appearance model (PCA, object and background VB-GMMs) from an
     /// `objslam dataset` directory; prints held-out patch precision, recall and F1.
     Train {
@@ -100,6 +117,20 @@ enum Command {
         image: PathBuf,
         #[arg(long)]
         out: PathBuf,
+    },
+    /// Find objects that look like this: rank a run's mapped objects by the KL divergence
+    /// of their appearance from an example image's object patches.
+    Find {
+        /// A run directory written by `objslam run` (its objects/ holds the models).
+        #[arg(long)]
+        run: PathBuf,
+        image: PathBuf,
+        /// Appearance model (default: the one the run used, objects/appearance_model.json).
+        #[arg(long)]
+        model: Option<PathBuf>,
+        /// How many to list.
+        #[arg(long, default_value_t = 5)]
+        top: usize,
     },
     /// Variational Bayesian Gaussian mixtures on any numeric CSV.
     #[command(subcommand)]
@@ -217,8 +248,10 @@ fn run(cli: Cli) -> Result<()> {
         Some(Command::Montecarlo(args)) => montecarlo(args),
         Some(Command::Dataset { world, preset, images, seed, classes, patch_size, out }) => dataset(world, preset, images, seed, &classes, patch_size, &out),
         Some(Command::Record { input, seed, duration, sim_config, out }) => record(&input, seed, duration, sim_config, &out),
+        Some(Command::Calibrate { scenario, poses, seed, out, images }) => calibrate(scenario.as_deref().unwrap_or("calibration"), poses, seed, &out, images.as_deref()),
         Some(Command::Train { dataset, out, export_features, pca_dims, max_components, heldout_every, seed }) => train(&dataset, &out, export_features.as_deref(), pca_dims, max_components, heldout_every, seed),
         Some(Command::Segment { model, image, out }) => segment(&model, &image, &out),
+        Some(Command::Find { run, image, model, top }) => find(&run, &image, model.as_deref(), top),
         Some(Command::Gmm(GmmCommand::Fit { data, max_components, fixed_k, seed, out })) => gmm_fit(&data, max_components, fixed_k, seed, &out),
     }
 }
@@ -360,7 +393,7 @@ fn run_scenario(scenario: Option<&str>, seed: Option<u64>, method: Option<&str>,
     let seed = seed.unwrap_or(sc.seed);
     let out = out.unwrap_or_else(|| PathBuf::from(format!("runs/{}-{seed}", sc.name)));
     let bar = progress_bar(0, &format!("running {}", sc.name));
-    let options = scenarios::run::RunOptions { seed: Some(seed), method, out: Some(out.clone()) };
+    let options = scenarios::run::RunOptions { seed: Some(seed), method, out: Some(out.clone()), appearance: None };
     let outcome = scenarios::run::run(&sc, &base, &options, |t, total| {
         bar.set_length(total.ceil() as u64);
         bar.set_position((t.floor() as u64).min(total.ceil() as u64));
@@ -371,6 +404,27 @@ fn run_scenario(scenario: Option<&str>, seed: Option<u64>, method: Option<&str>,
     if !outcome.metrics.passed {
         std::process::exit(1);
     }
+    Ok(())
+}
+
+fn calibrate(scenario: &str, poses: Option<usize>, seed: Option<u64>, out: &std::path::Path, images: Option<&std::path::Path>) -> Result<()> {
+    let (sc, base) = scenarios::scenario::Scenario::load(scenario)?;
+    let seed = seed.unwrap_or(sc.seed);
+    let started = std::time::Instant::now();
+    let report = scenarios::calibrate::run_session(&sc, &base, seed, poses, images)?;
+    report.write(out)?;
+    let (rs, ts) = (report.rotation_sigma_deg, report.translation_sigma_m);
+    println!("calibration of {} (seed {seed}): {} of {} board poses used, {} laser points, {:.1} s on {}", sc.name, report.poses_used, report.poses_requested, report.points_used, started.elapsed().as_secs_f64(), report.renderer);
+    println!("  residuals         RMS {:.4} m, max {:.4} m", report.rms_residual_m, report.max_residual_m);
+    println!("  1-sigma           rotation ({:.3}, {:.3}, {:.3}) deg, translation ({:.4}, {:.4}, {:.4}) m", rs[0], rs[1], rs[2], ts[0], ts[1], ts[2]);
+    if let (Some(r), Some(t)) = (report.rotation_error_deg, report.translation_error_m) {
+        println!("  rotation error    {r:.3} deg (against the simulator's extrinsics)");
+        println!("  translation error {t:.4} m");
+    }
+    for w in &report.warnings {
+        println!("  warning: {w}");
+    }
+    println!("  written to {}", out.display());
     Ok(())
 }
 
@@ -474,6 +528,11 @@ fn train(dataset: &std::path::Path, out: &std::path::Path, export: Option<&std::
         Some(s) => println!("  held-out patches: precision {:.3}, recall {:.3}, F1 {:.3} ({} object patches of {})", s.precision(), s.recall(), s.f1(), s.true_positives + s.false_negatives, s.true_positives + s.false_negatives + s.false_positives + s.true_negatives),
         None => println!("  no held-out images (--heldout-every 0)"),
     }
+    if heldout_every > 0 {
+        let table = scenarios::train::confusion_by_class(dataset, &model, heldout_every)?;
+        let parts: Vec<String> = table.iter().map(|(name, (n, obj))| format!("{name} {obj}/{n} ({:.1}%)", 100.0 * *obj as f64 / (*n).max(1) as f64)).collect();
+        println!("  held-out patches called object, by true class: {}", parts.join(", "));
+    }
     if let Some(csv) = export {
         let rows = scenarios::train::export_features(dataset, &model, options.label_fraction, csv)?;
         println!("  {rows} feature rows -> {}", csv.display());
@@ -499,5 +558,17 @@ fn gmm_fit(data: &std::path::Path, max_components: usize, fixed_k: bool, seed: u
     println!("  components: {} with weight above 1e-3 ({} kept)", model.effective_components(1e-3), model.components.len());
     println!("  VBEM iterations: {}", model.iterations);
     println!("  -> {}", out.display());
+    Ok(())
+}
+
+fn find(run: &std::path::Path, image: &std::path::Path, model: Option<&std::path::Path>, top: usize) -> Result<()> {
+    let model_path = model.map(std::path::Path::to_path_buf).unwrap_or_else(|| run.join("objects").join("appearance_model.json"));
+    let model = slam::classifier::AppearanceModel::load(&model_path)?;
+    let dims = slam::object_model::ObjectModelConfig::default().appearance_dims;
+    let ranked = scenarios::objects::find_similar(run, &model, image, dims)?;
+    println!("mapped objects most like {} (appearance KL, nats):", image.display());
+    for (id, kl) in ranked.iter().take(top) {
+        println!("  landmark {id:>4}  KL {kl:>10.2}  {}", run.join("objects").join(format!("landmark_{id}.png")).display());
+    }
     Ok(())
 }

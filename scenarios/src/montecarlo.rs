@@ -37,6 +37,8 @@ pub enum StudyError {
     Scenario(#[from] crate::scenario::ScenarioError),
     #[error(transparent)]
     Plot(#[from] crate::plot::PlotError),
+    #[error("{0}")]
+    Appearance(String),
 }
 
 /// One varied parameter: a dotted path into the scenario and its values.
@@ -251,6 +253,9 @@ pub fn run_study(plan: &StudyPlan, shard: Shard, out: &Path, progress: impl Fn(u
         Err(_) => std::fs::write(&plan_file, serde_json::to_string_pretty(plan).expect("JSON")).map_err(|e| StudyError::File { file: plan_file.clone(), message: e.to_string() })?,
     }
     let (base_scenario, base_dir) = Scenario::load(&plan.scenario)?;
+    // The appearance model is resolved (trained and cached if need be) once, not per run.
+    let needs_model = base_scenario.sim.camera.enabled && plan.methods.iter().any(|m| AssociationMethod::from_name(m).is_some_and(|m| m.uses_appearance()));
+    let appearance = if needs_model { Some(std::sync::Arc::new(crate::run::resolve_appearance(&base_scenario, &base_dir).map_err(|e| StudyError::Appearance(e.to_string()))?)) } else { None };
     let runs_file = out.join("runs.jsonl");
     let existing = read_runs(&runs_file)?;
     let done: BTreeSet<String> = existing.iter().map(|r| r.key.clone()).collect();
@@ -263,7 +268,7 @@ pub fn run_study(plan: &StudyPlan, shard: Shard, out: &Path, progress: impl Fn(u
     let new: Vec<RunRecord> = todo
         .par_iter()
         .map(|job| {
-            let record = run_job(&base_scenario, &base_dir, job);
+            let record = run_job(&base_scenario, &base_dir, job, appearance.clone());
             let line = serde_json::to_string(&record).expect("JSON") + "\n";
             {
                 let mut f = file.lock().unwrap_or_else(|p| p.into_inner());
@@ -285,14 +290,14 @@ pub fn run_study(plan: &StudyPlan, shard: Shard, out: &Path, progress: impl Fn(u
 }
 
 /// Runs one job; errors and panics become the record's error.
-pub fn run_job(base: &Scenario, base_dir: &Path, job: &Job) -> RunRecord {
+pub fn run_job(base: &Scenario, base_dir: &Path, job: &Job, appearance: Option<std::sync::Arc<slam::classifier::AppearanceModel>>) -> RunRecord {
     let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| -> Result<Metrics, String> {
         let mut scenario = base.clone();
         for (p, v) in &job.params {
             scenario = apply_param(&scenario, p, *v).map_err(|e| e.to_string())?;
         }
         let method = AssociationMethod::from_name(&job.method).ok_or_else(|| format!("unknown method {:?}", job.method))?;
-        let options = RunOptions { seed: Some(job.seed), method: Some(method), out: None };
+        let options = RunOptions { seed: Some(job.seed), method: Some(method), out: None, appearance };
         crate::run::run(&scenario, base_dir, &options, |_, _| {}).map(|o| o.metrics).map_err(|e| e.to_string())
     }));
     let (metrics, error) = match result {

@@ -36,6 +36,7 @@ pub fn class_colour(class: ObjectClass) -> RGBColor {
         ObjectClass::Person => RGBColor(220, 20, 60),
         ObjectClass::Ground => RGBColor(200, 230, 190),
         ObjectClass::Checkerboard => RGBColor(0, 0, 0),
+        ObjectClass::Foliage => RGBColor(107, 142, 35),
     }
 }
 

@@ -8,7 +8,9 @@ use serde::{Deserialize, Serialize};
 use serde_json::json;
 use sim::{SensorEvent, Simulation};
 use slam::association::AssociationMethod;
-use slam::pipeline::{Pipeline, PipelineConfig};
+use slam::classifier::{AppearanceModel, PatchScores};
+use slam::pipeline::{Appearance, Pipeline, PipelineConfig};
+use slam::segmentation::CameraGeometry;
 use worlds::ObjectClass;
 
 use crate::scenario::{Scenario, ScenarioError};
@@ -31,6 +33,14 @@ pub enum RunError {
     Plot(#[from] crate::plot::PlotError),
     #[error(transparent)]
     Mcap(#[from] crate::foxglove::McapError),
+    #[error("appearance model: {0}")]
+    Appearance(#[from] crate::appearance::AppearanceError),
+    #[error("pipeline: {0}")]
+    Online(String),
+    #[error(transparent)]
+    Objects(#[from] crate::objects::ObjectsError),
+    #[error(transparent)]
+    Calibration(#[from] crate::calibrate::CalibrateError),
 }
 
 /// Segmentation quality against the rendered masks (absent without a camera).
@@ -60,6 +70,10 @@ pub struct Metrics {
     /// Landmarks on posts, palms, people, walls or nothing.
     pub false_landmarks: usize,
     pub segmentation: SegmentationScore,
+    /// The extrinsics the pipeline was given, against the simulator's (absent in runs
+    /// recorded before calibration was scored).
+    #[serde(default)]
+    pub calibration: Option<CalibrationScore>,
     /// Average NEES of the robot pose over the run (3 dof: consistent near 3).
     #[serde(with = "crate::score::nan_as_null")]
     pub anees: f64,
@@ -70,6 +84,55 @@ pub struct Metrics {
     pub failures: Vec<String>,
 }
 
+/// How far the run's laser <- camera extrinsics are from the simulator's.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CalibrationScore {
+    pub mode: String,
+    pub rotation_error_deg: f64,
+    pub translation_error_m: f64,
+}
+
+/// The laser <- camera extrinsics a run gives its pipeline, and where they came from.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ResolvedCalibration {
+    /// `true`, `perturbed`, `estimated` or `file`.
+    pub mode: String,
+    /// The calibration file read (mode `file`), resolved against the scenario's directory.
+    pub file: Option<PathBuf>,
+    /// What the pipeline uses: `P_laser = phi P_camera + delta`.
+    pub extrinsics: slam::calibration::Extrinsics,
+    /// The simulator's exact extrinsics.
+    pub truth: slam::calibration::Extrinsics,
+    pub rotation_error_deg: f64,
+    pub translation_error_m: f64,
+    /// The calibration session's report (mode `estimated`).
+    pub report: Option<Box<crate::calibrate::CalibrationReport>>,
+}
+
+/// Resolves the scenario's `[calibration]` for a run seed: the simulator's extrinsics
+/// (`true`), those with seeded errors (`perturbed`), a calibration session run with the
+/// same seed (`estimated`, as `objslam calibrate SCENARIO --seed SEED` runs it), or a
+/// calibration file relative to the scenario's directory.
+pub fn resolve_calibration(scenario: &Scenario, base_dir: &Path, seed: u64) -> Result<ResolvedCalibration, RunError> {
+    let c = &scenario.calibration;
+    let truth = crate::calibrate::true_extrinsics(&scenario.sim);
+    let (mode, file, extrinsics, report) = match c.mode.as_str() {
+        "true" => ("true", None, truth, None),
+        "perturbed" => ("perturbed", None, crate::calibrate::perturb(&truth, c.rotation_sigma_deg, c.translation_sigma_m, seed), None),
+        "estimated" => {
+            let report = crate::calibrate::run_session(scenario, base_dir, seed, None, None)?;
+            ("estimated", None, report.extrinsics(), Some(Box::new(report)))
+        }
+        path => {
+            let file = base_dir.join(path);
+            let e = crate::calibrate::load_extrinsics(&file)?;
+            ("file", Some(file), e, None)
+        }
+    };
+    let (rotation_error_deg, translation_error_m) = extrinsics.error_to(&truth);
+    Ok(ResolvedCalibration { mode: mode.into(), file, extrinsics, truth, rotation_error_deg, translation_error_m, report })
+}
+
 /// Options of one run.
 #[derive(Debug, Clone, Default)]
 pub struct RunOptions {
@@ -77,6 +140,9 @@ pub struct RunOptions {
     pub method: Option<AssociationMethod>,
     /// Where to write outputs; `None` writes nothing (Monte Carlo runs).
     pub out: Option<PathBuf>,
+    /// An appearance model already loaded (Monte Carlo studies resolve it once); `None`
+    /// resolves the scenario's `[appearance]` source when the method needs it.
+    pub appearance: Option<std::sync::Arc<AppearanceModel>>,
 }
 
 /// Result of a run, with what the reports need.
@@ -112,17 +178,45 @@ pub fn pipeline_config(scenario: &Scenario, method: Option<AssociationMethod>) -
     Ok(config)
 }
 
+/// The camera as the pipeline is told it: K and the laser <- camera extrinsics (the
+/// run's resolved calibration, see [`resolve_calibration`]).
+pub fn camera_geometry(sim_config: &sim::SimConfig, laser_from_camera: &slam::calibration::Extrinsics) -> CameraGeometry {
+    let k = sim_config.camera.intrinsics();
+    CameraGeometry { fx: k.fx, fy: k.fy, cx: k.cx, cy: k.cy, width: k.width, height: k.height, laser_from_camera: *laser_from_camera }
+}
+
+/// The scenario's appearance model (a named file, or trained once and cached), with a
+/// progress bar while training.
+pub fn resolve_appearance(scenario: &Scenario, base_dir: &Path) -> Result<AppearanceModel, RunError> {
+    let bar = indicatif::ProgressBar::new(1);
+    bar.set_style(indicatif::ProgressStyle::with_template("appearance model: {msg:>16} [{bar:30}] {pos}/{len}").expect("valid template").progress_chars("=> "));
+    bar.set_draw_target(indicatif::ProgressDrawTarget::stderr_with_hz(4));
+    let model = scenario.appearance.resolve(base_dir, &scenario.sim.camera, |stage, done, total| {
+        bar.set_message(stage.to_string());
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
+    });
+    bar.finish_and_clear();
+    Ok(model?)
+}
+
 /// Runs a scenario once.
 pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progress: impl FnMut(f64, f64)) -> Result<RunOutcome, RunError> {
     let seed = options.seed.unwrap_or(scenario.seed);
     let config = pipeline_config(scenario, options.method)?;
-    if config.method.uses_appearance() {
-        return Err(RunError::Method {
-            method: config.method.name().into(),
-            message: "needs the camera and appearance models, which this build does not have yet; use --method nn or --method jcbb".into(),
-        });
+    if config.method.uses_appearance() && !scenario.sim.camera.enabled {
+        return Err(RunError::Method { method: config.method.name().into(), message: "needs the camera, which the scenario disables (sim.camera.enabled = false)".into() });
     }
+    let appearance_model = if config.method.uses_appearance() {
+        Some(match &options.appearance {
+            Some(m) => m.clone(),
+            None => std::sync::Arc::new(resolve_appearance(scenario, base_dir)?),
+        })
+    } else {
+        None
+    };
     let world = scenario.world(base_dir, seed)?;
+    let calibration = resolve_calibration(scenario, base_dir, seed)?;
     let started = std::time::Instant::now();
     // Position-only methods never look at images: skip rendering them.
     let mut sim_config = scenario.sim.clone();
@@ -132,7 +226,17 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
     let mut sim = Simulation::new(&world, &sim_config, sim::derive_seed(seed, "sim"))?;
     let nominal = scenario.sim.max_duration_s.unwrap_or_else(|| sim.nominal_duration_s());
     let start = world.robot.start;
-    let mut pipeline = Pipeline::new(config.clone(), [start.x, start.y, start.yaw_rad()]);
+    let appearance = match &appearance_model {
+        Some(m) => Some(Appearance::new((**m).clone(), camera_geometry(&scenario.sim, &calibration.extrinsics)).map_err(|e| RunError::Online(e.to_string()))?),
+        None => None,
+    };
+    let mut pipeline = Pipeline::with_appearance(config.clone(), [start.x, start.y, start.yaw_rad()], appearance).map_err(|e| RunError::Online(e.to_string()))?;
+    // The latest frame's class mask, for scoring the segmentation.
+    let mut last_frame: Option<(f64, u32, u32, Vec<u8>)> = None;
+    let mut seg_scores = PatchScores::default();
+    // The true object of each association decision's observation, in decision order.
+    let mut decision_truth: Vec<u16> = Vec::new();
+    let tree_class = ObjectClass::Tree.id();
 
     let mut est_path: Vec<(f64, [f64; 3])> = Vec::new();
     let mut gt_path: Vec<(f64, [f64; 3])> = Vec::new();
@@ -170,7 +274,28 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
                     range_max: scan.range_max,
                     ranges: scan.ranges.clone(),
                 };
+                let before = pipeline.decisions().len();
                 let result = pipeline.on_scan(&s);
+                for d in &pipeline.decisions()[before..] {
+                    let c = &result.clusters[d.observation];
+                    decision_truth.push(true_object(&beams.hit_ids, c.first_beam, c.last_beam));
+                }
+                for rec in pipeline.take_segmentations() {
+                    if let Some((ft, w, _, class)) = &last_frame
+                        && *ft == rec.t_image
+                    {
+                        let l = rec.patch_size;
+                        for &(col, row, predicted) in &rec.cells {
+                            let mut n = 0u32;
+                            for y in row * l..(row + 1) * l {
+                                for x in col * l..(col + 1) * l {
+                                    n += (class[(y * w + x) as usize] == tree_class) as u32;
+                                }
+                            }
+                            seg_scores.add(predicted, n * 2 >= l * l);
+                        }
+                    }
+                }
                 for (ci, c) in result.clusters.iter().enumerate() {
                     let obj = true_object(&beams.hit_ids, c.first_beam, c.last_beam);
                     if tree_ids.contains(&obj) {
@@ -201,7 +326,11 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
                     people_tracks.entry(p.id).or_default().push([p.x, p.y]);
                 }
             }
-            SensorEvent::Camera { .. } => {}
+            SensorEvent::Camera { frame, .. } => {
+                let img = &frame.image;
+                pipeline.on_image(frame.t, img.width, img.height, img.rgb.clone()).map_err(|e| RunError::Online(e.to_string()))?;
+                last_frame = Some((frame.t, img.width, img.height, img.class.clone()));
+            }
         }
         let t = event.time();
         if t - last_progress >= 1.0 {
@@ -226,7 +355,7 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
     let wrong = associations.iter().filter(|(id, obj)| landmark_object.get(id) != Some(obj)).count();
     let mut map = MapContent { trees_seen: trees_seen.len(), ..Default::default() };
     let mut per_object: BTreeMap<u16, usize> = BTreeMap::new();
-    for lm in pipeline.landmarks() {
+    for lm in pipeline.mapped_landmarks() {
         let obj = landmark_object.get(&lm.id).copied().unwrap_or(0);
         *per_object.entry(obj).or_default() += 1;
         match world.class_of(obj) {
@@ -244,7 +373,7 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
 
     // Landmark RMSE after optimal assignment to static objects' centres (gated at 2 m).
     let statics: Vec<&worlds::StaticObject> = world.objects.iter().filter(|o| matches!(o.class, ObjectClass::Tree | ObjectClass::Post | ObjectClass::Palm)).collect();
-    let lms = pipeline.landmarks();
+    let lms = pipeline.mapped_landmarks();
     let cost: Vec<Vec<f64>> = lms.iter().map(|l| statics.iter().map(|o| ((l.position[0] - o.pose.x).powi(2) + (l.position[1] - o.pose.y).powi(2)).sqrt()).collect()).collect();
     let assignment = score::hungarian(&cost);
     let matched: Vec<f64> = assignment.iter().enumerate().filter_map(|(i, j)| j.map(|j| cost[i][j])).filter(|d| *d <= 2.0).collect();
@@ -266,7 +395,16 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
         associations: AssociationCounts { total: associations.len(), wrong },
         duplicate_landmarks: duplicates,
         false_landmarks,
-        segmentation: SegmentationScore::default(),
+        segmentation: if config.method.uses_appearance() {
+            SegmentationScore { precision: Some(seg_scores.precision()), recall: Some(seg_scores.recall()) }
+        } else {
+            SegmentationScore::default()
+        },
+        calibration: Some(CalibrationScore {
+            mode: calibration.mode.clone(),
+            rotation_error_deg: calibration.rotation_error_deg,
+            translation_error_m: calibration.translation_error_m,
+        }),
         anees: if nees_n > 0 { nees_sum / nees_n as f64 } else { f64::NAN },
         collisions: sim.collisions().len(),
         route_completed: sim.route_progress() > 0.99,
@@ -282,10 +420,14 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
         "sim_seed": sim::derive_seed(seed, "sim"),
         "world": world,
         "pipeline": config,
+        "calibration": calibration,
     });
 
     if let Some(out) = &options.out {
-        write_outputs(out, &world, &pipeline, &metrics, &resolved, &est_path, &gt_path, &people_tracks, &landmark_object)?;
+        if let Some(report) = &calibration.report {
+            report.write(&out.join("calibration.json"))?;
+        }
+        write_outputs(out, &world, &pipeline, &metrics, &resolved, &est_path, &gt_path, &people_tracks, &landmark_object, &decision_truth)?;
     }
     Ok(RunOutcome { metrics, resolved })
 }
@@ -335,6 +477,18 @@ pub fn check_pass(scenario: &Scenario, m: &Metrics) -> Vec<String> {
     {
         f.push(format!("{} collisions (max {max})", m.collisions));
     }
+    if let Some(c) = &m.calibration {
+        if let Some(max) = p.max_calibration_rotation_error_deg
+            && (c.rotation_error_deg.is_nan() || c.rotation_error_deg > max)
+        {
+            f.push(format!("calibration rotation error {:.3} deg (max {max})", c.rotation_error_deg));
+        }
+        if let Some(max) = p.max_calibration_translation_error_m
+            && (c.translation_error_m.is_nan() || c.translation_error_m > max)
+        {
+            f.push(format!("calibration translation error {:.4} m (max {max})", c.translation_error_m));
+        }
+    }
     if !m.route_completed {
         f.push("the robot did not complete its route".into());
     }
@@ -352,6 +506,7 @@ fn write_outputs(
     gt: &[(f64, [f64; 3])],
     people_tracks: &BTreeMap<u16, Vec<[f64; 2]>>,
     landmark_object: &HashMap<u32, u16>,
+    decision_truth: &[u16],
 ) -> Result<(), RunError> {
     std::fs::create_dir_all(out).map_err(|source| RunError::Io { file: out.to_path_buf(), source })?;
     let write = |name: &str, text: String| {
@@ -379,10 +534,27 @@ fn write_outputs(
     };
     write("trajectory_est.tum", tum(est))?;
     write("trajectory_gt.tum", tum(gt))?;
-    let decisions: String = pipeline.decisions().iter().map(|d| serde_json::to_string(d).expect("JSON") + "\n").collect();
+    // Each decision with the ground truth beside it: the observation's true object and the
+    // true object of every candidate landmark.
+    let decisions: String = pipeline
+        .decisions()
+        .iter()
+        .zip(decision_truth)
+        .map(|(d, truth)| {
+            let mut v = serde_json::to_value(d).expect("JSON");
+            v["true_object"] = json!(truth);
+            if let Some(cands) = v["candidates"].as_array_mut() {
+                for c in cands {
+                    let id = c["landmark"].as_u64().unwrap_or(u64::MAX) as u32;
+                    c["true_object"] = json!(landmark_object.get(&id).copied().unwrap_or(0));
+                }
+            }
+            serde_json::to_string(&v).expect("JSON") + "\n"
+        })
+        .collect();
     write("decisions.jsonl", decisions)?;
     let landmarks: Vec<_> = pipeline
-        .landmarks()
+        .mapped_landmarks()
         .iter()
         .map(|l| {
             let obj = landmark_object.get(&l.id).copied().unwrap_or(0);
@@ -390,11 +562,12 @@ fn write_outputs(
         })
         .collect();
     write("landmarks.json", serde_json::to_string_pretty(&landmarks).expect("JSON"))?;
+    crate::objects::write_objects(out, pipeline)?;
 
     // The map picture: ground truth by class, landmarks with 2-sigma ellipses (red when
     // on something other than a tree), both trajectories and people's tracks.
     let marks = pipeline
-        .landmarks()
+        .mapped_landmarks()
         .iter()
         .map(|l| {
             let obj = landmark_object.get(&l.id).copied().unwrap_or(0);
@@ -424,7 +597,7 @@ fn write_outputs(
         mcap.write("/ground_truth/pose", "foxglove.PosesInFrame", *t, &json!({"timestamp": timestamp(*t), "frame_id": "world", "poses": [pose_json(g[0], g[1], 0.0, yaw_quaternion(g[2]))]}))?;
     }
     let t_end = est.last().map_or(0.0, |(t, _)| *t);
-    let lm_poses: Vec<_> = pipeline.landmarks().iter().map(|l| crate::foxglove::pose_json(l.position[0], l.position[1], 0.0, [0.0, 0.0, 0.0, 1.0])).collect();
+    let lm_poses: Vec<_> = pipeline.mapped_landmarks().iter().map(|l| crate::foxglove::pose_json(l.position[0], l.position[1], 0.0, [0.0, 0.0, 0.0, 1.0])).collect();
     mcap.write("/estimate/landmarks", "foxglove.PosesInFrame", t_end, &json!({"timestamp": crate::foxglove::timestamp(t_end), "frame_id": "world", "poses": lm_poses}))?;
     mcap.finish()?;
     Ok(())
@@ -445,6 +618,9 @@ pub fn summary_table(m: &Metrics) -> String {
         s.push_str(&format!("  landmark RMSE     {r:>8.3} m\n"));
     }
     s.push_str(&format!("  ANEES             {:>8.2}\n", m.anees));
+    if let Some(c) = m.calibration.as_ref().filter(|c| c.mode != "true") {
+        s.push_str(&format!("  calibration       {} extrinsics off by {:.3} deg, {:.4} m\n", c.mode, c.rotation_error_deg, c.translation_error_m));
+    }
     s.push_str(&format!("  collisions        {:>4}\n", m.collisions));
     s.push_str(&format!("  {}\n", if m.passed { "PASSED".to_string() } else { format!("FAILED: {}", m.failures.join("; ")) }));
     s

@@ -40,9 +40,10 @@ pub struct WorldSource {
     pub params: Option<worlds::generate::ParkParams>,
 }
 
-/// The calibration (laser <- camera extrinsics) the pipeline is given.
+/// The calibration (laser <- camera extrinsics) the pipeline is given: a `[calibration]`
+/// table, or just its mode (`calibration = "estimated"`, `calibration = "cal.json"`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[serde(from = "CalibrationSpelling")]
 pub struct CalibrationChoice {
     /// `true`: the simulator's exact extrinsics; `perturbed`: the true ones with seeded
     /// errors of the sigmas below; `estimated`: run the Zhang & Pless calibration first;
@@ -52,11 +53,62 @@ pub struct CalibrationChoice {
     pub rotation_sigma_deg: f64,
     #[serde(default)]
     pub translation_sigma_m: f64,
+    /// The calibration session run for `estimated` (`[calibration.session]`): board
+    /// poses, sizes, distances, tilts (see `crate::calibrate::SessionConfig`).
+    #[serde(default)]
+    pub session: crate::calibrate::SessionConfig,
+}
+
+/// How a scenario file may write its calibration: a string (the mode) or a table. A
+/// hand-written visitor rather than an untagged enum, so errors inside the table (an
+/// unknown key, a bad session value) keep their field and line.
+struct CalibrationSpelling(CalibrationChoice);
+
+impl<'de> Deserialize<'de> for CalibrationSpelling {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct V;
+        impl<'de> serde::de::Visitor<'de> for V {
+            type Value = CalibrationChoice;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("a mode (\"true\", \"perturbed\", \"estimated\" or a calibration.json path) or a [calibration] table")
+            }
+            fn visit_str<E: serde::de::Error>(self, v: &str) -> Result<CalibrationChoice, E> {
+                Ok(CalibrationChoice { mode: v.into(), ..Default::default() })
+            }
+            fn visit_map<A: serde::de::MapAccess<'de>>(self, map: A) -> Result<CalibrationChoice, A::Error> {
+                CalibrationTable::deserialize(serde::de::value::MapAccessDeserializer::new(map)).map(|t| CalibrationChoice {
+                    mode: t.mode,
+                    rotation_sigma_deg: t.rotation_sigma_deg,
+                    translation_sigma_m: t.translation_sigma_m,
+                    session: t.session,
+                })
+            }
+        }
+        d.deserialize_any(V).map(CalibrationSpelling)
+    }
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CalibrationTable {
+    mode: String,
+    #[serde(default)]
+    rotation_sigma_deg: f64,
+    #[serde(default)]
+    translation_sigma_m: f64,
+    #[serde(default)]
+    session: crate::calibrate::SessionConfig,
+}
+
+impl From<CalibrationSpelling> for CalibrationChoice {
+    fn from(c: CalibrationSpelling) -> Self {
+        c.0
+    }
 }
 
 impl Default for CalibrationChoice {
     fn default() -> Self {
-        CalibrationChoice { mode: "true".into(), rotation_sigma_deg: 0.0, translation_sigma_m: 0.0 }
+        CalibrationChoice { mode: "true".into(), rotation_sigma_deg: 0.0, translation_sigma_m: 0.0, session: Default::default() }
     }
 }
 
@@ -76,6 +128,9 @@ pub struct PassCriteria {
     pub max_ate_rmse_m: Option<f64>,
     pub max_landmark_rmse_m: Option<f64>,
     pub max_collisions: Option<usize>,
+    /// Largest error of the run's laser-camera extrinsics against the simulator's.
+    pub max_calibration_rotation_error_deg: Option<f64>,
+    pub max_calibration_translation_error_m: Option<f64>,
 }
 
 /// A scenario file.
@@ -97,6 +152,9 @@ pub struct Scenario {
     /// Pipeline settings (association method, thresholds, model), passed to the runner.
     #[serde(default)]
     pub pipeline: toml::Table,
+    /// The appearance model of the camera methods: a file, or trained and cached.
+    #[serde(default)]
+    pub appearance: crate::appearance::AppearanceSource,
     #[serde(default)]
     pub pass: PassCriteria,
 }
@@ -112,6 +170,7 @@ pub const LIBRARY: &[(&str, &str)] = &[
     ("crowd", include_str!("../crowd.toml")),
     ("long_loop", include_str!("../long_loop.toml")),
     ("laser_only", include_str!("../laser_only.toml")),
+    ("calibration", include_str!("../calibration.toml")),
 ];
 
 /// The default scenario of `objslam run`.
@@ -159,14 +218,29 @@ impl Scenario {
         if let Err(e) = self.sim.check() {
             return bad("sim", e.to_string());
         }
-        match self.calibration.mode.as_str() {
+        let c = &self.calibration;
+        match c.mode.as_str() {
             "true" | "estimated" => {}
             "perturbed" => {
-                if !(self.calibration.rotation_sigma_deg >= 0.0 && self.calibration.translation_sigma_m >= 0.0) {
-                    return bad("calibration", "perturbation sigmas must be zero or positive".into());
+                for (field, v) in [("calibration.rotation_sigma_deg", c.rotation_sigma_deg), ("calibration.translation_sigma_m", c.translation_sigma_m)] {
+                    if !(v.is_finite() && v >= 0.0) {
+                        return bad(field, format!("perturbation sigmas must be zero or positive, got {v}"));
+                    }
                 }
             }
+            "" => return bad("calibration.mode", "must be \"true\", \"perturbed\", \"estimated\" or a calibration.json path".into()),
+            // A calibration file: read when the scenario runs (relative to the scenario).
             _ => {}
+        }
+        if c.mode != "perturbed" && (c.rotation_sigma_deg != 0.0 || c.translation_sigma_m != 0.0) {
+            return bad("calibration", format!("rotation_sigma_deg and translation_sigma_m only apply to mode \"perturbed\", not {:?}", c.mode));
+        }
+        if let Err(e) = c.session.check(file, &self.sim) {
+            let message = match e {
+                crate::calibrate::CalibrateError::Session { field, message, .. } => return bad(&format!("calibration.session.{field}"), message),
+                other => other.to_string(),
+            };
+            return bad("calibration.session", message);
         }
         if let Some(r) = self.pass.min_tree_recall
             && !(0.0..=1.0).contains(&r)

@@ -74,6 +74,37 @@ pub fn train_from_dataset(dir: &Path, options: &TrainingOptions, heldout_every: 
     Ok(model)
 }
 
+/// Per ground-truth class (the majority class of each patch's pixels), how many patches
+/// there were and how many the model called object. Shows which distractors it confuses.
+pub fn confusion_by_class(dir: &Path, model: &AppearanceModel, heldout_every: usize) -> Result<std::collections::BTreeMap<String, (usize, usize)>, TrainError> {
+    let manifest = read_manifest(dir)?;
+    let classifier = PatchClassifier::new(model).map_err(ModelError::from)?;
+    let l = model.extractor.config.patch_size;
+    let mut out: std::collections::BTreeMap<String, (usize, usize)> = Default::default();
+    for i in (0..manifest.images.len()).filter(|i| heldout_every > 0 && i % heldout_every == heldout_every - 1) {
+        let img = load_image(dir, &manifest, i)?;
+        let class_path = dir.join(&manifest.images[i].class);
+        let class = image::open(&class_path).map_err(|e| file_err(&class_path, e))?.to_luma8();
+        let image = ImageRef::new(img.width, img.height, &img.rgb).map_err(ModelError::from)?;
+        let f = model.extractor.features(&image, None).map_err(ModelError::from)?;
+        for (k, predicted) in classifier.classify(&f).into_iter().enumerate() {
+            let (c, r) = f.rect.patch(k);
+            let mut counts = [0usize; 256];
+            for y in r * l..(r + 1) * l {
+                for x in c * l..(c + 1) * l {
+                    counts[class.get_pixel(x, y)[0] as usize] += 1;
+                }
+            }
+            let id = (0..256).max_by_key(|&i| counts[i]).unwrap_or(0) as u8;
+            let name = worlds::ObjectClass::from_id(id).map_or_else(|| if id == 0 { "sky".to_string() } else { format!("class {id}") }, |c| c.name().to_string());
+            let e = out.entry(name).or_default();
+            e.0 += 1;
+            e.1 += predicted as usize;
+        }
+    }
+    Ok(out)
+}
+
 /// Writes every patch's feature row with its label fraction and label to a CSV file.
 pub fn export_features(dir: &Path, model: &AppearanceModel, label_fraction: f64, out: &Path) -> Result<usize, TrainError> {
     let manifest = read_manifest(dir)?;

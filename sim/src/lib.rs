@@ -251,22 +251,24 @@ impl Simulation {
             let odometry = self.odometry.measure(t, truth.robot);
             self.pending.push_back(SensorEvent::Odometry { odometry, truth: truth.clone() });
         }
-        if self.laser_schedule.due(t) {
-            let (scan, beams) = self.laser.scan(&self.scene, &truth.robot, t);
-            self.last_scan = Some(scan.clone());
-            self.pending.push_back(SensorEvent::Laser { scan, beams, truth: truth.clone() });
-        }
+        // At one instant the image comes before the scan, so a pipeline that segments
+        // scans in images has the matching image when the scan arrives.
         if let Some(cam) = &mut self.camera
             && self.camera_schedule.due(t)
         {
             match cam.capture(t, &truth.robot, &truth.people) {
-                Ok(frame) => self.pending.push_back(SensorEvent::Camera { frame: Box::new(frame), truth }),
+                Ok(frame) => self.pending.push_back(SensorEvent::Camera { frame: Box::new(frame), truth: truth.clone() }),
                 Err(e) => {
                     // A lost GPU device ends the camera, not the run; the error is kept.
                     self.camera_error = Some(e.to_string());
                     self.camera = None;
                 }
             }
+        }
+        if self.laser_schedule.due(t) {
+            let (scan, beams) = self.laser.scan(&self.scene, &truth.robot, t);
+            self.last_scan = Some(scan.clone());
+            self.pending.push_back(SensorEvent::Laser { scan, beams, truth });
         }
     }
 }

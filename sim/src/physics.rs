@@ -87,17 +87,29 @@ impl PhysicsScene {
                 Shape::Wall { length_m, thickness_m, height_m } => {
                     ColliderBuilder::cuboid((length_m / 2.0) as f32, (thickness_m / 2.0) as f32, (height_m / 2.0) as f32).translation(v3(0.0, 0.0, height_m / 2.0))
                 }
-                Shape::Board { width_m, height_m, bottom_m, .. } => {
-                    ColliderBuilder::cuboid(0.01, (width_m / 2.0) as f32, (height_m / 2.0) as f32).translation(v3(0.0, 0.0, bottom_m + height_m / 2.0))
+                Shape::Board { width_m, height_m, .. } => {
+                    // Turned (tilt, roll) about its centre as the mesh is (worlds::BoardFrame).
+                    let f = o.shape.board_frame().expect("a board");
+                    let r = f.rotation;
+                    let m = Matrix::from_cols_array(&[
+                        r[0][0] as f32, r[1][0] as f32, r[2][0] as f32,
+                        r[0][1] as f32, r[1][1] as f32, r[2][1] as f32,
+                        r[0][2] as f32, r[1][2] as f32, r[2][2] as f32,
+                    ]);
+                    let c = f.centre_m;
+                    ColliderBuilder::cuboid((worlds::BOARD_THICKNESS_M / 2.0) as f32, (width_m / 2.0) as f32, (height_m / 2.0) as f32)
+                        .position(Pose::from_parts(v3(c[0], c[1], c[2]), Rotation::from_mat3(&m)))
                 }
             };
             pw.insert_collider(collider.user_data(o.id as u128).collision_groups(groups), Some(body));
-            if let Shape::Board { bottom_m, .. } = o.shape
-                && bottom_m > 0.0
+            if let Some(frame) = o.shape.board_frame()
+                && frame.lowest_m() > 0.0
             {
-                // The board's stand, so the laser sees a leg below a raised board.
+                // The board's stand (up to its lowest corner), so the laser sees a leg
+                // below a raised board.
+                let h = frame.lowest_m();
                 pw.insert_collider(
-                    ColliderBuilder::cuboid(0.02, 0.02, (bottom_m / 2.0) as f32).translation(v3(0.0, 0.0, bottom_m / 2.0)).user_data(o.id as u128).collision_groups(groups),
+                    ColliderBuilder::cuboid(0.02, 0.02, (h / 2.0) as f32).translation(v3(0.0, 0.0, h / 2.0)).user_data(o.id as u128).collision_groups(groups),
                     Some(body),
                 );
             }

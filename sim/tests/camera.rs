@@ -12,18 +12,20 @@ fn laser_points_projected_with_extrinsics_land_on_their_objects_pixels() {
     // P_camera = Phi^-1 (P_laser - Delta)
     let camera_from_laser = config.camera.laser_from_camera(&config.laser).inverse();
     let k = config.camera.intrinsics();
-    let mut last_beams: Option<(Vec<u16>, Vec<f64>, sim::LaserScan)> = None;
+    let mut last_frame = None;
     let (mut checked, mut agreed) = (0usize, 0usize);
     let (mut depth_checked, mut depth_agreed) = (0usize, 0usize);
     while let Some(e) = s.next_event() {
         match e {
-            // Laser and camera share time stamps at 5 Hz (the laser runs at 10 Hz).
-            SensorEvent::Laser { scan, beams, .. } => last_beams = Some((beams.hit_ids, beams.true_ranges, scan)),
-            SensorEvent::Camera { frame, .. } => {
-                let Some((ids, ranges, scan)) = &last_beams else { continue };
+            // Laser and camera share time stamps at 5 Hz (the laser runs at 10 Hz); at one
+            // instant the image comes first.
+            SensorEvent::Camera { frame, .. } => last_frame = Some(frame),
+            SensorEvent::Laser { scan, beams, .. } => {
+                let Some(frame) = &last_frame else { continue };
                 if (scan.t - frame.t).abs() > 1e-9 {
                     continue;
                 }
+                let (ids, ranges) = (&beams.hit_ids, &beams.true_ranges);
                 for (i, &id) in ids.iter().enumerate() {
                     if id == 0 || !ranges[i].is_finite() || ranges[i] > 15.0 {
                         continue;
@@ -107,7 +109,7 @@ fn a_checkerboard_shows_its_squares() {
         class: ObjectClass::Checkerboard,
         // Facing -x, towards a camera at the origin looking along +x.
         pose: Pose2 { x: 2.5, y: 0.0, yaw_deg: 180.0 },
-        shape: Shape::Board { width_m: 0.8, height_m: 0.6, bottom_m: 0.25, squares: [8, 6] },
+        shape: Shape::Board { width_m: 0.8, height_m: 0.6, bottom_m: 0.25, squares: [8, 6], tilt_deg: 0.0, roll_deg: 0.0 },
         appearance: Appearance { material: Material::Checker, colour: [0.95, 0.95, 0.95], texture_seed: 0 },
         mesh: None,
     });

@@ -6,9 +6,13 @@
 //! point on the board, `P_l = (x, y, 0)` in the laser's scan plane, therefore satisfies
 //! `N . Phi^-1 (P_l - Delta) = |N|^2`, which is linear in `H = Phi^-1 [e_x e_y -Delta]`:
 //! `N^T H (x, y, 1)^T = |N|^2`. A least-squares solution of H gives the initial estimate;
-//! Levenberg-Marquardt on the point-to-plane distances refines it.
+//! Levenberg-Marquardt on the point-to-plane distances refines it. The reported 1-sigma
+//! uncertainty is the laser's share (the Gauss-Newton covariance scaled by the residual
+//! variance) plus each board plane's covariance carried through the solution; warnings
+//! flag few poses, board normals spanning too few directions and poorly constrained
+//! results. [`segment_board`] finds a board's points in a scan.
 
-use nalgebra::{DMatrix, DVector, Matrix3, Rotation3, SVD, Vector3};
+use nalgebra::{DMatrix, DVector, Matrix3, Rotation3, SMatrix, SVD, Vector3};
 use serde::{Deserialize, Serialize};
 
 /// Laser <- camera extrinsics: `P_laser = phi * P_camera + delta` (the paper's Phi, Delta).
@@ -58,6 +62,9 @@ pub struct BoardObservation {
     pub plane: Vector3<f64>,
     /// Laser points on the board, in the laser's scan plane (x, y).
     pub laser_points: Vec<[f64; 2]>,
+    /// Covariance of `plane` (m²), when known (the camera's board fit gives it): it is
+    /// carried into the reported uncertainty.
+    pub plane_covariance: Option<Matrix3<f64>>,
 }
 
 /// Result of a calibration.
@@ -68,10 +75,15 @@ pub struct CalibrationResult {
     pub initial: Extrinsics,
     /// RMS point-to-plane distance after refinement (m).
     pub rms_residual_m: f64,
-    /// One-sigma uncertainty from the Gauss-Newton covariance: rotation (deg, about the
-    /// laser's x, y, z axes) and translation (m).
+    /// One-sigma uncertainty: rotation (deg, about the laser's x, y, z axes) and
+    /// translation (m). The Gauss-Newton covariance (JᵀJ)⁻¹ scaled by the residual
+    /// variance (the laser's noise), plus the board planes' covariances carried through
+    /// the solution to first order (the camera's share), where the observations give them.
     pub rotation_sigma_deg: [f64; 3],
     pub translation_sigma_m: [f64; 3],
+    /// The laser's share alone (the Gauss-Newton covariance).
+    pub laser_rotation_sigma_deg: [f64; 3],
+    pub laser_translation_sigma_m: [f64; 3],
     pub poses_used: usize,
     pub points_used: usize,
     pub iterations: usize,
@@ -92,10 +104,17 @@ pub enum CalibrationError {
 pub const MIN_POSES: usize = 5;
 /// Poses below which the result is usually too uncertain to trust.
 pub const RECOMMENDED_POSES: usize = 10;
+/// Smallest ratio of the board normals' scatter eigenvalues (smallest to largest) without
+/// a warning: about +-14 deg of uniformly spread tilt or turn.
+pub const MIN_NORMAL_SPREAD: f64 = 0.02;
+/// One-sigma uncertainties above which the result is flagged as poorly constrained.
+pub const WARN_ROTATION_SIGMA_DEG: f64 = 0.5;
+pub const WARN_TRANSLATION_SIGMA_M: f64 = 0.02;
 
 /// Solves for the extrinsics from board observations.
 pub fn calibrate(observations: &[BoardObservation]) -> Result<CalibrationResult, CalibrationError> {
-    let used: Vec<&BoardObservation> = observations.iter().filter(|o| !o.laser_points.is_empty() && o.plane.norm() > 1e-9).collect();
+    let finite = |o: &BoardObservation| o.plane.iter().all(|v| v.is_finite()) && o.laser_points.iter().flatten().all(|v| v.is_finite());
+    let used: Vec<&BoardObservation> = observations.iter().filter(|o| !o.laser_points.is_empty() && o.plane.norm() > 1e-9 && finite(o)).collect();
     if used.len() < MIN_POSES {
         return Err(CalibrationError::TooFewPoses(used.len()));
     }
@@ -112,21 +131,38 @@ pub fn calibrate(observations: &[BoardObservation]) -> Result<CalibrationResult,
     }
     let eig = scatter.symmetric_eigen();
     let mut ev: Vec<f64> = eig.eigenvalues.iter().copied().collect();
-    ev.sort_by(|a, b| a.partial_cmp(b).expect("finite"));
-    if ev[0] / ev[2] < 1e-3 {
-        warnings.push(format!("board normals span too few directions (eigenvalues {:.2e}, {:.2e}, {:.2e}): tilt the board more", ev[0], ev[1], ev[2]));
+    ev.sort_by(f64::total_cmp);
+    if ev[0] / ev[2] < MIN_NORMAL_SPREAD {
+        warnings.push(format!(
+            "board normals span too few directions (scatter eigenvalues {:.2e}, {:.2e}, {:.2e}; the smallest should be at least {MIN_NORMAL_SPREAD} of the largest): tilt and turn the board more",
+            ev[0], ev[1], ev[2]
+        ));
     }
 
     let initial = linear_estimate(&used)?;
     let (extrinsics, iterations, rms, cov) = refine(&used, &initial);
     let points_used: usize = used.iter().map(|o| o.laser_points.len()).sum();
-    let sd = |i: usize| cov.as_ref().map_or(f64::NAN, |c| c[(i, i)].max(0.0).sqrt());
+    let sd = |c: &Option<DMatrix<f64>>, i: usize| c.as_ref().map_or(f64::NAN, |c| c[(i, i)].max(0.0).sqrt());
+    let laser_cov = cov.as_ref().map(|c| c.laser.clone());
+    let total_cov = cov.as_ref().map(|c| c.total.clone());
+    let rotation_sigma_deg = [sd(&total_cov, 0).to_degrees(), sd(&total_cov, 1).to_degrees(), sd(&total_cov, 2).to_degrees()];
+    let translation_sigma_m = [sd(&total_cov, 3), sd(&total_cov, 4), sd(&total_cov, 5)];
+    let worst_rot = rotation_sigma_deg.iter().cloned().fold(0.0, f64::max);
+    let worst_trans = translation_sigma_m.iter().cloned().fold(0.0, f64::max);
+    let unknown = rotation_sigma_deg.iter().chain(&translation_sigma_m).any(|s| s.is_nan());
+    if unknown || worst_rot > WARN_ROTATION_SIGMA_DEG || worst_trans > WARN_TRANSLATION_SIGMA_M {
+        warnings.push(format!(
+            "the poses constrain the extrinsics poorly (1-sigma up to {worst_rot:.2} deg, {worst_trans:.3} m): use more poses with more varied tilts and turns"
+        ));
+    }
     Ok(CalibrationResult {
         extrinsics,
         initial,
         rms_residual_m: rms,
-        rotation_sigma_deg: [sd(0).to_degrees(), sd(1).to_degrees(), sd(2).to_degrees()],
-        translation_sigma_m: [sd(3), sd(4), sd(5)],
+        rotation_sigma_deg,
+        translation_sigma_m,
+        laser_rotation_sigma_deg: [sd(&laser_cov, 0).to_degrees(), sd(&laser_cov, 1).to_degrees(), sd(&laser_cov, 2).to_degrees()],
+        laser_translation_sigma_m: [sd(&laser_cov, 3), sd(&laser_cov, 4), sd(&laser_cov, 5)],
         poses_used: used.len(),
         points_used,
         iterations,
@@ -181,6 +217,13 @@ fn linear_estimate(obs: &[&BoardObservation]) -> Result<Extrinsics, CalibrationE
     Ok(Extrinsics::from_parts(&phi, &delta))
 }
 
+/// Signed point-to-plane distances (m) of an observation's laser points under `ext`.
+pub fn point_plane_residuals(ext: &Extrinsics, o: &BoardObservation) -> Vec<f64> {
+    let len = o.plane.norm();
+    let n = o.plane / len.max(1e-300);
+    o.laser_points.iter().map(|p| n.dot(&ext.laser_to_camera(&Vector3::new(p[0], p[1], 0.0))) - len).collect()
+}
+
 /// Signed distances of the laser points to their boards for parameters (rotation vector
 /// of Phi, Delta).
 fn residuals(obs: &[&BoardObservation], params: &[f64; 6]) -> Vec<f64> {
@@ -199,31 +242,96 @@ fn residuals(obs: &[&BoardObservation], params: &[f64; 6]) -> Vec<f64> {
     out
 }
 
+/// Parameter covariances of a refinement: the laser's share and the total.
+struct Covariances {
+    laser: DMatrix<f64>,
+    total: DMatrix<f64>,
+}
+
 /// Levenberg-Marquardt over (rotation vector, Delta); returns the estimate, iterations,
-/// RMS residual and the 6x6 parameter covariance.
-fn refine(obs: &[&BoardObservation], init: &Extrinsics) -> (Extrinsics, usize, f64, Option<DMatrix<f64>>) {
+/// RMS residual and the 6x6 parameter covariances.
+///
+/// The laser's share is σ²(JᵀJ)⁻¹ with σ² the residual variance. A board's plane error
+/// dN moves the solution by -(JᵀJ)⁻¹ Jᵀ (∂r/∂N) dN to first order; with the plane's
+/// covariance, each board adds that map's Σ_N-weighted square.
+fn refine(obs: &[&BoardObservation], init: &Extrinsics) -> (Extrinsics, usize, f64, Option<Covariances>) {
     let rv = Rotation3::from_matrix_unchecked(init.phi()).scaled_axis();
-    let mut x = [rv.x, rv.y, rv.z, init.delta[0], init.delta[1], init.delta[2]];
-    let cost = |x: &[f64; 6]| residuals(obs, x).iter().map(|r| r * r).sum::<f64>();
+    let x0 = [rv.x, rv.y, rv.z, init.delta[0], init.delta[1], init.delta[2]];
+    let fit = levenberg_marquardt(x0, |x| residuals(obs, x));
+    let n = fit.residuals;
+    let sigma2 = if n > 6 { fit.rss / (n - 6) as f64 } else { f64::NAN };
+    let x = fit.x;
+    let phi = Rotation3::new(Vector3::new(x[0], x[1], x[2]));
+    let ext = Extrinsics::from_parts(phi.matrix(), &Vector3::new(x[3], x[4], x[5]));
+    let cov = fit.jtj.try_inverse().map(|inv| {
+        let laser = inv * sigma2;
+        let mut total = laser;
+        // Rows of J per board, and ∂r/∂N per point.
+        let jac = numeric_jacobian(&x, |x| residuals(obs, x));
+        let mut row = 0;
+        for o in obs {
+            let m = o.laser_points.len();
+            if let Some(cn) = o.plane_covariance {
+                let len = o.plane.norm();
+                let nu = o.plane / len;
+                let mut jt_b = SMatrix::<f64, 6, 3>::zeros();
+                for (k, p) in o.laser_points.iter().enumerate() {
+                    let pc = ext.laser_to_camera(&Vector3::new(p[0], p[1], 0.0));
+                    // r = N.pc / |N| - |N|
+                    let dr_dn = pc / len - nu * (nu.dot(&pc) / len) - nu;
+                    for a in 0..6 {
+                        for b in 0..3 {
+                            jt_b[(a, b)] += jac[(row + k, a)] * dr_dn[b];
+                        }
+                    }
+                }
+                let sens = -(inv * jt_b);
+                total += sens * cn * sens.transpose();
+            }
+            row += m;
+        }
+        Covariances { laser: DMatrix::from_fn(6, 6, |r, c| laser[(r, c)]), total: DMatrix::from_fn(6, 6, |r, c| total[(r, c)]) }
+    });
+    (ext, fit.iterations, (fit.rss / n.max(1) as f64).sqrt(), cov)
+}
+
+/// Central-difference Jacobian of `f` at `x`.
+fn numeric_jacobian(x: &[f64; 6], f: impl Fn(&[f64; 6]) -> Vec<f64>) -> DMatrix<f64> {
+    let n = f(x).len();
+    let mut j = DMatrix::zeros(n, 6);
+    for k in 0..6 {
+        let h = 1e-7;
+        let (mut xp, mut xm) = (*x, *x);
+        xp[k] += h;
+        xm[k] -= h;
+        let (rp, rm) = (f(&xp), f(&xm));
+        for i in 0..n {
+            j[(i, k)] = (rp[i] - rm[i]) / (2.0 * h);
+        }
+    }
+    j
+}
+
+/// Result of [`levenberg_marquardt`].
+pub(crate) struct LmFit {
+    pub x: [f64; 6],
+    /// JᵀJ at the solution (the Gauss-Newton information matrix before scaling).
+    pub jtj: SMatrix<f64, 6, 6>,
+    /// Residual sum of squares at the solution.
+    pub rss: f64,
+    pub residuals: usize,
+    pub iterations: usize,
+}
+
+/// Levenberg-Marquardt (Marquardt's diagonal scaling, central-difference Jacobian) for
+/// six parameters.
+pub(crate) fn levenberg_marquardt(x0: [f64; 6], f: impl Fn(&[f64; 6]) -> Vec<f64>) -> LmFit {
+    let mut x = x0;
+    let cost = |x: &[f64; 6]| f(x).iter().map(|r| r * r).sum::<f64>();
+    let jacobian = |x: &[f64; 6]| (numeric_jacobian(x, &f), DVector::from_vec(f(x)));
     let mut lambda = 1e-3;
     let mut current = cost(&x);
     let mut iterations = 0;
-    let jacobian = |x: &[f64; 6]| {
-        let r0 = residuals(obs, x);
-        let mut j = DMatrix::zeros(r0.len(), 6);
-        for k in 0..6 {
-            let h = 1e-7;
-            let mut xp = *x;
-            xp[k] += h;
-            let mut xm = *x;
-            xm[k] -= h;
-            let (rp, rm) = (residuals(obs, &xp), residuals(obs, &xm));
-            for i in 0..r0.len() {
-                j[(i, k)] = (rp[i] - rm[i]) / (2.0 * h);
-            }
-        }
-        (j, DVector::from_vec(r0))
-    };
     for _ in 0..100 {
         iterations += 1;
         let (j, r) = jacobian(&x);
@@ -256,12 +364,201 @@ fn refine(obs: &[&BoardObservation], init: &Extrinsics) -> (Extrinsics, usize, f
         }
     }
     let (j, r) = jacobian(&x);
-    let n = r.len();
-    let sigma2 = if n > 6 { r.norm_squared() / (n - 6) as f64 } else { f64::NAN };
-    let cov = (j.transpose() * &j).try_inverse().map(|inv| inv * sigma2);
-    let phi = Rotation3::new(Vector3::new(x[0], x[1], x[2]));
-    let ext = Extrinsics::from_parts(phi.matrix(), &Vector3::new(x[3], x[4], x[5]));
-    (ext, iterations, (r.norm_squared() / n.max(1) as f64).sqrt(), cov)
+    let jtj = j.transpose() * &j;
+    LmFit { x, jtj: SMatrix::from_fn(|a, b| jtj[(a, b)]), rss: r.norm_squared(), residuals: r.len(), iterations }
+}
+
+/// Where and how to look for the board in a scan.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct BoardSegmentation {
+    /// Bearings (rad, laser frame) the board can be at: the camera's field of view.
+    pub bearing_rad: [f64; 2],
+    /// Ranges (m) the board can be at.
+    pub range_m: [f64; 2],
+    /// Length (m) of the board's cut by the scan plane, from first to last point: the
+    /// board's width for an upright or tilted board, up to its diagonal when rolled.
+    pub length_m: [f64; 2],
+    /// Consecutive points further apart than this, or than 5 beam spacings at their
+    /// range, belong to different objects (m).
+    pub jump_m: f64,
+    /// Largest distance of a board point from the fitted line (m): 3 sigma of the range
+    /// noise plus range quantisation.
+    pub inlier_m: f64,
+    /// Points dropped at each end of the board's cut (mixed returns at edges).
+    pub trim: usize,
+    /// Largest difference (m) between the cut's mean range and the board's distance seen
+    /// by the camera (when given); covers the laser-camera lever arm.
+    pub camera_range_tolerance_m: f64,
+}
+
+impl Default for BoardSegmentation {
+    fn default() -> Self {
+        BoardSegmentation {
+            bearing_rad: [-0.6, 0.6],
+            range_m: [0.5, 6.0],
+            length_m: [0.4, 1.2],
+            jump_m: 0.1,
+            inlier_m: 0.04,
+            trim: 1,
+            camera_range_tolerance_m: 0.5,
+        }
+    }
+}
+
+/// Why no board was found in a scan.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SegmentationError {
+    #[error("no straight stretch of board length ({min:.2}-{max:.2} m) in the expected region of the scan")]
+    NoCandidate { min: f64, max: f64 },
+    #[error("no board-like stretch at the range the camera sees the board ({expected:.2} m; nearest candidate {nearest:.2} m)")]
+    RangeMismatch { expected: f64, nearest: f64 },
+}
+
+/// A stretch of the scan taken for the board: the points (laser frame) and the fitted line.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BoardCut {
+    pub points: Vec<[f64; 2]>,
+    /// Beam indices of the first and last point kept.
+    pub beams: (usize, usize),
+    /// RMS distance of the points to their line (m).
+    pub line_rms_m: f64,
+    pub length_m: f64,
+    pub mean_range_m: f64,
+}
+
+/// Finds the laser points on the calibration board in one scan.
+///
+/// The scan is split into runs of consecutive returns without range jumps, inside the
+/// expected bearings and ranges. In each run a robust line fit (the line through two of
+/// its points with the most points within `inlier_m`, refitted by total least squares)
+/// keeps the longest unbroken stretch of inliers; stretches whose length fits the board
+/// are candidates. With `camera_range_m` (the board centre's distance from the camera,
+/// from the image), the candidate nearest that range wins and must be within
+/// `camera_range_tolerance_m`; without it, the longest candidate. Other objects beside the
+/// board (posts, people's legs, other boards) fail the length or line tests or the range.
+pub fn segment_board(scan: &crate::messages::LaserScan, cfg: &BoardSegmentation, camera_range_m: Option<f64>) -> Result<BoardCut, SegmentationError> {
+    let n = scan.ranges.len();
+    let usable = |i: usize| {
+        let a = scan.angle(i);
+        scan.valid(i) && a >= cfg.bearing_rad[0] && a <= cfg.bearing_rad[1] && scan.ranges[i] >= cfg.range_m[0] && scan.ranges[i] <= cfg.range_m[1]
+    };
+    // Runs of consecutive usable beams without jumps.
+    let mut runs: Vec<Vec<usize>> = Vec::new();
+    let mut current: Vec<usize> = Vec::new();
+    for i in 0..n {
+        if !usable(i) {
+            if !current.is_empty() {
+                runs.push(std::mem::take(&mut current));
+            }
+            continue;
+        }
+        if let Some(&prev) = current.last() {
+            let (p, q) = (scan.point(prev), scan.point(i));
+            let gap = (p[0] - q[0]).hypot(p[1] - q[1]);
+            let allowed = cfg.jump_m.max(5.0 * scan.ranges[i] * scan.angle_increment.abs());
+            if prev + 1 != i || gap > allowed {
+                runs.push(std::mem::take(&mut current));
+            }
+        }
+        current.push(i);
+    }
+    if !current.is_empty() {
+        runs.push(current);
+    }
+    let mut candidates: Vec<BoardCut> = Vec::new();
+    for run in runs.iter().filter(|r| r.len() >= 2 * cfg.trim + 3) {
+        let pts: Vec<[f64; 2]> = run.iter().map(|&i| scan.point(i)).collect();
+        let Some((c, d)) = robust_line(&pts, cfg.inlier_m) else { continue };
+        let dist = |p: &[f64; 2]| ((p[0] - c[0]) * -d[1] + (p[1] - c[1]) * d[0]).abs();
+        // Longest unbroken stretch of inliers.
+        let (mut best, mut start) = ((0usize, 0usize), None::<usize>);
+        for k in 0..=pts.len() {
+            let inlier = k < pts.len() && dist(&pts[k]) <= cfg.inlier_m;
+            match (inlier, start) {
+                (true, None) => start = Some(k),
+                (false, Some(s0)) => {
+                    if k - s0 > best.1 - best.0 {
+                        best = (s0, k);
+                    }
+                    start = None;
+                }
+                _ => {}
+            }
+        }
+        let (a, b) = best;
+        if b - a < 2 * cfg.trim + 3 {
+            continue;
+        }
+        let (pa, pb) = (pts[a], pts[b - 1]);
+        let length = (pa[0] - pb[0]).hypot(pa[1] - pb[1]);
+        if length < cfg.length_m[0] || length > cfg.length_m[1] {
+            continue;
+        }
+        let kept: Vec<[f64; 2]> = pts[a + cfg.trim..b - cfg.trim].to_vec();
+        let Some((c2, d2)) = tls_line(&kept) else { continue };
+        let rms = (kept.iter().map(|p| ((p[0] - c2[0]) * -d2[1] + (p[1] - c2[1]) * d2[0]).powi(2)).sum::<f64>() / kept.len() as f64).sqrt();
+        let mean_range = kept.iter().map(|p| p[0].hypot(p[1])).sum::<f64>() / kept.len() as f64;
+        candidates.push(BoardCut { points: kept, beams: (run[a + cfg.trim], run[b - cfg.trim - 1]), line_rms_m: rms, length_m: length, mean_range_m: mean_range });
+    }
+    if candidates.is_empty() {
+        return Err(SegmentationError::NoCandidate { min: cfg.length_m[0], max: cfg.length_m[1] });
+    }
+    match camera_range_m {
+        Some(expected) => {
+            let best = candidates.into_iter().min_by(|a, b| (a.mean_range_m - expected).abs().total_cmp(&(b.mean_range_m - expected).abs())).expect("non-empty");
+            if (best.mean_range_m - expected).abs() > cfg.camera_range_tolerance_m {
+                return Err(SegmentationError::RangeMismatch { expected, nearest: best.mean_range_m });
+            }
+            Ok(best)
+        }
+        None => Ok(candidates.into_iter().max_by(|a, b| a.length_m.total_cmp(&b.length_m)).expect("non-empty")),
+    }
+}
+
+/// The line (point, unit direction) through two of the points with the most points within
+/// `tolerance` of it (every pair is tried: runs are short), refitted to those points.
+fn robust_line(pts: &[[f64; 2]], tolerance: f64) -> Option<([f64; 2], [f64; 2])> {
+    let mut best: Option<(usize, usize, usize)> = None;
+    for i in 0..pts.len() {
+        for j in i + 1..pts.len() {
+            let (dx, dy) = (pts[j][0] - pts[i][0], pts[j][1] - pts[i][1]);
+            let len = dx.hypot(dy);
+            if len < 1e-6 {
+                continue;
+            }
+            let (ux, uy) = (dx / len, dy / len);
+            let count = pts.iter().filter(|p| ((p[0] - pts[i][0]) * -uy + (p[1] - pts[i][1]) * ux).abs() <= tolerance).count();
+            if best.is_none_or(|b| count > b.0) {
+                best = Some((count, i, j));
+            }
+        }
+    }
+    let (_, i, j) = best?;
+    let (dx, dy) = (pts[j][0] - pts[i][0], pts[j][1] - pts[i][1]);
+    let len = dx.hypot(dy);
+    let (ux, uy) = (dx / len, dy / len);
+    let inliers: Vec<[f64; 2]> = pts.iter().copied().filter(|p| ((p[0] - pts[i][0]) * -uy + (p[1] - pts[i][1]) * ux).abs() <= tolerance).collect();
+    tls_line(&inliers)
+}
+
+/// Total least squares line: (centroid, unit direction).
+fn tls_line(pts: &[[f64; 2]]) -> Option<([f64; 2], [f64; 2])> {
+    if pts.len() < 2 {
+        return None;
+    }
+    let n = pts.len() as f64;
+    let (mx, my) = (pts.iter().map(|p| p[0]).sum::<f64>() / n, pts.iter().map(|p| p[1]).sum::<f64>() / n);
+    let (mut sxx, mut sxy, mut syy) = (0.0, 0.0, 0.0);
+    for p in pts {
+        let (x, y) = (p[0] - mx, p[1] - my);
+        sxx += x * x;
+        sxy += x * y;
+        syy += y * y;
+    }
+    // Direction of largest spread.
+    let angle = 0.5 * (2.0 * sxy).atan2(sxx - syy);
+    Some(([mx, my], [angle.cos(), angle.sin()]))
 }
 
 #[cfg(test)]
@@ -308,7 +605,7 @@ mod tests {
                         [p.x * r / range, p.y * r / range]
                     })
                     .collect();
-                BoardObservation { plane, laser_points: pts }
+                BoardObservation { plane, laser_points: pts, plane_covariance: None }
             })
             .collect()
     }
@@ -339,6 +636,95 @@ mod tests {
         assert!(result.rms_residual_m > 0.005 && result.rms_residual_m < 0.02);
         assert!(result.translation_sigma_m.iter().all(|s| *s > 0.0 && *s < 0.02));
         assert!(result.warnings.is_empty(), "{:?}", result.warnings);
+    }
+
+    #[test]
+    fn plane_uncertainty_adds_to_the_reported_sigmas() {
+        let mut obs = synthetic(20, 0.01, 6);
+        let laser_only = calibrate(&obs).unwrap();
+        assert_eq!(laser_only.rotation_sigma_deg, laser_only.laser_rotation_sigma_deg);
+        for o in &mut obs {
+            // 2 mm of plane distance error, 0.001 rad of normal error (at 2 m: 2 mm).
+            o.plane_covariance = Some(Matrix3::identity() * 0.002f64.powi(2));
+        }
+        let with_planes = calibrate(&obs).unwrap();
+        for a in 0..3 {
+            assert!(with_planes.rotation_sigma_deg[a] > with_planes.laser_rotation_sigma_deg[a]);
+            assert!(with_planes.translation_sigma_m[a] > with_planes.laser_translation_sigma_m[a]);
+        }
+        assert_eq!(with_planes.extrinsics, laser_only.extrinsics, "the covariance does not change the estimate");
+    }
+
+    /// A scan of a board (0.8 m, 1.9 m away, turned), a post beside it, a long wall in the
+    /// view and legs further out.
+    fn scene_scan(noise_m: f64, seed: u64) -> crate::messages::LaserScan {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let noise = Normal::new(0.0, noise_m.max(1e-12)).unwrap();
+        let segments: [([f64; 2], [f64; 2]); 3] = [
+            ([1.95, -0.35], [1.75, 0.42]),  // the board
+            ([3.5, -2.5], [3.5, -0.7]),     // a wall, 1.8 m long
+            ([0.9, -0.9], [0.95, -0.92]),   // a 5 cm edge of something
+        ];
+        let circles: [([f64; 2], f64); 2] = [([2.6, 0.75], 0.1), ([1.2, 1.1], 0.06)];
+        let n = 361;
+        let (a0, da) = (-std::f64::consts::FRAC_PI_2, std::f64::consts::PI / 360.0);
+        let ranges = (0..n)
+            .map(|i| {
+                let a = a0 + da * i as f64;
+                let d = [a.cos(), a.sin()];
+                let mut best = 8.0f64;
+                for (p, q) in segments {
+                    // Ray-segment intersection.
+                    let e = [q[0] - p[0], q[1] - p[1]];
+                    let den = d[0] * e[1] - d[1] * e[0];
+                    if den.abs() < 1e-12 {
+                        continue;
+                    }
+                    let t = (p[0] * e[1] - p[1] * e[0]) / den;
+                    let u = (p[0] * d[1] - p[1] * d[0]) / den;
+                    if t > 0.0 && (0.0..=1.0).contains(&u) {
+                        best = best.min(t);
+                    }
+                }
+                for (c, r) in circles {
+                    let b = d[0] * c[0] + d[1] * c[1];
+                    let disc = b * b - (c[0] * c[0] + c[1] * c[1] - r * r);
+                    if disc >= 0.0 && b - disc.sqrt() > 0.0 {
+                        best = best.min(b - disc.sqrt());
+                    }
+                }
+                best + if noise_m > 0.0 { noise.sample(&mut rng) } else { 0.0 }
+            })
+            .collect();
+        crate::messages::LaserScan { t: 0.0, angle_min: a0, angle_increment: da, range_min: 0.05, range_max: 80.0, ranges }
+    }
+
+    #[test]
+    fn the_board_is_segmented_from_a_cluttered_scan() {
+        let cfg = BoardSegmentation { range_m: [0.5, 6.0], length_m: [0.4, 1.0], ..Default::default() };
+        let (p, q) = ([1.95f64, -0.35f64], [1.75f64, 0.42f64]);
+        let len = (q[0] - p[0]).hypot(q[1] - p[1]);
+        let line_dist = |x: &[f64; 2]| ((x[0] - p[0]) * (q[1] - p[1]) - (x[1] - p[1]) * (q[0] - p[0])).abs() / len;
+        for seed in 0..3 {
+            let scan = scene_scan(0.01, seed);
+            let cut = segment_board(&scan, &cfg, Some(1.9)).unwrap();
+            assert!(cut.points.len() >= 35, "{} points", cut.points.len());
+            assert!(cut.points.iter().all(|x| line_dist(x) < 0.05), "a point off the board");
+            assert!((cut.length_m - len).abs() < 0.1, "length {}", cut.length_m);
+            assert!(cut.line_rms_m < 0.02);
+            // Without the camera's range: the longest candidate, still the board.
+            assert_eq!(segment_board(&scan, &cfg, None).unwrap().points, cut.points);
+        }
+        // The camera sees the board at 3.5 m: nothing board-like there.
+        let e = segment_board(&scene_scan(0.01, 1), &cfg, Some(3.5)).unwrap_err();
+        assert!(matches!(e, SegmentationError::RangeMismatch { .. }), "{e}");
+        // Outside the bearing window: nothing.
+        let narrow = BoardSegmentation { bearing_rad: [0.6, 1.0], ..cfg.clone() };
+        assert!(matches!(segment_board(&scene_scan(0.01, 1), &narrow, None), Err(SegmentationError::NoCandidate { .. })));
+        // An empty scan is no board, not a panic.
+        let mut empty = scene_scan(0.0, 1);
+        empty.ranges.iter_mut().for_each(|r| *r = f64::INFINITY);
+        assert!(segment_board(&empty, &cfg, Some(2.0)).is_err());
     }
 
     #[test]

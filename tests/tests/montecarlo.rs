@@ -12,6 +12,8 @@ fn short_scenario(dir: &Path) -> String {
     sc.sim.max_duration_s = Some(12.0);
     // A 12 s run does not finish the route; only check what a short run can show.
     sc.pass = Default::default();
+    // Without a camera the camera methods cannot run: their runs must fail cleanly.
+    sc.sim.camera.enabled = false;
     let path = dir.join("laser_only_short.toml");
     std::fs::write(&path, toml::to_string(&sc).unwrap()).unwrap();
     path.to_string_lossy().into_owned()
@@ -43,8 +45,8 @@ fn sharded_merged_study_equals_the_unsharded_one_and_resumes() {
     let root: PathBuf = std::env::temp_dir().join(format!("objslam-mc-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&root);
     let scenario = short_scenario(&root);
-    // `combined` cannot run in this build: its runs must be recorded as errors while the
-    // others go on.
+    // `combined` cannot run without the camera: its runs must be recorded as errors while
+    // the others go on.
     let plan = StudyPlan {
         scenario,
         base_seed: 5,
@@ -55,6 +57,7 @@ fn sharded_merged_study_equals_the_unsharded_one_and_resumes() {
     let whole = mc::run_study(&plan, Shard::all(), &root.join("whole"), |_, _| {}).unwrap();
     assert_eq!(whole.len(), 18);
     assert_eq!(whole.iter().filter(|r| r.error.is_some()).count(), 6, "the combined runs error");
+    assert!(whole.iter().filter_map(|r| r.error.as_deref()).all(|e| e.contains("needs the camera")));
     assert!(whole.iter().filter(|r| r.job.method != "combined").all(|r| r.metrics.is_some()));
 
     // Resuming a finished study runs nothing new.

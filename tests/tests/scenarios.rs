@@ -76,8 +76,31 @@ fn run_writes_every_output() {
 }
 
 #[test]
-fn appearance_methods_fail_clearly_until_the_camera_pipeline_exists() {
-    let (sc, base) = Scenario::load("paper_park").unwrap();
+fn combined_method_runs_end_to_end_with_camera_segmentation() {
+    // The paper's method on the first 40 s of paper_park: the appearance model is trained
+    // from generated images (and cached), images are segmented, and only camera-confirmed
+    // objects are observed.
+    let (mut sc, base) = Scenario::load("paper_park").unwrap();
+    sc.sim.max_duration_s = Some(40.0);
+    let out = std::env::temp_dir().join(format!("objslam-combined-{}", std::process::id()));
+    let m = run(&sc, &base, &RunOptions { out: Some(out.clone()), ..Default::default() }, |_, _| {}).unwrap().metrics;
+    assert_eq!(m.method, "combined");
+    let (p, r) = (m.segmentation.precision.expect("scored"), m.segmentation.recall.expect("scored"));
+    assert!(p > 0.5 && r > 0.7, "segmentation precision {p}, recall {r}");
+    assert!(m.associations.total > 20, "{:?}", m.associations);
+    assert_eq!(m.associations.wrong, 0);
+    assert!(m.map.trees_mapped >= 1, "{:?}", m.map);
+    // Every association decision carries KL scores for its candidates.
+    let decisions = std::fs::read_to_string(out.join("decisions.jsonl")).unwrap();
+    let with_kl = decisions.lines().filter(|l| l.contains("\"kl\":") && !l.contains("\"kl\":null")).count();
+    assert!(with_kl > 0);
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+#[test]
+fn camera_methods_without_a_camera_fail_clearly() {
+    let (mut sc, base) = Scenario::load("paper_park").unwrap();
+    sc.sim.camera.enabled = false;
     let err = run(&sc, &base, &RunOptions::default(), |_, _| {}).err().expect("combined needs the camera").to_string();
-    assert!(err.contains("combined") && err.contains("--method"), "{err}");
+    assert!(err.contains("combined") && err.contains("camera"), "{err}");
 }

@@ -54,11 +54,14 @@ pub enum ObjectClass {
     Wall,
     Person,
     Checkerboard,
+    /// Leaves: tree canopies and palm crowns in class images. A mesh part's class, never a
+    /// world object's (their instance id stays the tree's or palm's).
+    Foliage,
 }
 
 impl ObjectClass {
     /// Every class, in class-id order.
-    pub const ALL: [ObjectClass; 7] = [
+    pub const ALL: [ObjectClass; 8] = [
         ObjectClass::Ground,
         ObjectClass::Tree,
         ObjectClass::Palm,
@@ -66,6 +69,7 @@ impl ObjectClass {
         ObjectClass::Wall,
         ObjectClass::Person,
         ObjectClass::Checkerboard,
+        ObjectClass::Foliage,
     ];
 
     /// Stable numeric id written into class images (0 is reserved for sky / nothing).
@@ -78,6 +82,7 @@ impl ObjectClass {
             ObjectClass::Wall => 5,
             ObjectClass::Person => 6,
             ObjectClass::Checkerboard => 7,
+            ObjectClass::Foliage => 8,
         }
     }
 
@@ -94,6 +99,7 @@ impl ObjectClass {
             ObjectClass::Wall => "wall",
             ObjectClass::Person => "person",
             ObjectClass::Checkerboard => "checkerboard",
+            ObjectClass::Foliage => "foliage",
         }
     }
 
@@ -159,14 +165,85 @@ pub enum Shape {
         thickness_m: f64,
         height_m: f64,
     },
-    /// A flat board standing upright (calibration target); `size_m` = (width, height),
-    /// lower edge at `bottom_m` above the ground, facing the pose's +x axis.
+    /// A flat board (calibration target) [`BOARD_THICKNESS_M`] thick, facing the pose's
+    /// +x axis; `squares` = (across, down) checker squares. Untilted it stands upright
+    /// with its lower edge `bottom_m` above the ground. It turns about its centre (which
+    /// stays `bottom_m + height_m / 2` up): first by `roll_deg` about its face normal
+    /// (counter-clockwise as seen from the front), then by `tilt_deg` about its horizontal
+    /// width axis (positive turns the face upwards: the top leans back). See
+    /// [`BoardFrame`]. A stand reaches from the ground to the board's lowest corner.
     Board {
         width_m: f64,
         height_m: f64,
         bottom_m: f64,
         squares: [u32; 2],
+        #[serde(default, skip_serializing_if = "is_zero")]
+        tilt_deg: f64,
+        #[serde(default, skip_serializing_if = "is_zero")]
+        roll_deg: f64,
     },
+}
+
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
+}
+
+/// Thickness of a board (m); its front face is half of it in front of the board's centre.
+pub const BOARD_THICKNESS_M: f64 = 0.02;
+
+/// Where a board is in its object's model frame (origin on the ground at the object's
+/// pose, z up): `model = centre_m + rotation * local`, with the board's local axes x = face
+/// normal (out of the front face), y = across (the face's left as seen from the front),
+/// z = up the board.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BoardFrame {
+    pub centre_m: [f64; 3],
+    /// Model <- board local, row-major.
+    pub rotation: [[f64; 3]; 3],
+    pub width_m: f64,
+    pub height_m: f64,
+}
+
+impl BoardFrame {
+    pub fn new(width_m: f64, height_m: f64, bottom_m: f64, tilt_deg: f64, roll_deg: f64) -> Self {
+        let (st, ct) = tilt_deg.to_radians().sin_cos();
+        let (sr, cr) = roll_deg.to_radians().sin_cos();
+        // Ry(-tilt) * Rx(roll): the normal (1, 0, 0) goes to (cos t, 0, sin t).
+        let ry = [[ct, 0.0, -st], [0.0, 1.0, 0.0], [st, 0.0, ct]];
+        let rx = [[1.0, 0.0, 0.0], [0.0, cr, -sr], [0.0, sr, cr]];
+        let rotation = std::array::from_fn(|i| std::array::from_fn(|j| (0..3).map(|k| ry[i][k] * rx[k][j]).sum()));
+        BoardFrame { centre_m: [0.0, 0.0, bottom_m + height_m / 2.0], rotation, width_m, height_m }
+    }
+
+    /// A point given in board-local coordinates, in the model frame.
+    pub fn apply(&self, local: [f64; 3]) -> [f64; 3] {
+        let r = &self.rotation;
+        std::array::from_fn(|i| self.centre_m[i] + r[i][0] * local[0] + r[i][1] * local[1] + r[i][2] * local[2])
+    }
+
+    /// Unit normal of the front face in the model frame.
+    pub fn normal(&self) -> [f64; 3] {
+        [self.rotation[0][0], self.rotation[1][0], self.rotation[2][0]]
+    }
+
+    /// The eight corners of the board's box in the model frame.
+    pub fn box_corners(&self) -> [[f64; 3]; 8] {
+        let (hx, hy, hz) = (BOARD_THICKNESS_M / 2.0, self.width_m / 2.0, self.height_m / 2.0);
+        std::array::from_fn(|k| {
+            let s = |bit: usize| if k & bit != 0 { 1.0 } else { -1.0 };
+            self.apply([s(1) * hx, s(2) * hy, s(4) * hz])
+        })
+    }
+
+    /// Height of the board's lowest point above the ground (negative: below it).
+    pub fn lowest_m(&self) -> f64 {
+        self.box_corners().iter().map(|c| c[2]).fold(f64::INFINITY, f64::min)
+    }
+
+    /// Height of the board's highest point.
+    pub fn highest_m(&self) -> f64 {
+        self.box_corners().iter().map(|c| c[2]).fold(f64::NEG_INFINITY, f64::max)
+    }
 }
 
 impl Shape {
@@ -191,11 +268,24 @@ impl Shape {
                 half_extents: [length_m / 2.0, thickness_m / 2.0],
                 yaw: pose.yaw_rad(),
             },
-            Shape::Board { width_m, .. } => Footprint::Rect {
-                centre: [pose.x, pose.y],
-                half_extents: [0.01, width_m / 2.0],
-                yaw: pose.yaw_rad(),
-            },
+            Shape::Board { .. } => {
+                // The box's extent on the ground in the model frame, turned by the yaw.
+                let corners = self.board_frame().expect("a board").box_corners();
+                let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+                for c in corners {
+                    for k in 0..2 {
+                        lo[k] = lo[k].min(c[k]);
+                        hi[k] = hi[k].max(c[k]);
+                    }
+                }
+                let (mx, my) = ((lo[0] + hi[0]) / 2.0, (lo[1] + hi[1]) / 2.0);
+                let (s, c) = pose.yaw_rad().sin_cos();
+                Footprint::Rect {
+                    centre: [pose.x + c * mx - s * my, pose.y + s * mx + c * my],
+                    half_extents: [(hi[0] - lo[0]) / 2.0, (hi[1] - lo[1]) / 2.0],
+                    yaw: pose.yaw_rad(),
+                }
+            }
         }
     }
 
@@ -206,7 +296,15 @@ impl Shape {
             Shape::Palm { height_m, .. } => height_m,
             Shape::Post { height_m, .. } => height_m,
             Shape::Wall { height_m, .. } => height_m,
-            Shape::Board { height_m, bottom_m, .. } => bottom_m + height_m,
+            Shape::Board { .. } => self.board_frame().expect("a board").highest_m(),
+        }
+    }
+
+    /// A board's placement in its model frame; `None` for other shapes.
+    pub fn board_frame(&self) -> Option<BoardFrame> {
+        match *self {
+            Shape::Board { width_m, height_m, bottom_m, tilt_deg, roll_deg, .. } => Some(BoardFrame::new(width_m, height_m, bottom_m, tilt_deg, roll_deg)),
+            _ => None,
         }
     }
 }
@@ -449,5 +547,30 @@ impl World {
     /// Serialises to TOML text.
     pub fn to_toml(&self) -> String {
         toml::to_string(self).expect("a World always serialises to TOML")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_tilted_board_turns_its_face_upwards_about_its_centre() {
+        let f = BoardFrame::new(0.8, 0.6, 0.3, 30.0, 0.0);
+        let n = f.normal();
+        assert!((n[0] - 30f64.to_radians().cos()).abs() < 1e-12 && (n[2] - 30f64.to_radians().sin()).abs() < 1e-12);
+        // The top edge leans back (towards -x), the centre stays put.
+        let top = f.apply([0.0, 0.0, 0.3]);
+        assert!(top[0] < 0.0 && (f.apply([0.0; 3])[2] - 0.6).abs() < 1e-12);
+        // Roll keeps the normal and turns the pattern in its plane.
+        let r = BoardFrame::new(0.8, 0.6, 0.3, 0.0, 90.0);
+        assert!((r.normal()[0] - 1.0).abs() < 1e-12);
+        let across = r.apply([0.0, 0.4, 0.0]);
+        assert!((across[2] - 0.6 - 0.4).abs() < 1e-12, "{across:?}");
+        // Untilted: the old geometry.
+        let u = Shape::Board { width_m: 0.8, height_m: 0.6, bottom_m: 0.3, squares: [8, 6], tilt_deg: 0.0, roll_deg: 0.0 };
+        assert!((u.top_m() - 0.9).abs() < 1e-12);
+        let Footprint::Rect { half_extents, .. } = u.footprint(&Pose2 { x: 0.0, y: 0.0, yaw_deg: 0.0 }) else { panic!() };
+        assert!((half_extents[0] - 0.01).abs() < 1e-12 && (half_extents[1] - 0.4).abs() < 1e-12);
     }
 }

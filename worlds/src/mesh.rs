@@ -64,6 +64,19 @@ impl TriMesh {
         }
     }
 
+    /// Rotates by `r` (row-major) about the origin, then translates by `t`, in place.
+    pub fn rigid(&mut self, r: &[[f64; 3]; 3], t: [f64; 3]) {
+        let rot = |v: [f32; 3]| -> [f64; 3] { std::array::from_fn(|i| r[i][0] * v[0] as f64 + r[i][1] * v[1] as f64 + r[i][2] * v[2] as f64) };
+        for p in &mut self.positions {
+            let q = rot(*p);
+            *p = [(q[0] + t[0]) as f32, (q[1] + t[1]) as f32, (q[2] + t[2]) as f32];
+        }
+        for n in &mut self.normals {
+            let q = rot(*n);
+            *n = [q[0] as f32, q[1] as f32, q[2] as f32];
+        }
+    }
+
     fn push(&mut self, p: [f64; 3], n: [f64; 3], uv: [f64; 2]) -> u32 {
         self.positions.push([p[0] as f32, p[1] as f32, p[2] as f32]);
         let l = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt().max(1e-12);
@@ -177,11 +190,13 @@ const TRUNK_SEGMENTS: usize = 48;
 
 /// The procedural mesh parts of a static object, in its model frame.
 pub fn object_parts(o: &StaticObject) -> Vec<MeshPart> {
+    // Canopies and crowns keep their object's instance id but take the foliage class, so
+    // class images label the trunk the laser sees (the paper's object) apart from leaves.
     let part = |name: &str, mesh: TriMesh, appearance: Appearance| MeshPart {
         name: format!("{}_{}_{}", o.class.name(), o.id, name),
+        class: if appearance.material == Material::Foliage { ObjectClass::Foliage } else { o.class },
         mesh,
         appearance,
-        class: o.class,
         instance_id: o.id,
     };
     let a = o.appearance.clone();
@@ -220,19 +235,31 @@ pub fn object_parts(o: &StaticObject) -> Vec<MeshPart> {
             let tile = tile_size_m(a.material);
             vec![part("wall", cuboid([0.0, 0.0, height_m / 2.0], [length_m / 2.0, thickness_m / 2.0, height_m / 2.0], tile), a)]
         }
-        Shape::Board { width_m, height_m, bottom_m, squares } => {
-            // Facing +x. The checker texture holds 2 x 2 squares, so the face's UVs run
-            // over squares/2 repeats to show squares[0] x squares[1] squares exactly.
-            let mut board = cuboid([0.0, 0.0, bottom_m + height_m / 2.0], [0.01, width_m / 2.0, height_m / 2.0], [width_m, height_m]);
-            for uv in &mut board.uvs {
-                // With the tile equal to the face's size, cuboid UVs span [-0.5, 0.5].
-                uv[0] = (uv[0] + 0.5) * squares[0] as f32 / 2.0;
-                uv[1] = (uv[1] + 0.5) * squares[1] as f32 / 2.0;
+        Shape::Board { width_m, height_m, squares, .. } => {
+            // Built facing +x about the origin, then turned and placed by the board's frame.
+            // The checker texture holds 2 x 2 squares, so the front face's UVs run over
+            // squares/2 repeats to show squares[0] x squares[1] squares exactly; the back
+            // and the edges are plain.
+            let frame = o.shape.board_frame().expect("a board");
+            let mut board = cuboid([0.0; 3], [BOARD_THICKNESS_M / 2.0, width_m / 2.0, height_m / 2.0], [width_m, height_m]);
+            for (k, uv) in board.uvs.iter_mut().enumerate() {
+                if k < 4 {
+                    // The front (+x) face. With the tile equal to the face's size, cuboid
+                    // UVs span [-0.5, 0.5].
+                    uv[0] = (uv[0] + 0.5) * squares[0] as f32 / 2.0;
+                    uv[1] = (uv[1] + 0.5) * squares[1] as f32 / 2.0;
+                } else {
+                    // Back and edges: plain, the colour of the light squares.
+                    *uv = [0.25, 0.25];
+                }
             }
-            let stand = cuboid([0.0, 0.0, bottom_m / 2.0], [0.02, 0.02, bottom_m / 2.0], [1.0, 1.0]);
-            let grey = Appearance { material: Material::Concrete, colour: [0.4, 0.4, 0.4], texture_seed: 0 };
+            board.rigid(&frame.rotation, frame.centre_m);
             let mut parts = vec![part("board", board, a)];
-            if bottom_m > 0.0 {
+            // The stand: a post from the ground to the board's lowest corner.
+            let lowest = frame.lowest_m();
+            if lowest > 0.0 {
+                let stand = cuboid([0.0, 0.0, lowest / 2.0], [0.02, 0.02, lowest / 2.0], [1.0, 1.0]);
+                let grey = Appearance { material: Material::Concrete, colour: [0.4, 0.4, 0.4], texture_seed: 0 };
                 parts.push(part("stand", stand, grey));
             }
             parts
@@ -384,6 +411,35 @@ mod tests {
             let centre = [(a[0] + b[0] + c[0]) / 3.0, (a[1] + b[1] + c[1]) / 3.0];
             assert!(n[0] * centre[0] + n[1] * centre[1] > 0.0, "inward-facing side triangle");
         }
+    }
+
+    #[test]
+    fn a_tilted_board_mesh_lies_on_its_plane() {
+        let o = StaticObject {
+            id: 9,
+            class: ObjectClass::Checkerboard,
+            pose: Pose2 { x: 0.0, y: 0.0, yaw_deg: 0.0 },
+            shape: Shape::Board { width_m: 0.8, height_m: 0.6, bottom_m: 0.4, squares: [8, 6], tilt_deg: -20.0, roll_deg: 15.0 },
+            appearance: Appearance { material: Material::Checker, colour: [0.9; 3], texture_seed: 0 },
+            mesh: None,
+        };
+        let f = o.shape.board_frame().unwrap();
+        let n = f.normal();
+        let parts = object_parts(&o);
+        let board = &parts[0].mesh;
+        // The front face's vertices (normal = n) lie half a thickness in front of the centre.
+        let mut on_face = 0;
+        for (p, vn) in board.positions.iter().zip(&board.normals) {
+            if (0..3).map(|k| vn[k] as f64 * n[k]).sum::<f64>() > 0.999 {
+                let d: f64 = (0..3).map(|k| (p[k] as f64 - f.centre_m[k]) * n[k]).sum();
+                assert!((d - BOARD_THICKNESS_M / 2.0).abs() < 1e-6, "{d}");
+                on_face += 1;
+            }
+        }
+        assert_eq!(on_face, 4);
+        // The stand reaches the lowest corner.
+        let (_, hi) = parts[1].mesh.bounds();
+        assert!((hi[2] as f64 - f.lowest_m()).abs() < 1e-6);
     }
 
     #[test]

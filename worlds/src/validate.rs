@@ -9,6 +9,9 @@ use crate::error::Problem;
 /// Instance id reserved for the ground in instance images.
 pub const GROUND_INSTANCE_ID: u16 = u16::MAX;
 
+/// Largest board tilt accepted (deg): steeper boards are nearly flat on the ground.
+pub const MAX_BOARD_TILT_DEG: f64 = 80.0;
+
 /// Clearance the robot's route keeps from obstacle footprints: half the Pioneer 2-AT's
 /// diagonal (0.63 x 0.50 m body) is 0.40 m, plus a margin for path-following error.
 pub const ROBOT_ROUTE_CLEARANCE_M: f64 = 0.5;
@@ -52,12 +55,31 @@ pub fn validate(world: &World, base_dir: &Path) -> Vec<Problem> {
                 push(format!("{f}.shape.{name}"), format!("must be positive, got {v}"));
             }
         }
-        if let Shape::Board { bottom_m, squares, .. } = o.shape {
+        if let Shape::Board { bottom_m, squares, tilt_deg, roll_deg, .. } = o.shape {
             if !(bottom_m.is_finite() && bottom_m >= 0.0) {
                 push(format!("{f}.shape.bottom_m"), format!("must be >= 0, got {bottom_m}"));
             }
             if squares[0] < 2 || squares[1] < 2 {
                 push(format!("{f}.shape.squares"), "a checkerboard needs at least 2 x 2 squares".into());
+            }
+            let tilt_ok = tilt_deg.is_finite() && tilt_deg.abs() <= MAX_BOARD_TILT_DEG;
+            if !tilt_ok {
+                push(format!("{f}.shape.tilt_deg"), format!("must be within +-{MAX_BOARD_TILT_DEG} deg (a board lying flat cannot stand), got {tilt_deg}"));
+            }
+            let roll_ok = roll_deg.is_finite() && roll_deg.abs() <= 180.0;
+            if !roll_ok {
+                push(format!("{f}.shape.roll_deg"), format!("must be within +-180 deg, got {roll_deg}"));
+            }
+            let sizes_ok = shape_sizes(&o.shape).iter().all(|(_, v)| v.is_finite() && *v > 0.0) && bottom_m.is_finite();
+            if tilt_ok && roll_ok && sizes_ok {
+                let lowest = o.shape.board_frame().expect("a board").lowest_m();
+                if lowest < 0.0 {
+                    let field = if tilt_deg != 0.0 { "tilt_deg" } else { "roll_deg" };
+                    push(
+                        format!("{f}.shape.{field}"),
+                        format!("the turned board reaches {:.3} m below the ground; raise bottom_m by at least that much", -lowest),
+                    );
+                }
             }
         }
         let expected = expected_shape(o.class);
@@ -68,6 +90,9 @@ pub fn validate(world: &World, base_dir: &Path) -> Vec<Problem> {
         }
         if o.class == ObjectClass::Person || o.class == ObjectClass::Ground {
             push(format!("{f}.class"), format!("class {} is not a static object (people go in [[people]])", o.class.name()));
+        }
+        if o.class == ObjectClass::Foliage {
+            push(format!("{f}.class"), "class foliage labels canopies in class images; it is not an object class (use tree or palm)".into());
         }
         check_colour(&mut push, &format!("{f}.appearance.colour"), &o.appearance.colour);
         if let Some(mesh) = &o.mesh {
@@ -174,7 +199,7 @@ fn expected_shape(class: ObjectClass) -> Option<&'static str> {
         ObjectClass::Post => Some("post"),
         ObjectClass::Wall => Some("wall"),
         ObjectClass::Checkerboard => Some("board"),
-        ObjectClass::Ground | ObjectClass::Person => None,
+        ObjectClass::Ground | ObjectClass::Person | ObjectClass::Foliage => None,
     }
 }
 
@@ -263,5 +288,6 @@ pub fn default_material(class: ObjectClass) -> Material {
         ObjectClass::Person => Material::Clothes,
         ObjectClass::Ground => Material::Grass,
         ObjectClass::Checkerboard => Material::Checker,
+        ObjectClass::Foliage => Material::Foliage,
     }
 }

@@ -150,3 +150,45 @@ fn bad_generator_parameters_are_named() {
     let crowded = ParkParams { area_m2: 120.0, trees: 400, ..Default::default() };
     assert!(park(&crowded, 1).is_err());
 }
+
+/// A park with one checkerboard placed in a free spot, written as TOML.
+fn with_board(extra: &str) -> String {
+    let mut text = park(&ParkParams::default(), 11).unwrap().to_toml();
+    // The park leaves its corner free of objects and routes.
+    let w = park(&ParkParams::default(), 11).unwrap();
+    let (x, y) = (w.ground.min_m[0] + 1.0, w.ground.min_m[1] + 1.0);
+    text.push_str(&format!(
+        "\n[[objects]]\nid = 900\nclass = \"checkerboard\"\npose = {{ x = {x}, y = {y}, yaw_deg = 0.0 }}\n\
+         shape = {{ kind = \"board\", width_m = 0.8, height_m = 0.6, bottom_m = 0.3, squares = [8, 6]{extra} }}\n\
+         appearance = {{ material = \"checker\", colour = [0.9, 0.9, 0.9] }}\n"
+    ));
+    text
+}
+
+#[test]
+fn boards_without_tilt_fields_parse_and_tilted_boards_round_trip() {
+    let w = parse(&with_board("")).unwrap();
+    let board = w.objects.iter().find(|o| o.id == 900).unwrap();
+    assert!(matches!(board.shape, worlds::Shape::Board { tilt_deg: 0.0, roll_deg: 0.0, .. }));
+    // Zero tilt is not written, so existing files stay byte for byte the same.
+    assert!(!w.to_toml().contains("tilt_deg"));
+    let w = parse(&with_board(", tilt_deg = 25.0, roll_deg = -10.0")).unwrap();
+    let again = parse(&w.to_toml()).unwrap();
+    assert_eq!(w, again);
+    assert!(w.to_toml().contains("tilt_deg = 25.0"));
+}
+
+#[test]
+fn bad_board_tilts_are_named() {
+    let msg = message(&with_board(", tilt_deg = 85.0"));
+    assert!(msg.contains("shape.tilt_deg") && msg.contains("80"), "{msg}");
+    assert!(msg.contains("line"), "{msg}");
+    let msg = message(&with_board(", roll_deg = 400.0"));
+    assert!(msg.contains("shape.roll_deg"), "{msg}");
+    let msg = message(&with_board(", tilt_deg = nan"));
+    assert!(msg.contains("shape.tilt_deg"), "{msg}");
+    // A board standing on the ground (centre 0.3 m up) turned 45 deg in its plane reaches
+    // below the ground (its corners are 0.5 m from its centre): raise it.
+    let msg = message(&with_board(", roll_deg = 45.0, bottom_m = 0.0").replace("bottom_m = 0.3, ", ""));
+    assert!(msg.contains("shape.roll_deg") && msg.contains("below the ground"), "{msg}");
+}

@@ -1,0 +1,109 @@
+//! Where a run's appearance model comes from: a model file named by the scenario, or one
+//! trained from generated images and cached, so `objslam run` needs nothing prepared.
+//!
+//! The cached model is trained on a park generated with a different seed from the
+//! scenario's world (unseen trees, as a real robot meets them), rendered with the
+//! scenario's camera. The cache key hashes everything that shapes the model, so changing
+//! the camera or the training settings trains a new one.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+use sha2::{Digest, Sha256};
+use slam::classifier::{AppearanceModel, TrainingOptions, MODEL_FORMAT_VERSION};
+use slam::gmm::VbOptions;
+
+use crate::dataset::DatasetConfig;
+
+/// The scenario's `[appearance]` table.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct AppearanceSource {
+    /// A model file from `objslam train` (relative to the scenario file); when absent a
+    /// model is trained from generated images and cached.
+    pub model: Option<String>,
+    /// World generator preset and seed of the training images.
+    pub training_preset: String,
+    pub training_world_seed: u64,
+    pub training_images: usize,
+    pub training_seed: u64,
+    pub max_patches_per_class: usize,
+    pub max_components: usize,
+    pub pca_dims: usize,
+}
+
+impl Default for AppearanceSource {
+    fn default() -> Self {
+        AppearanceSource { model: None, training_preset: "park".into(), training_world_seed: 1001, training_images: 60, training_seed: 1, max_patches_per_class: 10_000, max_components: 10, pca_dims: 10 }
+    }
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum AppearanceError {
+    #[error(transparent)]
+    Model(#[from] slam::classifier::ModelError),
+    #[error(transparent)]
+    Train(#[from] crate::train::TrainError),
+    #[error(transparent)]
+    Dataset(#[from] crate::dataset::DatasetError),
+    #[error(transparent)]
+    World(#[from] worlds::WorldError),
+    #[error("{}: {message}", file.display())]
+    Io { file: PathBuf, message: String },
+}
+
+/// The cache directory: `$OBJSLAM_CACHE`, else `runs/cache` under the working directory.
+pub fn cache_dir() -> PathBuf {
+    std::env::var_os("OBJSLAM_CACHE").map(PathBuf::from).unwrap_or_else(|| PathBuf::from("runs").join("cache"))
+}
+
+impl AppearanceSource {
+    fn training_options(&self) -> TrainingOptions {
+        TrainingOptions {
+            pca_dims: self.pca_dims,
+            max_patches_per_class: self.max_patches_per_class,
+            seed: self.training_seed,
+            vb: VbOptions { max_components: self.max_components, ..Default::default() },
+            ..Default::default()
+        }
+    }
+
+    fn dataset_config(&self, camera: &sim::camera::CameraConfig) -> DatasetConfig {
+        DatasetConfig { images: self.training_images, seed: self.training_seed, camera: camera.clone(), ..Default::default() }
+    }
+
+    /// The cache file name for this source and camera.
+    pub fn cache_key(&self, camera: &sim::camera::CameraConfig) -> String {
+        let mut key = self.clone();
+        key.model = None;
+        let text = serde_json::to_string(&(MODEL_FORMAT_VERSION, key, self.dataset_config(camera), self.training_options())).expect("JSON");
+        let digest = Sha256::digest(text.as_bytes());
+        format!("appearance-{}.json", digest.iter().take(8).map(|b| format!("{b:02x}")).collect::<String>())
+    }
+
+    /// Loads the named model, or the cached one, training and caching it first if needed.
+    /// `progress(stage, done, total)` reports training.
+    pub fn resolve(&self, base_dir: &Path, camera: &sim::camera::CameraConfig, progress: impl Fn(&str, usize, usize)) -> Result<AppearanceModel, AppearanceError> {
+        if let Some(file) = &self.model {
+            return Ok(AppearanceModel::load(&base_dir.join(file))?);
+        }
+        let dir = cache_dir();
+        let path = dir.join(self.cache_key(camera));
+        if path.exists() {
+            return Ok(AppearanceModel::load(&path)?);
+        }
+        std::fs::create_dir_all(&dir).map_err(|e| AppearanceError::Io { file: dir.clone(), message: e.to_string() })?;
+        let scratch = dir.join(format!("training-{}-{}", std::process::id(), self.training_world_seed));
+        let world = worlds::generate::preset(&self.training_preset, None, self.training_world_seed)?;
+        let config = self.dataset_config(camera);
+        crate::dataset::make_dataset(&world, &format!("preset {}, seed {}", self.training_preset, self.training_world_seed), &config, &scratch, |done, total| progress("rendering", done, total))?;
+        let trained = crate::train::train_from_dataset(&scratch, &self.training_options(), 0, &progress);
+        let _ = std::fs::remove_dir_all(&scratch);
+        let model = trained?;
+        // Write then rename, so parallel runs never read a half-written model.
+        let tmp = dir.join(format!(".{}.{}", std::process::id(), self.cache_key(camera)));
+        model.save(&tmp)?;
+        std::fs::rename(&tmp, &path).map_err(|e| AppearanceError::Io { file: path.clone(), message: e.to_string() })?;
+        Ok(model)
+    }
+}

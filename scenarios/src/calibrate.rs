@@ -1,0 +1,731 @@
+//! Laser-camera extrinsic calibration in the simulator, after Zhang & Pless (IROS 2004).
+//!
+//! A calibration session is a *range* of checkerboards: the robot stops at `poses`
+//! stations in a row, each with one board in front of it at a seeded distance, bearing,
+//! height, turn and tilt (tilts and turns are stratified, so the board normals spread over
+//! the whole allowed range whatever the seed), plus a distractor post behind it. Stations
+//! are far enough apart that no other board is in the camera's view; the laser sees them
+//! (and the posts), which the segmentation must reject. At each station the simulator
+//! takes one laser scan (its noise model and quantisation) and one camera frame (its
+//! noise settings), exactly as in a run.
+//!
+//! Per station the board is detected in the image ([`slam::checkerboard::detect`]: its
+//! plane N in the camera frame), the board's points are segmented from the scan
+//! ([`slam::calibration::segment_board`]: the straight stretch of board length within the
+//! camera's view and at the range the camera sees the board at), and the pairs are solved
+//! for Phi and Delta ([`slam::calibration::calibrate`]). Stations where the board is not
+//! found in the image or the scan are reported and skipped.
+//!
+//! ```no_run
+//! let (scenario, base) = scenarios::scenario::Scenario::load("calibration").unwrap();
+//! let report = scenarios::calibrate::run_session(&scenario, &base, scenario.seed, None, None).unwrap();
+//! println!("{:.3} deg, {:.4} m", report.rotation_error_deg.unwrap(), report.translation_error_m.unwrap());
+//! ```
+
+use std::path::{Path, PathBuf};
+
+use nalgebra::{Matrix3, Vector3};
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+use sim::camera::{CameraSensor, Rigid};
+use sim::{Pose2D, SimConfig};
+use slam::calibration::{BoardObservation, BoardSegmentation, Extrinsics};
+use worlds::{Appearance, Material, ObjectClass, Pose2, Shape, StaticObject, World};
+
+use crate::scenario::{Scenario, ScenarioError};
+
+/// Version of `calibration.json`.
+pub const CALIBRATION_FORMAT_VERSION: u32 = 1;
+
+/// Errors of a calibration session or of a calibration file.
+#[derive(Debug, thiserror::Error)]
+pub enum CalibrateError {
+    #[error(transparent)]
+    Scenario(#[from] ScenarioError),
+    #[error("{}: calibration.session.{field}: {message}", file.display())]
+    Session { file: PathBuf, field: String, message: String },
+    #[error("calibration range world: {0}")]
+    World(String),
+    #[error(transparent)]
+    Sim(#[from] sim::SimError),
+    #[error("calibration camera: {0}")]
+    Camera(#[from] sim::camera::CameraError),
+    #[error("calibration failed ({used} of {requested} poses usable{skipped}): {reason}")]
+    Solve { requested: usize, used: usize, skipped: String, reason: slam::calibration::CalibrationError },
+    #[error("{}: cannot read: {source}", file.display())]
+    Read { file: PathBuf, source: std::io::Error },
+    #[error("{}: {field}: {message}", file.display())]
+    File { file: PathBuf, field: String, message: String },
+    #[error("{}: cannot write: {source}", file.display())]
+    Write { file: PathBuf, source: std::io::Error },
+}
+
+/// The calibration session of a scenario (`[calibration.session]`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SessionConfig {
+    /// Number of board poses (stations).
+    pub poses: usize,
+    /// Board size (m) and checker squares (across, down); the squares must be square.
+    pub board_width_m: f64,
+    pub board_height_m: f64,
+    pub squares: [u32; 2],
+    /// Distance from the laser to the board centre (m).
+    pub distance_m: [f64; 2],
+    /// Bearing of the board centre from the laser's x axis (deg).
+    pub bearing_deg: [f64; 2],
+    /// Height of the board centre above the ground (m); the laser's plane must cut the
+    /// board.
+    pub centre_height_m: [f64; 2],
+    /// Turn of the board about the vertical away from facing the laser (deg).
+    pub turn_deg: [f64; 2],
+    /// Tilt of the board about its width axis (deg, positive: face up). Tilts are needed:
+    /// with upright boards only, every normal is horizontal and the camera's height and
+    /// pitch relative to the laser cannot be recovered.
+    pub tilt_deg: [f64; 2],
+    /// Distance between stations (m): keeps other boards out of the camera's view.
+    pub station_spacing_m: f64,
+    /// Laser scans taken at each station while the robot stands still (at the laser's
+    /// rate), averaged beam by beam before segmentation: each scan has the laser's full
+    /// noise; averaging n of them divides it by sqrt(n), as a real calibration does by
+    /// standing still for a moment at each pose.
+    pub scans_per_pose: usize,
+    /// A post behind each board, in the laser's view, that segmentation must reject.
+    pub distractors: bool,
+    /// Laser segmentation settings; the bearing window, ranges and board lengths are set
+    /// from the camera and the board when left at their defaults.
+    pub segmentation: Option<BoardSegmentation>,
+}
+
+impl Default for SessionConfig {
+    fn default() -> Self {
+        SessionConfig {
+            poses: 20,
+            board_width_m: 0.8,
+            board_height_m: 0.6,
+            squares: [8, 6],
+            distance_m: [1.4, 2.6],
+            bearing_deg: [-10.0, 10.0],
+            centre_height_m: [0.45, 0.6],
+            turn_deg: [-40.0, 40.0],
+            tilt_deg: [-35.0, 35.0],
+            station_spacing_m: 12.0,
+            scans_per_pose: 10,
+            distractors: true,
+            segmentation: None,
+        }
+    }
+}
+
+impl SessionConfig {
+    /// Checks the settings; `file` names the scenario in errors.
+    pub fn check(&self, file: &Path, sim: &SimConfig) -> Result<(), CalibrateError> {
+        let bad = |field: &str, message: String| Err(CalibrateError::Session { file: file.to_path_buf(), field: field.into(), message });
+        if self.poses == 0 {
+            return bad("poses", "must be at least 1".into());
+        }
+        if !(1..=1000).contains(&self.scans_per_pose) {
+            return bad("scans_per_pose", format!("must be 1..1000, got {}", self.scans_per_pose));
+        }
+        for (field, v) in [("board_width_m", self.board_width_m), ("board_height_m", self.board_height_m), ("station_spacing_m", self.station_spacing_m)] {
+            if !(v.is_finite() && v > 0.0) {
+                return bad(field, format!("must be positive, got {v}"));
+            }
+        }
+        if self.squares[0] < 3 || self.squares[1] < 3 {
+            return bad("squares", format!("the detector needs at least 3 x 3 squares (2 x 2 inner corners), got {:?}", self.squares));
+        }
+        let (sx, sy) = (self.board_width_m / self.squares[0] as f64, self.board_height_m / self.squares[1] as f64);
+        if (sx - sy).abs() > 1e-6 * sx {
+            return bad("squares", format!("squares must be square: {sx:.4} m across but {sy:.4} m down"));
+        }
+        for (field, r) in [("distance_m", self.distance_m), ("bearing_deg", self.bearing_deg), ("centre_height_m", self.centre_height_m), ("turn_deg", self.turn_deg), ("tilt_deg", self.tilt_deg)] {
+            if !(r[0].is_finite() && r[1].is_finite() && r[0] <= r[1]) {
+                return bad(field, format!("must be a range [low, high] with low <= high, got {r:?}"));
+            }
+        }
+        if self.distance_m[0] <= 0.3 {
+            return bad("distance_m", format!("boards must be more than 0.3 m away, got {:?}", self.distance_m));
+        }
+        if self.tilt_deg[0] < -worlds::validate::MAX_BOARD_TILT_DEG || self.tilt_deg[1] > worlds::validate::MAX_BOARD_TILT_DEG {
+            return bad("tilt_deg", format!("must be within +-{} deg, got {:?}", worlds::validate::MAX_BOARD_TILT_DEG, self.tilt_deg));
+        }
+        if self.turn_deg[0] <= -80.0 || self.turn_deg[1] >= 80.0 {
+            return bad("turn_deg", format!("must be within +-80 deg (the camera must see the board's face), got {:?}", self.turn_deg));
+        }
+        // The laser's plane must cut every board, away from its edges.
+        let laser_z = sim.laser.mount_xyz_m[2];
+        let max_tilt = self.tilt_deg[0].abs().max(self.tilt_deg[1].abs()).to_radians();
+        let reach = 0.4 * self.board_height_m * max_tilt.cos();
+        if self.centre_height_m[0] - reach > laser_z || self.centre_height_m[1] + reach < laser_z {
+            return bad(
+                "centre_height_m",
+                format!("the laser's plane ({laser_z:.2} m up) must cut the boards well inside their height: centres must be within {reach:.2} m of it, got {:?}", self.centre_height_m),
+            );
+        }
+        let lowest = self.centre_height_m[0] - 0.5 * self.board_height_m * max_tilt.cos() - 0.5 * worlds::BOARD_THICKNESS_M * max_tilt.sin();
+        if lowest < 0.0 {
+            return bad("centre_height_m", format!("the lowest, most tilted board reaches {:.3} m below the ground", -lowest));
+        }
+        let footprint = self.board_width_m.max(self.board_height_m) + 2.0 * self.distance_m[1];
+        if self.station_spacing_m < footprint {
+            return bad("station_spacing_m", format!("must be at least {footprint:.1} m so neighbouring stations' boards stay out of the camera's view, got {}", self.station_spacing_m));
+        }
+        if let Some(s) = &self.segmentation
+            && !(s.inlier_m > 0.0 && s.jump_m > 0.0 && s.length_m[0] <= s.length_m[1] && s.range_m[0] <= s.range_m[1] && s.bearing_rad[0] <= s.bearing_rad[1])
+        {
+            return bad("segmentation", "needs positive inlier_m and jump_m and [low, high] ranges".into());
+        }
+        Ok(())
+    }
+
+    fn square_m(&self) -> f64 {
+        self.board_width_m / self.squares[0] as f64
+    }
+
+    fn inner_corners(&self) -> (usize, usize) {
+        (self.squares[0] as usize - 1, self.squares[1] as usize - 1)
+    }
+
+    /// Segmentation settings: the explicit ones, or the camera's field of view, the
+    /// session's distances and the board's size.
+    pub fn segmentation_for(&self, sim: &SimConfig) -> BoardSegmentation {
+        if let Some(s) = &self.segmentation {
+            return s.clone();
+        }
+        let half_fov = (sim.camera.hfov_deg / 2.0 + 5.0).to_radians();
+        let yaw = (sim.camera.mount_yaw_deg - sim.laser.mount_yaw_deg).to_radians();
+        let noise = sim.laser.range_noise_sigma_m;
+        BoardSegmentation {
+            bearing_rad: [yaw - half_fov, yaw + half_fov],
+            range_m: [0.5 * self.distance_m[0], 1.5 * self.distance_m[1] + self.board_width_m],
+            length_m: [0.5 * self.board_width_m.min(self.board_height_m), 1.05 * self.board_width_m.hypot(self.board_height_m)],
+            inlier_m: (4.0 * noise + sim.laser.quantum_m()).max(0.01),
+            ..Default::default()
+        }
+    }
+}
+
+/// One stop of the robot in front of one board.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Station {
+    pub index: usize,
+    /// Robot base pose (x, y, theta).
+    pub robot: [f64; 3],
+    pub board: StaticObject,
+    pub distractor: Option<StaticObject>,
+    /// The board's tilt and its turn away from facing the laser (deg).
+    pub tilt_deg: f64,
+    pub turn_deg: f64,
+}
+
+/// Id of station k's board; its distractor is `BOARD_ID_BASE + 1000 + k`.
+const BOARD_ID_BASE: u16 = 1000;
+
+/// Draws the stations of a session from `seed`.
+pub fn plan_stations(config: &SessionConfig, sim: &SimConfig, seed: u64) -> Vec<Station> {
+    let mut rng = ChaCha8Rng::seed_from_u64(sim::derive_seed(seed, "calibration-plan"));
+    let n = config.poses;
+    // Stratified tilts and turns: one per 1/n of each range, paired at random.
+    let strata = |rng: &mut ChaCha8Rng| {
+        let mut p: Vec<usize> = (0..n).collect();
+        for i in (1..n).rev() {
+            let j = rng.random_range(0..=i);
+            p.swap(i, j);
+        }
+        p
+    };
+    let (tilt_strata, turn_strata) = (strata(&mut rng), strata(&mut rng));
+    let lerp = |r: [f64; 2], f: f64| r[0] + (r[1] - r[0]) * f;
+    let uniform = |rng: &mut ChaCha8Rng, r: [f64; 2]| if r[1] > r[0] { rng.random_range(r[0]..r[1]) } else { r[0] };
+    let theta = std::f64::consts::FRAC_PI_2;
+    let [mx, my, _] = sim.laser.mount_xyz_m;
+    (0..n)
+        .map(|k| {
+            let x = (k as f64 - (n as f64 - 1.0) / 2.0) * config.station_spacing_m;
+            let robot = [x, 0.0, theta];
+            let (s, c) = theta.sin_cos();
+            let laser = [x + c * mx - s * my, s * mx + c * my];
+            let tilt = lerp(config.tilt_deg, (tilt_strata[k] as f64 + rng.random_range(0.0..1.0)) / n as f64);
+            let turn = lerp(config.turn_deg, (turn_strata[k] as f64 + rng.random_range(0.0..1.0)) / n as f64);
+            let distance = uniform(&mut rng, config.distance_m);
+            let bearing = uniform(&mut rng, config.bearing_deg).to_radians() + theta + sim.laser.mount_yaw_deg.to_radians();
+            let centre_z = uniform(&mut rng, config.centre_height_m);
+            let centre = [laser[0] + distance * bearing.cos(), laser[1] + distance * bearing.sin()];
+            // Facing the laser, then turned.
+            let yaw = (laser[1] - centre[1]).atan2(laser[0] - centre[0]) + turn.to_radians();
+            let board = StaticObject {
+                id: BOARD_ID_BASE + k as u16,
+                class: ObjectClass::Checkerboard,
+                pose: Pose2 { x: centre[0], y: centre[1], yaw_deg: yaw.to_degrees() },
+                shape: Shape::Board {
+                    width_m: config.board_width_m,
+                    height_m: config.board_height_m,
+                    bottom_m: centre_z - config.board_height_m / 2.0,
+                    squares: config.squares,
+                    tilt_deg: tilt,
+                    roll_deg: 0.0,
+                },
+                appearance: Appearance { material: Material::Checker, colour: [0.95, 0.95, 0.95], texture_seed: 0 },
+                mesh: None,
+            };
+            let distractor = config.distractors.then(|| {
+                // Behind the board, off to one side.
+                let away = bearing;
+                let back = rng.random_range(0.8..1.6) + config.board_width_m / 2.0;
+                let side = rng.random_range(-1.2..1.2);
+                let p = [centre[0] + back * away.cos() - side * away.sin(), centre[1] + back * away.sin() + side * away.cos()];
+                StaticObject {
+                    id: BOARD_ID_BASE + 1000 + k as u16,
+                    class: ObjectClass::Post,
+                    pose: Pose2 { x: p[0], y: p[1], yaw_deg: 0.0 },
+                    shape: Shape::Post { radius_m: 0.1, height_m: 1.2 },
+                    appearance: Appearance { material: Material::Paint, colour: [0.3, 0.25, 0.2], texture_seed: k as u64 },
+                    mesh: None,
+                }
+            });
+            Station { index: k, robot, board, distractor, tilt_deg: tilt, turn_deg: turn }
+        })
+        .collect()
+}
+
+/// The world of a session: a ground like `base`'s, the stations' boards and posts, and
+/// the robot at the first station.
+pub fn range_world(stations: &[Station], base: &World) -> Result<World, CalibrateError> {
+    let mut objects = Vec::new();
+    for s in stations {
+        objects.push(s.board.clone());
+        objects.extend(s.distractor.clone());
+    }
+    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+    for p in objects.iter().map(|o| [o.pose.x, o.pose.y]).chain(stations.iter().map(|s| [s.robot[0], s.robot[1]])) {
+        for k in 0..2 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+    }
+    let first = &stations[0].robot;
+    let last = &stations[stations.len() - 1].robot;
+    let end = if stations.len() > 1 { [last[0], last[1]] } else { [first[0] + 1.0, first[1]] };
+    let world = World {
+        format_version: worlds::WORLD_FORMAT_VERSION,
+        name: "calibration_range".into(),
+        seed: 0,
+        ground: worlds::Ground { min_m: [lo[0] - 5.0, lo[1] - 5.0], max_m: [hi[0] + 5.0, hi[1] + 5.0], appearance: base.ground.appearance.clone() },
+        objects,
+        people: vec![],
+        robot: worlds::RobotSpec {
+            start: Pose2 { x: first[0], y: first[1], yaw_deg: first[2].to_degrees() },
+            route: worlds::Route { waypoints: vec![[first[0], first[1]], end], looping: false },
+            laps: 1,
+        },
+    };
+    let problems = worlds::validate::validate(&world, Path::new("."));
+    if !problems.is_empty() {
+        return Err(CalibrateError::World(problems.iter().map(|p| format!("{}: {}", p.field, p.message)).collect::<Vec<_>>().join("; ")));
+    }
+    Ok(world)
+}
+
+/// What one station gave.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PoseReport {
+    pub pose: usize,
+    /// The board's plane in the camera frame (N), when detected.
+    pub plane: Option<[f64; 3]>,
+    /// Corner reprojection RMS of the board's pose fit (pixels).
+    pub reprojection_rms_px: Option<f64>,
+    /// Laser points taken for the board.
+    pub laser_points: usize,
+    /// Why the pose was skipped, if it was.
+    pub skipped: Option<String>,
+    /// RMS point-to-plane distance of its laser points under the solution (m).
+    pub residual_rms_m: Option<f64>,
+    /// Simulator truth, for diagnosis: angle between the detected and true board normals
+    /// (deg) and the detected minus the true plane distance (m).
+    pub truth_normal_error_deg: Option<f64>,
+    pub truth_distance_error_m: Option<f64>,
+    /// Board tilt and turn (deg) at this station.
+    pub tilt_deg: f64,
+    pub turn_deg: f64,
+}
+
+/// Everything `calibration.json` holds.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CalibrationReport {
+    pub format_version: u32,
+    pub tool: String,
+    pub scenario: String,
+    pub seed: u64,
+    /// The estimate: `P_laser = phi P_camera + delta`.
+    pub phi: [[f64; 3]; 3],
+    pub delta: [f64; 3],
+    /// The linear (closed-form) estimate the refinement started from.
+    pub initial: Extrinsics,
+    /// RMS and largest point-to-plane residual (m) over all points used.
+    pub rms_residual_m: f64,
+    pub max_residual_m: f64,
+    /// One-sigma uncertainty: rotation about the laser's x, y, z axes (deg) and
+    /// translation (m): the refinement's (JᵀJ)⁻¹ scaled by the residual variance (the
+    /// laser's share, also given alone below) plus each board plane's covariance from its
+    /// image carried through the solution to first order.
+    pub rotation_sigma_deg: [f64; 3],
+    pub translation_sigma_m: [f64; 3],
+    pub laser_rotation_sigma_deg: [f64; 3],
+    pub laser_translation_sigma_m: [f64; 3],
+    pub poses_requested: usize,
+    pub poses_used: usize,
+    pub poses_skipped: usize,
+    pub points_used: usize,
+    pub iterations: usize,
+    pub warnings: Vec<String>,
+    pub poses: Vec<PoseReport>,
+    /// The image size and K the calibration assumed.
+    pub camera: sim::camera::Intrinsics,
+    pub renderer: String,
+    /// The simulator's true extrinsics and the estimate's error against them.
+    pub truth: Option<Extrinsics>,
+    pub rotation_error_deg: Option<f64>,
+    pub translation_error_m: Option<f64>,
+}
+
+impl CalibrationReport {
+    pub fn extrinsics(&self) -> Extrinsics {
+        Extrinsics { phi: self.phi, delta: self.delta }
+    }
+
+    pub fn write(&self, path: &Path) -> Result<(), CalibrateError> {
+        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir).map_err(|source| CalibrateError::Write { file: dir.to_path_buf(), source })?;
+        }
+        std::fs::write(path, serde_json::to_string_pretty(self).expect("JSON") + "\n").map_err(|source| CalibrateError::Write { file: path.to_path_buf(), source })
+    }
+}
+
+/// The simulator's exact laser <- camera extrinsics for a configuration.
+pub fn true_extrinsics(sim: &SimConfig) -> Extrinsics {
+    rigid_to_extrinsics(&sim.camera.laser_from_camera(&sim.laser))
+}
+
+pub fn rigid_to_extrinsics(r: &Rigid) -> Extrinsics {
+    Extrinsics { phi: r.r, delta: r.t }
+}
+
+/// Runs the calibration session of a scenario with `seed`; `poses` overrides the
+/// session's number of poses; with `images`, each pose's camera image is written there
+/// (`pose_NN.png`, detected corners marked in red).
+pub fn run_session(scenario: &Scenario, base_dir: &Path, seed: u64, poses: Option<usize>, images: Option<&Path>) -> Result<CalibrationReport, CalibrateError> {
+    let file = PathBuf::from(format!("{}.toml", scenario.name));
+    let mut config = scenario.calibration.session.clone();
+    if let Some(p) = poses {
+        config.poses = p;
+    }
+    config.check(&file, &scenario.sim)?;
+    let stations = plan_stations(&config, &scenario.sim, seed);
+    // The range's ground looks like the scenario's world's ground.
+    let world = range_world(&stations, &scenario.world(base_dir, seed)?)?;
+    let mut report = calibrate_stations(&world, &stations, &config, &scenario.sim, seed, images)?;
+    report.scenario = scenario.name.clone();
+    Ok(report)
+}
+
+/// Captures a scan and an image at every station of `world` and solves for the
+/// extrinsics.
+pub fn calibrate_stations(world: &World, stations: &[Station], config: &SessionConfig, sim_config: &SimConfig, seed: u64, images: Option<&Path>) -> Result<CalibrationReport, CalibrateError> {
+    if let Some(dir) = images {
+        std::fs::create_dir_all(dir).map_err(|source| CalibrateError::Write { file: dir.to_path_buf(), source })?;
+    }
+    let mut cam_config = sim_config.camera.clone();
+    cam_config.enabled = true;
+    let mut camera = CameraSensor::new(world, &cam_config, sim::derive_seed(seed, "calibration-camera"))?;
+    let scene = sim::physics::PhysicsScene::build(world, &sim_config.robot, 1.0 / sim_config.physics_rate_hz);
+    let mut laser = sim::laser::Laser::new(&sim_config.laser, sim::derive_seed(seed, "calibration-laser"));
+    let k = cam_config.intrinsics();
+    let km = Matrix3::new(k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0);
+    let segmentation = config.segmentation_for(sim_config);
+    let inner = config.inner_corners();
+    let square = config.square_m();
+    let board_centre = Vector3::new((inner.0 as f64 - 1.0) / 2.0 * square, (inner.1 as f64 - 1.0) / 2.0 * square, 0.0);
+
+    let mut observations: Vec<BoardObservation> = Vec::new();
+    let mut obs_pose: Vec<usize> = Vec::new();
+    let mut poses: Vec<PoseReport> = Vec::new();
+    for st in stations {
+        let t = st.index as f64;
+        let robot = Pose2D { x: st.robot[0], y: st.robot[1], theta: st.robot[2] };
+        let frame = camera.capture(t, &robot, &[])?;
+        let scan = averaged_scan(&mut laser, &scene, &robot, t, config.scans_per_pose);
+        let mut pr = PoseReport {
+            pose: st.index,
+            plane: None,
+            reprojection_rms_px: None,
+            laser_points: 0,
+            skipped: None,
+            residual_rms_m: None,
+            truth_normal_error_deg: None,
+            truth_distance_error_m: None,
+            tilt_deg: st.tilt_deg,
+            turn_deg: st.turn_deg,
+        };
+        let detection = slam::checkerboard::detect(&frame.image.rgb, k.width as usize, k.height as usize, inner, square, &km);
+        if let Some(dir) = images {
+            let mut rgb = frame.image.rgb.clone();
+            for c in detection.as_ref().map(|d| d.corners.clone()).unwrap_or_default() {
+                let (u, v) = (c[0].floor() as i64, c[1].floor() as i64);
+                for d in -3i64..=3 {
+                    for (x, y) in [(u + d, v), (u, v + d)] {
+                        if x >= 0 && y >= 0 && x < k.width as i64 && y < k.height as i64 {
+                            let i = 3 * (y as usize * k.width as usize + x as usize);
+                            rgb[i..i + 3].copy_from_slice(&[255, 0, 0]);
+                        }
+                    }
+                }
+            }
+            let file = dir.join(format!("pose_{:02}.png", st.index));
+            crate::record::write_png(&file, k.width, k.height, image::ExtendedColorType::Rgb8, &rgb).map_err(|e| CalibrateError::Write { file: file.clone(), source: std::io::Error::other(e.to_string()) })?;
+        }
+        let det = match detection {
+            Ok(d) => d,
+            Err(e) => {
+                pr.skipped = Some(format!("board not found in the image: {e}"));
+                poses.push(pr);
+                continue;
+            }
+        };
+        pr.plane = Some([det.plane.x, det.plane.y, det.plane.z]);
+        pr.reprojection_rms_px = Some(det.reprojection_rms_px);
+        if let Some(truth) = true_plane(&st.board, &frame.world_from_camera) {
+            pr.truth_normal_error_deg = Some(det.plane.normalize().dot(&truth.normalize()).clamp(-1.0, 1.0).acos().to_degrees());
+            pr.truth_distance_error_m = Some(det.plane.norm() - truth.norm());
+        }
+        let camera_range = (det.rotation * board_centre + det.translation).norm();
+        let s = slam::messages::LaserScan {
+            t: scan.t,
+            angle_min: scan.angle_min,
+            angle_increment: scan.angle_increment,
+            range_min: scan.range_min,
+            range_max: scan.range_max,
+            ranges: scan.ranges.clone(),
+        };
+        match slam::calibration::segment_board(&s, &segmentation, Some(camera_range)) {
+            Ok(cut) => {
+                pr.laser_points = cut.points.len();
+                observations.push(BoardObservation { plane: det.plane, laser_points: cut.points, plane_covariance: Some(det.plane_covariance) });
+                obs_pose.push(poses.len());
+            }
+            Err(e) => pr.skipped = Some(format!("board not found in the scan: {e}")),
+        }
+        poses.push(pr);
+    }
+    let skipped: Vec<String> = poses.iter().filter_map(|p| p.skipped.as_ref().map(|r| format!("pose {}: {r}", p.pose))).collect();
+    let result = slam::calibration::calibrate(&observations).map_err(|reason| CalibrateError::Solve {
+        requested: stations.len(),
+        used: observations.len(),
+        skipped: if skipped.is_empty() { String::new() } else { format!("; skipped: {}", skipped.join("; ")) },
+        reason,
+    })?;
+    let est = result.extrinsics;
+    let mut max_residual: f64 = 0.0;
+    for (o, &pi) in observations.iter().zip(&obs_pose) {
+        let r = slam::calibration::point_plane_residuals(&est, o);
+        max_residual = r.iter().fold(max_residual, |m, v| m.max(v.abs()));
+        poses[pi].residual_rms_m = Some((r.iter().map(|v| v * v).sum::<f64>() / r.len().max(1) as f64).sqrt());
+    }
+    let mut warnings = result.warnings.clone();
+    for s in &skipped {
+        warnings.push(format!("skipped {s}"));
+    }
+    let truth = true_extrinsics(sim_config);
+    let (rot_err, trans_err) = est.error_to(&truth);
+    Ok(CalibrationReport {
+        format_version: CALIBRATION_FORMAT_VERSION,
+        tool: format!("objslam calibrate {}", env!("CARGO_PKG_VERSION")),
+        scenario: String::new(),
+        seed,
+        phi: est.phi,
+        delta: est.delta,
+        initial: result.initial,
+        rms_residual_m: result.rms_residual_m,
+        max_residual_m: max_residual,
+        rotation_sigma_deg: result.rotation_sigma_deg,
+        translation_sigma_m: result.translation_sigma_m,
+        laser_rotation_sigma_deg: result.laser_rotation_sigma_deg,
+        laser_translation_sigma_m: result.laser_translation_sigma_m,
+        poses_requested: stations.len(),
+        poses_used: result.poses_used,
+        poses_skipped: stations.len() - result.poses_used,
+        points_used: result.points_used,
+        iterations: result.iterations,
+        warnings,
+        poses,
+        camera: k,
+        renderer: camera.adapter().to_string(),
+        truth: Some(truth),
+        rotation_error_deg: Some(rot_err),
+        translation_error_m: Some(trans_err),
+    })
+}
+
+/// `n` scans from a standing robot, averaged beam by beam (a beam without a return in any
+/// of them has none).
+fn averaged_scan(laser: &mut sim::laser::Laser, scene: &sim::physics::PhysicsScene, robot: &Pose2D, t: f64, n: usize) -> sim::LaserScan {
+    let period = 1.0 / laser.config.rate_hz;
+    let (mut scan, _) = laser.scan(scene, robot, t);
+    for k in 1..n {
+        let (next, _) = laser.scan(scene, robot, t + k as f64 * period);
+        for (r, q) in scan.ranges.iter_mut().zip(&next.ranges) {
+            *r += q;
+        }
+    }
+    for r in &mut scan.ranges {
+        *r /= n as f64;
+    }
+    scan
+}
+
+/// The board's front face as the plane vector N in the camera frame (ground truth).
+pub fn true_plane(board: &StaticObject, world_from_camera: &Rigid) -> Option<Vector3<f64>> {
+    let f = board.shape.board_frame()?;
+    let (s, c) = board.pose.yaw_rad().sin_cos();
+    let to_world = |p: [f64; 3]| Vector3::new(board.pose.x + c * p[0] - s * p[1], board.pose.y + s * p[0] + c * p[1], p[2]);
+    let n_m = f.normal();
+    let n_w = Vector3::new(c * n_m[0] - s * n_m[1], s * n_m[0] + c * n_m[1], n_m[2]);
+    let p_w = to_world(f.apply([worlds::BOARD_THICKNESS_M / 2.0, 0.0, 0.0]));
+    let cam_from_world = world_from_camera.inverse();
+    let r = Matrix3::from_fn(|a, b| cam_from_world.r[a][b]);
+    let n_c = r * n_w;
+    let p_c = Vector3::from(cam_from_world.apply([p_w.x, p_w.y, p_w.z]));
+    Some(n_c * n_c.dot(&p_c))
+}
+
+/// Reads the extrinsics from a calibration file: a JSON object with `phi` (3x3 rotation,
+/// row-major) and `delta` (3 numbers, m), as `objslam calibrate` writes; other keys are
+/// ignored. Phi must be a rotation to within 1e-3 (it is re-orthonormalised).
+pub fn load_extrinsics(path: &Path) -> Result<Extrinsics, CalibrateError> {
+    let text = std::fs::read_to_string(path).map_err(|source| CalibrateError::Read { file: path.to_path_buf(), source })?;
+    let bad = |field: &str, message: String| CalibrateError::File { file: path.to_path_buf(), field: field.into(), message };
+    let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| bad("(file)", format!("not valid JSON: {e}")))?;
+    let obj = v.as_object().ok_or_else(|| bad("(file)", "must be a JSON object with `phi` and `delta`".into()))?;
+    let number = |field: &str, x: &serde_json::Value| -> Result<f64, CalibrateError> {
+        x.as_f64().filter(|f| f.is_finite()).ok_or_else(|| bad(field, format!("must be a finite number, got {x}")))
+    };
+    let phi_v = obj.get("phi").ok_or_else(|| bad("phi", "missing (the 3x3 rotation, row-major)".into()))?;
+    let rows = phi_v.as_array().filter(|r| r.len() == 3).ok_or_else(|| bad("phi", format!("must be 3 rows of 3 numbers, got {phi_v}")))?;
+    let mut phi = [[0.0; 3]; 3];
+    for (i, row) in rows.iter().enumerate() {
+        let cols = row.as_array().filter(|c| c.len() == 3).ok_or_else(|| bad(&format!("phi[{i}]"), format!("must be 3 numbers, got {row}")))?;
+        for (j, x) in cols.iter().enumerate() {
+            phi[i][j] = number(&format!("phi[{i}][{j}]"), x)?;
+        }
+    }
+    let delta_v = obj.get("delta").ok_or_else(|| bad("delta", "missing (the translation, 3 numbers in metres)".into()))?;
+    let d = delta_v.as_array().filter(|d| d.len() == 3).ok_or_else(|| bad("delta", format!("must be 3 numbers, got {delta_v}")))?;
+    let mut delta = [0.0; 3];
+    for (i, x) in d.iter().enumerate() {
+        delta[i] = number(&format!("delta[{i}]"), x)?;
+    }
+    let m = Matrix3::from_fn(|r, c| phi[r][c]);
+    let off = (m.transpose() * m - Matrix3::identity()).abs().max();
+    let det = m.determinant();
+    if off > 1e-3 || det < 0.0 {
+        return Err(bad("phi", format!("is not a rotation matrix (max |PhiᵀPhi - I| = {off:.2e}, det = {det:.4})")));
+    }
+    let svd = m.svd(true, true);
+    let r = svd.u.expect("u") * svd.v_t.expect("v_t");
+    Ok(Extrinsics::from_parts(&r, &Vector3::from(delta)))
+}
+
+/// The true extrinsics with seeded errors: a rotation by a vector with N(0, sigma)
+/// components (about the laser's axes) and N(0, sigma) per translation component.
+pub fn perturb(truth: &Extrinsics, rotation_sigma_deg: f64, translation_sigma_m: f64, seed: u64) -> Extrinsics {
+    let mut rng = ChaCha8Rng::seed_from_u64(sim::derive_seed(seed, "calibration-perturbation"));
+    let mut normal = || {
+        // Box-Muller.
+        let u1: f64 = rng.random_range(f64::EPSILON..1.0);
+        let u2: f64 = rng.random_range(0.0..1.0);
+        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+    };
+    let w = Vector3::new(normal(), normal(), normal()) * rotation_sigma_deg.to_radians();
+    let t = Vector3::new(normal(), normal(), normal()) * translation_sigma_m;
+    let r = nalgebra::Rotation3::new(w);
+    Extrinsics::from_parts(&(r.matrix() * truth.phi()), &(truth.delta() + t))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn stations_spread_their_tilts_and_build_a_valid_world() {
+        let config = SessionConfig::default();
+        let sim = SimConfig::default();
+        config.check(Path::new("x.toml"), &sim).unwrap();
+        let st = plan_stations(&config, &sim, 4);
+        assert_eq!(st.len(), 20);
+        let mut tilts: Vec<f64> = st.iter().map(|s| if let Shape::Board { tilt_deg, .. } = s.board.shape { tilt_deg } else { 0.0 }).collect();
+        tilts.sort_by(f64::total_cmp);
+        // One tilt per stratum of the range.
+        for (i, t) in tilts.iter().enumerate() {
+            let lo = -35.0 + 70.0 * i as f64 / 20.0;
+            assert!(*t >= lo && *t <= lo + 3.5, "{tilts:?}");
+        }
+        let world = range_world(&st, &worlds::generate::park(&Default::default(), 1).unwrap()).unwrap();
+        assert_eq!(world.objects.len(), 40);
+        assert_eq!(plan_stations(&config, &sim, 4), st, "same seed, same plan");
+        assert_ne!(plan_stations(&config, &sim, 5), st);
+    }
+
+    #[test]
+    fn bad_sessions_are_named() {
+        let sim = SimConfig::default();
+        let f = Path::new("s.toml");
+        let e = SessionConfig { squares: [8, 5], ..Default::default() }.check(f, &sim).unwrap_err().to_string();
+        assert!(e.contains("s.toml") && e.contains("calibration.session.squares") && e.contains("square"), "{e}");
+        let e = SessionConfig { tilt_deg: [-85.0, 10.0], ..Default::default() }.check(f, &sim).unwrap_err().to_string();
+        assert!(e.contains("tilt_deg"), "{e}");
+        let e = SessionConfig { centre_height_m: [1.5, 1.6], ..Default::default() }.check(f, &sim).unwrap_err().to_string();
+        assert!(e.contains("centre_height_m") && e.contains("laser"), "{e}");
+        let e = SessionConfig { poses: 0, ..Default::default() }.check(f, &sim).unwrap_err().to_string();
+        assert!(e.contains("poses"), "{e}");
+        let e = SessionConfig { station_spacing_m: 3.0, ..Default::default() }.check(f, &sim).unwrap_err().to_string();
+        assert!(e.contains("station_spacing_m"), "{e}");
+    }
+
+    #[test]
+    fn calibration_files_are_read_and_bad_ones_named() {
+        let dir = std::env::temp_dir().join(format!("objslam-calfile-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let truth = true_extrinsics(&SimConfig::default());
+        let good = dir.join("good.json");
+        std::fs::write(&good, serde_json::json!({"phi": truth.phi, "delta": truth.delta, "other": 1}).to_string()).unwrap();
+        let e = load_extrinsics(&good).unwrap();
+        assert!(e.error_to(&truth).0 < 1e-9 && e.error_to(&truth).1 < 1e-12);
+        let cases = [
+            ("nojson.json", "{".to_string(), "not valid JSON"),
+            ("nophi.json", serde_json::json!({"delta": [0, 0, 0]}).to_string(), "phi: missing"),
+            ("shape.json", serde_json::json!({"phi": [[1, 0], [0, 1]], "delta": [0, 0, 0]}).to_string(), "phi"),
+            ("notrot.json", serde_json::json!({"phi": [[1, 0, 0], [0, 2, 0], [0, 0, 1]], "delta": [0, 0, 0]}).to_string(), "not a rotation"),
+            ("reflect.json", serde_json::json!({"phi": [[1, 0, 0], [0, 1, 0], [0, 0, -1]], "delta": [0, 0, 0]}).to_string(), "not a rotation"),
+            ("delta.json", serde_json::json!({"phi": [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "delta": [0, "a", 0]}).to_string(), "delta[1]"),
+        ];
+        for (name, text, want) in cases {
+            let f = dir.join(name);
+            std::fs::write(&f, text).unwrap();
+            let msg = load_extrinsics(&f).unwrap_err().to_string();
+            assert!(msg.contains(name) && msg.contains(want), "{name}: {msg}");
+        }
+        let msg = load_extrinsics(&dir.join("missing.json")).unwrap_err().to_string();
+        assert!(msg.contains("missing.json") && msg.contains("cannot read"), "{msg}");
+    }
+
+    #[test]
+    fn perturbation_is_seeded_and_sized() {
+        let truth = true_extrinsics(&SimConfig::default());
+        let a = perturb(&truth, 1.0, 0.02, 7);
+        assert_eq!(a, perturb(&truth, 1.0, 0.02, 7));
+        let (r, t) = a.error_to(&truth);
+        assert!(r > 0.0 && r < 6.0 && t > 0.0 && t < 0.12, "{r} {t}");
+        assert_eq!(perturb(&truth, 0.0, 0.0, 7).error_to(&truth).1, 0.0);
+    }
+}
