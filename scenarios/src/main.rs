@@ -107,6 +107,9 @@ enum Command {
         /// Hold out every N-th image for scoring (0: none).
         #[arg(long, default_value_t = 5)]
         heldout_every: usize,
+        /// A patch is object when R = w_obj p_obj / (w_obj p_obj + w_bg p_bg) exceeds this.
+        #[arg(long, default_value_t = 0.5)]
+        threshold: f64,
         #[arg(long, default_value_t = 1)]
         seed: u64,
     },
@@ -237,11 +240,11 @@ fn main() {
 
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
-        // The main job. The paper's default scenario needs the camera pipeline, which is
-        // not built yet; until then run the position-only baseline on the paper's world.
+        // The main job: the paper's experiment with its method (trains the appearance model
+        // from generated images on first use and caches it).
         None => {
-            eprintln!("no command given: running the built-in scenario laser_only (see `objslam --help`)");
-            run_scenario(Some("laser_only"), None, None, None)
+            eprintln!("no command given: running the paper's experiment, scenario paper_park (see `objslam --help`)");
+            run_scenario(Some("paper_park"), None, None, None)
         }
         Some(Command::World(cmd)) => world(cmd),
         Some(Command::Run { scenario, seed, method, out }) => run_scenario(scenario.as_deref(), seed, method.as_deref(), out),
@@ -249,7 +252,7 @@ fn run(cli: Cli) -> Result<()> {
         Some(Command::Dataset { world, preset, images, seed, classes, patch_size, out }) => dataset(world, preset, images, seed, &classes, patch_size, &out),
         Some(Command::Record { input, seed, duration, sim_config, out }) => record(&input, seed, duration, sim_config, &out),
         Some(Command::Calibrate { scenario, poses, seed, out, images }) => calibrate(scenario.as_deref().unwrap_or("calibration"), poses, seed, &out, images.as_deref()),
-        Some(Command::Train { dataset, out, export_features, pca_dims, max_components, heldout_every, seed }) => train(&dataset, &out, export_features.as_deref(), pca_dims, max_components, heldout_every, seed),
+        Some(Command::Train { dataset, out, export_features, pca_dims, max_components, heldout_every, threshold, seed }) => train(&dataset, &out, export_features.as_deref(), pca_dims, max_components, heldout_every, threshold, seed),
         Some(Command::Segment { model, image, out }) => segment(&model, &image, &out),
         Some(Command::Find { run, image, model, top }) => find(&run, &image, model.as_deref(), top),
         Some(Command::Gmm(GmmCommand::Fit { data, max_components, fixed_k, seed, out })) => gmm_fit(&data, max_components, fixed_k, seed, &out),
@@ -507,8 +510,10 @@ fn world(cmd: WorldCommand) -> Result<()> {
     Ok(())
 }
 
-fn train(dataset: &std::path::Path, out: &std::path::Path, export: Option<&std::path::Path>, pca_dims: usize, max_components: usize, heldout_every: usize, seed: u64) -> Result<()> {
-    let options = slam::classifier::TrainingOptions { pca_dims, seed, vb: slam::gmm::VbOptions { max_components, ..Default::default() }, ..Default::default() };
+#[allow(clippy::too_many_arguments)]
+fn train(dataset: &std::path::Path, out: &std::path::Path, export: Option<&std::path::Path>, pca_dims: usize, max_components: usize, heldout_every: usize, threshold: f64, seed: u64) -> Result<()> {
+    anyhow::ensure!((0.0..=1.0).contains(&threshold), "--threshold must lie in [0, 1], got {threshold}");
+    let options = slam::classifier::TrainingOptions { pca_dims, seed, threshold, vb: slam::gmm::VbOptions { max_components, ..Default::default() }, ..Default::default() };
     let bar = indicatif::ProgressBar::new(1);
     bar.set_style(indicatif::ProgressStyle::with_template("train {msg:>18} [{bar:40}] {pos}/{len}, {elapsed} elapsed").expect("valid template").progress_chars("=> "));
     let started = std::time::Instant::now();

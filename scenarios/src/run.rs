@@ -82,6 +82,9 @@ pub struct Metrics {
     pub passed: bool,
     /// Which pass criteria failed, in words.
     pub failures: Vec<String>,
+    /// Where the wall-clock time went.
+    #[serde(default)]
+    pub timing: Timing,
 }
 
 /// How far the run's laser <- camera extrinsics are from the simulator's.
@@ -131,6 +134,17 @@ pub fn resolve_calibration(scenario: &Scenario, base_dir: &Path, seed: u64) -> R
     };
     let (rotation_error_deg, translation_error_m) = extrinsics.error_to(&truth);
     Ok(ResolvedCalibration { mode: mode.into(), file, extrinsics, truth, rotation_error_deg, translation_error_m, report })
+}
+
+/// Wall-clock split of a run: the simulator (physics, laser, rendering) against the online
+/// pipeline (clustering, segmentation, object models, association, EKF).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Timing {
+    pub simulator_s: f64,
+    pub pipeline_s: f64,
+    pub scans: usize,
+    /// Mean pipeline time per scan (with its image, for the camera methods), ms.
+    pub mean_scan_ms: f64,
 }
 
 /// Options of one run.
@@ -246,12 +260,21 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
     let mut landmark_objects: HashMap<u32, Vec<u16>> = HashMap::new();
     // Existing-landmark associations: (landmark id, true object of the observation).
     let mut associations: Vec<(u32, u16)> = Vec::new();
+    // Trees the method could map: laser-seen for position-only methods; seen in the
+    // camera at a laser cluster in enough frames to be confirmed, for camera methods.
     let mut trees_seen: std::collections::BTreeSet<u16> = Default::default();
+    let mut trees_in_view: BTreeMap<u16, usize> = BTreeMap::new();
+    let camera_method = config.method.uses_appearance();
     let mut people_tracks: BTreeMap<u16, Vec<[f64; 2]>> = BTreeMap::new();
     let tree_ids: std::collections::BTreeSet<u16> = world.objects.iter().filter(|o| o.class == ObjectClass::Tree).map(|o| o.id).collect();
     let mut last_progress = -1.0;
 
-    while let Some(event) = sim.next_event() {
+    let (mut sim_time, mut pipe_time, mut scan_time, mut scans) = (0.0f64, 0.0f64, 0.0f64, 0usize);
+    loop {
+        let tick = std::time::Instant::now();
+        let Some(event) = sim.next_event() else { break };
+        sim_time += tick.elapsed().as_secs_f64();
+        let tick = std::time::Instant::now();
         match &event {
             SensorEvent::Odometry { odometry, truth } => {
                 pipeline.on_odometry(&slam::messages::OdometryIncrement { t: odometry.t, dx: odometry.dx, dy: odometry.dy, dtheta: odometry.dtheta });
@@ -275,12 +298,27 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
                     ranges: scan.ranges.clone(),
                 };
                 let before = pipeline.decisions().len();
+                let scan_tick = std::time::Instant::now();
                 let result = pipeline.on_scan(&s);
+                scan_time += scan_tick.elapsed().as_secs_f64();
+                scans += 1;
                 for d in &pipeline.decisions()[before..] {
                     let c = &result.clusters[d.observation];
                     decision_truth.push(true_object(&beams.hit_ids, c.first_beam, c.last_beam));
                 }
                 for rec in pipeline.take_segmentations() {
+                    // Camera methods can only map trees the camera saw where the laser did.
+                    for &(ci, _) in &rec.clusters {
+                        let c = &result.clusters[ci];
+                        let obj = true_object(&beams.hit_ids, c.first_beam, c.last_beam);
+                        if tree_ids.contains(&obj) {
+                            let n = trees_in_view.entry(obj).or_insert(0usize);
+                            *n += 1;
+                            if *n >= config.confirm_observations {
+                                trees_seen.insert(obj);
+                            }
+                        }
+                    }
                     if let Some((ft, w, _, class)) = &last_frame
                         && *ft == rec.t_image
                     {
@@ -298,7 +336,7 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
                 }
                 for (ci, c) in result.clusters.iter().enumerate() {
                     let obj = true_object(&beams.hit_ids, c.first_beam, c.last_beam);
-                    if tree_ids.contains(&obj) {
+                    if tree_ids.contains(&obj) && !camera_method {
                         trees_seen.insert(obj);
                     }
                     if let Some(id) = result.assigned[ci] {
@@ -318,7 +356,7 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
                     }
                 }
                 for (id, n) in counts {
-                    if n >= config.clustering.min_points {
+                    if n >= config.clustering.min_points && !camera_method {
                         trees_seen.insert(id);
                     }
                 }
@@ -332,6 +370,7 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
                 last_frame = Some((frame.t, img.width, img.height, img.class.clone()));
             }
         }
+        pipe_time += tick.elapsed().as_secs_f64();
         let t = event.time();
         if t - last_progress >= 1.0 {
             progress(t, nominal);
@@ -410,6 +449,7 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
         route_completed: sim.route_progress() > 0.99,
         passed: false,
         failures: vec![],
+        timing: Timing { simulator_s: sim_time, pipeline_s: pipe_time, scans, mean_scan_ms: if scans > 0 { 1000.0 * scan_time / scans as f64 } else { 0.0 } },
     };
     metrics.failures = check_pass(scenario, &metrics);
     metrics.passed = metrics.failures.is_empty();
@@ -608,7 +648,7 @@ pub fn summary_table(m: &Metrics) -> String {
     let recall = if m.map.trees_seen == 0 { 1.0 } else { m.map.trees_mapped as f64 / m.map.trees_seen as f64 };
     let mut s = String::new();
     s.push_str(&format!("scenario {}  method {}  seed {}\n", m.scenario, m.method, m.seed));
-    s.push_str(&format!("  simulated {:.1} s in {:.2} s ({:.0}x real time)\n", m.sim_seconds, m.wall_seconds, m.realtime_factor));
+    s.push_str(&format!("  simulated {:.1} s in {:.2} s ({:.0}x real time; simulator {:.1} s, pipeline {:.1} s, {:.2} ms per scan)\n", m.sim_seconds, m.wall_seconds, m.realtime_factor, m.timing.simulator_s, m.timing.pipeline_s, m.timing.mean_scan_ms));
     s.push_str(&format!("  trees mapped      {:>4} of {} seen ({:.0}%)\n", m.map.trees_mapped, m.map.trees_seen, 100.0 * recall));
     s.push_str(&format!("  false landmarks   {:>4} (posts {}, palms {}, people {}, walls {}, nothing {})\n", m.false_landmarks, m.map.posts, m.map.palms, m.map.people, m.map.walls, m.map.nothing));
     s.push_str(&format!("  duplicates        {:>4}\n", m.duplicate_landmarks));

@@ -67,7 +67,7 @@ pub struct SegmentationConfig {
 
 impl Default for SegmentationConfig {
     fn default() -> Self {
-        SegmentationConfig { min_hit_fraction: 0.5, min_object_patches: 4, column_margin: 0 }
+        SegmentationConfig { min_hit_fraction: 0.75, min_object_patches: 4, column_margin: 0 }
     }
 }
 
