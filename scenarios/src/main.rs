@@ -99,10 +99,10 @@ enum Command {
         #[arg(long)]
         export_features: Option<PathBuf>,
         /// PCA dimension d.
-        #[arg(long, default_value_t = 10)]
+        #[arg(long, default_value_t = 20)]
         pca_dims: usize,
         /// Most mixture components per class.
-        #[arg(long, default_value_t = 10)]
+        #[arg(long, default_value_t = 20)]
         max_components: usize,
         /// Hold out every N-th image for scoring (0: none).
         #[arg(long, default_value_t = 5)]

@@ -220,7 +220,7 @@ pub struct TrainingOptions {
 
 impl Default for TrainingOptions {
     fn default() -> Self {
-        TrainingOptions { features: FeatureConfig::default(), pca_dims: 10, pca_samples: 20_000, max_patches_per_class: 20_000, label_fraction: 0.5, vb: VbOptions::default(), threshold: 0.5, seed: 1, object_class: "tree".into() }
+        TrainingOptions { features: FeatureConfig::default(), pca_dims: 20, pca_samples: 20_000, max_patches_per_class: 20_000, label_fraction: 0.5, vb: VbOptions { max_components: 20, ..VbOptions::default() }, threshold: 0.5, seed: 1, object_class: "tree".into() }
     }
 }
 

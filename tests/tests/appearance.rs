@@ -1,0 +1,23 @@
+//! The offline phase on rendered images: trees (trunks) against everything else in the
+//! park, posts, palms, walls, grass and people included.
+
+use scenarios::dataset::{make_dataset, DatasetConfig};
+use slam::classifier::TrainingOptions;
+
+/// A CI-sized run (40 images, 6,000 patches per class) measured held-out patch F1 0.82
+/// (precision 0.72, recall 0.95); the guard is 0.8. At full size (100 images, 20,000
+/// patches per class: `objslam train` defaults, see the README) F1 is 0.89, above the
+/// 0.85 goal.
+#[test]
+fn tree_patches_are_found_on_held_out_rendered_images() {
+    let dir = std::env::temp_dir().join(format!("objslam-appearance-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let world = worlds::generate::preset("park", None, 1001).unwrap();
+    make_dataset(&world, "park 1001", &DatasetConfig { images: 40, seed: 4, ..Default::default() }, &dir, |_, _| {}).unwrap();
+    let options = TrainingOptions { max_patches_per_class: 6000, ..Default::default() };
+    let model = scenarios::train::train_from_dataset(&dir, &options, 4, |_, _, _| {}).unwrap();
+    let s = model.training.heldout.expect("held-out images");
+    eprintln!("held-out patches: precision {:.3}, recall {:.3}, F1 {:.3}", s.precision(), s.recall(), s.f1());
+    assert!(s.f1() >= 0.8, "F1 {:.3} (precision {:.3}, recall {:.3})", s.f1(), s.precision(), s.recall());
+    let _ = std::fs::remove_dir_all(&dir);
+}
