@@ -500,14 +500,7 @@ pub fn calibrate_stations(world: &World, stations: &[Station], config: &SessionC
             pr.truth_distance_error_m = Some(det.plane.norm() - truth.norm());
         }
         let camera_range = (det.rotation * board_centre + det.translation).norm();
-        let s = slam::messages::LaserScan {
-            t: scan.t,
-            angle_min: scan.angle_min,
-            angle_increment: scan.angle_increment,
-            range_min: scan.range_min,
-            range_max: scan.range_max,
-            ranges: scan.ranges.clone(),
-        };
+        let s = crate::run::slam_scan(&scan);
         match slam::calibration::segment_board(&s, &segmentation, Some(camera_range)) {
             Ok(cut) => {
                 pr.laser_points = cut.points.len();

@@ -87,6 +87,19 @@ pub struct Metrics {
     pub timing: Timing,
 }
 
+impl Metrics {
+    /// The metrics with every wall-clock figure zeroed: what must be identical between two
+    /// runs of the same scenario and seed.
+    pub fn without_wall_clock(&self) -> Metrics {
+        Metrics {
+            wall_seconds: 0.0,
+            realtime_factor: 0.0,
+            timing: Timing { simulator_s: 0.0, pipeline_s: 0.0, mean_scan_ms: 0.0, ..self.timing.clone() },
+            ..self.clone()
+        }
+    }
+}
+
 /// How far the run's laser <- camera extrinsics are from the simulator's.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct CalibrationScore {
@@ -192,6 +205,11 @@ pub fn pipeline_config(scenario: &Scenario, method: Option<AssociationMethod>) -
     Ok(config)
 }
 
+/// The simulator's scan as the pipeline's plain message (the one place the two meet).
+pub fn slam_scan(scan: &sim::LaserScan) -> slam::messages::LaserScan {
+    slam::messages::LaserScan { t: scan.t, angle_min: scan.angle_min, angle_increment: scan.angle_increment, range_min: scan.range_min, range_max: scan.range_max, ranges: scan.ranges.clone() }
+}
+
 /// The camera as the pipeline is told it: K and the laser <- camera extrinsics (the
 /// run's resolved calibration, see [`resolve_calibration`]).
 pub fn camera_geometry(sim_config: &sim::SimConfig, laser_from_camera: &slam::calibration::Extrinsics) -> CameraGeometry {
@@ -289,14 +307,7 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
                 }
             }
             SensorEvent::Laser { scan, beams, truth } => {
-                let s = slam::messages::LaserScan {
-                    t: scan.t,
-                    angle_min: scan.angle_min,
-                    angle_increment: scan.angle_increment,
-                    range_min: scan.range_min,
-                    range_max: scan.range_max,
-                    ranges: scan.ranges.clone(),
-                };
+                let s = slam_scan(scan);
                 let before = pipeline.decisions().len();
                 let scan_tick = std::time::Instant::now();
                 let result = pipeline.on_scan(&s);

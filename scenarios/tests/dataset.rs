@@ -68,6 +68,7 @@ fn manifest_coco_and_patch_labels_agree_with_the_masks() {
         let inst = image::open(dir.join(&entry.instance)).unwrap().to_luma16();
         assert!(inst.pixels().any(|p| Some(p.0[0]) == entry.target_instance), "image {} misses its target", entry.id);
     }
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]

@@ -73,4 +73,5 @@ fn record_writes_a_readable_consistent_log() {
     assert_eq!(per_topic["/ground_truth/pose"].0, "foxglove.PosesInFrame");
     assert_eq!(per_topic["/camera/image"], ("foxglove.CompressedImage".to_string(), 51));
     assert_eq!(per_topic["/camera/calibration"].0, "foxglove.CameraCalibration");
+    let _ = std::fs::remove_dir_all(&dir);
 }

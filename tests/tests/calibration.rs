@@ -65,6 +65,7 @@ fn the_session_is_deterministic_and_its_file_round_trips() {
     }
     let e = calibrate::load_extrinsics(&file).unwrap();
     assert!(e.error_to(&a.extrinsics()).0 < 1e-6);
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Boards turned away from the camera (their backs show no pattern) are reported and
@@ -156,6 +157,7 @@ fn the_runner_resolves_estimated_and_file_calibrations() {
     let p1 = resolve_calibration(&perturbed, &base, 4).unwrap();
     assert_eq!(p1.extrinsics, resolve_calibration(&perturbed, &base, 4).unwrap().extrinsics);
     assert!(p1.rotation_error_deg > 0.05 && p1.translation_error_m > 0.001);
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
