@@ -282,6 +282,8 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
     // camera at a laser cluster in enough frames to be confirmed, for camera methods.
     let mut trees_seen: std::collections::BTreeSet<u16> = Default::default();
     let mut trees_in_view: BTreeMap<u16, usize> = BTreeMap::new();
+    // One line per segmented cluster (camera methods): why it was or was not an object.
+    let mut segmentation_log = String::new();
     let camera_method = config.method.uses_appearance();
     let mut people_tracks: BTreeMap<u16, Vec<[f64; 2]>> = BTreeMap::new();
     let tree_ids: std::collections::BTreeSet<u16> = world.objects.iter().filter(|o| o.class == ObjectClass::Tree).map(|o| o.id).collect();
@@ -319,9 +321,16 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
                 }
                 for rec in pipeline.take_segmentations() {
                     // Camera methods can only map trees the camera saw where the laser did.
-                    for &(ci, _) in &rec.clusters {
-                        let c = &result.clusters[ci];
+                    for cs in &rec.clusters {
+                        let c = &result.clusters[cs.index];
                         let obj = true_object(&beams.hit_ids, c.first_beam, c.last_beam);
+                        let mut line = serde_json::to_value(cs).expect("JSON");
+                        line["t_scan"] = json!(s.t);
+                        line["t_image"] = json!(rec.t_image);
+                        line["range_m"] = json!(c.range_m);
+                        line["true_object"] = json!(obj);
+                        line["true_class"] = json!(world.class_of(obj).map(|c| c.name()).unwrap_or("nothing"));
+                        segmentation_log.push_str(&(serde_json::to_string(&line).expect("JSON") + "\n"));
                         if tree_ids.contains(&obj) {
                             let n = trees_in_view.entry(obj).or_insert(0usize);
                             *n += 1;
@@ -479,6 +488,10 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
             report.write(&out.join("calibration.json"))?;
         }
         write_outputs(out, &world, &pipeline, &metrics, &resolved, &est_path, &gt_path, &people_tracks, &landmark_object, &decision_truth)?;
+        if camera_method {
+            let file = out.join("segmentation.jsonl");
+            std::fs::write(&file, segmentation_log).map_err(|source| RunError::Io { file, source })?;
+        }
     }
     Ok(RunOutcome { metrics, resolved })
 }

@@ -22,8 +22,9 @@ pub struct ObjectModelConfig {
     /// Components per object model (fixed K is faster than the search; the paper's
     /// footnote 2). 0 searches by birth-death.
     pub components: usize,
-    /// Standard deviation (m) added to a model's x-y spread: the patches of one view lie in
-    /// one plane, the object has depth.
+    /// Standard deviation (m) added to the x-y spread of both densities when they are
+    /// compared: the patches of one view lie in one plane, the object has depth (about a
+    /// trunk's radius). 0.1 m left views from a new side 100+ nats away.
     pub position_floor_m: f64,
     /// An observation joins the candidate with the smallest KL below this (nats).
     pub kl_threshold: f64,
@@ -36,7 +37,7 @@ pub struct ObjectModelConfig {
 
 impl Default for ObjectModelConfig {
     fn default() -> Self {
-        ObjectModelConfig { components: 1, position_floor_m: 0.1, kl_threshold: 80.0, mosaic_patches: 400, appearance_dims: 4 }
+        ObjectModelConfig { components: 1, position_floor_m: 0.3, kl_threshold: 80.0, mosaic_patches: 400, appearance_dims: 4 }
     }
 }
 
@@ -120,16 +121,16 @@ pub fn fit_observation(obs: &ObjectObservation, general: Option<&Gmm>, config: &
     let options = VbOptions { max_components: config.components.max(1).min(n), fixed_k: config.components > 0, max_iterations: 200, tolerance: 1e-6, seed: 0, ..Default::default() };
     let vb = gmm::fit(&obs.rows, Some(&prior), &options)?;
     let mut g = StudentTMixture::new(&vb)?.gaussian_approximation()?;
-    let floor = config.position_floor_m.powi(2);
-    for c in &mut g.components {
-        c.covariance[(d - 3, d - 3)] += floor;
-        c.covariance[(d - 2, d - 2)] += floor;
-    }
     // Drop components without weight: they add nothing and slow the KL.
     g.components.retain(|c| c.weight > 1e-3);
     let s: f64 = g.components.iter().map(|c| c.weight).sum();
     g.components.iter_mut().for_each(|c| c.weight /= s);
     Ok(g)
+}
+
+/// `g` with `floor_m`² added to the variance of its x-y dimensions (at `xy`, `xy + 1`).
+fn with_position_floor(g: &Gmm, xy: usize, floor_m: f64) -> Gmm {
+    shifted(g, xy, [0.0, 0.0], &(Matrix2::identity() * floor_m * floor_m))
 }
 
 /// `g` with its x-y dimensions (at `xy`, `xy + 1`) shifted by `shift` and widened by `extra`.
@@ -165,14 +166,27 @@ impl ObjectModel {
     }
 
     /// KL(observation || this model) with the observation placed relative to a landmark at
-    /// `landmark` whose offset from the observation has covariance `offset_covariance`.
+    /// `landmark` whose offset from the observation has covariance `offset_covariance`
+    /// (the observation is widened by it).
     /// With `appearance_only`, positions are marginalised out of both densities.
-    pub fn kl_from(&self, fitted_obs: &Gmm, obs_centre: [f64; 2], landmark: [f64; 2], offset_covariance: &Matrix2<f64>, appearance_only: bool) -> Result<f64, ObjectModelError> {
+    ///
+    /// The position floor is added to both densities here, not stored in the model: the
+    /// model's sufficient statistics stay those of the patches, so merging observations
+    /// (eq. 5) never dilutes the floor, and a trunk seen from a new side (its patches in a
+    /// plane turned against the earlier views') still matches.
+    pub fn kl_from(&self, fitted_obs: &Gmm, obs_centre: [f64; 2], landmark: [f64; 2], offset_covariance: &Matrix2<f64>, config: &ObjectModelConfig, appearance_only: bool) -> Result<f64, ObjectModelError> {
         let d = self.gmm.dims();
         let (f, g) = if appearance_only {
             (marginal(fitted_obs, d - 3), marginal(&self.gmm, d - 3))
         } else {
-            (shifted(fitted_obs, d - 3, [obs_centre[0] - landmark[0], obs_centre[1] - landmark[1]], offset_covariance), self.gmm.clone())
+            // The offset's uncertainty widens the observation, not the model. KL(f || g)
+            // punishes an f wider than g, so the less the filter knows where the object is,
+            // the less readily an observation joins it: after a long drift this makes
+            // duplicates rather than wrong associations. (Widening the model instead was
+            // measured on long_loop: the trees' appearances are too alike to carry the
+            // decision, and 110 wrong associations wrecked the map.)
+            let obs = shifted(fitted_obs, d - 3, [obs_centre[0] - landmark[0], obs_centre[1] - landmark[1]], offset_covariance);
+            (with_position_floor(&obs, d - 3, config.position_floor_m), with_position_floor(&self.gmm, d - 3, config.position_floor_m))
         };
         Ok(kl::kl_variational(&PreparedGmm::new(&f)?, &PreparedGmm::new(&g)?)?)
     }
@@ -312,15 +326,34 @@ mod tests {
         let again = observation(2, [1.0, 0.0, 0.0], [5.1, 2.05], 50);
         let post = observation(3, [-1.0, 1.5, 0.5], [5.1, 2.05], 50);
         let cov = Matrix2::identity() * 0.02;
-        let same = model.kl_from(&fit_observation(&again, None, &config).unwrap(), again.centre, [5.0, 2.0], &cov, false).unwrap();
-        let other = model.kl_from(&fit_observation(&post, None, &config).unwrap(), post.centre, [5.0, 2.0], &cov, false).unwrap();
+        let same = model.kl_from(&fit_observation(&again, None, &config).unwrap(), again.centre, [5.0, 2.0], &cov, &config, false).unwrap();
+        let other = model.kl_from(&fit_observation(&post, None, &config).unwrap(), post.centre, [5.0, 2.0], &cov, &config, false).unwrap();
         assert!(same < 10.0 && other > 2.0 * same + 10.0, "same {same}, other {other}");
         // The same object far from the landmark is far in KL too (position counts)...
-        let far = model.kl_from(&fit_observation(&again, None, &config).unwrap(), [9.0, 2.0], [5.0, 2.0], &cov, false).unwrap();
+        let far = model.kl_from(&fit_observation(&again, None, &config).unwrap(), [9.0, 2.0], [5.0, 2.0], &cov, &config, false).unwrap();
         assert!(far > 2.0 * same + 10.0, "far {far}");
         // ...unless positions are marginalised out.
-        let far_app = model.kl_from(&fit_observation(&again, None, &config).unwrap(), [9.0, 2.0], [5.0, 2.0], &cov, true).unwrap();
+        let far_app = model.kl_from(&fit_observation(&again, None, &config).unwrap(), [9.0, 2.0], [5.0, 2.0], &cov, &config, true).unwrap();
         assert!(far_app < same.max(1.0) * 2.0, "appearance only {far_app}");
+    }
+
+    /// Guards the position floor against eq. 5: merged observations used to dilute a floor
+    /// stored in the model, so a trunk seen from a new side (its patch plane turned 90 deg)
+    /// ended hundreds of nats from its own model and started a duplicate landmark.
+    #[test]
+    fn a_well_known_object_seen_from_a_new_side_still_matches() {
+        let config = ObjectModelConfig::default();
+        let first = observation(10, [1.0, 0.0, 0.0], [5.0, 2.0], 60);
+        let mut model = ObjectModel::new(&first, fit_observation(&first, None, &config).unwrap(), 3);
+        for k in 0..30 {
+            model.update(&observation(11 + k, [1.0, 0.0, 0.0], [5.0, 2.0], 60), [5.0, 2.0], 3).unwrap();
+        }
+        let mut side = observation(50, [1.0, 0.0, 0.0], [5.0, 2.0], 60);
+        side.rows.swap_columns(3, 4);
+        let cov = Matrix2::identity() * 0.02;
+        let kl = model.kl_from(&fit_observation(&side, None, &config).unwrap(), side.centre, [5.0, 2.0], &cov, &config, false).unwrap();
+        // 0.2 nats now; 16 when the floor lived in the model.
+        assert!(kl < 3.0, "KL from a new side {kl}");
     }
 
     #[test]

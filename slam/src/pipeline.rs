@@ -140,8 +140,27 @@ pub struct SegmentationRecord {
     pub patch_size: u32,
     /// (col, row, classified as object) for every patch classified.
     pub cells: Vec<(u32, u32, bool)>,
-    /// Per segmented cluster: its index in the scan and whether it was taken as an object.
-    pub clusters: Vec<(usize, bool)>,
+    /// Per segmented cluster: how it was decided.
+    pub clusters: Vec<ClusterSegmentation>,
+}
+
+/// Why one cluster was or was not taken as an object.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ClusterSegmentation {
+    /// Index of the cluster in its scan.
+    pub index: usize,
+    pub is_object: bool,
+    /// Fraction of the patches its laser points fall in that are object patches.
+    pub hit_fraction: f64,
+    pub above_fraction: f64,
+    /// Patch columns classified, [first, last).
+    pub columns: (u32, u32),
+    /// Patch rows the laser points fall in, [first, last].
+    pub hit_rows: (u32, u32),
+    /// Object posterior R of every classified patch, row-major over `columns` (kept in
+    /// memory, not written: it would dominate a run's log).
+    #[serde(skip_serializing, default)]
+    pub posteriors: Vec<f32>,
 }
 
 /// The online SLAM pipeline.
@@ -263,7 +282,16 @@ impl Pipeline {
                     record.cells.push((col, row, o));
                 }
             }
-            record.clusters.push((ci, seg.is_object));
+            let hit_rows = (seg.hit_patches.iter().map(|h| h.1).min().unwrap_or(0), seg.hit_patches.iter().map(|h| h.1).max().unwrap_or(0));
+            record.clusters.push(ClusterSegmentation {
+                index: ci,
+                is_object: seg.is_object,
+                hit_fraction: seg.hit_fraction,
+                above_fraction: seg.above_fraction,
+                columns: (seg.rect.col0, seg.rect.col1),
+                hit_rows,
+                posteriors: seg.posteriors.iter().map(|&r| r as f32).collect(),
+            });
             if !seg.is_object {
                 continue;
             }
@@ -337,7 +365,7 @@ impl Pipeline {
                 }
                 let Some(model) = &self.objects[j] else { continue };
                 let lm = self.ekf.landmark(j);
-                let kl = model.kl_from(&fitted, obs.centre, [lm.x, lm.y], &self.offset_covariance(j, &z), method == AssociationMethod::Appearance).ok();
+                let kl = model.kl_from(&fitted, obs.centre, [lm.x, lm.y], &self.offset_covariance(j, &z), &cfg, method == AssociationMethod::Appearance).ok();
                 candidates.push(Candidate { landmark: self.landmarks[j].id, mahalanobis2: m2, kl });
             }
             let best = candidates.iter().filter_map(|c| c.kl.filter(|k| k.is_finite() && *k < cfg.kl_threshold).map(|k| (c.landmark, k))).min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));

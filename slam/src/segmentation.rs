@@ -59,15 +59,28 @@ pub struct SegmentationConfig {
     /// A cluster is an object when at least this fraction of the patches its laser points
     /// fall in are object patches...
     pub min_hit_fraction: f64,
-    /// ...and at least this many object patches lie in its columns.
+    /// ...and at least this many object patches lie in its columns...
     pub min_object_patches: usize,
+    /// ...and at least this fraction of the patches above the laser's rows in its columns,
+    /// up to `above_band_m`, are object patches: a trunk goes on up the image, while posts,
+    /// people and most look-alikes end near the laser plane with background above them.
+    pub min_above_fraction: f64,
+    /// Height above the laser plane (m), at the cluster's range, up to which the patches
+    /// above it are judged; higher rows (a far tree's canopy) are not. 2.6 m reaches half a
+    /// metre above the park's tallest post (2.5 m from the ground, laser at 0.4 m) and
+    /// stays below most canopies.
+    pub above_band_m: f64,
     /// Extra patch columns classified on each side of the projected points.
     pub column_margin: u32,
+    /// A patch is an object patch when R exceeds this; absent: the classifier's own threshold.
+    /// Deciding a cluster wants confident patches: 0.85 rather than the classifier's 0.5
+    /// halved the frames in which a look-alike post passed on paper_park.
+    pub patch_threshold: Option<f64>,
 }
 
 impl Default for SegmentationConfig {
     fn default() -> Self {
-        SegmentationConfig { min_hit_fraction: 0.75, min_object_patches: 4, column_margin: 0 }
+        SegmentationConfig { min_hit_fraction: 0.75, min_object_patches: 4, min_above_fraction: 0.6, above_band_m: 2.6, column_margin: 0, patch_threshold: Some(0.85) }
     }
 }
 
@@ -84,6 +97,8 @@ pub struct SegmentedCluster {
     /// Distinct patches (col, row) the cluster's laser points project into.
     pub hit_patches: Vec<(u32, u32)>,
     pub hit_fraction: f64,
+    /// Fraction of object patches above the highest laser row, in the classified columns.
+    pub above_fraction: f64,
     pub is_object: bool,
 }
 
@@ -118,12 +133,19 @@ pub fn segment_cluster(cluster: &Cluster, image: &ImageRef, extractor: &FeatureE
     let rect = PatchRect::columns(image, l, c0, c1);
     let features = extractor.features(image, Some(rect))?;
     let posteriors = classifier.posteriors(&features);
-    let object: Vec<bool> = posteriors.iter().map(|&r| r > classifier.threshold).collect();
+    let threshold = config.patch_threshold.unwrap_or(classifier.threshold);
+    let object: Vec<bool> = posteriors.iter().map(|&r| r > threshold).collect();
     let hit_objects = hits.iter().filter(|&&(c, r)| features.index(c, r).is_some_and(|i| object[i])).count();
     let hit_fraction = hit_objects as f64 / hits.len() as f64;
     let n_object = object.iter().filter(|&&o| o).count();
-    let is_object = hit_fraction >= config.min_hit_fraction && n_object >= config.min_object_patches;
-    Ok(Some(SegmentedCluster { rect, features, posteriors, object, hit_patches: hits, hit_fraction, is_object }))
+    let top_hit_row = hits.iter().map(|h| h.1).min().expect("non-empty");
+    // The image row of the band's top above the cluster's centre (rows grow downwards).
+    let band_top_row = geometry.project(&Vector3::new(cluster.centre[0], cluster.centre[1], config.above_band_m)).map_or(0.0, |[_, v]| (v / l as f64).floor().max(0.0)) as u32;
+    let above: Vec<bool> = (0..object.len()).filter(|&i| (band_top_row..top_hit_row).contains(&rect.patch(i).1)).map(|i| object[i]).collect();
+    // A cluster hit in the top row has nothing above it to judge by: its hits decide alone.
+    let above_fraction = if above.is_empty() { hit_fraction } else { above.iter().filter(|&&o| o).count() as f64 / above.len() as f64 };
+    let is_object = hit_fraction >= config.min_hit_fraction && n_object >= config.min_object_patches && above_fraction >= config.min_above_fraction;
+    Ok(Some(SegmentedCluster { rect, features, posteriors, object, hit_patches: hits, hit_fraction, above_fraction, is_object }))
 }
 
 #[cfg(test)]

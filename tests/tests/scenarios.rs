@@ -1,6 +1,6 @@
 //! End-to-end regression tests: library scenarios against their pass criteria, and run
-//! determinism. Scenarios whose method needs the camera pipeline are not run here until
-//! that pipeline exists (see the README's status section).
+//! determinism. posts_near_trees, crowd and long_loop do not meet their criteria yet (see
+//! the README's open problems) and are not run here.
 
 use scenarios::run::{RunOptions, run};
 use scenarios::scenario::Scenario;
@@ -96,7 +96,26 @@ fn combined_method_runs_end_to_end_with_camera_segmentation() {
     let decisions = std::fs::read_to_string(out.join("decisions.jsonl")).unwrap();
     let with_kl = decisions.lines().filter(|l| l.contains("\"kl\":") && !l.contains("\"kl\":null")).count();
     assert!(with_kl > 0);
+    // Every segmented cluster's decision is logged with its ground truth.
+    let seg = std::fs::read_to_string(out.join("segmentation.jsonl")).unwrap();
+    let lines: Vec<serde_json::Value> = seg.lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    assert!(lines.iter().any(|l| l["is_object"] == true && l["true_class"] == "tree"));
+    assert!(lines.iter().all(|l| l["hit_fraction"].is_f64() && l["above_fraction"].is_f64()));
     let _ = std::fs::remove_dir_all(&out);
+}
+
+/// Guards the paper's claim on its own experiment, the whole default run: only trees are
+/// mapped (no post, palm, wall or person), every tree seen is mapped once, and no
+/// association is wrong.
+#[test]
+fn paper_park_maps_only_trees_each_once_with_no_wrong_association() {
+    let m = run_named("paper_park", None, None);
+    assert!(m.passed, "{:?}", m.failures);
+    assert_eq!((m.map.posts, m.map.palms, m.map.people, m.map.walls, m.map.nothing), (0, 0, 0, 0, 0), "{:?}", m.map);
+    assert_eq!(m.map.trees_mapped, m.map.trees_seen);
+    assert!(m.map.trees_seen >= 6, "{:?}", m.map);
+    assert_eq!((m.associations.wrong, m.duplicate_landmarks), (0, 0));
+    assert!(m.route_completed);
 }
 
 #[test]

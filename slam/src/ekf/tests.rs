@@ -68,7 +68,8 @@ fn observation_jacobians_match_numeric_ones() {
 /// pose NEES at each step and the final filter.
 fn synthetic_run(seed: u64, steps: usize) -> (Vec<f64>, Ekf) {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let motion = OdometryMotionModel::default();
+    // Noise drawn from the filter's own white model: no calibration random walks.
+    let motion = OdometryMotionModel::white(0.005, 0.0002, 0.002, 0.005);
     let sensor = RangeBearingModel::default();
     let landmarks: Vec<Vector2<f64>> = (0..24)
         .map(|k| {
@@ -157,4 +158,28 @@ fn update_rejects_unknown_landmarks_and_non_finite_observations() {
     assert_eq!(ekf.update(&m, i, &Vector2::new(f64::NAN, 0.0)), Err(EkfError::NonFinite));
     ekf.remove_landmark(i);
     assert_eq!(ekf.landmark_count(), 0);
+}
+
+/// Guards the odometry calibration random walks: the heading variance gathered over a
+/// metre must not depend on how finely the odometry is sampled (white per-step noise
+/// alone vanishes as the rate rises, which left the filter overconfident).
+#[test]
+fn calibration_noise_does_not_vanish_with_the_odometry_rate() {
+    let motion = OdometryMotionModel::default();
+    let heading_variance = |steps: usize| {
+        let mut ekf = Ekf::new(Vector3::zeros(), Matrix3::zeros());
+        for _ in 0..steps {
+            ekf.predict(&motion, &[1.0 / steps as f64, 0.0, 0.0]);
+        }
+        ekf.pose_covariance()[(2, 2)]
+    };
+    let (coarse, fine) = (heading_variance(10), heading_variance(1000));
+    // Finely sampled, the random walk alone remains: a_per_m per metre driven.
+    assert!((fine / motion.a_per_m - 1.0).abs() < 0.1 && coarse >= fine, "1 m in 10 steps: {coarse}, in 1000: {fine}");
+    let white = OdometryMotionModel::white(motion.a_dd, motion.a_da, motion.a_ad, motion.a_aa);
+    let mut ekf = Ekf::new(Vector3::zeros(), Matrix3::zeros());
+    for _ in 0..1000 {
+        ekf.predict(&white, &[0.001, 0.0, 0.0]);
+    }
+    assert!(ekf.pose_covariance()[(2, 2)] < 0.1 * fine, "white noise alone vanishes at a fine rate");
 }
