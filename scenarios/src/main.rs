@@ -198,6 +198,21 @@ enum MontecarloCommand {
         #[arg(long)]
         out: PathBuf,
     },
+    /// The built-in study of the paper's argument on paper_park: failure rate of combined,
+    /// nn and jcbb against odometry heading drift (DIR/odometry) and against post-to-tree
+    /// distance (DIR/post_distance). Resumable and shardable like any study.
+    Study {
+        /// Runs per method and parameter value.
+        #[arg(long, default_value_t = 10)]
+        runs: usize,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Run only slice K of N of each sub-study (0-based).
+        #[arg(long)]
+        shard: Option<String>,
+        #[arg(long, default_value = "runs/study")]
+        out: PathBuf,
+    },
 }
 
 #[derive(Subcommand)]
@@ -312,6 +327,17 @@ fn montecarlo(args: MontecarloArgs) -> Result<()> {
         println!("merged {} runs from {} directories into {}", runs.len(), dirs.len(), out.display());
         return Ok(());
     }
+    if let Some(MontecarloCommand::Study { runs, seed, shard, out }) = args.command {
+        let shard = match &shard {
+            Some(s) => mc::Shard::parse(s)?,
+            None => mc::Shard::from_env(|k| std::env::var(k).ok(), None)?.unwrap_or(mc::Shard::all()),
+        };
+        for (name, plan) in mc::builtin_study(runs, seed) {
+            println!("study {name}: {} = {:?}", plan.vary[0].param, plan.vary[0].values);
+            run_plan(&plan, shard, &out.join(name))?;
+        }
+        return Ok(());
+    }
     let scenario = args.scenario.expect("clap requires a scenario without a subcommand");
     let methods: Vec<String> = args.methods.split(',').map(|m| m.trim().to_string()).filter(|m| !m.is_empty()).collect();
     for m in &methods {
@@ -331,11 +357,17 @@ fn montecarlo(args: MontecarloArgs) -> Result<()> {
     };
     let plan = mc::StudyPlan { scenario: scenario.clone(), base_seed: args.seed, runs: args.runs, methods, vary };
     let out = args.out.unwrap_or_else(|| PathBuf::from(format!("runs/montecarlo-{}-{}", sc.name, args.seed)));
+    run_plan(&plan, shard, &out)
+}
+
+/// Runs (or resumes) one study with a progress bar, then writes and prints its summary.
+fn run_plan(plan: &scenarios::montecarlo::StudyPlan, shard: scenarios::montecarlo::Shard, out: &std::path::Path) -> Result<()> {
+    use scenarios::montecarlo as mc;
     let bar = indicatif::ProgressBar::new(0);
     bar.set_style(indicatif::ProgressStyle::with_template("study [{bar:40}] {pos}/{len} runs, {msg}, {elapsed} elapsed, ETA {eta}").expect("valid template").progress_chars("=> "));
     let started = std::time::Instant::now();
     let first_done = std::sync::Mutex::new(None::<usize>);
-    let records = mc::run_study(&plan, shard, &out, |done, total| {
+    let records = mc::run_study(plan, shard, out, |done, total| {
         bar.set_length(total as u64);
         bar.set_position(done as u64);
         let mut first = first_done.lock().unwrap_or_else(|p| p.into_inner());
@@ -346,8 +378,8 @@ fn montecarlo(args: MontecarloArgs) -> Result<()> {
         }
     })?;
     bar.finish_and_clear();
-    let rows = mc::summarise(&plan, &records);
-    mc::write_summary(&plan, &rows, &out)?;
+    let rows = mc::summarise(plan, &records);
+    mc::write_summary(plan, &rows, out)?;
     print_summary(&rows);
     let errors = records.iter().filter(|r| r.error.is_some()).count();
     println!(

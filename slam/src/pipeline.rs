@@ -108,6 +108,7 @@ pub struct ScanResult {
 }
 
 /// What the appearance methods need: the trained model, ready to classify, and the camera.
+#[derive(Clone)]
 pub struct Appearance {
     pub model: AppearanceModel,
     classifier: PatchClassifier,
@@ -125,6 +126,7 @@ impl Appearance {
 }
 
 /// The latest camera image.
+#[derive(Clone)]
 struct StoredImage {
     t: f64,
     width: u32,
@@ -163,7 +165,8 @@ pub struct ClusterSegmentation {
     pub posteriors: Vec<f32>,
 }
 
-/// The online SLAM pipeline.
+/// The online SLAM pipeline. Cloning it forks a run (benchmarks, what-if studies).
+#[derive(Clone)]
 pub struct Pipeline {
     pub config: PipelineConfig,
     ekf: Ekf,
