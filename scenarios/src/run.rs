@@ -160,6 +160,66 @@ pub struct Timing {
     pub mean_scan_ms: f64,
 }
 
+/// The simulator's event stream, with the time spent producing it.
+///
+/// A run started outside a rayon pool simulates on its own thread, a bounded queue ahead of
+/// the pipeline, so the two halves overlap. Inside a pool (Monte Carlo runs, which already
+/// fill the cores) it simulates inline: a pool worker blocked on the queue would starve
+/// the laser's own rayon tasks and deadlock. The pipeline sees the same event sequence
+/// either way.
+enum EventSource {
+    Inline { sim: Simulation, sim_time: f64 },
+    Threaded { events: std::sync::mpsc::Receiver<SensorEvent>, producer: std::thread::JoinHandle<(Simulation, f64)> },
+}
+
+impl EventSource {
+    fn start(mut sim: Simulation) -> Self {
+        if rayon::current_thread_index().is_some() {
+            return EventSource::Inline { sim, sim_time: 0.0 };
+        }
+        let (tx, events) = std::sync::mpsc::sync_channel::<SensorEvent>(64);
+        let producer = std::thread::spawn(move || {
+            let mut sim_time = 0.0f64;
+            loop {
+                let tick = std::time::Instant::now();
+                let Some(event) = sim.next_event() else { break };
+                sim_time += tick.elapsed().as_secs_f64();
+                if tx.send(event).is_err() {
+                    break;
+                }
+            }
+            (sim, sim_time)
+        });
+        EventSource::Threaded { events, producer }
+    }
+
+    fn next(&mut self) -> Option<SensorEvent> {
+        match self {
+            EventSource::Inline { sim, sim_time } => {
+                let tick = std::time::Instant::now();
+                let event = sim.next_event();
+                *sim_time += tick.elapsed().as_secs_f64();
+                event
+            }
+            EventSource::Threaded { events, .. } => events.recv().ok(),
+        }
+    }
+
+    /// The simulator once the stream has ended, and its time (s).
+    fn finish(self) -> (Simulation, f64) {
+        match self {
+            EventSource::Inline { sim, sim_time } => (sim, sim_time),
+            EventSource::Threaded { events, producer } => {
+                drop(events);
+                match producer.join() {
+                    Ok(done) => done,
+                    Err(panic) => std::panic::resume_unwind(panic),
+                }
+            }
+        }
+    }
+}
+
 /// Options of one run.
 #[derive(Debug, Clone, Default)]
 pub struct RunOptions {
@@ -255,7 +315,7 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
     if !config.method.uses_appearance() {
         sim_config.camera.enabled = false;
     }
-    let mut sim = Simulation::new(&world, &sim_config, sim::derive_seed(seed, "sim"))?;
+    let sim = Simulation::new(&world, &sim_config, sim::derive_seed(seed, "sim"))?;
     let nominal = scenario.sim.max_duration_s.unwrap_or_else(|| sim.nominal_duration_s());
     let start = world.robot.start;
     let appearance = match &appearance_model {
@@ -289,11 +349,9 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
     let tree_ids: std::collections::BTreeSet<u16> = world.objects.iter().filter(|o| o.class == ObjectClass::Tree).map(|o| o.id).collect();
     let mut last_progress = -1.0;
 
-    let (mut sim_time, mut pipe_time, mut scan_time, mut scans) = (0.0f64, 0.0f64, 0.0f64, 0usize);
-    loop {
-        let tick = std::time::Instant::now();
-        let Some(event) = sim.next_event() else { break };
-        sim_time += tick.elapsed().as_secs_f64();
+    let (mut pipe_time, mut scan_time, mut scans) = (0.0f64, 0.0f64, 0usize);
+    let mut events = EventSource::start(sim);
+    while let Some(event) = events.next() {
         let tick = std::time::Instant::now();
         match &event {
             SensorEvent::Odometry { odometry, truth } => {
@@ -397,6 +455,7 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
             last_progress = t;
         }
     }
+    let (sim, sim_time) = events.finish();
     progress(sim.time(), nominal);
     let wall = started.elapsed().as_secs_f64();
 
