@@ -255,11 +255,10 @@ pub fn plan_stations(config: &SessionConfig, sim: &SimConfig, seed: u64) -> Vec<
             let centre = [laser[0] + distance * bearing.cos(), laser[1] + distance * bearing.sin()];
             // Facing the laser, then turned.
             let yaw = (laser[1] - centre[1]).atan2(laser[0] - centre[0]) + turn.to_radians();
-            let board = StaticObject {
-                id: BOARD_ID_BASE + k as u16,
-                class: ObjectClass::Checkerboard,
-                pose: Pose2 { x: centre[0], y: centre[1], yaw_deg: yaw.to_degrees() },
-                shape: Shape::Board {
+            let board = StaticObject::checkerboard(
+                BOARD_ID_BASE + k as u16,
+                Pose2 { x: centre[0], y: centre[1], yaw_deg: yaw.to_degrees() },
+                Shape::Board {
                     width_m: config.board_width_m,
                     height_m: config.board_height_m,
                     bottom_m: centre_z - config.board_height_m / 2.0,
@@ -267,9 +266,7 @@ pub fn plan_stations(config: &SessionConfig, sim: &SimConfig, seed: u64) -> Vec<
                     tilt_deg: tilt,
                     roll_deg: 0.0,
                 },
-                appearance: Appearance { material: Material::Checker, colour: [0.95, 0.95, 0.95], texture_seed: 0 },
-                mesh: None,
-            };
+            );
             let distractor = config.distractors.then(|| {
                 // Behind the board, off to one side.
                 let away = bearing;

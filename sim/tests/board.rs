@@ -6,15 +6,12 @@ fn board_world(tilt_deg: f64, roll_deg: f64) -> World {
     let mut world = worlds::generate::park(&Default::default(), 2006).unwrap();
     world.objects.clear();
     world.people.clear();
-    world.objects.push(StaticObject {
-        id: 500,
-        class: ObjectClass::Checkerboard,
-        // 2 m ahead of a laser at the origin, facing it (-x), turned 20 deg.
-        pose: Pose2 { x: 2.0, y: 0.0, yaw_deg: 200.0 },
-        shape: Shape::Board { width_m: 0.8, height_m: 0.6, bottom_m: 0.2, squares: [8, 6], tilt_deg, roll_deg },
-        appearance: Appearance { material: Material::Checker, colour: [0.95, 0.95, 0.95], texture_seed: 0 },
-        mesh: None,
-    });
+    // 2 m ahead of a laser at the origin, facing it (-x), turned 20 deg.
+    world.objects.push(StaticObject::checkerboard(
+        500,
+        Pose2 { x: 2.0, y: 0.0, yaw_deg: 200.0 },
+        Shape::Board { width_m: 0.8, height_m: 0.6, bottom_m: 0.2, squares: [8, 6], tilt_deg, roll_deg },
+    ));
     world
 }
 

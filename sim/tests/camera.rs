@@ -104,15 +104,12 @@ fn a_checkerboard_shows_its_squares() {
     let mut world = worlds::generate::park(&Default::default(), 2006).unwrap();
     world.objects.clear();
     world.people.clear();
-    world.objects.push(StaticObject {
-        id: 500,
-        class: ObjectClass::Checkerboard,
-        // Facing -x, towards a camera at the origin looking along +x.
-        pose: Pose2 { x: 2.5, y: 0.0, yaw_deg: 180.0 },
-        shape: Shape::Board { width_m: 0.8, height_m: 0.6, bottom_m: 0.25, squares: [8, 6], tilt_deg: 0.0, roll_deg: 0.0 },
-        appearance: Appearance { material: Material::Checker, colour: [0.95, 0.95, 0.95], texture_seed: 0 },
-        mesh: None,
-    });
+    // Facing -x, towards a camera at the origin looking along +x.
+    world.objects.push(StaticObject::checkerboard(
+        500,
+        Pose2 { x: 2.5, y: 0.0, yaw_deg: 180.0 },
+        Shape::Board { width_m: 0.8, height_m: 0.6, bottom_m: 0.25, squares: [8, 6], tilt_deg: 0.0, roll_deg: 0.0 },
+    ));
     let mut config = sim::camera::CameraConfig { mount_pitch_deg: 0.0, ..Default::default() };
     config.enabled = true;
     let mut cam = sim::camera::CameraSensor::new(&world, &config, 1).unwrap();

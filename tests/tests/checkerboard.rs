@@ -29,14 +29,7 @@ fn rendered_checkerboards_are_detected_with_their_planes() {
         let mut w = world.clone();
         let shape = Shape::Board { width_m: 0.8, height_m: 0.6, bottom_m: 0.3, squares: [8, 6], tilt_deg, roll_deg: 0.0 };
         let frame = shape.board_frame().unwrap();
-        w.objects.push(StaticObject {
-            id: 700,
-            class: ObjectClass::Checkerboard,
-            pose: Pose2 { x: bx, y: by, yaw_deg: yaw.to_degrees() },
-            shape,
-            appearance: Appearance { material: Material::Checker, colour: [0.95, 0.95, 0.95], texture_seed: 0 },
-            mesh: None,
-        });
+        w.objects.push(StaticObject::checkerboard(700, Pose2 { x: bx, y: by, yaw_deg: yaw.to_degrees() }, shape));
         let mut cam = sim::camera::CameraSensor::new(&w, &cam_cfg, 1).unwrap();
         let pose = scenarios::dataset::look_at(eye, [bx, by, 0.6]);
         let fr = cam.render_from(0.0, pose).unwrap();

@@ -140,6 +140,14 @@ pub struct StaticObject {
     pub mesh: Option<String>,
 }
 
+impl StaticObject {
+    /// A calibration checkerboard (`shape` should be a `Shape::Board`): near-white squares
+    /// on the checker material, so detection sees full contrast.
+    pub fn checkerboard(id: u16, pose: Pose2, shape: Shape) -> StaticObject {
+        StaticObject { id, class: ObjectClass::Checkerboard, pose, shape, appearance: Appearance { material: Material::Checker, colour: [0.95, 0.95, 0.95], texture_seed: 0 }, mesh: None }
+    }
+}
+
 /// Shape parameters; the collider and the procedural mesh are built from these.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
