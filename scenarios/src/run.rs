@@ -382,13 +382,16 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
                     for cs in &rec.clusters {
                         let c = &result.clusters[cs.index];
                         let obj = true_object(&beams.hit_ids, c.first_beam, c.last_beam);
-                        let mut line = serde_json::to_value(cs).expect("JSON");
-                        line["t_scan"] = json!(s.t);
-                        line["t_image"] = json!(rec.t_image);
-                        line["range_m"] = json!(c.range_m);
-                        line["true_object"] = json!(obj);
-                        line["true_class"] = json!(world.class_of(obj).map(|c| c.name()).unwrap_or("nothing"));
-                        segmentation_log.push_str(&(serde_json::to_string(&line).expect("JSON") + "\n"));
+                        // Only runs that write outputs keep the log (not Monte Carlo runs).
+                        if options.out.is_some() {
+                            let mut line = serde_json::to_value(cs).expect("JSON");
+                            line["t_scan"] = json!(s.t);
+                            line["t_image"] = json!(rec.t_image);
+                            line["range_m"] = json!(c.range_m);
+                            line["true_object"] = json!(obj);
+                            line["true_class"] = json!(world.class_of(obj).map(|c| c.name()).unwrap_or("nothing"));
+                            segmentation_log.push_str(&(serde_json::to_string(&line).expect("JSON") + "\n"));
+                        }
                         if tree_ids.contains(&obj) {
                             let n = trees_in_view.entry(obj).or_insert(0usize);
                             *n += 1;

@@ -356,8 +356,8 @@ impl Pipeline {
         let pca_dims = self.appearance.as_ref().map_or(0, |a| a.model.extractor.pca.dims());
         // Decide every observation against the landmarks that existed before this scan.
         let mut plans = Vec::new();
+        let general = self.appearance.as_ref().map(|a| a.general.clone());
         for (ci, obs) in observations {
-            let general = self.appearance.as_ref().map(|a| a.general.clone());
             let Ok(fitted) = fit_observation(&obs, general.as_ref(), &cfg) else { continue };
             let z = Vector2::new(clusters[ci].range_m, clusters[ci].bearing_rad);
             let mut candidates = Vec::new();
