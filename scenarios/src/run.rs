@@ -255,7 +255,10 @@ pub fn pipeline_config(scenario: &Scenario, method: Option<AssociationMethod>) -
         .pipeline
         .clone()
         .try_into()
-        .map_err(|e: toml::de::Error| RunError::Pipeline { file, message: e.to_string() })?;
+        .map_err(|e: toml::de::Error| RunError::Pipeline { file: file.clone(), message: e.to_string() })?;
+    if let Err((field, message)) = config.evidence.validate() {
+        return Err(RunError::Pipeline { file, message: format!("pipeline.evidence.{field}: {message}") });
+    }
     if let Some(m) = method {
         config.method = m;
     }
@@ -392,7 +395,9 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
                             line["true_class"] = json!(world.class_of(obj).map(|c| c.name()).unwrap_or("nothing"));
                             segmentation_log.push_str(&(serde_json::to_string(&line).expect("JSON") + "\n"));
                         }
-                        if tree_ids.contains(&obj) {
+                        // ...and only in frames where it could judge the cluster (its band
+                        // in the image, not cut by the image's edge).
+                        if tree_ids.contains(&obj) && cs.band_visible && !cs.at_image_edge {
                             let n = trees_in_view.entry(obj).or_insert(0usize);
                             *n += 1;
                             if *n >= config.confirm_observations {

@@ -14,6 +14,7 @@ pub mod checkerboard;
 pub mod classifier;
 pub mod clustering;
 pub mod ekf;
+pub mod evidence;
 pub mod features;
 pub mod gmm;
 pub mod kl;

@@ -14,6 +14,7 @@ use serde::{Deserialize, Serialize};
 use crate::association::{AssociationDecision, AssociationMethod, Candidate, Choice, chi2_quantile, jcbb::jcbb, nn::nearest_neighbour};
 use crate::classifier::{AppearanceModel, PatchClassifier};
 use crate::clustering::{Cluster, ClusteringConfig, cluster};
+use crate::evidence::{EvidenceConfig, Judgement, ObjectEvidence};
 use crate::ekf::{Ekf, OdometryMotionModel, RangeBearingModel};
 use crate::features::ImageRef;
 use crate::gmm::{Gmm, StudentTMixture};
@@ -39,6 +40,8 @@ pub struct PipelineConfig {
     /// Initial pose standard deviations (m, m, rad).
     pub initial_pose_sigma: [f64; 3],
     pub segmentation: SegmentationConfig,
+    /// Pooling of the segmentation's evidence over frames (camera methods).
+    pub evidence: EvidenceConfig,
     pub object_model: ObjectModelConfig,
     /// A scan is segmented with the latest image only if that image is at most this old (s).
     pub image_max_age_s: f64,
@@ -61,6 +64,7 @@ impl Default for PipelineConfig {
             jcbb_probability: 0.99,
             initial_pose_sigma: [1e-3, 1e-3, 1e-3],
             segmentation: SegmentationConfig::default(),
+            evidence: EvidenceConfig::default(),
             object_model: ObjectModelConfig::default(),
             image_max_age_s: 0.02,
             confirm_observations: 8,
@@ -155,6 +159,17 @@ pub struct ClusterSegmentation {
     /// Fraction of the patches its laser points fall in that are object patches.
     pub hit_fraction: f64,
     pub above_fraction: f64,
+    /// The pooled evidence of the cluster's place (see [`crate::evidence`]), when pooling.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub pooled: Option<Judgement>,
+    /// Whether the cluster became an object observation (the pooled judgement when
+    /// pooling, else `is_object`).
+    #[serde(default)]
+    pub observed: bool,
+    pub band_visible: bool,
+    pub at_image_edge: bool,
+    /// See [`SegmentedCluster::row_profile`].
+    pub row_profile: Vec<(f64, f64)>,
     /// Patch columns classified, [first, last).
     pub columns: (u32, u32),
     /// Patch rows the laser points fall in, [first, last].
@@ -181,6 +196,11 @@ pub struct Pipeline {
     appearance: Option<Appearance>,
     image: Option<StoredImage>,
     segmentations: Vec<SegmentationRecord>,
+    evidence: ObjectEvidence,
+    /// Dead-reckoned pose (x, y, theta): the frame of the evidence's places. Odometry is
+    /// smooth over the seconds a place lives, while the filter's pose jumps when a loop
+    /// closes, which would split one object's place or join a post to a tree's.
+    odometry_pose: [f64; 3],
 }
 
 /// Errors of the online pipeline.
@@ -197,7 +217,8 @@ impl Pipeline {
     pub fn new(config: PipelineConfig, pose: [f64; 3]) -> Self {
         let s = config.initial_pose_sigma;
         let ekf = Ekf::new(Vector3::from(pose), Matrix3::from_diagonal(&Vector3::new(s[0] * s[0], s[1] * s[1], s[2] * s[2])));
-        let mut p = Pipeline { config, ekf, landmarks: Vec::new(), objects: Vec::new(), decisions: Vec::new(), poses: Vec::new(), t: 0.0, next_id: 0, appearance: None, image: None, segmentations: Vec::new() };
+        let evidence = ObjectEvidence::new(config.evidence.clone());
+        let mut p = Pipeline { config, ekf, landmarks: Vec::new(), objects: Vec::new(), decisions: Vec::new(), poses: Vec::new(), t: 0.0, next_id: 0, appearance: None, image: None, segmentations: Vec::new(), evidence, odometry_pose: pose };
         p.record_pose();
         p
     }
@@ -239,6 +260,9 @@ impl Pipeline {
 
     pub fn on_odometry(&mut self, o: &OdometryIncrement) {
         self.ekf.predict(&self.config.motion, &[o.dx, o.dy, o.dtheta]);
+        let [x, y, th] = self.odometry_pose;
+        let (s, c) = th.sin_cos();
+        self.odometry_pose = [x + c * o.dx - s * o.dy, y + s * o.dx + c * o.dy, crate::messages::wrap_angle(th + o.dtheta)];
         self.t = o.t;
         self.record_pose();
     }
@@ -258,13 +282,21 @@ impl Pipeline {
     /// Map-frame position of a laser-frame point, and the rotation robot -> map.
     fn to_map(&self, p: [f64; 2]) -> ([f64; 2], Matrix2<f64>) {
         let pose = self.ekf.pose();
-        let (s, c) = pose.z.sin_cos();
-        let (lx, ly) = (self.config.sensor.mount_x + p[0], self.config.sensor.mount_y + p[1]);
-        ([pose.x + c * lx - s * ly, pose.y + s * lx + c * ly], Matrix2::new(c, -s, s, c))
+        self.laser_point_in(&[pose.x, pose.y, pose.z], p)
     }
 
-    /// Segments the clusters in the stored image and builds object observations.
-    fn observe_objects(&mut self, t: f64, clusters: &[Cluster]) -> Vec<(usize, ObjectObservation)> {
+    /// Position of a laser-frame point in the frame of `pose` (the robot's pose in it), and
+    /// the rotation robot -> that frame.
+    fn laser_point_in(&self, pose: &[f64; 3], p: [f64; 2]) -> ([f64; 2], Matrix2<f64>) {
+        let (s, c) = pose[2].sin_cos();
+        let (lx, ly) = (self.config.sensor.mount_x + p[0], self.config.sensor.mount_y + p[1]);
+        ([pose[0] + c * lx - s * ly, pose[1] + s * lx + c * ly], Matrix2::new(c, -s, s, c))
+    }
+
+    /// Segments the clusters in the stored image and builds object observations, each with
+    /// its cluster's index and whether the segmentation could judge it fully
+    /// ([`SegmentedCluster::fully_judged`](crate::segmentation::SegmentedCluster::fully_judged)).
+    fn observe_objects(&mut self, t: f64, clusters: &[Cluster]) -> Vec<(usize, ObjectObservation, bool)> {
         let (Some(app), Some(img)) = (&self.appearance, &self.image) else { return Vec::new() };
         if (t - img.t).abs() > self.config.image_max_age_s {
             return Vec::new();
@@ -286,23 +318,46 @@ impl Pipeline {
                 }
             }
             let hit_rows = (seg.hit_patches.iter().map(|h| h.1).min().unwrap_or(0), seg.hit_patches.iter().map(|h| h.1).max().unwrap_or(0));
+            let (centre, rot) = self.to_map(c.centre);
+            // Pooling: a frame the camera judged fully adds to its place's evidence; one it
+            // could not judge takes its place's judgement. A place with fewer than
+            // `min_frames` judged frames is undecided: rejected, or judged frame by frame
+            // with `undecided_by_frame` (see EvidenceConfig for the trade-off).
+            let seg_cfg = &self.config.segmentation;
+            let enough_patches = seg.object.iter().filter(|&&o| o).count() >= seg_cfg.min_object_patches;
+            let (place, _) = self.laser_point_in(&self.odometry_pose, c.centre);
+            let pooled = self.config.evidence.pooled.then(|| {
+                if seg.fully_judged() {
+                    Some(self.evidence.add(t, place, seg.hit_fraction, seg.above_fraction))
+                } else {
+                    self.evidence.judge(place)
+                }
+            });
+            let observed = match pooled {
+                Some(Some(j)) if j.frames >= self.config.evidence.min_frames || !self.config.evidence.undecided_by_frame => j.is_object && enough_patches,
+                _ => seg.is_object,
+            };
             record.clusters.push(ClusterSegmentation {
                 index: ci,
                 is_object: seg.is_object,
                 hit_fraction: seg.hit_fraction,
                 above_fraction: seg.above_fraction,
+                pooled: pooled.flatten(),
+                observed,
+                band_visible: seg.band_visible,
+                at_image_edge: seg.at_image_edge,
+                row_profile: seg.row_profile.clone(),
                 columns: (seg.rect.col0, seg.rect.col1),
                 hit_rows,
                 posteriors: seg.posteriors.iter().map(|&r| r as f32).collect(),
             });
-            if !seg.is_object {
+            if !observed {
                 continue;
             }
             let rows_idx = seg.object_rows();
             let da = self.config.object_model.appearance_dims.min(seg.features.z.ncols());
             let pca_dims = extractor.pca.dims();
             let mut appearance = Vec::with_capacity(rows_idx.len());
-            let (centre, rot) = self.to_map(c.centre);
             let mut rows = DMatrix::zeros(rows_idx.len(), da + 3);
             let mut cells = Vec::with_capacity(rows_idx.len());
             let mut n = 0;
@@ -325,8 +380,12 @@ impl Pipeline {
                 continue;
             }
             let rows = rows.rows(0, n).into_owned();
-            out.push((ci, ObjectObservation { centre, rows, appearance, cells, centre_covariance: Matrix2::zeros() }));
+            // A place the pooled evidence calls an object was judged in earlier frames: a
+            // frame too close to judge on its own may then start and confirm landmarks.
+            let judged = seg.fully_judged() || matches!(pooled, Some(Some(j)) if j.is_object);
+            out.push((ci, ObjectObservation { centre, rows, appearance, cells, centre_covariance: Matrix2::zeros() }, judged));
         }
+        self.evidence.forget_before(t);
         self.segmentations.push(record);
         out
     }
@@ -357,7 +416,7 @@ impl Pipeline {
         // Decide every observation against the landmarks that existed before this scan.
         let mut plans = Vec::new();
         let general = self.appearance.as_ref().map(|a| a.general.clone());
-        for (ci, obs) in observations {
+        for (ci, obs, fully_judged) in observations {
             let Ok(fitted) = fit_observation(&obs, general.as_ref(), &cfg) else { continue };
             let z = Vector2::new(clusters[ci].range_m, clusters[ci].bearing_rad);
             let mut candidates = Vec::new();
@@ -367,16 +426,21 @@ impl Pipeline {
                     continue;
                 }
                 let Some(model) = &self.objects[j] else { continue };
+                // A cluster too close for the camera to tell a trunk from a post may only
+                // re-observe a confirmed landmark, never start or confirm one.
+                if !fully_judged && !self.landmarks[j].confirmed {
+                    continue;
+                }
                 let lm = self.ekf.landmark(j);
                 let kl = model.kl_from(&fitted, obs.centre, [lm.x, lm.y], &self.offset_covariance(j, &z), &cfg, method == AssociationMethod::Appearance).ok();
                 candidates.push(Candidate { landmark: self.landmarks[j].id, mahalanobis2: m2, kl });
             }
             let best = candidates.iter().filter_map(|c| c.kl.filter(|k| k.is_finite() && *k < cfg.kl_threshold).map(|k| (c.landmark, k))).min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
             let best = best.and_then(|(id, _)| self.landmarks.iter().position(|l| l.id == id).map(|j| (id, j)));
-            plans.push((ci, obs, fitted, z, candidates, best));
+            plans.push((ci, obs, fitted, z, candidates, best, fully_judged));
         }
         let mut new_ones = Vec::new();
-        for (ci, obs, fitted, z, candidates, best) in plans {
+        for (ci, obs, fitted, z, candidates, best, fully_judged) in plans {
             let choice = match best {
                 Some((id, j)) => {
                     if self.ekf.update(&self.config.sensor, j, &z).is_ok() {
@@ -393,6 +457,7 @@ impl Pipeline {
                         Choice::Rejected
                     }
                 }
+                None if !fully_judged => Choice::Rejected,
                 None => {
                     new_ones.push((ci, self.decisions.len(), obs, fitted, z));
                     Choice::Rejected // replaced below once the id exists

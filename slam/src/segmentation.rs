@@ -56,31 +56,43 @@ impl CameraGeometry {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct SegmentationConfig {
-    /// A cluster is an object when at least this fraction of the patches its laser points
-    /// fall in are object patches...
+    /// Judged on one frame alone (the pipeline pools frames instead unless told not to, see
+    /// [`crate::evidence`]), a cluster is an object when at least this fraction of the
+    /// patches its laser points fall in are object patches...
     pub min_hit_fraction: f64,
     /// ...and at least this many object patches lie in its columns...
     pub min_object_patches: usize,
-    /// ...and at least this fraction of the patches above the laser's rows in its columns,
-    /// up to `above_band_m`, are object patches: a trunk goes on up the image, while posts,
-    /// people and most look-alikes end near the laser plane with background above them.
+    /// ...and at least this fraction of the patches between `above_band_from_m` and
+    /// `above_band_m` above the laser plane (at the cluster's range), in the columns where
+    /// the laser hit object patches, are object patches: a trunk goes on up the image,
+    /// while posts, people and most look-alikes end lower with background above them.
     pub min_above_fraction: f64,
-    /// Height above the laser plane (m), at the cluster's range, up to which the patches
-    /// above it are judged; higher rows (a far tree's canopy) are not. 2.6 m reaches half a
-    /// metre above the park's tallest post (2.5 m from the ground, laser at 0.4 m) and
-    /// stays below most canopies.
+    /// Bottom of the judged band (m above the laser plane). 2.2 m is 0.1 m above the park's
+    /// tallest post (2.5 m from the ground, laser at 0.4 m): lower rows are object for
+    /// posts and trees alike (measured profile on posts_near_trees: posts 0.6-0.8 object
+    /// below 1.5 m, 0.01-0.03 above 2 m; trees 0.7-0.9 at every height).
+    pub above_band_from_m: f64,
+    /// Top of the judged band (m above the laser plane). Canopies, which the classifier
+    /// calls background, start from 1.9 m above the laser in the park (a 4 m tree with a
+    /// 2.5 m canopy) and mostly above 2.8 m: a narrow band keeps them out.
     pub above_band_m: f64,
+    /// Fewest patch rows of the band that must be in the image for the band to be judged.
+    /// Closer than that (the band is above the image's top) the camera cannot tell a trunk
+    /// from a post: the cluster is an object by its other criteria but `band_visible` is
+    /// false, and the pipeline only lets it update landmarks already confirmed.
+    pub min_band_rows: usize,
     /// Extra patch columns classified on each side of the projected points.
     pub column_margin: u32,
-    /// A patch is an object patch when R exceeds this; absent: the classifier's own threshold.
-    /// Deciding a cluster wants confident patches: 0.85 rather than the classifier's 0.5
-    /// halved the frames in which a look-alike post passed on paper_park.
+    /// A patch is an object patch when R exceeds this; absent: the classifier's own threshold
+    /// (0.5). Frame by frame, 0.85 halved the frames in which a post passed; with the
+    /// evidence pooled over frames the classifier's own threshold keeps more of a thin
+    /// trunk's patches and maps every tree of paper_park, posts_near_trees and crowd.
     pub patch_threshold: Option<f64>,
 }
 
 impl Default for SegmentationConfig {
     fn default() -> Self {
-        SegmentationConfig { min_hit_fraction: 0.75, min_object_patches: 4, min_above_fraction: 0.6, above_band_m: 2.6, column_margin: 0, patch_threshold: Some(0.85) }
+        SegmentationConfig { min_hit_fraction: 0.75, min_object_patches: 4, min_above_fraction: 0.6, above_band_from_m: 2.2, above_band_m: 2.7, min_band_rows: 2, column_margin: 0, patch_threshold: None }
     }
 }
 
@@ -97,12 +109,29 @@ pub struct SegmentedCluster {
     /// Distinct patches (col, row) the cluster's laser points project into.
     pub hit_patches: Vec<(u32, u32)>,
     pub hit_fraction: f64,
-    /// Fraction of object patches above the highest laser row, in the classified columns.
+    /// Fraction of object patches in the judged band (see [`SegmentationConfig`]); the hit
+    /// fraction when the band is not visible.
     pub above_fraction: f64,
+    /// Whether at least `min_band_rows` rows of the band are in the image.
+    pub band_visible: bool,
+    /// Whether the cluster's laser points reach the image's left or right edge (the object
+    /// may go on outside the image, so its columns are not all seen).
+    pub at_image_edge: bool,
+    /// Rows from the image's top down to the laser's rows: (height of the row's centre
+    /// above the laser plane at the cluster's range in m, fraction of its classified
+    /// patches that are object). Shows how far up the image an object goes.
+    pub row_profile: Vec<(f64, f64)>,
     pub is_object: bool,
 }
 
 impl SegmentedCluster {
+    /// Whether the camera saw enough of the cluster to decide it: its band is in the image
+    /// and it is not cut by the image's edge. The pipeline lets a cluster that is an
+    /// object but not fully judged update confirmed landmarks only.
+    pub fn fully_judged(&self) -> bool {
+        self.band_visible && !self.at_image_edge
+    }
+
     /// Indices (into `features.z` rows) of the object patches.
     pub fn object_rows(&self) -> Vec<usize> {
         (0..self.object.len()).filter(|&i| self.object[i]).collect()
@@ -128,6 +157,7 @@ pub fn segment_cluster(cluster: &Cluster, image: &ImageRef, extractor: &FeatureE
     if hits.is_empty() {
         return Ok(None);
     }
+    let at_image_edge = hits.iter().any(|h| h.0 == 0 || h.0 + 1 == cols);
     let c0 = hits.iter().map(|h| h.0).min().expect("non-empty").saturating_sub(config.column_margin);
     let c1 = (hits.iter().map(|h| h.0).max().expect("non-empty") + 1 + config.column_margin).min(cols);
     let rect = PatchRect::columns(image, l, c0, c1);
@@ -139,13 +169,35 @@ pub fn segment_cluster(cluster: &Cluster, image: &ImageRef, extractor: &FeatureE
     let hit_fraction = hit_objects as f64 / hits.len() as f64;
     let n_object = object.iter().filter(|&&o| o).count();
     let top_hit_row = hits.iter().map(|h| h.1).min().expect("non-empty");
-    // The image row of the band's top above the cluster's centre (rows grow downwards).
-    let band_top_row = geometry.project(&Vector3::new(cluster.centre[0], cluster.centre[1], config.above_band_m)).map_or(0.0, |[_, v]| (v / l as f64).floor().max(0.0)) as u32;
-    let above: Vec<bool> = (0..object.len()).filter(|&i| (band_top_row..top_hit_row).contains(&rect.patch(i).1)).map(|i| object[i]).collect();
-    // A cluster hit in the top row has nothing above it to judge by: its hits decide alone.
-    let above_fraction = if above.is_empty() { hit_fraction } else { above.iter().filter(|&&o| o).count() as f64 / above.len() as f64 };
+    let width = (rect.col1 - rect.col0) as usize;
+    let u_mid = (rect.col0 + rect.col1) as f64 * 0.5 * l as f64;
+    // Height above the laser plane and object fraction of every row above the laser's.
+    let row_profile: Vec<(f64, f64)> = (rect.row0..top_hit_row)
+        .map(|row| {
+            let height = geometry.point_on_object_plane(u_mid, (row as f64 + 0.5) * l as f64, cluster.centre).map_or(f64::NAN, |p| p.z);
+            let first = (row - rect.row0) as usize * width;
+            let n = object[first..first + width].iter().filter(|&&o| o).count();
+            (height, n as f64 / width as f64)
+        })
+        .collect();
+    // The band is judged in the columns where the laser hit object patches: a thin trunk
+    // fills only some of the cluster's columns, and it is that trunk that must go on up.
+    let trunk_columns: Vec<u32> = hits.iter().filter(|&&(c, r)| features.index(c, r).is_some_and(|i| object[i])).map(|h| h.0).collect();
+    let band_rows: Vec<u32> = (rect.row0..top_hit_row).filter(|&row| (config.above_band_from_m..=config.above_band_m).contains(&row_profile[(row - rect.row0) as usize].0)).collect();
+    let band_visible = band_rows.len() >= config.min_band_rows.max(1);
+    let above_fraction = if !band_visible {
+        hit_fraction
+    } else if trunk_columns.is_empty() {
+        0.0
+    } else {
+        let mut columns = trunk_columns;
+        columns.sort_unstable();
+        columns.dedup();
+        let n = band_rows.iter().flat_map(|&row| columns.iter().map(move |&c| (c, row))).filter(|&(c, row)| features.index(c, row).is_some_and(|i| object[i])).count();
+        n as f64 / (band_rows.len() * columns.len()) as f64
+    };
     let is_object = hit_fraction >= config.min_hit_fraction && n_object >= config.min_object_patches && above_fraction >= config.min_above_fraction;
-    Ok(Some(SegmentedCluster { rect, features, posteriors, object, hit_patches: hits, hit_fraction, above_fraction, is_object }))
+    Ok(Some(SegmentedCluster { rect, features, posteriors, object, hit_patches: hits, hit_fraction, above_fraction, band_visible, at_image_edge, row_profile, is_object }))
 }
 
 #[cfg(test)]

@@ -1,6 +1,6 @@
 //! End-to-end regression tests: library scenarios against their pass criteria, and run
-//! determinism. posts_near_trees, crowd and long_loop do not meet their criteria yet (see
-//! the README's open problems) and are not run here.
+//! determinism. long_loop does not meet its criteria yet (see the README's open problems)
+//! and is not run here.
 
 use scenarios::run::{RunOptions, run};
 use scenarios::scenario::Scenario;
@@ -118,10 +118,43 @@ fn paper_park_maps_only_trees_each_once_with_no_wrong_association() {
     assert!(m.route_completed);
 }
 
+/// Guards the pooled tree-versus-post evidence: posts half a metre to a metre from trees,
+/// whose laser patches look like bark, stay out of the map while every tree goes in.
+#[test]
+fn posts_near_trees_keeps_posts_out_of_the_map() {
+    let m = run_named("posts_near_trees", None, None);
+    assert!(m.passed, "{:?}", m.failures);
+    assert_eq!((m.map.posts, m.map.palms, m.map.people), (0, 0, 0), "{:?}", m.map);
+    assert_eq!(m.associations.wrong, 0);
+    assert!(m.map.trees_seen >= 8, "{:?}", m.map);
+}
+
+/// Guards against people becoming landmarks when many walk between the robot and the trees.
+#[test]
+fn crowd_maps_no_person_and_no_wrong_association() {
+    let m = run_named("crowd", None, None);
+    assert!(m.passed, "{:?}", m.failures);
+    assert_eq!((m.map.people, m.map.posts, m.map.palms), (0, 0, 0), "{:?}", m.map);
+    assert_eq!(m.associations.wrong, 0);
+    assert!(m.map.trees_seen >= 5, "{:?}", m.map);
+}
+
 #[test]
 fn camera_methods_without_a_camera_fail_clearly() {
     let (mut sc, base) = Scenario::load("paper_park").unwrap();
     sc.sim.camera.enabled = false;
     let err = run(&sc, &base, &RunOptions::default(), |_, _| {}).err().expect("combined needs the camera").to_string();
     assert!(err.contains("combined") && err.contains("camera"), "{err}");
+}
+
+#[test]
+fn nonsense_pipeline_settings_are_named() {
+    let text = "name = \"x\"\n[world]\npreset = \"park\"\n[pipeline.evidence]\nradius_m = -1.0\n";
+    let sc = Scenario::parse(text, std::path::Path::new("x.toml")).unwrap();
+    let e = scenarios::run::pipeline_config(&sc, None).unwrap_err().to_string();
+    assert!(e.contains("x.toml") && e.contains("pipeline.evidence.radius_m"), "{e}");
+    let text = "name = \"x\"\n[world]\npreset = \"park\"\n[pipeline.evidence]\nradius = 1.0\n";
+    let sc = Scenario::parse(text, std::path::Path::new("x.toml")).unwrap();
+    let e = scenarios::run::pipeline_config(&sc, None).unwrap_err().to_string();
+    assert!(e.contains("radius"), "{e}");
 }
