@@ -130,54 +130,69 @@ pub(crate) fn check_data(data: &DMatrix<f64>) -> Result<(), GmmError> {
     Ok(())
 }
 
+/// Below this many responsibilities (N x K) a step runs on one thread: the online
+/// phase's small per-observation fits would only pay the threads' overhead.
+const PARALLEL_MIN_CELLS: usize = 1 << 16;
+
+/// Runs `f` for every component, on rayon's threads for large data. Components are
+/// independent and each is computed the same way on any thread, so the results do not
+/// depend on the thread count.
+fn per_component<T: Send>(n: usize, k: usize, f: impl Fn(usize) -> T + Sync + Send) -> Vec<T> {
+    use rayon::prelude::*;
+    if n * k >= PARALLEL_MIN_CELLS {
+        (0..k).into_par_iter().map(f).collect()
+    } else {
+        (0..k).map(f).collect()
+    }
+}
+
 /// M-step: sufficient statistics from responsibilities `r` (N x K), then the posterior.
 pub(crate) fn m_step(data: &DMatrix<f64>, r: &DMatrix<f64>, prior: &VbPrior) -> (Vec<VbComponent>, Stats) {
-    let (n, d) = data.shape();
+    let (n, _) = data.shape();
     let k = r.ncols();
+    let per = per_component(n, k, |kk| m_step_component(data, r, prior, kk));
     let mut stats = Stats { nk: Vec::with_capacity(k), xbar: Vec::with_capacity(k), s: Vec::with_capacity(k), r_ln_r: Vec::with_capacity(k) };
     let mut comps = Vec::with_capacity(k);
-    let mut z = DMatrix::<f64>::zeros(n, d);
-    let mut sqrt_r = vec![0.0; n];
-    for kk in 0..k {
-        let rk = r.column(kk);
-        let nk: f64 = rk.sum();
-        let r_ln_r: f64 = rk.iter().map(|&v| if v > 0.0 { v * v.ln() } else { 0.0 }).sum();
-        let (xbar, s) = if nk > 1e-300 {
-            let xbar = data.tr_mul(&rk) / nk;
-            // Z = diag(sqrt r) (X - 1 xbar^T): S = Z^T Z / N_k, accurate far from the origin.
-            for (i, v) in sqrt_r.iter_mut().enumerate() {
-                *v = rk[i].sqrt();
-            }
-            for j in 0..d {
-                let (src, mut dst) = (data.column(j), z.column_mut(j));
-                let (src, dst) = (src.as_slice(), dst.as_mut_slice());
-                for ((o, &x), &w) in dst.iter_mut().zip(src).zip(&sqrt_r) {
-                    *o = w * (x - xbar[j]);
-                }
-            }
-            // An explicit transpose lets the product go through the blocked GEMM kernel.
-            let mut s = (z.transpose() * &z) / nk;
-            s = (&s + s.transpose()) * 0.5;
-            (xbar, s)
-        } else {
-            (prior.m0.clone(), DMatrix::zeros(d, d))
-        };
-        let beta = prior.beta0 + nk;
-        let dx = &xbar - &prior.m0;
-        let w_inv = &prior.w0_inv + &s * nk + &dx * dx.transpose() * (prior.beta0 * nk / beta);
-        comps.push(VbComponent {
-            alpha: prior.alpha0 + nk,
-            beta,
-            nu: prior.nu0 + nk,
-            mean: (&prior.m0 * prior.beta0 + &xbar * nk) / beta,
-            w_inv: (&w_inv + w_inv.transpose()) * 0.5,
-        });
+    for (comp, nk, xbar, s, r_ln_r) in per {
+        comps.push(comp);
         stats.nk.push(nk);
         stats.xbar.push(xbar);
         stats.s.push(s);
         stats.r_ln_r.push(r_ln_r);
     }
     (comps, stats)
+}
+
+/// One component's statistics (N_k, xbar_k, S_k, sum r ln r) and posterior.
+fn m_step_component(data: &DMatrix<f64>, r: &DMatrix<f64>, prior: &VbPrior, kk: usize) -> (VbComponent, f64, DVector<f64>, DMatrix<f64>, f64) {
+    let (n, d) = data.shape();
+    let rk = r.column(kk);
+    let nk: f64 = rk.sum();
+    let r_ln_r: f64 = rk.iter().map(|&v| if v > 0.0 { v * v.ln() } else { 0.0 }).sum();
+    let (xbar, s) = if nk > 1e-300 {
+        let xbar = data.tr_mul(&rk) / nk;
+        // Z = diag(sqrt r) (X - 1 xbar^T): S = Z^T Z / N_k, accurate far from the origin.
+        let sqrt_r: Vec<f64> = rk.iter().map(|v| v.sqrt()).collect();
+        let mut z = DMatrix::<f64>::zeros(n, d);
+        for j in 0..d {
+            let (src, mut dst) = (data.column(j), z.column_mut(j));
+            let (src, dst) = (src.as_slice(), dst.as_mut_slice());
+            for ((o, &x), &w) in dst.iter_mut().zip(src).zip(&sqrt_r) {
+                *o = w * (x - xbar[j]);
+            }
+        }
+        // An explicit transpose lets the product go through the blocked GEMM kernel.
+        let mut s = (z.transpose() * &z) / nk;
+        s = (&s + s.transpose()) * 0.5;
+        (xbar, s)
+    } else {
+        (prior.m0.clone(), DMatrix::zeros(d, d))
+    };
+    let beta = prior.beta0 + nk;
+    let dx = &xbar - &prior.m0;
+    let w_inv = &prior.w0_inv + &s * nk + &dx * dx.transpose() * (prior.beta0 * nk / beta);
+    let comp = VbComponent { alpha: prior.alpha0 + nk, beta, nu: prior.nu0 + nk, mean: (&prior.m0 * prior.beta0 + &xbar * nk) / beta, w_inv: (&w_inv + w_inv.transpose()) * 0.5 };
+    (comp, nk, xbar, s, r_ln_r)
 }
 
 /// Per-component expectations the E-step and the bound share.
@@ -212,8 +227,8 @@ pub(crate) fn e_step(data: &DMatrix<f64>, comps: &[VbComponent]) -> Result<DMatr
     let (n, d) = data.shape();
     let k = comps.len();
     let ex = expectations(comps)?;
-    let mut log_rho = DMatrix::<f64>::zeros(n, k);
-    for (kk, (c, e)) in comps.iter().zip(&ex).enumerate() {
+    let columns = per_component(n, k, |kk| -> Result<Vec<f64>, GmmError> {
+        let (c, e) = (&comps[kk], &ex[kk]);
         // (x - m)^T W (x - m) = |C^-1 (x - m)|^2 with C C^T = W^-1: Y = X C^-T - 1 (C^-1 m)^T.
         let c_inv = e.chol.l().solve_lower_triangular(&DMatrix::identity(d, d)).ok_or(GmmError::NotPositiveDefinite { component: kk })?;
         let y = data * c_inv.transpose();
@@ -226,10 +241,14 @@ pub(crate) fn e_step(data: &DMatrix<f64>, comps: &[VbComponent]) -> Result<DMatr
             }
         }
         let base = e.ln_pi + 0.5 * e.ln_lambda - 0.5 * d as f64 * LN_2PI - 0.5 * d as f64 / c.beta;
-        let mut out = log_rho.column_mut(kk);
-        for (o, &q) in out.as_mut_slice().iter_mut().zip(&quad) {
-            *o = base - 0.5 * c.nu * q;
+        for q in &mut quad {
+            *q = base - 0.5 * c.nu * *q;
         }
+        Ok(quad)
+    });
+    let mut log_rho = DMatrix::<f64>::zeros(n, k);
+    for (kk, col) in columns.into_iter().enumerate() {
+        log_rho.column_mut(kk).as_mut_slice().copy_from_slice(&col?);
     }
     // Normalise each row in the log domain (column-wise passes over contiguous columns).
     let mut r = log_rho;
@@ -239,11 +258,25 @@ pub(crate) fn e_step(data: &DMatrix<f64>, comps: &[VbComponent]) -> Result<DMatr
             *m = m.max(v);
         }
     }
+    // The exponentials, a third of the step, go column by column in parallel.
+    {
+        use rayon::prelude::*;
+        let exp_column = |col: &mut [f64]| {
+            for (v, &m) in col.iter_mut().zip(&mx) {
+                *v = (*v - m).exp();
+            }
+        };
+        let slice = r.as_mut_slice();
+        if n * k >= PARALLEL_MIN_CELLS {
+            slice.par_chunks_mut(n).for_each(exp_column);
+        } else {
+            slice.chunks_mut(n).for_each(exp_column);
+        }
+    }
     let mut sum = vec![0.0; n];
-    for mut col in r.column_iter_mut() {
-        for ((v, &m), s) in col.as_mut_slice().iter_mut().zip(&mx).zip(sum.iter_mut()) {
-            *v = (*v - m).exp();
-            *s += *v;
+    for col in r.column_iter() {
+        for (s, &v) in sum.iter_mut().zip(col.as_slice()) {
+            *s += v;
         }
     }
     for mut col in r.column_iter_mut() {
