@@ -320,7 +320,8 @@ impl Pipeline {
             let hit_rows = (seg.hit_patches.iter().map(|h| h.1).min().unwrap_or(0), seg.hit_patches.iter().map(|h| h.1).max().unwrap_or(0));
             let (centre, rot) = self.to_map(c.centre);
             // Pooling: a frame the camera judged fully adds to its place's evidence; one it
-            // could not judge takes its place's judgement. A place with fewer than
+            // could not judge takes its place's judgement, or its own where no place is yet
+            // (and then only re-observes confirmed landmarks). A place with fewer than
             // `min_frames` judged frames is undecided: rejected, or judged frame by frame
             // with `undecided_by_frame` (see EvidenceConfig for the trade-off).
             let seg_cfg = &self.config.segmentation;
