@@ -135,13 +135,10 @@ impl ObjectEvidence {
         self.places.retain(|p| p.last_t >= horizon);
     }
 
-    /// Number of places remembered.
-    pub fn len(&self) -> usize {
+    /// Number of places remembered (for the tests).
+    #[cfg(test)]
+    fn len(&self) -> usize {
         self.places.len()
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.places.is_empty()
     }
 
     fn nearest(&self, centre: [f64; 2]) -> Option<usize> {

@@ -134,12 +134,17 @@ pub(crate) fn check_data(data: &DMatrix<f64>) -> Result<(), GmmError> {
 /// phase's small per-observation fits would only pay the threads' overhead.
 const PARALLEL_MIN_CELLS: usize = 1 << 16;
 
+/// Whether a step over N points and K components is large enough for rayon's threads.
+fn runs_in_parallel(n: usize, k: usize) -> bool {
+    n * k >= PARALLEL_MIN_CELLS
+}
+
 /// Runs `f` for every component, on rayon's threads for large data. Components are
 /// independent and each is computed the same way on any thread, so the results do not
 /// depend on the thread count.
 fn per_component<T: Send>(n: usize, k: usize, f: impl Fn(usize) -> T + Sync + Send) -> Vec<T> {
     use rayon::prelude::*;
-    if n * k >= PARALLEL_MIN_CELLS {
+    if runs_in_parallel(n, k) {
         (0..k).into_par_iter().map(f).collect()
     } else {
         (0..k).map(f).collect()
@@ -267,7 +272,7 @@ pub(crate) fn e_step(data: &DMatrix<f64>, comps: &[VbComponent]) -> Result<DMatr
             }
         };
         let slice = r.as_mut_slice();
-        if n * k >= PARALLEL_MIN_CELLS {
+        if runs_in_parallel(n, k) {
             slice.par_chunks_mut(n).for_each(exp_column);
         } else {
             slice.chunks_mut(n).for_each(exp_column);
