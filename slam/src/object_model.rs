@@ -202,25 +202,33 @@ impl ObjectModel {
         let shift = [obs.centre[0] - landmark[0], obs.centre[1] - landmark[1]];
         let eval = self.gmm.evaluator()?;
         let k = self.gmm.components.len();
-        let singles: Vec<_> = self.gmm.components.iter().map(|c| Gmm { components: vec![Component { weight: c.weight, ..c.clone() }] }.evaluator()).collect::<Result<_, _>>()?;
         let mut mass = vec![0.0; k];
         let mut sum = vec![DVector::zeros(d); k];
         let mut sq = vec![DMatrix::zeros(d, d); k];
         let mut x = vec![0.0; d];
+        let mut terms = vec![0.0; k];
         for i in 0..m {
             for (j, v) in x.iter_mut().enumerate() {
                 *v = obs.rows[(i, j)];
             }
             x[xy] += shift[0];
             x[xy + 1] += shift[1];
-            let total = eval.log_density(&x);
-            let xv = DVector::from_column_slice(&x);
+            eval.log_terms(&x, &mut terms);
+            let total = crate::gmm::log_sum_exp(&terms);
             for s in 0..k {
-                let r = (singles[s].log_density(&x) - total).exp();
+                let r = (terms[s] - total).exp();
                 if r > 0.0 {
                     mass[s] += r;
-                    sum[s] += &xv * r;
-                    sq[s] += &xv * xv.transpose() * r;
+                    for (acc, xj) in sum[s].iter_mut().zip(&x) {
+                        *acc += xj * r;
+                    }
+                    // The rank-one update x x^T r in place (no temporaries per patch).
+                    let sq = &mut sq[s];
+                    for (b, xb) in x.iter().enumerate() {
+                        for (a, xa) in x.iter().enumerate() {
+                            sq[(a, b)] += (xa * xb) * r;
+                        }
+                    }
                 }
             }
         }

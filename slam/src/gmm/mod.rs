@@ -93,9 +93,12 @@ pub struct GmmEvaluator {
     dims: usize,
     /// Per component: ln w - D/2 ln 2 pi - 1/2 ln |Gamma|.
     log_norm: Vec<f64>,
-    means: Vec<DVector<f64>>,
-    /// C^-1 with C C^T = Gamma: |C^-1 (x - mu)|^2 is the Mahalanobis distance.
-    whiten: Vec<DMatrix<f64>>,
+    /// Per component its mean, D values, one after the other.
+    means: Vec<f64>,
+    /// Per component C^-1 with C C^T = Gamma (|C^-1 (x - mu)|^2 is the Mahalanobis
+    /// distance), its lower triangle packed row by row: D (D + 1) / 2 values. Packed so the
+    /// inner loop, which runs for every patch of every frame, reads memory in order.
+    whiten: Vec<f64>,
 }
 
 impl GmmEvaluator {
@@ -113,8 +116,10 @@ impl GmmEvaluator {
             let ln_det = 2.0 * chol.l_dirty().diagonal().iter().map(|v| v.ln()).sum::<f64>();
             let whiten = chol.l().solve_lower_triangular(&DMatrix::identity(d, d)).ok_or(GmmError::NotPositiveDefinite { component: k })?;
             out.log_norm.push(c.weight.max(f64::MIN_POSITIVE).ln() - 0.5 * d as f64 * (2.0 * std::f64::consts::PI).ln() - 0.5 * ln_det);
-            out.means.push(c.mean.clone());
-            out.whiten.push(whiten);
+            out.means.extend(c.mean.iter());
+            for i in 0..d {
+                out.whiten.extend((0..=i).map(|j| whiten[(i, j)]));
+            }
         }
         Ok(out)
     }
@@ -123,31 +128,57 @@ impl GmmEvaluator {
         self.dims
     }
 
+    /// Number of components.
+    pub fn component_count(&self) -> usize {
+        self.log_norm.len()
+    }
+
+    /// Per component c, ln (w_c N(x; mu_c, Gamma_c)), written to `terms` (one per
+    /// component); `x` has length D. Their log-sum-exp is ln p(x), and
+    /// exp(terms[c] - ln p(x)) the responsibility of component c.
+    pub fn log_terms(&self, x: &[f64], terms: &mut [f64]) {
+        let d = self.dims;
+        let packed = d * (d + 1) / 2;
+        let mut diff = [0.0f64; 64];
+        let mut heap = Vec::new();
+        let diff: &mut [f64] = if d <= diff.len() {
+            &mut diff[..d]
+        } else {
+            heap.resize(d, 0.0);
+            &mut heap
+        };
+        for (c, slot) in terms.iter_mut().enumerate().take(self.component_count()) {
+            for ((v, xj), mj) in diff.iter_mut().zip(x).zip(&self.means[c * d..(c + 1) * d]) {
+                *v = xj - mj;
+            }
+            let w = &self.whiten[c * packed..(c + 1) * packed];
+            let mut maha = 0.0;
+            let mut start = 0;
+            for i in 0..d {
+                let row = &w[start..start + i + 1];
+                let mut y = 0.0;
+                for (wij, dj) in row.iter().zip(diff.iter()) {
+                    y += wij * dj;
+                }
+                maha += y * y;
+                start += i + 1;
+            }
+            *slot = self.log_norm[c] - 0.5 * maha;
+        }
+    }
+
     /// ln p(x) for one point given as a slice of length D.
     pub fn log_density(&self, x: &[f64]) -> f64 {
         let mut terms = [0.0f64; 64];
         let mut heap = Vec::new();
-        let k = self.means.len();
+        let k = self.component_count();
         let buf: &mut [f64] = if k <= terms.len() {
             &mut terms[..k]
         } else {
             heap.resize(k, 0.0);
             &mut heap
         };
-        let d = self.dims;
-        for (c, slot) in buf.iter_mut().enumerate() {
-            let (m, w) = (&self.means[c], &self.whiten[c]);
-            let mut maha = 0.0;
-            // C^-1 is lower triangular: row i uses columns 0..=i.
-            for i in 0..d {
-                let mut y = 0.0;
-                for j in 0..=i {
-                    y += w[(i, j)] * (x[j] - m[j]);
-                }
-                maha += y * y;
-            }
-            *slot = self.log_norm[c] - 0.5 * maha;
-        }
+        self.log_terms(x, buf);
         log_sum_exp(buf)
     }
 }
