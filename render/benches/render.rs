@@ -14,7 +14,8 @@ fn main() {
 }
 
 fn trunk(radius: f32, height: f32, segments: u32) -> MeshData {
-    let mut m = MeshData::default();
+    // Closed where the camera (below the tops) sees it, as the simulator's meshes are.
+    let mut m = MeshData { cull_back_faces: true, ..Default::default() };
     for i in 0..=segments {
         let (s, c) = (std::f32::consts::TAU * i as f32 / segments as f32).sin_cos();
         for z in [0.0, height] {
@@ -31,7 +32,7 @@ fn trunk(radius: f32, height: f32, segments: u32) -> MeshData {
 }
 
 fn cuboid(h: f32) -> MeshData {
-    let mut m = MeshData::default();
+    let mut m = MeshData { cull_back_faces: true, ..Default::default() };
     for axis in 0..3 {
         for sign in [-1.0f32, 1.0] {
             let (a, b) = ((axis + 1) % 3, (axis + 2) % 3);
@@ -84,6 +85,7 @@ fn park() -> (Renderer, Camera, InstanceHandle) {
         normals: vec![[0.0, 0.0, 1.0]; 4],
         uvs: vec![[0.0, 0.0], [120.0, 0.0], [120.0, 120.0], [0.0, 120.0]],
         indices: vec![0, 1, 2, 0, 2, 3],
+        cull_back_faces: true,
     };
     let ground = r.add_mesh(&ground).unwrap();
     let grass = r.add_texture(&noisy([50, 100, 35], 1)).unwrap();

@@ -84,6 +84,7 @@ fn ground(half: f32) -> MeshData {
         normals: vec![[0.0, 0.0, 1.0]; 4],
         uvs: vec![[0.0, 0.0], [2.0 * half, 0.0], [2.0 * half, 2.0 * half], [0.0, 2.0 * half]],
         indices: vec![0, 1, 2, 0, 2, 3],
+        cull_back_faces: false,
     }
 }
 
@@ -296,6 +297,7 @@ fn textures_repeat_when_uvs_exceed_one() {
         normals: vec![[-1.0, 0.0, 0.0]; 4],
         uvs: vec![[0.0, 0.0], [4.0, 0.0], [4.0, 1.0], [0.0, 1.0]],
         indices: vec![0, 1, 2, 0, 2, 3],
+        cull_back_faces: false,
     };
     let mut rgba = Vec::new();
     for x in 0..16 {
@@ -376,7 +378,7 @@ fn bad_input_is_an_error_not_a_panic() {
     assert!(matches!(Renderer::new(&RendererConfig { width: 0, height: 10 }), Err(RenderError::Size { .. })));
     assert!(matches!(Renderer::new(&RendererConfig { width: 1_000_000, height: 10 }), Err(RenderError::Size { .. })));
     let mut r = renderer(16, 16);
-    let tri = |indices: Vec<u32>| MeshData { positions: vec![[0.0; 3]; 3], normals: vec![[0.0, 0.0, 1.0]; 3], uvs: vec![[0.0; 2]; 3], indices };
+    let tri = |indices: Vec<u32>| MeshData { positions: vec![[0.0; 3]; 3], normals: vec![[0.0, 0.0, 1.0]; 3], uvs: vec![[0.0; 2]; 3], indices, cull_back_faces: false };
     assert!(matches!(r.add_mesh(&tri(vec![0, 1, 5])), Err(RenderError::Mesh(_))));
     assert!(matches!(r.add_mesh(&tri(vec![0, 1])), Err(RenderError::Mesh(_))));
     assert!(matches!(r.add_mesh(&MeshData { uvs: vec![], ..tri(vec![0, 1, 2]) }), Err(RenderError::Mesh(_))));
@@ -435,4 +437,58 @@ fn golden_scene_matches_the_committed_images() {
     assert!(mad < 3.0, "mean absolute difference {mad:.2} levels per channel on objects; {hint}");
     assert!(far_off * 50 < 160 * 120, "{far_off} pixels differ by more than 16 levels; {hint}");
     assert!(differing * 100 < 160 * 120, "{differing} of {} mask pixels differ; {hint}", 160 * 120);
+}
+
+#[test]
+fn culling_back_faces_of_closed_meshes_changes_no_pixel() {
+    // The golden scene's meshes are closed where the camera sees them (cylinders standing
+    // on the ground with a top cap, a box, the ground from above).
+    let mut two_sided = golden_scene(160, 120);
+    let mut culled = renderer(160, 120);
+    let cull = |m: MeshData| MeshData { cull_back_faces: true, ..m };
+    let ground_mesh = culled.add_mesh(&cull(ground(30.0))).unwrap();
+    let trunk = culled.add_mesh(&cull(cylinder(0.3, 4.0, 48))).unwrap();
+    let post = culled.add_mesh(&cull(cylinder(0.15, 1.5, 32))).unwrap();
+    let block = culled.add_mesh(&cull(cuboid([0.3, 0.3, 0.3]))).unwrap();
+    let grass = culled.add_texture(&checker([60, 110, 40], [75, 125, 50])).unwrap();
+    let bark = culled.add_texture(&checker(BARK, [70, 50, 35])).unwrap();
+    let stone = culled.add_texture(&checker(STONE, [120, 120, 112])).unwrap();
+    culled.add_instance(ground_mesh, grass, IDENTITY, 1, 1);
+    culled.add_instance(trunk, bark, pose(0.0, [6.0, 1.0, 0.0]), 11, 2);
+    culled.add_instance(post, bark, pose(0.0, [3.5, -1.0, 0.0]), 12, 3);
+    culled.add_instance(block, stone, pose(0.5, [4.5, 0.3, 0.3]), 30, 5);
+    let a = two_sided.r.render(&two_sided.camera, &Lighting::default()).unwrap();
+    let b = culled.render(&two_sided.camera, &Lighting::default()).unwrap();
+    assert_eq!(a.instance, b.instance);
+    assert_eq!(a.class, b.class);
+    assert_eq!(a.depth_m, b.depth_m);
+    assert_eq!(a.rgb, b.rgb);
+}
+
+#[test]
+fn culling_skips_faces_seen_from_behind_but_not_mirrored_instances() {
+    let mut r = renderer(64, 48);
+    // A square 4 m ahead, counter-clockwise seen from the camera (its front).
+    let square = MeshData {
+        positions: vec![[4.0, 1.0, -1.0], [4.0, -1.0, -1.0], [4.0, -1.0, 1.0], [4.0, 1.0, 1.0]],
+        normals: vec![[-1.0, 0.0, 0.0]; 4],
+        uvs: vec![[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]],
+        indices: vec![0, 1, 2, 0, 2, 3],
+        cull_back_faces: true,
+    };
+    let mesh = r.add_mesh(&square).unwrap();
+    let tex = r.add_texture(&plain(STONE)).unwrap();
+    let handle = r.add_instance(mesh, tex, IDENTITY, 9, 1);
+    let camera = Camera::look_at(40.0, 40.0, 32.0, 24.0, [0.0, 0.0, 0.0], [1.0, 0.0, 0.0]);
+    let seen = |r: &mut Renderer| r.render(&camera, &Lighting::default()).unwrap().instance_at(32, 24) == 9;
+    assert!(seen(&mut r), "the front face is drawn");
+    // Turned about z through the square's centre: the camera now sees its back.
+    r.set_transform(handle, pose(std::f32::consts::PI, [8.0, 0.0, 0.0]));
+    assert!(!seen(&mut r), "a back face of a culled mesh is skipped");
+    // Mirrored in y (determinant -1): the winding turns over with it, so the face the camera
+    // sees is the front, and the instance is drawn from both sides.
+    let mut mirror = IDENTITY;
+    mirror[1][1] = -1.0;
+    r.set_transform(handle, mirror);
+    assert!(seen(&mut r), "a mirrored instance is drawn whatever its winding");
 }

@@ -50,8 +50,11 @@ pub struct CameraSensor {
     pub lighting: Lighting,
 }
 
+/// The worlds crate's procedural meshes are closed wherever they can be seen and wound
+/// counter-clockwise from outside (two-sided parts carry both windings; its tests check
+/// this), so the renderer may skip their back faces.
 fn mesh_data(m: &TriMesh) -> MeshData {
-    MeshData { positions: m.positions.clone(), normals: m.normals.clone(), uvs: m.uvs.clone(), indices: m.indices.clone() }
+    MeshData { positions: m.positions.clone(), normals: m.normals.clone(), uvs: m.uvs.clone(), indices: m.indices.clone(), cull_back_faces: true }
 }
 
 fn texture_data(part: &MeshPart) -> TextureData {

@@ -170,7 +170,9 @@ pub fn cuboid(c: [f64; 3], h: [f64; 3], tile: [f64; 2]) -> TriMesh {
             let extent_v: f64 = (0..3).map(|k| (h[k] * v[k]).abs()).sum();
             m.push(p, n, [su * extent_u / tile[0], sv * extent_v / tile[1]]);
         }
-        m.indices.extend_from_slice(&[base, base + 1, base + 2, base, base + 2, base + 3]);
+        // The corners run clockwise seen from outside (u right, v down), so the triangles
+        // take them in reverse to be counter-clockwise.
+        m.indices.extend_from_slice(&[base, base + 2, base + 1, base, base + 3, base + 2]);
     }
     m
 }
@@ -440,6 +442,52 @@ mod tests {
         // The stand reaches the lowest corner.
         let (_, hi) = parts[1].mesh.bounds();
         assert!((hi[2] as f64 - f.lowest_m()).abs() < 1e-6);
+    }
+
+    /// Renderers may skip back faces of these meshes (see `render::MeshData::cull_back_faces`):
+    /// every triangle must be counter-clockwise seen from the side its vertex normals point
+    /// to, unless the mesh also holds it with the opposite winding (two-sided parts).
+    fn assert_wound_outwards(m: &TriMesh, name: &str) {
+        let tris: std::collections::HashSet<[u32; 3]> = m.indices.chunks(3).map(|t| [t[0], t[1], t[2]]).collect();
+        let has_reverse = |t: [u32; 3]| [[t[0], t[2], t[1]], [t[2], t[1], t[0]], [t[1], t[0], t[2]]].iter().any(|r| tris.contains(r));
+        for t in m.indices.chunks(3) {
+            let t = [t[0], t[1], t[2]];
+            let [a, b, c] = t.map(|i| m.positions[i as usize].map(|v| v as f64));
+            let e1 = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
+            let e2 = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
+            let n = [e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]];
+            let area2 = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+            if area2 < 1e-9 {
+                continue; // degenerate (ellipsoid poles): covers no pixel
+            }
+            let vn: [f64; 3] = std::array::from_fn(|k| t.iter().map(|&i| m.normals[i as usize][k] as f64).sum());
+            let agree = n[0] * vn[0] + n[1] * vn[1] + n[2] * vn[2] > 0.0;
+            assert!(agree || has_reverse(t), "{name}: triangle {t:?} is wound against its normals");
+        }
+    }
+
+    #[test]
+    fn every_part_is_wound_counter_clockwise_from_outside() {
+        let mut w = crate::generate::park(&Default::default(), 1).unwrap();
+        w.objects.push(StaticObject {
+            id: 900,
+            class: ObjectClass::Checkerboard,
+            pose: Pose2 { x: 0.0, y: 0.0, yaw_deg: 30.0 },
+            shape: Shape::Board { width_m: 0.8, height_m: 0.6, bottom_m: 0.4, squares: [8, 6], tilt_deg: -20.0, roll_deg: 15.0 },
+            appearance: Appearance { material: Material::Checker, colour: [0.9; 3], texture_seed: 0 },
+            mesh: None,
+        });
+        let parts = static_world_parts(&w);
+        for kind in ["ground", "tree", "palm", "post", "wall", "checkerboard"] {
+            assert!(parts.iter().any(|p| p.name.starts_with(kind)), "the test world has no {kind}");
+        }
+        for p in &parts {
+            assert_wound_outwards(&p.mesh, &p.name);
+        }
+        let person = person_parts(&w.people[0]);
+        for p in [&person.left_leg, &person.right_leg, &person.body, &person.head] {
+            assert_wound_outwards(&p.mesh, &p.name);
+        }
     }
 
     #[test]
