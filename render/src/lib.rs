@@ -472,7 +472,7 @@ impl Renderer {
             TARGETS.iter().map(|&(format, _, _)| Some(wgpu::ColorTargetState { format, blend: None, write_mask: wgpu::ColorWrites::ALL })).collect();
         // Two pipelines that differ only in culling: meshes that may skip their back faces
         // (see `MeshData::cull_back_faces`) and the rest, drawn from both sides.
-        let make_pipeline = |cull_mode: Option<wgpu::Face>| {
+        let make_pipeline = |cull_mode: Option<wgpu::Face>, fragment_entry: &str| {
             device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
             label: Some("objslam"),
             layout: Some(&layout),
@@ -498,7 +498,7 @@ impl Renderer {
             multisample: wgpu::MultisampleState::default(),
             fragment: Some(wgpu::FragmentState {
                 module: &shader,
-                entry_point: Some("fs_main"),
+                entry_point: Some(fragment_entry),
                 compilation_options: Default::default(),
                 targets: &colour_targets,
             }),
@@ -506,8 +506,8 @@ impl Renderer {
             cache: None,
             })
         };
-        let pipeline = make_pipeline(None);
-        let culling_pipeline = make_pipeline(Some(wgpu::Face::Back));
+        let pipeline = make_pipeline(None, "fs_main");
+        let culling_pipeline = make_pipeline(Some(wgpu::Face::Back), "fs_front");
         let frame_buffer = device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("frame"),
             size: size_of::<FrameUniform>() as u64,

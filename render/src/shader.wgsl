@@ -64,19 +64,9 @@ struct FragmentOut {
     @location(3) z_bits: u32,
 };
 
-@fragment
-fn fs_main(in: VertexOut) -> FragmentOut {
-    // Light the side that is seen, whatever the winding: open meshes (trunks without caps)
-    // show their inside. The facet's own normal, turned towards the camera, decides; it is
-    // within a few degrees of the interpolated normal on the outside, opposite inside.
-    var n = normalize(in.normal);
-    var facet = cross(dpdx(in.world), dpdy(in.world));
-    if dot(facet, frame.eye.xyz - in.world) < 0.0 {
-        facet = -facet;
-    }
-    if dot(n, facet) < 0.0 {
-        n = -n;
-    }
+/// Lit colour and ids of a fragment whose (unnormalised) normal `normal` faces the camera.
+fn shade(in: VertexOut, normal: vec3<f32>) -> FragmentOut {
+    let n = normalize(normal);
     let base = textureSample(albedo, albedo_sampler, in.uv).rgb;
     let sun = max(dot(n, -frame.sun_direction.xyz), 0.0);
     // Hemispheric sky term: full ambient facing up, 40 % facing down.
@@ -88,4 +78,27 @@ fn fs_main(in: VertexOut) -> FragmentOut {
     out.class_id = instance.ids.y;
     out.z_bits = bitcast<u32>(in.z_m);
     return out;
+}
+
+@fragment
+fn fs_main(in: VertexOut) -> FragmentOut {
+    // Light the side that is seen, whatever the winding: open meshes (trunks without caps)
+    // show their inside. The facet's own normal, turned towards the camera, decides; it is
+    // within a few degrees of the interpolated normal on the outside, opposite inside.
+    var n = in.normal;
+    var facet = cross(dpdx(in.world), dpdy(in.world));
+    if dot(facet, frame.eye.xyz - in.world) < 0.0 {
+        facet = -facet;
+    }
+    if dot(n, facet) < 0.0 {
+        n = -n;
+    }
+    return shade(in, n);
+}
+
+/// For meshes drawn with back faces culled: what is drawn is seen from outside, where the
+/// normals point, so the facet test of `fs_main` is not needed.
+@fragment
+fn fs_front(in: VertexOut) -> FragmentOut {
+    return shade(in, in.normal);
 }
