@@ -305,10 +305,20 @@ fn frond(length: f64, top: f64, yaw: f64) -> TriMesh {
         m.push([centre[0] + side[0], centre[1] + side[1], centre[2]], [0.0, 0.0, 1.0], [0.0, t * 3.0]);
         m.push([centre[0] - side[0], centre[1] - side[1], centre[2]], [0.0, 0.0, 1.0], [1.0, t * 3.0]);
     }
+    // Fronds are seen from above and below: the underside is a second sheet on the same
+    // vertices with downward normals and the opposite winding, so each side is lit as itself.
+    let under = m.positions.len() as u32;
+    for k in 0..under as usize {
+        let (p, uv) = (m.positions[k], m.uvs[k]);
+        m.positions.push(p);
+        m.normals.push([0.0, 0.0, -1.0]);
+        m.uvs.push(uv);
+    }
     for i in 0..steps as u32 {
         let (a, b, c2, d) = (2 * i, 2 * i + 1, 2 * i + 2, 2 * i + 3);
-        // Both windings: fronds are seen from below and above.
-        m.indices.extend_from_slice(&[a, b, d, a, d, c2, a, d, b, a, c2, d]);
+        m.indices.extend_from_slice(&[a, b, d, a, d, c2]);
+        let [a, b, c2, d] = [a, b, c2, d].map(|v| v + under);
+        m.indices.extend_from_slice(&[a, d, b, a, c2, d]);
     }
     m
 }
@@ -444,12 +454,10 @@ mod tests {
         assert!((hi[2] as f64 - f.lowest_m()).abs() < 1e-6);
     }
 
-    /// Renderers may skip back faces of these meshes (see `render::MeshData::cull_back_faces`):
-    /// every triangle must be counter-clockwise seen from the side its vertex normals point
-    /// to, unless the mesh also holds it with the opposite winding (two-sided parts).
+    /// Renderers may skip back faces of these meshes and light the rest with their normals
+    /// as given (see `render::MeshData::cull_back_faces`): every triangle must be
+    /// counter-clockwise seen from the side its vertex normals point to.
     fn assert_wound_outwards(m: &TriMesh, name: &str) {
-        let tris: std::collections::HashSet<[u32; 3]> = m.indices.chunks(3).map(|t| [t[0], t[1], t[2]]).collect();
-        let has_reverse = |t: [u32; 3]| [[t[0], t[2], t[1]], [t[2], t[1], t[0]], [t[1], t[0], t[2]]].iter().any(|r| tris.contains(r));
         for t in m.indices.chunks(3) {
             let t = [t[0], t[1], t[2]];
             let [a, b, c] = t.map(|i| m.positions[i as usize].map(|v| v as f64));
@@ -462,7 +470,7 @@ mod tests {
             }
             let vn: [f64; 3] = std::array::from_fn(|k| t.iter().map(|&i| m.normals[i as usize][k] as f64).sum());
             let agree = n[0] * vn[0] + n[1] * vn[1] + n[2] * vn[2] > 0.0;
-            assert!(agree || has_reverse(t), "{name}: triangle {t:?} is wound against its normals");
+            assert!(agree, "{name}: triangle {t:?} is wound against its normals");
         }
     }
 
