@@ -891,26 +891,27 @@ impl Renderer {
         let (w, h) = (self.width as usize, self.height as usize);
         frame.width = self.width;
         frame.height = self.height;
-        frame.rgb.clear();
-        frame.instance.clear();
-        frame.class.clear();
-        frame.depth_m.clear();
-        frame.rgb.reserve(3 * w * h);
-        frame.instance.reserve(w * h);
-        frame.class.reserve(w * h);
-        frame.depth_m.reserve(w * h);
+        // Sized first and filled row by row through zipped slices: no per-pixel pushes.
+        frame.rgb.resize(3 * w * h, 0);
+        frame.instance.resize(w * h, 0);
+        frame.class.resize(w * h, 0);
+        frame.depth_m.resize(w * h, 0.0);
         let row = |plane: &Plane, bytes: usize, y: usize| {
             let start = plane.offset as usize + y * plane.bytes_per_row as usize;
             &data[start..start + bytes * w]
         };
         for y in 0..h {
-            frame.rgb.extend(row(&self.planes[0], 4, y).chunks_exact(4).flat_map(|p| [p[0], p[1], p[2]]));
-            frame.instance.extend(row(&self.planes[1], 2, y).chunks_exact(2).map(|p| u16::from_le_bytes([p[0], p[1]])));
-            frame.class.extend_from_slice(row(&self.planes[2], 1, y));
-            frame.depth_m.extend(row(&self.planes[3], 4, y).chunks_exact(4).map(|p| {
-                let z = f32::from_le_bytes([p[0], p[1], p[2], p[3]]);
-                if z > 0.0 { z } else { f32::INFINITY }
-            }));
+            for (d, s) in frame.rgb[3 * w * y..3 * w * (y + 1)].chunks_exact_mut(3).zip(row(&self.planes[0], 4, y).chunks_exact(4)) {
+                d.copy_from_slice(&s[..3]);
+            }
+            for (d, s) in frame.instance[w * y..w * (y + 1)].iter_mut().zip(row(&self.planes[1], 2, y).chunks_exact(2)) {
+                *d = u16::from_le_bytes([s[0], s[1]]);
+            }
+            frame.class[w * y..w * (y + 1)].copy_from_slice(row(&self.planes[2], 1, y));
+            for (d, s) in frame.depth_m[w * y..w * (y + 1)].iter_mut().zip(row(&self.planes[3], 4, y).chunks_exact(4)) {
+                let z = f32::from_le_bytes([s[0], s[1], s[2], s[3]]);
+                *d = if z > 0.0 { z } else { f32::INFINITY };
+            }
         }
     }
 

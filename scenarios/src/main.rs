@@ -55,6 +55,9 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
+    /// Serves Monte Carlo jobs on stdin/stdout for a parent `objslam montecarlo`.
+    #[command(hide = true)]
+    MontecarloWorker,
     /// Simulate a world and write a sensor log (JSON lines, TUM, MCAP) that other SLAM
     /// systems can read.
     Record {
@@ -188,6 +191,13 @@ struct MontecarloArgs {
     shard_count: Option<usize>,
     #[arg(long)]
     out: Option<PathBuf>,
+    /// Runs at a time, each in its own worker process (default: one per core).
+    #[arg(long, global = true)]
+    jobs: Option<usize>,
+    /// Run on threads of this process instead of worker processes (slower: runs in one
+    /// process share the software renderer's locks).
+    #[arg(long, global = true)]
+    in_process: bool,
 }
 
 #[derive(Subcommand)]
@@ -264,6 +274,7 @@ fn run(cli: Cli) -> Result<()> {
         Some(Command::World(cmd)) => world(cmd),
         Some(Command::Run { scenario, seed, method, out }) => run_scenario(scenario.as_deref(), seed, method.as_deref(), out),
         Some(Command::Montecarlo(args)) => montecarlo(args),
+        Some(Command::MontecarloWorker) => Ok(scenarios::montecarlo::serve_worker(std::io::stdin().lock(), std::io::stdout().lock())?),
         Some(Command::Dataset { world, preset, images, seed, classes, patch_size, out }) => dataset(world, preset, images, seed, &classes, patch_size, &out),
         Some(Command::Record { input, seed, duration, sim_config, out }) => record(&input, seed, duration, sim_config, &out),
         Some(Command::Calibrate { scenario, poses, seed, out, images }) => calibrate(scenario.as_deref().unwrap_or("calibration"), poses, seed, &out, images.as_deref()),
@@ -319,6 +330,13 @@ fn dataset(world: Option<PathBuf>, preset: Option<String>, images: usize, seed: 
 
 fn montecarlo(args: MontecarloArgs) -> Result<()> {
     use scenarios::montecarlo as mc;
+    let workers = if args.in_process {
+        mc::Workers::Threads
+    } else {
+        let count = args.jobs.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+        anyhow::ensure!(count > 0, "--jobs must be at least 1");
+        mc::Workers::Processes { exe: std::env::current_exe().context("cannot find the objslam executable to start worker processes")?, count }
+    };
     if let Some(MontecarloCommand::Merge { dirs, out }) = args.command {
         let (plan, runs) = mc::merge(&dirs, &out)?;
         let rows = mc::summarise(&plan, &runs);
@@ -334,7 +352,7 @@ fn montecarlo(args: MontecarloArgs) -> Result<()> {
         };
         for (name, plan) in mc::builtin_study(runs, seed) {
             println!("study {name}: {} = {:?}", plan.vary[0].param, plan.vary[0].values);
-            run_plan(&plan, shard, &out.join(name))?;
+            run_plan(&plan, shard, &out.join(name), &workers)?;
         }
         return Ok(());
     }
@@ -357,17 +375,17 @@ fn montecarlo(args: MontecarloArgs) -> Result<()> {
     };
     let plan = mc::StudyPlan { scenario: scenario.clone(), base_seed: args.seed, runs: args.runs, methods, vary };
     let out = args.out.unwrap_or_else(|| PathBuf::from(format!("runs/montecarlo-{}-{}", sc.name, args.seed)));
-    run_plan(&plan, shard, &out)
+    run_plan(&plan, shard, &out, &workers)
 }
 
 /// Runs (or resumes) one study with a progress bar, then writes and prints its summary.
-fn run_plan(plan: &scenarios::montecarlo::StudyPlan, shard: scenarios::montecarlo::Shard, out: &std::path::Path) -> Result<()> {
+fn run_plan(plan: &scenarios::montecarlo::StudyPlan, shard: scenarios::montecarlo::Shard, out: &std::path::Path, workers: &scenarios::montecarlo::Workers) -> Result<()> {
     use scenarios::montecarlo as mc;
     let bar = indicatif::ProgressBar::new(0);
     bar.set_style(indicatif::ProgressStyle::with_template("study [{bar:40}] {pos}/{len} runs, {msg}, {elapsed} elapsed, ETA {eta}").expect("valid template").progress_chars("=> "));
     let started = std::time::Instant::now();
     let first_done = std::sync::Mutex::new(None::<usize>);
-    let records = mc::run_study(plan, shard, out, |done, total| {
+    let records = mc::run_study_with(plan, shard, out, workers, |done, total| {
         bar.set_length(total as u64);
         bar.set_position(done as u64);
         let mut first = first_done.lock().unwrap_or_else(|p| p.into_inner());

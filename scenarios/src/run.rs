@@ -356,7 +356,8 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
     let mut events = EventSource::start(sim);
     while let Some(event) = events.next() {
         let tick = std::time::Instant::now();
-        match &event {
+        let t = event.time();
+        match event {
             SensorEvent::Odometry { odometry, truth } => {
                 pipeline.on_odometry(&slam::messages::OdometryIncrement { t: odometry.t, dx: odometry.dx, dy: odometry.dy, dtheta: odometry.dtheta });
                 let est = pipeline.pose();
@@ -370,7 +371,7 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
                 }
             }
             SensorEvent::Laser { scan, beams, truth } => {
-                let s = slam_scan(scan);
+                let s = slam_scan(&scan);
                 let before = pipeline.decisions().len();
                 let scan_tick = std::time::Instant::now();
                 let result = pipeline.on_scan(&s);
@@ -451,13 +452,13 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
                 }
             }
             SensorEvent::Camera { frame, .. } => {
-                let img = &frame.image;
-                pipeline.on_image(frame.t, img.width, img.height, img.rgb.clone()).map_err(|e| RunError::Online(e.to_string()))?;
-                last_frame = Some((frame.t, img.width, img.height, img.class.clone()));
+                // Moved, not copied: a frame is about 1.5 MB.
+                let img = frame.image;
+                pipeline.on_image(frame.t, img.width, img.height, img.rgb).map_err(|e| RunError::Online(e.to_string()))?;
+                last_frame = Some((frame.t, img.width, img.height, img.class));
             }
         }
         pipe_time += tick.elapsed().as_secs_f64();
-        let t = event.time();
         if t - last_progress >= 1.0 {
             progress(t, nominal);
             last_progress = t;

@@ -1,0 +1,160 @@
+//! Monte Carlo runs in child processes ([`super::Workers::Processes`]).
+//!
+//! The protocol is JSON lines. Parent to child: the study plan, then one [`Job`] per line,
+//! each sent when the child has answered the one before (so fast children take more jobs).
+//! Child to parent: one [`RunRecord`] per job. The parent closes the child's stdin when no
+//! job is left and the child exits. A child that dies or answers nonsense costs the run it
+//! had, recorded as an error with the end of its stderr; a new child takes the next job.
+
+use std::collections::VecDeque;
+use std::io::{BufRead, BufReader, Write};
+use std::path::Path;
+use std::process::{Child, ChildStdin, ChildStdout, Command, Stdio};
+use std::sync::{Arc, Mutex};
+use std::thread::JoinHandle;
+
+use super::{Job, RunRecord, StudyError, StudyPlan, needs_appearance, run_job};
+use crate::scenario::Scenario;
+
+/// Lines of a failed child's stderr kept for its run's error.
+const STDERR_TAIL_LINES: usize = 12;
+
+/// The child side: reads the plan and then jobs from `input`, answers each with its record
+/// on `output`, until `input` ends. This is `objslam montecarlo-worker`.
+pub fn serve_worker(input: impl BufRead, mut output: impl Write) -> Result<(), StudyError> {
+    let protocol = |message: String| StudyError::Worker(format!("worker: {message}"));
+    let mut lines = input.lines();
+    let Some(first) = lines.next() else { return Ok(()) };
+    let plan: StudyPlan = serde_json::from_str(&first.map_err(|e| protocol(e.to_string()))?).map_err(|e| protocol(format!("the first line is not a study plan: {e}")))?;
+    let (base, base_dir) = Scenario::load(&plan.scenario)?;
+    let appearance = if needs_appearance(&plan, &base) {
+        // The parent resolved it first, so this loads the cached model.
+        Some(Arc::new(base.appearance.resolve(&base_dir, &base.sim.camera, |_, _, _| {}).map_err(|e| StudyError::Appearance(e.to_string()))?))
+    } else {
+        None
+    };
+    // Runs go on a rayon thread, so they simulate inline rather than on a thread of their
+    // own beside the pipeline: with one worker per core that is faster (8 paper_park runs
+    // on 2 cores: 50 s against 54 s).
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().map_err(|e| protocol(e.to_string()))?;
+    for line in lines {
+        let line = line.map_err(|e| protocol(e.to_string()))?;
+        let job: Job = serde_json::from_str(&line).map_err(|e| protocol(format!("not a job: {e}")))?;
+        let record = pool.install(|| run_job(&base, &base_dir, &job, appearance.clone()));
+        writeln!(output, "{}", serde_json::to_string(&record).expect("JSON")).and_then(|_| output.flush()).map_err(|e| protocol(format!("cannot answer: {e}")))?;
+    }
+    Ok(())
+}
+
+/// One child process and its pipes.
+struct WorkerProcess {
+    child: Child,
+    stdin: ChildStdin,
+    stdout: BufReader<ChildStdout>,
+    stderr_tail: Arc<Mutex<VecDeque<String>>>,
+    stderr_reader: JoinHandle<()>,
+}
+
+impl WorkerProcess {
+    fn spawn(exe: &Path, plan: &StudyPlan) -> std::io::Result<Self> {
+        let mut child = Command::new(exe)
+            .arg("montecarlo-worker")
+            // Each child is one of the workers sharing the cores.
+            .env("RAYON_NUM_THREADS", "1")
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()?;
+        let mut stdin = child.stdin.take().expect("piped");
+        let stdout = BufReader::new(child.stdout.take().expect("piped"));
+        let stderr = child.stderr.take().expect("piped");
+        let stderr_tail = Arc::new(Mutex::new(VecDeque::new()));
+        let tail = stderr_tail.clone();
+        let stderr_reader = std::thread::spawn(move || {
+            for line in BufReader::new(stderr).lines() {
+                let Ok(line) = line else { break };
+                let mut t = tail.lock().unwrap_or_else(|p| p.into_inner());
+                if t.len() == STDERR_TAIL_LINES {
+                    t.pop_front();
+                }
+                t.push_back(line);
+            }
+        });
+        writeln!(stdin, "{}", serde_json::to_string(plan).expect("JSON"))?;
+        Ok(WorkerProcess { child, stdin, stdout, stderr_tail, stderr_reader })
+    }
+
+    /// Runs one job; what went wrong when the child did not answer with its record.
+    fn run(&mut self, job: &Job) -> Result<RunRecord, String> {
+        writeln!(self.stdin, "{}", serde_json::to_string(job).expect("JSON")).and_then(|_| self.stdin.flush()).map_err(|e| format!("cannot send the job: {e}"))?;
+        let mut line = String::new();
+        match self.stdout.read_line(&mut line) {
+            Ok(0) => Err("it stopped without answering".into()),
+            Ok(_) => {
+                let record: RunRecord = serde_json::from_str(&line).map_err(|e| format!("unreadable answer: {e}"))?;
+                if record.key == job.key() { Ok(record) } else { Err(format!("it answered for {} instead", record.key)) }
+            }
+            Err(e) => Err(format!("cannot read its answer: {e}")),
+        }
+    }
+
+    /// Ends the child (killed if it still runs) and says how it ended, with its stderr's end.
+    fn end(self, kill: bool) -> String {
+        let WorkerProcess { mut child, stdin, stdout, stderr_tail, stderr_reader } = self;
+        drop(stdin);
+        drop(stdout);
+        if kill {
+            let _ = child.kill();
+        }
+        let status = child.wait().map(|s| s.to_string()).unwrap_or_else(|e| e.to_string());
+        let _ = stderr_reader.join();
+        let tail: Vec<String> = stderr_tail.lock().unwrap_or_else(|p| p.into_inner()).drain(..).collect();
+        if tail.is_empty() { status } else { format!("{status}; its stderr ended with: {}", tail.join(" | ")) }
+    }
+}
+
+fn error_record(job: &Job, error: String) -> RunRecord {
+    RunRecord { key: job.key(), job: job.clone(), metrics: None, error: Some(error) }
+}
+
+/// Runs `todo` on `count` child processes of `exe`, calling `finished` for each record as
+/// it arrives. Fails only when no child can be started at all.
+pub(super) fn run_in_processes(plan: &StudyPlan, todo: &[&Job], exe: &Path, count: usize, finished: &(dyn Fn(&RunRecord) + Sync)) -> Result<Vec<RunRecord>, StudyError> {
+    if todo.is_empty() {
+        return Ok(Vec::new());
+    }
+    let mut workers = Vec::new();
+    for _ in 0..count.clamp(1, todo.len()) {
+        workers.push(WorkerProcess::spawn(exe, plan).map_err(|e| StudyError::Worker(format!("cannot start {} montecarlo-worker: {e}", exe.display())))?);
+    }
+    let queue = Mutex::new(todo.iter().copied().collect::<VecDeque<&Job>>());
+    let records = Mutex::new(Vec::new());
+    std::thread::scope(|scope| {
+        for first in workers {
+            let (queue, records) = (&queue, &records);
+            scope.spawn(move || {
+                let mut worker = Some(first);
+                loop {
+                    let Some(job) = queue.lock().unwrap_or_else(|p| p.into_inner()).pop_front() else { break };
+                    if worker.is_none() {
+                        worker = WorkerProcess::spawn(exe, plan).ok();
+                    }
+                    let record = match worker.as_mut().map(|w| w.run(job)) {
+                        Some(Ok(record)) => record,
+                        Some(Err(what)) => {
+                            let how = worker.take().expect("it ran").end(true);
+                            error_record(job, format!("the worker process failed: {what} (exit: {how})"))
+                        }
+                        None => error_record(job, format!("cannot start {} montecarlo-worker", exe.display())),
+                    };
+                    finished(&record);
+                    records.lock().unwrap_or_else(|p| p.into_inner()).push(record);
+                }
+                if let Some(w) = worker {
+                    w.end(false);
+                }
+            });
+        }
+    });
+    Ok(records.into_inner().unwrap_or_else(|p| p.into_inner()))
+}

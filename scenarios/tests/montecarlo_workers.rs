@@ -1,0 +1,90 @@
+//! Monte Carlo runs in worker processes: the same records as runs on threads, and a worker
+//! that dies costs only its run.
+
+use std::path::{Path, PathBuf};
+
+use scenarios::montecarlo::{self as mc, RunRecord, Shard, StudyPlan, Workers};
+
+/// A 12 s copy of the laser_only scenario (no camera) in `dir`.
+fn short_scenario(dir: &Path) -> String {
+    std::fs::create_dir_all(dir).unwrap();
+    let (mut sc, _) = scenarios::scenario::Scenario::load("laser_only").unwrap();
+    sc.name = "laser_only_short".into();
+    sc.sim.max_duration_s = Some(12.0);
+    sc.pass = Default::default();
+    sc.sim.camera.enabled = false;
+    let path = dir.join("laser_only_short.toml");
+    std::fs::write(&path, toml::to_string(&sc).unwrap()).unwrap();
+    path.to_string_lossy().into_owned()
+}
+
+/// Records without the wall-clock fields, which legitimately differ between runs.
+fn comparable(runs: &[RunRecord]) -> Vec<String> {
+    runs.iter()
+        .map(|r| {
+            let mut r = r.clone();
+            r.metrics = r.metrics.as_ref().map(|m| m.without_wall_clock());
+            serde_json::to_string(&r).unwrap()
+        })
+        .collect()
+}
+
+fn temp_root(name: &str) -> PathBuf {
+    let root = std::env::temp_dir().join(format!("objslam-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+    std::fs::create_dir_all(&root).unwrap();
+    root
+}
+
+fn plan(scenario: String) -> StudyPlan {
+    // `combined` needs the camera the scenario lacks: its runs error, in the workers too.
+    StudyPlan { scenario, base_seed: 9, runs: 3, methods: vec!["nn".into(), "jcbb".into(), "combined".into()], vary: vec![] }
+}
+
+#[test]
+fn worker_processes_give_the_records_threads_give() {
+    let root = temp_root("mc-workers");
+    let plan = plan(short_scenario(&root));
+    let threads = mc::run_study(&plan, Shard::all(), &root.join("threads"), |_, _| {}).unwrap();
+    let workers = Workers::Processes { exe: env!("CARGO_BIN_EXE_objslam").into(), count: 2 };
+    let processes = mc::run_study_with(&plan, Shard::all(), &root.join("processes"), &workers, |_, _| {}).unwrap();
+    assert_eq!(processes.len(), 9);
+    assert_eq!(processes.iter().filter(|r| r.metrics.is_some()).count(), 6);
+    assert_eq!(comparable(&processes), comparable(&threads));
+    // runs.jsonl holds every run once.
+    let lines = std::fs::read_to_string(root.join("processes/runs.jsonl")).unwrap();
+    assert_eq!(lines.lines().count(), 9);
+    let _ = std::fs::remove_dir_all(&root);
+}
+
+#[cfg(unix)]
+#[test]
+fn a_worker_that_dies_costs_only_its_run() {
+    use std::os::unix::fs::PermissionsExt;
+    let root = temp_root("mc-dying-worker");
+    let plan = plan(short_scenario(&root));
+    // The first worker started dies on its first job; the ones after it are real workers
+    // (fed the plan and the job the script has read).
+    let marker = root.join("died");
+    let script = root.join("dying-worker.sh");
+    std::fs::write(
+        &script,
+        format!(
+            "#!/bin/sh\nread plan\nread job\nif mkdir {marker:?} 2>/dev/null; then echo 'simulated crash' >&2; exit 3; fi\n{{ echo \"$plan\"; echo \"$job\"; cat; }} | exec {exe:?} \"$1\"\n",
+            marker = marker,
+            exe = env!("CARGO_BIN_EXE_objslam")
+        ),
+    )
+    .unwrap();
+    std::fs::set_permissions(&script, std::fs::Permissions::from_mode(0o755)).unwrap();
+    let workers = Workers::Processes { exe: script, count: 1 };
+    let records = mc::run_study_with(&plan, Shard::all(), &root.join("study"), &workers, |_, _| {}).unwrap();
+    assert_eq!(records.len(), 9);
+    let died: Vec<&RunRecord> = records.iter().filter(|r| r.error.as_deref().is_some_and(|e| e.contains("worker process failed"))).collect();
+    assert_eq!(died.len(), 1, "{records:#?}");
+    let error = died[0].error.as_deref().unwrap();
+    assert!(error.contains("exit status: 3") && error.contains("simulated crash"), "{error}");
+    // The other runs went on: the position-only ones have metrics.
+    assert_eq!(records.iter().filter(|r| r.metrics.is_some()).count(), 5);
+    let _ = std::fs::remove_dir_all(&root);
+}
