@@ -6,7 +6,7 @@
 use render::*;
 
 fn main() {
-    match Renderer::new(&RendererConfig { width: 8, height: 8 }) {
+    match Renderer::new(&RendererConfig::new(8, 8)) {
         Ok(r) => eprintln!("adapter: {}", r.adapter_info()),
         Err(e) => panic!("no adapter for the benchmark: {e}"),
     }
@@ -79,7 +79,7 @@ fn translate(x: f32, y: f32, z: f32) -> [[f32; 4]; 4] {
 }
 
 fn park() -> (Renderer, Camera, InstanceHandle) {
-    let mut r = Renderer::new(&RendererConfig { width: 640, height: 480 }).expect("adapter");
+    let mut r = Renderer::new(&RendererConfig::new(640, 480)).expect("adapter");
     let ground = MeshData {
         positions: vec![[-60.0, -60.0, 0.0], [60.0, -60.0, 0.0], [60.0, 60.0, 0.0], [-60.0, 60.0, 0.0]],
         normals: vec![[0.0, 0.0, 1.0]; 4],

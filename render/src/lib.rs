@@ -30,7 +30,7 @@
 //! ## Example
 //! ```
 //! use render::*;
-//! let mut r = Renderer::new(&RendererConfig { width: 64, height: 48 })?;
+//! let mut r = Renderer::new(&RendererConfig::new(64, 48))?;
 //! println!("rendering on {}", r.adapter_info());
 //! // A 2 m square facing the camera, 4 m ahead along world x.
 //! let square = MeshData {
@@ -113,11 +113,22 @@ pub struct TextureData {
     pub rgba: Vec<u8>,
 }
 
-/// Image size of every frame a renderer makes.
+/// Image size of every frame a renderer makes, and whether frames carry depth.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct RendererConfig {
     pub width: u32,
     pub height: u32,
+    /// Whether frames carry the depth image. It is a render target of its own, about a
+    /// tenth of a software-rendered frame's cost: a consumer that never reads depth (the
+    /// online pipeline) goes faster without. Without it, `Frame::depth_m` is empty.
+    pub depth: bool,
+}
+
+impl RendererConfig {
+    /// Frames of `width` x `height` with every image, depth included.
+    pub fn new(width: u32, height: u32) -> Self {
+        RendererConfig { width, height, depth: true }
+    }
 }
 
 /// Which adapter renders, so results can say what produced them.
@@ -240,7 +251,8 @@ pub struct Frame {
     pub instance: Vec<u16>,
     /// Class id per pixel; 0 where nothing was drawn.
     pub class: Vec<u8>,
-    /// Z-depth along the optical axis (m); `f32::INFINITY` where nothing was drawn.
+    /// Z-depth along the optical axis (m); `f32::INFINITY` where nothing was drawn. Empty
+    /// when the renderer was made without depth (`RendererConfig::depth`).
     pub depth_m: Vec<f32>,
 }
 
@@ -326,9 +338,21 @@ const CLASS_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R8Uint;
 /// 3.0 (llvmpipe through wgpu's GL backend), R32Uint is everywhere.
 const DEPTH_OUT_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Uint;
 const ZBUFFER_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
-/// Targets in shader location order, with bytes per pixel.
-const TARGETS: [(wgpu::TextureFormat, u32, &str); 4] =
-    [(COLOUR_FORMAT, 4, "colour"), (INSTANCE_FORMAT, 2, "instance"), (CLASS_FORMAT, 1, "class"), (DEPTH_OUT_FORMAT, 4, "depth")];
+/// Targets in shader location order, with bytes per pixel; the depth target last and only
+/// when asked for.
+fn target_formats(depth: bool) -> Vec<(wgpu::TextureFormat, u32, &'static str)> {
+    let mut t = vec![(COLOUR_FORMAT, 4, "colour"), (INSTANCE_FORMAT, 2, "instance"), (CLASS_FORMAT, 1, "class")];
+    if depth {
+        t.push((DEPTH_OUT_FORMAT, 4, "depth"));
+    }
+    t
+}
+
+/// The shader, without its depth output unless `depth`: lines marked `// depth target`.
+fn shader_source(depth: bool) -> String {
+    let source = include_str!("shader.wgsl");
+    if depth { source.to_string() } else { source.lines().filter(|l| !l.ends_with("// depth target")).collect::<Vec<_>>().join("\n") }
+}
 
 /// Where one target's rows lie in the shared readback buffer.
 #[derive(Clone, Copy)]
@@ -372,7 +396,8 @@ pub struct Renderer {
     targets: Vec<wgpu::Texture>,
     zbuffer: wgpu::TextureView,
     readback: wgpu::Buffer,
-    planes: [Plane; 4],
+    /// Colour, instance, class and (if rendered) depth.
+    planes: Vec<Plane>,
 }
 
 impl Renderer {
@@ -422,7 +447,7 @@ impl Renderer {
 
         let shader = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("objslam shader"),
-            source: wgpu::ShaderSource::Wgsl(include_str!("shader.wgsl").into()),
+            source: wgpu::ShaderSource::Wgsl(shader_source(config.depth).into()),
         });
         let uniform_layout = |label, dynamic: bool, size: usize| {
             device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
@@ -469,7 +494,7 @@ impl Renderer {
         });
         let attributes = wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x3, 2 => Float32x2];
         let colour_targets: Vec<Option<wgpu::ColorTargetState>> =
-            TARGETS.iter().map(|&(format, _, _)| Some(wgpu::ColorTargetState { format, blend: None, write_mask: wgpu::ColorWrites::ALL })).collect();
+            target_formats(config.depth).iter().map(|&(format, _, _)| Some(wgpu::ColorTargetState { format, blend: None, write_mask: wgpu::ColorWrites::ALL })).collect();
         // Two pipelines that differ only in culling: meshes that may skip their back faces
         // (see `MeshData::cull_back_faces`) and the rest, drawn from both sides.
         let make_pipeline = |cull_mode: Option<wgpu::Face>, fragment_entry: &str| {
@@ -544,15 +569,15 @@ impl Renderer {
             })
         };
         let targets: Vec<wgpu::Texture> =
-            TARGETS.iter().map(|&(format, _, label)| texture(format, wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC, label)).collect();
+            target_formats(config.depth).iter().map(|&(format, _, label)| texture(format, wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC, label)).collect();
         let target_views = targets.iter().map(|t| t.create_view(&Default::default())).collect();
         let zbuffer = texture(ZBUFFER_FORMAT, wgpu::TextureUsages::RENDER_ATTACHMENT, "z-buffer").create_view(&Default::default());
         // One buffer holds all four images, each row padded to 256 bytes as copies require.
-        let mut planes = [Plane { offset: 0, bytes_per_row: 0 }; 4];
+        let mut planes = Vec::new();
         let mut offset = 0u64;
-        for (plane, &(_, bytes, _)) in planes.iter_mut().zip(&TARGETS) {
+        for &(_, bytes, _) in &target_formats(config.depth) {
             let bytes_per_row = (bytes * width).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
-            *plane = Plane { offset, bytes_per_row };
+            planes.push(Plane { offset, bytes_per_row });
             offset += bytes_per_row as u64 * height as u64;
         }
         let readback = device.create_buffer(&wgpu::BufferDescriptor {
@@ -895,7 +920,8 @@ impl Renderer {
         frame.rgb.resize(3 * w * h, 0);
         frame.instance.resize(w * h, 0);
         frame.class.resize(w * h, 0);
-        frame.depth_m.resize(w * h, 0.0);
+        let depth = self.planes.get(3);
+        frame.depth_m.resize(if depth.is_some() { w * h } else { 0 }, 0.0);
         let row = |plane: &Plane, bytes: usize, y: usize| {
             let start = plane.offset as usize + y * plane.bytes_per_row as usize;
             &data[start..start + bytes * w]
@@ -908,7 +934,8 @@ impl Renderer {
                 *d = u16::from_le_bytes([s[0], s[1]]);
             }
             frame.class[w * y..w * (y + 1)].copy_from_slice(row(&self.planes[2], 1, y));
-            for (d, s) in frame.depth_m[w * y..w * (y + 1)].iter_mut().zip(row(&self.planes[3], 4, y).chunks_exact(4)) {
+            let Some(depth) = depth else { continue };
+            for (d, s) in frame.depth_m[w * y..w * (y + 1)].iter_mut().zip(row(depth, 4, y).chunks_exact(4)) {
                 let z = f32::from_le_bytes([s[0], s[1], s[2], s[3]]);
                 *d = if z > 0.0 { z } else { f32::INFINITY };
             }

@@ -60,8 +60,9 @@ struct FragmentOut {
     @location(0) colour: vec4<f32>,
     @location(1) instance_id: u32,
     @location(2) class_id: u32,
-    // The f32 z-depth's bits (see DEPTH_OUT_FORMAT in lib.rs).
-    @location(3) z_bits: u32,
+    // The f32 z-depth's bits (see DEPTH_OUT_FORMAT in lib.rs). Lines ending in "depth
+    // target" are left out when the renderer is made without depth.
+    @location(3) z_bits: u32, // depth target
 };
 
 /// Lit colour and ids of a fragment whose (unnormalised) normal `normal` faces the camera.
@@ -76,7 +77,7 @@ fn shade(in: VertexOut, normal: vec3<f32>) -> FragmentOut {
     out.colour = vec4<f32>(base * light * frame.params.x, 1.0);
     out.instance_id = instance.ids.x;
     out.class_id = instance.ids.y;
-    out.z_bits = bitcast<u32>(in.z_m);
+    out.z_bits = bitcast<u32>(in.z_m); // depth target
     return out;
 }
 

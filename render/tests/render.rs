@@ -10,7 +10,7 @@ const STONE: [u8; 3] = [150, 150, 140];
 /// Fails the test with a clear message when no adapter exists: CI has Mesa, so a missing
 /// adapter is a broken environment, not a reason to skip.
 fn renderer(width: u32, height: u32) -> Renderer {
-    match Renderer::new(&RendererConfig { width, height }) {
+    match Renderer::new(&RendererConfig::new(width, height)) {
         Ok(r) => r,
         Err(e) => panic!("cannot create a renderer (install Mesa: libegl-mesa0 libgl1-mesa-dri, or mesa-vulkan-drivers): {e}"),
     }
@@ -375,8 +375,8 @@ fn exposure_scales_the_lit_colour_but_not_the_sky() {
 
 #[test]
 fn bad_input_is_an_error_not_a_panic() {
-    assert!(matches!(Renderer::new(&RendererConfig { width: 0, height: 10 }), Err(RenderError::Size { .. })));
-    assert!(matches!(Renderer::new(&RendererConfig { width: 1_000_000, height: 10 }), Err(RenderError::Size { .. })));
+    assert!(matches!(Renderer::new(&RendererConfig::new(0, 10)), Err(RenderError::Size { .. })));
+    assert!(matches!(Renderer::new(&RendererConfig::new(1_000_000, 10)), Err(RenderError::Size { .. })));
     let mut r = renderer(16, 16);
     let tri = |indices: Vec<u32>| MeshData { positions: vec![[0.0; 3]; 3], normals: vec![[0.0, 0.0, 1.0]; 3], uvs: vec![[0.0; 2]; 3], indices, cull_back_faces: false };
     assert!(matches!(r.add_mesh(&tri(vec![0, 1, 5])), Err(RenderError::Mesh(_))));
@@ -491,4 +491,29 @@ fn culling_skips_faces_seen_from_behind_but_not_mirrored_instances() {
     mirror[1][1] = -1.0;
     r.set_transform(handle, mirror);
     assert!(seen(&mut r), "a mirrored instance is drawn whatever its winding");
+}
+
+#[test]
+fn a_renderer_without_depth_draws_the_same_colour_and_masks() {
+    let mut with = golden_scene(160, 120);
+    let mut without = golden_scene(160, 120);
+    // Same scene, rebuilt on a depth-less renderer.
+    let mut r = Renderer::new(&RendererConfig { depth: false, ..RendererConfig::new(160, 120) }).unwrap();
+    let ground_mesh = r.add_mesh(&ground(30.0)).unwrap();
+    let trunk = r.add_mesh(&cylinder(0.3, 4.0, 48)).unwrap();
+    let post = r.add_mesh(&cylinder(0.15, 1.5, 32)).unwrap();
+    let block = r.add_mesh(&cuboid([0.3, 0.3, 0.3])).unwrap();
+    let grass = r.add_texture(&checker([60, 110, 40], [75, 125, 50])).unwrap();
+    let bark = r.add_texture(&checker(BARK, [70, 50, 35])).unwrap();
+    let stone = r.add_texture(&checker(STONE, [120, 120, 112])).unwrap();
+    r.add_instance(ground_mesh, grass, IDENTITY, 1, 1);
+    r.add_instance(trunk, bark, pose(0.0, [6.0, 1.0, 0.0]), 11, 2);
+    without.post = r.add_instance(post, bark, pose(0.0, [3.5, -1.0, 0.0]), 12, 3);
+    r.add_instance(block, stone, pose(0.5, [4.5, 0.3, 0.3]), 30, 5);
+    without.r = r;
+    let a = with.r.render(&with.camera, &Lighting::default()).unwrap();
+    let b = without.r.render(&without.camera, &Lighting::default()).unwrap();
+    assert_eq!(a.depth_m.len(), 160 * 120);
+    assert!(b.depth_m.is_empty(), "no depth image was asked for");
+    assert_eq!((a.rgb, a.instance, a.class), (b.rgb, b.instance, b.class));
 }

@@ -318,6 +318,8 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
     if !config.method.uses_appearance() {
         sim_config.camera.enabled = false;
     }
+    // Nor does any method read depth: render without it.
+    sim_config.camera.depth_image = false;
     let sim = Simulation::new(&world, &sim_config, sim::derive_seed(seed, "sim"))?;
     let nominal = scenario.sim.max_duration_s.unwrap_or_else(|| sim.nominal_duration_s());
     let start = world.robot.start;

@@ -83,7 +83,7 @@ impl CameraSensor {
     /// Uploads the world's meshes and textures. `seed` drives image noise and exposure.
     pub fn new(world: &World, config: &CameraConfig, seed: u64) -> Result<Self, CameraError> {
         config.check().map_err(CameraError::Config)?;
-        let mut renderer = Renderer::new(&RendererConfig { width: config.width, height: config.height })?;
+        let mut renderer = Renderer::new(&RendererConfig { width: config.width, height: config.height, depth: config.depth_image })?;
         for part in static_world_parts(world) {
             let mesh = renderer.add_mesh(&mesh_data(&part.mesh))?;
             let tex = renderer.add_texture(&texture_data(&part))?;

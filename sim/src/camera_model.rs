@@ -29,6 +29,9 @@ pub struct CameraConfig {
     pub noise_sigma: f64,
     /// Per-frame exposure varies by a factor N(1, this); 0 = off.
     pub exposure_sigma: f64,
+    /// Whether frames carry the depth image (an extra render target; scenario runs, whose
+    /// pipeline never reads depth, turn it off).
+    pub depth_image: bool,
 }
 
 impl Default for CameraConfig {
@@ -44,6 +47,7 @@ impl Default for CameraConfig {
             mount_yaw_deg: 0.0,
             noise_sigma: 0.0,
             exposure_sigma: 0.0,
+            depth_image: true,
         }
     }
 }

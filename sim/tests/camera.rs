@@ -134,3 +134,29 @@ fn a_checkerboard_shows_its_squares() {
     }
     assert_eq!(changes, 7, "8 squares across give 7 dark/light edges");
 }
+
+#[test]
+fn masks_and_colour_do_not_depend_on_whether_depth_is_rendered() {
+    let world = worlds::generate::park(&Default::default(), 2006).unwrap();
+    let frames = |depth_image: bool| -> Vec<render::Frame> {
+        let mut config = SimConfig { max_duration_s: Some(20.0), ..Default::default() };
+        config.camera.depth_image = depth_image;
+        let mut s = Simulation::new(&world, &config, 2).unwrap();
+        let mut out = Vec::new();
+        while let Some(e) = s.next_event() {
+            if let SensorEvent::Camera { frame, .. } = e {
+                out.push(frame.image);
+            }
+        }
+        out
+    };
+    let (with, without) = (frames(true), frames(false));
+    assert_eq!(with.len(), without.len());
+    assert!(with.len() >= 90, "{} frames", with.len());
+    for (k, (a, b)) in with.iter().zip(&without).enumerate() {
+        assert!(b.depth_m.is_empty());
+        let differ = |x: &[u8], y: &[u8]| x.iter().zip(y).filter(|(p, q)| p != q).count();
+        let inst = a.instance.iter().zip(&b.instance).filter(|(p, q)| p != q).count();
+        assert_eq!((differ(&a.rgb, &b.rgb), inst, differ(&a.class, &b.class)), (0, 0, 0), "frame {k}: differing rgb values, instance and class pixels");
+    }
+}

@@ -57,14 +57,16 @@ struct WorkerProcess {
 
 impl WorkerProcess {
     fn spawn(exe: &Path, plan: &StudyPlan) -> std::io::Result<Self> {
-        let mut child = Command::new(exe)
-            .arg("montecarlo-worker")
-            // Each child is one of the workers sharing the cores.
-            .env("RAYON_NUM_THREADS", "1")
-            .stdin(Stdio::piped())
-            .stdout(Stdio::piped())
-            .stderr(Stdio::piped())
-            .spawn()?;
+        let mut command = Command::new(exe);
+        command.arg("montecarlo-worker").stdin(Stdio::piped()).stdout(Stdio::piped()).stderr(Stdio::piped());
+        // Each child is one of the workers sharing the cores: one thread of its own, and
+        // llvmpipe (the software renderer) rasterising on the calling thread rather than
+        // handing tiles to threads of its own, unless the user chose otherwise.
+        command.env("RAYON_NUM_THREADS", "1");
+        if std::env::var_os("LP_NUM_THREADS").is_none() {
+            command.env("LP_NUM_THREADS", "0");
+        }
+        let mut child = command.spawn()?;
         let mut stdin = child.stdin.take().expect("piped");
         let stdout = BufReader::new(child.stdout.take().expect("piped"));
         let stderr = child.stderr.take().expect("piped");
