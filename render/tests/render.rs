@@ -122,11 +122,16 @@ struct Scene {
 }
 
 fn golden_scene(width: u32, height: u32) -> Scene {
-    let mut r = renderer(width, height);
-    let ground_mesh = r.add_mesh(&ground(30.0)).unwrap();
-    let trunk = r.add_mesh(&cylinder(0.3, 4.0, 48)).unwrap();
-    let post = r.add_mesh(&cylinder(0.15, 1.5, 32)).unwrap();
-    let block = r.add_mesh(&cuboid([0.3, 0.3, 0.3])).unwrap();
+    golden_scene_on(renderer(width, height), false)
+}
+
+/// The golden scene on `r` (whose size sets the camera's); `cull` lets the renderer skip
+/// back faces of its meshes, which are closed where the camera sees them (cylinders
+/// standing on the ground with a top cap, a box, the ground from above).
+fn golden_scene_on(mut r: Renderer, cull: bool) -> Scene {
+    let (width, height) = r.size();
+    let mut add = |m: MeshData| r.add_mesh(&MeshData { cull_back_faces: cull, ..m }).unwrap();
+    let (ground_mesh, trunk, post, block) = (add(ground(30.0)), add(cylinder(0.3, 4.0, 48)), add(cylinder(0.15, 1.5, 32)), add(cuboid([0.3, 0.3, 0.3])));
     let grass = r.add_texture(&checker([60, 110, 40], [75, 125, 50])).unwrap();
     let bark = r.add_texture(&checker(BARK, [70, 50, 35])).unwrap();
     let stone = r.add_texture(&checker(STONE, [120, 120, 112])).unwrap();
@@ -441,24 +446,10 @@ fn golden_scene_matches_the_committed_images() {
 
 #[test]
 fn culling_back_faces_of_closed_meshes_changes_no_pixel() {
-    // The golden scene's meshes are closed where the camera sees them (cylinders standing
-    // on the ground with a top cap, a box, the ground from above).
     let mut two_sided = golden_scene(160, 120);
-    let mut culled = renderer(160, 120);
-    let cull = |m: MeshData| MeshData { cull_back_faces: true, ..m };
-    let ground_mesh = culled.add_mesh(&cull(ground(30.0))).unwrap();
-    let trunk = culled.add_mesh(&cull(cylinder(0.3, 4.0, 48))).unwrap();
-    let post = culled.add_mesh(&cull(cylinder(0.15, 1.5, 32))).unwrap();
-    let block = culled.add_mesh(&cull(cuboid([0.3, 0.3, 0.3]))).unwrap();
-    let grass = culled.add_texture(&checker([60, 110, 40], [75, 125, 50])).unwrap();
-    let bark = culled.add_texture(&checker(BARK, [70, 50, 35])).unwrap();
-    let stone = culled.add_texture(&checker(STONE, [120, 120, 112])).unwrap();
-    culled.add_instance(ground_mesh, grass, IDENTITY, 1, 1);
-    culled.add_instance(trunk, bark, pose(0.0, [6.0, 1.0, 0.0]), 11, 2);
-    culled.add_instance(post, bark, pose(0.0, [3.5, -1.0, 0.0]), 12, 3);
-    culled.add_instance(block, stone, pose(0.5, [4.5, 0.3, 0.3]), 30, 5);
+    let mut culled = golden_scene_on(renderer(160, 120), true);
     let a = two_sided.r.render(&two_sided.camera, &Lighting::default()).unwrap();
-    let b = culled.render(&two_sided.camera, &Lighting::default()).unwrap();
+    let b = culled.r.render(&culled.camera, &Lighting::default()).unwrap();
     assert_eq!(a.instance, b.instance);
     assert_eq!(a.class, b.class);
     assert_eq!(a.depth_m, b.depth_m);
@@ -496,21 +487,7 @@ fn culling_skips_faces_seen_from_behind_but_not_mirrored_instances() {
 #[test]
 fn a_renderer_without_depth_draws_the_same_colour_and_masks() {
     let mut with = golden_scene(160, 120);
-    let mut without = golden_scene(160, 120);
-    // Same scene, rebuilt on a depth-less renderer.
-    let mut r = Renderer::new(&RendererConfig { depth: false, ..RendererConfig::new(160, 120) }).unwrap();
-    let ground_mesh = r.add_mesh(&ground(30.0)).unwrap();
-    let trunk = r.add_mesh(&cylinder(0.3, 4.0, 48)).unwrap();
-    let post = r.add_mesh(&cylinder(0.15, 1.5, 32)).unwrap();
-    let block = r.add_mesh(&cuboid([0.3, 0.3, 0.3])).unwrap();
-    let grass = r.add_texture(&checker([60, 110, 40], [75, 125, 50])).unwrap();
-    let bark = r.add_texture(&checker(BARK, [70, 50, 35])).unwrap();
-    let stone = r.add_texture(&checker(STONE, [120, 120, 112])).unwrap();
-    r.add_instance(ground_mesh, grass, IDENTITY, 1, 1);
-    r.add_instance(trunk, bark, pose(0.0, [6.0, 1.0, 0.0]), 11, 2);
-    without.post = r.add_instance(post, bark, pose(0.0, [3.5, -1.0, 0.0]), 12, 3);
-    r.add_instance(block, stone, pose(0.5, [4.5, 0.3, 0.3]), 30, 5);
-    without.r = r;
+    let mut without = golden_scene_on(Renderer::new(&RendererConfig { depth: false, ..RendererConfig::new(160, 120) }).unwrap(), false);
     let a = with.r.render(&with.camera, &Lighting::default()).unwrap();
     let b = without.r.render(&without.camera, &Lighting::default()).unwrap();
     assert_eq!(a.depth_m.len(), 160 * 120);

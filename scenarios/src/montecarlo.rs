@@ -131,6 +131,12 @@ pub struct RunRecord {
 }
 
 impl RunRecord {
+    /// The record with its metrics' wall-clock figures zeroed: what must be identical
+    /// however and wherever the run was made.
+    pub fn without_wall_clock(&self) -> RunRecord {
+        RunRecord { metrics: self.metrics.as_ref().map(|m| m.without_wall_clock()), ..self.clone() }
+    }
+
     /// An association failure: one or more wrong associations or false landmarks.
     pub fn failed_association(&self) -> Option<bool> {
         self.metrics.as_ref().map(|m| m.associations.wrong > 0 || m.false_landmarks > 0)
@@ -165,7 +171,7 @@ pub fn apply_param(scenario: &Scenario, path: &str, value: f64) -> Result<Scenar
     }
     let mut root = toml::Value::try_from(&scenario).map_err(|e| bad(e.to_string()))?;
     let parts: Vec<&str> = path.split('.').collect();
-    set_path(&mut root, &parts, value).map_err(|m| bad(m))?;
+    set_path(&mut root, &parts, value).map_err(&bad)?;
     let text = toml::to_string(&root).map_err(|e| bad(e.to_string()))?;
     Scenario::parse(&text, Path::new(&format!("{}[{path}={value}]", scenario.name))).map_err(|e| bad(e.to_string()))
 }

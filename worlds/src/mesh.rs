@@ -401,6 +401,25 @@ pub fn static_world_parts(w: &World) -> Vec<MeshPart> {
 mod tests {
     use super::*;
 
+    /// The normal of triangle (a, b, c) by its winding (counter-clockwise: towards the viewer).
+    fn winding_normal(a: [f32; 3], b: [f32; 3], c: [f32; 3]) -> [f64; 3] {
+        let e1: [f64; 3] = std::array::from_fn(|k| (b[k] - a[k]) as f64);
+        let e2: [f64; 3] = std::array::from_fn(|k| (c[k] - a[k]) as f64);
+        [e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]]
+    }
+
+    /// A 0.8 x 0.6 m board of 8 x 6 squares at the origin, turned up 20 deg and rolled 15.
+    fn tilted_board(id: u16, yaw_deg: f64) -> StaticObject {
+        StaticObject {
+            id,
+            class: ObjectClass::Checkerboard,
+            pose: Pose2 { x: 0.0, y: 0.0, yaw_deg },
+            shape: Shape::Board { width_m: 0.8, height_m: 0.6, bottom_m: 0.4, squares: [8, 6], tilt_deg: -20.0, roll_deg: 15.0 },
+            appearance: Appearance { material: Material::Checker, colour: [0.9; 3], texture_seed: 0 },
+            mesh: None,
+        }
+    }
+
     #[test]
     fn cylinder_surface_points_are_on_the_radius() {
         let m = cylinder(0.3, 0.3, 0.0, 2.0, 32, [1.0, 1.0]);
@@ -417,24 +436,15 @@ mod tests {
         let m = cylinder(0.5, 0.5, 0.0, 1.0, 16, [1.0, 1.0]);
         for t in m.indices.chunks(3).take(32) {
             let [a, b, c] = [t[0], t[1], t[2]].map(|i| m.positions[i as usize]);
-            let e1 = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
-            let e2 = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
-            let n = [e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]];
-            let centre = [(a[0] + b[0] + c[0]) / 3.0, (a[1] + b[1] + c[1]) / 3.0];
+            let n = winding_normal(a, b, c);
+            let centre = [(a[0] + b[0] + c[0]) as f64 / 3.0, (a[1] + b[1] + c[1]) as f64 / 3.0];
             assert!(n[0] * centre[0] + n[1] * centre[1] > 0.0, "inward-facing side triangle");
         }
     }
 
     #[test]
     fn a_tilted_board_mesh_lies_on_its_plane() {
-        let o = StaticObject {
-            id: 9,
-            class: ObjectClass::Checkerboard,
-            pose: Pose2 { x: 0.0, y: 0.0, yaw_deg: 0.0 },
-            shape: Shape::Board { width_m: 0.8, height_m: 0.6, bottom_m: 0.4, squares: [8, 6], tilt_deg: -20.0, roll_deg: 15.0 },
-            appearance: Appearance { material: Material::Checker, colour: [0.9; 3], texture_seed: 0 },
-            mesh: None,
-        };
+        let o = tilted_board(9, 0.0);
         let f = o.shape.board_frame().unwrap();
         let n = f.normal();
         let parts = object_parts(&o);
@@ -460,10 +470,8 @@ mod tests {
     fn assert_wound_outwards(m: &TriMesh, name: &str) {
         for t in m.indices.chunks(3) {
             let t = [t[0], t[1], t[2]];
-            let [a, b, c] = t.map(|i| m.positions[i as usize].map(|v| v as f64));
-            let e1 = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
-            let e2 = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
-            let n = [e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0]];
+            let [a, b, c] = t.map(|i| m.positions[i as usize]);
+            let n = winding_normal(a, b, c);
             let area2 = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
             if area2 < 1e-9 {
                 continue; // degenerate (ellipsoid poles): covers no pixel
@@ -477,14 +485,7 @@ mod tests {
     #[test]
     fn every_part_is_wound_counter_clockwise_from_outside() {
         let mut w = crate::generate::park(&Default::default(), 1).unwrap();
-        w.objects.push(StaticObject {
-            id: 900,
-            class: ObjectClass::Checkerboard,
-            pose: Pose2 { x: 0.0, y: 0.0, yaw_deg: 30.0 },
-            shape: Shape::Board { width_m: 0.8, height_m: 0.6, bottom_m: 0.4, squares: [8, 6], tilt_deg: -20.0, roll_deg: 15.0 },
-            appearance: Appearance { material: Material::Checker, colour: [0.9; 3], texture_seed: 0 },
-            mesh: None,
-        });
+        w.objects.push(tilted_board(900, 30.0));
         let parts = static_world_parts(&w);
         for kind in ["ground", "tree", "palm", "post", "wall", "checkerboard"] {
             assert!(parts.iter().any(|p| p.name.starts_with(kind)), "the test world has no {kind}");

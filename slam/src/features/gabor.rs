@@ -1,8 +1,8 @@
 //! The Gabor filter bank that gives patches their texture channels.
 //!
 //! Kernel (OpenCV's `getGaborKernel` convention): exp(-(x_r^2 + gamma^2 y_r^2) / (2 sigma^2))
-//! cos(2 pi x_r / lambda + psi) with x_r = x cos(theta) + y sin(theta), y_r = -x sin(theta)
-//! + y cos(theta). Two changes, both so that the channels carry texture and not brightness
+//! cos(2 pi x_r / lambda + psi) with x_r = x cos(theta) + y sin(theta) and
+//! y_r = y cos(theta) - x sin(theta). Two changes, both so that the channels carry texture and not brightness
 //! (the colour channels already do): the Gaussian envelope times a constant is subtracted
 //! so the kernel sums to zero, and the kernel is scaled to unit L1 norm, so a response lies
 //! in [-1, 1] for intensities in [0, 1]. A channel is the response's magnitude.
