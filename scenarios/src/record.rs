@@ -289,7 +289,7 @@ pub fn record(
         scans,
         odometry: odos,
         camera_frames: frames,
-        renderer: sim.camera().map(|c| c.adapter().to_string()),
+        renderer: sim.camera_adapter().map(|a| a.to_string()),
         collisions: sim.collisions().len(),
     };
     write_file(

@@ -177,6 +177,11 @@ impl EventSource {
         if rayon::current_thread_index().is_some() {
             return EventSource::Inline { sim, sim_time: 0.0 };
         }
+        // A core is free for the physics while the camera renders (see
+        // Simulation::render_camera_on_thread); if the thread cannot start, render inline.
+        if let Err(e) = sim.render_camera_on_thread() {
+            eprintln!("warning: {e}; the camera renders on the simulator's thread");
+        }
         let (tx, events) = std::sync::mpsc::sync_channel::<SensorEvent>(64);
         let producer = std::thread::spawn(move || {
             let mut sim_time = 0.0f64;

@@ -19,6 +19,8 @@ pub enum CameraError {
     Config(String),
     #[error("renderer: {0}")]
     Render(#[from] render::RenderError),
+    #[error("the camera's rendering thread ended unexpectedly")]
+    Thread,
 }
 
 /// One camera frame: the image and its exactly aligned ground truth.

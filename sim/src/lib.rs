@@ -23,6 +23,7 @@
 //! ```
 
 pub mod camera;
+mod camera_thread;
 pub mod camera_model;
 pub mod config;
 pub mod controller;
@@ -51,6 +52,8 @@ pub enum SimError {
     World(#[from] worlds::WorldError),
     #[error("camera: {0}")]
     Camera(#[from] camera::CameraError),
+    #[error("cannot start a thread: {0}")]
+    Thread(String),
 }
 
 /// Derives independent seeds for each random source from the run seed, so adding a
@@ -93,6 +96,17 @@ impl Schedule {
     }
 }
 
+/// How far (simulated seconds) physics and the laser may run ahead of a camera frame that
+/// is still rendering on the camera's thread.
+pub const CAMERA_LOOKAHEAD_S: f64 = 1.0;
+
+/// A message waiting in the simulator's queue: ready, or a frame the camera's thread is
+/// rendering (with the ground truth of its instant).
+enum Pending {
+    Ready(SensorEvent),
+    Frame(GroundTruth),
+}
+
 /// A running simulation.
 pub struct Simulation {
     pub world: worlds::World,
@@ -105,11 +119,13 @@ pub struct Simulation {
     laser_schedule: Schedule,
     odometry_schedule: Schedule,
     camera: Option<camera::CameraSensor>,
+    /// The camera when it renders on a thread of its own (then `camera` is `None`).
+    camera_thread: Option<camera_thread::CameraThread>,
     camera_schedule: Schedule,
     camera_error: Option<String>,
     step: u64,
     dt: f64,
-    pending: VecDeque<SensorEvent>,
+    pending: VecDeque<Pending>,
     last_scan: Option<LaserScan>,
     people: Vec<PersonState>,
     touching: Vec<u16>,
@@ -135,6 +151,7 @@ impl Simulation {
             laser_schedule: Schedule::new(config.laser.rate_hz),
             odometry_schedule: Schedule::new(config.odometry.rate_hz),
             camera: if config.camera.enabled { Some(camera::CameraSensor::new(world, &config.camera, derive_seed(seed, "camera"))?) } else { None },
+            camera_thread: None,
             camera_schedule: Schedule::new(config.camera.rate_hz),
             camera_error: None,
             scene,
@@ -184,9 +201,27 @@ impl Simulation {
         self.follower.total_length() / self.config.robot.cruise_speed_mps
     }
 
-    /// The camera, when enabled.
+    /// The camera, when enabled and rendering inline (`None` once it renders on its own
+    /// thread).
     pub fn camera(&self) -> Option<&camera::CameraSensor> {
         self.camera.as_ref()
+    }
+
+    /// The adapter rendering the camera's frames, when the camera is on.
+    pub fn camera_adapter(&self) -> Option<render::AdapterSummary> {
+        self.camera.as_ref().map(|c| c.adapter()).or_else(|| self.camera_thread.as_ref().map(|c| c.adapter().clone()))
+    }
+
+    /// Renders the camera's frames from now on on a thread of its own: physics and the laser
+    /// go on while a frame renders, up to [`CAMERA_LOOKAHEAD_S`] of simulated time ahead of
+    /// the oldest frame not yet delivered. The event stream is the same as inline (a test).
+    /// Worth it when a core is free for the physics (a single run); nothing to gain where
+    /// other runs fill the cores.
+    pub fn render_camera_on_thread(&mut self) -> Result<(), SimError> {
+        if let Some(camera) = self.camera.take() {
+            self.camera_thread = Some(camera_thread::CameraThread::start(camera).map_err(|e| SimError::Thread(e.to_string()))?);
+        }
+        Ok(())
     }
 
     /// A rendering failure that stopped the camera mid-run, if any.
@@ -211,13 +246,37 @@ impl Simulation {
     /// The next sensor message, advancing physics as needed; `None` when the run is over.
     pub fn next_event(&mut self) -> Option<SensorEvent> {
         loop {
-            if let Some(e) = self.pending.pop_front() {
-                return Some(e);
+            match self.pending.front() {
+                Some(Pending::Ready(_)) => {
+                    let Some(Pending::Ready(event)) = self.pending.pop_front() else { unreachable!("just matched") };
+                    return Some(event);
+                }
+                Some(Pending::Frame(truth)) => {
+                    let ahead = self.time() - truth.t;
+                    let thread = self.camera_thread.as_ref().expect("frames are pending only from the camera thread");
+                    let frame = match thread.try_frame() {
+                        Some(frame) => frame,
+                        // Simulate on while the frame renders.
+                        None if !self.done && ahead < CAMERA_LOOKAHEAD_S => {
+                            self.advance();
+                            continue;
+                        }
+                        None => thread.frame(),
+                    };
+                    let Some(Pending::Frame(truth)) = self.pending.pop_front() else { unreachable!("just matched") };
+                    match frame {
+                        Ok(frame) => return Some(SensorEvent::Camera { frame: Box::new(frame), truth }),
+                        Err(e) => {
+                            // As inline: a lost renderer ends the camera, not the run.
+                            self.camera_error = Some(e.to_string());
+                            self.camera_thread = None;
+                            self.pending.retain(|p| matches!(p, Pending::Ready(_)));
+                        }
+                    }
+                }
+                None if self.done => return None,
+                None => self.advance(),
             }
-            if self.done {
-                return None;
-            }
-            self.advance();
         }
     }
 
@@ -249,7 +308,13 @@ impl Simulation {
         let truth = self.ground_truth();
         if self.odometry_schedule.due(t) {
             let odometry = self.odometry.measure(t, truth.robot);
-            self.pending.push_back(SensorEvent::Odometry { odometry, truth: truth.clone() });
+            self.pending.push_back(Pending::Ready(SensorEvent::Odometry { odometry, truth: truth.clone() }));
+        }
+        if let Some(thread) = &self.camera_thread
+            && self.camera_schedule.due(t)
+        {
+            thread.request(t, truth.robot, truth.people.clone());
+            self.pending.push_back(Pending::Frame(truth.clone()));
         }
         // At one instant the image comes before the scan, so a pipeline that segments
         // scans in images has the matching image when the scan arrives.
@@ -257,7 +322,7 @@ impl Simulation {
             && self.camera_schedule.due(t)
         {
             match cam.capture(t, &truth.robot, &truth.people) {
-                Ok(frame) => self.pending.push_back(SensorEvent::Camera { frame: Box::new(frame), truth: truth.clone() }),
+                Ok(frame) => self.pending.push_back(Pending::Ready(SensorEvent::Camera { frame: Box::new(frame), truth: truth.clone() })),
                 Err(e) => {
                     // A lost GPU device ends the camera, not the run; the error is kept.
                     self.camera_error = Some(e.to_string());
@@ -268,7 +333,7 @@ impl Simulation {
         if self.laser_schedule.due(t) {
             let (scan, beams) = self.laser.scan(&self.scene, &truth.robot, t);
             self.last_scan = Some(scan.clone());
-            self.pending.push_back(SensorEvent::Laser { scan, beams, truth });
+            self.pending.push_back(Pending::Ready(SensorEvent::Laser { scan, beams, truth }));
         }
     }
 }

@@ -160,3 +160,39 @@ fn masks_and_colour_do_not_depend_on_whether_depth_is_rendered() {
         assert_eq!((differ(&a.rgb, &b.rgb), inst, differ(&a.class, &b.class)), (0, 0, 0), "frame {k}: differing rgb values, instance and class pixels");
     }
 }
+
+#[test]
+fn rendering_on_the_camera_thread_gives_the_inline_event_stream() {
+    let world = worlds::generate::park(&Default::default(), 2006).unwrap();
+    let config = SimConfig { max_duration_s: Some(15.0), ..Default::default() };
+    let stream = |threaded: bool| -> Vec<String> {
+        let mut s = Simulation::new(&world, &config, 5).unwrap();
+        if threaded {
+            s.render_camera_on_thread().unwrap();
+            assert!(s.camera().is_none() && s.camera_adapter().is_some());
+        }
+        let mut out = Vec::new();
+        while let Some(e) = s.next_event() {
+            // Each event in full, frames by a hash of their images.
+            out.push(match e {
+                SensorEvent::Camera { frame, truth } => {
+                    let img = &frame.image;
+                    let mut h: u64 = 0xcbf29ce484222325;
+                    for b in img.rgb.iter().copied().chain(img.class.iter().copied()).chain(img.instance.iter().flat_map(|v| v.to_le_bytes())) {
+                        h = (h ^ b as u64).wrapping_mul(0x100000001b3);
+                    }
+                    format!("camera {} {h:x} {truth:?}", frame.t)
+                }
+                other => format!("{other:?}"),
+            });
+        }
+        assert!(s.camera_error().is_none());
+        out
+    };
+    let (inline, threaded) = (stream(false), stream(true));
+    assert!(inline.iter().filter(|e| e.starts_with("camera")).count() >= 70);
+    assert_eq!(inline.len(), threaded.len());
+    for (k, (a, b)) in inline.iter().zip(&threaded).enumerate() {
+        assert!(a == b, "event {k} differs:\n{}\n{}", &a[..a.len().min(300)], &b[..b.len().min(300)]);
+    }
+}
