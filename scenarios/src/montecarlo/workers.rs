@@ -23,6 +23,7 @@ const STDERR_TAIL_LINES: usize = 12;
 /// on `output`, until `input` ends. This is `objslam montecarlo-worker`.
 pub fn serve_worker(input: impl BufRead, mut output: impl Write) -> Result<(), StudyError> {
     let protocol = |message: String| StudyError::Worker(format!("worker: {message}"));
+    exit_when_orphaned();
     let mut lines = input.lines();
     let Some(first) = lines.next() else { return Ok(()) };
     let plan: StudyPlan = serde_json::from_str(&first.map_err(|e| protocol(e.to_string()))?).map_err(|e| protocol(format!("the first line is not a study plan: {e}")))?;
@@ -44,6 +45,23 @@ pub fn serve_worker(input: impl BufRead, mut output: impl Write) -> Result<(), S
         writeln!(output, "{}", serde_json::to_string(&record).expect("JSON")).and_then(|_| output.flush()).map_err(|e| protocol(format!("cannot answer: {e}")))?;
     }
     Ok(())
+}
+
+/// A killed study's workers would finish the run in hand for nobody (their answer has no
+/// reader): a watchdog ends the process once its parent is gone (re-parented).
+fn exit_when_orphaned() {
+    #[cfg(unix)]
+    {
+        let parent = std::os::unix::process::parent_id();
+        std::thread::spawn(move || {
+            loop {
+                std::thread::sleep(std::time::Duration::from_millis(500));
+                if std::os::unix::process::parent_id() != parent {
+                    std::process::exit(3);
+                }
+            }
+        });
+    }
 }
 
 /// One child process and its pipes.
