@@ -267,7 +267,7 @@ impl Frame {
         self.class[self.index(u, v)]
     }
 
-    /// Z-depth (m) at column `u`, row `v`.
+    /// Z-depth (m) at column `u`, row `v`. Panics on a frame rendered without depth.
     pub fn depth_at(&self, u: u32, v: u32) -> f32 {
         self.depth_m[self.index(u, v)]
     }
@@ -493,8 +493,9 @@ impl Renderer {
             immediate_size: 0,
         });
         let attributes = wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x3, 2 => Float32x2];
+        let formats = target_formats(config.depth);
         let colour_targets: Vec<Option<wgpu::ColorTargetState>> =
-            target_formats(config.depth).iter().map(|&(format, _, _)| Some(wgpu::ColorTargetState { format, blend: None, write_mask: wgpu::ColorWrites::ALL })).collect();
+            formats.iter().map(|&(format, _, _)| Some(wgpu::ColorTargetState { format, blend: None, write_mask: wgpu::ColorWrites::ALL })).collect();
         // Two pipelines that differ only in culling: meshes that may skip their back faces
         // (see `MeshData::cull_back_faces`) and the rest, drawn from both sides.
         let make_pipeline = |cull_mode: Option<wgpu::Face>, fragment_entry: &str| {
@@ -569,13 +570,13 @@ impl Renderer {
             })
         };
         let targets: Vec<wgpu::Texture> =
-            target_formats(config.depth).iter().map(|&(format, _, label)| texture(format, wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC, label)).collect();
+            formats.iter().map(|&(format, _, label)| texture(format, wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC, label)).collect();
         let target_views = targets.iter().map(|t| t.create_view(&Default::default())).collect();
         let zbuffer = texture(ZBUFFER_FORMAT, wgpu::TextureUsages::RENDER_ATTACHMENT, "z-buffer").create_view(&Default::default());
         // One buffer holds all four images, each row padded to 256 bytes as copies require.
         let mut planes = Vec::new();
         let mut offset = 0u64;
-        for &(_, bytes, _) in &target_formats(config.depth) {
+        for &(_, bytes, _) in &formats {
             let bytes_per_row = (bytes * width).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
             planes.push(Plane { offset, bytes_per_row });
             offset += bytes_per_row as u64 * height as u64;
