@@ -67,6 +67,9 @@ pub struct Metrics {
     pub landmarks: usize,
     pub associations: AssociationCounts,
     pub duplicate_landmarks: usize,
+    /// Pairs of landmarks the pipeline fused into one (see `pipeline.merge`).
+    #[serde(default)]
+    pub merged_landmarks: usize,
     /// Landmarks on posts, palms, people, walls or nothing.
     pub false_landmarks: usize,
     pub segmentation: SegmentationScore,
@@ -74,6 +77,10 @@ pub struct Metrics {
     /// recorded before calibration was scored).
     #[serde(default)]
     pub calibration: Option<CalibrationScore>,
+    /// The odometry calibration the filter estimated, against the simulator's (absent when
+    /// the filter does not estimate it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub odometry_calibration: Option<OdometryCalibrationScore>,
     /// Average NEES of the robot pose over the run (3 dof: consistent near 3).
     #[serde(with = "crate::score::nan_as_null")]
     pub anees: f64,
@@ -98,6 +105,15 @@ impl Metrics {
             ..self.clone()
         }
     }
+}
+
+/// The odometry's systematic errors, each as (distance scale, turn scale, heading bias in
+/// rad per metre): the filter's final estimate, its standard deviation, and the truth.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct OdometryCalibrationScore {
+    pub estimated: [f64; 3],
+    pub sigma: [f64; 3],
+    pub truth: [f64; 3],
 }
 
 /// How far the run's laser <- camera extrinsics are from the simulator's.
@@ -358,6 +374,7 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
     let mut people_tracks: BTreeMap<u16, Vec<[f64; 2]>> = BTreeMap::new();
     let tree_ids: std::collections::BTreeSet<u16> = world.objects.iter().filter(|o| o.class == ObjectClass::Tree).map(|o| o.id).collect();
     let mut last_progress = -1.0;
+    let mut merges_scored = 0;
 
     let (mut pipe_time, mut scan_time, mut scans) = (0.0f64, 0.0f64, 0usize);
     let mut events = EventSource::start(sim);
@@ -441,6 +458,14 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
                         objs.push(obj);
                     }
                 }
+                // A fusion associates every observation of the removed landmark with the
+                // kept one: scored like any association (wrong if the objects differ).
+                for m in &pipeline.merges()[merges_scored..] {
+                    let moved = landmark_objects.remove(&m.removed).unwrap_or_default();
+                    associations.extend(moved.iter().map(|&obj| (m.kept, obj)));
+                    landmark_objects.entry(m.kept).or_default().extend(moved);
+                }
+                merges_scored = pipeline.merges().len();
                 // Trees the laser could have clustered but the size filter dropped are
                 // still "seen" if several beams hit them within clustering range.
                 let mut counts: BTreeMap<u16, usize> = BTreeMap::new();
@@ -528,6 +553,7 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
         landmarks: lms.len(),
         associations: AssociationCounts { total: associations.len(), wrong },
         duplicate_landmarks: duplicates,
+        merged_landmarks: pipeline.merges().len(),
         false_landmarks,
         segmentation: if config.method.uses_appearance() {
             SegmentationScore { precision: Some(seg_scores.precision()), recall: Some(seg_scores.recall()) }
@@ -539,6 +565,7 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
             rotation_error_deg: calibration.rotation_error_deg,
             translation_error_m: calibration.translation_error_m,
         }),
+        odometry_calibration: odometry_calibration_score(pipeline.ekf(), sim.odometry_errors()),
         anees: if nees_n > 0 { nees_sum / nees_n as f64 } else { f64::NAN },
         collisions: sim.collisions().len(),
         route_completed: sim.route_progress() > 0.99,
@@ -554,6 +581,9 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
         "seed": seed,
         "sim_seed": sim::derive_seed(seed, "sim"),
         "world": world,
+        // The simulator as it ran: the scenario's, with the camera off for position-only
+        // methods and without the depth image nobody reads.
+        "sim": sim_config,
         "pipeline": config,
         "calibration": calibration,
     });
@@ -742,6 +772,11 @@ fn write_outputs(
     Ok(())
 }
 
+fn odometry_calibration_score(ekf: &slam::ekf::Ekf, truth: [f64; 3]) -> Option<OdometryCalibrationScore> {
+    let (estimated, sigma) = (ekf.calibration(), ekf.calibration_sigma());
+    (estimated.len() == 3).then(|| OdometryCalibrationScore { estimated: [estimated[0], estimated[1], estimated[2]], sigma: [sigma[0], sigma[1], sigma[2]], truth })
+}
+
 /// Short summary table for the terminal.
 pub fn summary_table(m: &Metrics) -> String {
     let recall = if m.map.trees_seen == 0 { 1.0 } else { m.map.trees_mapped as f64 / m.map.trees_seen as f64 };
@@ -750,7 +785,7 @@ pub fn summary_table(m: &Metrics) -> String {
     s.push_str(&format!("  simulated {:.1} s in {:.2} s ({:.0}x real time; simulator {:.1} s, pipeline {:.1} s, {:.2} ms per scan)\n", m.sim_seconds, m.wall_seconds, m.realtime_factor, m.timing.simulator_s, m.timing.pipeline_s, m.timing.mean_scan_ms));
     s.push_str(&format!("  trees mapped      {:>4} of {} seen ({:.0}%)\n", m.map.trees_mapped, m.map.trees_seen, 100.0 * recall));
     s.push_str(&format!("  false landmarks   {:>4} (posts {}, palms {}, people {}, walls {}, nothing {})\n", m.false_landmarks, m.map.posts, m.map.palms, m.map.people, m.map.walls, m.map.nothing));
-    s.push_str(&format!("  duplicates        {:>4}\n", m.duplicate_landmarks));
+    s.push_str(&format!("  duplicates        {:>4} ({} fused)\n", m.duplicate_landmarks, m.merged_landmarks));
     s.push_str(&format!("  associations      {:>4} ({} wrong)\n", m.associations.total, m.associations.wrong));
     s.push_str(&format!("  ATE RMSE          {:>8.3} m\n", m.ate_rmse_m));
     if let Some(r) = m.landmark_rmse_m {
@@ -759,6 +794,12 @@ pub fn summary_table(m: &Metrics) -> String {
     s.push_str(&format!("  ANEES             {:>8.2}\n", m.anees));
     if let Some(c) = m.calibration.as_ref().filter(|c| c.mode != "true") {
         s.push_str(&format!("  calibration       {} extrinsics off by {:.3} deg, {:.4} m\n", c.mode, c.rotation_error_deg, c.translation_error_m));
+    }
+    if let Some(c) = &m.odometry_calibration {
+        s.push_str(&format!(
+            "  odometry errors   scale {:+.4} ({:+.4}), turn scale {:+.4} ({:+.4}), bias {:+.5} ({:+.5}) rad/m: estimate (truth)\n",
+            c.estimated[0], c.truth[0], c.estimated[1], c.truth[1], c.estimated[2], c.truth[2]
+        ));
     }
     s.push_str(&format!("  collisions        {:>4}\n", m.collisions));
     s.push_str(&format!("  {}\n", if m.passed { "PASSED".to_string() } else { format!("FAILED: {}", m.failures.join("; ")) }));

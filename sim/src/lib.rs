@@ -186,6 +186,12 @@ impl Simulation {
         &self.collisions
     }
 
+    /// The odometry's systematic errors drawn for this run: (distance scale, turn scale,
+    /// heading bias in rad per metre), as ground truth for a filter that estimates them.
+    pub fn odometry_errors(&self) -> [f64; 3] {
+        [self.odometry.scale_error, self.odometry.turn_scale_error, self.odometry.heading_bias_rad_per_m]
+    }
+
     /// Whether the robot has finished its route (or the time limit was reached).
     pub fn finished(&self) -> bool {
         self.done

@@ -8,6 +8,8 @@
 //! camera image: only clusters segmented as objects are observed, each with an object
 //! model, and association compares models by KL divergence.
 
+use std::collections::HashSet;
+
 use nalgebra::{DMatrix, Matrix2, Matrix3, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
@@ -15,7 +17,7 @@ use crate::association::{AssociationDecision, AssociationMethod, Candidate, Choi
 use crate::classifier::{AppearanceModel, PatchClassifier};
 use crate::clustering::{Cluster, ClusteringConfig, cluster};
 use crate::evidence::{EvidenceConfig, Judgement, ObjectEvidence};
-use crate::ekf::{Ekf, OdometryMotionModel, RangeBearingModel};
+use crate::ekf::{Ekf, MotionModel, OdometryMotionModel, RangeBearingModel};
 use crate::features::ImageRef;
 use crate::gmm::{Gmm, StudentTMixture};
 use crate::messages::{LaserScan, OdometryIncrement};
@@ -50,6 +52,42 @@ pub struct PipelineConfig {
     /// ...and is deleted if that has not happened within this many seconds. Walking
     /// people never stay where they were seen, so they never become landmarks.
     pub confirm_window_s: f64,
+    /// Fusing landmarks that turn out to be one object (duplicates made while the pose was
+    /// too uncertain to associate, found once a loop closure shrinks the uncertainty).
+    pub merge: MergeConfig,
+}
+
+/// When two mapped landmarks are fused into one.
+///
+/// A pair is fused when the filter is sure enough where both are (each axis of their
+/// difference's covariance under `max_sigma_m`), their positions agree (squared Mahalanobis
+/// distance of the difference within the association gate), they were never seen in the
+/// same scan (two objects seen at once are two objects), and, for the appearance methods,
+/// their object models look alike (appearance KL under the association threshold).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct MergeConfig {
+    pub enabled: bool,
+    /// Largest standard deviation (m) of the difference of the two positions.
+    pub max_sigma_m: f64,
+    /// Noise (m per axis) of the constraint that fuses them.
+    pub noise_sigma_m: f64,
+}
+
+impl Default for MergeConfig {
+    fn default() -> Self {
+        MergeConfig { enabled: true, max_sigma_m: 0.25, noise_sigma_m: 0.05 }
+    }
+}
+
+/// Two landmarks fused into one.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct LandmarkMerge {
+    pub t: f64,
+    /// The older landmark, which stays.
+    pub kept: u32,
+    /// The landmark fused into it, gone from the map.
+    pub removed: u32,
 }
 
 impl Default for PipelineConfig {
@@ -69,6 +107,7 @@ impl Default for PipelineConfig {
             image_max_age_s: 0.02,
             confirm_observations: 8,
             confirm_window_s: 4.0,
+            merge: MergeConfig::default(),
         }
     }
 }
@@ -201,6 +240,9 @@ pub struct Pipeline {
     /// smooth over the seconds a place lives, while the filter's pose jumps when a loop
     /// closes, which would split one object's place or join a post to a tree's.
     odometry_pose: [f64; 3],
+    /// Pairs of landmark ids (smaller first) seen in one scan: never fused.
+    co_observed: HashSet<(u32, u32)>,
+    merges: Vec<LandmarkMerge>,
 }
 
 /// Errors of the online pipeline.
@@ -216,9 +258,9 @@ impl Pipeline {
     /// Starts at `pose` (x, y, theta) in the map frame.
     pub fn new(config: PipelineConfig, pose: [f64; 3]) -> Self {
         let s = config.initial_pose_sigma;
-        let ekf = Ekf::new(Vector3::from(pose), Matrix3::from_diagonal(&Vector3::new(s[0] * s[0], s[1] * s[1], s[2] * s[2])));
+        let ekf = Ekf::with_calibration(Vector3::from(pose), Matrix3::from_diagonal(&Vector3::new(s[0] * s[0], s[1] * s[1], s[2] * s[2])), &config.motion.calibration_prior());
         let evidence = ObjectEvidence::new(config.evidence.clone());
-        let mut p = Pipeline { config, ekf, landmarks: Vec::new(), objects: Vec::new(), decisions: Vec::new(), poses: Vec::new(), t: 0.0, next_id: 0, appearance: None, image: None, segmentations: Vec::new(), evidence, odometry_pose: pose };
+        let mut p = Pipeline { config, ekf, landmarks: Vec::new(), objects: Vec::new(), decisions: Vec::new(), poses: Vec::new(), t: 0.0, next_id: 0, appearance: None, image: None, segmentations: Vec::new(), evidence, odometry_pose: pose, co_observed: HashSet::new(), merges: Vec::new() };
         p.record_pose();
         p
     }
@@ -485,6 +527,7 @@ impl Pipeline {
             assigned[ci] = Some(id);
             self.decisions[decision].choice = Choice::New { landmark: id };
         }
+        self.note_co_observed(&assigned);
         self.refresh_landmarks();
         self.record_pose();
         ScanResult { t, clusters, assigned }
@@ -548,6 +591,7 @@ impl Pipeline {
             assigned[ci] = Some(id);
             self.decisions[first_decision + k].choice = Choice::New { landmark: id };
         }
+        self.note_co_observed(&assigned);
         self.refresh_landmarks();
         self.record_pose();
         ScanResult { t, clusters, assigned }
@@ -572,12 +616,88 @@ impl Pipeline {
                 j += 1;
             }
         }
+        if self.config.merge.enabled {
+            self.merge_duplicates();
+        }
         for (i, lm) in self.landmarks.iter_mut().enumerate() {
             let p = self.ekf.landmark(i);
             let c = self.ekf.landmark_covariance(i);
             lm.position = [p.x, p.y];
             lm.covariance = [[c[(0, 0)], c[(0, 1)]], [c[(1, 0)], c[(1, 1)]]];
         }
+    }
+
+    fn note_co_observed(&mut self, assigned: &[Option<u32>]) {
+        let ids: Vec<u32> = assigned.iter().flatten().copied().collect();
+        for (k, &a) in ids.iter().enumerate() {
+            for &b in &ids[k + 1..] {
+                self.co_observed.insert((a.min(b), a.max(b)));
+            }
+        }
+    }
+
+    /// Fuses pairs of confirmed landmarks that are one object (see [`MergeConfig`]), the
+    /// older one staying, until no pair qualifies.
+    fn merge_duplicates(&mut self) {
+        let cfg = self.config.merge.clone();
+        let gate = chi2_quantile(2, self.config.gate_probability);
+        // Past the gate and the sigma bound, two positions are at most this far apart.
+        let reach = gate.sqrt() * cfg.max_sigma_m * std::f64::consts::SQRT_2;
+        loop {
+            let mut pair = None;
+            'search: for i in 0..self.landmarks.len() {
+                if !self.landmarks[i].confirmed {
+                    continue;
+                }
+                let li = self.ekf.landmark(i);
+                for j in i + 1..self.landmarks.len() {
+                    let (a, b) = (self.landmarks[i].id, self.landmarks[j].id);
+                    if !self.landmarks[j].confirmed || (self.ekf.landmark(j) - li).norm() > reach || self.co_observed.contains(&(a.min(b), a.max(b))) {
+                        continue;
+                    }
+                    let (m2, c) = self.ekf.landmark_difference(i, j);
+                    let widest = c.symmetric_eigenvalues().max();
+                    if m2 > gate || widest > cfg.max_sigma_m * cfg.max_sigma_m || !self.look_alike(i, j) {
+                        continue;
+                    }
+                    pair = Some((i, j));
+                    break 'search;
+                }
+            }
+            let Some((i, j)) = pair else { break };
+            if self.ekf.merge_landmarks(i, j, cfg.noise_sigma_m).is_err() {
+                break;
+            }
+            let gone = self.landmarks.remove(j);
+            self.objects.remove(j);
+            let kept = &mut self.landmarks[i];
+            kept.diameter_m = (kept.diameter_m * kept.observations as f64 + gone.diameter_m * gone.observations as f64) / (kept.observations + gone.observations).max(1) as f64;
+            kept.observations += gone.observations;
+            // The fused landmark is never fused with what either was seen beside.
+            let partners: Vec<u32> = self.co_observed.iter().filter_map(|&(a, b)| if a == gone.id { Some(b) } else if b == gone.id { Some(a) } else { None }).collect();
+            let kept_id = kept.id;
+            for p in partners {
+                self.co_observed.insert((kept_id.min(p), kept_id.max(p)));
+            }
+            self.merges.push(LandmarkMerge { t: self.t, kept: kept_id, removed: gone.id });
+        }
+    }
+
+    /// Whether landmarks `i` and `j` may be one object by their appearance: always for the
+    /// position-only methods; for the appearance methods when both have object models whose
+    /// appearance KL is under the association threshold.
+    fn look_alike(&self, i: usize, j: usize) -> bool {
+        if !self.config.method.uses_appearance() {
+            return true;
+        }
+        let (Some(a), Some(b)) = (&self.objects[i], &self.objects[j]) else { return false };
+        let cfg = &self.config.object_model;
+        a.kl_from(&b.gmm, [0.0; 2], [0.0; 2], &Matrix2::zeros(), cfg, true).is_ok_and(|kl| kl.is_finite() && kl < cfg.kl_threshold)
+    }
+
+    /// Landmarks fused so far.
+    pub fn merges(&self) -> &[LandmarkMerge] {
+        &self.merges
     }
 
     fn record_pose(&mut self) {
@@ -615,5 +735,66 @@ impl Pipeline {
 
     pub fn ekf(&self) -> &Ekf {
         &self.ekf
+    }
+}
+
+#[cfg(test)]
+mod merge_tests {
+    use super::*;
+
+    fn cluster_at(range: f64, bearing: f64) -> Cluster {
+        Cluster { first_beam: 0, last_beam: 3, points: vec![], centre: [range * bearing.cos(), range * bearing.sin()], diameter_m: 0.3, range_m: range, bearing_rad: bearing, occluded: false }
+    }
+
+    /// Two landmarks, seen in one scan or in two, then landmark 1 moved to 2 cm from
+    /// landmark 0 (as if a loop closure had pulled a duplicate onto its original).
+    fn pair(seen_together: bool, extra_variance: f64, merge: bool) -> Pipeline {
+        let merge = MergeConfig { enabled: merge, ..Default::default() };
+        let config = PipelineConfig { method: AssociationMethod::Nn, confirm_observations: 1, merge, ..Default::default() };
+        let mut p = Pipeline::new(config, [0.0; 3]);
+        let (a, b) = (cluster_at(5.0, 0.0), cluster_at(5.0, 0.5));
+        if seen_together {
+            p.on_scan_with_objects(0.1, vec![a, b], &[true, true], "tree");
+        } else {
+            p.on_scan_with_objects(0.1, vec![a], &[true], "tree");
+            p.on_scan_with_objects(0.2, vec![b], &[true], "tree");
+        }
+        assert_eq!(p.landmarks().len(), 2);
+        let (l0, l1) = (p.ekf.landmark_offset(), p.ekf.landmark_offset() + 2);
+        p.ekf.x[l1] = p.ekf.x[l0] + 0.02;
+        p.ekf.x[l1 + 1] = p.ekf.x[l0 + 1];
+        p.ekf.p[(l1, l1)] += extra_variance;
+        p.ekf.p[(l1 + 1, l1 + 1)] += extra_variance;
+        p.refresh_landmarks();
+        p
+    }
+
+    #[test]
+    fn a_duplicate_is_fused_into_the_older_landmark() {
+        let p = pair(false, 0.0, true);
+        assert_eq!(p.landmarks().len(), 1);
+        assert_eq!(p.landmarks()[0].id, 0);
+        assert_eq!(p.landmarks()[0].observations, 2);
+        assert_eq!(p.merges(), &[LandmarkMerge { t: 0.2, kept: 0, removed: 1 }]);
+        assert_eq!(p.ekf().landmark_count(), 1);
+        let c = p.ekf().landmark_covariance(0);
+        assert!(c.symmetric_eigenvalues().min() > 0.0);
+    }
+
+    #[test]
+    fn landmarks_seen_in_one_scan_are_never_fused() {
+        let p = pair(true, 0.0, true);
+        assert_eq!(p.landmarks().len(), 2);
+        assert!(p.merges().is_empty());
+    }
+
+    #[test]
+    fn landmarks_too_uncertain_to_tell_apart_are_not_fused() {
+        let p = pair(false, 0.5, true);
+        assert_eq!(p.landmarks().len(), 2);
+        // Disabled, a pair that would qualify stays apart too.
+        let q = pair(false, 0.0, false);
+        assert_eq!(q.landmarks().len(), 2);
+        assert!(q.merges().is_empty());
     }
 }

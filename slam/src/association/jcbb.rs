@@ -108,7 +108,7 @@ impl Search<'_> {
             let (_, hra, hla) = &self.prep.pred[ja];
             for (b, &(_, jb)) in pairs.iter().enumerate().skip(a) {
                 let (_, hrb, hlb) = &self.prep.pred[jb];
-                let (la, lb) = (3 + 2 * ja, 3 + 2 * jb);
+                let (la, lb) = (self.ekf.landmark_offset() + 2 * ja, self.ekf.landmark_offset() + 2 * jb);
                 let prr = p.fixed_view::<3, 3>(0, 0);
                 let prl_b = p.fixed_view::<3, 2>(0, lb);
                 let pla_r = p.fixed_view::<2, 3>(la, 0);

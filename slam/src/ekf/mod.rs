@@ -1,7 +1,9 @@
 //! EKF-SLAM over the robot pose (x, y, theta) and 2-D point landmarks.
 //!
-//! State layout: `[x, y, theta, l1x, l1y, l2x, l2y, ...]`. Prediction touches only the
-//! robot block and its cross-covariances (O(n)); an update uses the sparsity of the
+//! State layout: `[x, y, theta, c1..ck, l1x, l1y, l2x, l2y, ...]`, where `c` are the
+//! motion model's calibration parameters, if it estimates any (the vehicle block is the
+//! pose and those). Prediction touches only the
+//! vehicle block and its cross-covariances (O(n)); an update uses the sparsity of the
 //! observation Jacobian (O(n²) per observation, one pass over P). Updates are in Joseph
 //! form, expanded as `P - K(HP) - (HP)ᵀKᵀ + K S Kᵀ`, which equals
 //! `(I-KH)P(I-KH)ᵀ + KRKᵀ` for any gain, evaluated so that P stays exactly symmetric.
@@ -12,7 +14,7 @@ pub mod observation;
 use nalgebra::{DMatrix, DVector, Matrix2, Matrix3, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
-pub use motion::{AckermannMotionModel, MotionModel, OdometryMotionModel};
+pub use motion::{AckermannMotionModel, CalibratedPrediction, MotionModel, OdometryMotionModel};
 pub use observation::RangeBearingModel;
 
 use crate::messages::wrap_angle;
@@ -33,18 +35,52 @@ pub enum EkfError {
 pub struct Ekf {
     pub x: DVector<f64>,
     pub p: DMatrix<f64>,
+    /// Size of the vehicle block: the pose (3) and the calibration parameters after it.
+    #[serde(default = "pose_dims")]
+    pub vehicle_dims: usize,
+}
+
+fn pose_dims() -> usize {
+    3
 }
 
 impl Ekf {
     /// A filter at `pose` with covariance `pose_cov` and no landmarks.
     pub fn new(pose: Vector3<f64>, pose_cov: Matrix3<f64>) -> Self {
-        let mut p = DMatrix::zeros(3, 3);
+        Self::with_calibration(pose, pose_cov, &[])
+    }
+
+    /// A filter that also estimates calibration parameters, starting at zero with
+    /// standard deviations `calibration_sigma` (see [`MotionModel::calibration_prior`]).
+    pub fn with_calibration(pose: Vector3<f64>, pose_cov: Matrix3<f64>, calibration_sigma: &[f64]) -> Self {
+        let vd = 3 + calibration_sigma.len();
+        let mut p = DMatrix::zeros(vd, vd);
         p.view_mut((0, 0), (3, 3)).copy_from(&pose_cov);
-        Ekf { x: DVector::from_column_slice(pose.as_slice()), p }
+        for (k, s) in calibration_sigma.iter().enumerate() {
+            p[(3 + k, 3 + k)] = s * s;
+        }
+        let mut x = DVector::zeros(vd);
+        x.rows_mut(0, 3).copy_from(&pose);
+        Ekf { x, p, vehicle_dims: vd }
     }
 
     pub fn landmark_count(&self) -> usize {
-        (self.x.len() - 3) / 2
+        (self.x.len() - self.vehicle_dims) / 2
+    }
+
+    /// Index of landmark 0's x in the state.
+    pub fn landmark_offset(&self) -> usize {
+        self.vehicle_dims
+    }
+
+    /// The calibration parameters' estimates (empty if the filter has none).
+    pub fn calibration(&self) -> &[f64] {
+        &self.x.as_slice()[3..self.vehicle_dims]
+    }
+
+    /// Their standard deviations.
+    pub fn calibration_sigma(&self) -> Vec<f64> {
+        (3..self.vehicle_dims).map(|k| self.p[(k, k)].max(0.0).sqrt()).collect()
     }
 
     pub fn pose(&self) -> Vector3<f64> {
@@ -56,15 +92,20 @@ impl Ekf {
     }
 
     pub fn landmark(&self, i: usize) -> Vector2<f64> {
-        Vector2::new(self.x[3 + 2 * i], self.x[4 + 2 * i])
+        let li = self.vehicle_dims + 2 * i;
+        Vector2::new(self.x[li], self.x[li + 1])
     }
 
     pub fn landmark_covariance(&self, i: usize) -> Matrix2<f64> {
-        self.p.fixed_view::<2, 2>(3 + 2 * i, 3 + 2 * i).into_owned()
+        let li = self.vehicle_dims + 2 * i;
+        self.p.fixed_view::<2, 2>(li, li).into_owned()
     }
 
     /// Prediction with a motion model and its control.
     pub fn predict(&mut self, model: &dyn MotionModel, control: &[f64]) {
+        if self.vehicle_dims > 3 {
+            return self.predict_calibrated(model, control);
+        }
         let (next, f, q) = model.predict(&self.pose(), control);
         self.x[0] = next.x;
         self.x[1] = next.y;
@@ -81,11 +122,35 @@ impl Ekf {
         }
     }
 
+    /// Prediction with calibration parameters in the vehicle block: only the pose rows
+    /// change, `P_p* <- [F Fc] P_v*` (the calibration is constant), and the pose block gets
+    /// the process noise.
+    fn predict_calibrated(&mut self, model: &dyn MotionModel, control: &[f64]) {
+        let vd = self.vehicle_dims;
+        let n = self.x.len();
+        let calibration = self.calibration().to_vec();
+        let pred = model.predict_calibrated(&self.pose(), &calibration, control);
+        self.x[0] = pred.pose.x;
+        self.x[1] = pred.pose.y;
+        self.x[2] = pred.pose.z;
+        // The pose rows of the vehicle transition [F Fc; 0 I].
+        let mut fv = DMatrix::zeros(3, vd);
+        fv.view_mut((0, 0), (3, 3)).copy_from(&pred.f);
+        fv.view_mut((0, 3), (3, vd - 3)).copy_from(&pred.f_calibration);
+        // New pose rows over all columns: [F Fc] P_v*; then the pose-pose block also needs
+        // the transition on the right: P_pp' = ([F Fc] P_vv) [F Fc]ᵀ + Q.
+        let new_rows = &fv * self.p.view((0, 0), (vd, n));
+        let new_pp = new_rows.view((0, 0), (3, vd)) * fv.transpose() + pred.q;
+        self.p.view_mut((0, 0), (3, n)).copy_from(&new_rows);
+        self.p.view_mut((0, 0), (n, 3)).copy_from(&new_rows.transpose());
+        self.p.view_mut((0, 0), (3, 3)).copy_from(&(0.5 * (&new_pp + new_pp.transpose())));
+    }
+
     /// Predicted observation of landmark `i`, its Jacobians (robot 2x3, landmark 2x2) and
     /// innovation covariance `S`.
     pub fn predict_observation(&self, model: &RangeBearingModel, i: usize) -> (Vector2<f64>, nalgebra::Matrix2x3<f64>, Matrix2<f64>, Matrix2<f64>) {
         let (z, hr, hl) = model.observe(&self.pose(), &self.landmark(i));
-        let li = 3 + 2 * i;
+        let li = self.vehicle_dims + 2 * i;
         let prr = self.pose_covariance();
         let pll = self.landmark_covariance(i);
         let prl = self.p.fixed_view::<3, 2>(0, li).into_owned();
@@ -113,7 +178,7 @@ impl Ekf {
         }
         let (zp, hr, hl, s) = self.predict_observation(model, i);
         let nu = Vector2::new(z.x - zp.x, wrap_angle(z.y - zp.y));
-        let li = 3 + 2 * i;
+        let li = self.vehicle_dims + 2 * i;
         let n = self.x.len();
         // P Hᵀ from the five columns H touches.
         let mut pht = DMatrix::zeros(n, 2);
@@ -176,9 +241,57 @@ impl Ekf {
         self.landmark_count() - 1
     }
 
+    /// Squared Mahalanobis distance between landmarks `i` and `j` (the covariance of their
+    /// difference, cross terms included) and that covariance.
+    pub fn landmark_difference(&self, i: usize, j: usize) -> (f64, Matrix2<f64>) {
+        let (li, lj) = (self.vehicle_dims + 2 * i, self.vehicle_dims + 2 * j);
+        let pij = self.p.fixed_view::<2, 2>(li, lj).into_owned();
+        let c = self.landmark_covariance(i) + self.landmark_covariance(j) - pij - pij.transpose();
+        let d = self.landmark(i) - self.landmark(j);
+        let m2 = c.try_inverse().map_or(f64::INFINITY, |ci| (d.transpose() * ci * d)[(0, 0)]);
+        (m2, c)
+    }
+
+    /// Fuses landmark `remove` into `keep`: the constraint `l_keep - l_remove = 0`, with
+    /// noise `noise_sigma_m` per axis, as an update (so the whole map and the pose move by
+    /// their correlations), then `remove` leaves the state. Indices after `remove` shift
+    /// down by one.
+    pub fn merge_landmarks(&mut self, keep: usize, remove: usize, noise_sigma_m: f64) -> Result<(), EkfError> {
+        let count = self.landmark_count();
+        if keep >= count || remove >= count || keep == remove {
+            return Err(EkfError::UnknownLandmark(remove.max(keep)));
+        }
+        let (lk, lr) = (self.vehicle_dims + 2 * keep, self.vehicle_dims + 2 * remove);
+        let n = self.x.len();
+        // W = P Hᵀ with H = [.. I .. -I ..].
+        let mut w = DMatrix::zeros(n, 2);
+        for r in 0..n {
+            for k in 0..2 {
+                w[(r, k)] = self.p[(r, lk + k)] - self.p[(r, lr + k)];
+            }
+        }
+        let (_, c) = self.landmark_difference(keep, remove);
+        let s = c + Matrix2::identity() * noise_sigma_m * noise_sigma_m;
+        let s_inv = s.cholesky().ok_or(EkfError::NotPositiveDefinite)?.inverse();
+        let nu = -(self.landmark(keep) - self.landmark(remove));
+        let g = &w * s_inv; // the gain, n x 2
+        self.x += &g * nu;
+        self.x[2] = wrap_angle(self.x[2]);
+        // P <- P - K S Kᵀ = P - G Wᵀ, formed symmetrically.
+        for j in 0..n {
+            for i in 0..n {
+                let a = g[(i, 0)] * w[(j, 0)] + g[(i, 1)] * w[(j, 1)];
+                let b = g[(j, 0)] * w[(i, 0)] + g[(j, 1)] * w[(i, 1)];
+                self.p[(i, j)] -= 0.5 * (a + b);
+            }
+        }
+        self.remove_landmark(remove);
+        Ok(())
+    }
+
     /// Removes landmark `i` (its rows and columns), shifting later indices down.
     pub fn remove_landmark(&mut self, i: usize) {
-        let li = 3 + 2 * i;
+        let li = self.vehicle_dims + 2 * i;
         self.x = self.x.clone().remove_rows(li, 2);
         self.p = self.p.clone().remove_rows(li, 2).remove_columns(li, 2);
     }

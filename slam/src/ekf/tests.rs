@@ -67,9 +67,18 @@ fn observation_jacobians_match_numeric_ones() {
 /// odometry and observation noise are drawn from the filter's own models. Returns the
 /// pose NEES at each step and the final filter.
 fn synthetic_run(seed: u64, steps: usize) -> (Vec<f64>, Ekf) {
-    let mut rng = ChaCha8Rng::seed_from_u64(seed);
     // Noise drawn from the filter's own white model: no calibration random walks.
     let motion = OdometryMotionModel::white(0.005, 0.0002, 0.002, 0.005);
+    let (nees, ekf, _) = synthetic_run_with(seed, steps, &motion, &motion, [0.0; 3], 0.0);
+    (nees, ekf)
+}
+
+/// [`synthetic_run`] with the odometry's systematic errors `errors` (scale, turn scale,
+/// heading bias per metre, as the simulator draws them), per-step noise from `noise`'s
+/// white terms, and the filter's model `motion`; the turn rate swings by `turn_swing`
+/// (rad per step) around the circle's. Also returns the true final pose.
+fn synthetic_run_with(seed: u64, steps: usize, motion: &OdometryMotionModel, noise: &OdometryMotionModel, errors: [f64; 3], turn_swing: f64) -> (Vec<f64>, Ekf, Vector3<f64>) {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let sensor = RangeBearingModel::default();
     let landmarks: Vec<Vector2<f64>> = (0..24)
         .map(|k| {
@@ -79,25 +88,26 @@ fn synthetic_run(seed: u64, steps: usize) -> (Vec<f64>, Ekf) {
         })
         .collect();
     let mut truth = Vector3::new(0.0, 0.0, 0.0);
-    let mut ekf = Ekf::new(truth, Matrix3::identity() * 1e-10);
+    let mut ekf = Ekf::with_calibration(truth, Matrix3::identity() * 1e-10, &motion.calibration_prior());
     let mut mapped: Vec<Option<usize>> = vec![None; landmarks.len()];
     let std = |v: f64| Normal::new(0.0, v.max(0.0).sqrt()).unwrap();
     let mut nees = Vec::new();
-    for _ in 0..steps {
+    for step in 0..steps {
         // True motion along a circle of radius 5 m, 0.1 m per step.
-        let u_true = [0.1, 0.0, 0.02];
+        let u_true = [0.1, 0.0, 0.02 + turn_swing * (std::f64::consts::TAU * step as f64 / 157.0).sin()];
         let (next, _, _) = motion.predict(&truth, &u_true);
         truth = next;
         let d2 = u_true[0] * u_true[0];
         let a2 = u_true[2] * u_true[2];
-        let var_d = motion.a_dd * d2 + motion.a_da * a2 + motion.floor;
-        let var_a = motion.a_ad * d2 + motion.a_aa * a2 + motion.floor;
+        let var_d = noise.a_dd * d2 + noise.a_da * a2 + noise.floor;
+        let var_a = noise.a_ad * d2 + noise.a_aa * a2 + noise.floor;
+        let [scale, turn, bias] = errors;
         let u = [
-            u_true[0] + std(var_d).sample(&mut rng),
-            u_true[1] + std(0.1 * var_d + motion.floor).sample(&mut rng),
-            u_true[2] + std(var_a).sample(&mut rng),
+            u_true[0] * (1.0 + scale) + std(var_d).sample(&mut rng),
+            u_true[1] * (1.0 + scale) + std(0.1 * var_d + noise.floor).sample(&mut rng),
+            u_true[2] * (1.0 + turn) + bias * u_true[0] + std(var_a).sample(&mut rng),
         ];
-        ekf.predict(&motion, &u);
+        ekf.predict(motion, &u);
         for (j, l) in landmarks.iter().enumerate() {
             let (z, _, _) = sensor.observe(&truth, l);
             if z.x > 7.0 || z.y.abs() > std::f64::consts::FRAC_PI_2 {
@@ -114,7 +124,7 @@ fn synthetic_run(seed: u64, steps: usize) -> (Vec<f64>, Ekf) {
         let p = ekf.pose_covariance();
         nees.push((e.transpose() * p.try_inverse().unwrap() * e)[(0, 0)]);
     }
-    (nees, ekf)
+    (nees, ekf, truth)
 }
 
 #[test]
@@ -165,7 +175,7 @@ fn update_rejects_unknown_landmarks_and_non_finite_observations() {
 /// alone vanishes as the rate rises, which left the filter overconfident).
 #[test]
 fn calibration_noise_does_not_vanish_with_the_odometry_rate() {
-    let motion = OdometryMotionModel::default();
+    let motion = OdometryMotionModel { d_per_m: 0.004, a_per_m: 0.0003, a_per_rad: 0.003, ..OdometryMotionModel::white(0.005, 0.0002, 0.002, 0.005) };
     let heading_variance = |steps: usize| {
         let mut ekf = Ekf::new(Vector3::zeros(), Matrix3::zeros());
         for _ in 0..steps {
@@ -182,4 +192,83 @@ fn calibration_noise_does_not_vanish_with_the_odometry_rate() {
         ekf.predict(&white, &[0.001, 0.0, 0.0]);
     }
     assert!(ekf.pose_covariance()[(2, 2)] < 0.1 * fine, "white noise alone vanishes at a fine rate");
+}
+
+/// Guards the calibration states: with systematic odometry errors, a filter estimating them
+/// recovers them from re-observed landmarks (within 3 sigma, and far tighter than its
+/// prior), and its pose stays consistent; the random-walk filter drifts further.
+#[test]
+fn estimated_odometry_calibration_converges_to_the_true_errors() {
+    let errors = [0.02, -0.04, 0.005];
+    let white = OdometryMotionModel::white(0.005, 0.0002, 0.002, 0.005);
+    let calibrated = OdometryMotionModel { scale_sigma: 0.03, turn_scale_sigma: 0.06, bias_sigma_rad_per_m: 0.006, ..white };
+    // A swinging turn rate separates the turn scale from the heading bias (on a circle only
+    // their sum is observable).
+    let (nees, ekf, truth) = synthetic_run_with(3, 1500, &calibrated, &white, errors, 0.06);
+    assert_eq!(ekf.vehicle_dims, 6);
+    assert!(ekf.landmark_count() >= 12, "{} landmarks seen", ekf.landmark_count());
+    let (estimate, sigma) = (ekf.calibration(), ekf.calibration_sigma());
+    for k in 0..3 {
+        assert!((estimate[k] - errors[k]).abs() < 3.0 * sigma[k], "parameter {k}: {} +- {} vs {}", estimate[k], sigma[k], errors[k]);
+        assert!(sigma[k] < 0.3 * calibrated.calibration_prior()[k], "parameter {k} barely observed: sigma {}", sigma[k]);
+    }
+    // The pose NEES stays under the 99.9% chi-square quantile (3 dof: 16.27) at the end.
+    assert!(nees[nees.len() - 1] < 16.27, "final pose NEES {}", nees[nees.len() - 1]);
+    // The same data through a filter without calibration states (random walks sized for
+    // these errors) ends further from the true pose.
+    let walks = OdometryMotionModel { d_per_m: 0.036, a_per_m: 0.0027, a_per_rad: 0.027, ..white };
+    let (_, plain, plain_truth) = synthetic_run_with(3, 1500, &walks, &white, errors, 0.06);
+    assert_eq!(plain_truth, truth);
+    let err = |e: &Ekf| (e.pose().xy() - truth.xy()).norm();
+    assert!(err(&ekf) < err(&plain), "calibrated {} m vs random walk {} m", err(&ekf), err(&plain));
+}
+
+#[test]
+fn a_filter_without_calibration_parameters_has_the_plain_layout() {
+    let motion = OdometryMotionModel { scale_sigma: 0.0, turn_scale_sigma: 0.0, bias_sigma_rad_per_m: 0.0, ..Default::default() };
+    assert!(!motion.estimates_calibration() && motion.calibration_prior().is_empty());
+    let a = Ekf::with_calibration(Vector3::new(1.0, 2.0, 0.3), Matrix3::identity() * 0.01, &motion.calibration_prior());
+    assert_eq!(a, Ekf::new(Vector3::new(1.0, 2.0, 0.3), Matrix3::identity() * 0.01));
+    assert!(a.calibration().is_empty());
+    // With calibration, landmarks sit after the vehicle block and removal keeps it.
+    let mut b = Ekf::with_calibration(Vector3::zeros(), Matrix3::identity() * 0.01, &[0.01, 0.02, 0.003]);
+    let m = RangeBearingModel::default();
+    let i = b.add_landmark(&m, &Vector2::new(2.0, 0.3));
+    let j = b.add_landmark(&m, &Vector2::new(3.0, -0.3));
+    assert_eq!((i, j, b.landmark_offset(), b.x.len()), (0, 1, 6, 10));
+    let lj = b.landmark(j);
+    b.remove_landmark(i);
+    assert_eq!(b.landmark(0), lj);
+    assert_eq!(b.calibration(), &[0.0, 0.0, 0.0]);
+}
+
+
+/// Guards landmark fusion: the constraint pulls the two estimates together (their
+/// correlated pose moves with them), the kept landmark's variance shrinks, and the state
+/// loses the removed one's rows with the covariance still symmetric positive definite.
+#[test]
+fn merging_two_estimates_of_one_point_fuses_them() {
+    let m = RangeBearingModel::default();
+    let mut ekf = Ekf::new(Vector3::zeros(), Matrix3::identity() * 1e-4);
+    let a = ekf.add_landmark(&m, &Vector2::new(5.0, 0.1));
+    let other = ekf.add_landmark(&m, &Vector2::new(4.0, -0.6));
+    // The same point seen again after the pose grew uncertain, a little off.
+    ekf.predict(&OdometryMotionModel::white(0.05, 0.0, 0.01, 0.05), &[0.5, 0.0, 0.0]);
+    let b = ekf.add_landmark(&m, &Vector2::new(4.5, 0.11));
+    let (before_a, before_b) = (ekf.landmark(a), ekf.landmark(b));
+    let var_before = ekf.landmark_covariance(a).trace();
+    let (m2, _) = ekf.landmark_difference(a, b);
+    assert!(m2.is_finite() && m2 > 0.0);
+    let other_before = ekf.landmark(other);
+    ekf.merge_landmarks(a, b, 0.01).unwrap();
+    assert_eq!(ekf.landmark_count(), 2);
+    let fused = ekf.landmark(a);
+    // Between the two estimates, and no less certain than before.
+    assert!((fused - before_a).norm() <= (before_b - before_a).norm() + 1e-12);
+    assert!(ekf.landmark_covariance(a).trace() <= var_before + 1e-12);
+    assert!(ekf.landmark(other).iter().all(|v| v.is_finite()) && (ekf.landmark(other) - other_before).norm() < 0.5);
+    assert!((&ekf.p - ekf.p.transpose()).norm() < 1e-12);
+    assert!(ekf.p.clone().symmetric_eigen().eigenvalues.iter().all(|e| *e > 0.0));
+    assert_eq!(ekf.merge_landmarks(0, 0, 0.01), Err(EkfError::UnknownLandmark(0)));
+    assert_eq!(ekf.merge_landmarks(0, 7, 0.01), Err(EkfError::UnknownLandmark(7)));
 }
