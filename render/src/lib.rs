@@ -332,8 +332,10 @@ struct Instance {
 }
 
 const COLOUR_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Rgba8UnormSrgb;
-const INSTANCE_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R16Uint;
-const CLASS_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R8Uint;
+/// Instance and class ids leave packed in one target, `instance << 8 | class`: a software
+/// rasteriser pays per target and fragment, and one 4-byte target costs less than a 2-byte
+/// and a 1-byte one.
+const IDS_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Uint;
 /// Depth leaves as the bits of an f32 in a u32 target: R32Float is not renderable on GLES
 /// 3.0 (llvmpipe through wgpu's GL backend), R32Uint is everywhere.
 const DEPTH_OUT_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::R32Uint;
@@ -341,7 +343,7 @@ const ZBUFFER_FORMAT: wgpu::TextureFormat = wgpu::TextureFormat::Depth32Float;
 /// Targets in shader location order, with bytes per pixel; the depth target last and only
 /// when asked for.
 fn target_formats(depth: bool) -> Vec<(wgpu::TextureFormat, u32, &'static str)> {
-    let mut t = vec![(COLOUR_FORMAT, 4, "colour"), (INSTANCE_FORMAT, 2, "instance"), (CLASS_FORMAT, 1, "class")];
+    let mut t = vec![(COLOUR_FORMAT, 4, "colour"), (IDS_FORMAT, 4, "ids")];
     if depth {
         t.push((DEPTH_OUT_FORMAT, 4, "depth"));
     }
@@ -396,7 +398,7 @@ pub struct Renderer {
     targets: Vec<wgpu::Texture>,
     zbuffer: wgpu::TextureView,
     readback: wgpu::Buffer,
-    /// Colour, instance, class and (if rendered) depth.
+    /// Colour, the packed ids and (if rendered) depth.
     planes: Vec<Plane>,
 }
 
@@ -814,8 +816,7 @@ impl Renderer {
         {
             let sky = lighting.sky_colour.map(|c| srgb_to_linear(c.clamp(0.0, 1.0)) as f64);
             // Depth is cleared to 0 (never a drawn depth: near_m > 0) and read back as infinity.
-            let clears =
-                [wgpu::Color { r: sky[0], g: sky[1], b: sky[2], a: 1.0 }, wgpu::Color::TRANSPARENT, wgpu::Color::TRANSPARENT, wgpu::Color::TRANSPARENT];
+            let clears = [wgpu::Color { r: sky[0], g: sky[1], b: sky[2], a: 1.0 }, wgpu::Color::TRANSPARENT, wgpu::Color::TRANSPARENT];
             let attachments: Vec<Option<wgpu::RenderPassColorAttachment>> = self
                 .target_views
                 .iter()
@@ -921,7 +922,7 @@ impl Renderer {
         frame.rgb.resize(3 * w * h, 0);
         frame.instance.resize(w * h, 0);
         frame.class.resize(w * h, 0);
-        let depth = self.planes.get(3);
+        let depth = self.planes.get(2);
         frame.depth_m.resize(if depth.is_some() { w * h } else { 0 }, 0.0);
         let row = |plane: &Plane, bytes: usize, y: usize| {
             let start = plane.offset as usize + y * plane.bytes_per_row as usize;
@@ -931,10 +932,12 @@ impl Renderer {
             for (d, s) in frame.rgb[3 * w * y..3 * w * (y + 1)].chunks_exact_mut(3).zip(row(&self.planes[0], 4, y).chunks_exact(4)) {
                 d.copy_from_slice(&s[..3]);
             }
-            for (d, s) in frame.instance[w * y..w * (y + 1)].iter_mut().zip(row(&self.planes[1], 2, y).chunks_exact(2)) {
-                *d = u16::from_le_bytes([s[0], s[1]]);
+            let ids = row(&self.planes[1], 4, y).chunks_exact(4);
+            for ((instance, class), s) in frame.instance[w * y..w * (y + 1)].iter_mut().zip(&mut frame.class[w * y..w * (y + 1)]).zip(ids) {
+                let v = u32::from_le_bytes([s[0], s[1], s[2], s[3]]);
+                *instance = (v >> 8) as u16;
+                *class = (v & 0xff) as u8;
             }
-            frame.class[w * y..w * (y + 1)].copy_from_slice(row(&self.planes[2], 1, y));
             let Some(depth) = depth else { continue };
             for (d, s) in frame.depth_m[w * y..w * (y + 1)].iter_mut().zip(row(depth, 4, y).chunks_exact(4)) {
                 let z = f32::from_le_bytes([s[0], s[1], s[2], s[3]]);

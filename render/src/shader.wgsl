@@ -58,11 +58,11 @@ fn vs_main(v: VertexIn) -> VertexOut {
 
 struct FragmentOut {
     @location(0) colour: vec4<f32>,
-    @location(1) instance_id: u32,
-    @location(2) class_id: u32,
+    // Instance id << 8 | class id: one target for both (see IDS_FORMAT in lib.rs).
+    @location(1) ids: u32,
     // The f32 z-depth's bits (see DEPTH_OUT_FORMAT in lib.rs). Lines ending in "depth
     // target" are left out when the renderer is made without depth.
-    @location(3) z_bits: u32, // depth target
+    @location(2) z_bits: u32, // depth target
 };
 
 /// Lit colour and ids of a fragment whose (unnormalised) normal `normal` faces the camera.
@@ -75,8 +75,7 @@ fn shade(in: VertexOut, normal: vec3<f32>) -> FragmentOut {
     let light = frame.ambient.rgb * sky + frame.sun_colour.rgb * sun;
     var out: FragmentOut;
     out.colour = vec4<f32>(base * light * frame.params.x, 1.0);
-    out.instance_id = instance.ids.x;
-    out.class_id = instance.ids.y;
+    out.ids = (instance.ids.x << 8u) | (instance.ids.y & 0xffu);
     out.z_bits = bitcast<u32>(in.z_m); // depth target
     return out;
 }
