@@ -25,18 +25,47 @@ struct Prepared {
 /// Runs JCBB; `individual_gate` is the 2-dof squared-distance gate for single pairs and
 /// `confidence` the probability for the joint test (e.g. 0.99).
 pub fn jcbb(ekf: &Ekf, model: &RangeBearingModel, observations: &[Vector2<f64>], individual_gate: f64, confidence: f64) -> Hypothesis {
+    let n = ekf.landmark_count();
+    let allowed: Vec<Vec<bool>> = observations.iter().map(|z| (0..n).map(|j| ekf.mahalanobis2(model, j, z) < individual_gate).collect()).collect();
+    jcbb_with(ekf, model, observations, &allowed, confidence)
+}
+
+/// JCBB over the pairs `allowed[i][j]` (observation i may be landmark j) chosen by the
+/// caller, e.g. individually gated and alike in appearance.
+pub fn jcbb_with(ekf: &Ekf, model: &RangeBearingModel, observations: &[Vector2<f64>], allowed: &[Vec<bool>], confidence: f64) -> Hypothesis {
     let m = observations.len();
     let n = ekf.landmark_count();
     if m == 0 {
         return vec![];
     }
     let pred: Vec<_> = (0..n).map(|j| model.observe(&ekf.pose(), &ekf.landmark(j))).collect();
-    let individual = observations.iter().map(|z| (0..n).map(|j| ekf.mahalanobis2(model, j, z) < individual_gate).collect()).collect();
+    let individual = allowed.iter().map(|row| (0..n).map(|j| row.get(j).copied().unwrap_or(false)).collect()).collect();
     let prep = Prepared { pred, individual };
     let mut search = Search { ekf, model, obs: observations, prep: &prep, confidence, best: vec![None; m], best_pairs: 0, best_d2: f64::INFINITY, nodes: 0 };
     let mut current = vec![None; m];
     search.recurse(0, &mut current, 0);
     search.best
+}
+
+/// The JCBB hypothesis over `allowed` if no other hypothesis pairs as many observations:
+/// for each of its pairs, the search without that pair must find fewer pairs. `None` when
+/// it pairs nothing or a rival exists (two constellations fit: wait for more evidence).
+pub fn unambiguous_jcbb(ekf: &Ekf, model: &RangeBearingModel, observations: &[Vector2<f64>], allowed: &[Vec<bool>], confidence: f64) -> Option<Hypothesis> {
+    let best = jcbb_with(ekf, model, observations, allowed, confidence);
+    let pairs = |h: &Hypothesis| h.iter().flatten().count();
+    let k = pairs(&best);
+    if k == 0 {
+        return None;
+    }
+    for (i, j) in best.iter().enumerate() {
+        let Some(j) = *j else { continue };
+        let mut without = allowed.to_vec();
+        without[i][j] = false;
+        if pairs(&jcbb_with(ekf, model, observations, &without, confidence)) >= k {
+            return None;
+        }
+    }
+    Some(best)
 }
 
 struct Search<'a> {
@@ -169,5 +198,36 @@ mod tests {
         ekf.add_landmark(&model, &Vector2::new(6.0, -0.5));
         let obs = vec![Vector2::new(4.01, 0.5), Vector2::new(3.0, 1.2), Vector2::new(6.0, -0.49)];
         assert_eq!(jcbb(&ekf, &model, &obs, 9.21, 0.99), vec![Some(0), None, Some(1)]);
+    }
+
+    /// Guards the loop-closing test: a constellation that fits one way is taken, one that
+    /// fits two ways (a symmetric map, a large heading uncertainty) is not.
+    #[test]
+    fn an_ambiguous_constellation_is_refused() {
+        let model = RangeBearingModel { mount_x: 0.0, mount_y: 0.0, range_sigma_m: 0.02, bearing_sigma_rad: 0.002 };
+        // Heading sigma 0.5 rad: both observations gate with every landmark.
+        let pose_cov = Matrix3::new(1e-6, 0.0, 0.0, 0.0, 1e-6, 0.0, 0.0, 0.0, 0.25);
+        let place = |bearings: &[f64]| {
+            let mut ekf = Ekf::new(Vector3::zeros(), Matrix3::zeros());
+            for &b in bearings {
+                ekf.add_landmark(&model, &Vector2::new(5.0, b));
+            }
+            ekf.p.view_mut((0, 0), (3, 3)).copy_from(&pose_cov);
+            ekf
+        };
+        let obs = vec![Vector2::new(5.0, 0.1), Vector2::new(5.0, 0.4)];
+        let all = |ekf: &Ekf| vec![vec![true; ekf.landmark_count()]; 2];
+        // Landmarks at 0, 0.3 and 0.9 rad: only (0, 0.3) is 0.3 rad apart like the pair seen.
+        let unique = place(&[0.0, 0.3, 0.9]);
+        assert_eq!(unambiguous_jcbb(&unique, &model, &obs, &all(&unique), 0.99), Some(vec![Some(0), Some(1)]));
+        // Landmarks at 0, 0.3, 0.6: (0, 0.3) and (0.3, 0.6) fit alike.
+        let twice = place(&[0.0, 0.3, 0.6]);
+        assert_eq!(jcbb_with(&twice, &model, &obs, &all(&twice), 0.99).iter().flatten().count(), 2);
+        assert_eq!(unambiguous_jcbb(&twice, &model, &obs, &all(&twice), 0.99), None);
+        // The caller's mask rules pairs out: without landmark 2 the pair is unique again.
+        let mut masked = all(&twice);
+        masked[0][2] = false;
+        masked[1][2] = false;
+        assert_eq!(unambiguous_jcbb(&twice, &model, &obs, &masked, 0.99), Some(vec![Some(0), Some(1)]));
     }
 }

@@ -170,35 +170,67 @@ impl Ekf {
 
     /// Updates with observation `z` (range, bearing) of landmark `i`.
     pub fn update(&mut self, model: &RangeBearingModel, i: usize, z: &Vector2<f64>) -> Result<(), EkfError> {
+        self.update_iterated(model, i, z, 1)
+    }
+
+    /// An iterated EKF update (Gauss-Newton on the observation): up to `iterations`
+    /// linearisations, each about the previous one's estimate, the covariance updated with
+    /// the last. One iteration is the plain update. For corrections large against the
+    /// observation model's curvature, such as closing a loop metres off, where a single
+    /// linearisation at the predicted pose leaves the filter overconfident.
+    pub fn update_iterated(&mut self, model: &RangeBearingModel, i: usize, z: &Vector2<f64>, iterations: usize) -> Result<(), EkfError> {
         if i >= self.landmark_count() {
             return Err(EkfError::UnknownLandmark(i));
         }
         if !(z.x.is_finite() && z.y.is_finite()) {
             return Err(EkfError::NonFinite);
         }
-        let (zp, hr, hl, s) = self.predict_observation(model, i);
-        let nu = Vector2::new(z.x - zp.x, wrap_angle(z.y - zp.y));
         let li = self.vehicle_dims + 2 * i;
         let n = self.x.len();
-        // P Hᵀ from the five columns H touches.
-        let mut pht = DMatrix::zeros(n, 2);
-        for r in 0..n {
-            for k in 0..2 {
-                let mut acc = 0.0;
-                for c in 0..3 {
-                    acc += self.p[(r, c)] * hr[(k, c)];
+        let prior = self.x.clone();
+        let mut last = None;
+        for _ in 0..iterations.max(1) {
+            // Prediction and Jacobians at the current linearisation point (self.x); the
+            // covariance is the prior's throughout.
+            let (zp, hr, hl, s) = self.predict_observation(model, i);
+            let mut nu = Vector2::new(z.x - zp.x, wrap_angle(z.y - zp.y));
+            if last.is_some() {
+                // z - h(x_i) - H (x_prior - x_i).
+                let dp = Vector3::new(prior[0] - self.x[0], prior[1] - self.x[1], wrap_angle(prior[2] - self.x[2]));
+                let dl = Vector2::new(prior[li] - self.x[li], prior[li + 1] - self.x[li + 1]);
+                nu -= hr * dp + hl * dl;
+                nu.y = wrap_angle(nu.y);
+            }
+            // P Hᵀ from the five columns H touches.
+            let mut pht = DMatrix::zeros(n, 2);
+            for r in 0..n {
+                for k in 0..2 {
+                    let mut acc = 0.0;
+                    for c in 0..3 {
+                        acc += self.p[(r, c)] * hr[(k, c)];
+                    }
+                    for c in 0..2 {
+                        acc += self.p[(r, li + c)] * hl[(k, c)];
+                    }
+                    pht[(r, k)] = acc;
                 }
-                for c in 0..2 {
-                    acc += self.p[(r, li + c)] * hl[(k, c)];
-                }
-                pht[(r, k)] = acc;
+            }
+            let Some(s_chol) = s.cholesky() else {
+                self.x = prior;
+                return Err(EkfError::NotPositiveDefinite);
+            };
+            let s_inv = s_chol.inverse();
+            let k = &pht * s_inv; // n x 2
+            let mut next = &prior + &k * nu;
+            next[2] = wrap_angle(next[2]);
+            let step = (&next - &self.x).amax();
+            self.x = next;
+            last = Some((k, pht, s));
+            if step < 1e-9 {
+                break;
             }
         }
-        let s_chol = s.cholesky().ok_or(EkfError::NotPositiveDefinite)?;
-        let s_inv = s_chol.inverse();
-        let k = &pht * s_inv; // n x 2
-        self.x += &k * nu;
-        self.x[2] = wrap_angle(self.x[2]);
+        let (k, pht, s) = last.expect("at least one iteration");
         // Joseph form, expanded: P - K (HP) - (HP)ᵀ Kᵀ + K S Kᵀ, with HP = (PHᵀ)ᵀ = Wᵀ.
         // One pass over P: entry (i, j) gets g(i, j) + g(j, i) with
         // g(i, j) = -K_i·W_j + ½ (KS)_i·K_j, a sum that is bitwise the same at (j, i), so P
