@@ -7,6 +7,8 @@
 //! observation Jacobian (O(n²) per observation, one pass over P). Updates are in Joseph
 //! form, expanded as `P - K(HP) - (HP)ᵀKᵀ + K S Kᵀ`, which equals
 //! `(I-KH)P(I-KH)ᵀ + KRKᵀ` for any gain, evaluated so that P stays exactly symmetric.
+//! Jacobians can be taken at first estimates ([`FirstEstimates`]), which keeps the global
+//! heading unobservable as it truly is.
 
 pub mod motion;
 pub mod observation;
@@ -38,6 +40,24 @@ pub struct Ekf {
     /// Size of the vehicle block: the pose (3) and the calibration parameters after it.
     #[serde(default = "pose_dims")]
     pub vehicle_dims: usize,
+    /// First-estimate Jacobians, when enabled ([`Ekf::use_first_estimates`]).
+    #[serde(default)]
+    pub first_estimates: Option<FirstEstimates>,
+}
+
+/// The linearisation points of first-estimate Jacobians (Huang, Mourikis & Roumeliotis
+/// 2008): the propagation Jacobian takes its position terms from consecutive predicted
+/// poses, the observation Jacobians are evaluated at the predicted pose and at each
+/// landmark's first estimate. Jacobians that use the latest estimates give the filter
+/// information about its global heading that the observations do not hold, which makes
+/// EKF-SLAM overconfident once the heading is uncertain; these keep the unobservable
+/// directions unobservable.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FirstEstimates {
+    /// The pose as last predicted (before any update of that step).
+    pub predicted_pose: Vector3<f64>,
+    /// Each landmark's position when it was added.
+    pub landmarks: Vec<Vector2<f64>>,
 }
 
 fn pose_dims() -> usize {
@@ -61,7 +81,24 @@ impl Ekf {
         }
         let mut x = DVector::zeros(vd);
         x.rows_mut(0, 3).copy_from(&pose);
-        Ekf { x, p, vehicle_dims: vd }
+        Ekf { x, p, vehicle_dims: vd, first_estimates: None }
+    }
+
+    /// Switches to first-estimate Jacobians (see [`FirstEstimates`]); landmarks already in
+    /// the state take their current positions as first estimates.
+    pub fn use_first_estimates(&mut self) {
+        let landmarks = (0..self.landmark_count()).map(|i| self.landmark(i)).collect();
+        self.first_estimates = Some(FirstEstimates { predicted_pose: self.pose(), landmarks });
+    }
+
+    /// The propagation Jacobian's position terms from consecutive predicted poses, when
+    /// first estimates are on (and records `next` as the latest predicted pose).
+    fn first_estimate_transition(&mut self, next: &Vector3<f64>, f: &mut Matrix3<f64>) {
+        if let Some(fe) = &mut self.first_estimates {
+            f[(0, 2)] = -(next.y - fe.predicted_pose.y);
+            f[(1, 2)] = next.x - fe.predicted_pose.x;
+            fe.predicted_pose = *next;
+        }
     }
 
     pub fn landmark_count(&self) -> usize {
@@ -106,7 +143,8 @@ impl Ekf {
         if self.vehicle_dims > 3 {
             return self.predict_calibrated(model, control);
         }
-        let (next, f, q) = model.predict(&self.pose(), control);
+        let (next, mut f, q) = model.predict(&self.pose(), control);
+        self.first_estimate_transition(&next, &mut f);
         self.x[0] = next.x;
         self.x[1] = next.y;
         self.x[2] = next.z;
@@ -129,7 +167,8 @@ impl Ekf {
         let vd = self.vehicle_dims;
         let n = self.x.len();
         let calibration = self.calibration().to_vec();
-        let pred = model.predict_calibrated(&self.pose(), &calibration, control);
+        let mut pred = model.predict_calibrated(&self.pose(), &calibration, control);
+        self.first_estimate_transition(&pred.pose, &mut pred.f);
         self.x[0] = pred.pose.x;
         self.x[1] = pred.pose.y;
         self.x[2] = pred.pose.z;
@@ -143,13 +182,16 @@ impl Ekf {
         let new_pp = new_rows.view((0, 0), (3, vd)) * fv.transpose() + pred.q;
         self.p.view_mut((0, 0), (3, n)).copy_from(&new_rows);
         self.p.view_mut((0, 0), (n, 3)).copy_from(&new_rows.transpose());
-        self.p.view_mut((0, 0), (3, 3)).copy_from(&(0.5 * (&new_pp + new_pp.transpose())));
+        self.p.view_mut((0, 0), (3, 3)).copy_from(&(0.5 * (new_pp + new_pp.transpose())));
     }
 
     /// Predicted observation of landmark `i`, its Jacobians (robot 2x3, landmark 2x2) and
     /// innovation covariance `S`.
     pub fn predict_observation(&self, model: &RangeBearingModel, i: usize) -> (Vector2<f64>, nalgebra::Matrix2x3<f64>, Matrix2<f64>, Matrix2<f64>) {
-        let (z, hr, hl) = model.observe(&self.pose(), &self.landmark(i));
+        let (z, mut hr, mut hl) = model.observe(&self.pose(), &self.landmark(i));
+        if let Some(fe) = &self.first_estimates {
+            (_, hr, hl) = model.observe(&fe.predicted_pose, &fe.landmarks[i]);
+        }
         let li = self.vehicle_dims + 2 * i;
         let prr = self.pose_covariance();
         let pll = self.landmark_covariance(i);
@@ -177,7 +219,9 @@ impl Ekf {
     /// linearisations, each about the previous one's estimate, the covariance updated with
     /// the last. One iteration is the plain update. For corrections large against the
     /// observation model's curvature, such as closing a loop metres off, where a single
-    /// linearisation at the predicted pose leaves the filter overconfident.
+    /// linearisation at the predicted pose leaves the filter overconfident. With first
+    /// estimates on, the Jacobians stay at those and only the prediction moves, so use one
+    /// iteration there.
     pub fn update_iterated(&mut self, model: &RangeBearingModel, i: usize, z: &Vector2<f64>, iterations: usize) -> Result<(), EkfError> {
         if i >= self.landmark_count() {
             return Err(EkfError::UnknownLandmark(i));
@@ -270,6 +314,9 @@ impl Ekf {
         p.view_mut((n, n), (2, 2)).copy_from(&pll);
         self.x = x;
         self.p = p;
+        if let Some(fe) = &mut self.first_estimates {
+            fe.landmarks.push(l);
+        }
         self.landmark_count() - 1
     }
 
@@ -326,6 +373,9 @@ impl Ekf {
         let li = self.vehicle_dims + 2 * i;
         self.x = self.x.clone().remove_rows(li, 2);
         self.p = self.p.clone().remove_rows(li, 2).remove_columns(li, 2);
+        if let Some(fe) = &mut self.first_estimates {
+            fe.landmarks.remove(i);
+        }
     }
 }
 
