@@ -24,6 +24,14 @@ fn laser_only_baseline_maps_posts_and_people() {
     assert!(m.route_completed && m.collisions == 0);
     assert_eq!(m.map.trees_mapped, m.map.trees_seen, "the baseline still maps every tree it sees");
     assert!(m.ate_rmse_m < 0.5, "ATE {}", m.ate_rmse_m);
+    // The filter learns the odometry's calibration errors from the re-observed landmarks:
+    // each estimate within 3 sigma of the simulator's truth, each sigma well under its
+    // prior (scale 0.015, turn scale 0.03, bias 0.003 rad/m).
+    let c = m.odometry_calibration.expect("the default filter estimates the odometry's calibration");
+    for (k, prior) in [0.015, 0.03, 0.003].into_iter().enumerate() {
+        assert!((c.estimated[k] - c.truth[k]).abs() < 3.0 * c.sigma[k], "parameter {k}: {c:?}");
+        assert!(c.sigma[k] < 0.5 * prior, "parameter {k} barely learned: {c:?}");
+    }
 }
 
 /// Same scenario and seed: identical metrics (but wall time) and trajectories.
@@ -55,7 +63,7 @@ fn run_writes_every_output() {
     sc.sim.max_duration_s = Some(20.0);
     let m = run(&sc, &base, &RunOptions { seed: Some(3), out: Some(dir.clone()), ..Default::default() }, |_, _| {}).unwrap().metrics;
     let metrics: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("metrics.json")).unwrap()).unwrap();
-    for key in ["scenario", "seed", "method", "sim_seconds", "wall_seconds", "realtime_factor", "ate_rmse_m", "landmark_rmse_m", "map", "associations", "duplicate_landmarks", "segmentation", "anees", "passed"] {
+    for key in ["scenario", "seed", "method", "sim_seconds", "wall_seconds", "realtime_factor", "ate_rmse_m", "landmark_rmse_m", "map", "associations", "duplicate_landmarks", "merged_landmarks", "segmentation", "odometry_calibration", "anees", "passed"] {
         assert!(metrics.get(key).is_some(), "metrics.json lacks {key}");
     }
     for key in ["trees_seen", "trees_mapped", "posts", "palms", "people", "walls"] {
@@ -65,6 +73,8 @@ fn run_writes_every_output() {
     let meta: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("metadata.json")).unwrap()).unwrap();
     assert_eq!(meta["configuration"]["seed"], 3);
     assert!(meta["configuration"]["world"]["objects"].is_array());
+    // The simulator as it ran: no camera for a position-only method.
+    assert_eq!(meta["configuration"]["sim"]["camera"]["enabled"], false);
     let est = std::fs::read_to_string(dir.join("trajectory_est.tum")).unwrap();
     let gt = std::fs::read_to_string(dir.join("trajectory_gt.tum")).unwrap();
     assert_eq!(est.lines().count(), gt.lines().count());
