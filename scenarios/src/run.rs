@@ -280,6 +280,12 @@ pub fn pipeline_config(scenario: &Scenario, method: Option<AssociationMethod>) -
     if let Err((field, message)) = config.evidence.validate() {
         return Err(RunError::Pipeline { file, message: format!("pipeline.evidence.{field}: {message}") });
     }
+    if let Err((field, message)) = config.motion.validate() {
+        return Err(RunError::Pipeline { file, message: format!("pipeline.motion.{field}: {message}") });
+    }
+    if let Err((field, message)) = config.merge.validate() {
+        return Err(RunError::Pipeline { file, message: format!("pipeline.merge.{field}: {message}") });
+    }
     if let Some(m) = method {
         config.method = m;
     }

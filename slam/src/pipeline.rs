@@ -100,6 +100,18 @@ impl Default for MergeConfig {
 /// the KL test's choice (id, index) and whether the camera could judge it fully.
 type Plan = (usize, ObjectObservation, Gmm, Vector2<f64>, Vec<Candidate>, Option<(u32, usize)>, bool);
 
+impl MergeConfig {
+    /// The first setting that makes no sense, as (field, problem).
+    pub fn validate(&self) -> Result<(), (&'static str, String)> {
+        for (name, v) in [("max_sigma_m", self.max_sigma_m), ("noise_sigma_m", self.noise_sigma_m)] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err((name, format!("must be positive, got {v}")));
+            }
+        }
+        Ok(())
+    }
+}
+
 /// Two landmarks fused into one.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct LandmarkMerge {

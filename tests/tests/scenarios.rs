@@ -163,6 +163,13 @@ fn nonsense_pipeline_settings_are_named() {
     let sc = Scenario::parse(text, std::path::Path::new("x.toml")).unwrap();
     let e = scenarios::run::pipeline_config(&sc, None).unwrap_err().to_string();
     assert!(e.contains("x.toml") && e.contains("pipeline.evidence.radius_m"), "{e}");
+    for (table, field) in [("motion", "bias_sigma_rad_per_m = -0.002"), ("merge", "max_sigma_m = 0.0")] {
+        let text = format!("name = \"x\"\n[world]\npreset = \"park\"\n[pipeline.{table}]\n{field}\n");
+        let sc = Scenario::parse(&text, std::path::Path::new("x.toml")).unwrap();
+        let e = scenarios::run::pipeline_config(&sc, None).unwrap_err().to_string();
+        let name = field.split(' ').next().unwrap();
+        assert!(e.contains("x.toml") && e.contains(&format!("pipeline.{table}.{name}")), "{e}");
+    }
     let text = "name = \"x\"\n[world]\npreset = \"park\"\n[pipeline.evidence]\nradius = 1.0\n";
     let sc = Scenario::parse(text, std::path::Path::new("x.toml")).unwrap();
     let e = scenarios::run::pipeline_config(&sc, None).unwrap_err().to_string();

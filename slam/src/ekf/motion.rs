@@ -114,6 +114,28 @@ impl OdometryMotionModel {
         OdometryMotionModel { a_dd, a_da, a_ad, a_aa, d_per_m: 0.0, a_per_m: 0.0, a_per_rad: 0.0, floor: 1e-8, scale_sigma: 0.0, turn_scale_sigma: 0.0, bias_sigma_rad_per_m: 0.0 }
     }
 
+    /// The first setting that makes no sense, as (field, problem): every term is a
+    /// variance or a standard deviation, so finite and not negative.
+    pub fn validate(&self) -> Result<(), (&'static str, String)> {
+        let fields = [
+            ("a_dd", self.a_dd),
+            ("a_da", self.a_da),
+            ("a_ad", self.a_ad),
+            ("a_aa", self.a_aa),
+            ("d_per_m", self.d_per_m),
+            ("a_per_m", self.a_per_m),
+            ("a_per_rad", self.a_per_rad),
+            ("floor", self.floor),
+            ("scale_sigma", self.scale_sigma),
+            ("turn_scale_sigma", self.turn_scale_sigma),
+            ("bias_sigma_rad_per_m", self.bias_sigma_rad_per_m),
+        ];
+        match fields.into_iter().find(|(_, v)| !(v.is_finite() && *v >= 0.0)) {
+            Some((name, v)) => Err((name, format!("must be finite and not negative, got {v}"))),
+            None => Ok(()),
+        }
+    }
+
     /// Whether the filter estimates the calibration errors.
     pub fn estimates_calibration(&self) -> bool {
         self.scale_sigma > 0.0 || self.turn_scale_sigma > 0.0 || self.bias_sigma_rad_per_m > 0.0
@@ -265,6 +287,13 @@ mod tests {
         let d = (u[0] * u[0] + u[1] * u[1]).sqrt();
         let measured = [u[0] * (1.0 + c[0]), u[1] * (1.0 + c[0]), u[2] * (1.0 + c[1]) + c[2] * d];
         assert!((m.predict_calibrated(&pose, &c, &measured).pose - plain.0).norm() < 1e-12);
+    }
+
+    #[test]
+    fn nonsense_motion_settings_are_named() {
+        assert!(OdometryMotionModel::default().validate().is_ok());
+        assert_eq!(OdometryMotionModel { bias_sigma_rad_per_m: -0.1, ..Default::default() }.validate().unwrap_err().0, "bias_sigma_rad_per_m");
+        assert_eq!(OdometryMotionModel { a_dd: f64::NAN, ..Default::default() }.validate().unwrap_err().0, "a_dd");
     }
 
     #[test]
