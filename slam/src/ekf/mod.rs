@@ -138,32 +138,10 @@ impl Ekf {
         self.p.fixed_view::<2, 2>(li, li).into_owned()
     }
 
-    /// Prediction with a motion model and its control.
+    /// Prediction with a motion model and its control. Only the pose rows change,
+    /// `P_p* <- [F Fc] P_v*` (calibration parameters, if any, are constant), and the pose
+    /// block gets the process noise.
     pub fn predict(&mut self, model: &dyn MotionModel, control: &[f64]) {
-        if self.vehicle_dims > 3 {
-            return self.predict_calibrated(model, control);
-        }
-        let (next, mut f, q) = model.predict(&self.pose(), control);
-        self.first_estimate_transition(&next, &mut f);
-        self.x[0] = next.x;
-        self.x[1] = next.y;
-        self.x[2] = next.z;
-        let n = self.x.len();
-        let prr = self.pose_covariance();
-        let new_rr = f * prr * f.transpose() + q;
-        self.p.fixed_view_mut::<3, 3>(0, 0).copy_from(&new_rr);
-        if n > 3 {
-            let prl = self.p.view((0, 3), (3, n - 3)).into_owned();
-            let new_rl = f * prl;
-            self.p.view_mut((0, 3), (3, n - 3)).copy_from(&new_rl);
-            self.p.view_mut((3, 0), (n - 3, 3)).copy_from(&new_rl.transpose());
-        }
-    }
-
-    /// Prediction with calibration parameters in the vehicle block: only the pose rows
-    /// change, `P_p* <- [F Fc] P_v*` (the calibration is constant), and the pose block gets
-    /// the process noise.
-    fn predict_calibrated(&mut self, model: &dyn MotionModel, control: &[f64]) {
         let vd = self.vehicle_dims;
         let n = self.x.len();
         let calibration = self.calibration().to_vec();
