@@ -714,6 +714,10 @@ impl Pipeline {
     }
 
     fn note_co_observed(&mut self, assigned: &[Option<u32>]) {
+        // Only fusion reads it.
+        if !self.config.merge.enabled {
+            return;
+        }
         let ids: Vec<u32> = assigned.iter().flatten().copied().collect();
         for (k, &a) in ids.iter().enumerate() {
             for &b in &ids[k + 1..] {
