@@ -70,6 +70,11 @@ pub struct Metrics {
     /// Pairs of landmarks the pipeline fused into one (see `pipeline.merge`).
     #[serde(default)]
     pub merged_landmarks: usize,
+    /// Landmarks taken off the map when nearer frames judged their place not an object
+    /// (see `pipeline.evidence.retract`), and how many of them were on trees (those
+    /// retractions were mistakes).
+    #[serde(default)]
+    pub retracted_landmarks: RetractionCounts,
     /// Landmarks on posts, palms, people, walls or nothing.
     pub false_landmarks: usize,
     pub segmentation: SegmentationScore,
@@ -285,6 +290,9 @@ pub fn pipeline_config(scenario: &Scenario, method: Option<AssociationMethod>) -
     }
     if let Err((field, message)) = config.merge.validate() {
         return Err(RunError::Pipeline { file, message: format!("pipeline.merge.{field}: {message}") });
+    }
+    if let Err((field, message)) = config.diameter.validate() {
+        return Err(RunError::Pipeline { file, message: format!("pipeline.diameter.{field}: {message}") });
     }
     if let Some(m) = method {
         config.method = m;
@@ -560,6 +568,10 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
         associations: AssociationCounts { total: associations.len(), wrong },
         duplicate_landmarks: duplicates,
         merged_landmarks: pipeline.merges().len(),
+        retracted_landmarks: RetractionCounts {
+            total: pipeline.retractions().len(),
+            trees: pipeline.retractions().iter().filter(|r| landmark_object.get(&r.landmark).is_some_and(|o| tree_ids.contains(o))).count(),
+        },
         false_landmarks,
         segmentation: if config.method.uses_appearance() {
             SegmentationScore { precision: Some(seg_scores.precision()), recall: Some(seg_scores.recall()) }
@@ -783,6 +795,13 @@ fn odometry_calibration_score(ekf: &slam::ekf::Ekf, truth: [f64; 3]) -> Option<O
     (estimated.len() == 3).then(|| OdometryCalibrationScore { estimated: [estimated[0], estimated[1], estimated[2]], sigma: [sigma[0], sigma[1], sigma[2]], truth })
 }
 
+/// Retracted landmarks (see [`Metrics::retracted_landmarks`]).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct RetractionCounts {
+    pub total: usize,
+    pub trees: usize,
+}
+
 /// Short summary table for the terminal.
 pub fn summary_table(m: &Metrics) -> String {
     let recall = if m.map.trees_seen == 0 { 1.0 } else { m.map.trees_mapped as f64 / m.map.trees_seen as f64 };
@@ -790,7 +809,7 @@ pub fn summary_table(m: &Metrics) -> String {
     s.push_str(&format!("scenario {}  method {}  seed {}\n", m.scenario, m.method, m.seed));
     s.push_str(&format!("  simulated {:.1} s in {:.2} s ({:.0}x real time; simulator {:.1} s, pipeline {:.1} s, {:.2} ms per scan)\n", m.sim_seconds, m.wall_seconds, m.realtime_factor, m.timing.simulator_s, m.timing.pipeline_s, m.timing.mean_scan_ms));
     s.push_str(&format!("  trees mapped      {:>4} of {} seen ({:.0}%)\n", m.map.trees_mapped, m.map.trees_seen, 100.0 * recall));
-    s.push_str(&format!("  false landmarks   {:>4} (posts {}, palms {}, people {}, walls {}, nothing {})\n", m.false_landmarks, m.map.posts, m.map.palms, m.map.people, m.map.walls, m.map.nothing));
+    s.push_str(&format!("  false landmarks   {:>4} (posts {}, palms {}, people {}, walls {}, nothing {}; {} retracted, {} of them trees)\n", m.false_landmarks, m.map.posts, m.map.palms, m.map.people, m.map.walls, m.map.nothing, m.retracted_landmarks.total, m.retracted_landmarks.trees));
     s.push_str(&format!("  duplicates        {:>4} ({} fused)\n", m.duplicate_landmarks, m.merged_landmarks));
     s.push_str(&format!("  associations      {:>4} ({} wrong)\n", m.associations.total, m.associations.wrong));
     s.push_str(&format!("  ATE RMSE          {:>8.3} m\n", m.ate_rmse_m));

@@ -65,6 +65,10 @@ pub enum Choice {
     New { landmark: u32 },
     /// Neither: too ambiguous to associate or to create.
     Rejected,
+    /// Neither, for now: the KL test found no match, but a confirmed landmark that looks
+    /// alike lies within the new-landmark gate (the pose is too uncertain to tell a new
+    /// object from that one). Later observations decide.
+    Deferred,
 }
 
 /// One association decision, for the log the scorer reads.
