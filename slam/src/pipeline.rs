@@ -59,10 +59,11 @@ pub struct PipelineConfig {
     /// for the KL test of any single observation (it widens the observation by the offset's
     /// uncertainty), while the constellation of the trees seen together still tells where
     /// the robot is. Measured with `objslam montecarlo long_loop --runs 20 --methods
-    /// combined` (with `diameter`, `defer_near_lookalike` and retraction): on, 9 runs pass,
-    /// the loop closes in all 20 (1700-1980 associations), 9 have wrong associations (142 in
-    /// all: after the closure's metres-long correction the filter grows overconfident,
-    /// ANEES up to 42, and later takes a neighbouring tree of the same girth); off, 4 pass,
+    /// combined` (with `diameter`, `defer_near_lookalike` and retraction): on, 10 runs
+    /// pass, the loop closes in all 20 (1680-1980 associations), 5 have wrong associations
+    /// (94 in all: after the closure's metres-long correction the filter grows
+    /// overconfident, ANEES up to 23, and later takes a neighbouring tree of the same
+    /// girth); off, 4 pass,
     /// none has a wrong association, but the loop never closes (930-980 associations)
     /// and deferred trees stay unmapped in 14. Without the diameter check it closed seed
     /// 1's loop onto a look-alike pair 3.8 m off (84 wrong associations). On `paper_park`
@@ -620,6 +621,7 @@ impl Pipeline {
         let method = self.config.method;
         let cfg = self.config.object_model.clone();
         let gate = chi2_quantile(2, self.config.new_landmark_probability);
+        let assoc_gate = chi2_quantile(2, self.config.gate_probability);
         let n_before = self.ekf.landmark_count();
         let pca_dims = self.appearance.as_ref().map_or(0, |a| a.model.extractor.pca.dims());
         // Decide every observation against the landmarks that existed before this scan.
@@ -647,7 +649,10 @@ impl Pipeline {
                 let kl = model.kl_from(&fitted, obs.centre, [lm.x, lm.y], &self.offset_covariance(j, &z), &cfg, method == AssociationMethod::Appearance).ok();
                 candidates.push(Candidate { landmark: self.landmarks[j].id, mahalanobis2: m2, kl });
             }
-            let best = candidates.iter().filter_map(|c| c.kl.filter(|k| k.is_finite() && *k < cfg.kl_threshold).map(|k| (c.landmark, k))).min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+            // The combined method's candidates lie within the new-landmark gate (for the
+            // deferral and the joint test); to join one by KL, an observation must also be
+            // within the association gate, as for the position-only methods.
+            let best = candidates.iter().filter(|c| method != AssociationMethod::Combined || c.mahalanobis2 <= assoc_gate).filter_map(|c| c.kl.filter(|k| k.is_finite() && *k < cfg.kl_threshold).map(|k| (c.landmark, k))).min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
             let best = best.and_then(|(id, _)| self.landmarks.iter().position(|l| l.id == id).map(|j| (id, j)));
             plans.push((ci, obs, fitted, z, candidates, best, fully_judged));
         }
