@@ -681,7 +681,7 @@ impl Pipeline {
                     }
                 }
                 None if !fully_judged => Choice::Rejected,
-                None if self.config.defer_near_lookalike && self.near_lookalike(&obs, &fitted, &candidates, &cfg) => Choice::Deferred,
+                None if method == AssociationMethod::Combined && self.config.defer_near_lookalike && self.near_lookalike(&obs, &fitted, &candidates, &cfg) => Choice::Deferred,
                 None => {
                     new_ones.push((ci, self.decisions.len(), obs, fitted, z));
                     Choice::Rejected // replaced below once the id exists
