@@ -63,9 +63,8 @@ pub struct PipelineConfig {
     /// pass, the loop closes in all 20 (1680-1980 associations), 5 have wrong associations
     /// (94 in all: after the closure's metres-long correction the filter grows
     /// overconfident, ANEES up to 23, and later takes a neighbouring tree of the same
-    /// girth); off, 4 pass,
-    /// none has a wrong association, but the loop never closes (930-980 associations)
-    /// and deferred trees stay unmapped in 14. Without the diameter check it closed seed
+    /// girth); off, 4 pass, none has a wrong association, but the loop never closes
+    /// (930-1000 associations) and deferred trees stay unmapped in 14. Without the diameter check it closed seed
     /// 1's loop onto a look-alike pair 3.8 m off (84 wrong associations). On `paper_park`
     /// it changes no run (100 Monte Carlo runs identical).
     pub joint_loop_closing: bool,
