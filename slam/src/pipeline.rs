@@ -562,15 +562,8 @@ impl Pipeline {
                     row[*j] = true;
                     return row;
                 }
-                for c in candidates {
-                    let Some(j) = self.landmarks.iter().position(|l| l.id == c.landmark) else { continue };
-                    if !self.landmarks[j].confirmed {
-                        continue;
-                    }
-                    let Some(model) = &self.objects[j] else { continue };
-                    if model.kl_from(fitted, obs.centre, [0.0; 2], &Matrix2::zeros(), cfg, true).is_ok_and(|kl| kl.is_finite() && kl < cfg.kl_threshold) {
-                        row[j] = true;
-                    }
+                for j in self.confirmed_lookalikes(obs, fitted, candidates, cfg) {
+                    row[j] = true;
                 }
                 orphans += row.iter().any(|a| *a) as usize;
                 row
@@ -589,14 +582,20 @@ impl Pipeline {
         h.iter().zip(plans).map(|(j, p)| if p.5.is_some() { None } else { j.map(|j| (self.landmarks[j].id, j)) }).collect()
     }
 
-    /// Whether a confirmed landmark that looks like the observation (appearance KL under the
-    /// threshold) lies within its new-landmark gate (`candidates` holds those).
-    fn near_lookalike(&self, obs: &ObjectObservation, fitted: &Gmm, candidates: &[Candidate], cfg: &ObjectModelConfig) -> bool {
-        candidates.iter().any(|c| {
-            let Some(j) = self.landmarks.iter().position(|l| l.id == c.landmark) else { return false };
-            self.landmarks[j].confirmed
-                && self.objects[j].as_ref().is_some_and(|m| m.kl_from(fitted, obs.centre, [0.0; 2], &Matrix2::zeros(), cfg, true).is_ok_and(|kl| kl.is_finite() && kl < cfg.kl_threshold))
+    /// Indices of the confirmed candidates whose object model looks like the observation
+    /// (appearance KL under the threshold).
+    fn confirmed_lookalikes<'a>(&'a self, obs: &'a ObjectObservation, fitted: &'a Gmm, candidates: &'a [Candidate], cfg: &'a ObjectModelConfig) -> impl Iterator<Item = usize> + 'a {
+        candidates.iter().filter_map(move |c| {
+            let j = self.landmarks.iter().position(|l| l.id == c.landmark)?;
+            let model = self.objects[j].as_ref().filter(|_| self.landmarks[j].confirmed)?;
+            model.kl_from(fitted, obs.centre, [0.0; 2], &Matrix2::zeros(), cfg, true).is_ok_and(|kl| kl.is_finite() && kl < cfg.kl_threshold).then_some(j)
         })
+    }
+
+    /// Whether a confirmed landmark that looks like the observation lies within its
+    /// new-landmark gate (`candidates` holds those).
+    fn near_lookalike(&self, obs: &ObjectObservation, fitted: &Gmm, candidates: &[Candidate], cfg: &ObjectModelConfig) -> bool {
+        self.confirmed_lookalikes(obs, fitted, candidates, cfg).next().is_some()
     }
 
     /// Covariance (map frame) of the offset between an observation at (range, bearing) and
