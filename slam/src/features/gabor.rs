@@ -161,6 +161,64 @@ impl GaborBank {
     }
 }
 
+impl GaborBank {
+    /// |response| of every filter at the pixels of `region` (x, y, width, height) of a grey
+    /// plane with replicated borders: bit for bit the values [`GaborBank::apply`] gives
+    /// there, but only those are filtered. A crop's margin is read, never filtered: with the
+    /// default bank's 20 px margin around a cluster's patches that is over half the pixels.
+    pub fn apply_within(&self, grey: &Plane, region: (usize, usize, usize, usize)) -> Vec<Plane> {
+        let (x0, y0, rw, rh) = region;
+        assert!(x0 + rw <= grey.width && y0 + rh <= grey.height, "region {region:?} outside a {}x{} plane", grey.width, grey.height);
+        self.filters
+            .iter()
+            .map(|f| {
+                let mut out = match f.separable() {
+                    Some((h, v)) => convolve_separable_within(grey, &h, &v, region),
+                    // Not separable: filter everything and keep the region.
+                    None => {
+                        let full = convolve_2d(grey, &f.kernel_2d(), f.support());
+                        let data = (y0..y0 + rh).flat_map(|y| full.data[y * grey.width + x0..y * grey.width + x0 + rw].iter().copied()).collect();
+                        Plane { width: rw, height: rh, data }
+                    }
+                };
+                out.data.iter_mut().for_each(|v| *v = v.abs());
+                out
+            })
+            .collect()
+    }
+}
+
+/// `convolve_cols(convolve_rows(src, h), v)` at `region` only: the row pass over the
+/// region's columns and the rows the column pass reads, then the column pass over the
+/// region. Borders replicate `src`'s edges as the full passes do, and every output sums
+/// the same taps in the same order, so the values are identical.
+fn convolve_separable_within(src: &Plane, h: &[f32], v: &[f32], (x0, y0, rw, rh): (usize, usize, usize, usize)) -> Plane {
+    let (rx, ry) = (h.len() / 2, v.len() / 2);
+    let (w, height) = (src.width, src.height);
+    // Source rows the column pass reads, clamped to the plane.
+    let (ya, yb) = (y0.saturating_sub(ry), (y0 + rh + ry).min(height));
+    let mut rows = vec![0.0f32; rw * (yb - ya)];
+    let mut padded = vec![0.0f32; w + 2 * rx];
+    for (y, dst) in (ya..yb).zip(rows.chunks_exact_mut(rw.max(1))) {
+        let row = &src.data[y * w..(y + 1) * w];
+        padded[..rx].fill(row[0]);
+        padded[rx..rx + w].copy_from_slice(row);
+        padded[rx + w..].fill(row[w - 1]);
+        convolve_line(&padded[x0..], 1, h, dst);
+    }
+    // Rows y0 - ry .. y0 + rh + ry of the row pass, edges replicated.
+    let mut column = Vec::with_capacity(rw * (rh + 2 * ry));
+    for y in y0 as i64 - ry as i64..(y0 + rh + ry) as i64 {
+        let sy = y.clamp(0, height as i64 - 1) as usize - ya;
+        column.extend_from_slice(&rows[sy * rw..(sy + 1) * rw]);
+    }
+    let mut out = vec![0.0f32; rw * rh];
+    for (y, dst) in out.chunks_exact_mut(rw.max(1)).enumerate() {
+        convolve_line(&column[y * rw..], rw, v, dst);
+    }
+    Plane { width: rw, height: rh, data: out }
+}
+
 /// A single-channel f32 image, row-major.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Plane {
@@ -209,28 +267,53 @@ pub fn convolve_cols(src: &Plane, kernel: &[f32]) -> Plane {
 /// and writing the whole line: about twice as fast, and bit-identical to the plain loop
 /// (each output's sum runs in the same order).
 fn convolve_line(src: &[f32], step: usize, kernel: &[f32], dst: &mut [f32]) {
-    const BLOCK: usize = 16;
-    let w = dst.len();
-    let block = |x: usize, dst: &mut [f32]| {
-        let mut acc = [0.0f32; BLOCK];
-        for (k, &kv) in kernel.iter().enumerate() {
-            let s = &src[x + k * step..x + k * step + BLOCK];
-            for j in 0..BLOCK {
-                acc[j] += kv * s[j];
-            }
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx") {
+        // SAFETY: the processor has AVX, checked just above.
+        return unsafe { convolve_line_avx(src, step, kernel, dst) };
+    }
+    convolve_line_body(src, step, kernel, dst)
+}
+
+/// The same loop compiled for AVX's 8-wide registers (the baseline x86-64 target has
+/// 4-wide SSE): about twice the speed. Without FMA every product and sum is rounded as
+/// in the baseline code, so results are bit-identical on every x86-64 processor.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+unsafe fn convolve_line_avx(src: &[f32], step: usize, kernel: &[f32], dst: &mut [f32]) {
+    convolve_line_body(src, step, kernel, dst)
+}
+
+/// Outputs per block of [`convolve_line`].
+const BLOCK: usize = 16;
+
+/// dst[x..x + BLOCK] over all taps. A function, not a closure, so that it is inlined into
+/// the AVX copy and compiled for it (closures do not inherit target features).
+#[inline(always)]
+fn convolve_block(src: &[f32], step: usize, kernel: &[f32], x: usize, dst: &mut [f32]) {
+    let mut acc = [0.0f32; BLOCK];
+    for (k, &kv) in kernel.iter().enumerate() {
+        let s = &src[x + k * step..x + k * step + BLOCK];
+        for j in 0..BLOCK {
+            acc[j] += kv * s[j];
         }
-        dst[x..x + BLOCK].copy_from_slice(&acc);
-    };
+    }
+    dst[x..x + BLOCK].copy_from_slice(&acc);
+}
+
+#[inline(always)]
+fn convolve_line_body(src: &[f32], step: usize, kernel: &[f32], dst: &mut [f32]) {
+    let w = dst.len();
     if w >= BLOCK {
         let mut x = 0;
         while x + BLOCK <= w {
-            block(x, dst);
+            convolve_block(src, step, kernel, x, dst);
             x += BLOCK;
         }
         // The ragged end as one more block ending at the line's end: its overlap with the
         // previous block is computed again, to the same values.
         if x < w {
-            block(w - BLOCK, dst);
+            convolve_block(src, step, kernel, w - BLOCK, dst);
         }
         return;
     }
@@ -307,6 +390,29 @@ mod tests {
                 let (hk, vk) = f.separable().unwrap();
                 assert_eq!(convolve_rows(&img, &hk).data, plain(&img, &hk, false), "rows {w}x{h}");
                 assert_eq!(convolve_cols(&img, &vk).data, plain(&img, &vk, true), "cols {w}x{h}");
+            }
+        }
+    }
+
+    #[test]
+    fn filtering_within_a_region_gives_the_whole_planes_values_bit_for_bit() {
+        let mut bank = GaborBank::default();
+        // A non-separable filter takes the fallback path.
+        bank.filters.push(GaborFilter { theta_deg: 45.0, lambda_px: 4.0, sigma_px: 2.0, gamma: 0.5, psi: 0.0 });
+        for (w, h) in [(90, 70), (40, 31), (17, 5)] {
+            let img = random_plane(w, h);
+            let whole = bank.apply(&img);
+            // Interior, touching each edge, the whole plane, one pixel.
+            for region in [(21, 20, 30, 25), (0, 0, 12, 9), (w - 13, h - 4, 13, 4), (0, 0, w, h), (w / 2, h / 2, 1, 1)] {
+                let (x0, y0, rw, rh) = region;
+                if x0 + rw > w || y0 + rh > h {
+                    continue;
+                }
+                for (k, (part, full)) in bank.apply_within(&img, region).iter().zip(&whole).enumerate() {
+                    let expected: Vec<f32> = (y0..y0 + rh).flat_map(|y| full.data[y * w + x0..y * w + x0 + rw].iter().copied()).collect();
+                    assert_eq!((part.width, part.height), (rw, rh));
+                    assert!(part.data.iter().zip(&expected).all(|(a, b)| a.to_bits() == b.to_bits()), "filter {k}, {w}x{h}, region {region:?}");
+                }
             }
         }
     }

@@ -183,7 +183,9 @@ fn raw_patch_buffer(image: &ImageRef, config: &FeatureConfig, rect: &PatchRect) 
             grey.data[y * cw + x] = (px[0] as f32 + px[1] as f32 + px[2] as f32) * (1.0 / 765.0);
         }
     }
-    let responses = config.bank.apply(&grey);
+    // Responses at the patches' pixels only (the margin is read, not filtered).
+    let (rw, rh) = (x1 - x0, y1 - y0);
+    let responses = config.bank.apply_within(&grey, (x0 - cx0, y0 - cy0, rw, rh));
     let stride = 3 + g;
     let gain = config.gains();
     let (gr, gg, gb) = (gain[0] / 255.0, gain[1] / 255.0, gain[2] / 255.0);
@@ -196,7 +198,7 @@ fn raw_patch_buffer(image: &ImageRef, config: &FeatureConfig, rect: &PatchRect) 
         for py in 0..l {
             let y = py0 + py;
             let rgb = &image.rgb[(y * w + px0) * 3..(y * w + px0 + l) * 3];
-            let ci = (y - cy0) * cw + (px0 - cx0);
+            let ci = (y - y0) * rw + (px0 - x0);
             let dst = &mut out[py * l * stride..(py + 1) * l * stride];
             for px in 0..l {
                 let o = px * stride;
