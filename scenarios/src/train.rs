@@ -66,6 +66,7 @@ pub fn train_from_dataset(dir: &Path, options: &TrainingOptions, heldout_every: 
     let (train_ids, test_ids): (Vec<usize>, Vec<usize>) = (0..manifest.images.len()).partition(|i| heldout_every == 0 || i % heldout_every != heldout_every - 1);
     let load = |ids: &Vec<usize>, k: usize| load_image(dir, &manifest, ids[k]).map_err(model_error);
     let mut model = classifier::train(train_ids.len(), |k| load(&train_ids, k), options, &progress)?;
+    model.training.renderer = Some(manifest.renderer.clone());
     if !test_ids.is_empty() {
         progress("held-out scoring", 0, 1);
         let scores = classifier::evaluate(&model, test_ids.len(), |k| load(&test_ids, k), options.label_fraction)?;

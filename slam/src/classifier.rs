@@ -85,6 +85,11 @@ pub struct TrainingSummary {
     pub seed: u64,
     /// Held-out scores, when the trainer had held-out images.
     pub heldout: Option<PatchScores>,
+    /// The graphics adapter that rendered the training images, where known. Renderers
+    /// differ in their last bits (texture filtering, rasterisation), and a model trained on
+    /// one classifies borderline patches differently from one trained on another.
+    #[serde(default)]
+    pub renderer: Option<String>,
 }
 
 /// The output of the offline phase: features, both class models and their proportions.
@@ -318,6 +323,7 @@ pub fn train(count: usize, images: impl Fn(usize) -> Result<LabelledImage, Model
             pca_explained_variance: extractor.pca.explained_variance,
             seed: options.seed,
             heldout: None,
+            renderer: None,
         },
         extractor,
         object,

@@ -16,6 +16,8 @@ fn tree_patches_are_found_on_held_out_rendered_images() {
     make_dataset(&world, "park 1001", &DatasetConfig { images: 40, seed: 4, ..Default::default() }, &dir, |_, _| {}).unwrap();
     let options = TrainingOptions { max_patches_per_class: 6000, ..Default::default() };
     let model = scenarios::train::train_from_dataset(&dir, &options, 4, |_, _, _| {}).unwrap();
+    // The model says which renderer made its training images (the dataset's).
+    assert_eq!(model.training.renderer, Some(scenarios::train::read_manifest(&dir).unwrap().renderer));
     let s = model.training.heldout.expect("held-out images");
     eprintln!("held-out patches: precision {:.3}, recall {:.3}, F1 {:.3}", s.precision(), s.recall(), s.f1());
     assert!(s.f1() >= 0.8, "F1 {:.3} (precision {:.3}, recall {:.3})", s.f1(), s.precision(), s.recall());

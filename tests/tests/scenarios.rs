@@ -72,8 +72,9 @@ fn run_writes_every_output() {
     let meta: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("metadata.json")).unwrap()).unwrap();
     assert_eq!(meta["configuration"]["seed"], 3);
     assert!(meta["configuration"]["world"]["objects"].is_array());
-    // The simulator as it ran: no camera for a position-only method.
+    // The simulator as it ran: no camera for a position-only method, so no renderer.
     assert_eq!(meta["configuration"]["sim"]["camera"]["enabled"], false);
+    assert!(meta.get("renderer").is_some_and(|r| r.is_null()) && meta.get("appearance_model").is_some_and(|r| r.is_null()));
     let est = std::fs::read_to_string(dir.join("trajectory_est.tum")).unwrap();
     let gt = std::fs::read_to_string(dir.join("trajectory_gt.tum")).unwrap();
     assert_eq!(est.lines().count(), gt.lines().count());
@@ -110,6 +111,10 @@ fn combined_method_runs_end_to_end_with_camera_segmentation() {
     let lines: Vec<serde_json::Value> = seg.lines().map(|l| serde_json::from_str(l).unwrap()).collect();
     assert!(lines.iter().any(|l| l["is_object"] == true && l["true_class"] == "tree"));
     assert!(lines.iter().all(|l| l["hit_fraction"].is_f64() && l["above_fraction"].is_f64()));
+    // The renderer that made the images is recorded: results depend on it.
+    let meta: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("metadata.json")).unwrap()).unwrap();
+    assert!(meta["renderer"].as_str().is_some_and(|r| !r.is_empty()), "{}", meta["renderer"]);
+    assert!(meta["appearance_model"].get("training_renderer").is_some());
     let _ = std::fs::remove_dir_all(&out);
 }
 
