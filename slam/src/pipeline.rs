@@ -22,7 +22,8 @@ use crate::features::ImageRef;
 use crate::gmm::{Gmm, StudentTMixture};
 use crate::messages::{LaserScan, OdometryIncrement};
 use crate::object_model::{fit_observation, ObjectModel, ObjectModelConfig, ObjectObservation};
-use crate::segmentation::{segment_cluster, CameraGeometry, SegmentationConfig};
+use crate::segmentation::{segment_cluster, CameraGeometry, SegmentationConfig, SegmentedCluster};
+use rayon::prelude::*;
 
 /// Pipeline settings.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -460,11 +461,14 @@ impl Pipeline {
         let l = extractor.config.patch_size;
         let mut record = SegmentationRecord { t_image: img.t, patch_size: l, cells: Vec::new(), clusters: Vec::new() };
         let mut out = Vec::new();
-        for (ci, c) in clusters.iter().enumerate() {
-            if c.occluded {
-                continue;
-            }
-            let Ok(Some(seg)) = segment_cluster(c, &image, extractor, &app.classifier, &app.camera, &self.config.segmentation) else { continue };
+        // Each cluster's segmentation depends on nothing but the image and the cluster: they
+        // run in parallel and are used in order, so results do not depend on the threads.
+        let segmentations: Vec<Option<SegmentedCluster>> = clusters
+            .par_iter()
+            .map(|c| if c.occluded { None } else { segment_cluster(c, &image, extractor, &app.classifier, &app.camera, &self.config.segmentation).ok().flatten() })
+            .collect();
+        for (ci, (c, seg)) in clusters.iter().zip(segmentations).enumerate() {
+            let Some(seg) = seg else { continue };
             for (i, &o) in seg.object.iter().enumerate() {
                 let (col, row) = seg.rect.patch(i);
                 if !record.cells.iter().any(|&(a, b, _)| a == col && b == row) {

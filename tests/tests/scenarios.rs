@@ -54,6 +54,30 @@ fn runs_are_deterministic() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// The paper's method segments a scan's clusters in parallel: the first 30 s of
+/// paper_park on one thread and on four give the same metrics, path, association and
+/// segmentation logs.
+#[test]
+fn combined_runs_are_identical_whatever_the_thread_count() {
+    let dir = std::env::temp_dir().join(format!("objslam-threads-{}", std::process::id()));
+    let (mut sc, base) = Scenario::load("paper_park").unwrap();
+    sc.sim.max_duration_s = Some(30.0);
+    let on = |threads: usize| {
+        let out = dir.join(format!("threads{threads}"));
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        let m = pool.install(|| run(&sc, &base, &RunOptions { out: Some(out.clone()), ..Default::default() }, |_, _| {}).unwrap().metrics);
+        let read = |name: &str| std::fs::read_to_string(out.join(name)).unwrap();
+        (m.without_wall_clock(), read("trajectory_est.tum"), read("decisions.jsonl"), read("segmentation.jsonl"))
+    };
+    let (one, four) = (on(1), on(4));
+    assert!(one.3.lines().count() > 20, "too few segmented clusters to compare");
+    assert_eq!(one.0, four.0);
+    assert_eq!(one.1, four.1, "estimated trajectories differ");
+    assert_eq!(one.2, four.2, "association logs differ");
+    assert_eq!(one.3, four.3, "segmentation logs differ");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// Every output file of `objslam run` is written and parses.
 #[test]
 fn run_writes_every_output() {
