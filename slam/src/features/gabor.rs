@@ -159,9 +159,7 @@ impl GaborBank {
             })
             .collect()
     }
-}
 
-impl GaborBank {
     /// |response| of every filter at the pixels of `region` (x, y, width, height) of a grey
     /// plane with replicated borders: bit for bit the values [`GaborBank::apply`] gives
     /// there, but only those are filtered. A crop's margin is read, never filtered: with the
@@ -195,6 +193,9 @@ impl GaborBank {
 fn convolve_separable_within(src: &Plane, h: &[f32], v: &[f32], (x0, y0, rw, rh): (usize, usize, usize, usize)) -> Plane {
     let (rx, ry) = (h.len() / 2, v.len() / 2);
     let (w, height) = (src.width, src.height);
+    if rw == 0 || rh == 0 {
+        return Plane { width: rw, height: rh, data: Vec::new() };
+    }
     // Source rows the column pass reads, clamped to the plane.
     let (ya, yb) = (y0.saturating_sub(ry), (y0 + rh + ry).min(height));
     let mut rows = vec![0.0f32; rw * (yb - ya)];
@@ -402,8 +403,8 @@ mod tests {
         for (w, h) in [(90, 70), (40, 31), (17, 5)] {
             let img = random_plane(w, h);
             let whole = bank.apply(&img);
-            // Interior, touching each edge, the whole plane, one pixel.
-            for region in [(21, 20, 30, 25), (0, 0, 12, 9), (w - 13, h - 4, 13, 4), (0, 0, w, h), (w / 2, h / 2, 1, 1)] {
+            // Interior, touching each edge, the whole plane, one pixel, none.
+            for region in [(21, 20, 30, 25), (0, 0, 12, 9), (w - 13, h - 4, 13, 4), (0, 0, w, h), (w / 2, h / 2, 1, 1), (3, 2, 0, 4)] {
                 let (x0, y0, rw, rh) = region;
                 if x0 + rw > w || y0 + rh > h {
                     continue;
