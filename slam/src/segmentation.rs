@@ -145,12 +145,15 @@ pub fn segment_cluster(cluster: &Cluster, image: &ImageRef, extractor: &FeatureE
     let (cols, rows) = image.grid(l);
     let mut hits: Vec<(u32, u32)> = Vec::new();
     for p in &cluster.points {
-        if let Some([u, v]) = geometry.project(&Vector3::new(p[0], p[1], 0.0)) {
-            if u >= 0.0 && v >= 0.0 && u < (cols * l) as f64 && v < (rows * l) as f64 {
-                let cell = ((u / l as f64) as u32, (v / l as f64) as u32);
-                if !hits.contains(&cell) {
-                    hits.push(cell);
-                }
+        if let Some([u, v]) = geometry.project(&Vector3::new(p[0], p[1], 0.0))
+            && u >= 0.0
+            && v >= 0.0
+            && u < (cols * l) as f64
+            && v < (rows * l) as f64
+        {
+            let cell = ((u / l as f64) as u32, (v / l as f64) as u32);
+            if !hits.contains(&cell) {
+                hits.push(cell);
             }
         }
     }

@@ -95,10 +95,10 @@ pub fn validate(world: &World, base_dir: &Path) -> Vec<Problem> {
             push(format!("{f}.class"), "class foliage labels canopies in class images; it is not an object class (use tree or palm)".into());
         }
         check_colour(&mut push, &format!("{f}.appearance.colour"), &o.appearance.colour);
-        if let Some(mesh) = &o.mesh {
-            if let Err(msg) = check_mesh(base_dir, mesh) {
-                push(format!("{f}.mesh"), msg);
-            }
+        if let Some(mesh) = &o.mesh
+            && let Err(msg) = check_mesh(base_dir, mesh)
+        {
+            push(format!("{f}.mesh"), msg);
         }
         let (lo, hi) = o.shape.footprint(&o.pose).bounds();
         if lo[0] < g.min_m[0] || lo[1] < g.min_m[1] || hi[0] > g.max_m[0] || hi[1] > g.max_m[1] {
