@@ -97,6 +97,10 @@ pub struct Metrics {
     /// Where the wall-clock time went.
     #[serde(default)]
     pub timing: Timing,
+    /// The graphics adapter that rendered the camera's images (absent without a camera):
+    /// renderers differ in their last bits, and so can results (README, "On a GPU").
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub renderer: Option<String>,
 }
 
 impl Metrics {
@@ -357,8 +361,9 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
     sim_config.camera.depth_image = false;
     let sim = Simulation::new(&world, &sim_config, sim::derive_seed(seed, "sim"))?;
     // Where the images came from: results depend on the renderer (see metadata.json).
+    let renderer = sim.camera_adapter().map(|a| a.to_string());
     let provenance = json!({
-        "renderer": sim.camera_adapter().map(|a| a.to_string()),
+        "renderer": renderer,
         "appearance_model": appearance_model.as_ref().map(|m| json!({ "training_renderer": m.training.renderer, "training_seed": m.training.seed, "training_images": m.training.images })),
     });
     let nominal = scenario.sim.max_duration_s.unwrap_or_else(|| sim.nominal_duration_s());
@@ -595,6 +600,7 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
         passed: false,
         failures: vec![],
         timing: Timing { simulator_s: sim_time, pipeline_s: pipe_time, scans, mean_scan_ms: if scans > 0 { 1000.0 * scan_time / scans as f64 } else { 0.0 } },
+        renderer,
     };
     metrics.failures = check_pass(scenario, &metrics);
     metrics.passed = metrics.failures.is_empty();
@@ -816,6 +822,9 @@ pub fn summary_table(m: &Metrics) -> String {
     let mut s = String::new();
     s.push_str(&format!("scenario {}  method {}  seed {}\n", m.scenario, m.method, m.seed));
     s.push_str(&format!("  simulated {:.1} s in {:.2} s ({:.0}x real time; simulator {:.1} s, pipeline {:.1} s, {:.2} ms per scan)\n", m.sim_seconds, m.wall_seconds, m.realtime_factor, m.timing.simulator_s, m.timing.pipeline_s, m.timing.mean_scan_ms));
+    if let Some(renderer) = &m.renderer {
+        s.push_str(&format!("  rendered by       {renderer}\n"));
+    }
     s.push_str(&format!("  trees mapped      {:>4} of {} seen ({:.0}%)\n", m.map.trees_mapped, m.map.trees_seen, 100.0 * recall));
     s.push_str(&format!("  false landmarks   {:>4} (posts {}, palms {}, people {}, walls {}, nothing {}; {} retracted, {} of them trees)\n", m.false_landmarks, m.map.posts, m.map.palms, m.map.people, m.map.walls, m.map.nothing, m.retracted_landmarks.total, m.retracted_landmarks.trees));
     s.push_str(&format!("  duplicates        {:>4} ({} fused)\n", m.duplicate_landmarks, m.merged_landmarks));

@@ -99,6 +99,7 @@ fn run_writes_every_output() {
     // The simulator as it ran: no camera for a position-only method, so no renderer.
     assert_eq!(meta["configuration"]["sim"]["camera"]["enabled"], false);
     assert!(meta.get("renderer").is_some_and(|r| r.is_null()) && meta.get("appearance_model").is_some_and(|r| r.is_null()));
+    assert!(metrics.get("renderer").is_none() && m.renderer.is_none());
     let est = std::fs::read_to_string(dir.join("trajectory_est.tum")).unwrap();
     let gt = std::fs::read_to_string(dir.join("trajectory_gt.tum")).unwrap();
     assert_eq!(est.lines().count(), gt.lines().count());
@@ -138,6 +139,7 @@ fn combined_method_runs_end_to_end_with_camera_segmentation() {
     // The renderer that made the images is recorded: results depend on it.
     let meta: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("metadata.json")).unwrap()).unwrap();
     assert!(meta["renderer"].as_str().is_some_and(|r| !r.is_empty()), "{}", meta["renderer"]);
+    assert_eq!(m.renderer.as_deref(), meta["renderer"].as_str(), "metrics.json and metadata.json name the same renderer");
     assert!(meta["appearance_model"].get("training_renderer").is_some());
     let _ = std::fs::remove_dir_all(&out);
 }
