@@ -360,12 +360,10 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
     // Nor does any method read depth: render without it.
     sim_config.camera.depth_image = false;
     let sim = Simulation::new(&world, &sim_config, sim::derive_seed(seed, "sim"))?;
-    // Where the images came from: results depend on the renderer (see metadata.json).
+    // Where the images came from: results depend on the renderer (metrics.renderer, and
+    // the model's training renderer in metadata.json).
     let renderer = sim.camera_adapter().map(|a| a.to_string());
-    let provenance = json!({
-        "renderer": renderer,
-        "appearance_model": appearance_model.as_ref().map(|m| json!({ "training_renderer": m.training.renderer, "training_seed": m.training.seed, "training_images": m.training.images })),
-    });
+    let model_provenance = json!(appearance_model.as_ref().map(|m| json!({ "training_renderer": m.training.renderer, "training_seed": m.training.seed, "training_images": m.training.images })));
     let nominal = scenario.sim.max_duration_s.unwrap_or_else(|| sim.nominal_duration_s());
     let start = world.robot.start;
     let appearance = match &appearance_model {
@@ -621,7 +619,7 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
         if let Some(report) = &calibration.report {
             report.write(&out.join("calibration.json"))?;
         }
-        write_outputs(out, &world, &pipeline, &metrics, &resolved, &provenance, &est_path, &gt_path, &people_tracks, &landmark_object, &decision_truth)?;
+        write_outputs(out, &world, &pipeline, &metrics, &resolved, &model_provenance, &est_path, &gt_path, &people_tracks, &landmark_object, &decision_truth)?;
         if camera_method {
             let file = out.join("segmentation.jsonl");
             std::fs::write(&file, segmentation_log).map_err(|source| RunError::Io { file, source })?;
@@ -700,7 +698,7 @@ fn write_outputs(
     pipeline: &Pipeline,
     metrics: &Metrics,
     resolved: &serde_json::Value,
-    provenance: &serde_json::Value,
+    model_provenance: &serde_json::Value,
     est: &[(f64, [f64; 3])],
     gt: &[(f64, [f64; 3])],
     people_tracks: &BTreeMap<u16, Vec<[f64; 2]>>,
@@ -719,8 +717,8 @@ fn write_outputs(
             "tool": "objslam run",
             "version": env!("CARGO_PKG_VERSION"),
             "seed": metrics.seed,
-            "renderer": provenance["renderer"],
-            "appearance_model": provenance["appearance_model"],
+            "renderer": metrics.renderer,
+            "appearance_model": model_provenance,
             "configuration": resolved,
         }))
         .expect("JSON"),
