@@ -88,15 +88,32 @@ impl AppearanceSource {
     /// Loads the named model, or the cached one, training and caching it first if needed.
     /// `progress(stage, done, total)` reports training.
     pub fn resolve(&self, base_dir: &Path, camera: &sim::camera::CameraConfig, progress: impl Fn(&str, usize, usize)) -> Result<AppearanceModel, AppearanceError> {
+        self.resolve_in(&cache_dir(), base_dir, camera, progress)
+    }
+
+    /// [`resolve`](Self::resolve) with the cache in `dir`.
+    ///
+    /// Runs on several threads of one process (the tests, a study's runs) may ask for the
+    /// same uncached model at once: training is serialised within the process and the
+    /// cache looked at again once the lock is held, so the model is trained once and the
+    /// later callers load it. Other processes write under their own temporary names and
+    /// rename into place, so nobody reads a half-written model.
+    pub fn resolve_in(&self, dir: &Path, base_dir: &Path, camera: &sim::camera::CameraConfig, progress: impl Fn(&str, usize, usize)) -> Result<AppearanceModel, AppearanceError> {
+        static TRAINING: std::sync::Mutex<()> = std::sync::Mutex::new(());
         if let Some(file) = &self.model {
             return Ok(AppearanceModel::load(&base_dir.join(file))?);
         }
-        let dir = cache_dir();
         let path = dir.join(self.cache_key(camera));
         if path.exists() {
             return Ok(AppearanceModel::load(&path)?);
         }
-        std::fs::create_dir_all(&dir).map_err(|e| AppearanceError::Io { file: dir.clone(), message: e.to_string() })?;
+        // A panic while training elsewhere leaves nothing half-done in the cache, so a
+        // poisoned lock is still good to take.
+        let _training = TRAINING.lock().unwrap_or_else(|poisoned| poisoned.into_inner());
+        if path.exists() {
+            return Ok(AppearanceModel::load(&path)?);
+        }
+        std::fs::create_dir_all(dir).map_err(|e| AppearanceError::Io { file: dir.to_path_buf(), message: e.to_string() })?;
         let scratch = dir.join(format!("training-{}-{}", std::process::id(), self.training_world_seed));
         let world = worlds::generate::preset(&self.training_preset, None, self.training_world_seed)?;
         let config = self.dataset_config(camera);

@@ -23,3 +23,35 @@ fn tree_patches_are_found_on_held_out_rendered_images() {
     assert!(s.f1() >= 0.8, "F1 {:.3} (precision {:.3}, recall {:.3})", s.f1(), s.precision(), s.recall());
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Regression: two runs of one test process asked for the same uncached model at once;
+/// both trained it into one scratch folder and the second rename found its temporary file
+/// gone ("No such file or directory" on the cached model), failing CI. Now the model is
+/// trained once and both get it.
+#[test]
+fn concurrent_requests_for_an_uncached_model_train_it_once() {
+    let cache = std::env::temp_dir().join(format!("objslam-cache-race-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&cache);
+    let source = scenarios::appearance::AppearanceSource { training_images: 3, max_patches_per_class: 300, max_components: 3, pca_dims: 4, ..Default::default() };
+    let camera = sim::camera::CameraConfig::default();
+    let trained = std::sync::atomic::AtomicUsize::new(0);
+    let models: Vec<_> = std::thread::scope(|scope| {
+        let handles: Vec<_> = (0..3)
+            .map(|_| {
+                scope.spawn(|| {
+                    source.resolve_in(&cache, std::path::Path::new("."), &camera, |stage, done, total| {
+                        if stage == "rendering" && done == total {
+                            trained.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+                        }
+                    })
+                })
+            })
+            .collect();
+        handles.into_iter().map(|h| h.join().unwrap().unwrap()).collect()
+    });
+    assert_eq!(trained.into_inner(), 1, "the model is trained once");
+    assert!(models.iter().all(|m| *m == models[0]), "every caller gets the same model");
+    let files: Vec<String> = std::fs::read_dir(&cache).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    assert_eq!(files, vec![source.cache_key(&camera)], "only the model is left in the cache");
+    let _ = std::fs::remove_dir_all(&cache);
+}
