@@ -70,6 +70,10 @@ pub struct Metrics {
     /// Pairs of landmarks the pipeline fused into one (see `pipeline.merge`).
     #[serde(default)]
     pub merged_landmarks: usize,
+    /// Times the filter was relinearised after a loop closure (see
+    /// `pipeline.relinearise_loop_closures`).
+    #[serde(default)]
+    pub relinearisations: usize,
     /// Landmarks taken off the map when nearer frames judged their place not an object
     /// (see `pipeline.evidence.retract`), and how many of them were on trees (those
     /// retractions were mistakes).
@@ -383,9 +387,7 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
     let mut nees_sum = 0.0;
     let mut nees_n = 0usize;
     // Per landmark id: the true object of each observation.
-    let mut landmark_objects: HashMap<u32, Vec<u16>> = HashMap::new();
-    // Existing-landmark associations: (landmark id, true object of the observation).
-    let mut associations: Vec<(u32, u16)> = Vec::new();
+    let mut ledger = crate::score::AssociationLedger::default();
     // Trees the method could map: laser-seen for position-only methods; seen in the
     // camera at a laser cluster in enough frames to be confirmed, for camera methods.
     let mut trees_seen: std::collections::BTreeSet<u16> = Default::default();
@@ -473,19 +475,13 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
                         trees_seen.insert(obj);
                     }
                     if let Some(id) = result.assigned[ci] {
-                        let objs = landmark_objects.entry(id).or_default();
-                        if !objs.is_empty() {
-                            associations.push((id, obj));
-                        }
-                        objs.push(obj);
+                        ledger.observe(id, obj);
                     }
                 }
                 // A fusion associates every observation of the removed landmark with the
                 // kept one: scored like any association (wrong if the objects differ).
                 for m in &pipeline.merges()[merges_scored..] {
-                    let moved = landmark_objects.remove(&m.removed).unwrap_or_default();
-                    associations.extend(moved.iter().map(|&obj| (m.kept, obj)));
-                    landmark_objects.entry(m.kept).or_default().extend(moved);
+                    ledger.fuse(m.kept, m.removed);
                 }
                 merges_scored = pipeline.merges().len();
                 // Trees the laser could have clustered but the size filter dropped are
@@ -522,18 +518,7 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
     progress(sim.time(), nominal);
     let wall = started.elapsed().as_secs_f64();
 
-    // The object each landmark stands on: the majority of its observations' objects.
-    let landmark_object: HashMap<u32, u16> = landmark_objects
-        .iter()
-        .map(|(id, objs)| {
-            let mut counts: BTreeMap<u16, usize> = BTreeMap::new();
-            for o in objs {
-                *counts.entry(*o).or_default() += 1;
-            }
-            (*id, counts.into_iter().max_by_key(|(o, n)| (*n, *o != 0)).map(|(o, _)| o).unwrap_or(0))
-        })
-        .collect();
-    let wrong = associations.iter().filter(|(id, obj)| landmark_object.get(id) != Some(obj)).count();
+    let landmark_object = ledger.landmark_objects();
     let mut map = MapContent { trees_seen: trees_seen.len(), ..Default::default() };
     let mut per_object: BTreeMap<u16, usize> = BTreeMap::new();
     for lm in pipeline.mapped_landmarks() {
@@ -573,9 +558,10 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
         landmark_rmse_m: landmark_rmse,
         map,
         landmarks: lms.len(),
-        associations: AssociationCounts { total: associations.len(), wrong },
+        associations: ledger.counts(),
         duplicate_landmarks: duplicates,
         merged_landmarks: pipeline.merges().len(),
+        relinearisations: pipeline.relinearisations().len(),
         retracted_landmarks: RetractionCounts {
             total: pipeline.retractions().len(),
             trees: pipeline.retractions().iter().filter(|r| landmark_object.get(&r.landmark).is_some_and(|o| tree_ids.contains(o))).count(),
@@ -826,6 +812,9 @@ pub fn summary_table(m: &Metrics) -> String {
     s.push_str(&format!("  trees mapped      {:>4} of {} seen ({:.0}%)\n", m.map.trees_mapped, m.map.trees_seen, 100.0 * recall));
     s.push_str(&format!("  false landmarks   {:>4} (posts {}, palms {}, people {}, walls {}, nothing {}; {} retracted, {} of them trees)\n", m.false_landmarks, m.map.posts, m.map.palms, m.map.people, m.map.walls, m.map.nothing, m.retracted_landmarks.total, m.retracted_landmarks.trees));
     s.push_str(&format!("  duplicates        {:>4} ({} fused)\n", m.duplicate_landmarks, m.merged_landmarks));
+    if m.relinearisations > 0 {
+        s.push_str(&format!("  relinearised      {:>4} times after loop closures\n", m.relinearisations));
+    }
     s.push_str(&format!("  associations      {:>4} ({} wrong)\n", m.associations.total, m.associations.wrong));
     s.push_str(&format!("  ATE RMSE          {:>8.3} m\n", m.ate_rmse_m));
     if let Some(r) = m.landmark_rmse_m {

@@ -113,6 +113,82 @@ pub struct AssociationCounts {
     pub wrong: usize,
 }
 
+/// Which true object each landmark's observations came from, for scoring associations.
+///
+/// A fusion (the pipeline finding two landmarks to be one) associates every observation
+/// of the removed landmark with the kept one: its earlier associations are relabelled, and
+/// the observation that started it becomes one more association, so the total stays the
+/// number of observations that did not start a landmark.
+#[derive(Debug, Clone, Default)]
+pub struct AssociationLedger {
+    /// Per landmark, the true object (0: none) of each of its observations.
+    observed: std::collections::HashMap<u32, Vec<u16>>,
+    /// Associations with an existing landmark: (landmark id, the observation's object).
+    associations: Vec<(u32, u16)>,
+    /// Fused landmarks: removed id -> kept id.
+    fused: std::collections::HashMap<u32, u32>,
+}
+
+impl AssociationLedger {
+    /// Landmark `landmark` took an observation of `object` (its first starts it).
+    pub fn observe(&mut self, landmark: u32, object: u16) {
+        let objects = self.observed.entry(landmark).or_default();
+        if !objects.is_empty() {
+            self.associations.push((landmark, object));
+        }
+        objects.push(object);
+    }
+
+    /// Landmark `removed` was fused into `kept`.
+    pub fn fuse(&mut self, kept: u32, removed: u32) {
+        let moved = self.observed.remove(&removed).unwrap_or_default();
+        for a in &mut self.associations {
+            if a.0 == removed {
+                a.0 = kept;
+            }
+        }
+        if let Some(&first) = moved.first() {
+            self.associations.push((kept, first));
+        }
+        self.observed.entry(kept).or_default().extend(moved);
+        for k in self.fused.values_mut() {
+            if *k == removed {
+                *k = kept;
+            }
+        }
+        self.fused.insert(removed, kept);
+    }
+
+    /// The object each landmark stands on: the majority of its observations' objects (a
+    /// real object before none on a tie, then the higher id). A fused landmark stands on its
+    /// keeper's.
+    pub fn landmark_objects(&self) -> std::collections::HashMap<u32, u16> {
+        let mut out: std::collections::HashMap<u32, u16> = self
+            .observed
+            .iter()
+            .map(|(id, objects)| {
+                let mut counts: std::collections::BTreeMap<u16, usize> = std::collections::BTreeMap::new();
+                for o in objects {
+                    *counts.entry(*o).or_default() += 1;
+                }
+                (*id, counts.into_iter().max_by_key(|(o, n)| (*n, *o != 0)).map(|(o, _)| o).unwrap_or(0))
+            })
+            .collect();
+        for (removed, kept) in &self.fused {
+            if let Some(&o) = out.get(kept) {
+                out.insert(*removed, o);
+            }
+        }
+        out
+    }
+
+    /// Associations, and those whose observation's object is not the landmark's.
+    pub fn counts(&self) -> AssociationCounts {
+        let objects = self.landmark_objects();
+        AssociationCounts { total: self.associations.len(), wrong: self.associations.iter().filter(|(id, o)| objects.get(id) != Some(o)).count() }
+    }
+}
+
 /// Wilson score interval for a binomial proportion (95% for z = 1.96).
 pub fn wilson_interval(successes: usize, n: usize, z: f64) -> (f64, f64) {
     if n == 0 {
@@ -161,6 +237,47 @@ pub fn nees3(e: [f64; 3], p: [[f64; 3]; 3]) -> Option<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Regression: the associations a landmark took before it was fused into another stayed
+    /// under its id, which then had no object, so a correct fusion of two landmarks on one
+    /// tree counted every one of them wrong (`long_loop`, 36 "wrong" associations).
+    #[test]
+    fn a_correct_fusion_makes_no_association_wrong() {
+        let mut ledger = AssociationLedger::default();
+        for _ in 0..4 {
+            ledger.observe(8, 7);
+        }
+        for _ in 0..3 {
+            ledger.observe(10, 7);
+        }
+        ledger.observe(9, 11);
+        ledger.fuse(8, 10);
+        // Seven observations of tree 7 on one landmark: six associations, none wrong.
+        assert_eq!(ledger.counts(), AssociationCounts { total: 6, wrong: 0 });
+        let objects = ledger.landmark_objects();
+        assert_eq!((objects[&8], objects[&10], objects[&9]), (7, 7, 11));
+    }
+
+    #[test]
+    fn fusing_two_objects_makes_the_minority_wrong() {
+        let mut ledger = AssociationLedger::default();
+        for _ in 0..5 {
+            ledger.observe(1, 3);
+        }
+        for _ in 0..2 {
+            ledger.observe(2, 4);
+        }
+        ledger.observe(2, 3);
+        ledger.fuse(1, 2);
+        // Landmark 1 stands on object 3 (6 of 8); object 4's two observations are wrong.
+        assert_eq!(ledger.counts(), AssociationCounts { total: 7, wrong: 2 });
+        // Fused again into a third: the chain follows.
+        ledger.observe(5, 3);
+        ledger.fuse(5, 1);
+        let objects = ledger.landmark_objects();
+        assert_eq!((objects[&1], objects[&2], objects[&5]), (3, 3, 3));
+        assert_eq!(ledger.counts(), AssociationCounts { total: 8, wrong: 2 });
+    }
 
     #[test]
     fn hungarian_finds_the_optimal_assignment() {

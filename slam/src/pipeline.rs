@@ -17,6 +17,7 @@ use crate::association::{AssociationDecision, AssociationMethod, Candidate, Choi
 use crate::classifier::{AppearanceModel, PatchClassifier};
 use crate::clustering::{Cluster, ClusteringConfig, cluster};
 use crate::evidence::{EvidenceConfig, Judgement, ObjectEvidence};
+use crate::ekf::smoother::{History, Relinearisation};
 use crate::ekf::{Ekf, MotionModel, OdometryMotionModel, RangeBearingModel};
 use crate::features::ImageRef;
 use crate::gmm::{Gmm, StudentTMixture};
@@ -86,6 +87,10 @@ pub struct PipelineConfig {
     /// Fusing landmarks that turn out to be one object (duplicates made while the pose was
     /// too uncertain to associate, found once a loop closure shrinks the uncertainty).
     pub merge: MergeConfig,
+    /// Combined method: after a scan that closes a loop jointly, the filter is relinearised
+    /// by solving its whole history again (see [`crate::ekf::smoother`]), so landmarks
+    /// not seen since before the loop move to where the closure says they are.
+    pub relinearise_loop_closures: bool,
 }
 
 /// The laser's trunk diameter as an association cue: an observation is compatible with a
@@ -214,6 +219,7 @@ impl Default for PipelineConfig {
             diameter: DiameterCheck::default(),
             first_estimate_jacobians: true,
             merge: MergeConfig::default(),
+            relinearise_loop_closures: true,
         }
     }
 }
@@ -353,6 +359,9 @@ pub struct Pipeline {
     /// Pairs of landmark ids (smaller first) seen in one scan: never fused.
     co_observed: HashSet<(u32, u32)>,
     merges: Vec<LandmarkMerge>,
+    /// What the filter was told, when loop closures are relinearised.
+    history: Option<History>,
+    relinearisations: Vec<(f64, Relinearisation)>,
 }
 
 /// Errors of the online pipeline.
@@ -373,7 +382,8 @@ impl Pipeline {
             ekf.use_first_estimates();
         }
         let evidence = ObjectEvidence::new(config.evidence.clone());
-        let mut p = Pipeline { config, ekf, landmarks: Vec::new(), objects: Vec::new(), places: Vec::new(), retractions: Vec::new(), decisions: Vec::new(), poses: Vec::new(), t: 0.0, next_id: 0, appearance: None, image: None, segmentations: Vec::new(), evidence, odometry_pose: pose, co_observed: HashSet::new(), merges: Vec::new() };
+        let history = config.relinearise_loop_closures.then(|| History::new(ekf.pose(), ekf.pose_covariance(), &config.motion.calibration_prior()));
+        let mut p = Pipeline { config, ekf, landmarks: Vec::new(), objects: Vec::new(), places: Vec::new(), retractions: Vec::new(), decisions: Vec::new(), poses: Vec::new(), t: 0.0, next_id: 0, appearance: None, image: None, segmentations: Vec::new(), evidence, odometry_pose: pose, co_observed: HashSet::new(), merges: Vec::new(), history, relinearisations: Vec::new() };
         p.record_pose();
         p
     }
@@ -415,6 +425,9 @@ impl Pipeline {
 
     pub fn on_odometry(&mut self, o: &OdometryIncrement) {
         self.ekf.predict(&self.config.motion, &[o.dx, o.dy, o.dtheta]);
+        if let Some(h) = &mut self.history {
+            h.push_control([o.dx, o.dy, o.dtheta], self.ekf.pose());
+        }
         let [x, y, th] = self.odometry_pose;
         let (s, c) = th.sin_cos();
         self.odometry_pose = [x + c * o.dx - s * o.dy, y + s * o.dx + c * o.dy, crate::messages::wrap_angle(th + o.dtheta)];
@@ -660,10 +673,12 @@ impl Pipeline {
         }
         let joint = if method == AssociationMethod::Combined && self.config.joint_loop_closing { self.close_loop_jointly(&plans, &cfg) } else { vec![None; plans.len()] };
         let mut new_ones = Vec::new();
+        let mut closed_jointly = false;
         for ((ci, obs, fitted, z, candidates, best, fully_judged), joint) in plans.into_iter().zip(joint) {
             // A loop closed jointly corrects the pose by metres: relinearise.
             // (First-estimate Jacobians stay where they are: nothing to relinearise.)
             let iterations = if best.is_none() && joint.is_some() && !self.config.first_estimate_jacobians { 10 } else { 1 };
+            let closes_jointly = best.is_none() && joint.is_some();
             let best = best.or(joint);
             let choice = match best {
                 Some((id, j)) => {
@@ -677,6 +692,10 @@ impl Pipeline {
                         l.diameter_m = (l.diameter_m * l.observations as f64 + clusters[ci].diameter_m) / (l.observations + 1) as f64;
                         l.observations += 1;
                         assigned[ci] = Some(id);
+                        closed_jointly |= closes_jointly;
+                        if let Some(h) = &mut self.history {
+                            h.observe(id, z);
+                        }
                         Choice::Existing { landmark: id }
                     } else {
                         Choice::Rejected
@@ -710,12 +729,21 @@ impl Pipeline {
             self.places.push(Some(self.laser_point_in(&self.odometry_pose, clusters[ci].centre).0));
             assigned[ci] = Some(id);
             self.decisions[decision].choice = Choice::New { landmark: id };
+            if let Some(h) = &mut self.history {
+                h.observe(id, z);
+            }
+        }
+        if closed_jointly {
+            self.relinearise();
         }
         if self.config.evidence.pooled {
             self.retract_landmarks();
         }
         self.note_co_observed(&assigned);
         self.refresh_landmarks();
+        if let Some(h) = &mut self.history {
+            h.set_estimate(self.ekf.pose());
+        }
         self.record_pose();
         ScanResult { t, clusters, assigned }
     }
@@ -754,6 +782,9 @@ impl Pipeline {
                         lm.diameter_m = (lm.diameter_m * lm.observations as f64 + clusters[ci].diameter_m) / (lm.observations + 1) as f64;
                         lm.observations += 1;
                         assigned[ci] = Some(lm.id);
+                        if let Some(h) = &mut self.history {
+                            h.observe(lm.id, zs[k]);
+                        }
                         Choice::Existing { landmark: lm.id }
                     } else {
                         Choice::Rejected
@@ -778,9 +809,15 @@ impl Pipeline {
             self.places.push(None);
             assigned[ci] = Some(id);
             self.decisions[first_decision + k].choice = Choice::New { landmark: id };
+            if let Some(h) = &mut self.history {
+                h.observe(id, zs[k]);
+            }
         }
         self.note_co_observed(&assigned);
         self.refresh_landmarks();
+        if let Some(h) = &mut self.history {
+            h.set_estimate(self.ekf.pose());
+        }
         self.record_pose();
         ScanResult { t, clusters, assigned }
     }
@@ -897,6 +934,9 @@ impl Pipeline {
                 self.co_observed.insert((kept_id.min(p), kept_id.max(p)));
             }
             self.merges.push(LandmarkMerge { t: self.t, kept: kept_id, removed: gone.id });
+            if let Some(h) = &mut self.history {
+                h.relabel(gone.id, kept_id);
+            }
         }
     }
 
@@ -915,6 +955,23 @@ impl Pipeline {
     /// Landmarks fused so far.
     pub fn merges(&self) -> &[LandmarkMerge] {
         &self.merges
+    }
+
+    /// Solves the history again and gives the filter the result (see
+    /// [`PipelineConfig::relinearise_loop_closures`]); a failed solve leaves the filter as
+    /// it was.
+    fn relinearise(&mut self) {
+        let Some(history) = &mut self.history else { return };
+        history.set_estimate(self.ekf.pose());
+        let ids: Vec<u32> = self.landmarks.iter().map(|l| l.id).collect();
+        if let Ok(r) = history.relinearise(&mut self.ekf, &self.config.motion, &self.config.sensor, &ids, 10) {
+            self.relinearisations.push((self.t, r));
+        }
+    }
+
+    /// The relinearisations done so far, with their times.
+    pub fn relinearisations(&self) -> &[(f64, Relinearisation)] {
+        &self.relinearisations
     }
 
     fn record_pose(&mut self) {
