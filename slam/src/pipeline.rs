@@ -10,7 +10,7 @@
 
 use std::collections::HashSet;
 
-use nalgebra::{DMatrix, Matrix2, Matrix3, Vector2, Vector3};
+use nalgebra::{DMatrix, DVector, Matrix2, Matrix3, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::association::{AssociationDecision, AssociationMethod, Candidate, Choice, chi2_quantile, jcbb::jcbb, jcbb::unambiguous_jcbb, nn::nearest_neighbour};
@@ -631,6 +631,8 @@ impl Pipeline {
     /// Appearance methods: segmentation, object models and KL association.
     fn on_scan_with_appearance(&mut self, t: f64, clusters: Vec<Cluster>) -> ScanResult {
         self.t = t;
+        // The state the recorded poses agree with, where a relinearisation starts.
+        let before = self.history.as_ref().map(|_| self.ekf.x.clone());
         let observations = self.observe_objects(t, &clusters);
         let mut assigned = vec![None; clusters.len()];
         let method = self.config.method;
@@ -733,8 +735,8 @@ impl Pipeline {
                 h.observe(id, z);
             }
         }
-        if closed_jointly {
-            self.relinearise();
+        if closed_jointly && let Some(before) = &before {
+            self.relinearise(before);
         }
         if self.config.evidence.pooled {
             self.retract_landmarks();
@@ -960,11 +962,10 @@ impl Pipeline {
     /// Solves the history again and gives the filter the result (see
     /// [`PipelineConfig::relinearise_loop_closures`]); a failed solve leaves the filter as
     /// it was.
-    fn relinearise(&mut self) {
+    fn relinearise(&mut self, before: &DVector<f64>) {
         let Some(history) = &mut self.history else { return };
-        history.set_estimate(self.ekf.pose());
         let ids: Vec<u32> = self.landmarks.iter().map(|l| l.id).collect();
-        if let Ok(r) = history.relinearise(&mut self.ekf, &self.config.motion, &self.config.sensor, &ids, 10) {
+        if let Ok(r) = history.relinearise(&mut self.ekf, before, &self.config.motion, &self.config.sensor, &ids, 10) {
             self.relinearisations.push((self.t, r));
         }
     }
