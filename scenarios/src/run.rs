@@ -74,6 +74,9 @@ pub struct Metrics {
     /// `pipeline.relinearise_loop_closures`).
     #[serde(default)]
     pub relinearisations: usize,
+    /// Relinearisations that failed and left the filter as it was.
+    #[serde(default)]
+    pub relinearisation_failures: usize,
     /// Landmarks taken off the map when nearer frames judged their place not an object
     /// (see `pipeline.evidence.retract`), and how many of them were on trees (those
     /// retractions were mistakes).
@@ -562,6 +565,7 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
         duplicate_landmarks: duplicates,
         merged_landmarks: pipeline.merges().len(),
         relinearisations: pipeline.relinearisations().len(),
+        relinearisation_failures: pipeline.relinearisation_failures().len(),
         retracted_landmarks: RetractionCounts {
             total: pipeline.retractions().len(),
             trees: pipeline.retractions().iter().filter(|r| landmark_object.get(&r.landmark).is_some_and(|o| tree_ids.contains(o))).count(),
@@ -812,8 +816,8 @@ pub fn summary_table(m: &Metrics) -> String {
     s.push_str(&format!("  trees mapped      {:>4} of {} seen ({:.0}%)\n", m.map.trees_mapped, m.map.trees_seen, 100.0 * recall));
     s.push_str(&format!("  false landmarks   {:>4} (posts {}, palms {}, people {}, walls {}, nothing {}; {} retracted, {} of them trees)\n", m.false_landmarks, m.map.posts, m.map.palms, m.map.people, m.map.walls, m.map.nothing, m.retracted_landmarks.total, m.retracted_landmarks.trees));
     s.push_str(&format!("  duplicates        {:>4} ({} fused)\n", m.duplicate_landmarks, m.merged_landmarks));
-    if m.relinearisations > 0 {
-        s.push_str(&format!("  relinearised      {:>4} times after loop closures\n", m.relinearisations));
+    if m.relinearisations + m.relinearisation_failures > 0 {
+        s.push_str(&format!("  relinearised      {:>4} times after loop closures ({} failed)\n", m.relinearisations, m.relinearisation_failures));
     }
     s.push_str(&format!("  associations      {:>4} ({} wrong)\n", m.associations.total, m.associations.wrong));
     s.push_str(&format!("  ATE RMSE          {:>8.3} m\n", m.ate_rmse_m));

@@ -17,7 +17,7 @@ use crate::association::{AssociationDecision, AssociationMethod, Candidate, Choi
 use crate::classifier::{AppearanceModel, PatchClassifier};
 use crate::clustering::{Cluster, ClusteringConfig, cluster};
 use crate::evidence::{EvidenceConfig, Judgement, ObjectEvidence};
-use crate::ekf::smoother::{History, Relinearisation};
+use crate::ekf::smoother::{History, Relinearisation, SmootherError};
 use crate::ekf::{Ekf, MotionModel, OdometryMotionModel, RangeBearingModel};
 use crate::features::ImageRef;
 use crate::gmm::{Gmm, StudentTMixture};
@@ -362,6 +362,7 @@ pub struct Pipeline {
     /// What the filter was told, when loop closures are relinearised.
     history: Option<History>,
     relinearisations: Vec<(f64, Relinearisation)>,
+    relinearisation_failures: Vec<(f64, SmootherError)>,
 }
 
 /// Errors of the online pipeline.
@@ -382,8 +383,8 @@ impl Pipeline {
             ekf.use_first_estimates();
         }
         let evidence = ObjectEvidence::new(config.evidence.clone());
-        let history = config.relinearise_loop_closures.then(|| History::new(ekf.pose(), ekf.pose_covariance(), &config.motion.calibration_prior()));
-        let mut p = Pipeline { config, ekf, landmarks: Vec::new(), objects: Vec::new(), places: Vec::new(), retractions: Vec::new(), decisions: Vec::new(), poses: Vec::new(), t: 0.0, next_id: 0, appearance: None, image: None, segmentations: Vec::new(), evidence, odometry_pose: pose, co_observed: HashSet::new(), merges: Vec::new(), history, relinearisations: Vec::new() };
+        let history = (config.relinearise_loop_closures && config.method == AssociationMethod::Combined).then(|| History::new(ekf.pose(), ekf.pose_covariance(), &config.motion.calibration_prior()));
+        let mut p = Pipeline { config, ekf, landmarks: Vec::new(), objects: Vec::new(), places: Vec::new(), retractions: Vec::new(), decisions: Vec::new(), poses: Vec::new(), t: 0.0, next_id: 0, appearance: None, image: None, segmentations: Vec::new(), evidence, odometry_pose: pose, co_observed: HashSet::new(), merges: Vec::new(), history, relinearisations: Vec::new(), relinearisation_failures: Vec::new() };
         p.record_pose();
         p
     }
@@ -677,10 +678,11 @@ impl Pipeline {
         let mut new_ones = Vec::new();
         let mut closed_jointly = false;
         for ((ci, obs, fitted, z, candidates, best, fully_judged), joint) in plans.into_iter().zip(joint) {
-            // A loop closed jointly corrects the pose by metres: relinearise.
-            // (First-estimate Jacobians stay where they are: nothing to relinearise.)
-            let iterations = if best.is_none() && joint.is_some() && !self.config.first_estimate_jacobians { 10 } else { 1 };
+            // A loop closed jointly corrects the pose by metres. With latest-estimate
+            // Jacobians the closing update itself is iterated; first-estimate ones stay
+            // where they are, and the smoother relinearises after the scan.
             let closes_jointly = best.is_none() && joint.is_some();
+            let iterations = if closes_jointly && !self.config.first_estimate_jacobians { 10 } else { 1 };
             let best = best.or(joint);
             let choice = match best {
                 Some((id, j)) => {
@@ -965,9 +967,15 @@ impl Pipeline {
     fn relinearise(&mut self, before: &DVector<f64>) {
         let Some(history) = &mut self.history else { return };
         let ids: Vec<u32> = self.landmarks.iter().map(|l| l.id).collect();
-        if let Ok(r) = history.relinearise(&mut self.ekf, before, &self.config.motion, &self.config.sensor, &ids, 10) {
-            self.relinearisations.push((self.t, r));
+        match history.relinearise(&mut self.ekf, before, &self.config.motion, &self.config.sensor, &ids, 10) {
+            Ok(r) => self.relinearisations.push((self.t, r)),
+            Err(e) => self.relinearisation_failures.push((self.t, e)),
         }
+    }
+
+    /// Relinearisations that failed (the filter carried on as it was), with their times.
+    pub fn relinearisation_failures(&self) -> &[(f64, SmootherError)] {
+        &self.relinearisation_failures
     }
 
     /// The relinearisations done so far, with their times.
