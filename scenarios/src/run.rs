@@ -305,6 +305,11 @@ pub fn pipeline_config(scenario: &Scenario, method: Option<AssociationMethod>) -
     if let Err((field, message)) = config.diameter.validate() {
         return Err(RunError::Pipeline { file, message: format!("pipeline.diameter.{field}: {message}") });
     }
+    if let Some(every) = config.relinearise_every_s
+        && !(every.is_finite() && every > 0.0)
+    {
+        return Err(RunError::Pipeline { file, message: format!("pipeline.relinearise_every_s: must be a positive number of seconds, got {every}") });
+    }
     if let Some(m) = method {
         config.method = m;
     }

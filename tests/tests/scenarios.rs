@@ -217,6 +217,17 @@ fn long_loop_relinearises_from_the_map_its_poses_agree_with() {
     assert!(m.landmark_rmse_m.is_some_and(|r| r < 0.3), "landmark RMSE {:?}", m.landmark_rmse_m);
 }
 
+/// `relinearise_every_s` relinearises on schedule, before any loop closes.
+#[test]
+fn relinearising_every_30_s_happens_on_schedule() {
+    let (mut sc, base) = Scenario::load("long_loop").unwrap();
+    sc.sim.max_duration_s = Some(100.0);
+    sc.pipeline.insert("relinearise_every_s".into(), toml::Value::Float(30.0));
+    let m = run(&sc, &base, &RunOptions::default(), |_, _| {}).unwrap().metrics;
+    assert_eq!((m.relinearisations, m.relinearisation_failures), (3, 0), "at 30, 60 and 90 s");
+    assert_eq!(m.associations.wrong, 0);
+}
+
 #[test]
 fn camera_methods_without_a_camera_fail_clearly() {
     let (mut sc, base) = Scenario::load("paper_park").unwrap();
@@ -238,6 +249,10 @@ fn nonsense_pipeline_settings_are_named() {
         let name = field.split(' ').next().unwrap();
         assert!(e.contains("x.toml") && e.contains(&format!("pipeline.{table}.{name}")), "{e}");
     }
+    let text = "name = \"x\"\n[world]\npreset = \"park\"\n[pipeline]\nrelinearise_every_s = 0.0\n";
+    let sc = Scenario::parse(text, std::path::Path::new("x.toml")).unwrap();
+    let e = scenarios::run::pipeline_config(&sc, None).unwrap_err().to_string();
+    assert!(e.contains("x.toml") && e.contains("pipeline.relinearise_every_s"), "{e}");
     let text = "name = \"x\"\n[world]\npreset = \"park\"\n[pipeline.evidence]\nradius = 1.0\n";
     let sc = Scenario::parse(text, std::path::Path::new("x.toml")).unwrap();
     let e = scenarios::run::pipeline_config(&sc, None).unwrap_err().to_string();
