@@ -6,8 +6,8 @@ use divan::Bencher;
 use nalgebra::{DMatrix, DVector, Matrix3, Vector2, Vector3};
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use slam::ekf::smoother::History;
-use slam::ekf::{Ekf, MotionModel, OdometryMotionModel, RangeBearingModel};
+use slam::ekf::synthetic::{Drive, Route, drive};
+use slam::ekf::{Ekf, RangeBearingModel};
 use slam::gmm::{Component, Gmm};
 use slam::kl::{PreparedGmm, kl_variational};
 
@@ -58,56 +58,23 @@ fn kl_association_50_objects(bencher: Bencher) {
 /// Twice round a circle of radius 15 m (0.1 m steps, odometry 2% long and turning 5% more)
 /// past 20 landmarks on a ring of radius 19 m, seen out to 8 m every fourth step: about 800
 /// observing poses, the loop closing on the second lap.
-fn loop_history() -> (Ekf, DVector<f64>, History, Vec<u32>, OdometryMotionModel, RangeBearingModel) {
-    let motion = OdometryMotionModel::default();
-    let sensor = RangeBearingModel::default();
+fn loop_drive() -> Drive {
     let landmarks: Vec<Vector2<f64>> = (0..20)
         .map(|k| {
             let a = k as f64 * std::f64::consts::TAU / 20.0;
             Vector2::new(19.0 * a.sin(), 15.0 - 19.0 * a.cos())
         })
         .collect();
-    let (start, cov) = (Vector3::zeros(), Matrix3::identity() * 1e-6);
-    let mut ekf = Ekf::with_calibration(start, cov, &motion.calibration_prior());
-    ekf.use_first_estimates();
-    let mut history = History::new(start, cov, &motion.calibration_prior());
-    let mut ids: Vec<u32> = Vec::new();
-    let (mut truth, turn) = (start, 0.1 / 15.0);
-    for step in 0..3200 {
-        let u = [0.1 * 1.02, 0.0, turn * 1.05];
-        let (s, c) = truth.z.sin_cos();
-        truth = Vector3::new(truth.x + c * 0.1, truth.y + s * 0.1, truth.z + turn);
-        ekf.predict(&motion, &u);
-        history.push_control(u, ekf.pose());
-        if step % 4 == 3 {
-            for (j, l) in landmarks.iter().enumerate() {
-                let (z, _, _) = sensor.observe(&truth, l);
-                if z.x > 8.0 {
-                    continue;
-                }
-                let id = j as u32;
-                match ids.iter().position(|&i| i == id) {
-                    Some(slot) => ekf.update(&sensor, slot, &z).unwrap(),
-                    None => {
-                        ekf.add_landmark(&sensor, &z);
-                        ids.push(id);
-                    }
-                }
-                history.observe(id, z);
-            }
-            history.set_estimate(ekf.pose());
-        }
-    }
-    let before = ekf.x.clone();
-    (ekf, before, history, ids, motion, sensor)
+    drive(&Route { steps: 3200, step_m: 0.1, turn: 0.1 / 15.0, scale: 0.02, turn_scale: 0.05, observe_every: 4, max_range_m: 8.0 }, &landmarks)
 }
 
 #[divan::bench(sample_count = 10)]
 fn relinearise_800_poses_20_landmarks(bencher: Bencher) {
-    let (ekf, before, history, ids, motion, sensor) = loop_history();
-    assert!(history.poses() > 700, "{} poses", history.poses());
-    bencher.with_inputs(|| (ekf.clone(), history.clone())).bench_local_values(|(mut e, mut h)| {
-        h.relinearise(&mut e, &before, &motion, &sensor, &ids, 10).unwrap();
+    let d = loop_drive();
+    assert!(d.history.poses() > 700, "{} poses", d.history.poses());
+    let before = d.ekf.x.clone();
+    bencher.with_inputs(|| (d.ekf.clone(), d.history.clone())).bench_local_values(|(mut e, mut h)| {
+        h.relinearise(&mut e, &before, &d.motion, &d.sensor, &d.ids, 10).unwrap();
         e
     });
 }

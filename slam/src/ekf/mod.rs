@@ -13,6 +13,7 @@
 pub mod motion;
 pub mod observation;
 pub mod smoother;
+pub mod synthetic;
 
 use nalgebra::{DMatrix, DVector, Matrix2, Matrix3, Vector2, Vector3};
 use serde::{Deserialize, Serialize};

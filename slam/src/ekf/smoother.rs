@@ -387,61 +387,12 @@ impl History {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::ekf::OdometryMotionModel;
+    use crate::ekf::synthetic::{self, Drive, Route};
 
-    /// A drive of `steps` 0.1 m steps turning `turn` rad each, past `landmarks` seen out to
-    /// 7 m, with exact range-bearing measurements every fifth step; the odometry reads
-    /// `scale` long and turns `turn_scale` more than the robot did.
-    struct Drive {
-        ekf: Ekf,
-        history: History,
-        ids: Vec<u32>,
-        motion: OdometryMotionModel,
-        sensor: RangeBearingModel,
-        /// The true position of each filter landmark, in the filter's order.
-        landmarks: Vec<Vector2<f64>>,
-        truth: Vector3<f64>,
-    }
-
+    /// `steps` 0.1 m steps turning `turn` rad each, landmarks seen out to 7 m every fifth
+    /// step; the odometry reads `scale` long and turns `turn_scale` more.
     fn drive(steps: usize, turn: f64, landmarks: &[Vector2<f64>], scale: f64, turn_scale: f64) -> Drive {
-        let motion = OdometryMotionModel::default();
-        let sensor = RangeBearingModel::default();
-        let start = Vector3::zeros();
-        let cov = Matrix3::identity() * 1e-6;
-        let sigma = motion.calibration_prior();
-        let mut ekf = Ekf::with_calibration(start, cov, &sigma);
-        ekf.use_first_estimates();
-        let mut history = History::new(start, cov, &sigma);
-        let mut ids = Vec::new();
-        let mut truth = start;
-        for step in 0..steps {
-            let d = 0.1;
-            let u = [d * (1.0 + scale), 0.0, turn * (1.0 + turn_scale)];
-            let (s, c) = truth.z.sin_cos();
-            truth = Vector3::new(truth.x + c * d, truth.y + s * d, wrap_angle(truth.z + turn));
-            ekf.predict(&motion, &u);
-            history.push_control(u, ekf.pose());
-            if step % 5 == 4 {
-                for (j, l) in landmarks.iter().enumerate() {
-                    let (z, _, _) = sensor.observe(&truth, l);
-                    if z.x > 7.0 {
-                        continue;
-                    }
-                    let id = j as u32 + 100;
-                    match ids.iter().position(|&i| i == id) {
-                        Some(slot) => ekf.update(&sensor, slot, &z).unwrap(),
-                        None => {
-                            ekf.add_landmark(&sensor, &z);
-                            ids.push(id);
-                        }
-                    }
-                    history.observe(id, z);
-                }
-                history.set_estimate(ekf.pose());
-            }
-        }
-        let order = ids.iter().map(|id| landmarks[(*id - 100) as usize]).collect();
-        Drive { ekf, history, ids, motion, sensor, landmarks: order, truth }
+        synthetic::drive(&Route { steps, step_m: 0.1, turn, scale, turn_scale, observe_every: 5, max_range_m: 7.0 }, landmarks)
     }
 
     fn square() -> Drive {
