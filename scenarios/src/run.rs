@@ -394,7 +394,7 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
     let mut gt_path: Vec<(f64, [f64; 3])> = Vec::new();
     let mut nees_sum = 0.0;
     let mut nees_n = 0usize;
-    // Per landmark id: the true object of each observation.
+    // Per landmark id, the true object of each observation, and the associations to score.
     let mut ledger = crate::score::AssociationLedger::default();
     // Trees the method could map: laser-seen for position-only methods; seen in the
     // camera at a laser cluster in enough frames to be confirmed, for camera methods.
