@@ -78,6 +78,8 @@ pub enum RenderError {
     Camera(String),
     #[error("invalid lighting: {0}")]
     Lighting(String),
+    #[error("invalid pixel columns {start}..{end}: spans must be non-empty, sorted, disjoint and within the image's {width} columns")]
+    Columns { start: u32, end: u32, width: u32 },
     #[error("instance {instance} refers to mesh {mesh} or texture {texture}, which this renderer does not have")]
     UnknownResource { instance: usize, mesh: usize, texture: usize },
     #[error("GPU error: {0}")]
@@ -254,6 +256,10 @@ pub struct Frame {
     /// Z-depth along the optical axis (m); `f32::INFINITY` where nothing was drawn. Empty
     /// when the renderer was made without depth (`RendererConfig::depth`).
     pub depth_m: Vec<f32>,
+    /// The pixel columns rendered (`start..end`, sorted, disjoint); `None`: all of them.
+    /// Outside them the images are zero (black, no instance, no class) and the depth
+    /// infinite (see [`Renderer::render_columns_into`]).
+    pub columns: Option<Vec<(u32, u32)>>,
 }
 
 impl Frame {
@@ -791,7 +797,28 @@ impl Renderer {
 
     /// Like [`Renderer::render`], but reuses `frame`'s allocations (for long runs).
     pub fn render_into(&mut self, camera: &Camera, lighting: &Lighting, frame: &mut Frame) -> Result<(), RenderError> {
+        self.render_columns_into(camera, lighting, None, frame)
+    }
+
+    /// Renders only the pixel columns in `columns` (`start..end` each; `None`: the whole
+    /// image), for consumers that read only part of each frame. The pixels inside are
+    /// those of the whole frame (the same draws in the same order, scissored); outside
+    /// them the frame is zero. With no columns nothing is drawn at all.
+    pub fn render_columns_into(&mut self, camera: &Camera, lighting: &Lighting, columns: Option<&[(u32, u32)]>, frame: &mut Frame) -> Result<(), RenderError> {
         camera.validate()?;
+        let spans = match columns {
+            None => vec![(0, self.width)],
+            Some(columns) => {
+                let mut previous_end = 0;
+                for (i, &(start, end)) in columns.iter().enumerate() {
+                    if start >= end || end > self.width || (i > 0 && start < previous_end) {
+                        return Err(RenderError::Columns { start, end, width: self.width });
+                    }
+                    previous_end = end;
+                }
+                columns.to_vec()
+            }
+        };
         if lighting
             .sun_direction
             .iter()
@@ -807,6 +834,10 @@ impl Renderer {
             if inst.mesh.0 >= self.meshes.len() || inst.texture.0 >= self.textures.len() {
                 return Err(RenderError::UnknownResource { instance: k, mesh: inst.mesh.0, texture: inst.texture.0 });
             }
+        }
+        if spans.is_empty() {
+            self.blank(frame, &[]);
+            return Ok(());
         }
         self.upload_instances();
         let uniform = frame_uniform(camera, lighting, self.width, self.height);
@@ -858,26 +889,40 @@ impl Renderer {
             let mut bound_texture = usize::MAX;
             let mut bound_mesh = usize::MAX;
             let mut culling = None;
-            for &(_, k) in &self.draw_order {
-                let inst = &self.instances[k];
-                let mesh = &self.meshes[inst.mesh.0];
-                // A mirroring transform turns the winding over: draw such instances whole.
-                let cull = mesh.cull_back_faces && determinant3(&inst.world_from_model) > 0.0;
-                if culling != Some(cull) {
-                    pass.set_pipeline(if cull { &self.culling_pipeline } else { &self.pipeline });
-                    culling = Some(cull);
+            let whole = spans == [(0, self.width)];
+            for &(start, end) in &spans {
+                // Each span draws what can reach it, in the whole frame's order, so every
+                // pixel in it sees the same fragments as in the whole frame.
+                let span_frustum = (!whole).then(|| Frustum::of_columns(camera, start, end, self.height));
+                if !whole {
+                    pass.set_scissor_rect(start, 0, end - start, self.height);
                 }
-                pass.set_bind_group(1, instance_group, &[(k as u64 * self.instance_stride) as u32]);
-                if bound_texture != inst.texture.0 {
-                    pass.set_bind_group(2, &self.textures[inst.texture.0], &[]);
-                    bound_texture = inst.texture.0;
+                for &(_, k) in &self.draw_order {
+                    let inst = &self.instances[k];
+                    let mesh = &self.meshes[inst.mesh.0];
+                    if let Some(f) = &span_frustum
+                        && f.distance_if_visible(&inst.world_from_model, mesh.centre, mesh.radius).is_none()
+                    {
+                        continue;
+                    }
+                    // A mirroring transform turns the winding over: draw such instances whole.
+                    let cull = mesh.cull_back_faces && determinant3(&inst.world_from_model) > 0.0;
+                    if culling != Some(cull) {
+                        pass.set_pipeline(if cull { &self.culling_pipeline } else { &self.pipeline });
+                        culling = Some(cull);
+                    }
+                    pass.set_bind_group(1, instance_group, &[(k as u64 * self.instance_stride) as u32]);
+                    if bound_texture != inst.texture.0 {
+                        pass.set_bind_group(2, &self.textures[inst.texture.0], &[]);
+                        bound_texture = inst.texture.0;
+                    }
+                    if bound_mesh != inst.mesh.0 {
+                        pass.set_vertex_buffer(0, mesh.vertices.slice(..));
+                        pass.set_index_buffer(mesh.indices.slice(..), wgpu::IndexFormat::Uint32);
+                        bound_mesh = inst.mesh.0;
+                    }
+                    pass.draw_indexed(0..mesh.index_count, 0, 0..1);
                 }
-                if bound_mesh != inst.mesh.0 {
-                    pass.set_vertex_buffer(0, mesh.vertices.slice(..));
-                    pass.set_index_buffer(mesh.indices.slice(..), wgpu::IndexFormat::Uint32);
-                    bound_mesh = inst.mesh.0;
-                }
-                pass.draw_indexed(0..mesh.index_count, 0, 0..1);
             }
         }
         for (target, plane) in self.targets.iter().zip(&self.planes) {
@@ -902,7 +947,7 @@ impl Renderer {
         rx.recv().map_err(|e| RenderError::Readback(e.to_string()))?.map_err(|e| RenderError::Readback(e.to_string()))?;
         let unpacked = match slice.get_mapped_range() {
             Ok(data) => {
-                self.unpack(&data, frame);
+                self.unpack(&data, frame, if columns.is_some() { Some(&spans) } else { None });
                 Ok(())
             }
             Err(e) => Err(RenderError::Readback(e.to_string())),
@@ -913,37 +958,62 @@ impl Renderer {
         self.check_gpu_error()
     }
 
-    /// Copies the padded planes of the readback buffer into `frame`.
-    fn unpack(&self, data: &[u8], frame: &mut Frame) {
+    /// Copies the padded planes of the readback buffer into `frame`: all of it, or only the
+    /// pixel columns `spans`, the rest zeroed.
+    fn unpack(&self, data: &[u8], frame: &mut Frame, spans: Option<&[(u32, u32)]>) {
         let (w, h) = (self.width as usize, self.height as usize);
-        frame.width = self.width;
-        frame.height = self.height;
-        // Sized first and filled row by row through zipped slices: no per-pixel pushes.
-        frame.rgb.resize(3 * w * h, 0);
-        frame.instance.resize(w * h, 0);
-        frame.class.resize(w * h, 0);
         let depth = self.planes.get(2);
-        frame.depth_m.resize(if depth.is_some() { w * h } else { 0 }, 0.0);
-        let row = |plane: &Plane, bytes: usize, y: usize| {
+        self.size_frame(frame);
+        let whole = [(0, self.width)];
+        let copied = spans.unwrap_or(&whole);
+        let row = |plane: &Plane, bytes: usize, y: usize, (a, b): (usize, usize)| {
             let start = plane.offset as usize + y * plane.bytes_per_row as usize;
-            &data[start..start + bytes * w]
+            &data[start + bytes * a..start + bytes * b]
         };
+        let empty = if spans.is_some() { gaps(copied, self.width) } else { Vec::new() };
         for y in 0..h {
-            for (d, s) in frame.rgb[3 * w * y..3 * w * (y + 1)].chunks_exact_mut(3).zip(row(&self.planes[0], 4, y).chunks_exact(4)) {
-                d.copy_from_slice(&s[..3]);
-            }
-            let ids = row(&self.planes[1], 4, y).chunks_exact(4);
-            for ((instance, class), s) in frame.instance[w * y..w * (y + 1)].iter_mut().zip(&mut frame.class[w * y..w * (y + 1)]).zip(ids) {
-                let v = u32::from_le_bytes([s[0], s[1], s[2], s[3]]);
-                *instance = (v >> 8) as u16;
-                *class = (v & 0xff) as u8;
-            }
-            let Some(depth) = depth else { continue };
-            for (d, s) in frame.depth_m[w * y..w * (y + 1)].iter_mut().zip(row(depth, 4, y).chunks_exact(4)) {
-                let z = f32::from_le_bytes([s[0], s[1], s[2], s[3]]);
-                *d = if z > 0.0 { z } else { f32::INFINITY };
+            blank_row(frame, y, &empty);
+            for &(a, b) in copied {
+                let (a, b) = (a as usize, b as usize);
+                let (i0, i1) = (w * y + a, w * y + b);
+                for (d, s) in frame.rgb[3 * i0..3 * i1].chunks_exact_mut(3).zip(row(&self.planes[0], 4, y, (a, b)).chunks_exact(4)) {
+                    d.copy_from_slice(&s[..3]);
+                }
+                let ids = row(&self.planes[1], 4, y, (a, b)).chunks_exact(4);
+                for ((instance, class), s) in frame.instance[i0..i1].iter_mut().zip(&mut frame.class[i0..i1]).zip(ids) {
+                    let v = u32::from_le_bytes([s[0], s[1], s[2], s[3]]);
+                    *instance = (v >> 8) as u16;
+                    *class = (v & 0xff) as u8;
+                }
+                let Some(depth) = depth else { continue };
+                for (d, s) in frame.depth_m[i0..i1].iter_mut().zip(row(depth, 4, y, (a, b)).chunks_exact(4)) {
+                    let z = f32::from_le_bytes([s[0], s[1], s[2], s[3]]);
+                    *d = if z > 0.0 { z } else { f32::INFINITY };
+                }
             }
         }
+        frame.columns = spans.map(<[_]>::to_vec);
+    }
+
+    /// Sizes `frame`'s images for this renderer (contents left as they were).
+    fn size_frame(&self, frame: &mut Frame) {
+        let n = self.width as usize * self.height as usize;
+        frame.width = self.width;
+        frame.height = self.height;
+        frame.rgb.resize(3 * n, 0);
+        frame.instance.resize(n, 0);
+        frame.class.resize(n, 0);
+        frame.depth_m.resize(if self.planes.len() > 2 { n } else { 0 }, 0.0);
+    }
+
+    /// `frame` with nothing rendered but the pixel columns `spans` (none: an empty frame).
+    fn blank(&self, frame: &mut Frame, spans: &[(u32, u32)]) {
+        self.size_frame(frame);
+        let empty = gaps(spans, self.width);
+        for y in 0..self.height as usize {
+            blank_row(frame, y, &empty);
+        }
+        frame.columns = Some(spans.to_vec());
     }
 
     fn check_gpu_error(&self) -> Result<(), RenderError> {
@@ -967,9 +1037,14 @@ struct Frustum {
 
 impl Frustum {
     fn new(c: &Camera, width: u32, height: u32) -> Self {
-        let (w, h) = (width as f32, height as f32);
-        // u >= 0: fx X + cx Z >= 0; u <= w: -fx X + (w - cx) Z >= 0; likewise for v.
-        let sides = [[c.fx, 0.0, c.cx], [-c.fx, 0.0, w - c.cx], [0.0, c.fy, c.cy], [0.0, -c.fy, h - c.cy]].map(|n| normalised(n).unwrap_or([0.0, 0.0, 1.0]));
+        Frustum::of_columns(c, 0, width, height)
+    }
+
+    /// The view through pixel columns `start..end` only.
+    fn of_columns(c: &Camera, start: u32, end: u32, height: u32) -> Self {
+        let (u0, u1, h) = (start as f32, end as f32, height as f32);
+        // u >= u0: fx X + (cx - u0) Z >= 0; u <= u1: -fx X + (u1 - cx) Z >= 0; likewise for v.
+        let sides = [[c.fx, 0.0, c.cx - u0], [-c.fx, 0.0, u1 - c.cx], [0.0, c.fy, c.cy], [0.0, -c.fy, h - c.cy]].map(|n| normalised(n).unwrap_or([0.0, 0.0, 1.0]));
         Frustum { camera_from_world: rigid_inverse(&c.world_from_camera), sides, near_m: c.near_m, far_m: c.far_m }
     }
 
@@ -986,6 +1061,36 @@ impl Frustum {
         let visible = p[2] > self.near_m - r && p[2] < self.far_m + r && self.sides.iter().all(|n| dot(*n, p) > -r);
         let nearest = p[2] - r;
         visible.then_some(if nearest < self.near_m { f32::MAX } else { nearest })
+    }
+}
+
+/// The pixel columns of `0..width` outside the sorted disjoint `spans`.
+fn gaps(spans: &[(u32, u32)], width: u32) -> Vec<(usize, usize)> {
+    let mut out = Vec::with_capacity(spans.len() + 1);
+    let mut from = 0;
+    for &(a, b) in spans {
+        if a > from {
+            out.push((from as usize, a as usize));
+        }
+        from = b;
+    }
+    if from < width {
+        out.push((from as usize, width as usize));
+    }
+    out
+}
+
+/// Zeroes row `y` of `frame` in the pixel columns `empty` (depth: infinity).
+fn blank_row(frame: &mut Frame, y: usize, empty: &[(usize, usize)]) {
+    let w = frame.width as usize;
+    for &(a, b) in empty {
+        let (i0, i1) = (w * y + a, w * y + b);
+        frame.rgb[3 * i0..3 * i1].fill(0);
+        frame.instance[i0..i1].fill(0);
+        frame.class[i0..i1].fill(0);
+        if !frame.depth_m.is_empty() {
+            frame.depth_m[i0..i1].fill(f32::INFINITY);
+        }
     }
 }
 

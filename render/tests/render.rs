@@ -494,3 +494,47 @@ fn a_renderer_without_depth_draws_the_same_colour_and_masks() {
     assert!(b.depth_m.is_empty(), "no depth image was asked for");
     assert_eq!((a.rgb, a.instance, a.class), (b.rgb, b.instance, b.class));
 }
+
+#[test]
+fn rendering_some_columns_gives_the_whole_frames_pixels_there_and_zero_elsewhere() {
+    let mut scene = golden_scene_on(renderer(160, 120), true);
+    let light = Lighting::default();
+    let whole = scene.r.render(&scene.camera, &light).unwrap();
+    assert_eq!(whole.columns, None);
+    // Spans through the post (one a single column wide), the block's edge and the trunk's
+    // middle, the last at the image's edge; rendered into a frame holding a whole render,
+    // which must not show through.
+    let spans = [(10, 37), (60, 61), (70, 96), (108, 112), (150, 160)];
+    let mut part = whole.clone();
+    scene.r.render_columns_into(&scene.camera, &light, Some(&spans), &mut part).unwrap();
+    assert_eq!(part.columns.as_deref(), Some(&spans[..]));
+    let mut inside = 0;
+    for v in 0..120 {
+        for u in 0..160 {
+            if spans.iter().any(|&(a, b)| (a..b).contains(&u)) {
+                let same = (part.rgb_at(u, v), part.instance_at(u, v), part.class_at(u, v), part.depth_at(u, v)) == (whole.rgb_at(u, v), whole.instance_at(u, v), whole.class_at(u, v), whole.depth_at(u, v));
+                assert!(same, "pixel ({u}, {v}) differs from the whole frame's");
+                inside += (whole.instance_at(u, v) > 1) as usize;
+            } else {
+                assert_eq!((part.rgb_at(u, v), part.instance_at(u, v), part.class_at(u, v)), ([0; 3], 0, 0), "pixel ({u}, {v}) outside the columns");
+                assert_eq!(part.depth_at(u, v), f32::INFINITY);
+            }
+        }
+    }
+    assert!(inside > 400, "the spans cross objects ({inside} object pixels)");
+    // No columns: nothing drawn, an empty frame of the right size.
+    scene.r.render_columns_into(&scene.camera, &light, Some(&[]), &mut part).unwrap();
+    assert_eq!((part.width, part.height, part.columns.as_deref()), (160, 120, Some(&[][..])));
+    assert!(part.instance.iter().all(|&i| i == 0) && part.rgb.iter().all(|&c| c == 0));
+}
+
+#[test]
+fn columns_out_of_order_overlapping_empty_or_outside_the_image_are_errors() {
+    let mut scene = golden_scene(32, 24);
+    let mut frame = Frame::default();
+    for bad in [&[(5, 5)][..], &[(0, 33)], &[(10, 20), (15, 25)], &[(10, 20), (0, 5)]] {
+        let e = scene.r.render_columns_into(&scene.camera, &Lighting::default(), Some(bad), &mut frame).unwrap_err();
+        assert!(matches!(e, RenderError::Columns { .. }), "{bad:?}: {e}");
+        assert!(e.to_string().contains("sorted, disjoint and within"), "{e}");
+    }
+}

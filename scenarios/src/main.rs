@@ -31,6 +31,10 @@ enum Command {
         /// Output directory (default runs/<scenario>-<seed>).
         #[arg(long)]
         out: Option<PathBuf>,
+        /// Render whole camera frames, not only the image columns the pipeline reads (the
+        /// same results, more slowly).
+        #[arg(long)]
+        full_frames: bool,
     },
     /// Monte Carlo association-failure studies (parallel, resumable, shardable).
     Montecarlo(MontecarloArgs),
@@ -269,10 +273,10 @@ fn run(cli: Cli) -> Result<()> {
         // from generated images on first use and caches it).
         None => {
             eprintln!("no command given: running the paper's experiment, scenario paper_park (see `objslam --help`)");
-            run_scenario(Some("paper_park"), None, None, None)
+            run_scenario(Some("paper_park"), None, None, None, false)
         }
         Some(Command::World(cmd)) => world(cmd),
-        Some(Command::Run { scenario, seed, method, out }) => run_scenario(scenario.as_deref(), seed, method.as_deref(), out),
+        Some(Command::Run { scenario, seed, method, out, full_frames }) => run_scenario(scenario.as_deref(), seed, method.as_deref(), out, full_frames),
         Some(Command::Montecarlo(args)) => montecarlo(args),
         Some(Command::MontecarloWorker) => Ok(scenarios::montecarlo::serve_worker(std::io::stdin().lock(), std::io::stdout().lock())?),
         Some(Command::Dataset { world, preset, images, seed, classes, patch_size, out }) => dataset(world, preset, images, seed, &classes, patch_size, &out),
@@ -439,14 +443,14 @@ fn parse_method(name: &str) -> Result<slam::association::AssociationMethod> {
         .ok_or_else(|| anyhow::anyhow!("unknown method {name:?}; use one of combined, nn, jcbb, appearance"))
 }
 
-fn run_scenario(scenario: Option<&str>, seed: Option<u64>, method: Option<&str>, out: Option<PathBuf>) -> Result<()> {
+fn run_scenario(scenario: Option<&str>, seed: Option<u64>, method: Option<&str>, out: Option<PathBuf>, full_frames: bool) -> Result<()> {
     let name = scenario.unwrap_or(scenarios::scenario::DEFAULT_SCENARIO);
     let (sc, base) = scenarios::scenario::Scenario::load(name)?;
     let method = method.map(parse_method).transpose()?;
     let seed = seed.unwrap_or(sc.seed);
     let out = out.unwrap_or_else(|| PathBuf::from(format!("runs/{}-{seed}", sc.name)));
     let bar = progress_bar(0, &format!("running {}", sc.name));
-    let options = scenarios::run::RunOptions { seed: Some(seed), method, out: Some(out.clone()), appearance: None };
+    let options = scenarios::run::RunOptions { seed: Some(seed), method, out: Some(out.clone()), appearance: None, full_frames };
     let outcome = scenarios::run::run(&sc, &base, &options, |t, total| {
         bar.set_length(total.ceil() as u64);
         bar.set_position((t.floor() as u64).min(total.ceil() as u64));

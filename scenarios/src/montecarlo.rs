@@ -358,7 +358,7 @@ pub fn run_job(base: &Scenario, base_dir: &Path, job: &Job, appearance: Option<s
             scenario = apply_param(&scenario, p, *v).map_err(|e| e.to_string())?;
         }
         let method = AssociationMethod::from_name(&job.method).ok_or_else(|| format!("unknown method {:?}", job.method))?;
-        let options = RunOptions { seed: Some(job.seed), method: Some(method), out: None, appearance };
+        let options = RunOptions { seed: Some(job.seed), method: Some(method), out: None, appearance, full_frames: false };
         crate::run::run(&scenario, base_dir, &options, |_, _| {}).map(|o| o.metrics).map_err(|e| e.to_string())
     }));
     let (metrics, error) = match result {

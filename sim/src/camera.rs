@@ -127,6 +127,13 @@ impl CameraSensor {
 
     /// Renders from an arbitrary camera pose (datasets, calibration).
     pub fn render_from(&mut self, t: f64, world_from_camera: Rigid) -> Result<CameraFrame, CameraError> {
+        self.render_columns_from(t, world_from_camera, None)
+    }
+
+    /// [`CameraSensor::render_from`] rendering only the pixel columns `columns` (see
+    /// `render::Renderer::render_columns_into`); noise and exposure draw the same random
+    /// numbers either way, so the pixels rendered are those of the whole frame.
+    pub fn render_columns_from(&mut self, t: f64, world_from_camera: Rigid, columns: Option<&[(u32, u32)]>) -> Result<CameraFrame, CameraError> {
         let k = self.config.intrinsics();
         let camera = render::Camera {
             fx: k.fx as f32,
@@ -142,11 +149,18 @@ impl CameraSensor {
             let n = Normal::new(1.0, self.config.exposure_sigma).expect("finite sigma");
             lighting.exposure *= (n.sample(&mut self.rng) as f32).max(0.1);
         }
-        let mut image = self.renderer.render(&camera, &lighting)?;
+        let mut image = render::Frame::default();
+        self.renderer.render_columns_into(&camera, &lighting, columns, &mut image)?;
         if self.config.noise_sigma > 0.0 {
             let n = Normal::new(0.0, self.config.noise_sigma).expect("finite sigma");
-            for v in &mut image.rgb {
-                *v = (*v as f64 + n.sample(&mut self.rng)).round().clamp(0.0, 255.0) as u8;
+            let (width, spans) = (image.width as usize, image.columns.clone());
+            for (i, v) in image.rgb.iter_mut().enumerate() {
+                // Drawn for every value, so the stream does not depend on the columns.
+                let e = n.sample(&mut self.rng);
+                let u = (i / 3 % width) as u32;
+                if spans.as_ref().is_none_or(|s| s.iter().any(|&(a, b)| (a..b).contains(&u))) {
+                    *v = (*v as f64 + e).round().clamp(0.0, 255.0) as u8;
+                }
             }
         }
         Ok(CameraFrame { t, intrinsics: k, world_from_camera, image })
@@ -154,8 +168,13 @@ impl CameraSensor {
 
     /// Renders the robot's view at `robot` with `people` posed.
     pub fn capture(&mut self, t: f64, robot: &Pose2D, people: &[PersonState]) -> Result<CameraFrame, CameraError> {
+        self.capture_columns(t, robot, people, None)
+    }
+
+    /// [`CameraSensor::capture`] rendering only the pixel columns `columns`.
+    pub fn capture_columns(&mut self, t: f64, robot: &Pose2D, people: &[PersonState], columns: Option<&[(u32, u32)]>) -> Result<CameraFrame, CameraError> {
         self.pose_people(people);
         let pose = self.config.world_from_camera(robot);
-        self.render_from(t, pose)
+        self.render_columns_from(t, pose, columns)
     }
 }

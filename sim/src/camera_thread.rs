@@ -16,6 +16,7 @@ struct Request {
     t: f64,
     robot: Pose2D,
     people: Vec<PersonState>,
+    columns: Option<Vec<(u32, u32)>>,
 }
 
 pub(crate) struct CameraThread {
@@ -33,7 +34,7 @@ impl CameraThread {
         let (outbox, frames) = mpsc::channel();
         let worker = std::thread::Builder::new().name("camera".into()).spawn(move || {
             for r in inbox {
-                if outbox.send(camera.capture(r.t, &r.robot, &r.people)).is_err() {
+                if outbox.send(camera.capture_columns(r.t, &r.robot, &r.people, r.columns.as_deref())).is_err() {
                     break;
                 }
             }
@@ -45,11 +46,11 @@ impl CameraThread {
         &self.adapter
     }
 
-    /// Asks for the frame at `t`.
-    pub(crate) fn request(&self, t: f64, robot: Pose2D, people: Vec<PersonState>) {
+    /// Asks for the frame at `t` (only the pixel columns `columns`, if given).
+    pub(crate) fn request(&self, t: f64, robot: Pose2D, people: Vec<PersonState>, columns: Option<Vec<(u32, u32)>>) {
         if let Some(requests) = &self.requests {
             // A send fails only when the thread has ended; the next frame() says so.
-            let _ = requests.send(Request { t, robot, people });
+            let _ = requests.send(Request { t, robot, people, columns });
         }
     }
 

@@ -107,6 +107,10 @@ enum Pending {
     Frame(GroundTruth),
 }
 
+/// Chooses, from the laser scan of a frame's instant, the pixel columns (`start..end`,
+/// sorted, disjoint) of that frame a consumer will read.
+pub type ColumnSelector = Box<dyn Fn(&LaserScan) -> Vec<(u32, u32)> + Send + Sync>;
+
 /// A running simulation.
 pub struct Simulation {
     pub world: worlds::World,
@@ -123,6 +127,8 @@ pub struct Simulation {
     camera_thread: Option<camera_thread::CameraThread>,
     camera_schedule: Schedule,
     camera_error: Option<String>,
+    /// See [`Simulation::render_camera_columns`].
+    camera_columns: Option<ColumnSelector>,
     step: u64,
     dt: f64,
     pending: VecDeque<Pending>,
@@ -154,6 +160,7 @@ impl Simulation {
             camera_thread: None,
             camera_schedule: Schedule::new(config.camera.rate_hz),
             camera_error: None,
+            camera_columns: None,
             scene,
             follower,
             step: 0,
@@ -228,6 +235,17 @@ impl Simulation {
             self.camera_thread = Some(camera_thread::CameraThread::start(camera).map_err(|e| SimError::Thread(e.to_string()))?);
         }
         Ok(())
+    }
+
+    /// From now on renders each camera frame only in the pixel columns `select` picks from
+    /// the laser scan of the same instant (frames with no scan at their instant are
+    /// rendered whole). For consumers that read only where the laser points, as the
+    /// paper's segmentation does: the pixels rendered are those of the whole frame (the
+    /// frame's `image.columns` says which), at a fraction of the rendering cost. Select
+    /// columns the image does not have and the camera stops with an error, as on a lost
+    /// renderer.
+    pub fn render_camera_columns(&mut self, select: ColumnSelector) {
+        self.camera_columns = Some(select);
     }
 
     /// A rendering failure that stopped the camera mid-run, if any.
@@ -316,28 +334,31 @@ impl Simulation {
             let odometry = self.odometry.measure(t, truth.robot);
             self.pending.push_back(Pending::Ready(SensorEvent::Odometry { odometry, truth: truth.clone() }));
         }
-        if let Some(thread) = &self.camera_thread
-            && self.camera_schedule.due(t)
-        {
-            thread.request(t, truth.robot, truth.people.clone());
-            self.pending.push_back(Pending::Frame(truth.clone()));
-        }
-        // At one instant the image comes before the scan, so a pipeline that segments
-        // scans in images has the matching image when the scan arrives.
-        if let Some(cam) = &mut self.camera
-            && self.camera_schedule.due(t)
-        {
-            match cam.capture(t, &truth.robot, &truth.people) {
-                Ok(frame) => self.pending.push_back(Pending::Ready(SensorEvent::Camera { frame: Box::new(frame), truth: truth.clone() })),
-                Err(e) => {
-                    // A lost GPU device ends the camera, not the run; the error is kept.
-                    self.camera_error = Some(e.to_string());
-                    self.camera = None;
+        // The scan first (the laser draws from its own random stream), so the frame of the
+        // same instant can be rendered where that scan says it will be read; the image
+        // still comes before the scan in the stream, so a pipeline that segments scans in
+        // images has the matching image when the scan arrives.
+        let scan = self.laser_schedule.due(t).then(|| self.laser.scan(&self.scene, &truth.robot, t));
+        if self.camera_schedule.due(t) {
+            let columns = match (&self.camera_columns, &scan) {
+                (Some(select), Some((scan, _))) => Some(select(scan)),
+                _ => None,
+            };
+            if let Some(thread) = &self.camera_thread {
+                thread.request(t, truth.robot, truth.people.clone(), columns);
+                self.pending.push_back(Pending::Frame(truth.clone()));
+            } else if let Some(cam) = &mut self.camera {
+                match cam.capture_columns(t, &truth.robot, &truth.people, columns.as_deref()) {
+                    Ok(frame) => self.pending.push_back(Pending::Ready(SensorEvent::Camera { frame: Box::new(frame), truth: truth.clone() })),
+                    Err(e) => {
+                        // A lost GPU device ends the camera, not the run; the error is kept.
+                        self.camera_error = Some(e.to_string());
+                        self.camera = None;
+                    }
                 }
             }
         }
-        if self.laser_schedule.due(t) {
-            let (scan, beams) = self.laser.scan(&self.scene, &truth.robot, t);
+        if let Some((scan, beams)) = scan {
             self.last_scan = Some(scan.clone());
             self.pending.push_back(Pending::Ready(SensorEvent::Laser { scan, beams, truth }));
         }

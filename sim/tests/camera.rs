@@ -196,3 +196,67 @@ fn rendering_on_the_camera_thread_gives_the_inline_event_stream() {
         assert!(a == b, "event {k} differs:\n{}\n{}", &a[..a.len().min(300)], &b[..b.len().min(300)]);
     }
 }
+
+#[test]
+fn a_column_selector_renders_each_frame_where_the_scan_of_its_instant_says() {
+    let world = worlds::generate::park(&Default::default(), 2006).unwrap();
+    // With image noise and exposure variation, which must draw the same numbers either way.
+    let mut config = SimConfig { max_duration_s: Some(4.0), ..Default::default() };
+    config.camera.noise_sigma = 2.0;
+    config.camera.exposure_sigma = 0.05;
+    // Columns from the scan: a band that moves with the number of beams that hit something.
+    let select = |scan: &sim::LaserScan| {
+        let hits = scan.ranges.iter().filter(|r| r.is_finite() && **r < scan.range_max).count() as u32;
+        vec![(hits % 300, hits % 300 + 40), (400, 480)]
+    };
+    let frames = |columns: bool, threaded: bool| {
+        let mut s = Simulation::new(&world, &config, 5).unwrap();
+        if columns {
+            s.render_camera_columns(Box::new(select));
+        }
+        if threaded {
+            s.render_camera_on_thread().unwrap();
+        }
+        let mut out = Vec::new();
+        while let Some(e) = s.next_event() {
+            match e {
+                SensorEvent::Camera { frame, .. } => out.push((frame, None)),
+                // The scan of a frame's instant follows it.
+                SensorEvent::Laser { scan, .. } => {
+                    if let Some(last) = out.last_mut().filter(|(f, chosen)| f.t == scan.t && chosen.is_none()) {
+                        last.1 = Some(select(&scan));
+                    }
+                }
+                _ => {}
+            }
+        }
+        assert!(s.camera_error().is_none());
+        out
+    };
+    let (whole, parts) = (frames(false, false), frames(true, true));
+    assert_eq!(whole.len(), parts.len());
+    assert!(parts.len() >= 20);
+    for ((w, _), (p, chosen)) in whole.iter().zip(&parts) {
+        let t = p.t;
+        let (w, p) = (&w.image, &p.image);
+        assert_eq!(w.columns, None);
+        // The frame at 0 s is made with the simulation, before a selector can be given.
+        let spans = if t == 0.0 { vec![(0, p.width)] } else { chosen.clone().expect("a scan at every frame's instant") };
+        assert_eq!(p.columns, (t > 0.0).then(|| spans.clone()), "frame at {t} s: the columns of its scan");
+        for v in 0..p.height {
+            for u in 0..p.width {
+                let inside = spans.iter().any(|&(a, b)| (a..b).contains(&u));
+                let expected = if inside { (w.rgb_at(u, v), w.instance_at(u, v)) } else { ([0; 3], 0) };
+                assert_eq!((p.rgb_at(u, v), p.instance_at(u, v)), expected, "pixel ({u}, {v}), inside the columns: {inside}");
+            }
+        }
+    }
+    // Columns the image does not have stop the camera, not the run.
+    let mut s = Simulation::new(&world, &config, 5).unwrap();
+    s.render_camera_columns(Box::new(|_| vec![(600, 700)]));
+    let mut events = 0;
+    while s.next_event().is_some() {
+        events += 1;
+    }
+    assert!(events > 40 && s.camera_error().is_some_and(|e| e.contains("600..700")), "{:?}", s.camera_error());
+}

@@ -23,7 +23,7 @@ use crate::features::ImageRef;
 use crate::gmm::{Gmm, StudentTMixture};
 use crate::messages::{LaserScan, OdometryIncrement};
 use crate::object_model::{fit_observation, ObjectModel, ObjectModelConfig, ObjectObservation};
-use crate::segmentation::{segment_cluster, CameraGeometry, SegmentationConfig, SegmentedCluster};
+use crate::segmentation::{locate_cluster, segment_located, spans_cover, CameraGeometry, ImageRegion, SegmentationConfig, SegmentedCluster};
 use rayon::prelude::*;
 
 /// Pipeline settings.
@@ -295,6 +295,8 @@ struct StoredImage {
     width: u32,
     height: u32,
     rgb: Vec<u8>,
+    /// The pixel columns that hold the scene (`None`: all of them).
+    columns: Option<Vec<(u32, u32)>>,
 }
 
 /// The patch decisions of one segmented image, for scoring against masks.
@@ -359,6 +361,8 @@ pub struct Pipeline {
     appearance: Option<Appearance>,
     image: Option<StoredImage>,
     segmentations: Vec<SegmentationRecord>,
+    /// See [`Pipeline::unrendered_reads`].
+    unrendered_reads: usize,
     evidence: ObjectEvidence,
     /// Dead-reckoned pose (x, y, theta): the frame of the evidence's places. Odometry is
     /// smooth over the seconds a place lives, while the filter's pose jumps when a loop
@@ -394,7 +398,7 @@ impl Pipeline {
         }
         let evidence = ObjectEvidence::new(config.evidence.clone());
         let history = (config.relinearise_loop_closures && config.method == AssociationMethod::Combined).then(|| History::new(ekf.pose(), ekf.pose_covariance(), &config.motion.calibration_prior()));
-        let mut p = Pipeline { config, ekf, landmarks: Vec::new(), objects: Vec::new(), places: Vec::new(), retractions: Vec::new(), decisions: Vec::new(), poses: Vec::new(), t: 0.0, next_id: 0, appearance: None, image: None, segmentations: Vec::new(), evidence, odometry_pose: pose, co_observed: HashSet::new(), merges: Vec::new(), history, relinearisations: Vec::new(), relinearisation_failures: Vec::new(), relinearised_at: 0.0 };
+        let mut p = Pipeline { config, ekf, landmarks: Vec::new(), objects: Vec::new(), places: Vec::new(), retractions: Vec::new(), decisions: Vec::new(), poses: Vec::new(), t: 0.0, next_id: 0, appearance: None, image: None, segmentations: Vec::new(), unrendered_reads: 0, evidence, odometry_pose: pose, co_observed: HashSet::new(), merges: Vec::new(), history, relinearisations: Vec::new(), relinearisation_failures: Vec::new(), relinearised_at: 0.0 };
         p.record_pose();
         p
     }
@@ -411,12 +415,33 @@ impl Pipeline {
 
     /// Stores a camera image (8-bit RGB, row-major) for the next scans to segment.
     pub fn on_image(&mut self, t: f64, width: u32, height: u32, rgb: Vec<u8>) -> Result<(), PipelineError> {
+        self.on_image_columns(t, width, height, rgb, None)
+    }
+
+    /// [`Pipeline::on_image`] for an image rendered only in the pixel columns `columns`
+    /// (`start..end`, sorted and disjoint; see [`Pipeline::image_region`]). A cluster whose
+    /// segmentation would read outside them is not segmented and is counted in
+    /// [`Pipeline::unrendered_reads`].
+    pub fn on_image_columns(&mut self, t: f64, width: u32, height: u32, rgb: Vec<u8>, columns: Option<Vec<(u32, u32)>>) -> Result<(), PipelineError> {
         let expected = width as usize * height as usize * 3;
         if rgb.len() != expected {
             return Err(PipelineError::Image { width, height, expected, found: rgb.len() });
         }
-        self.image = Some(StoredImage { t, width, height, rgb });
+        self.image = Some(StoredImage { t, width, height, rgb, columns });
         Ok(())
+    }
+
+    /// The pixel columns this pipeline's segmentation reads, scan by scan (appearance
+    /// methods only): a camera that renders just those gives it the same results.
+    pub fn image_region(&self) -> Option<ImageRegion> {
+        let app = self.appearance.as_ref()?;
+        Some(ImageRegion { clustering: self.config.clustering, segmentation: self.config.segmentation.clone(), features: app.model.extractor.config.clone(), camera: app.camera.clone() })
+    }
+
+    /// Clusters left unsegmented because their image was not rendered where segmentation
+    /// reads: non-zero only when a camera's columns disagree with [`Pipeline::image_region`].
+    pub fn unrendered_reads(&self) -> usize {
+        self.unrendered_reads
     }
 
     /// Segmentation records since the last call (for scoring).
@@ -487,10 +512,25 @@ impl Pipeline {
         let mut out = Vec::new();
         // Each cluster's segmentation depends on nothing but the image and the cluster: they
         // run in parallel and are used in order, so results do not depend on the threads.
-        let segmentations: Vec<Option<SegmentedCluster>> = clusters
+        let seg_config = &self.config.segmentation;
+        // Per cluster: its segmentation, or whether it was skipped for lack of rendered pixels.
+        let segmentations: Vec<Result<Option<SegmentedCluster>, ()>> = clusters
             .par_iter()
-            .map(|c| if c.occluded { None } else { segment_cluster(c, &image, extractor, &app.classifier, &app.camera, &self.config.segmentation).ok().flatten() })
+            .map(|c| {
+                if c.occluded {
+                    return Ok(None);
+                }
+                let Some(located) = locate_cluster(c, &app.camera, image.width, image.height, l, seg_config) else { return Ok(None) };
+                if let Some(columns) = &img.columns
+                    && !spans_cover(columns, extractor.config.columns_read(&located.rect, image.width))
+                {
+                    return Err(());
+                }
+                Ok(segment_located(c, located, &image, extractor, &app.classifier, &app.camera, seg_config).ok())
+            })
             .collect();
+        self.unrendered_reads += segmentations.iter().filter(|s| s.is_err()).count();
+        let segmentations = segmentations.into_iter().map(|s| s.ok().flatten());
         for (ci, (c, seg)) in clusters.iter().zip(segmentations).enumerate() {
             let Some(seg) = seg else { continue };
             for (i, &o) in seg.object.iter().enumerate() {

@@ -8,8 +8,9 @@ use serde::{Deserialize, Serialize};
 
 use crate::calibration::Extrinsics;
 use crate::classifier::PatchClassifier;
-use crate::clustering::Cluster;
-use crate::features::{FeatureError, FeatureExtractor, ImageRef, PatchFeatures, PatchRect};
+use crate::clustering::{Cluster, ClusteringConfig, cluster};
+use crate::features::{FeatureConfig, FeatureError, FeatureExtractor, ImageRef, PatchFeatures, PatchRect};
+use crate::messages::LaserScan;
 
 /// The camera as the pipeline knows it: pinhole intrinsics K and the laser <- camera
 /// extrinsics (Phi, Delta). The camera frame is optical: z forward, x right, y down.
@@ -138,11 +139,22 @@ impl SegmentedCluster {
     }
 }
 
-/// Segments one cluster. Returns `Ok(None)` when none of its points projects into the
-/// image (the cluster is outside the camera's field of view).
-pub fn segment_cluster(cluster: &Cluster, image: &ImageRef, extractor: &FeatureExtractor, classifier: &PatchClassifier, geometry: &CameraGeometry, config: &SegmentationConfig) -> Result<Option<SegmentedCluster>, FeatureError> {
-    let l = extractor.config.patch_size;
-    let (cols, rows) = image.grid(l);
+/// Where a cluster falls in the image: the patches its laser points project into and the
+/// columns segmentation classifies for it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ClusterInImage {
+    /// Distinct patches (col, row) the cluster's laser points project into.
+    pub hits: Vec<(u32, u32)>,
+    /// The classified columns (whole image height): the hits' columns and the margin.
+    pub rect: PatchRect,
+    pub at_image_edge: bool,
+}
+
+/// Projects a cluster into an image of `width` x `height` pixels cut into `patch_size`
+/// patches; `None` when none of its points lands in the patch grid.
+pub fn locate_cluster(cluster: &Cluster, geometry: &CameraGeometry, width: u32, height: u32, patch_size: u32, config: &SegmentationConfig) -> Option<ClusterInImage> {
+    let l = patch_size;
+    let (cols, rows) = (width / l, height / l);
     let mut hits: Vec<(u32, u32)> = Vec::new();
     for p in &cluster.points {
         if let Some([u, v]) = geometry.project(&Vector3::new(p[0], p[1], 0.0))
@@ -158,12 +170,71 @@ pub fn segment_cluster(cluster: &Cluster, image: &ImageRef, extractor: &FeatureE
         }
     }
     if hits.is_empty() {
-        return Ok(None);
+        return None;
     }
     let at_image_edge = hits.iter().any(|h| h.0 == 0 || h.0 + 1 == cols);
     let c0 = hits.iter().map(|h| h.0).min().expect("non-empty").saturating_sub(config.column_margin);
     let c1 = (hits.iter().map(|h| h.0).max().expect("non-empty") + 1 + config.column_margin).min(cols);
-    let rect = PatchRect::columns(image, l, c0, c1);
+    Some(ClusterInImage { hits, rect: PatchRect { col0: c0, col1: c1, row0: 0, row1: rows }, at_image_edge })
+}
+
+/// The pixel columns that segmenting a scan's clusters reads: all a camera need render
+/// for the pipeline to see what it would see in the whole image (the laser narrows the
+/// camera's search, paper section 4.2). A value, not a borrow of the pipeline, so a
+/// simulator can ask it for each scan before rendering the frame of the same instant.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ImageRegion {
+    pub clustering: ClusteringConfig,
+    pub segmentation: SegmentationConfig,
+    pub features: FeatureConfig,
+    pub camera: CameraGeometry,
+}
+
+impl ImageRegion {
+    /// Pixel columns `start..end`, sorted and disjoint, that segmenting `scan` reads.
+    pub fn columns(&self, scan: &LaserScan) -> Vec<(u32, u32)> {
+        merge_spans(cluster(scan, &self.clustering).iter().filter(|c| !c.occluded).filter_map(|c| self.columns_of(c)).collect())
+    }
+
+    /// Pixel columns segmenting `cluster` reads, `None` when it is not in the image.
+    pub fn columns_of(&self, cluster: &Cluster) -> Option<(u32, u32)> {
+        let located = locate_cluster(cluster, &self.camera, self.camera.width, self.camera.height, self.features.patch_size, &self.segmentation)?;
+        Some(self.features.columns_read(&located.rect, self.camera.width))
+    }
+}
+
+/// `spans` (`start..end`) sorted, with overlapping and touching ones joined.
+pub fn merge_spans(mut spans: Vec<(u32, u32)>) -> Vec<(u32, u32)> {
+    spans.retain(|s| s.0 < s.1);
+    spans.sort_unstable();
+    let mut out: Vec<(u32, u32)> = Vec::with_capacity(spans.len());
+    for s in spans {
+        match out.last_mut() {
+            Some(last) if s.0 <= last.1 => last.1 = last.1.max(s.1),
+            _ => out.push(s),
+        }
+    }
+    out
+}
+
+/// Whether the disjoint sorted `spans` cover `needed` (`start..end`).
+pub fn spans_cover(spans: &[(u32, u32)], needed: (u32, u32)) -> bool {
+    needed.0 >= needed.1 || spans.iter().any(|s| s.0 <= needed.0 && needed.1 <= s.1)
+}
+
+/// Segments one cluster. Returns `Ok(None)` when none of its points projects into the
+/// image (the cluster is outside the camera's field of view).
+pub fn segment_cluster(cluster: &Cluster, image: &ImageRef, extractor: &FeatureExtractor, classifier: &PatchClassifier, geometry: &CameraGeometry, config: &SegmentationConfig) -> Result<Option<SegmentedCluster>, FeatureError> {
+    match locate_cluster(cluster, geometry, image.width, image.height, extractor.config.patch_size, config) {
+        Some(located) => segment_located(cluster, located, image, extractor, classifier, geometry, config).map(Some),
+        None => Ok(None),
+    }
+}
+
+/// Segments a cluster [`locate_cluster`] found in the image.
+pub fn segment_located(cluster: &Cluster, located: ClusterInImage, image: &ImageRef, extractor: &FeatureExtractor, classifier: &PatchClassifier, geometry: &CameraGeometry, config: &SegmentationConfig) -> Result<SegmentedCluster, FeatureError> {
+    let l = extractor.config.patch_size;
+    let ClusterInImage { hits, rect, at_image_edge } = located;
     let features = extractor.features(image, Some(rect))?;
     let posteriors = classifier.posteriors(&features);
     let threshold = config.patch_threshold.unwrap_or(classifier.threshold);
@@ -200,7 +271,7 @@ pub fn segment_cluster(cluster: &Cluster, image: &ImageRef, extractor: &FeatureE
         n as f64 / (band_rows.len() * columns.len()) as f64
     };
     let is_object = hit_fraction >= config.min_hit_fraction && n_object >= config.min_object_patches && above_fraction >= config.min_above_fraction;
-    Ok(Some(SegmentedCluster { rect, features, posteriors, object, hit_patches: hits, hit_fraction, above_fraction, band_visible, at_image_edge, row_profile, is_object }))
+    Ok(SegmentedCluster { rect, features, posteriors, object, hit_patches: hits, hit_fraction, above_fraction, band_visible, at_image_edge, row_profile, is_object })
 }
 
 #[cfg(test)]
@@ -213,6 +284,14 @@ mod tests {
     fn geometry() -> CameraGeometry {
         let phi = Matrix3::new(0.0, 0.0, 1.0, -1.0, 0.0, 0.0, 0.0, -1.0, 0.0);
         CameraGeometry { fx: 500.0, fy: 500.0, cx: 320.0, cy: 240.0, width: 640, height: 480, laser_from_camera: Extrinsics::from_parts(&phi, &Vector3::new(0.0, 0.0, 0.3)) }
+    }
+
+    #[test]
+    fn spans_are_merged_and_covering_is_checked_span_by_span() {
+        assert_eq!(merge_spans(vec![(30, 40), (0, 10), (5, 12), (12, 20), (50, 50)]), vec![(0, 20), (30, 40)]);
+        let spans = [(0, 20), (30, 40)];
+        assert!(spans_cover(&spans, (3, 20)) && spans_cover(&spans, (30, 31)) && spans_cover(&spans, (25, 25)));
+        assert!(!spans_cover(&spans, (15, 35)) && !spans_cover(&spans, (19, 21)) && !spans_cover(&[], (0, 1)));
     }
 
     #[test]

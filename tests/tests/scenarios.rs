@@ -79,6 +79,33 @@ fn combined_runs_are_identical_whatever_the_thread_count() {
 }
 
 /// Every output file of `objslam run` is written and parses.
+/// The camera renders only the image columns the pipeline will read (chosen from the
+/// scan of the frame's instant): the first 60 s of paper_park give the same metrics, path,
+/// association and segmentation logs as with whole frames, from a fraction of the pixels.
+#[test]
+fn rendering_only_the_columns_the_pipeline_reads_changes_no_result() {
+    let dir = std::env::temp_dir().join(format!("objslam-columns-{}", std::process::id()));
+    let (mut sc, base) = Scenario::load("paper_park").unwrap();
+    sc.sim.max_duration_s = Some(60.0);
+    let with = |full_frames: bool| {
+        let out = dir.join(format!("full{full_frames}"));
+        let m = run(&sc, &base, &RunOptions { out: Some(out.clone()), full_frames, ..Default::default() }, |_, _| {}).unwrap().metrics;
+        let read = |name: &str| std::fs::read_to_string(out.join(name)).unwrap();
+        (m.without_wall_clock(), read("trajectory_est.tum"), read("decisions.jsonl"), read("segmentation.jsonl"))
+    };
+    let (mut columns, whole) = (with(false), with(true));
+    assert_eq!(whole.0.timing.rendered_fraction, 1.0);
+    let fraction = columns.0.timing.rendered_fraction;
+    assert!(fraction > 0.05 && fraction < 0.5, "rendered fraction {fraction}");
+    columns.0.timing.rendered_fraction = 1.0;
+    assert!(whole.3.lines().count() > 50, "too few segmented clusters to compare");
+    assert_eq!(columns.0, whole.0);
+    assert_eq!(columns.1, whole.1, "estimated trajectories differ");
+    assert_eq!(columns.2, whole.2, "association logs differ");
+    assert_eq!(columns.3, whole.3, "segmentation logs differ");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 #[test]
 fn run_writes_every_output() {
     let dir = std::env::temp_dir().join(format!("objslam-outputs-{}", std::process::id()));

@@ -153,6 +153,22 @@ impl FeatureConfig {
     pub fn raw_dims(&self) -> usize {
         (self.patch_size * self.patch_size) as usize * (3 + self.bank.len())
     }
+
+    /// Pixel columns `start..end` that the features of `rect` read in an image `width`
+    /// pixels wide: the rectangle, the neighbour ring around it and the filters' reach
+    /// (what a camera rendering only the columns a consumer reads must render).
+    pub fn columns_read(&self, rect: &PatchRect, width: u32) -> (u32, u32) {
+        let l = self.patch_size;
+        let cols = width / l;
+        let big = rect.grown(cols, rect.row1);
+        let (x0, x1) = reach((big.col0 * l) as usize, (big.col1 * l) as usize, self.bank.radius(), width as usize);
+        (x0 as u32, x1 as u32)
+    }
+}
+
+/// `lo..hi` widened by `margin` on both sides, within `0..limit`.
+fn reach(lo: usize, hi: usize, margin: usize, limit: usize) -> (usize, usize) {
+    (lo.saturating_sub(margin), (hi + margin).min(limit))
 }
 
 /// Raw patch vectors (rows, row-major over `rect`): per pixel r, g, b in [0, 1] then the
@@ -173,8 +189,8 @@ fn raw_patch_buffer(image: &ImageRef, config: &FeatureConfig, rect: &PatchRect) 
     let margin = config.bank.radius();
     let (x0, x1) = (rect.col0 as usize * l, rect.col1 as usize * l);
     let (y0, y1) = (rect.row0 as usize * l, rect.row1 as usize * l);
-    let (cx0, cx1) = (x0.saturating_sub(margin), (x1 + margin).min(w));
-    let (cy0, cy1) = (y0.saturating_sub(margin), (y1 + margin).min(h));
+    let (cx0, cx1) = reach(x0, x1, margin, w);
+    let (cy0, cy1) = reach(y0, y1, margin, h);
     let (cw, ch) = (cx1 - cx0, cy1 - cy0);
     let mut grey = Plane { width: cw, height: ch, data: vec![0.0; cw * ch] };
     for y in 0..ch {
@@ -332,6 +348,27 @@ mod tests {
                 let diff = (part.z.row(i) - whole.z.row(j)).amax();
                 assert!(diff < 1e-9, "patch ({c},{r}) differs by {diff}");
             }
+        }
+    }
+
+    #[test]
+    fn features_read_no_pixel_outside_the_columns_they_say() {
+        let (w, h) = (130, 100);
+        let rgb = textured_image(w, h, 1);
+        let image = ImageRef::new(w, h, &rgb).unwrap();
+        let fx = extractor(&image);
+        let other = textured_image(w, h, 9);
+        for (c0, c1) in [(0, 2), (5, 8), (13, 14)] {
+            let rect = PatchRect::columns(&image, 9, c0, c1);
+            let (x0, x1) = fx.config.columns_read(&rect, w);
+            // A different image outside the columns: the features must not change.
+            let mixed: Vec<u8> = (0..(w * h) as usize).flat_map(|i| if (x0..x1).contains(&(i as u32 % w)) { &rgb[3 * i..3 * i + 3] } else { &other[3 * i..3 * i + 3] }).copied().collect();
+            let a = fx.features(&image, Some(rect)).unwrap();
+            let b = fx.features(&ImageRef::new(w, h, &mixed).unwrap(), Some(rect)).unwrap();
+            assert_eq!(a, b, "columns {c0}..{c1} read outside pixels {x0}..{x1}");
+            // ...and the columns are no wider than the ring and the filters' reach.
+            let reach = 9 + fx.config.bank.radius() as u32;
+            assert!(x0 + reach >= c0 * 9 && x1 <= (c1 * 9 + reach).min(w), "{x0}..{x1} for patch columns {c0}..{c1}");
         }
     }
 
