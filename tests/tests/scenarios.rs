@@ -54,6 +54,14 @@ fn runs_are_deterministic() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// A run into `out`: its metrics without wall-clock fields, and its estimated path,
+/// association log and segmentation log, for comparing runs that must agree.
+fn run_and_read(sc: &Scenario, base: &std::path::Path, options: RunOptions, out: &std::path::Path) -> (scenarios::run::Metrics, String, String, String) {
+    let m = run(sc, base, &RunOptions { out: Some(out.to_path_buf()), ..options }, |_, _| {}).unwrap().metrics;
+    let read = |name: &str| std::fs::read_to_string(out.join(name)).unwrap();
+    (m.without_wall_clock(), read("trajectory_est.tum"), read("decisions.jsonl"), read("segmentation.jsonl"))
+}
+
 /// The paper's method segments a scan's clusters in parallel: the first 30 s of
 /// paper_park on one thread and on four give the same metrics, path, association and
 /// segmentation logs.
@@ -63,11 +71,8 @@ fn combined_runs_are_identical_whatever_the_thread_count() {
     let (mut sc, base) = Scenario::load("paper_park").unwrap();
     sc.sim.max_duration_s = Some(30.0);
     let on = |threads: usize| {
-        let out = dir.join(format!("threads{threads}"));
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
-        let m = pool.install(|| run(&sc, &base, &RunOptions { out: Some(out.clone()), ..Default::default() }, |_, _| {}).unwrap().metrics);
-        let read = |name: &str| std::fs::read_to_string(out.join(name)).unwrap();
-        (m.without_wall_clock(), read("trajectory_est.tum"), read("decisions.jsonl"), read("segmentation.jsonl"))
+        pool.install(|| run_and_read(&sc, &base, RunOptions::default(), &dir.join(format!("threads{threads}"))))
     };
     let (one, four) = (on(1), on(4));
     assert!(one.3.lines().count() > 20, "too few segmented clusters to compare");
@@ -78,7 +83,6 @@ fn combined_runs_are_identical_whatever_the_thread_count() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// Every output file of `objslam run` is written and parses.
 /// The camera renders only the image columns the pipeline will read (chosen from the
 /// scan of the frame's instant): the first 60 s of paper_park give the same metrics, path,
 /// association and segmentation logs as with whole frames, from a fraction of the pixels.
@@ -87,12 +91,7 @@ fn rendering_only_the_columns_the_pipeline_reads_changes_no_result() {
     let dir = std::env::temp_dir().join(format!("objslam-columns-{}", std::process::id()));
     let (mut sc, base) = Scenario::load("paper_park").unwrap();
     sc.sim.max_duration_s = Some(60.0);
-    let with = |full_frames: bool| {
-        let out = dir.join(format!("full{full_frames}"));
-        let m = run(&sc, &base, &RunOptions { out: Some(out.clone()), full_frames, ..Default::default() }, |_, _| {}).unwrap().metrics;
-        let read = |name: &str| std::fs::read_to_string(out.join(name)).unwrap();
-        (m.without_wall_clock(), read("trajectory_est.tum"), read("decisions.jsonl"), read("segmentation.jsonl"))
-    };
+    let with = |full_frames: bool| run_and_read(&sc, &base, RunOptions { full_frames, ..Default::default() }, &dir.join(format!("full{full_frames}")));
     let (mut columns, whole) = (with(false), with(true));
     assert_eq!(whole.0.timing.rendered_fraction, 1.0);
     let fraction = columns.0.timing.rendered_fraction;
@@ -106,6 +105,7 @@ fn rendering_only_the_columns_the_pipeline_reads_changes_no_result() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// Every output file of `objslam run` is written and parses.
 #[test]
 fn run_writes_every_output() {
     let dir = std::env::temp_dir().join(format!("objslam-outputs-{}", std::process::id()));
