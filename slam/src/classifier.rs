@@ -175,17 +175,37 @@ impl PatchClassifier {
         1.0 / (1.0 + (b - a).exp())
     }
 
-    /// R for every row of `features`.
+    /// R for every row of `features` (the values [`PatchClassifier::posterior`] gives, four
+    /// rows at a time: see [`GmmEvaluator::log_terms_lanes`]).
     pub fn posteriors(&self, features: &PatchFeatures) -> Vec<f64> {
-        let mut row = vec![0.0; features.z.ncols()];
-        (0..features.z.nrows())
-            .map(|i| {
-                for (j, v) in row.iter_mut().enumerate() {
-                    *v = features.z[(i, j)];
+        const LANES: usize = 4;
+        let (n, d) = features.z.shape();
+        let mut x = vec![[0.0f64; LANES]; d];
+        let mut object = vec![[0.0f64; LANES]; self.object.component_count()];
+        let mut background = vec![[0.0f64; LANES]; self.background.component_count()];
+        let mut lane_terms = Vec::new();
+        let mut density = |terms: &[[f64; LANES]], l: usize| {
+            lane_terms.clear();
+            lane_terms.extend(terms.iter().map(|t| t[l]));
+            gmm::log_sum_exp(&lane_terms)
+        };
+        let mut out = Vec::with_capacity(n);
+        for first in (0..n).step_by(LANES) {
+            // The last group repeats its last row in the lanes past the end.
+            for (j, xj) in x.iter_mut().enumerate() {
+                for (l, v) in xj.iter_mut().enumerate() {
+                    *v = features.z[((first + l).min(n - 1), j)];
                 }
-                self.posterior(&row)
-            })
-            .collect()
+            }
+            self.object.log_terms_lanes(&x, &mut object);
+            self.background.log_terms_lanes(&x, &mut background);
+            for l in 0..LANES.min(n - first) {
+                let a = self.ln_w_obj + density(&object, l);
+                let b = self.ln_w_bg + density(&background, l);
+                out.push(1.0 / (1.0 + (b - a).exp()));
+            }
+        }
+        out
     }
 
     /// Object / background decision for every row.
@@ -400,6 +420,24 @@ mod tests {
         let scores = evaluate(&model, 4, |i| Ok(scene(100 + i as u64, 160, 120)), 0.5).unwrap();
         assert!(scores.f1() > 0.9, "{scores:?}: F1 {}", scores.f1());
         assert!(model.object_weight > 0.05 && model.object_weight < 0.5);
+    }
+
+    #[test]
+    fn posteriors_of_many_rows_equal_the_posterior_of_each_bit_for_bit() {
+        let options = TrainingOptions { pca_dims: 6, max_patches_per_class: 2000, vb: VbOptions { max_components: 4, ..Default::default() }, ..Default::default() };
+        let model = train(3, |i| Ok(scene(i as u64, 120, 90)), &options, |_, _, _| {}).unwrap();
+        let classifier = PatchClassifier::new(&model).unwrap();
+        let image = scene(50, 120, 90);
+        let features = model.extractor.features(&ImageRef::new(120, 90, &image.rgb).unwrap(), None).unwrap();
+        // 13 x 10 patches: 130 rows, not a multiple of the four lanes.
+        assert_eq!(features.z.nrows() % 4, 2);
+        let together = classifier.posteriors(&features);
+        let one_by_one: Vec<f64> = (0..features.z.nrows()).map(|i| classifier.posterior(features.z.row(i).transpose().as_slice())).collect();
+        assert_eq!(together.len(), one_by_one.len());
+        for (i, (a, b)) in together.iter().zip(&one_by_one).enumerate() {
+            assert_eq!(a.to_bits(), b.to_bits(), "row {i}: {a} against {b}");
+        }
+        assert!(together.iter().any(|&r| r > 0.9) && together.iter().any(|&r| r < 0.1), "both classes present");
     }
 
     #[test]
