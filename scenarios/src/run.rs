@@ -392,7 +392,9 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
     let mut pipeline = Pipeline::with_appearance(config.clone(), [start.x, start.y, start.yaw_rad()], appearance).map_err(|e| RunError::Online(e.to_string()))?;
     // The camera renders only the columns segmentation will read, chosen from the scan of
     // the frame's instant as the pipeline will cluster it: most of each frame is never read.
-    if let Some(region) = pipeline.image_region().filter(|_| !options.full_frames) {
+    // Only where no other scan can use the frame (one within image_max_age_s of it).
+    let frame_read_by_one_scan = config.image_max_age_s < 1.0 / sim_config.laser.rate_hz;
+    if let Some(region) = pipeline.image_region().filter(|_| !options.full_frames && frame_read_by_one_scan) {
         sim.render_camera_columns(Box::new(move |scan| region.columns(&slam_scan(scan))));
     }
     let (mut pixels_rendered, mut pixels_framed) = (0u64, 0u64);
