@@ -771,6 +771,15 @@ fn write_outputs(
         })
         .collect();
     write("decisions.jsonl", decisions)?;
+    // Each solve of the smoother (combined method): what it solved and how far the cost
+    // fell, or why it failed (the filter then carried on as it was).
+    let solves = pipeline.relinearisations().iter().map(|(t, r)| (*t, json!(r))).chain(pipeline.relinearisation_failures().iter().map(|(t, e)| (*t, json!({"error": e.to_string()}))));
+    let mut solves: Vec<(f64, serde_json::Value)> = solves.collect();
+    solves.sort_by(|a, b| a.0.total_cmp(&b.0));
+    write("relinearisations.jsonl", solves.into_iter().map(|(t, mut v)| {
+        v["t"] = json!(t);
+        serde_json::to_string(&v).expect("JSON") + "\n"
+    }).collect::<String>())?;
     let landmarks: Vec<_> = pipeline
         .mapped_landmarks()
         .iter()

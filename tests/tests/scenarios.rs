@@ -262,9 +262,19 @@ fn relinearising_every_30_s_happens_on_schedule() {
     let (mut sc, base) = Scenario::load("long_loop").unwrap();
     sc.sim.max_duration_s = Some(100.0);
     sc.pipeline.insert("relinearise_every_s".into(), toml::Value::Float(30.0));
-    let m = run(&sc, &base, &RunOptions::default(), |_, _| {}).unwrap().metrics;
+    let out = std::env::temp_dir().join(format!("objslam-relinearise-{}", std::process::id()));
+    let m = run(&sc, &base, &RunOptions { out: Some(out.clone()), ..Default::default() }, |_, _| {}).unwrap().metrics;
     assert_eq!((m.relinearisations, m.relinearisation_failures), (3, 0), "at 30, 60 and 90 s");
     assert_eq!(m.associations.wrong, 0);
+    // Each solve is written out: when, what it solved, and a cost that did not rise.
+    let solves: Vec<serde_json::Value> = std::fs::read_to_string(out.join("relinearisations.jsonl")).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    let times: Vec<f64> = solves.iter().map(|v| v["t"].as_f64().unwrap()).collect();
+    assert!(times.len() == 3 && times.iter().zip([30.0, 60.0, 90.0]).all(|(t, due)| (t - due).abs() < 0.2), "{times:?}");
+    for v in &solves {
+        assert!(v["poses"].as_u64().unwrap() > 10 && v["landmarks"].as_u64().unwrap() > 0 && v["iterations"].as_u64().unwrap() >= 1, "{v}");
+        assert!(v["final_cost"].as_f64().unwrap() <= v["initial_cost"].as_f64().unwrap(), "{v}");
+    }
+    let _ = std::fs::remove_dir_all(&out);
 }
 
 #[test]

@@ -55,7 +55,7 @@ pub struct History {
 }
 
 /// What one relinearisation did.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct Relinearisation {
     /// Poses solved for (the current one included).
     pub poses: usize,
