@@ -277,6 +277,26 @@ fn relinearising_every_30_s_happens_on_schedule() {
     let _ = std::fs::remove_dir_all(&out);
 }
 
+/// The smoother and the scheduled solves give the same run on one thread and on four: the
+/// first 100 s of long_loop relinearised every 30 s.
+#[test]
+fn relinearising_runs_are_identical_whatever_the_thread_count() {
+    let dir = std::env::temp_dir().join(format!("objslam-relinearise-threads-{}", std::process::id()));
+    let (mut sc, base) = Scenario::load("long_loop").unwrap();
+    sc.sim.max_duration_s = Some(100.0);
+    sc.pipeline.insert("relinearise_every_s".into(), toml::Value::Float(30.0));
+    let on = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        pool.install(|| run_and_read(&sc, &base, RunOptions::default(), &dir.join(format!("threads{threads}"))))
+    };
+    let (one, four) = (on(1), on(4));
+    assert_eq!(one.0.relinearisations, 3);
+    assert_eq!(one.0, four.0);
+    assert_eq!(one.1, four.1, "estimated trajectories differ");
+    assert_eq!(one.2, four.2, "association logs differ");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 #[test]
 fn camera_methods_without_a_camera_fail_clearly() {
     let (mut sc, base) = Scenario::load("paper_park").unwrap();
