@@ -298,18 +298,22 @@ pub fn run_study_with(plan: &StudyPlan, shard: Shard, out: &Path, workers: &Work
         Err(_) => std::fs::write(&plan_file, serde_json::to_string_pretty(plan).expect("JSON")).map_err(|e| StudyError::File { file: plan_file.clone(), message: e.to_string() })?,
     }
     let (base_scenario, base_dir) = Scenario::load(&plan.scenario)?;
-    // The appearance model is resolved (trained and cached if need be) once, not per run;
-    // worker processes then load it from the cache.
-    let appearance = if needs_appearance(plan, &base_scenario) {
-        Some(std::sync::Arc::new(crate::run::resolve_appearance(&base_scenario, &base_dir).map_err(|e| StudyError::Appearance(e.to_string()))?))
-    } else {
-        None
-    };
+    let models = StudyModels::new(&base_dir);
     let runs_file = out.join("runs.jsonl");
     let existing = read_runs(&runs_file)?;
     let done: BTreeSet<String> = existing.iter().map(|r| r.key.clone()).collect();
     let mine: Vec<Job> = jobs(plan).into_iter().filter(|j| shard.contains(j)).collect();
     let todo: Vec<&Job> = mine.iter().filter(|j| !done.contains(&j.key())).collect();
+    // Every appearance model the jobs need (one per setting of the training and the camera
+    // a study varies) is resolved here first, trained and cached if need be, so runs and
+    // worker processes only load them.
+    for job in &todo {
+        if let Ok(scenario) = job_scenario(&base_scenario, job)
+            && job_needs_appearance(job, &scenario)
+        {
+            models.get(&scenario).map_err(StudyError::Appearance)?;
+        }
+    }
     let total = mine.len();
     let finished = std::sync::atomic::AtomicUsize::new(total - todo.len());
     progress(finished.load(std::sync::atomic::Ordering::Relaxed), total);
@@ -331,7 +335,7 @@ pub fn run_study_with(plan: &StudyPlan, shard: Shard, out: &Path, workers: &Work
         Workers::Threads => todo
             .par_iter()
             .map(|job| {
-                let record = run_job(&base_scenario, &base_dir, job, appearance.clone());
+                let record = run_job(&base_scenario, &base_dir, job, &models);
                 record_finished(&record);
                 record
             })
@@ -344,20 +348,67 @@ pub fn run_study_with(plan: &StudyPlan, shard: Shard, out: &Path, workers: &Work
     Ok(all)
 }
 
-/// Whether any of the plan's methods needs the appearance model (and the scenario has the
-/// camera it needs).
-fn needs_appearance(plan: &StudyPlan, scenario: &Scenario) -> bool {
-    scenario.sim.camera.enabled && plan.methods.iter().any(|m| AssociationMethod::from_name(m).is_some_and(|m| m.uses_appearance()))
+/// Whether the job's method needs an appearance model and its scenario has the camera it
+/// needs.
+fn job_needs_appearance(job: &Job, scenario: &Scenario) -> bool {
+    scenario.sim.camera.enabled && AssociationMethod::from_name(&job.method).is_some_and(|m| m.uses_appearance())
 }
 
-/// Runs one job; errors and panics become the record's error.
-pub fn run_job(base: &Scenario, base_dir: &Path, job: &Job, appearance: Option<std::sync::Arc<slam::classifier::AppearanceModel>>) -> RunRecord {
-    let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| -> Result<Metrics, String> {
-        let mut scenario = base.clone();
-        for (p, v) in &job.params {
-            scenario = apply_param(&scenario, p, *v).map_err(|e| e.to_string())?;
+/// The base scenario with the job's parameters applied.
+fn job_scenario(base: &Scenario, job: &Job) -> Result<Scenario, StudyError> {
+    let mut scenario = base.clone();
+    for (p, v) in &job.params {
+        scenario = apply_param(&scenario, p, *v)?;
+    }
+    Ok(scenario)
+}
+
+/// A study's appearance models, one per source: the scenario's `[appearance]` table and
+/// camera as a job's parameters leave them (a study may vary the training or the camera).
+/// Each is resolved (loaded, or trained and cached) the first time a job asks for it.
+pub struct StudyModels {
+    base_dir: PathBuf,
+    models: Mutex<BTreeMap<String, std::sync::Arc<slam::classifier::AppearanceModel>>>,
+}
+
+impl StudyModels {
+    pub fn new(base_dir: &Path) -> Self {
+        StudyModels { base_dir: base_dir.to_path_buf(), models: Mutex::new(BTreeMap::new()) }
+    }
+
+    /// The model `scenario` asks for.
+    pub fn get(&self, scenario: &Scenario) -> Result<std::sync::Arc<slam::classifier::AppearanceModel>, String> {
+        let key = match &scenario.appearance.model {
+            Some(file) => format!("file {file}"),
+            None => scenario.appearance.cache_key(&scenario.sim.camera),
+        };
+        // Held while a model trains: the others would wait for the training's lock anyway.
+        let mut models = self.models.lock().unwrap_or_else(|p| p.into_inner());
+        if let Some(model) = models.get(&key) {
+            return Ok(model.clone());
         }
+        let model = std::sync::Arc::new(crate::run::resolve_appearance(scenario, &self.base_dir).map_err(|e| e.to_string())?);
+        models.insert(key, model.clone());
+        Ok(model)
+    }
+
+    /// How many distinct models were resolved.
+    pub fn len(&self) -> usize {
+        self.models.lock().unwrap_or_else(|p| p.into_inner()).len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+/// Runs one job, with the appearance model of its own scenario; errors and panics become
+/// the record's error.
+pub fn run_job(base: &Scenario, base_dir: &Path, job: &Job, models: &StudyModels) -> RunRecord {
+    let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| -> Result<Metrics, String> {
+        let scenario = job_scenario(base, job).map_err(|e| e.to_string())?;
         let method = AssociationMethod::from_name(&job.method).ok_or_else(|| format!("unknown method {:?}", job.method))?;
+        let appearance = if job_needs_appearance(job, &scenario) { Some(models.get(&scenario)?) } else { None };
         let options = RunOptions { seed: Some(job.seed), method: Some(method), out: None, appearance, full_frames: false };
         crate::run::run(&scenario, base_dir, &options, |_, _| {}).map(|o| o.metrics).map_err(|e| e.to_string())
     }));

@@ -108,6 +108,20 @@ pub struct Metrics {
     /// renderers differ in their last bits, and so can results (README, "On a GPU").
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub renderer: Option<String>,
+    /// The appearance model the camera methods classified with (absent otherwise): a
+    /// model's training draws its borderline, so results depend on it too.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub appearance_model: Option<ModelProvenance>,
+}
+
+/// Where an appearance model came from.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ModelProvenance {
+    pub training_seed: u64,
+    pub training_images: usize,
+    /// The graphics adapter that rendered its training images (absent for models trained
+    /// before that was recorded).
+    pub training_renderer: Option<String>,
 }
 
 impl Metrics {
@@ -382,7 +396,7 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
     // Where the images came from: results depend on the renderer (metrics.renderer, and
     // the model's training renderer in metadata.json).
     let renderer = sim.camera_adapter().map(|a| a.to_string());
-    let model_provenance = json!(appearance_model.as_ref().map(|m| json!({ "training_renderer": m.training.renderer, "training_seed": m.training.seed, "training_images": m.training.images })));
+    let model_provenance = appearance_model.as_ref().map(|m| ModelProvenance { training_seed: m.training.seed, training_images: m.training.images, training_renderer: m.training.renderer.clone() });
     let nominal = scenario.sim.max_duration_s.unwrap_or_else(|| sim.nominal_duration_s());
     let start = world.robot.start;
     let appearance = match &appearance_model {
@@ -618,6 +632,7 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
         failures: vec![],
         timing: Timing { simulator_s: sim_time, pipeline_s: pipe_time, scans, mean_scan_ms: if scans > 0 { 1000.0 * scan_time / scans as f64 } else { 0.0 }, rendered_fraction: if pixels_framed > 0 { pixels_rendered as f64 / pixels_framed as f64 } else { 0.0 } },
         renderer,
+        appearance_model: model_provenance.clone(),
     };
     metrics.failures = check_pass(scenario, &metrics);
     metrics.passed = metrics.failures.is_empty();
@@ -638,7 +653,7 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
         if let Some(report) = &calibration.report {
             report.write(&out.join("calibration.json"))?;
         }
-        write_outputs(out, &world, &pipeline, &metrics, &resolved, &model_provenance, &est_path, &gt_path, &people_tracks, &landmark_object, &decision_truth)?;
+        write_outputs(out, &world, &pipeline, &metrics, &resolved, &json!(model_provenance), &est_path, &gt_path, &people_tracks, &landmark_object, &decision_truth)?;
         if camera_method {
             let file = out.join("segmentation.jsonl");
             std::fs::write(&file, segmentation_log).map_err(|source| RunError::Io { file, source })?;

@@ -82,3 +82,32 @@ fn a_worker_that_dies_costs_only_its_run() {
     assert_eq!(records.iter().filter(|r| r.metrics.is_some()).count(), 5);
     let _ = std::fs::remove_dir_all(&root);
 }
+
+/// A study that varies the appearance model's training gets each setting's own model, in
+/// threads and in worker processes alike (the varied value was once ignored: every run
+/// classified with the base scenario's model).
+#[test]
+fn a_study_varying_the_appearance_training_uses_each_settings_model() {
+    let root = temp_root("mc-models");
+    let (mut sc, _) = scenarios::scenario::Scenario::load("paper_park").unwrap();
+    sc.name = "paper_park_tiny_models".into();
+    sc.sim.max_duration_s = Some(6.0);
+    sc.pass = Default::default();
+    // Tiny models, trained in a moment.
+    sc.appearance.training_images = 2;
+    sc.appearance.max_patches_per_class = 400;
+    sc.appearance.max_components = 2;
+    sc.appearance.pca_dims = 4;
+    let path = root.join("paper_park_tiny_models.toml");
+    std::fs::write(&path, toml::to_string(&sc).unwrap()).unwrap();
+    let plan = StudyPlan { scenario: path.to_string_lossy().into_owned(), base_seed: 1, runs: 1, methods: vec!["combined".into()], vary: vec![mc::Vary::parse("appearance.training_seed=3..4:2").unwrap()] };
+    let seeds = |runs: &[RunRecord]| -> Vec<(f64, u64)> {
+        runs.iter().map(|r| (r.job.params[0].1, r.metrics.as_ref().unwrap_or_else(|| panic!("{:?}", r.error)).appearance_model.as_ref().expect("a camera method's model").training_seed)).collect()
+    };
+    let threads = mc::run_study(&plan, Shard::all(), &root.join("threads"), |_, _| {}).unwrap();
+    assert_eq!(seeds(&threads), vec![(3.0, 3), (4.0, 4)]);
+    let exe = PathBuf::from(env!("CARGO_BIN_EXE_objslam"));
+    let processes = mc::run_study_with(&plan, Shard::all(), &root.join("processes"), &Workers::Processes { exe, count: 2 }, |_, _| {}).unwrap();
+    assert_eq!(seeds(&processes), vec![(3.0, 3), (4.0, 4)]);
+    let _ = std::fs::remove_dir_all(&root);
+}

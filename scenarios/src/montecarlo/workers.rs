@@ -13,7 +13,7 @@ use std::process::{Child, ChildStdin, ChildStdout, Command, Stdio};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 
-use super::{Job, RunRecord, StudyError, StudyPlan, needs_appearance, run_job};
+use super::{Job, RunRecord, StudyError, StudyModels, StudyPlan, run_job};
 use crate::scenario::Scenario;
 
 /// Lines of a failed child's stderr kept for its run's error.
@@ -28,12 +28,8 @@ pub fn serve_worker(input: impl BufRead, mut output: impl Write) -> Result<(), S
     let Some(first) = lines.next() else { return Ok(()) };
     let plan: StudyPlan = serde_json::from_str(&first.map_err(|e| protocol(e.to_string()))?).map_err(|e| protocol(format!("the first line is not a study plan: {e}")))?;
     let (base, base_dir) = Scenario::load(&plan.scenario)?;
-    let appearance = if needs_appearance(&plan, &base) {
-        // The parent resolved it first, so this loads the cached model.
-        Some(Arc::new(base.appearance.resolve(&base_dir, &base.sim.camera, |_, _, _| {}).map_err(|e| StudyError::Appearance(e.to_string()))?))
-    } else {
-        None
-    };
+    // The parent resolved every model first, so these load cached ones.
+    let models = StudyModels::new(&base_dir);
     // Runs go on a rayon thread, so they simulate inline rather than on a thread of their
     // own beside the pipeline: with one worker per core that is faster (8 paper_park runs
     // on 2 cores: 50 s against 54 s).
@@ -41,7 +37,7 @@ pub fn serve_worker(input: impl BufRead, mut output: impl Write) -> Result<(), S
     for line in lines {
         let line = line.map_err(|e| protocol(e.to_string()))?;
         let job: Job = serde_json::from_str(&line).map_err(|e| protocol(format!("not a job: {e}")))?;
-        let record = pool.install(|| run_job(&base, &base_dir, &job, appearance.clone()));
+        let record = pool.install(|| run_job(&base, &base_dir, &job, &models));
         writeln!(output, "{}", serde_json::to_string(&record).expect("JSON")).and_then(|_| output.flush()).map_err(|e| protocol(format!("cannot answer: {e}")))?;
     }
     Ok(())
