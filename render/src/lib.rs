@@ -367,6 +367,7 @@ fn shader_source(depth: bool) -> String {
 struct Plane {
     offset: u64,
     bytes_per_row: u32,
+    bytes_per_pixel: u32,
 }
 
 /// Renders frames of a fixed size. Meshes, textures and instances stay on the GPU; only
@@ -586,7 +587,7 @@ impl Renderer {
         let mut offset = 0u64;
         for &(_, bytes, _) in &formats {
             let bytes_per_row = (bytes * width).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
-            planes.push(Plane { offset, bytes_per_row });
+            planes.push(Plane { offset, bytes_per_row, bytes_per_pixel: bytes });
             offset += bytes_per_row as u64 * height as u64;
         }
         let readback = device.create_buffer(&wgpu::BufferDescriptor {
@@ -925,15 +926,22 @@ impl Renderer {
                 }
             }
         }
-        for (target, plane) in self.targets.iter().zip(&self.planes) {
-            encoder.copy_texture_to_buffer(
-                target.as_image_copy(),
-                wgpu::TexelCopyBufferInfo {
-                    buffer: &self.readback,
-                    layout: wgpu::TexelCopyBufferLayout { offset: plane.offset, bytes_per_row: Some(plane.bytes_per_row), rows_per_image: Some(self.height) },
-                },
-                wgpu::Extent3d { width: self.width, height: self.height, depth_or_array_layers: 1 },
-            );
+        // Only the rendered columns leave the GPU when they fit the buffer span by span.
+        let layout = match (spans != [(0, self.width)]).then(|| self.span_planes(&spans)).flatten() {
+            Some(per_span) => spans.iter().copied().zip(per_span).collect(),
+            None => vec![((0, self.width), self.planes.clone())],
+        };
+        for ((start, end), planes) in &layout {
+            for (target, plane) in self.targets.iter().zip(planes) {
+                encoder.copy_texture_to_buffer(
+                    wgpu::TexelCopyTextureInfo { origin: wgpu::Origin3d { x: *start, y: 0, z: 0 }, ..target.as_image_copy() },
+                    wgpu::TexelCopyBufferInfo {
+                        buffer: &self.readback,
+                        layout: wgpu::TexelCopyBufferLayout { offset: plane.offset, bytes_per_row: Some(plane.bytes_per_row), rows_per_image: Some(self.height) },
+                    },
+                    wgpu::Extent3d { width: end - start, height: self.height, depth_or_array_layers: 1 },
+                );
+            }
         }
         self.queue.submit(Some(encoder.finish()));
         self.check_gpu_error()?;
@@ -947,7 +955,7 @@ impl Renderer {
         rx.recv().map_err(|e| RenderError::Readback(e.to_string()))?.map_err(|e| RenderError::Readback(e.to_string()))?;
         let unpacked = match slice.get_mapped_range() {
             Ok(data) => {
-                self.unpack(&data, frame, if columns.is_some() { Some(&spans) } else { None });
+                self.unpack(&data, &layout, frame, if columns.is_some() { Some(&spans) } else { None });
                 Ok(())
             }
             Err(e) => Err(RenderError::Readback(e.to_string())),
@@ -958,35 +966,59 @@ impl Renderer {
         self.check_gpu_error()
     }
 
-    /// Copies the padded planes of the readback buffer into `frame`: all of it, or only the
-    /// pixel columns `spans`, the rest zeroed.
-    fn unpack(&self, data: &[u8], frame: &mut Frame, spans: Option<&[(u32, u32)]>) {
+    /// Where each span's rows of each target go in the readback buffer: the spans one after
+    /// another, rows padded as copies require; `None` when they would not fit.
+    fn span_planes(&self, spans: &[(u32, u32)]) -> Option<Vec<Vec<Plane>>> {
+        let mut offset = 0u64;
+        let layout = spans
+            .iter()
+            .map(|&(start, end)| {
+                self.planes
+                    .iter()
+                    .map(|p| {
+                        let bytes_per_row = (p.bytes_per_pixel * (end - start)).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
+                        let plane = Plane { offset, bytes_per_row, bytes_per_pixel: p.bytes_per_pixel };
+                        offset += bytes_per_row as u64 * self.height as u64;
+                        plane
+                    })
+                    .collect()
+            })
+            .collect();
+        (offset <= self.readback.size()).then_some(layout)
+    }
+
+    /// Copies the readback buffer, laid out as `layout` says (each copied span's column range
+    /// and its targets' rows), into `frame`: all of it, or only the pixel columns `spans`,
+    /// the rest zeroed.
+    fn unpack(&self, data: &[u8], layout: &[((u32, u32), Vec<Plane>)], frame: &mut Frame, spans: Option<&[(u32, u32)]>) {
         let (w, h) = (self.width as usize, self.height as usize);
-        let depth = self.planes.get(2);
         self.size_frame(frame);
         let whole = [(0, self.width)];
         let copied = spans.unwrap_or(&whole);
-        let row = |plane: &Plane, bytes: usize, y: usize, (a, b): (usize, usize)| {
-            let start = plane.offset as usize + y * plane.bytes_per_row as usize;
-            &data[start + bytes * a..start + bytes * b]
-        };
         let empty = if spans.is_some() { gaps(copied, self.width) } else { Vec::new() };
+        // Row `y` of columns `a..b` of a target, copied as `plane` from column `first` on.
+        let row = |plane: &Plane, first: usize, y: usize, (a, b): (usize, usize)| {
+            let start = plane.offset as usize + y * plane.bytes_per_row as usize;
+            let bytes = plane.bytes_per_pixel as usize;
+            &data[start + bytes * (a - first)..start + bytes * (b - first)]
+        };
         for y in 0..h {
             blank_row(frame, y, &empty);
             for &(a, b) in copied {
-                let (a, b) = (a as usize, b as usize);
+                let ((first, _), planes) = layout.iter().find(|((s, e), _)| *s <= a && b <= *e).expect("every span is copied, alone or in the whole frame");
+                let (a, b, first) = (a as usize, b as usize, *first as usize);
                 let (i0, i1) = (w * y + a, w * y + b);
-                for (d, s) in frame.rgb[3 * i0..3 * i1].chunks_exact_mut(3).zip(row(&self.planes[0], 4, y, (a, b)).chunks_exact(4)) {
+                for (d, s) in frame.rgb[3 * i0..3 * i1].chunks_exact_mut(3).zip(row(&planes[0], first, y, (a, b)).chunks_exact(4)) {
                     d.copy_from_slice(&s[..3]);
                 }
-                let ids = row(&self.planes[1], 4, y, (a, b)).chunks_exact(4);
+                let ids = row(&planes[1], first, y, (a, b)).chunks_exact(4);
                 for ((instance, class), s) in frame.instance[i0..i1].iter_mut().zip(&mut frame.class[i0..i1]).zip(ids) {
                     let v = u32::from_le_bytes([s[0], s[1], s[2], s[3]]);
                     *instance = (v >> 8) as u16;
                     *class = (v & 0xff) as u8;
                 }
-                let Some(depth) = depth else { continue };
-                for (d, s) in frame.depth_m[i0..i1].iter_mut().zip(row(depth, 4, y, (a, b)).chunks_exact(4)) {
+                let Some(depth) = planes.get(2) else { continue };
+                for (d, s) in frame.depth_m[i0..i1].iter_mut().zip(row(depth, first, y, (a, b)).chunks_exact(4)) {
                     let z = f32::from_le_bytes([s[0], s[1], s[2], s[3]]);
                     *d = if z > 0.0 { z } else { f32::INFINITY };
                 }
