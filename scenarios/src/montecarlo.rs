@@ -382,7 +382,9 @@ impl StudyModels {
             Some(file) => format!("file {file}"),
             None => scenario.appearance.cache_key(&scenario.sim.camera),
         };
-        // Held while a model trains: the others would wait for the training's lock anyway.
+        // Held while a model trains. Training runs on rayon's threads, so it must not start
+        // inside a rayon worker that another job could then wait here on: run_study resolves
+        // every model before the parallel runs, which only load them.
         let mut models = self.models.lock().unwrap_or_else(|p| p.into_inner());
         if let Some(model) = models.get(&key) {
             return Ok(model.clone());

@@ -205,7 +205,8 @@ pub struct Timing {
     /// Mean pipeline time per scan (with its image, for the camera methods), ms.
     pub mean_scan_ms: f64,
     /// Fraction of the camera frames' pixels rendered: below 1 when only the columns the
-    /// pipeline reads are (the default for camera methods), 0 without a camera.
+    /// pipeline reads are (the default for camera methods), 0 without a camera (and in
+    /// records written before it was measured).
     #[serde(default)]
     pub rendered_fraction: f64,
 }
@@ -406,8 +407,10 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
     let mut pipeline = Pipeline::with_appearance(config.clone(), [start.x, start.y, start.yaw_rad()], appearance).map_err(|e| RunError::Online(e.to_string()))?;
     // The camera renders only the columns segmentation will read, chosen from the scan of
     // the frame's instant as the pipeline will cluster it: most of each frame is never read.
-    // Only where no other scan can use the frame (one within image_max_age_s of it).
-    let frame_read_by_one_scan = config.image_max_age_s < 1.0 / sim_config.laser.rate_hz;
+    // Only where no other scan can use the frame (one within image_max_age_s of it): sensors
+    // fire on the first physics step at or after their time, so two scans can be up to a
+    // step closer than the laser's period.
+    let frame_read_by_one_scan = config.image_max_age_s < 1.0 / sim_config.laser.rate_hz - 1.0 / sim_config.physics_rate_hz;
     if let Some(region) = pipeline.image_region().filter(|_| !options.full_frames && frame_read_by_one_scan) {
         sim.render_camera_columns(Box::new(move |scan| region.columns(&slam_scan(scan))));
     }
@@ -555,6 +558,11 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
         }
     }
     let (sim, sim_time) = events.finish();
+    // A camera that stopped (a lost GPU device) leaves a camera method blind for the rest of
+    // the run: its scores would not be the method's.
+    if let Some(e) = sim.camera_error().filter(|_| camera_method) {
+        return Err(RunError::Online(format!("the camera stopped during the run: {e}")));
+    }
     if pipeline.unrendered_reads() > 0 {
         return Err(RunError::Online(format!(
             "{} clusters were not segmented: the camera did not render the image columns they read (a bug; `--full-frames` renders whole frames)",

@@ -241,9 +241,9 @@ impl Simulation {
     /// the laser scan of the same instant (frames with no scan at their instant are
     /// rendered whole). For consumers that read only where the laser points, as the
     /// paper's segmentation does: the pixels rendered are those of the whole frame (the
-    /// frame's `image.columns` says which), at a fraction of the rendering cost. Select
-    /// columns the image does not have and the camera stops with an error, as on a lost
-    /// renderer.
+    /// frame's `image.columns` says which), at a fraction of the rendering cost. Columns
+    /// that are not sorted, disjoint and within the image stop the camera with an error, as
+    /// a lost renderer does ([`Simulation::camera_error`]).
     pub fn render_camera_columns(&mut self, select: ColumnSelector) {
         self.camera_columns = Some(select);
     }
