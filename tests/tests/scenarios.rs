@@ -54,12 +54,22 @@ fn runs_are_deterministic() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// A run into `out`: its metrics without wall-clock fields, and its estimated path,
-/// association log and segmentation log, for comparing runs that must agree.
-fn run_and_read(sc: &Scenario, base: &std::path::Path, options: RunOptions, out: &std::path::Path) -> (scenarios::run::Metrics, String, String, String) {
+/// A run's metrics without wall-clock fields, and its estimated path, association log and
+/// segmentation log.
+type RunLogs = (scenarios::run::Metrics, String, String, String);
+
+/// A run into `out`, read back for comparing runs that must agree.
+fn run_and_read(sc: &Scenario, base: &std::path::Path, options: RunOptions, out: &std::path::Path) -> RunLogs {
     let m = run(sc, base, &RunOptions { out: Some(out.to_path_buf()), ..options }, |_, _| {}).unwrap().metrics;
     let read = |name: &str| std::fs::read_to_string(out.join(name)).unwrap();
     (m.without_wall_clock(), read("trajectory_est.tum"), read("decisions.jsonl"), read("segmentation.jsonl"))
+}
+
+fn assert_same_run(a: &RunLogs, b: &RunLogs) {
+    assert_eq!(a.0, b.0);
+    assert_eq!(a.1, b.1, "estimated trajectories differ");
+    assert_eq!(a.2, b.2, "association logs differ");
+    assert_eq!(a.3, b.3, "segmentation logs differ");
 }
 
 /// The paper's method segments a scan's clusters in parallel: the first 30 s of
@@ -76,10 +86,7 @@ fn combined_runs_are_identical_whatever_the_thread_count() {
     };
     let (one, four) = (on(1), on(4));
     assert!(one.3.lines().count() > 20, "too few segmented clusters to compare");
-    assert_eq!(one.0, four.0);
-    assert_eq!(one.1, four.1, "estimated trajectories differ");
-    assert_eq!(one.2, four.2, "association logs differ");
-    assert_eq!(one.3, four.3, "segmentation logs differ");
+    assert_same_run(&one, &four);
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -98,10 +105,7 @@ fn rendering_only_the_columns_the_pipeline_reads_changes_no_result() {
     assert!(fraction > 0.05 && fraction < 0.5, "rendered fraction {fraction}");
     columns.0.timing.rendered_fraction = 1.0;
     assert!(whole.3.lines().count() > 50, "too few segmented clusters to compare");
-    assert_eq!(columns.0, whole.0);
-    assert_eq!(columns.1, whole.1, "estimated trajectories differ");
-    assert_eq!(columns.2, whole.2, "association logs differ");
-    assert_eq!(columns.3, whole.3, "segmentation logs differ");
+    assert_same_run(&columns, &whole);
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -294,9 +298,7 @@ fn relinearising_runs_are_identical_whatever_the_thread_count() {
     };
     let (one, four) = (on(1), on(4));
     assert_eq!(one.0.relinearisations, 3);
-    assert_eq!(one.0, four.0);
-    assert_eq!(one.1, four.1, "estimated trajectories differ");
-    assert_eq!(one.2, four.2, "association logs differ");
+    assert_same_run(&one, &four);
     let _ = std::fs::remove_dir_all(&dir);
 }
 
