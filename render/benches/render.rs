@@ -138,3 +138,17 @@ fn park_640x480_moving(bencher: divan::Bencher) {
         divan::black_box(&frame);
     });
 }
+
+/// The same scene rendered only in three column spans, a fifth of the image (what
+/// `objslam run` draws of a park frame: the columns its segmentation reads).
+#[divan::bench(sample_count = 50, sample_size = 4)]
+fn park_640x480_columns(bencher: divan::Bencher) {
+    let (mut r, camera, _) = park();
+    let light = Lighting::default();
+    let mut frame = Frame::default();
+    let spans = [(100, 145), (300, 345), (500, 545)];
+    bencher.bench_local(|| {
+        r.render_columns_into(&camera, &light, Some(&spans), &mut frame).unwrap();
+        divan::black_box(&frame);
+    });
+}
