@@ -837,7 +837,7 @@ impl Renderer {
             }
         }
         if spans.is_empty() {
-            self.blank(frame, &[]);
+            self.blank(frame);
             return Ok(());
         }
         self.upload_instances();
@@ -1038,14 +1038,14 @@ impl Renderer {
         frame.depth_m.resize(if self.planes.len() > 2 { n } else { 0 }, 0.0);
     }
 
-    /// `frame` with nothing rendered but the pixel columns `spans` (none: an empty frame).
-    fn blank(&self, frame: &mut Frame, spans: &[(u32, u32)]) {
+    /// `frame` with nothing rendered: every column empty.
+    fn blank(&self, frame: &mut Frame) {
         self.size_frame(frame);
-        let empty = gaps(spans, self.width);
+        let empty = [(0, self.width as usize)];
         for y in 0..self.height as usize {
             blank_row(frame, y, &empty);
         }
-        frame.columns = Some(spans.to_vec());
+        frame.columns = Some(Vec::new());
     }
 
     fn check_gpu_error(&self) -> Result<(), RenderError> {

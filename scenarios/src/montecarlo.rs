@@ -393,15 +393,6 @@ impl StudyModels {
         models.insert(key, model.clone());
         Ok(model)
     }
-
-    /// How many distinct models were resolved.
-    pub fn len(&self) -> usize {
-        self.models.lock().unwrap_or_else(|p| p.into_inner()).len()
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
-    }
 }
 
 /// Runs one job, with the appearance model of its own scenario; errors and panics become

@@ -222,16 +222,8 @@ pub fn spans_cover(spans: &[(u32, u32)], needed: (u32, u32)) -> bool {
     needed.0 >= needed.1 || spans.iter().any(|s| s.0 <= needed.0 && needed.1 <= s.1)
 }
 
-/// Segments one cluster. Returns `Ok(None)` when none of its points projects into the
-/// image (the cluster is outside the camera's field of view).
-pub fn segment_cluster(cluster: &Cluster, image: &ImageRef, extractor: &FeatureExtractor, classifier: &PatchClassifier, geometry: &CameraGeometry, config: &SegmentationConfig) -> Result<Option<SegmentedCluster>, FeatureError> {
-    match locate_cluster(cluster, geometry, image.width, image.height, extractor.config.patch_size, config) {
-        Some(located) => segment_located(cluster, located, image, extractor, classifier, geometry, config).map(Some),
-        None => Ok(None),
-    }
-}
-
-/// Segments a cluster [`locate_cluster`] found in the image.
+/// Segments a cluster [`locate_cluster`] found in the image (a cluster that it does not
+/// find is outside the camera's field of view).
 pub fn segment_located(cluster: &Cluster, located: ClusterInImage, image: &ImageRef, extractor: &FeatureExtractor, classifier: &PatchClassifier, geometry: &CameraGeometry, config: &SegmentationConfig) -> Result<SegmentedCluster, FeatureError> {
     let l = extractor.config.patch_size;
     let ClusterInImage { hits, rect, at_image_edge } = located;
