@@ -33,9 +33,8 @@ pub struct AppearanceSource {
 }
 
 /// The run's model is smaller than `objslam train`'s default (d = 10 and 10 components
-/// against 20 and 20): on paper_park seed 1 it gave the better map (5 false landmarks and
-/// 3 duplicates against 11 and 13) at twice the speed, though its held-out patch F1 is
-/// lower (0.81 against 0.89).
+/// against 20 and 20): twice as fast, and the larger model's better held-out patch F1
+/// did not give a better map (docs/results.md).
 impl Default for AppearanceSource {
     fn default() -> Self {
         AppearanceSource { model: None, training_preset: "park".into(), training_world_seed: 1001, training_images: 60, training_seed: 1, max_patches_per_class: 10_000, max_components: 10, pca_dims: 10 }

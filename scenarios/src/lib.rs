@@ -21,3 +21,4 @@ pub mod run;
 pub mod scenario;
 pub mod score;
 pub mod train;
+pub mod visibility;

@@ -15,6 +15,8 @@ use worlds::ObjectClass;
 
 use crate::scenario::{Scenario, ScenarioError};
 use crate::score::{self, AssociationCounts, MapContent};
+use crate::visibility::{InstanceImage, TreeVisibility};
+use slam::segmentation::merge_spans;
 
 /// Errors of a run.
 #[derive(Debug, thiserror::Error)]
@@ -23,8 +25,8 @@ pub enum RunError {
     Scenario(#[from] ScenarioError),
     #[error(transparent)]
     Sim(#[from] sim::SimError),
-    #[error("{}: pipeline settings: {message}", file.display())]
-    Pipeline { file: PathBuf, message: String },
+    #[error("scenario {scenario}: pipeline.{setting}")]
+    Pipeline { scenario: String, setting: slam::settings::InvalidSetting },
     #[error("method {method}: {message}")]
     Method { method: String, message: String },
     #[error("{}: {source}", file.display())]
@@ -50,7 +52,7 @@ pub struct SegmentationScore {
     pub recall: Option<f64>,
 }
 
-/// Everything `metrics.json` holds. Field meanings are documented in the README.
+/// Everything `metrics.json` holds. Field meanings: docs/guide/runs-and-metrics.md.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Metrics {
     pub scenario: String,
@@ -105,7 +107,7 @@ pub struct Metrics {
     #[serde(default)]
     pub timing: Timing,
     /// The graphics adapter that rendered the camera's images (absent without a camera):
-    /// renderers differ in their last bits, and so can results (README, "On a GPU").
+    /// renderers differ in their last bits, and so can results (docs/results.md, "On a GPU").
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub renderer: Option<String>,
     /// The appearance model the camera methods classified with (absent otherwise): a
@@ -297,6 +299,16 @@ pub struct RunOutcome {
     pub resolved: serde_json::Value,
 }
 
+/// The ground-truth images of the latest camera frame (moved, not copied: about 1 MB).
+struct TruthImages {
+    t: f64,
+    width: u32,
+    height: u32,
+    class: Vec<u8>,
+    instance: Vec<u16>,
+    columns: Option<Vec<(u32, u32)>>,
+}
+
 /// Which object a cluster truly belongs to: the most frequent instance id of its beams
 /// (0 if the beams hit nothing known).
 fn true_object(hit_ids: &[u16], first: usize, last: usize) -> u16 {
@@ -307,31 +319,12 @@ fn true_object(hit_ids: &[u16], first: usize, last: usize) -> u16 {
     counts.into_iter().max_by_key(|(id, n)| (*n, *id != 0)).map(|(id, _)| id).unwrap_or(0)
 }
 
-/// Resolves the pipeline settings of a scenario, with a method override.
+/// The pipeline settings of a scenario, with a method override and the laser's mounting.
+/// Scenarios read from files were checked when parsed; this checks again for ones built or
+/// changed in code.
 pub fn pipeline_config(scenario: &Scenario, method: Option<AssociationMethod>) -> Result<PipelineConfig, RunError> {
-    let file = PathBuf::from(format!("{}.toml", scenario.name));
-    let mut config: PipelineConfig = scenario
-        .pipeline
-        .clone()
-        .try_into()
-        .map_err(|e: toml::de::Error| RunError::Pipeline { file: file.clone(), message: e.to_string() })?;
-    if let Err((field, message)) = config.evidence.validate() {
-        return Err(RunError::Pipeline { file, message: format!("pipeline.evidence.{field}: {message}") });
-    }
-    if let Err((field, message)) = config.motion.validate() {
-        return Err(RunError::Pipeline { file, message: format!("pipeline.motion.{field}: {message}") });
-    }
-    if let Err((field, message)) = config.merge.validate() {
-        return Err(RunError::Pipeline { file, message: format!("pipeline.merge.{field}: {message}") });
-    }
-    if let Err((field, message)) = config.diameter.validate() {
-        return Err(RunError::Pipeline { file, message: format!("pipeline.diameter.{field}: {message}") });
-    }
-    if let Some(every) = config.relinearise_every_s
-        && !(every.is_finite() && every > 0.0)
-    {
-        return Err(RunError::Pipeline { file, message: format!("pipeline.relinearise_every_s: must be a positive number of seconds, got {every}") });
-    }
+    let mut config = scenario.pipeline.clone();
+    config.validate().map_err(|setting| RunError::Pipeline { scenario: scenario.name.clone(), setting })?;
     if let Some(m) = method {
         config.method = m;
     }
@@ -411,12 +404,21 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
     // fire on the first physics step at or after their time, so two scans can be up to a
     // step closer than the laser's period.
     let frame_read_by_one_scan = config.image_max_age_s < 1.0 / sim_config.laser.rate_hz - 1.0 / sim_config.physics_rate_hz;
+    let tree_ids: std::collections::BTreeSet<u16> = world.objects.iter().filter(|o| o.class == ObjectClass::Tree).map(|o| o.id).collect();
+    // The recall's denominators, from ground truth (the camera's true extrinsics).
+    let true_camera = sim_config.camera.enabled.then(|| camera_geometry(&scenario.sim, &calibration.truth));
+    let mut visibility = TreeVisibility::new(tree_ids.clone(), true_camera, config.clustering.min_points, config.clustering.max_range_m, config.confirm_observations);
     if let Some(region) = pipeline.image_region().filter(|_| !options.full_frames && frame_read_by_one_scan) {
-        sim.render_camera_columns(Box::new(move |scan| region.columns(&slam_scan(scan))));
+        // The columns the ground-truth count reads are rendered too, so that it does not
+        // depend on the columns the method asked for.
+        let truth_columns = visibility.clone();
+        sim.render_camera_columns(Box::new(move |scan, beams| merge_spans([region.columns(&slam_scan(scan)), truth_columns.columns(scan, beams)].concat())));
     }
+    // A scan and the frame of its instant fire on the same physics step.
+    let same_instant_s = 0.5 / sim_config.physics_rate_hz;
     let (mut pixels_rendered, mut pixels_framed) = (0u64, 0u64);
-    // The latest frame's class mask, for scoring the segmentation.
-    let mut last_frame: Option<(f64, u32, u32, Vec<u8>)> = None;
+    // The latest frame's ground-truth images, for scoring the segmentation and the recall.
+    let mut last_frame: Option<TruthImages> = None;
     let mut seg_scores = PatchScores::default();
     // The true object of each association decision's observation, in decision order.
     let mut decision_truth: Vec<u16> = Vec::new();
@@ -428,15 +430,14 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
     let mut nees_n = 0usize;
     // Per landmark id, the true object of each observation, and the associations to score.
     let mut ledger = crate::score::AssociationLedger::default();
-    // Trees the method could map: laser-seen for position-only methods; seen in the
-    // camera at a laser cluster in enough frames to be confirmed, for camera methods.
-    let mut trees_seen: std::collections::BTreeSet<u16> = Default::default();
-    let mut trees_in_view: BTreeMap<u16, usize> = BTreeMap::new();
+    // Camera methods: trees whose cluster the method's own segmentation judged in enough
+    // frames to be confirmed (a count that depends on the method, kept to explain misses).
+    let mut trees_judged: std::collections::BTreeSet<u16> = Default::default();
+    let mut judged_frames: BTreeMap<u16, usize> = BTreeMap::new();
     // One line per segmented cluster (camera methods): why it was or was not an object.
     let mut segmentation_log = String::new();
     let camera_method = config.method.uses_appearance();
     let mut people_tracks: BTreeMap<u16, Vec<[f64; 2]>> = BTreeMap::new();
-    let tree_ids: std::collections::BTreeSet<u16> = world.objects.iter().filter(|o| o.class == ObjectClass::Tree).map(|o| o.id).collect();
     let mut last_progress = -1.0;
     let mut merges_scored = 0;
 
@@ -487,14 +488,14 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
                         // ...and only in frames where it could judge the cluster (its band
                         // in the image, not cut by the image's edge).
                         if tree_ids.contains(&obj) && cs.band_visible && !cs.at_image_edge {
-                            let n = trees_in_view.entry(obj).or_insert(0usize);
+                            let n = judged_frames.entry(obj).or_insert(0usize);
                             *n += 1;
                             if *n >= config.confirm_observations {
-                                trees_seen.insert(obj);
+                                trees_judged.insert(obj);
                             }
                         }
                     }
-                    if let Some((ft, w, _, class)) = &last_frame
+                    if let Some(TruthImages { t: ft, width: w, class, .. }) = &last_frame
                         && *ft == rec.t_image
                     {
                         let l = rec.patch_size;
@@ -511,9 +512,6 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
                 }
                 for (ci, c) in result.clusters.iter().enumerate() {
                     let obj = true_object(&beams.hit_ids, c.first_beam, c.last_beam);
-                    if tree_ids.contains(&obj) && !camera_method {
-                        trees_seen.insert(obj);
-                    }
                     if let Some(id) = result.assigned[ci] {
                         ledger.observe(id, obj);
                     }
@@ -524,19 +522,8 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
                     ledger.fuse(m.kept, m.removed);
                 }
                 merges_scored = pipeline.merges().len();
-                // Trees the laser could have clustered but the size filter dropped are
-                // still "seen" if several beams hit them within clustering range.
-                let mut counts: BTreeMap<u16, usize> = BTreeMap::new();
-                for (i, id) in beams.hit_ids.iter().enumerate() {
-                    if tree_ids.contains(id) && beams.true_ranges[i] <= config.clustering.max_range_m {
-                        *counts.entry(*id).or_default() += 1;
-                    }
-                }
-                for (id, n) in counts {
-                    if n >= config.clustering.min_points && !camera_method {
-                        trees_seen.insert(id);
-                    }
-                }
+                let frame = last_frame.as_ref().filter(|f| (f.t - scan.t).abs() < same_instant_s).map(|f| InstanceImage { t: f.t, width: f.width, height: f.height, instance: &f.instance, columns: f.columns.as_deref() });
+                visibility.on_scan(&scan, &beams, frame.as_ref());
                 for p in &truth.people {
                     people_tracks.entry(p.id).or_default().push([p.x, p.y]);
                 }
@@ -547,8 +534,8 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
                 let columns_rendered = img.columns.as_ref().map_or(img.width, |c| c.iter().map(|(a, b)| b - a).sum());
                 pixels_rendered += columns_rendered as u64 * img.height as u64;
                 pixels_framed += img.width as u64 * img.height as u64;
-                pipeline.on_image_columns(frame.t, img.width, img.height, img.rgb, img.columns).map_err(|e| RunError::Online(e.to_string()))?;
-                last_frame = Some((frame.t, img.width, img.height, img.class));
+                pipeline.on_image_columns(frame.t, img.width, img.height, img.rgb, img.columns.clone()).map_err(|e| RunError::Online(e.to_string()))?;
+                last_frame = Some(TruthImages { t: frame.t, width: img.width, height: img.height, class: img.class, instance: img.instance, columns: img.columns });
             }
         }
         pipe_time += tick.elapsed().as_secs_f64();
@@ -569,11 +556,19 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
             pipeline.unrendered_reads()
         )));
     }
+    if visibility.unrendered_reads() > 0 {
+        return Err(RunError::Online(format!("the tree-recall count read {} pixels in image columns the camera did not render (a bug; `--full-frames` renders whole frames)", visibility.unrendered_reads())));
+    }
     progress(sim.time(), nominal);
     let wall = started.elapsed().as_secs_f64();
 
     let landmark_object = ledger.landmark_objects();
-    let mut map = MapContent { trees_seen: trees_seen.len(), ..Default::default() };
+    let mut map = MapContent {
+        trees_in_view: visibility.trees_in_view().map(|t| t.len()),
+        trees_laser_seen: visibility.trees_laser_seen().len(),
+        trees_judged: camera_method.then_some(trees_judged.len()),
+        ..Default::default()
+    };
     let mut per_object: BTreeMap<u16, usize> = BTreeMap::new();
     for lm in pipeline.mapped_landmarks() {
         let obj = landmark_object.get(&lm.id).copied().unwrap_or(0);
@@ -587,7 +582,12 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
             _ => map.nothing += 1,
         }
     }
-    map.trees_mapped = per_object.keys().filter(|id| tree_ids.contains(id)).count();
+    let trees_mapped: std::collections::BTreeSet<u16> = per_object.keys().filter(|id| tree_ids.contains(id)).copied().collect();
+    map.trees_mapped = trees_mapped.len();
+    let in_view = visibility.trees_in_view();
+    let to_map = if camera_method { in_view.as_ref() } else { Some(visibility.trees_laser_seen()) };
+    map.tree_recall = score::tree_recall(&trees_mapped, to_map);
+    map.missed_trees = to_map.map(|t| t.difference(&trees_mapped).copied().collect()).unwrap_or_default();
     let duplicates: usize = per_object.iter().filter(|(id, _)| **id != 0).map(|(_, n)| n.saturating_sub(1)).sum();
     let false_landmarks = map.posts + map.palms + map.people + map.walls + map.nothing;
 
@@ -695,9 +695,10 @@ pub fn check_pass(scenario: &Scenario, m: &Metrics) -> Vec<String> {
         f.push(format!("{} duplicate landmarks (max {max})", m.duplicate_landmarks));
     }
     if let Some(min) = p.min_tree_recall {
-        let recall = if m.map.trees_seen == 0 { 1.0 } else { m.map.trees_mapped as f64 / m.map.trees_seen as f64 };
-        if recall < min {
-            f.push(format!("tree recall {recall:.2} ({} of {} seen; min {min})", m.map.trees_mapped, m.map.trees_seen));
+        match m.map.tree_recall {
+            Some(recall) if recall >= min => {}
+            Some(recall) => f.push(format!("tree recall {recall:.2} ({}; min {min})", m.map.recall_in_words())),
+            None => f.push(format!("tree recall undefined: {} (min {min})", m.map.recall_in_words())),
         }
     }
     if let Some(max) = p.max_ate_rmse_m
@@ -867,14 +868,17 @@ pub struct RetractionCounts {
 
 /// Short summary table for the terminal.
 pub fn summary_table(m: &Metrics) -> String {
-    let recall = if m.map.trees_seen == 0 { 1.0 } else { m.map.trees_mapped as f64 / m.map.trees_seen as f64 };
     let mut s = String::new();
     s.push_str(&format!("scenario {}  method {}  seed {}\n", m.scenario, m.method, m.seed));
     s.push_str(&format!("  simulated {:.1} s in {:.2} s ({:.0}x real time; simulator {:.1} s, pipeline {:.1} s, {:.2} ms per scan)\n", m.sim_seconds, m.wall_seconds, m.realtime_factor, m.timing.simulator_s, m.timing.pipeline_s, m.timing.mean_scan_ms));
     if let Some(renderer) = &m.renderer {
         s.push_str(&format!("  rendered by       {renderer}\n"));
     }
-    s.push_str(&format!("  trees mapped      {:>4} of {} seen ({:.0}%)\n", m.map.trees_mapped, m.map.trees_seen, 100.0 * recall));
+    let recall = m.map.tree_recall.map_or("undefined".to_string(), |r| format!("{:.0}%", 100.0 * r));
+    s.push_str(&format!("  tree recall       {recall:>4} ({})\n", m.map.recall_in_words()));
+    if let Some(judged) = m.map.trees_judged {
+        s.push_str(&format!("  trees judged      {judged:>4} (by the method's own segmentation, in enough frames)\n"));
+    }
     s.push_str(&format!("  false landmarks   {:>4} (posts {}, palms {}, people {}, walls {}, nothing {}; {} retracted, {} of them trees)\n", m.false_landmarks, m.map.posts, m.map.palms, m.map.people, m.map.walls, m.map.nothing, m.retracted_landmarks.total, m.retracted_landmarks.trees));
     s.push_str(&format!("  duplicates        {:>4} ({} fused)\n", m.duplicate_landmarks, m.merged_landmarks));
     if m.relinearisations + m.relinearisation_failures > 0 {

@@ -13,8 +13,8 @@ pub enum ScenarioError {
     Read { file: PathBuf, source: std::io::Error },
     #[error("{}: {message}", file.display())]
     Parse { file: PathBuf, message: String },
-    #[error("{}: {field}: {message}", file.display())]
-    Invalid { file: PathBuf, field: String, message: String },
+    #[error("{}: {}{field}: {message}", file.display(), line.map(|l| format!("line {l}: ")).unwrap_or_default())]
+    Invalid { file: PathBuf, line: Option<usize>, field: String, message: String },
     #[error("unknown scenario {name:?}: not a file and not one of the built-in scenarios ({})", available.join(", "))]
     Unknown { name: String, available: Vec<String> },
     #[error("{}: world: {source}", file.display())]
@@ -149,9 +149,10 @@ pub struct Scenario {
     pub sim: sim::SimConfig,
     #[serde(default)]
     pub calibration: CalibrationChoice,
-    /// Pipeline settings (association method, thresholds, model), passed to the runner.
+    /// Pipeline settings (association method, thresholds, model), typed and checked when
+    /// the file is read.
     #[serde(default)]
-    pub pipeline: toml::Table,
+    pub pipeline: slam::pipeline::PipelineConfig,
     /// The appearance model of the camera methods: a file, or trained and cached.
     #[serde(default)]
     pub appearance: crate::appearance::AppearanceSource,
@@ -180,7 +181,10 @@ impl Scenario {
     /// Parses and checks scenario text; `file` names it in errors.
     pub fn parse(text: &str, file: &Path) -> Result<Scenario, ScenarioError> {
         let s: Scenario = toml::from_str(text).map_err(|e| ScenarioError::Parse { file: file.to_path_buf(), message: e.to_string().trim_end().to_string() })?;
-        s.check(file)?;
+        s.check(file).map_err(|e| match e {
+            ScenarioError::Invalid { file, line: None, field, message } => ScenarioError::Invalid { line: line_of(text, &field), file, field, message },
+            other => other,
+        })?;
         Ok(s)
     }
 
@@ -200,7 +204,7 @@ impl Scenario {
     }
 
     fn check(&self, file: &Path) -> Result<(), ScenarioError> {
-        let bad = |field: &str, message: String| Err(ScenarioError::Invalid { file: file.to_path_buf(), field: field.into(), message });
+        let bad = |field: &str, message: String| Err(ScenarioError::Invalid { file: file.to_path_buf(), line: None, field: field.into(), message });
         match (&self.world.preset, &self.world.file) {
             (Some(_), Some(_)) => return bad("world", "give either `preset` or `file`, not both".into()),
             (None, None) => return bad("world", "needs `preset` (e.g. \"park\") or `file`".into()),
@@ -242,6 +246,9 @@ impl Scenario {
             };
             return bad("calibration.session", message);
         }
+        if let Err(e) = self.pipeline.validate() {
+            return bad(&format!("pipeline.{}", e.path), e.problem);
+        }
         if let Some(r) = self.pass.min_tree_recall
             && !(0.0..=1.0).contains(&r)
         {
@@ -261,6 +268,29 @@ impl Scenario {
             worlds::load(&path).map_err(|source| ScenarioError::World { file, source })
         }
     }
+}
+
+/// The line (1-based) of the dotted key `path` in TOML `text`, where it is written as
+/// `key = ...` under its table's header (`[a.b]` then `c = ...` for `a.b.c`); `None` when
+/// it is spelled another way or not written (a default).
+pub fn line_of(text: &str, path: &str) -> Option<usize> {
+    // Array indices (`initial_pose_sigma[2]`) point at the array's own line.
+    let path = path.split('[').next().unwrap_or(path);
+    let mut table = String::new();
+    for (i, raw) in text.lines().enumerate() {
+        let line = raw.split('#').next().unwrap_or("").trim();
+        if let Some(header) = line.strip_prefix('[').and_then(|l| l.strip_suffix(']')) {
+            table = header.trim_matches(['[', ']', ' ']).to_string();
+            continue;
+        }
+        let Some((key, _)) = line.split_once('=') else { continue };
+        let key = key.trim().trim_matches('"');
+        let full = if table.is_empty() { key.to_string() } else { format!("{table}.{key}") };
+        if full == path {
+            return Some(i + 1);
+        }
+    }
+    None
 }
 
 #[cfg(test)]
@@ -289,6 +319,8 @@ mod tests {
         assert!(e.contains("min_tree_recall"), "{e}");
         let e = Scenario::parse("name = \"x\"\nwrld = 3\n", f).unwrap_err().to_string();
         assert!(e.contains("wrld") && e.contains("line"), "{e}");
+        let e = Scenario::parse("name = \"x\"\n[world]\npreset = \"park\"\n\n[pipeline.evidence]\n# a comment\nradius_m = -1.0\n", f).unwrap_err().to_string();
+        assert!(e.contains("bad.toml: line 7: pipeline.evidence.radius_m"), "{e}");
         let e = Scenario::load("no_such_scenario").unwrap_err().to_string();
         assert!(e.contains("paper_park"), "{e}");
     }

@@ -89,19 +89,68 @@ pub fn hungarian(cost: &[Vec<f64>]) -> Vec<Option<usize>> {
     result
 }
 
-/// Counts of mapped landmarks by the class of the object they truly belong to.
+/// Counts of mapped landmarks by the class of the object they truly belong to, and the
+/// trees there were to map (denominators from ground truth: see `crate::visibility`).
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct MapContent {
-    /// Trees the robot's laser hit at least once.
-    pub trees_seen: usize,
+    /// Trees the laser hit with enough beams within the clustering range, at scans whose
+    /// camera frame of the same instant shows the tree at those beams' pixels, in enough
+    /// scans to confirm a landmark; `None` for runs without a camera.
+    #[serde(default)]
+    pub trees_in_view: Option<usize>,
+    /// Trees the laser hit with enough beams within the clustering range at some scan.
+    #[serde(default)]
+    pub trees_laser_seen: usize,
+    /// Camera methods: trees whose cluster the method's own segmentation judged in enough
+    /// frames. It depends on the method, so it explains misses and is no denominator.
+    #[serde(default)]
+    pub trees_judged: Option<usize>,
+    /// Share of the trees in view mapped for camera methods, of the trees seen by the laser
+    /// for the others; `None` when there was no tree to map.
+    #[serde(default)]
+    pub tree_recall: Option<f64>,
     /// Distinct trees with at least one landmark on them.
     pub trees_mapped: usize,
+    /// Ids of the trees in the recall's denominator that carry no landmark: where to look.
+    #[serde(default)]
+    pub missed_trees: Vec<u16>,
     pub posts: usize,
     pub palms: usize,
     pub people: usize,
     pub walls: usize,
     /// Landmarks on nothing at all (spurious).
     pub nothing: usize,
+}
+
+impl MapContent {
+    /// The recall's terms, e.g. "8 of 10 trees in view mapped; 12 seen by the laser".
+    pub fn recall_in_words(&self) -> String {
+        match self.trees_in_view {
+            Some(n) => format!("{} of {n} trees in view mapped; {} seen by the laser", n - self.missed_trees.len(), self.trees_laser_seen),
+            None => format!("{} of {} trees seen by the laser mapped", self.trees_laser_seen - self.missed_trees.len(), self.trees_laser_seen),
+        }
+    }
+}
+
+/// Share of the trees there were to map that were mapped (a mapped tree outside that set
+/// adds nothing: recall never exceeds 1); undefined (`None`) without a denominator or with
+/// none to map, so that a criterion cannot pass on a run that had nothing to find.
+pub fn tree_recall(mapped: &std::collections::BTreeSet<u16>, to_map: Option<&std::collections::BTreeSet<u16>>) -> Option<f64> {
+    to_map.filter(|t| !t.is_empty()).map(|t| t.intersection(mapped).count() as f64 / t.len() as f64)
+}
+
+#[cfg(test)]
+mod recall_tests {
+    use super::*;
+
+    #[test]
+    fn recall_counts_only_trees_there_were_to_map_and_is_undefined_without_any() {
+        let mapped = [1, 2, 9].into();
+        assert_eq!(tree_recall(&mapped, Some(&[1, 2, 3, 4].into())), Some(0.5));
+        assert_eq!(tree_recall(&mapped, Some(&[1, 2].into())), Some(1.0), "tree 9 was mapped but not there to map");
+        assert_eq!(tree_recall(&mapped, Some(&Default::default())), None);
+        assert_eq!(tree_recall(&mapped, None), None);
+    }
 }
 
 /// Association outcome counts.

@@ -1,4 +1,5 @@
-//! Simulator settings, with the facts of REFERENCES.md as defaults, and their checks.
+//! Simulator settings, with the published facts of the sensors and robot (SICK LMS2xx,
+//! Pioneer 2-AT) as defaults, and their checks.
 
 use serde::{Deserialize, Serialize};
 

@@ -107,9 +107,10 @@ enum Pending {
     Frame(GroundTruth),
 }
 
-/// Chooses, from the laser scan of a frame's instant, the pixel columns (`start..end`,
-/// sorted, disjoint) of that frame a consumer will read.
-pub type ColumnSelector = Box<dyn Fn(&LaserScan) -> Vec<(u32, u32)> + Send + Sync>;
+/// Chooses, from the laser scan of a frame's instant (and what its beams truly hit, for
+/// consumers that score against ground truth), the pixel columns (`start..end`, sorted,
+/// disjoint) of that frame a consumer will read.
+pub type ColumnSelector = Box<dyn Fn(&LaserScan, &LaserTruth) -> Vec<(u32, u32)> + Send + Sync>;
 
 /// A running simulation.
 pub struct Simulation {
@@ -341,7 +342,7 @@ impl Simulation {
         let scan = self.laser_schedule.due(t).then(|| self.laser.scan(&self.scene, &truth.robot, t));
         if self.camera_schedule.due(t) {
             let columns = match (&self.camera_columns, &scan) {
-                (Some(select), Some((scan, _))) => Some(select(scan)),
+                (Some(select), Some((scan, beams))) => Some(select(scan, beams)),
                 _ => None,
             };
             if let Some(thread) = &self.camera_thread {

@@ -205,7 +205,7 @@ fn a_column_selector_renders_each_frame_where_the_scan_of_its_instant_says() {
     config.camera.noise_sigma = 2.0;
     config.camera.exposure_sigma = 0.05;
     // Columns from the scan: a band that moves with the number of beams that hit something.
-    let select = |scan: &sim::LaserScan| {
+    let select = |scan: &sim::LaserScan, _: &sim::LaserTruth| {
         let hits = scan.ranges.iter().filter(|r| r.is_finite() && **r < scan.range_max).count() as u32;
         vec![(hits % 300, hits % 300 + 40), (400, 480)]
     };
@@ -222,9 +222,9 @@ fn a_column_selector_renders_each_frame_where_the_scan_of_its_instant_says() {
             match e {
                 SensorEvent::Camera { frame, .. } => out.push((frame, None)),
                 // The scan of a frame's instant follows it.
-                SensorEvent::Laser { scan, .. } => {
+                SensorEvent::Laser { scan, beams, .. } => {
                     if let Some(last) = out.last_mut().filter(|(f, chosen)| f.t == scan.t && chosen.is_none()) {
-                        last.1 = Some(select(&scan));
+                        last.1 = Some(select(&scan, &beams));
                     }
                 }
                 _ => {}
@@ -253,7 +253,7 @@ fn a_column_selector_renders_each_frame_where_the_scan_of_its_instant_says() {
     }
     // Columns the image does not have stop the camera, not the run.
     let mut s = Simulation::new(&world, &config, 5).unwrap();
-    s.render_camera_columns(Box::new(|_| vec![(600, 700)]));
+    s.render_camera_columns(Box::new(|_, _| vec![(600, 700)]));
     let mut events = 0;
     while s.next_event().is_some() {
         events += 1;

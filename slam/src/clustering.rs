@@ -11,7 +11,7 @@ use crate::messages::LaserScan;
 
 /// Clustering settings.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
+#[serde(default, deny_unknown_fields)]
 pub struct ClusteringConfig {
     /// Incidence angle below which a surface is considered a new object (deg).
     pub lambda_deg: f64,
@@ -27,6 +27,33 @@ pub struct ClusteringConfig {
 impl Default for ClusteringConfig {
     fn default() -> Self {
         ClusteringConfig { lambda_deg: 10.0, range_sigma_m: 0.01, min_points: 3, min_diameter_m: 0.15, max_diameter_m: 1.0, max_range_m: 12.0 }
+    }
+}
+
+impl ClusteringConfig {
+    /// The first setting that makes no sense, as (field, problem).
+    pub fn validate(&self) -> Result<(), (&'static str, String)> {
+        // Incidence angles beyond 90 degrees do not exist; at 0 every beam would split.
+        if !(self.lambda_deg > 0.0 && self.lambda_deg < 90.0) {
+            return Err(("lambda_deg", format!("must be between 0 and 90 degrees (exclusive), got {}", self.lambda_deg)));
+        }
+        if !(self.range_sigma_m.is_finite() && self.range_sigma_m >= 0.0) {
+            return Err(("range_sigma_m", format!("must be finite and not negative, got {}", self.range_sigma_m)));
+        }
+        // A circle needs three points to be fitted.
+        if self.min_points < 3 {
+            return Err(("min_points", format!("must be at least 3 (a circle fit needs three points), got {}", self.min_points)));
+        }
+        if !(self.min_diameter_m.is_finite() && self.min_diameter_m >= 0.0) {
+            return Err(("min_diameter_m", format!("must be finite and not negative, got {}", self.min_diameter_m)));
+        }
+        if !(self.max_diameter_m.is_finite() && self.max_diameter_m > self.min_diameter_m) {
+            return Err(("max_diameter_m", format!("must be finite and above min_diameter_m ({}), got {}", self.min_diameter_m, self.max_diameter_m)));
+        }
+        if !(self.max_range_m.is_finite() && self.max_range_m > 0.0) {
+            return Err(("max_range_m", format!("must be a positive number of metres, got {}", self.max_range_m)));
+        }
+        Ok(())
     }
 }
 

@@ -4,12 +4,8 @@
 //! three laser patches in one frame and all three in the next, and its band above the
 //! laser is mostly but not always object. Judged frame by frame, a threshold that accepts
 //! such trees also accepts palms and posts on their lucky frames. Pooled over the frames in
-//! which the camera judged the same place, trees and look-alikes separate: measured on
-//! `paper_park`, `posts_near_trees` and `crowd` (seed 1, patch threshold 0.5), every tree's
-//! mean hit fraction is 0.70 or more and its mean band fraction 0.63 or more, while posts
-//! stay below 0.3 in the band (one post with a tree right behind it excepted: it fails on
-//! its hits, 0.60), people below 0.25, and palms below 0.55 on their hits or 0.56 in
-//! the band.
+//! which the camera judged the same place, trees and look-alikes separate (the measured
+//! means are in docs/results.md).
 
 use serde::{Deserialize, Serialize};
 
@@ -20,8 +16,9 @@ pub struct EvidenceConfig {
     /// Decide on the pooled evidence (true) or on each frame alone (false: the
     /// segmentation's own per-frame thresholds).
     pub pooled: bool,
-    /// A frame joins the place whose centre (the mean of its frames' cluster centres, map
-    /// frame) is nearest and within this distance (m); otherwise it starts a new place.
+    /// A frame joins the place whose centre (the mean of its frames' cluster centres, in
+    /// the odometry frame, which does not jump when the filter corrects the map) is nearest
+    /// and within this distance (m); otherwise it starts a new place.
     /// Under the distance between a post and the tree beside it.
     pub radius_m: f64,
     /// A place not judged for this long (s) is forgotten; odometry drift would otherwise
@@ -32,22 +29,17 @@ pub struct EvidenceConfig {
     /// Until then: false, the place is not observed; true, each frame's own judgement
     /// decides (as in the paper). True gives look-alikes short-lived tentative landmarks,
     /// which steady the heading through turns where trees are few but take tree
-    /// observations when a post stands beside its tree. Measured with
-    /// `objslam montecarlo study --runs 4` (combined-method failure rate): against heading
-    /// drift 0/0.002/0.005/0.01 rad/m, false 0/25/75/75%, true 0/0/25/75%; against post
-    /// distance 0.5/1/2/3 m, false 50/0/25/0%, true 100/0/100/0%.
+    /// observations when a post stands beside its tree (`objslam montecarlo study`
+    /// compares the two; docs/results.md).
     pub undecided_by_frame: bool,
     /// Mean fraction of laser patches that are object patches.
     pub min_hit_fraction: f64,
     /// A landmark is retracted when at least `retract_min_frames` frames of its place
     /// judged from nearer than `retract_range_m` have a mean hit fraction under
     /// `retract_max_hit_fraction` (see `Pipeline::retractions`): from 8-12 m a palm's trunk
-    /// passes for bark, from nearer it does not. Measured on the segmentation logs of
-    /// paper_park, posts_near_trees, crowd (seed 1) and long_loop (seeds 1-4), per object
-    /// and run, the lowest running mean once 8 frames nearer than 7.5 m were in (frames
-    /// pooled as places are, forgotten after a 5 s gap): trees 0.60 or more (101), palms
-    /// 0.36 or less (9). Palms first accepted from far are the usual false landmarks of
-    /// the combined method on a long run (long_loop).
+    /// passes for bark, from nearer it does not (measured separation in docs/results.md).
+    /// Palms first accepted from far are the usual false landmarks of the combined method
+    /// on a long run (long_loop).
     pub retract: bool,
     pub retract_range_m: f64,
     pub retract_min_frames: usize,
@@ -135,7 +127,7 @@ impl ObjectEvidence {
         ObjectEvidence { config, places: Vec::new() }
     }
 
-    /// Adds one frame in which the camera judged the cluster at map position `centre`,
+    /// Adds one frame in which the camera judged the cluster at `centre` (odometry frame),
     /// `range_m` away (fractions as in
     /// [`SegmentedCluster`](crate::segmentation::SegmentedCluster)), and returns its
     /// place's judgement.

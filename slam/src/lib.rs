@@ -22,3 +22,4 @@ pub mod messages;
 pub mod object_model;
 pub mod pipeline;
 pub mod segmentation;
+pub mod settings;

@@ -1,5 +1,5 @@
 //! Per-object models (paper section 4.2): an object's segmented patches, their features
-//! augmented with the patches' global positions, and a VB-GMM over them (DESIGN.md `p_L`).
+//! augmented with the patches' global positions, and a VB-GMM over them (docs/design.md, paper symbols: `p_L`).
 //!
 //! Positions are stored relative to the object's landmark (x, y in the map frame, metres;
 //! h, the height above the laser plane), so a model stays attached to its landmark when the
@@ -38,6 +38,29 @@ pub struct ObjectModelConfig {
 impl Default for ObjectModelConfig {
     fn default() -> Self {
         ObjectModelConfig { components: 1, position_floor_m: 0.3, kl_threshold: 80.0, mosaic_patches: 400, appearance_dims: 4 }
+    }
+}
+
+/// Most mixture components an object model may have: a model of one view's few hundred
+/// patches cannot support more.
+pub const MAX_OBJECT_COMPONENTS: usize = 32;
+
+impl ObjectModelConfig {
+    /// The first setting that makes no sense, as (field, problem).
+    pub fn validate(&self) -> Result<(), (&'static str, String)> {
+        if self.components > MAX_OBJECT_COMPONENTS {
+            return Err(("components", format!("must be at most {MAX_OBJECT_COMPONENTS} (0 searches), got {}", self.components)));
+        }
+        if !(self.position_floor_m.is_finite() && self.position_floor_m >= 0.0) {
+            return Err(("position_floor_m", format!("must be finite and not negative, got {}", self.position_floor_m)));
+        }
+        if !(self.kl_threshold.is_finite() && self.kl_threshold > 0.0) {
+            return Err(("kl_threshold", format!("must be a positive number of nats, got {}", self.kl_threshold)));
+        }
+        if self.appearance_dims == 0 {
+            return Err(("appearance_dims", "must be at least 1".into()));
+        }
+        Ok(())
     }
 }
 
@@ -182,9 +205,8 @@ impl ObjectModel {
             // The offset's uncertainty widens the observation, not the model. KL(f || g)
             // punishes an f wider than g, so the less the filter knows where the object is,
             // the less readily an observation joins it: after a long drift this makes
-            // duplicates rather than wrong associations. (Widening the model instead was
-            // measured on long_loop: the trees' appearances are too alike to carry the
-            // decision, and 110 wrong associations wrecked the map.)
+            // duplicates rather than wrong associations. (Widening the model instead leaves
+            // the decision to appearance, and the trees' appearances are too alike.)
             let obs = shifted(fitted_obs, d - 3, [obs_centre[0] - landmark[0], obs_centre[1] - landmark[1]], offset_covariance);
             (with_position_floor(&obs, d - 3, config.position_floor_m), with_position_floor(&self.gmm, d - 3, config.position_floor_m))
         };

@@ -23,6 +23,7 @@ use crate::features::ImageRef;
 use crate::gmm::{Gmm, StudentTMixture};
 use crate::messages::{LaserScan, OdometryIncrement};
 use crate::object_model::{fit_observation, ObjectModel, ObjectModelConfig, ObjectObservation};
+use crate::settings::InvalidSetting;
 use crate::segmentation::{locate_cluster, segment_located, spans_cover, CameraGeometry, ImageRegion, SegmentationConfig, SegmentedCluster};
 use rayon::prelude::*;
 
@@ -60,26 +61,18 @@ pub struct PipelineConfig {
     /// other pairing fits as well. After a long drift the filter is too unsure of the pose
     /// for the KL test of any single observation (it widens the observation by the offset's
     /// uncertainty), while the constellation of the trees seen together still tells where
-    /// the robot is. Measured with `objslam montecarlo long_loop --runs 20 --methods
-    /// combined` (with `diameter`, `defer_near_lookalike` and retraction): on, 10 runs
-    /// pass, the loop closes in all 20 (1680-1980 associations), 5 have wrong associations
-    /// (94 in all: after the closure's metres-long correction the filter grows
-    /// overconfident, ANEES up to 23, and later takes a neighbouring tree of the same
-    /// girth); off, 4 pass, none has a wrong association, but the loop never closes
-    /// (930-1000 associations) and deferred trees stay unmapped in 14. Without the diameter check it closed seed
-    /// 1's loop onto a look-alike pair 3.8 m off (84 wrong associations). On `paper_park`
-    /// it changes no run (100 Monte Carlo runs identical).
+    /// the robot is. Off, `long_loop`'s loop never closes; measured effect in
+    /// docs/results.md.
     pub joint_loop_closing: bool,
     /// Combined method: an observation the KL test leaves without a landmark starts none
     /// while a confirmed landmark that looks alike (appearance KL, trunk diameter) lies
     /// within its new-landmark gate ([`Choice::Deferred`]). The position-only methods
-    /// have the same rule (`new_landmark_probability`). Without it, `long_loop` (seed 1)
-    /// started 19 duplicates at the loop's return.
+    /// have the same rule (`new_landmark_probability`). Without it a drifted return starts
+    /// duplicates (docs/results.md).
     pub defer_near_lookalike: bool,
-    /// First-estimate Jacobians in the filter (see [`crate::ekf::FirstEstimates`]).
-    /// Measured with `objslam montecarlo paper_park --runs 100 --methods combined`: all 100
-    /// runs pass with and without; median ATE 0.29 -> 0.25 m (better in 65 runs, worst
-    /// 1.07 -> 0.88 m), ANEES at most 4.9 -> 3.2. On `long_loop` (seed 1) ATE 4.0 -> 2.2 m.
+    /// First-estimate Jacobians in the filter (see [`crate::ekf::FirstEstimates`]): they
+    /// keep the filter from gaining information it does not have (lower ATE and ANEES,
+    /// docs/results.md).
     pub first_estimate_jacobians: bool,
     /// Combined method: a candidate landmark whose trunk diameter (the mean of its laser
     /// clusters' circle fits) disagrees with the observation's is not that object.
@@ -92,20 +85,18 @@ pub struct PipelineConfig {
     /// not seen since before the loop move to where the closure says they are.
     pub relinearise_loop_closures: bool,
     /// With `relinearise_loop_closures`: also relinearise once this many seconds have
-    /// passed since the last time (or the start). Off by default. Measured with
-    /// `objslam montecarlo long_loop --runs 20 --methods combined`, every 30 s: 16 pass as
-    /// without it, and no run has a wrong association (2 runs without it), but the median
-    /// ATE rises from 2.04 to 2.32 m: before the loop closes the data hardly constrain
-    /// the odometry's calibration, and the batch solution moved one run's pose 3.9 m off.
+    /// passed since the last time (or the start). Off by default: before a loop closes the
+    /// data hardly constrain the odometry's calibration, and the batch solution can move
+    /// the pose further off than the filter had it (docs/results.md).
     pub relinearise_every_s: Option<f64>,
 }
 
 /// The laser's trunk diameter as an association cue: an observation is compatible with a
 /// landmark when |d_obs - d_landmark| <= `max_sigmas` sigma, sigma = (`sigma_m` +
-/// `sigma_per_m` x range) x sqrt(1 + 1/n) for a landmark seen n times. The defaults are
-/// the spread measured on `paper_park` and `long_loop` (seed 1) between single clusters and
-/// their landmark's mean: standard deviation 0.02 m at 3-5 m, 0.026 at 7-9 m, 0.035-0.038 at 9-12 m.
-/// Trees differ in girth; look-alike neighbours at a loop closure often do not.
+/// `sigma_per_m` x range) x sqrt(1 + 1/n) for a landmark seen n times. The defaults follow
+/// the measured spread of single clusters about their landmark's mean, which grows with
+/// range as the beams spread (docs/results.md). Trees differ in girth; look-alike
+/// neighbours at a loop closure often do not.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct DiameterCheck {
@@ -229,6 +220,49 @@ impl Default for PipelineConfig {
             relinearise_loop_closures: true,
             relinearise_every_s: None,
         }
+    }
+}
+
+impl PipelineConfig {
+    /// The first setting that makes no sense, with its dotted path. Every knob has a range
+    /// here, so that no value is silently clamped, ignored or turned into NaN gates.
+    pub fn validate(&self) -> Result<(), InvalidSetting> {
+        self.clustering.validate().map_err(|e| InvalidSetting::in_table("clustering", e))?;
+        self.motion.validate().map_err(|e| InvalidSetting::in_table("motion", e))?;
+        self.sensor.validate().map_err(|e| InvalidSetting::in_table("sensor", e))?;
+        self.segmentation.validate().map_err(|e| InvalidSetting::in_table("segmentation", e))?;
+        self.evidence.validate().map_err(|e| InvalidSetting::in_table("evidence", e))?;
+        self.object_model.validate().map_err(|e| InvalidSetting::in_table("object_model", e))?;
+        self.merge.validate().map_err(|e| InvalidSetting::in_table("merge", e))?;
+        self.diameter.validate().map_err(|e| InvalidSetting::in_table("diameter", e))?;
+        // Chi-square quantiles exist for probabilities strictly between 0 and 1: at 1 every
+        // gate is infinite (everything associates), at 0 empty.
+        for (name, p) in [("gate_probability", self.gate_probability), ("new_landmark_probability", self.new_landmark_probability), ("jcbb_probability", self.jcbb_probability)] {
+            if !(p > 0.0 && p < 1.0) {
+                return Err(InvalidSetting::new(name, format!("must be a probability between 0 and 1 (exclusive), got {p}")));
+            }
+        }
+        if let Some((i, s)) = self.initial_pose_sigma.iter().enumerate().find(|(_, s)| !(s.is_finite() && **s > 0.0)) {
+            return Err(InvalidSetting::new(format!("initial_pose_sigma[{i}]"), format!("must be a positive standard deviation, got {s}")));
+        }
+        if !(self.image_max_age_s.is_finite() && self.image_max_age_s >= 0.0) {
+            return Err(InvalidSetting::new("image_max_age_s", format!("must be zero or a positive number of seconds, got {}", self.image_max_age_s)));
+        }
+        if self.confirm_observations == 0 {
+            return Err(InvalidSetting::new("confirm_observations", "must be at least 1 (1 confirms a landmark at its first observation)"));
+        }
+        if !(self.confirm_window_s.is_finite() && self.confirm_window_s > 0.0) {
+            return Err(InvalidSetting::new("confirm_window_s", format!("must be a positive number of seconds, got {}", self.confirm_window_s)));
+        }
+        if let Some(every) = self.relinearise_every_s
+            && !(every.is_finite() && every > 0.0)
+        {
+            return Err(InvalidSetting::new("relinearise_every_s", format!("must be a positive number of seconds, got {every}")));
+        }
+        if self.relinearise_every_s.is_some() && !self.relinearise_loop_closures {
+            return Err(InvalidSetting::new("relinearise_every_s", "only applies with relinearise_loop_closures = true"));
+        }
+        Ok(())
     }
 }
 
@@ -386,6 +420,8 @@ pub enum PipelineError {
     NeedsAppearance(&'static str),
     #[error("image is {width}x{height} with {found} bytes; RGB needs {expected}")]
     Image { width: u32, height: u32, expected: usize, found: usize },
+    #[error("pipeline settings: {0}")]
+    Invalid(#[from] InvalidSetting),
 }
 
 impl Pipeline {
@@ -405,8 +441,17 @@ impl Pipeline {
 
     /// A pipeline for any method; the appearance methods need `appearance`.
     pub fn with_appearance(config: PipelineConfig, pose: [f64; 3], appearance: Option<Appearance>) -> Result<Self, PipelineError> {
+        config.validate()?;
         if config.method.uses_appearance() && appearance.is_none() {
             return Err(PipelineError::NeedsAppearance(config.method.name()));
+        }
+        // The object models use the leading PCA coordinates: more than the model has would
+        // be silently fewer.
+        if let Some(app) = &appearance
+            && config.object_model.appearance_dims > app.model.extractor.pca.dims()
+        {
+            let problem = format!("must be at most the appearance model's {} PCA dimensions, got {}", app.model.extractor.pca.dims(), config.object_model.appearance_dims);
+            return Err(InvalidSetting::new("object_model.appearance_dims", problem).into());
         }
         let mut p = Pipeline::new(config, pose);
         p.appearance = appearance;

@@ -6,7 +6,7 @@ use slam::classifier::TrainingOptions;
 
 /// A CI-sized run (40 images, 6,000 patches per class) measured held-out patch F1 0.82
 /// (precision 0.72, recall 0.95); the guard is 0.8. At full size (100 images, 20,000
-/// patches per class: `objslam train` defaults, see the README) F1 is 0.89, above the
+/// patches per class: `objslam train` defaults, see docs/results.md) F1 is 0.89, above the
 /// 0.85 goal.
 #[test]
 fn tree_patches_are_found_on_held_out_rendered_images() {

@@ -31,8 +31,7 @@ pub fn serve_worker(input: impl BufRead, mut output: impl Write) -> Result<(), S
     // The parent resolved every model first, so these load cached ones.
     let models = StudyModels::new(&base_dir);
     // Runs go on a rayon thread, so they simulate inline rather than on a thread of their
-    // own beside the pipeline: with one worker per core that is faster (8 paper_park runs
-    // on 2 cores: 50 s against 54 s).
+    // own beside the pipeline: with one worker per core the cores are already full.
     let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().map_err(|e| protocol(e.to_string()))?;
     for line in lines {
         let line = line.map_err(|e| protocol(e.to_string()))?;

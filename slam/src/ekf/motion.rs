@@ -86,11 +86,8 @@ impl Default for OdometryMotionModel {
         // exact noise is still optimistic over long runs (linearisation error). The
         // simulator's default calibration errors (1% scale, 2% turn scale, 0.002 rad/m
         // bias, one draw per run) are estimated as states with priors 1.5x those, so no
-        // random walk is needed for them. Measured with `objslam montecarlo paper_park
-        // --runs 100 --methods combined`: random walks instead of calibration states
-        // (d_per_m 0.004, a_per_m 0.0003, a_per_rad 0.003) passed 94 runs, 4 with a wrong
-        // association and 6 drifting into duplicates, median ATE 0.55 m; calibration
-        // states passed all 100, median ATE 0.29 m.
+        // random walk is needed for them (calibration states against random walks:
+        // docs/results.md).
         OdometryMotionModel {
             a_dd: 0.005,
             a_da: 0.0002,

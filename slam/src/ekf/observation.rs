@@ -8,6 +8,7 @@ use crate::messages::wrap_angle;
 /// A range-bearing sensor at `(mount_x, mount_y)` in the robot frame, bearings measured
 /// from the robot's heading.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct RangeBearingModel {
     pub mount_x: f64,
     pub mount_y: f64,
@@ -24,6 +25,22 @@ impl Default for RangeBearingModel {
 }
 
 impl RangeBearingModel {
+    /// The first setting that makes no sense, as (field, problem): a zero sigma makes the
+    /// filter certain of every observation, so its gates and consistency break.
+    pub fn validate(&self) -> Result<(), (&'static str, String)> {
+        for (name, v) in [("mount_x", self.mount_x), ("mount_y", self.mount_y)] {
+            if !v.is_finite() {
+                return Err((name, format!("must be finite, got {v}")));
+            }
+        }
+        for (name, v) in [("range_sigma_m", self.range_sigma_m), ("bearing_sigma_rad", self.bearing_sigma_rad)] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err((name, format!("must be positive, got {v}")));
+            }
+        }
+        Ok(())
+    }
+
     pub fn noise(&self) -> Matrix2<f64> {
         Matrix2::new(self.range_sigma_m.powi(2), 0.0, 0.0, self.bearing_sigma_rad.powi(2))
     }

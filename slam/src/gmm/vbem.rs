@@ -16,7 +16,7 @@ use super::GmmError;
 const LN_2PI: f64 = 1.837_877_066_409_345_5;
 const LN_PI: f64 = 1.144_729_885_849_400_2;
 
-/// The conjugate prior of the mixture (paper eq. 3; DESIGN.md `VbPrior`).
+/// The conjugate prior of the mixture (paper eq. 3; docs/design.md, paper symbols).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct VbPrior {
     /// Symmetric Dirichlet concentration on the weights (paper lambda_0).
