@@ -75,6 +75,10 @@ enum Command {
         /// TOML file of simulator settings (see `sim::SimConfig`).
         #[arg(long)]
         sim_config: Option<PathBuf>,
+        /// `jsonl`: JSON lines, TUM, PNGs and a Foxglove MCAP; `ros2`: a ROS 2 bag
+        /// (`ros2 bag play OUT`).
+        #[arg(long, value_enum, default_value_t = scenarios::record::RecordFormat::Jsonl)]
+        format: scenarios::record::RecordFormat,
         #[arg(long)]
         out: PathBuf,
     },
@@ -280,7 +284,7 @@ fn run(cli: Cli) -> Result<()> {
         Some(Command::Montecarlo(args)) => montecarlo(args),
         Some(Command::MontecarloWorker) => Ok(scenarios::montecarlo::serve_worker(std::io::stdin().lock(), std::io::stdout().lock())?),
         Some(Command::Dataset { world, preset, images, seed, classes, patch_size, out }) => dataset(world, preset, images, seed, &classes, patch_size, &out),
-        Some(Command::Record { input, seed, duration, sim_config, out }) => record(&input, seed, duration, sim_config, &out),
+        Some(Command::Record { input, seed, duration, sim_config, format, out }) => record(&input, seed, duration, sim_config, format, &out),
         Some(Command::Calibrate { scenario, poses, seed, out, images }) => calibrate(scenario.as_deref().unwrap_or("calibration"), poses, seed, &out, images.as_deref()),
         Some(Command::Train { dataset, out, export_features, pca_dims, max_components, heldout_every, threshold, seed }) => train(&dataset, &out, export_features.as_deref(), pca_dims, max_components, heldout_every, threshold, seed),
         Some(Command::Segment { model, image, out }) => segment(&model, &image, &out),
@@ -485,7 +489,7 @@ fn calibrate(scenario: &str, poses: Option<usize>, seed: Option<u64>, out: &std:
     Ok(())
 }
 
-fn record(input: &str, seed: u64, duration: Option<f64>, sim_config: Option<PathBuf>, out: &std::path::Path) -> Result<()> {
+fn record(input: &str, seed: u64, duration: Option<f64>, sim_config: Option<PathBuf>, format: scenarios::record::RecordFormat, out: &std::path::Path) -> Result<()> {
     let world = load_world(input, seed)?;
     let mut config = match sim_config {
         Some(path) => {
@@ -498,7 +502,7 @@ fn record(input: &str, seed: u64, duration: Option<f64>, sim_config: Option<Path
         config.max_duration_s = duration;
     }
     let bar = progress_bar(0, "recording");
-    let summary = scenarios::record::record(&world, &config, seed, out, |t, total| {
+    let summary = scenarios::record::record(&world, &config, seed, out, format, |t, total| {
         bar.set_length(total.ceil() as u64);
         bar.set_position((t.floor() as u64).min(total.ceil() as u64));
     })?;

@@ -1,4 +1,4 @@
-//! `objslam record`: a sensor log that other SLAM systems can read (schema in the README).
+//! `objslam record`: a sensor log that other SLAM systems can read (schema in docs/guide/simulator.md).
 //!
 //! - `laser.jsonl`: one scan per line, like ROS LaserScan (`null` = no return);
 //! - `odometry.jsonl`: incremental odometry (t, dx, dy, dtheta) in the previous robot frame;
@@ -26,6 +26,18 @@ pub enum RecordError {
     Sim(#[from] sim::SimError),
     #[error(transparent)]
     Mcap(#[from] crate::foxglove::McapError),
+    #[error(transparent)]
+    Ros2(#[from] crate::ros2::Ros2Error),
+}
+
+/// What `objslam record` writes.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum RecordFormat {
+    /// JSON lines, TUM, PNG images and a Foxglove MCAP in one directory.
+    #[default]
+    Jsonl,
+    /// A ROS 2 bag: the directory holds `metadata.yaml` and one MCAP of CDR messages.
+    Ros2,
 }
 
 /// What a recording contains.
@@ -157,15 +169,50 @@ pub fn write_camera_frame(dir: &Path, index: usize, frame: &sim::camera::CameraF
     Ok((names, pngs.swap_remove(0)))
 }
 
-/// Records a run of `world` into `out`. `progress` is called with (sim time, nominal
-/// duration) now and then.
-pub fn record(
-    world: &worlds::World,
-    config: &SimConfig,
-    seed: u64,
-    out: &Path,
-    mut progress: impl FnMut(f64, f64),
-) -> Result<RecordSummary, RecordError> {
+/// Records a run of `world` into `out` in `format`. `progress` is called with (sim time,
+/// nominal duration) now and then.
+pub fn record(world: &worlds::World, config: &SimConfig, seed: u64, out: &Path, format: RecordFormat, progress: impl FnMut(f64, f64)) -> Result<RecordSummary, RecordError> {
+    match format {
+        RecordFormat::Jsonl => record_jsonl(world, config, seed, out, progress),
+        RecordFormat::Ros2 => record_ros2(world, config, seed, out, progress),
+    }
+}
+
+/// The simulation's stream as a ROS 2 bag in `out` (see [`crate::ros2`]).
+fn record_ros2(world: &worlds::World, config: &SimConfig, seed: u64, out: &Path, mut progress: impl FnMut(f64, f64)) -> Result<RecordSummary, RecordError> {
+    let started = std::time::Instant::now();
+    let mut sim = Simulation::new(world, config, seed)?;
+    let nominal = config.max_duration_s.unwrap_or_else(|| sim.nominal_duration_s());
+    let mut bag = crate::ros2::Ros2Recorder::create(out, config)?;
+    let (mut scans, mut odometry, mut camera_frames) = (0, 0, 0);
+    let mut last_progress = -1.0;
+    while let Some(event) = sim.next_event() {
+        bag.write(&event)?;
+        let t = event.time();
+        match event {
+            SensorEvent::Odometry { .. } => odometry += 1,
+            SensorEvent::Laser { .. } => scans += 1,
+            SensorEvent::Camera { .. } => camera_frames += 1,
+        }
+        if t - last_progress >= 1.0 {
+            progress(t, nominal);
+            last_progress = t;
+        }
+    }
+    bag.finish()?;
+    progress(sim.time(), nominal);
+    Ok(RecordSummary {
+        sim_seconds: sim.time(),
+        wall_seconds: started.elapsed().as_secs_f64(),
+        scans,
+        odometry,
+        camera_frames,
+        renderer: sim.camera_adapter().map(|a| a.to_string()),
+        collisions: sim.collisions().len(),
+    })
+}
+
+fn record_jsonl(world: &worlds::World, config: &SimConfig, seed: u64, out: &Path, mut progress: impl FnMut(f64, f64)) -> Result<RecordSummary, RecordError> {
     std::fs::create_dir_all(out).map_err(|source| RecordError::Io { file: out.to_path_buf(), source })?;
     let started = std::time::Instant::now();
     let mut sim = Simulation::new(world, config, seed)?;

@@ -8,7 +8,7 @@ fn record_writes_a_readable_consistent_log() {
     let _ = std::fs::remove_dir_all(&dir);
     let world = worlds::generate::park(&Default::default(), 2).unwrap();
     let config = sim::SimConfig { max_duration_s: Some(10.0), ..Default::default() };
-    let summary = scenarios::record::record(&world, &config, 4, &dir, |_, _| {}).unwrap();
+    let summary = scenarios::record::record(&world, &config, 4, &dir, scenarios::record::RecordFormat::Jsonl, |_, _| {}).unwrap();
     assert!((summary.sim_seconds - 10.0).abs() < 0.02);
 
     let laser = std::fs::read_to_string(dir.join("laser.jsonl")).unwrap();
@@ -74,4 +74,148 @@ fn record_writes_a_readable_consistent_log() {
     assert_eq!(per_topic["/camera/image"], ("foxglove.CompressedImage".to_string(), 51));
     assert_eq!(per_topic["/camera/calibration"].0, "foxglove.CameraCalibration");
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A little-endian CDR reader, written apart from the writer, for reading bags back.
+struct Cdr<'a> {
+    data: &'a [u8],
+    pos: usize,
+}
+
+impl<'a> Cdr<'a> {
+    fn new(message: &'a [u8]) -> Self {
+        assert_eq!(&message[..2], &[0, 1], "CDR little-endian encapsulation");
+        Cdr { data: &message[4..], pos: 0 }
+    }
+    fn align(&mut self, n: usize) {
+        self.pos = self.pos.div_ceil(n) * n;
+    }
+    fn u32(&mut self) -> u32 {
+        self.align(4);
+        let v = u32::from_le_bytes(self.data[self.pos..self.pos + 4].try_into().unwrap());
+        self.pos += 4;
+        v
+    }
+    fn f32(&mut self) -> f32 {
+        f32::from_bits(self.u32())
+    }
+    fn f64(&mut self) -> f64 {
+        self.align(8);
+        let v = f64::from_le_bytes(self.data[self.pos..self.pos + 8].try_into().unwrap());
+        self.pos += 8;
+        v
+    }
+    fn string(&mut self) -> String {
+        let n = self.u32() as usize;
+        let s = String::from_utf8(self.data[self.pos..self.pos + n - 1].to_vec()).unwrap();
+        self.pos += n;
+        s
+    }
+    /// A std_msgs/Header: (seconds, frame).
+    fn header(&mut self) -> (f64, String) {
+        let sec = self.u32() as i32 as f64;
+        let nanosec = self.u32() as f64;
+        (sec + nanosec * 1e-9, self.string())
+    }
+}
+
+/// The ROS 2 bag of a recording holds the same scans as its JSON lines (ranges to the
+/// float, no return as +inf), the noisy odometry, the camera, the static transforms, and
+/// the ground truth on topics of its own.
+#[test]
+fn a_ros2_bag_holds_what_the_json_lines_hold_in_standard_messages() {
+    let root = std::env::temp_dir().join(format!("objslam-record-ros2-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+    let world = worlds::generate::park(&Default::default(), 2).unwrap();
+    let config = sim::SimConfig { max_duration_s: Some(3.0), ..Default::default() };
+    use scenarios::record::{RecordFormat, record};
+    record(&world, &config, 4, &root.join("jsonl"), RecordFormat::Jsonl, |_, _| {}).unwrap();
+    let bag = root.join("bag");
+    let summary = record(&world, &config, 4, &bag, RecordFormat::Ros2, |_, _| {}).unwrap();
+
+    let metadata = std::fs::read_to_string(bag.join("metadata.yaml")).unwrap();
+    assert!(metadata.contains("storage_identifier: mcap") && metadata.contains("sensor_msgs/msg/LaserScan"), "{metadata}");
+    let bytes = std::fs::read(bag.join("bag_0.mcap")).unwrap();
+    let summary_section = mcap::read::Summary::read(&bytes).unwrap().expect("an MCAP summary");
+    let mut topics: BTreeMap<String, (String, String)> = BTreeMap::new();
+    for c in summary_section.channels.values() {
+        let schema = c.schema.as_ref().expect("schema");
+        assert_eq!((c.message_encoding.as_str(), schema.encoding.as_str()), ("cdr", "ros2msg"));
+        topics.insert(c.topic.clone(), (schema.name.clone(), c.message_encoding.clone()));
+    }
+    for (topic, ty) in [
+        ("/scan", "sensor_msgs/msg/LaserScan"),
+        ("/odom", "nav_msgs/msg/Odometry"),
+        ("/tf", "tf2_msgs/msg/TFMessage"),
+        ("/tf_static", "tf2_msgs/msg/TFMessage"),
+        ("/camera/image_raw", "sensor_msgs/msg/Image"),
+        ("/camera/camera_info", "sensor_msgs/msg/CameraInfo"),
+        ("/ground_truth/pose", "geometry_msgs/msg/PoseStamped"),
+        ("/ground_truth/path", "nav_msgs/msg/Path"),
+    ] {
+        assert_eq!(topics.get(topic).map(|t| t.0.as_str()), Some(ty), "{topic}: {topics:?}");
+    }
+
+    let scans: Vec<sim::LaserScan> = std::fs::read_to_string(root.join("jsonl/laser.jsonl")).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    let odometry: Vec<sim::Odometry> = std::fs::read_to_string(root.join("jsonl/odometry.jsonl")).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    let (mut bag_scans, mut bag_odom, mut frames, mut static_frames) = (Vec::new(), Vec::new(), 0, Vec::new());
+    for m in mcap::MessageStream::new(&bytes).unwrap() {
+        let m = m.unwrap();
+        let mut r = Cdr::new(&m.data);
+        match m.channel.topic.as_str() {
+            "/scan" => {
+                let (t, frame) = r.header();
+                assert_eq!(frame, "laser");
+                let fields: Vec<f32> = (0..7).map(|_| r.f32()).collect();
+                let ranges: Vec<f32> = (0..r.u32()).map(|_| r.f32()).collect();
+                assert_eq!(m.log_time, (t * 1e9).round() as u64);
+                bag_scans.push((t, fields, ranges));
+            }
+            "/odom" => {
+                let (t, frame) = r.header();
+                assert_eq!((frame.as_str(), r.string().as_str()), ("odom", "base_link"));
+                bag_odom.push((t, [r.f64(), r.f64()]));
+            }
+            "/camera/image_raw" => {
+                let _ = r.header();
+                assert_eq!((r.u32(), r.u32(), r.string()), (480, 640, "rgb8".to_string()));
+                frames += 1;
+            }
+            "/tf_static" => {
+                for _ in 0..r.u32() {
+                    let (_, parent) = r.header();
+                    static_frames.push((parent, r.string()));
+                    (0..7).for_each(|_| {
+                        r.f64();
+                    });
+                }
+            }
+            _ => {}
+        }
+    }
+    assert_eq!(bag_scans.len(), scans.len());
+    for (s, (t, fields, ranges)) in scans.iter().zip(&bag_scans) {
+        assert!((s.t - t).abs() < 1e-9);
+        assert_eq!(fields[0], s.angle_min as f32);
+        assert_eq!(fields[2], s.angle_increment as f32);
+        assert_eq!(ranges.len(), s.ranges.len());
+        for (a, b) in s.ranges.iter().zip(ranges) {
+            assert!(if a.is_finite() { *b == *a as f32 } else { *b == f32::INFINITY }, "{a} against {b}");
+        }
+    }
+    assert!(bag_scans.iter().any(|s| s.2.iter().any(|r| r.is_infinite())) && bag_scans.iter().any(|s| s.2.iter().any(|r| r.is_finite())));
+    // The odometry integrates the noisy increments from the origin of `odom`.
+    assert_eq!(bag_odom.len(), odometry.len());
+    let (mut x, mut y, mut th) = (0.0f64, 0.0f64, 0.0f64);
+    for (o, (t, p)) in odometry.iter().zip(&bag_odom) {
+        x += th.cos() * o.dx - th.sin() * o.dy;
+        y += th.sin() * o.dx + th.cos() * o.dy;
+        th += o.dtheta;
+        assert!((o.t - t).abs() < 1e-9 && (p[0] - x).abs() < 1e-9 && (p[1] - y).abs() < 1e-9, "{p:?} against {x}, {y}");
+    }
+    assert_eq!(frames, summary.camera_frames);
+    assert_eq!(static_frames, vec![("base_link".to_string(), "laser".to_string()), ("base_link".to_string(), "camera_optical".to_string())]);
+    // Refuses to write over an earlier bag.
+    assert!(record(&world, &config, 4, &bag, RecordFormat::Ros2, |_, _| {}).is_err());
+    let _ = std::fs::remove_dir_all(&root);
 }

@@ -1,0 +1,155 @@
+//! The simulator's stream as a ROS 2 bag (`objslam record --format ros2`), in the standard
+//! messages and frames (REP-105) that ROS tools and other people's SLAM systems consume:
+//!
+//! - `/scan` (`sensor_msgs/msg/LaserScan`, frame `laser`; no return is +inf, REP-117);
+//! - `/odom` (`nav_msgs/msg/Odometry`, `odom` -> `base_link`): the noisy wheel odometry,
+//!   integrated from the start pose at the origin of `odom`;
+//! - `/tf` (`odom` -> `base_link`, from that odometry) and `/tf_static` (`base_link` ->
+//!   `laser`, `base_link` -> `camera_optical`, latched);
+//! - `/camera/image_raw` (`sensor_msgs/msg/Image`, `rgb8`) and `/camera/camera_info`;
+//! - `/ground_truth/pose` (`geometry_msgs/msg/PoseStamped` in frame `world`) and, at the
+//!   end, `/ground_truth/path`: on topics of their own and never on `/tf`, so the truth
+//!   cannot leak into a system under test through its inputs.
+//!
+//! Times are simulated seconds from 0.
+
+use std::path::Path;
+
+use ros2bag::{BagWriter, CameraInfo, Header, Image, LaserScan, Odometry, PoseStamped, Quaternion, TfMessage, Time, Transform, TransformStamped, Vector3};
+use sim::{SensorEvent, SimConfig};
+
+/// Errors while writing a bag.
+#[derive(Debug, thiserror::Error)]
+pub enum Ros2Error {
+    #[error("ROS 2 bag {}: {source}", dir.display())]
+    Bag { dir: std::path::PathBuf, source: ros2bag::Error },
+}
+
+/// Writes a simulation's events to a ROS 2 bag.
+pub struct Ros2Recorder {
+    bag: BagWriter,
+    dir: std::path::PathBuf,
+    /// The odometry integrated in the `odom` frame: x, y, theta.
+    odom: [f64; 3],
+    last_odometry_t: Option<f64>,
+    static_written: bool,
+    base_from_laser: Transform,
+    base_from_camera: Transform,
+    truth_path: Vec<PoseStamped>,
+}
+
+/// A rotation matrix (row-major) as a unit quaternion.
+fn quaternion(r: &[[f64; 3]; 3]) -> Quaternion {
+    let m = nalgebra::Matrix3::from_fn(|i, j| r[i][j]);
+    let q = nalgebra::UnitQuaternion::from_matrix(&m);
+    Quaternion { x: q.i, y: q.j, z: q.k, w: q.w }
+}
+
+fn stamp(t: f64) -> Result<Time, ros2bag::Error> {
+    Time::from_seconds(t)
+}
+
+fn nanos(t: f64) -> u64 {
+    (t.max(0.0) * 1e9).round() as u64
+}
+
+fn planar_pose(x: f64, y: f64, theta: f64) -> ros2bag::Pose {
+    ros2bag::Pose { position: ros2bag::Point { x, y, z: 0.0 }, orientation: Quaternion::from_yaw(theta) }
+}
+
+impl Ros2Recorder {
+    /// Starts a bag in `dir` (which must be empty or absent) for a simulator with `config`.
+    pub fn create(dir: &Path, config: &SimConfig) -> Result<Self, Ros2Error> {
+        let err = |source| Ros2Error::Bag { dir: dir.to_path_buf(), source };
+        let bag = BagWriter::create(dir).map_err(err)?;
+        let [lx, ly, lz] = config.laser.mount_xyz_m;
+        let base_from_laser = Transform { translation: Vector3 { x: lx, y: ly, z: lz }, rotation: Quaternion::from_yaw(config.laser.mount_yaw_deg.to_radians()) };
+        let c = config.camera.base_from_camera();
+        let base_from_camera = Transform { translation: Vector3 { x: c.t[0], y: c.t[1], z: c.t[2] }, rotation: quaternion(&c.r) };
+        Ok(Ros2Recorder { bag, dir: dir.to_path_buf(), odom: [0.0; 3], last_odometry_t: None, static_written: false, base_from_laser, base_from_camera, truth_path: Vec::new() })
+    }
+
+    fn err(&self) -> impl Fn(ros2bag::Error) -> Ros2Error + '_ {
+        |source| Ros2Error::Bag { dir: self.dir.clone(), source }
+    }
+
+    /// Writes one simulator event.
+    pub fn write(&mut self, event: &SensorEvent) -> Result<(), Ros2Error> {
+        self.write_inner(event).map_err(self.err())
+    }
+
+    fn write_inner(&mut self, event: &SensorEvent) -> Result<(), ros2bag::Error> {
+        let t = event.time();
+        if !self.static_written {
+            self.static_written = true;
+            let header = Header::new(stamp(t)?, "base_link");
+            let transforms = [("laser", self.base_from_laser), ("camera_optical", self.base_from_camera)]
+                .map(|(child, transform)| TransformStamped { header: header.clone(), child_frame_id: child.into(), transform })
+                .to_vec();
+            self.bag.write("/tf_static", nanos(t), &TfMessage { transforms })?;
+        }
+        match event {
+            SensorEvent::Odometry { odometry: o, truth } => {
+                let [x, y, th] = self.odom;
+                let (s, c) = th.sin_cos();
+                self.odom = [x + c * o.dx - s * o.dy, y + s * o.dx + c * o.dy, sim::wrap_angle(th + o.dtheta)];
+                let dt = self.last_odometry_t.map(|p| o.t - p).filter(|d| *d > 0.0);
+                self.last_odometry_t = Some(o.t);
+                let [x, y, th] = self.odom;
+                let header = Header::new(stamp(o.t)?, "odom");
+                let pose = planar_pose(x, y, th);
+                let mut odom = Odometry { header: header.clone(), child_frame_id: "base_link".into(), ..Default::default() };
+                odom.pose.pose = pose;
+                if let Some(dt) = dt {
+                    odom.twist.twist.linear = Vector3 { x: o.dx / dt, y: o.dy / dt, z: 0.0 };
+                    odom.twist.twist.angular = Vector3 { x: 0.0, y: 0.0, z: o.dtheta / dt };
+                }
+                self.bag.write("/odom", nanos(o.t), &odom)?;
+                let tf = TransformStamped { header, child_frame_id: "base_link".into(), transform: Transform { translation: Vector3 { x, y, z: 0.0 }, rotation: pose.orientation } };
+                self.bag.write("/tf", nanos(o.t), &TfMessage { transforms: vec![tf] })?;
+                let r = truth.robot;
+                let truth_pose = PoseStamped { header: Header::new(stamp(o.t)?, "world"), pose: planar_pose(r.x, r.y, r.theta) };
+                self.bag.write("/ground_truth/pose", nanos(o.t), &truth_pose)?;
+                self.truth_path.push(truth_pose);
+            }
+            SensorEvent::Laser { scan, .. } => {
+                let n = scan.ranges.len();
+                let msg = LaserScan {
+                    header: Header::new(stamp(scan.t)?, "laser"),
+                    angle_min: scan.angle_min as f32,
+                    angle_max: (scan.angle_min + scan.angle_increment * n.saturating_sub(1) as f64) as f32,
+                    angle_increment: scan.angle_increment as f32,
+                    time_increment: scan.time_increment as f32,
+                    scan_time: scan.scan_time as f32,
+                    range_min: scan.range_min as f32,
+                    range_max: scan.range_max as f32,
+                    // REP-117: no return within range_max is +inf.
+                    ranges: scan.ranges.iter().map(|r| if r.is_finite() { *r as f32 } else { f32::INFINITY }).collect(),
+                    intensities: Vec::new(),
+                };
+                self.bag.write("/scan", nanos(scan.t), &msg)?;
+            }
+            SensorEvent::Camera { frame, .. } => {
+                let img = &frame.image;
+                let header = Header::new(stamp(frame.t)?, "camera_optical");
+                let image = Image { header: header.clone(), height: img.height, width: img.width, encoding: "rgb8".into(), is_bigendian: 0, step: 3 * img.width, data: img.rgb.clone() };
+                self.bag.write("/camera/image_raw", nanos(frame.t), &image)?;
+                let k = frame.intrinsics;
+                self.bag.write("/camera/camera_info", nanos(frame.t), &CameraInfo::pinhole(header, k.width, k.height, k.fx, k.fy, k.cx, k.cy))?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Writes the ground-truth path and closes the bag (its `metadata.yaml` is written
+    /// last: a bag without one was not finished).
+    pub fn finish(mut self) -> Result<(), Ros2Error> {
+        let err = |source| Ros2Error::Bag { dir: self.dir.clone(), source };
+        if let Some(last) = self.truth_path.last() {
+            let t = last.header.stamp;
+            let path = ros2bag::Path { header: Header::new(t, "world"), poses: std::mem::take(&mut self.truth_path) };
+            self.bag.write("/ground_truth/path", t.as_nanos().max(0) as u64, &path).map_err(err)?;
+        }
+        self.bag.finish().map_err(err)
+    }
+}
