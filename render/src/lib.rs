@@ -57,7 +57,8 @@ use bytemuck::{Pod, Zeroable};
 use wgpu::util::DeviceExt;
 
 /// Column-major 4x4 identity.
-pub const IDENTITY: [[f32; 4]; 4] = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]];
+pub const IDENTITY: [[f32; 4]; 4] =
+    [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]];
 
 /// Errors from the renderer; none of them is raised by a panic.
 #[derive(Debug, thiserror::Error)]
@@ -78,7 +79,9 @@ pub enum RenderError {
     Camera(String),
     #[error("invalid lighting: {0}")]
     Lighting(String),
-    #[error("invalid pixel columns {start}..{end}: spans must be non-empty, sorted, disjoint and within the image's {width} columns")]
+    #[error(
+        "invalid pixel columns {start}..{end}: spans must be non-empty, sorted, disjoint and within the image's {width} columns"
+    )]
     Columns { start: u32, end: u32, width: u32 },
     #[error("instance {instance} refers to mesh {mesh} or texture {texture}, which this renderer does not have")]
     UnknownResource { instance: usize, mesh: usize, texture: usize },
@@ -185,7 +188,8 @@ impl Camera {
         let z = normalised(sub(target, eye)).unwrap_or([1.0, 0.0, 0.0]);
         let x = normalised(cross(z, [0.0, 0.0, 1.0])).unwrap_or([0.0, -1.0, 0.0]);
         let y = cross(z, x);
-        let world_from_camera = [[x[0], x[1], x[2], 0.0], [y[0], y[1], y[2], 0.0], [z[0], z[1], z[2], 0.0], [eye[0], eye[1], eye[2], 1.0]];
+        let world_from_camera =
+            [[x[0], x[1], x[2], 0.0], [y[0], y[1], y[2], 0.0], [z[0], z[1], z[2], 0.0], [eye[0], eye[1], eye[2], 1.0]];
         Camera { fx, fy, cx, cy, world_from_camera, near_m: 0.05, far_m: 500.0 }
     }
 
@@ -205,7 +209,10 @@ impl Camera {
             )));
         }
         if !(ok(self.near_m) && self.far_m.is_finite() && self.far_m > self.near_m) {
-            return Err(RenderError::Camera(format!("needs 0 < near_m < far_m < inf, got near {} far {}", self.near_m, self.far_m)));
+            return Err(RenderError::Camera(format!(
+                "needs 0 < near_m < far_m < inf, got near {} far {}",
+                self.near_m, self.far_m
+            )));
         }
         if self.world_from_camera.iter().flatten().any(|v| !v.is_finite()) {
             return Err(RenderError::Camera("world_from_camera has non-finite entries".into()));
@@ -359,7 +366,11 @@ fn target_formats(depth: bool) -> Vec<(wgpu::TextureFormat, u32, &'static str)> 
 /// The shader, without its depth output unless `depth`: lines marked `// depth target`.
 fn shader_source(depth: bool) -> String {
     let source = include_str!("shader.wgsl");
-    if depth { source.to_string() } else { source.lines().filter(|l| !l.ends_with("// depth target")).collect::<Vec<_>>().join("\n") }
+    if depth {
+        source.to_string()
+    } else {
+        source.lines().filter(|l| !l.ends_with("// depth target")).collect::<Vec<_>>().join("\n")
+    }
 }
 
 /// Where one target's rows lie in the shared readback buffer.
@@ -436,9 +447,14 @@ impl Renderer {
         let adapter_limits = adapter.limits();
         let max_side = adapter_limits.max_texture_dimension_2d;
         if width > max_side || height > max_side {
-            return Err(RenderError::Size { width, height, message: format!("adapter {} allows at most {max_side} pixels a side", info.name) });
+            return Err(RenderError::Size {
+                width,
+                height,
+                message: format!("adapter {} allows at most {max_side} pixels a side", info.name),
+            });
         }
-        let limits = wgpu::Limits::downlevel_defaults().using_resolution(adapter_limits.clone()).using_alignment(adapter_limits);
+        let limits =
+            wgpu::Limits::downlevel_defaults().using_resolution(adapter_limits.clone()).using_alignment(adapter_limits);
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("objslam renderer"),
             required_features: wgpu::Features::empty(),
@@ -503,42 +519,50 @@ impl Renderer {
         });
         let attributes = wgpu::vertex_attr_array![0 => Float32x3, 1 => Float32x3, 2 => Float32x2];
         let formats = target_formats(config.depth);
-        let colour_targets: Vec<Option<wgpu::ColorTargetState>> =
-            formats.iter().map(|&(format, _, _)| Some(wgpu::ColorTargetState { format, blend: None, write_mask: wgpu::ColorWrites::ALL })).collect();
+        let colour_targets: Vec<Option<wgpu::ColorTargetState>> = formats
+            .iter()
+            .map(|&(format, _, _)| {
+                Some(wgpu::ColorTargetState { format, blend: None, write_mask: wgpu::ColorWrites::ALL })
+            })
+            .collect();
         // Two pipelines that differ only in culling: meshes that may skip their back faces
         // (see `MeshData::cull_back_faces`) and the rest, drawn from both sides.
         let make_pipeline = |cull_mode: Option<wgpu::Face>, fragment_entry: &str| {
             device.create_render_pipeline(&wgpu::RenderPipelineDescriptor {
-            label: Some("objslam"),
-            layout: Some(&layout),
-            vertex: wgpu::VertexState {
-                module: &shader,
-                entry_point: Some("vs_main"),
-                compilation_options: Default::default(),
-                buffers: &[Some(wgpu::VertexBufferLayout {
-                    array_stride: size_of::<Vertex>() as u64,
-                    step_mode: wgpu::VertexStepMode::Vertex,
-                    attributes: &attributes,
-                })],
-            },
-            primitive: wgpu::PrimitiveState { topology: wgpu::PrimitiveTopology::TriangleList, cull_mode, ..Default::default() },
-            depth_stencil: Some(wgpu::DepthStencilState {
-                format: ZBUFFER_FORMAT,
-                depth_write_enabled: Some(true),
-                depth_compare: Some(wgpu::CompareFunction::Less),
-                stencil: Default::default(),
-                bias: Default::default(),
-            }),
-            // One sample: an id is never blended with its neighbour's.
-            multisample: wgpu::MultisampleState::default(),
-            fragment: Some(wgpu::FragmentState {
-                module: &shader,
-                entry_point: Some(fragment_entry),
-                compilation_options: Default::default(),
-                targets: &colour_targets,
-            }),
-            multiview_mask: None,
-            cache: None,
+                label: Some("objslam"),
+                layout: Some(&layout),
+                vertex: wgpu::VertexState {
+                    module: &shader,
+                    entry_point: Some("vs_main"),
+                    compilation_options: Default::default(),
+                    buffers: &[Some(wgpu::VertexBufferLayout {
+                        array_stride: size_of::<Vertex>() as u64,
+                        step_mode: wgpu::VertexStepMode::Vertex,
+                        attributes: &attributes,
+                    })],
+                },
+                primitive: wgpu::PrimitiveState {
+                    topology: wgpu::PrimitiveTopology::TriangleList,
+                    cull_mode,
+                    ..Default::default()
+                },
+                depth_stencil: Some(wgpu::DepthStencilState {
+                    format: ZBUFFER_FORMAT,
+                    depth_write_enabled: Some(true),
+                    depth_compare: Some(wgpu::CompareFunction::Less),
+                    stencil: Default::default(),
+                    bias: Default::default(),
+                }),
+                // One sample: an id is never blended with its neighbour's.
+                multisample: wgpu::MultisampleState::default(),
+                fragment: Some(wgpu::FragmentState {
+                    module: &shader,
+                    entry_point: Some(fragment_entry),
+                    compilation_options: Default::default(),
+                    targets: &colour_targets,
+                }),
+                multiview_mask: None,
+                cache: None,
             })
         };
         let pipeline = make_pipeline(None, "fs_main");
@@ -578,10 +602,15 @@ impl Renderer {
                 view_formats: &[],
             })
         };
-        let targets: Vec<wgpu::Texture> =
-            formats.iter().map(|&(format, _, label)| texture(format, wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC, label)).collect();
+        let targets: Vec<wgpu::Texture> = formats
+            .iter()
+            .map(|&(format, _, label)| {
+                texture(format, wgpu::TextureUsages::RENDER_ATTACHMENT | wgpu::TextureUsages::COPY_SRC, label)
+            })
+            .collect();
         let target_views = targets.iter().map(|t| t.create_view(&Default::default())).collect();
-        let zbuffer = texture(ZBUFFER_FORMAT, wgpu::TextureUsages::RENDER_ATTACHMENT, "z-buffer").create_view(&Default::default());
+        let zbuffer = texture(ZBUFFER_FORMAT, wgpu::TextureUsages::RENDER_ATTACHMENT, "z-buffer")
+            .create_view(&Default::default());
         // One buffer holds all four images, each row padded to 256 bytes as copies require.
         let mut planes = Vec::new();
         let mut offset = 0u64;
@@ -596,7 +625,8 @@ impl Renderer {
             usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        let instance_stride = (size_of::<InstanceUniform>() as u64).next_multiple_of(device.limits().min_uniform_buffer_offset_alignment as u64);
+        let instance_stride = (size_of::<InstanceUniform>() as u64)
+            .next_multiple_of(device.limits().min_uniform_buffer_offset_alignment as u64);
         let renderer = Renderer {
             max_texture_side: device.limits().max_texture_dimension_2d,
             device,
@@ -644,21 +674,33 @@ impl Renderer {
     pub fn add_mesh(&mut self, mesh: &MeshData) -> Result<MeshId, RenderError> {
         let n = mesh.positions.len();
         if n == 0 || mesh.indices.is_empty() || !mesh.indices.len().is_multiple_of(3) {
-            return Err(RenderError::Mesh(format!("{n} vertices and {} indices: needs vertices and whole triangles", mesh.indices.len())));
+            return Err(RenderError::Mesh(format!(
+                "{n} vertices and {} indices: needs vertices and whole triangles",
+                mesh.indices.len()
+            )));
         }
         if mesh.normals.len() != n || mesh.uvs.len() != n {
-            return Err(RenderError::Mesh(format!("{n} positions but {} normals and {} uvs", mesh.normals.len(), mesh.uvs.len())));
+            return Err(RenderError::Mesh(format!(
+                "{n} positions but {} normals and {} uvs",
+                mesh.normals.len(),
+                mesh.uvs.len()
+            )));
         }
         if let Some(i) = mesh.indices.iter().find(|&&i| i as usize >= n) {
             return Err(RenderError::Mesh(format!("index {i} out of range for {n} vertices")));
         }
         let finite = |s: &[f32]| s.iter().all(|v| v.is_finite());
-        if !(finite(mesh.positions.as_flattened()) && finite(mesh.normals.as_flattened()) && finite(mesh.uvs.as_flattened())) {
+        if !(finite(mesh.positions.as_flattened())
+            && finite(mesh.normals.as_flattened())
+            && finite(mesh.uvs.as_flattened()))
+        {
             return Err(RenderError::Mesh("non-finite position, normal or uv".into()));
         }
-        let index_count = u32::try_from(mesh.indices.len()).map_err(|_| RenderError::Mesh("more than 2^32 indices".into()))?;
+        let index_count =
+            u32::try_from(mesh.indices.len()).map_err(|_| RenderError::Mesh("more than 2^32 indices".into()))?;
         let (centre, radius) = bounding_sphere(&mesh.positions);
-        let vertices: Vec<Vertex> = (0..n).map(|i| Vertex { position: mesh.positions[i], normal: mesh.normals[i], uv: mesh.uvs[i] }).collect();
+        let vertices: Vec<Vertex> =
+            (0..n).map(|i| Vertex { position: mesh.positions[i], normal: mesh.normals[i], uv: mesh.uvs[i] }).collect();
         let vertices = self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("vertices"),
             contents: bytemuck::cast_slice(&vertices),
@@ -670,7 +712,14 @@ impl Renderer {
             usage: wgpu::BufferUsages::INDEX,
         });
         self.check_gpu_error()?;
-        self.meshes.push(Mesh { vertices, indices, index_count, centre, radius, cull_back_faces: mesh.cull_back_faces });
+        self.meshes.push(Mesh {
+            vertices,
+            indices,
+            index_count,
+            centre,
+            radius,
+            cull_back_faces: mesh.cull_back_faces,
+        });
         Ok(MeshId(self.meshes.len() - 1))
     }
 
@@ -679,10 +728,18 @@ impl Renderer {
     pub fn add_texture(&mut self, t: &TextureData) -> Result<TextureId, RenderError> {
         let expected = t.width as u64 * t.height as u64 * 4;
         if t.width == 0 || t.height == 0 || t.rgba.len() as u64 != expected {
-            return Err(RenderError::Texture(format!("{}x{} RGBA needs {expected} bytes, got {}", t.width, t.height, t.rgba.len())));
+            return Err(RenderError::Texture(format!(
+                "{}x{} RGBA needs {expected} bytes, got {}",
+                t.width,
+                t.height,
+                t.rgba.len()
+            )));
         }
         if t.width > self.max_texture_side || t.height > self.max_texture_side {
-            return Err(RenderError::Texture(format!("{}x{} exceeds the adapter's {} pixels a side", t.width, t.height, self.max_texture_side)));
+            return Err(RenderError::Texture(format!(
+                "{}x{} exceeds the adapter's {} pixels a side",
+                t.width, t.height, self.max_texture_side
+            )));
         }
         let (data, levels) = mip_chain(t);
         let texture = self.device.create_texture_with_data(
@@ -717,7 +774,14 @@ impl Renderer {
     /// Places a visible instance of `mesh` with `texture` at `world_from_model` (column-major;
     /// scaling is allowed), writing `instance_id` and `class_id` into the masks. Ids from
     /// another renderer are reported by [`Renderer::render`].
-    pub fn add_instance(&mut self, mesh: MeshId, texture: TextureId, world_from_model: [[f32; 4]; 4], instance_id: u16, class_id: u8) -> InstanceHandle {
+    pub fn add_instance(
+        &mut self,
+        mesh: MeshId,
+        texture: TextureId,
+        world_from_model: [[f32; 4]; 4],
+        instance_id: u16,
+        class_id: u8,
+    ) -> InstanceHandle {
         let k = self.instances.len();
         self.instances.push(Instance { mesh, texture, visible: true, world_from_model });
         self.instance_bytes.resize((k + 1) * self.instance_stride as usize, 0);
@@ -732,7 +796,8 @@ impl Renderer {
         let Some(inst) = self.instances.get_mut(handle.0) else { return };
         inst.world_from_model = world_from_model;
         let at = handle.0 * self.instance_stride as usize;
-        let ids: InstanceUniform = bytemuck::pod_read_unaligned(&self.instance_bytes[at..at + size_of::<InstanceUniform>()]);
+        let ids: InstanceUniform =
+            bytemuck::pod_read_unaligned(&self.instance_bytes[at..at + size_of::<InstanceUniform>()]);
         self.write_instance(handle.0, ids.ids[0] as u16, ids.ids[1] as u8);
     }
 
@@ -746,7 +811,11 @@ impl Renderer {
     fn write_instance(&mut self, k: usize, instance_id: u16, class_id: u8) {
         let m = self.instances[k].world_from_model;
         let n = normal_matrix(&m);
-        let uniform = InstanceUniform { world_from_model: m, normal_from_model: n, ids: [instance_id as u32, class_id as u32, 0, 0] };
+        let uniform = InstanceUniform {
+            world_from_model: m,
+            normal_from_model: n,
+            ids: [instance_id as u32, class_id as u32, 0, 0],
+        };
         let at = k * self.instance_stride as usize;
         let end = at + size_of::<InstanceUniform>();
         self.instance_bytes[at..end].copy_from_slice(bytemuck::bytes_of(&uniform));
@@ -805,7 +874,13 @@ impl Renderer {
     /// image), for consumers that read only part of each frame. The pixels inside are
     /// those of the whole frame (the same draws in the same order, scissored); outside
     /// them the frame is zero. With no columns nothing is drawn at all.
-    pub fn render_columns_into(&mut self, camera: &Camera, lighting: &Lighting, columns: Option<&[(u32, u32)]>, frame: &mut Frame) -> Result<(), RenderError> {
+    pub fn render_columns_into(
+        &mut self,
+        camera: &Camera,
+        lighting: &Lighting,
+        columns: Option<&[(u32, u32)]>,
+        frame: &mut Frame,
+    ) -> Result<(), RenderError> {
         camera.validate()?;
         let spans = match columns {
             None => vec![(0, self.width)],
@@ -848,7 +923,11 @@ impl Renderer {
         {
             let sky = lighting.sky_colour.map(|c| srgb_to_linear(c.clamp(0.0, 1.0)) as f64);
             // Depth is cleared to 0 (never a drawn depth: near_m > 0) and read back as infinity.
-            let clears = [wgpu::Color { r: sky[0], g: sky[1], b: sky[2], a: 1.0 }, wgpu::Color::TRANSPARENT, wgpu::Color::TRANSPARENT];
+            let clears = [
+                wgpu::Color { r: sky[0], g: sky[1], b: sky[2], a: 1.0 },
+                wgpu::Color::TRANSPARENT,
+                wgpu::Color::TRANSPARENT,
+            ];
             let attachments: Vec<Option<wgpu::RenderPassColorAttachment>> = self
                 .target_views
                 .iter()
@@ -881,7 +960,11 @@ impl Renderer {
             self.draw_order.clear();
             for (k, inst) in self.instances.iter().enumerate() {
                 let mesh = &self.meshes[inst.mesh.0];
-                if let Some(distance) = inst.visible.then(|| frustum.distance_if_visible(&inst.world_from_model, mesh.centre, mesh.radius)).flatten() {
+                if let Some(distance) = inst
+                    .visible
+                    .then(|| frustum.distance_if_visible(&inst.world_from_model, mesh.centre, mesh.radius))
+                    .flatten()
+                {
                     self.draw_order.push((distance, k));
                 }
             }
@@ -934,10 +1017,17 @@ impl Renderer {
         for ((start, end), planes) in &layout {
             for (target, plane) in self.targets.iter().zip(planes) {
                 encoder.copy_texture_to_buffer(
-                    wgpu::TexelCopyTextureInfo { origin: wgpu::Origin3d { x: *start, y: 0, z: 0 }, ..target.as_image_copy() },
+                    wgpu::TexelCopyTextureInfo {
+                        origin: wgpu::Origin3d { x: *start, y: 0, z: 0 },
+                        ..target.as_image_copy()
+                    },
                     wgpu::TexelCopyBufferInfo {
                         buffer: &self.readback,
-                        layout: wgpu::TexelCopyBufferLayout { offset: plane.offset, bytes_per_row: Some(plane.bytes_per_row), rows_per_image: Some(self.height) },
+                        layout: wgpu::TexelCopyBufferLayout {
+                            offset: plane.offset,
+                            bytes_per_row: Some(plane.bytes_per_row),
+                            rows_per_image: Some(self.height),
+                        },
                     },
                     wgpu::Extent3d { width: end - start, height: self.height, depth_or_array_layers: 1 },
                 );
@@ -951,8 +1041,12 @@ impl Renderer {
         slice.map_async(wgpu::MapMode::Read, move |r| {
             let _ = tx.send(r);
         });
-        self.device.poll(wgpu::PollType::Wait { submission_index: None, timeout: None }).map_err(|e| RenderError::Readback(e.to_string()))?;
-        rx.recv().map_err(|e| RenderError::Readback(e.to_string()))?.map_err(|e| RenderError::Readback(e.to_string()))?;
+        self.device
+            .poll(wgpu::PollType::Wait { submission_index: None, timeout: None })
+            .map_err(|e| RenderError::Readback(e.to_string()))?;
+        rx.recv()
+            .map_err(|e| RenderError::Readback(e.to_string()))?
+            .map_err(|e| RenderError::Readback(e.to_string()))?;
         let unpacked = match slice.get_mapped_range() {
             Ok(data) => {
                 self.unpack(&data, &layout, frame, if columns.is_some() { Some(&spans) } else { None });
@@ -976,7 +1070,8 @@ impl Renderer {
                 self.planes
                     .iter()
                     .map(|p| {
-                        let bytes_per_row = (p.bytes_per_pixel * (end - start)).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
+                        let bytes_per_row =
+                            (p.bytes_per_pixel * (end - start)).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
                         let plane = Plane { offset, bytes_per_row, bytes_per_pixel: p.bytes_per_pixel };
                         offset += bytes_per_row as u64 * self.height as u64;
                         plane
@@ -990,7 +1085,13 @@ impl Renderer {
     /// Copies the readback buffer, laid out as `layout` says (each copied span's column range
     /// and its targets' rows), into `frame`: all of it, or only the pixel columns `spans`,
     /// the rest zeroed.
-    fn unpack(&self, data: &[u8], layout: &[((u32, u32), Vec<Plane>)], frame: &mut Frame, spans: Option<&[(u32, u32)]>) {
+    fn unpack(
+        &self,
+        data: &[u8],
+        layout: &[((u32, u32), Vec<Plane>)],
+        frame: &mut Frame,
+        spans: Option<&[(u32, u32)]>,
+    ) {
         let (w, h) = (self.width as usize, self.height as usize);
         self.size_frame(frame);
         let whole = [(0, self.width)];
@@ -1005,10 +1106,15 @@ impl Renderer {
         for y in 0..h {
             blank_row(frame, y, &empty);
             for &(a, b) in copied {
-                let ((first, _), planes) = layout.iter().find(|((s, e), _)| *s <= a && b <= *e).expect("every span is copied, alone or in the whole frame");
+                let ((first, _), planes) = layout
+                    .iter()
+                    .find(|((s, e), _)| *s <= a && b <= *e)
+                    .expect("every span is copied, alone or in the whole frame");
                 let (a, b, first) = (a as usize, b as usize, *first as usize);
                 let (i0, i1) = (w * y + a, w * y + b);
-                for (d, s) in frame.rgb[3 * i0..3 * i1].chunks_exact_mut(3).zip(row(&planes[0], first, y, (a, b)).chunks_exact(4)) {
+                for (d, s) in
+                    frame.rgb[3 * i0..3 * i1].chunks_exact_mut(3).zip(row(&planes[0], first, y, (a, b)).chunks_exact(4))
+                {
                     d.copy_from_slice(&s[..3]);
                 }
                 let ids = row(&planes[1], first, y, (a, b)).chunks_exact(4);
@@ -1076,7 +1182,8 @@ impl Frustum {
     fn of_columns(c: &Camera, start: u32, end: u32, height: u32) -> Self {
         let (u0, u1, h) = (start as f32, end as f32, height as f32);
         // u >= u0: fx X + (cx - u0) Z >= 0; u <= u1: -fx X + (u1 - cx) Z >= 0; likewise for v.
-        let sides = [[c.fx, 0.0, c.cx - u0], [-c.fx, 0.0, u1 - c.cx], [0.0, c.fy, c.cy], [0.0, -c.fy, h - c.cy]].map(|n| normalised(n).unwrap_or([0.0, 0.0, 1.0]));
+        let sides = [[c.fx, 0.0, c.cx - u0], [-c.fx, 0.0, u1 - c.cx], [0.0, c.fy, c.cy], [0.0, -c.fy, h - c.cy]]
+            .map(|n| normalised(n).unwrap_or([0.0, 0.0, 1.0]));
         Frustum { camera_from_world: rigid_inverse(&c.world_from_camera), sides, near_m: c.near_m, far_m: c.far_m }
     }
 

@@ -12,7 +12,9 @@ const STONE: [u8; 3] = [150, 150, 140];
 fn renderer(width: u32, height: u32) -> Renderer {
     match Renderer::new(&RendererConfig::new(width, height)) {
         Ok(r) => r,
-        Err(e) => panic!("cannot create a renderer (install Mesa: libegl-mesa0 libgl1-mesa-dri, or mesa-vulkan-drivers): {e}"),
+        Err(e) => {
+            panic!("cannot create a renderer (install Mesa: libegl-mesa0 libgl1-mesa-dri, or mesa-vulkan-drivers): {e}")
+        }
     }
 }
 
@@ -131,7 +133,8 @@ fn golden_scene(width: u32, height: u32) -> Scene {
 fn golden_scene_on(mut r: Renderer, cull: bool) -> Scene {
     let (width, height) = r.size();
     let mut add = |m: MeshData| r.add_mesh(&MeshData { cull_back_faces: cull, ..m }).unwrap();
-    let (ground_mesh, trunk, post, block) = (add(ground(30.0)), add(cylinder(0.3, 4.0, 48)), add(cylinder(0.15, 1.5, 32)), add(cuboid([0.3, 0.3, 0.3])));
+    let (ground_mesh, trunk, post, block) =
+        (add(ground(30.0)), add(cylinder(0.3, 4.0, 48)), add(cylinder(0.15, 1.5, 32)), add(cuboid([0.3, 0.3, 0.3])));
     let grass = r.add_texture(&checker([60, 110, 40], [75, 125, 50])).unwrap();
     let bark = r.add_texture(&checker(BARK, [70, 50, 35])).unwrap();
     let stone = r.add_texture(&checker(STONE, [120, 120, 112])).unwrap();
@@ -253,7 +256,12 @@ fn a_point_on_a_cylinder_lands_on_it_with_its_depth() {
         let a = (-c[1]).atan2(-c[0]); // towards the camera at the origin
         [c[0] + radius * a.cos(), c[1] + radius * a.sin(), z]
     };
-    for (id, p) in [(11u16, on([6.0, 1.0], 0.3, 1.0)), (11, on([6.0, 1.0], 0.3, 2.5)), (12, on([3.5, -1.0], 0.15, 0.8)), (12, on([3.5, -1.0], 0.15, 1.3))] {
+    for (id, p) in [
+        (11u16, on([6.0, 1.0], 0.3, 1.0)),
+        (11, on([6.0, 1.0], 0.3, 2.5)),
+        (12, on([3.5, -1.0], 0.15, 0.8)),
+        (12, on([3.5, -1.0], 0.15, 1.3)),
+    ] {
         let [u, v, z] = camera.project(p).unwrap();
         let (pu, pv) = (u.floor() as u32, v.floor() as u32);
         assert_eq!(frame.instance_at(pu, pv), id, "point {p:?} at pixel ({pu}, {pv})");
@@ -267,7 +275,10 @@ fn masks_depth_and_colour_agree_pixel_for_pixel() {
     let Scene { mut r, camera, .. } = golden_scene(160, 120);
     let light = Lighting::default();
     let frame = r.render(&camera, &light).unwrap();
-    assert_eq!((frame.rgb.len(), frame.instance.len(), frame.class.len(), frame.depth_m.len()), (160 * 120 * 3, 160 * 120, 160 * 120, 160 * 120));
+    assert_eq!(
+        (frame.rgb.len(), frame.instance.len(), frame.class.len(), frame.depth_m.len()),
+        (160 * 120 * 3, 160 * 120, 160 * 120, 160 * 120)
+    );
     let sky = light.sky_colour.map(|c| (c * 255.0).round() as i32);
     let mut counts = std::collections::BTreeMap::new();
     for v in 0..120 {
@@ -371,7 +382,10 @@ fn exposure_scales_the_lit_colour_but_not_the_sky() {
     let dim = r.render(&camera, &Lighting { exposure: 0.5, ..Lighting::default() }).unwrap();
     let bright = r.render(&camera, &Lighting::default()).unwrap();
     let sum = |f: &Frame, object: bool| -> u64 {
-        (0..f.instance.len()).filter(|&i| (f.instance[i] != 0) == object).map(|i| f.rgb[3 * i] as u64 + f.rgb[3 * i + 1] as u64).sum()
+        (0..f.instance.len())
+            .filter(|&i| (f.instance[i] != 0) == object)
+            .map(|i| f.rgb[3 * i] as u64 + f.rgb[3 * i + 1] as u64)
+            .sum()
     };
     assert!(sum(&bright, true) > sum(&dim, true) * 5 / 4);
     assert_eq!(sum(&bright, false), sum(&dim, false));
@@ -383,17 +397,35 @@ fn bad_input_is_an_error_not_a_panic() {
     assert!(matches!(Renderer::new(&RendererConfig::new(0, 10)), Err(RenderError::Size { .. })));
     assert!(matches!(Renderer::new(&RendererConfig::new(1_000_000, 10)), Err(RenderError::Size { .. })));
     let mut r = renderer(16, 16);
-    let tri = |indices: Vec<u32>| MeshData { positions: vec![[0.0; 3]; 3], normals: vec![[0.0, 0.0, 1.0]; 3], uvs: vec![[0.0; 2]; 3], indices, cull_back_faces: false };
+    let tri = |indices: Vec<u32>| MeshData {
+        positions: vec![[0.0; 3]; 3],
+        normals: vec![[0.0, 0.0, 1.0]; 3],
+        uvs: vec![[0.0; 2]; 3],
+        indices,
+        cull_back_faces: false,
+    };
     assert!(matches!(r.add_mesh(&tri(vec![0, 1, 5])), Err(RenderError::Mesh(_))));
     assert!(matches!(r.add_mesh(&tri(vec![0, 1])), Err(RenderError::Mesh(_))));
     assert!(matches!(r.add_mesh(&MeshData { uvs: vec![], ..tri(vec![0, 1, 2]) }), Err(RenderError::Mesh(_))));
-    assert!(matches!(r.add_mesh(&MeshData { positions: vec![[f32::NAN; 3]; 3], ..tri(vec![0, 1, 2]) }), Err(RenderError::Mesh(_))));
-    assert!(matches!(r.add_texture(&TextureData { width: 2, height: 2, rgba: vec![0; 3] }), Err(RenderError::Texture(_))));
-    assert!(matches!(r.add_texture(&TextureData { width: 100_000, height: 1, rgba: vec![0; 400_000] }), Err(RenderError::Texture(_))));
+    assert!(matches!(
+        r.add_mesh(&MeshData { positions: vec![[f32::NAN; 3]; 3], ..tri(vec![0, 1, 2]) }),
+        Err(RenderError::Mesh(_))
+    ));
+    assert!(matches!(
+        r.add_texture(&TextureData { width: 2, height: 2, rgba: vec![0; 3] }),
+        Err(RenderError::Texture(_))
+    ));
+    assert!(matches!(
+        r.add_texture(&TextureData { width: 100_000, height: 1, rgba: vec![0; 400_000] }),
+        Err(RenderError::Texture(_))
+    ));
     let camera = Camera::look_at(10.0, 10.0, 8.0, 8.0, [0.0; 3], [1.0, 0.0, 0.0]);
     assert!(matches!(r.render(&Camera { near_m: 0.0, ..camera }, &Lighting::default()), Err(RenderError::Camera(_))));
     assert!(matches!(r.render(&Camera { fx: f32::NAN, ..camera }, &Lighting::default()), Err(RenderError::Camera(_))));
-    assert!(matches!(r.render(&camera, &Lighting { exposure: f32::NAN, ..Lighting::default() }), Err(RenderError::Lighting(_))));
+    assert!(matches!(
+        r.render(&camera, &Lighting { exposure: f32::NAN, ..Lighting::default() }),
+        Err(RenderError::Lighting(_))
+    ));
     // Ids from another renderer are reported, not indexed out of bounds.
     let mut other = renderer(16, 16);
     let mesh = other.add_mesh(&tri(vec![0, 1, 2])).unwrap();
@@ -422,8 +454,10 @@ fn golden_scene_matches_the_committed_images() {
         return;
     }
     let hint = "run `OBJSLAM_BLESS=1 cargo test -p render --test render golden` to regenerate after an intended change";
-    let golden = image::open(&colour_path).unwrap_or_else(|e| panic!("{}: {e}; {hint}", colour_path.display())).to_rgb8();
-    let golden_mask = image::open(&mask_path).unwrap_or_else(|e| panic!("{}: {e}; {hint}", mask_path.display())).to_luma16();
+    let golden =
+        image::open(&colour_path).unwrap_or_else(|e| panic!("{}: {e}; {hint}", colour_path.display())).to_rgb8();
+    let golden_mask =
+        image::open(&mask_path).unwrap_or_else(|e| panic!("{}: {e}; {hint}", mask_path.display())).to_luma16();
     assert_eq!(golden.dimensions(), (160, 120));
     // Mean absolute difference per channel over the pixels showing objects (the sky, always
     // exact, would dilute it), and the share of pixels off by more than 16 levels (edges).
@@ -438,7 +472,9 @@ fn golden_scene_matches_the_committed_images() {
     }
     let mad = sum / n.max(1) as f64;
     let differing = golden_mask.as_raw().iter().zip(mask.as_raw()).filter(|(a, b)| a != b).count();
-    eprintln!("golden: mean abs difference {mad:.3} levels on objects, {far_off} pixels off by > 16 levels, {differing} mask pixels differ");
+    eprintln!(
+        "golden: mean abs difference {mad:.3} levels on objects, {far_off} pixels off by > 16 levels, {differing} mask pixels differ"
+    );
     assert!(mad < 3.0, "mean absolute difference {mad:.2} levels per channel on objects; {hint}");
     assert!(far_off * 50 < 160 * 120, "{far_off} pixels differ by more than 16 levels; {hint}");
     assert!(differing * 100 < 160 * 120, "{differing} of {} mask pixels differ; {hint}", 160 * 120);
@@ -487,7 +523,10 @@ fn culling_skips_faces_seen_from_behind_but_not_mirrored_instances() {
 #[test]
 fn a_renderer_without_depth_draws_the_same_colour_and_masks() {
     let mut with = golden_scene(160, 120);
-    let mut without = golden_scene_on(Renderer::new(&RendererConfig { depth: false, ..RendererConfig::new(160, 120) }).unwrap(), false);
+    let mut without = golden_scene_on(
+        Renderer::new(&RendererConfig { depth: false, ..RendererConfig::new(160, 120) }).unwrap(),
+        false,
+    );
     let a = with.r.render(&with.camera, &Lighting::default()).unwrap();
     let b = without.r.render(&without.camera, &Lighting::default()).unwrap();
     assert_eq!(a.depth_m.len(), 160 * 120);
@@ -513,11 +552,16 @@ fn rendering_some_columns_gives_the_whole_frames_pixels_there_and_zero_elsewhere
         for v in 0..120 {
             for u in 0..160 {
                 if spans.iter().any(|&(a, b)| (a..b).contains(&u)) {
-                    let same = (part.rgb_at(u, v), part.instance_at(u, v), part.class_at(u, v), part.depth_at(u, v)) == (whole.rgb_at(u, v), whole.instance_at(u, v), whole.class_at(u, v), whole.depth_at(u, v));
+                    let same = (part.rgb_at(u, v), part.instance_at(u, v), part.class_at(u, v), part.depth_at(u, v))
+                        == (whole.rgb_at(u, v), whole.instance_at(u, v), whole.class_at(u, v), whole.depth_at(u, v));
                     assert!(same, "pixel ({u}, {v}) differs from the whole frame's with spans {spans:?}");
                     inside += (whole.instance_at(u, v) > 1) as usize;
                 } else {
-                    assert_eq!((part.rgb_at(u, v), part.instance_at(u, v), part.class_at(u, v)), ([0; 3], 0, 0), "pixel ({u}, {v}) outside the columns");
+                    assert_eq!(
+                        (part.rgb_at(u, v), part.instance_at(u, v), part.class_at(u, v)),
+                        ([0; 3], 0, 0),
+                        "pixel ({u}, {v}) outside the columns"
+                    );
                     assert_eq!(part.depth_at(u, v), f32::INFINITY);
                 }
             }

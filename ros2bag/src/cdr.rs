@@ -119,19 +119,13 @@ impl CdrWriter {
     pub fn string(&mut self, s: &str) -> Result<(), CdrError> {
         let bytes = s.as_bytes();
         if let Some(offset) = bytes.iter().position(|&b| b == 0) {
-            return Err(CdrError::StringContainsNul {
-                len: bytes.len(),
-                offset,
-            });
+            return Err(CdrError::StringContainsNul { len: bytes.len(), offset });
         }
         let len = bytes
             .len()
             .checked_add(1)
             .and_then(|n| u32::try_from(n).ok())
-            .ok_or(CdrError::TooLong {
-                what: "string",
-                len: bytes.len(),
-            })?;
+            .ok_or(CdrError::TooLong { what: "string", len: bytes.len() })?;
         self.u32(len);
         self.buf.extend_from_slice(bytes);
         self.buf.push(0);
@@ -140,10 +134,7 @@ impl CdrWriter {
 
     /// The u32 element count that opens a sequence (`T[]`); the caller writes the elements.
     pub fn sequence_len(&mut self, len: usize) -> Result<(), CdrError> {
-        let n = u32::try_from(len).map_err(|_| CdrError::TooLong {
-            what: "sequence",
-            len,
-        })?;
+        let n = u32::try_from(len).map_err(|_| CdrError::TooLong { what: "sequence", len })?;
         self.u32(n);
         Ok(())
     }
@@ -219,19 +210,13 @@ mod tests {
         let mut w = CdrWriter::new();
         w.string("map").unwrap();
         w.string("").unwrap();
-        assert_eq!(
-            &w.into_bytes()[4..],
-            &[4, 0, 0, 0, b'm', b'a', b'p', 0, 1, 0, 0, 0, 0]
-        );
+        assert_eq!(&w.into_bytes()[4..], &[4, 0, 0, 0, b'm', b'a', b'p', 0, 1, 0, 0, 0, 0]);
     }
 
     #[test]
     fn interior_nul_is_refused() {
         let mut w = CdrWriter::new();
-        assert_eq!(
-            w.string("a\0b"),
-            Err(CdrError::StringContainsNul { len: 3, offset: 1 })
-        );
+        assert_eq!(w.string("a\0b"), Err(CdrError::StringContainsNul { len: 3, offset: 1 }));
     }
 
     #[test]

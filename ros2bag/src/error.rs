@@ -47,11 +47,7 @@ pub enum Error {
     InvalidTopicName { name: String, reason: &'static str },
     /// A topic already carries another message type; a rosbag2 topic has one type.
     #[error("topic {topic} holds {registered} messages, not {requested}")]
-    TopicTypeMismatch {
-        topic: String,
-        registered: &'static str,
-        requested: &'static str,
-    },
+    TopicTypeMismatch { topic: String, registered: &'static str, requested: &'static str },
     /// A topic was registered twice with different QoS settings.
     #[error("topic {topic} is already registered with different QoS")]
     TopicQosMismatch { topic: String },

@@ -48,9 +48,9 @@ mod writer;
 pub use error::{CdrError, Error, Result};
 pub use metadata::TopicQos;
 pub use msg::{
-    CameraInfo, Header, Image, LaserScan, MsgDef, Odometry, Path, Point, Pose, PoseStamped,
-    PoseWithCovariance, Quaternion, RegionOfInterest, RosMessage, TfMessage, Transform,
-    TransformStamped, Twist, TwistWithCovariance, Vector3,
+    CameraInfo, Header, Image, LaserScan, MsgDef, Odometry, Path, Point, Pose, PoseStamped, PoseWithCovariance,
+    Quaternion, RegionOfInterest, RosMessage, TfMessage, Transform, TransformStamped, Twist, TwistWithCovariance,
+    Vector3,
 };
 pub use time::Time;
 pub use writer::{BagWriter, METADATA_FILE, validate_topic_name};

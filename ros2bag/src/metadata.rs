@@ -26,11 +26,7 @@ impl TopicQos {
     /// The QoS used when a topic is registered without saying: `/tf_static` is latched in
     /// every ROS 2 system, everything else unspecified.
     pub fn default_for_topic(topic: &str) -> Self {
-        if topic == "/tf_static" {
-            Self::TransientLocal
-        } else {
-            Self::Unspecified
-        }
+        if topic == "/tf_static" { Self::TransientLocal } else { Self::Unspecified }
     }
 
     /// The profile list as rosbag2 (metadata version ≤ 8) serialises it: a YAML document in a
@@ -136,10 +132,7 @@ pub(crate) fn bag_information(info: &BagInfo<'_>, indent: &str) -> String {
 
 /// The whole `metadata.yaml`.
 pub(crate) fn metadata_yaml(info: &BagInfo<'_>) -> String {
-    format!(
-        "rosbag2_bagfile_information:\n{}",
-        bag_information(info, "  ")
-    )
+    format!("rosbag2_bagfile_information:\n{}", bag_information(info, "  "))
 }
 
 /// A YAML scalar that reads back as exactly the string `s`.
@@ -151,9 +144,7 @@ fn yaml_str(s: &str) -> String {
         return "''".to_owned();
     }
     let safe_first = s.starts_with(|c: char| c.is_ascii_alphabetic() || c == '/' || c == '_');
-    let safe_rest = s
-        .chars()
-        .all(|c| c.is_ascii_alphanumeric() || matches!(c, '/' | '_' | '-' | '.'));
+    let safe_rest = s.chars().all(|c| c.is_ascii_alphanumeric() || matches!(c, '/' | '_' | '-' | '.'));
     let keyword = matches!(
         s.to_ascii_lowercase().as_str(),
         "true" | "false" | "yes" | "no" | "on" | "off" | "null" | "y" | "n" | ".nan" | ".inf"
@@ -189,10 +180,7 @@ mod tests {
     #[test]
     fn scalars_quote_only_when_needed() {
         assert_eq!(yaml_str("/scan"), "/scan");
-        assert_eq!(
-            yaml_str("sensor_msgs/msg/LaserScan"),
-            "sensor_msgs/msg/LaserScan"
-        );
+        assert_eq!(yaml_str("sensor_msgs/msg/LaserScan"), "sensor_msgs/msg/LaserScan");
         assert_eq!(yaml_str("run-1_0.mcap"), "run-1_0.mcap");
         assert_eq!(yaml_str(""), "''");
         assert_eq!(yaml_str("true"), "\"true\"");

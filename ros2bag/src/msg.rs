@@ -28,8 +28,7 @@ pub struct MsgDef {
 }
 
 /// The line that separates concatenated definitions in the `ros2msg` schema encoding.
-const DELIMITER: &str =
-    "================================================================================\n";
+const DELIMITER: &str = "================================================================================\n";
 
 impl MsgDef {
     /// The complete definition in rosbag2's `ros2msg` encoding: this type's text, then each
@@ -274,10 +273,7 @@ pub struct Header {
 
 impl Header {
     pub fn new(stamp: Time, frame_id: impl Into<String>) -> Self {
-        Self {
-            stamp,
-            frame_id: frame_id.into(),
-        }
+        Self { stamp, frame_id: frame_id.into() }
     }
 }
 
@@ -294,16 +290,11 @@ pub struct Vector3 {
     pub z: f64,
 }
 
-ros_message!(
-    Vector3,
-    "geometry_msgs/msg/Vector3",
-    defs::VECTOR3,
-    |s, w| {
-        w.f64(s.x);
-        w.f64(s.y);
-        w.f64(s.z);
-    }
-);
+ros_message!(Vector3, "geometry_msgs/msg/Vector3", defs::VECTOR3, |s, w| {
+    w.f64(s.x);
+    w.f64(s.y);
+    w.f64(s.z);
+});
 
 /// `geometry_msgs/msg/Point`: a position.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -336,36 +327,21 @@ impl Default for Quaternion {
 }
 
 impl Quaternion {
-    pub const IDENTITY: Self = Self {
-        x: 0.0,
-        y: 0.0,
-        z: 0.0,
-        w: 1.0,
-    };
+    pub const IDENTITY: Self = Self { x: 0.0, y: 0.0, z: 0.0, w: 1.0 };
 
     /// A rotation of `yaw` radians about +z, the only rotation a planar robot has.
     pub fn from_yaw(yaw: f64) -> Self {
         let (s, c) = (yaw / 2.0).sin_cos();
-        Self {
-            x: 0.0,
-            y: 0.0,
-            z: s,
-            w: c,
-        }
+        Self { x: 0.0, y: 0.0, z: s, w: c }
     }
 }
 
-ros_message!(
-    Quaternion,
-    "geometry_msgs/msg/Quaternion",
-    defs::QUATERNION,
-    |s, w| {
-        w.f64(s.x);
-        w.f64(s.y);
-        w.f64(s.z);
-        w.f64(s.w);
-    }
-);
+ros_message!(Quaternion, "geometry_msgs/msg/Quaternion", defs::QUATERNION, |s, w| {
+    w.f64(s.x);
+    w.f64(s.y);
+    w.f64(s.z);
+    w.f64(s.w);
+});
 
 /// `geometry_msgs/msg/Pose`: position and orientation.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -389,22 +365,14 @@ pub struct PoseWithCovariance {
 
 impl Default for PoseWithCovariance {
     fn default() -> Self {
-        Self {
-            pose: Pose::default(),
-            covariance: [0.0; 36],
-        }
+        Self { pose: Pose::default(), covariance: [0.0; 36] }
     }
 }
 
-ros_message!(
-    PoseWithCovariance,
-    "geometry_msgs/msg/PoseWithCovariance",
-    defs::POSE_WITH_COVARIANCE,
-    |s, w| {
-        s.pose.encode(w)?;
-        w.f64_array(&s.covariance);
-    }
-);
+ros_message!(PoseWithCovariance, "geometry_msgs/msg/PoseWithCovariance", defs::POSE_WITH_COVARIANCE, |s, w| {
+    s.pose.encode(w)?;
+    w.f64_array(&s.covariance);
+});
 
 /// `geometry_msgs/msg/PoseStamped`: a pose in a frame at a time (ground truth samples).
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -413,15 +381,10 @@ pub struct PoseStamped {
     pub pose: Pose,
 }
 
-ros_message!(
-    PoseStamped,
-    "geometry_msgs/msg/PoseStamped",
-    defs::POSE_STAMPED,
-    |s, w| {
-        s.header.encode(w)?;
-        s.pose.encode(w)?;
-    }
-);
+ros_message!(PoseStamped, "geometry_msgs/msg/PoseStamped", defs::POSE_STAMPED, |s, w| {
+    s.header.encode(w)?;
+    s.pose.encode(w)?;
+});
 
 /// `geometry_msgs/msg/Twist`: linear and angular velocity.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -444,22 +407,14 @@ pub struct TwistWithCovariance {
 
 impl Default for TwistWithCovariance {
     fn default() -> Self {
-        Self {
-            twist: Twist::default(),
-            covariance: [0.0; 36],
-        }
+        Self { twist: Twist::default(), covariance: [0.0; 36] }
     }
 }
 
-ros_message!(
-    TwistWithCovariance,
-    "geometry_msgs/msg/TwistWithCovariance",
-    defs::TWIST_WITH_COVARIANCE,
-    |s, w| {
-        s.twist.encode(w)?;
-        w.f64_array(&s.covariance);
-    }
-);
+ros_message!(TwistWithCovariance, "geometry_msgs/msg/TwistWithCovariance", defs::TWIST_WITH_COVARIANCE, |s, w| {
+    s.twist.encode(w)?;
+    w.f64_array(&s.covariance);
+});
 
 /// `geometry_msgs/msg/Transform`: a rigid transform, translation then rotation.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -468,15 +423,10 @@ pub struct Transform {
     pub rotation: Quaternion,
 }
 
-ros_message!(
-    Transform,
-    "geometry_msgs/msg/Transform",
-    defs::TRANSFORM,
-    |s, w| {
-        s.translation.encode(w)?;
-        s.rotation.encode(w)?;
-    }
-);
+ros_message!(Transform, "geometry_msgs/msg/Transform", defs::TRANSFORM, |s, w| {
+    s.translation.encode(w)?;
+    s.rotation.encode(w)?;
+});
 
 /// `geometry_msgs/msg/TransformStamped`: the transform from `header.frame_id` (parent) to
 /// `child_frame_id` at `header.stamp`.
@@ -487,16 +437,11 @@ pub struct TransformStamped {
     pub transform: Transform,
 }
 
-ros_message!(
-    TransformStamped,
-    "geometry_msgs/msg/TransformStamped",
-    defs::TRANSFORM_STAMPED,
-    |s, w| {
-        s.header.encode(w)?;
-        w.string(&s.child_frame_id)?;
-        s.transform.encode(w)?;
-    }
-);
+ros_message!(TransformStamped, "geometry_msgs/msg/TransformStamped", defs::TRANSFORM_STAMPED, |s, w| {
+    s.header.encode(w)?;
+    w.string(&s.child_frame_id)?;
+    s.transform.encode(w)?;
+});
 
 /// `tf2_msgs/msg/TFMessage`: what `/tf` and `/tf_static` carry.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -504,17 +449,12 @@ pub struct TfMessage {
     pub transforms: Vec<TransformStamped>,
 }
 
-ros_message!(
-    TfMessage,
-    "tf2_msgs/msg/TFMessage",
-    defs::TF_MESSAGE,
-    |s, w| {
-        w.sequence_len(s.transforms.len())?;
-        for t in &s.transforms {
-            t.encode(w)?;
-        }
+ros_message!(TfMessage, "tf2_msgs/msg/TFMessage", defs::TF_MESSAGE, |s, w| {
+    w.sequence_len(s.transforms.len())?;
+    for t in &s.transforms {
+        t.encode(w)?;
     }
-);
+});
 
 /// `nav_msgs/msg/Odometry`: pose in `header.frame_id`, twist in `child_frame_id`.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -565,23 +505,18 @@ pub struct LaserScan {
     pub intensities: Vec<f32>,
 }
 
-ros_message!(
-    LaserScan,
-    "sensor_msgs/msg/LaserScan",
-    defs::LASER_SCAN,
-    |s, w| {
-        s.header.encode(w)?;
-        w.f32(s.angle_min);
-        w.f32(s.angle_max);
-        w.f32(s.angle_increment);
-        w.f32(s.time_increment);
-        w.f32(s.scan_time);
-        w.f32(s.range_min);
-        w.f32(s.range_max);
-        w.f32_seq(&s.ranges)?;
-        w.f32_seq(&s.intensities)?;
-    }
-);
+ros_message!(LaserScan, "sensor_msgs/msg/LaserScan", defs::LASER_SCAN, |s, w| {
+    s.header.encode(w)?;
+    w.f32(s.angle_min);
+    w.f32(s.angle_max);
+    w.f32(s.angle_increment);
+    w.f32(s.time_increment);
+    w.f32(s.scan_time);
+    w.f32(s.range_min);
+    w.f32(s.range_max);
+    w.f32_seq(&s.ranges)?;
+    w.f32_seq(&s.intensities)?;
+});
 
 /// `sensor_msgs/msg/Image`: an uncompressed image, rows of `step` bytes.
 ///
@@ -620,18 +555,13 @@ pub struct RegionOfInterest {
     pub do_rectify: bool,
 }
 
-ros_message!(
-    RegionOfInterest,
-    "sensor_msgs/msg/RegionOfInterest",
-    defs::REGION_OF_INTEREST,
-    |s, w| {
-        w.u32(s.x_offset);
-        w.u32(s.y_offset);
-        w.u32(s.height);
-        w.u32(s.width);
-        w.bool(s.do_rectify);
-    }
-);
+ros_message!(RegionOfInterest, "sensor_msgs/msg/RegionOfInterest", defs::REGION_OF_INTEREST, |s, w| {
+    w.u32(s.x_offset);
+    w.u32(s.y_offset);
+    w.u32(s.height);
+    w.u32(s.width);
+    w.bool(s.do_rectify);
+});
 
 /// `sensor_msgs/msg/CameraInfo`: pinhole calibration for the images on the sibling topic.
 ///
@@ -674,15 +604,7 @@ impl Default for CameraInfo {
 impl CameraInfo {
     /// An ideal pinhole camera (no distortion, `plumb_bob` with zero coefficients) with focal
     /// lengths `fx`, `fy` and principal point `cx`, `cy` in pixels, as a simulator renders it.
-    pub fn pinhole(
-        header: Header,
-        width: u32,
-        height: u32,
-        fx: f64,
-        fy: f64,
-        cx: f64,
-        cy: f64,
-    ) -> Self {
+    pub fn pinhole(header: Header, width: u32, height: u32, fx: f64, fy: f64, cx: f64, cy: f64) -> Self {
         Self {
             header,
             height,
@@ -699,32 +621,27 @@ impl CameraInfo {
     }
 }
 
-ros_message!(
-    CameraInfo,
-    "sensor_msgs/msg/CameraInfo",
-    defs::CAMERA_INFO,
-    |s, w| {
-        s.header.encode(w)?;
-        w.u32(s.height);
-        w.u32(s.width);
-        w.string(&s.distortion_model)?;
-        w.f64_seq(&s.d)?;
-        w.f64_array(&s.k);
-        w.f64_array(&s.r);
-        w.f64_array(&s.p);
-        w.u32(s.binning_x);
-        w.u32(s.binning_y);
-        s.roi.encode(w)?;
-    }
-);
+ros_message!(CameraInfo, "sensor_msgs/msg/CameraInfo", defs::CAMERA_INFO, |s, w| {
+    s.header.encode(w)?;
+    w.u32(s.height);
+    w.u32(s.width);
+    w.string(&s.distortion_model)?;
+    w.f64_seq(&s.d)?;
+    w.f64_array(&s.k);
+    w.f64_array(&s.r);
+    w.f64_array(&s.p);
+    w.u32(s.binning_x);
+    w.u32(s.binning_y);
+    s.roi.encode(w)?;
+});
 
 #[cfg(test)]
 mod tests {
     use super::*;
 
     const PRIMITIVES: &[&str] = &[
-        "bool", "byte", "char", "float32", "float64", "int8", "uint8", "int16", "uint16", "int32",
-        "uint32", "int64", "uint64", "string",
+        "bool", "byte", "char", "float32", "float64", "int8", "uint8", "int16", "uint16", "int32", "uint32", "int64",
+        "uint64", "string",
     ];
 
     /// The message types a definition's fields name, resolved the way rosbag2 does: a bare
@@ -738,13 +655,7 @@ mod tests {
             .filter(|t| !t.starts_with('#'))
             .map(|t| t.split('[').next().unwrap())
             .filter(|t| !PRIMITIVES.contains(t))
-            .map(|t| {
-                if t.contains('/') {
-                    t.to_owned()
-                } else {
-                    format!("{package}/{t}")
-                }
-            })
+            .map(|t| if t.contains('/') { t.to_owned() } else { format!("{package}/{t}") })
             .collect();
         out.sort();
         out.dedup();
@@ -764,11 +675,7 @@ mod tests {
     fn type_hashes_are_rihs01() {
         for def in defs::ALL {
             let hex = def.type_hash.strip_prefix("RIHS01_").unwrap_or("");
-            assert!(
-                hex.len() == 64 && hex.bytes().all(|b| b.is_ascii_hexdigit()),
-                "{}",
-                def.name
-            );
+            assert!(hex.len() == 64 && hex.bytes().all(|b| b.is_ascii_hexdigit()), "{}", def.name);
         }
     }
 
@@ -802,10 +709,7 @@ mod tests {
     #[test]
     fn full_text_lists_each_dependency_once_depth_first_in_name_order() {
         let text = Odometry::schema_text();
-        let sections: Vec<&str> = text
-            .lines()
-            .filter_map(|l| l.strip_prefix("MSG: "))
-            .collect();
+        let sections: Vec<&str> = text.lines().filter_map(|l| l.strip_prefix("MSG: ")).collect();
         assert_eq!(
             sections,
             [
@@ -828,23 +732,14 @@ mod tests {
     #[test]
     fn header_encoding() {
         let h = Header::new(Time { sec: 1, nanosec: 2 }, "a");
-        assert_eq!(
-            h.to_cdr().unwrap(),
-            [0, 1, 0, 0, 1, 0, 0, 0, 2, 0, 0, 0, 2, 0, 0, 0, b'a', 0]
-        );
+        assert_eq!(h.to_cdr().unwrap(), [0, 1, 0, 0, 1, 0, 0, 0, 2, 0, 0, 0, 2, 0, 0, 0, b'a', 0]);
     }
 
     #[test]
     fn a_bad_string_anywhere_is_an_error_not_a_panic() {
         let msg = TfMessage {
-            transforms: vec![TransformStamped {
-                child_frame_id: "base\0link".into(),
-                ..Default::default()
-            }],
+            transforms: vec![TransformStamped { child_frame_id: "base\0link".into(), ..Default::default() }],
         };
-        assert!(matches!(
-            msg.to_cdr(),
-            Err(CdrError::StringContainsNul { .. })
-        ));
+        assert!(matches!(msg.to_cdr(), Err(CdrError::StringContainsNul { .. })));
     }
 }

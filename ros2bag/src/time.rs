@@ -35,23 +35,16 @@ impl Time {
             nanos -= Self::NANOS_PER_SEC;
         }
         let sec = i32::try_from(sec).map_err(|_| out_of_range())?;
-        Ok(Self {
-            sec,
-            nanosec: nanos as u32,
-        })
+        Ok(Self { sec, nanosec: nanos as u32 })
     }
 
     /// The time `nanos` nanoseconds after the epoch (the unit of bag log times).
     ///
     /// Fails after 2038, when the seconds no longer fit `i32`.
     pub fn from_nanos(nanos: u64) -> Result<Self> {
-        let sec = i32::try_from(nanos / 1_000_000_000).map_err(|_| Error::TimeOutOfRange {
-            seconds: nanos as f64 * 1e-9,
-        })?;
-        Ok(Self {
-            sec,
-            nanosec: (nanos % 1_000_000_000) as u32,
-        })
+        let sec =
+            i32::try_from(nanos / 1_000_000_000).map_err(|_| Error::TimeOutOfRange { seconds: nanos as f64 * 1e-9 })?;
+        Ok(Self { sec, nanosec: (nanos % 1_000_000_000) as u32 })
     }
 
     /// Seconds since the epoch as a float (loses sub-microsecond precision for current dates).
@@ -71,50 +64,23 @@ mod tests {
 
     #[test]
     fn from_seconds_splits_and_rounds() {
-        assert_eq!(
-            Time::from_seconds(1.5).unwrap(),
-            Time {
-                sec: 1,
-                nanosec: 500_000_000
-            }
-        );
-        assert_eq!(
-            Time::from_seconds(1.1).unwrap(),
-            Time {
-                sec: 1,
-                nanosec: 100_000_000
-            }
-        );
-        assert_eq!(
-            Time::from_seconds(0.0).unwrap(),
-            Time { sec: 0, nanosec: 0 }
-        );
+        assert_eq!(Time::from_seconds(1.5).unwrap(), Time { sec: 1, nanosec: 500_000_000 });
+        assert_eq!(Time::from_seconds(1.1).unwrap(), Time { sec: 1, nanosec: 100_000_000 });
+        assert_eq!(Time::from_seconds(0.0).unwrap(), Time { sec: 0, nanosec: 0 });
         // 2 - 1e-10 rounds up to exactly 2 s, carrying into `sec`
-        assert_eq!(
-            Time::from_seconds(2.0 - 1e-10).unwrap(),
-            Time { sec: 2, nanosec: 0 }
-        );
+        assert_eq!(Time::from_seconds(2.0 - 1e-10).unwrap(), Time { sec: 2, nanosec: 0 });
     }
 
     #[test]
     fn negative_times_keep_nanosec_positive() {
-        assert_eq!(
-            Time::from_seconds(-0.25).unwrap(),
-            Time {
-                sec: -1,
-                nanosec: 750_000_000
-            }
-        );
+        assert_eq!(Time::from_seconds(-0.25).unwrap(), Time { sec: -1, nanosec: 750_000_000 });
         assert_eq!(Time::from_seconds(-0.25).unwrap().as_nanos(), -250_000_000);
     }
 
     #[test]
     fn unrepresentable_times_are_errors() {
         for s in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY, 3e9, -3e9] {
-            assert!(
-                matches!(Time::from_seconds(s), Err(Error::TimeOutOfRange { .. })),
-                "{s}"
-            );
+            assert!(matches!(Time::from_seconds(s), Err(Error::TimeOutOfRange { .. })), "{s}");
         }
         assert!(Time::from_nanos(u64::MAX).is_err());
     }
@@ -122,13 +88,7 @@ mod tests {
     #[test]
     fn from_nanos_is_exact() {
         let t = Time::from_nanos(1_700_000_000_123_456_789).unwrap();
-        assert_eq!(
-            t,
-            Time {
-                sec: 1_700_000_000,
-                nanosec: 123_456_789
-            }
-        );
+        assert_eq!(t, Time { sec: 1_700_000_000, nanosec: 123_456_789 });
         assert_eq!(t.as_nanos(), 1_700_000_000_123_456_789);
     }
 }

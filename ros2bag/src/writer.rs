@@ -68,17 +68,12 @@ impl BagWriter {
     pub fn create(dir: &Path) -> Result<Self> {
         let io = |action: &'static str, path: &Path| {
             let path = path.to_path_buf();
-            move |source| Error::Io {
-                path,
-                action,
-                source,
-            }
+            move |source| Error::Io { path, action, source }
         };
         match std::fs::metadata(dir) {
             Ok(m) if !m.is_dir() => return Err(Error::NotADirectory { path: dir.into() }),
             Ok(_) => {
-                let mut entries =
-                    std::fs::read_dir(dir).map_err(io("cannot list the bag directory", dir))?;
+                let mut entries = std::fs::read_dir(dir).map_err(io("cannot list the bag directory", dir))?;
                 if entries.next().is_some() {
                     return Err(Error::DirectoryNotEmpty { path: dir.into() });
                 }
@@ -97,8 +92,7 @@ impl BagWriter {
         let file_name = format!("{stem}_0.mcap");
         let mcap_path = dir.join(&file_name);
         // create_new: never truncate a file that appeared since the emptiness check.
-        let file =
-            File::create_new(&mcap_path).map_err(io("cannot create the MCAP file", &mcap_path))?;
+        let file = File::create_new(&mcap_path).map_err(io("cannot create the MCAP file", &mcap_path))?;
 
         let options = mcap::WriteOptions::new()
             .profile("ros2")
@@ -106,12 +100,8 @@ impl BagWriter {
             // Uncompressed chunks: every reader handles them with no codec installed, and the
             // choice does not change when another crate turns on mcap's zstd feature.
             .compression(None);
-        let mcap = options
-            .create(BufWriter::new(file))
-            .map_err(|source| Error::Mcap {
-                path: mcap_path.clone(),
-                source,
-            })?;
+        let mcap =
+            options.create(BufWriter::new(file)).map_err(|source| Error::Mcap { path: mcap_path.clone(), source })?;
 
         Ok(Self {
             dir: dir.to_path_buf(),
@@ -165,17 +155,13 @@ impl BagWriter {
                 });
             }
             if qos.is_some_and(|q| q != t.qos) {
-                return Err(Error::TopicQosMismatch {
-                    topic: topic.to_owned(),
-                });
+                return Err(Error::TopicQosMismatch { topic: topic.to_owned() });
             }
             return Ok(idx);
         }
         validate_topic_name(topic)?;
         if self.topics.len() >= usize::from(u16::MAX) {
-            return Err(Error::TooManyTopics {
-                max: usize::from(u16::MAX),
-            });
+            return Err(Error::TooManyTopics { max: usize::from(u16::MAX) });
         }
         let qos = qos.unwrap_or_else(|| TopicQos::default_for_topic(topic));
         let mcap_err = |path: &Path| {
@@ -188,9 +174,8 @@ impl BagWriter {
             Some(&id) => id,
             None => {
                 let text = M::schema_text();
-                let id = mcap
-                    .add_schema(M::TYPE_NAME, "ros2msg", text.as_bytes())
-                    .map_err(mcap_err(&self.mcap_path))?;
+                let id =
+                    mcap.add_schema(M::TYPE_NAME, "ros2msg", text.as_bytes()).map_err(mcap_err(&self.mcap_path))?;
                 self.schemas.insert(M::TYPE_NAME, id);
                 id
             }
@@ -198,18 +183,11 @@ impl BagWriter {
         // rosbag2 keeps the QoS (and, on Jazzy, the type hash) in the channel metadata too, so
         // that the MCAP alone is enough to rebuild metadata.yaml.
         let channel_metadata = BTreeMap::from([
-            (
-                "offered_qos_profiles".to_owned(),
-                qos.offered_profiles_yaml(),
-            ),
-            (
-                "topic_type_hash".to_owned(),
-                M::DEFINITION.type_hash.to_owned(),
-            ),
+            ("offered_qos_profiles".to_owned(), qos.offered_profiles_yaml()),
+            ("topic_type_hash".to_owned(), M::DEFINITION.type_hash.to_owned()),
         ]);
-        let channel_id = mcap
-            .add_channel(schema_id, topic, "cdr", &channel_metadata)
-            .map_err(mcap_err(&self.mcap_path))?;
+        let channel_id =
+            mcap.add_channel(schema_id, topic, "cdr", &channel_metadata).map_err(mcap_err(&self.mcap_path))?;
 
         self.topics.push(Topic {
             name: topic.to_owned(),
@@ -248,10 +226,7 @@ impl BagWriter {
         };
         let mcap = self.mcap.as_mut().ok_or(Error::Finished)?;
         mcap.write_to_known_channel(&header, &data)
-            .map_err(|source| Error::Mcap {
-                path: self.mcap_path.clone(),
-                source,
-            })?;
+            .map_err(|source| Error::Mcap { path: self.mcap_path.clone(), source })?;
 
         t.message_count += 1;
         self.message_count += 1;
@@ -271,10 +246,7 @@ impl BagWriter {
         let Some(mut mcap) = self.mcap.take() else {
             return Ok(());
         };
-        let mcap_err = |source| Error::Mcap {
-            path: self.mcap_path.clone(),
-            source,
-        };
+        let mcap_err = |source| Error::Mcap { path: self.mcap_path.clone(), source };
         let (start, end) = self.time_bounds.unwrap_or((0, 0));
         let info = BagInfo {
             file_name: &self.file_name,
@@ -297,10 +269,7 @@ impl BagWriter {
         // The same summary rosbag2 leaves inside the MCAP (record "rosbag2").
         let record = mcap::records::Metadata {
             name: "rosbag2".to_owned(),
-            metadata: BTreeMap::from([(
-                "serialized_metadata".to_owned(),
-                metadata::bag_information(&info, ""),
-            )]),
+            metadata: BTreeMap::from([("serialized_metadata".to_owned(), metadata::bag_information(&info, ""))]),
         };
         mcap.write_metadata(&record).map_err(mcap_err)?;
         mcap.finish().map_err(mcap_err)?;
@@ -337,12 +306,7 @@ impl Drop for BagWriter {
 /// a digit, no empty token, no trailing `/`. Relative names and `~` would depend on a node's
 /// namespace, which a bag does not have.
 pub fn validate_topic_name(name: &str) -> Result<()> {
-    let bad = |reason| {
-        Err(Error::InvalidTopicName {
-            name: name.to_owned(),
-            reason,
-        })
-    };
+    let bad = |reason| Err(Error::InvalidTopicName { name: name.to_owned(), reason });
     let Some(rest) = name.strip_prefix('/') else {
         return bad("must start with '/'");
     };
@@ -372,16 +336,8 @@ mod tests {
         for ok in ["/scan", "/tf_static", "/camera/image_raw", "/a1/_b"] {
             assert!(validate_topic_name(ok).is_ok(), "{ok}");
         }
-        for bad in [
-            "", "/", "scan", "/scan/", "//scan", "/1scan", "/a b", "/ä", "/a-b", "~/x",
-        ] {
-            assert!(
-                matches!(
-                    validate_topic_name(bad),
-                    Err(Error::InvalidTopicName { .. })
-                ),
-                "{bad}"
-            );
+        for bad in ["", "/", "scan", "/scan/", "//scan", "/1scan", "/a b", "/ä", "/a-b", "~/x"] {
+            assert!(matches!(validate_topic_name(bad), Err(Error::InvalidTopicName { .. })), "{bad}");
         }
     }
 }

@@ -9,9 +9,9 @@ use std::path::{Path as FsPath, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 use ros2bag::{
-    BagWriter, CameraInfo, Error, Header, Image, LaserScan, Odometry, Path, Point, Pose,
-    PoseStamped, PoseWithCovariance, Quaternion, RegionOfInterest, RosMessage, TfMessage, Time,
-    Transform, TransformStamped, Twist, TwistWithCovariance, Vector3,
+    BagWriter, CameraInfo, Error, Header, Image, LaserScan, Odometry, Path, Point, Pose, PoseStamped,
+    PoseWithCovariance, Quaternion, RegionOfInterest, RosMessage, TfMessage, Time, Transform, TransformStamped, Twist,
+    TwistWithCovariance, Vector3,
 };
 
 /// First log time of the sample, ns since the epoch (2023-11-14).
@@ -42,13 +42,7 @@ fn sample_scan(i: u64) -> LaserScan {
         range_min: 0.125,
         range_max: 30.0,
         // REP 117: +inf = no return within range, -inf = too close, NaN = invalid
-        ranges: vec![
-            1.0 + i as f32,
-            f32::INFINITY,
-            2.5,
-            f32::NEG_INFINITY,
-            f32::NAN,
-        ],
+        ranges: vec![1.0 + i as f32, f32::INFINITY, 2.5, f32::NEG_INFINITY, f32::NAN],
         intensities: vec![100.0, 0.0, 50.0, 0.0, 0.0],
     }
 }
@@ -65,27 +59,15 @@ fn sample_odom(i: u64) -> Odometry {
         child_frame_id: "base_link".into(),
         pose: PoseWithCovariance {
             pose: Pose {
-                position: Point {
-                    x: 1.0 + i as f64,
-                    y: 2.0,
-                    z: 0.0,
-                },
+                position: Point { x: 1.0 + i as f64, y: 2.0, z: 0.0 },
                 orientation: Quaternion::from_yaw(0.5 * i as f64),
             },
             covariance: pose_cov,
         },
         twist: TwistWithCovariance {
             twist: Twist {
-                linear: Vector3 {
-                    x: 0.5,
-                    y: 0.0,
-                    z: 0.0,
-                },
-                angular: Vector3 {
-                    x: 0.0,
-                    y: 0.0,
-                    z: 0.25 * i as f64,
-                },
+                linear: Vector3 { x: 0.5, y: 0.0, z: 0.0 },
+                angular: Vector3 { x: 0.0, y: 0.0, z: 0.25 * i as f64 },
             },
             covariance: twist_cov,
         },
@@ -96,10 +78,7 @@ fn tf(ns: u64, parent: &str, child: &str, x: f64, yaw: f64) -> TransformStamped 
     TransformStamped {
         header: Header::new(stamp(ns), parent),
         child_frame_id: child.into(),
-        transform: Transform {
-            translation: Vector3 { x, y: 0.0, z: 0.0 },
-            rotation: Quaternion::from_yaw(yaw),
-        },
+        transform: Transform { translation: Vector3 { x, y: 0.0, z: 0.0 }, rotation: Quaternion::from_yaw(yaw) },
     }
 }
 
@@ -107,11 +86,7 @@ fn ground_truth(i: u64) -> PoseStamped {
     PoseStamped {
         header: Header::new(stamp(T0 + i * 500 * MS), "map"),
         pose: Pose {
-            position: Point {
-                x: 1.0 + i as f64,
-                y: 2.0,
-                z: 0.0,
-            },
+            position: Point { x: 1.0 + i as f64, y: 2.0, z: 0.0 },
             orientation: Quaternion::from_yaw(0.5 * i as f64),
         },
     }
@@ -141,13 +116,7 @@ fn write_sample(dir: &FsPath) -> Result<(), Error> {
     info.d = vec![0.1, -0.2, 0.001, 0.002, 0.0];
     info.binning_x = 1;
     info.binning_y = 1;
-    info.roi = RegionOfInterest {
-        x_offset: 1,
-        y_offset: 2,
-        height: 3,
-        width: 4,
-        do_rectify: true,
-    };
+    info.roi = RegionOfInterest { x_offset: 1, y_offset: 2, height: 3, width: 4, do_rectify: true };
     bag.write("/camera/camera_info", T0 + 50 * MS, &info)?;
     for i in 0..2 {
         let ns = T0 + i * 500 * MS;
@@ -159,17 +128,12 @@ fn write_sample(dir: &FsPath) -> Result<(), Error> {
         };
         bag.write("/tf", ns, &msg)?;
     }
-    let statics = TfMessage {
-        transforms: vec![tf(T0, "base_link", "camera", 0.1, 0.0)],
-    };
+    let statics = TfMessage { transforms: vec![tf(T0, "base_link", "camera", 0.1, 0.0)] };
     bag.write("/tf_static", T0, &statics)?;
     for i in 0..2 {
         bag.write("/ground_truth/pose", T0 + i * 500 * MS, &ground_truth(i))?;
     }
-    let path = Path {
-        header: Header::new(stamp(T0 + 1000 * MS), "map"),
-        poses: (0..3).map(ground_truth).collect(),
-    };
+    let path = Path { header: Header::new(stamp(T0 + 1000 * MS), "map"), poses: (0..3).map(ground_truth).collect() };
     bag.write("/ground_truth/path", T0 + 1000 * MS, &path)?;
     bag.finish()
 }
@@ -183,10 +147,7 @@ struct CdrReader<'a> {
 impl<'a> CdrReader<'a> {
     fn new(data: &'a [u8]) -> Self {
         assert_eq!(&data[..4], &[0, 1, 0, 0], "CDR_LE encapsulation header");
-        Self {
-            payload: &data[4..],
-            pos: 0,
-        }
+        Self { payload: &data[4..], pos: 0 }
     }
     fn take(&mut self, n: usize, align: usize) -> &'a [u8] {
         self.pos = self.pos.div_ceil(align) * align;
@@ -229,23 +190,12 @@ impl<'a> CdrReader<'a> {
     fn header(&mut self) -> Header {
         let sec = self.i32();
         let nanosec = self.u32();
-        Header {
-            stamp: Time { sec, nanosec },
-            frame_id: self.string(),
-        }
+        Header { stamp: Time { sec, nanosec }, frame_id: self.string() }
     }
     fn pose(&mut self) -> Pose {
         let [x, y, z] = self.f64s::<3>();
         let [qx, qy, qz, qw] = self.f64s::<4>();
-        Pose {
-            position: Point { x, y, z },
-            orientation: Quaternion {
-                x: qx,
-                y: qy,
-                z: qz,
-                w: qw,
-            },
-        }
+        Pose { position: Point { x, y, z }, orientation: Quaternion { x: qx, y: qy, z: qz, w: qw } }
     }
     fn vector3(&mut self) -> Vector3 {
         let [x, y, z] = self.f64s::<3>();
@@ -276,15 +226,9 @@ fn decode_odom(data: &[u8]) -> Odometry {
     let odom = Odometry {
         header: r.header(),
         child_frame_id: r.string(),
-        pose: PoseWithCovariance {
-            pose: r.pose(),
-            covariance: r.f64s::<36>(),
-        },
+        pose: PoseWithCovariance { pose: r.pose(), covariance: r.f64s::<36>() },
         twist: TwistWithCovariance {
-            twist: Twist {
-                linear: r.vector3(),
-                angular: r.vector3(),
-            },
+            twist: Twist { linear: r.vector3(), angular: r.vector3() },
             covariance: r.f64s::<36>(),
         },
     };
@@ -296,12 +240,7 @@ fn decode_path(data: &[u8]) -> Path {
     let mut r = CdrReader::new(data);
     let header = r.header();
     let n = r.u32();
-    let poses = (0..n)
-        .map(|_| PoseStamped {
-            header: r.header(),
-            pose: r.pose(),
-        })
-        .collect();
+    let poses = (0..n).map(|_| PoseStamped { header: r.header(), pose: r.pose() }).collect();
     r.done();
     Path { header, poses }
 }
@@ -351,10 +290,8 @@ fn sample_bag_reads_back() {
 
     let name = dir.file_name().unwrap().to_str().unwrap().to_owned();
     let mcap_name = format!("{name}_0.mcap");
-    let mut files: Vec<String> = std::fs::read_dir(&dir)
-        .unwrap()
-        .map(|e| e.unwrap().file_name().into_string().unwrap())
-        .collect();
+    let mut files: Vec<String> =
+        std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name().into_string().unwrap()).collect();
     files.sort();
     let mut want = [mcap_name.clone(), "metadata.yaml".to_owned()];
     want.sort();
@@ -376,15 +313,10 @@ fn sample_bag_reads_back() {
     }
     assert_eq!(profile.as_deref(), Some("ros2"));
     let serialized = rosbag2_record.expect("rosbag2 metadata record");
-    assert!(
-        serialized.starts_with("version: 8\nstorage_identifier: mcap\n"),
-        "{serialized}"
-    );
+    assert!(serialized.starts_with("version: 8\nstorage_identifier: mcap\n"), "{serialized}");
 
     // Channels and schemas.
-    let summary = mcap::read::Summary::read(&bytes)
-        .unwrap()
-        .expect("summary section");
+    let summary = mcap::read::Summary::read(&bytes).unwrap().expect("summary section");
     let mut topics: BTreeMap<String, String> = BTreeMap::new();
     for ch in summary.channels.values() {
         assert_eq!(ch.message_encoding, "cdr");
@@ -414,17 +346,10 @@ fn sample_bag_reads_back() {
     assert_eq!(topics, expected_topics);
     // /tf and /tf_static share one schema record.
     assert_eq!(summary.schemas.len(), 7);
-    let scan_schema = summary
-        .schemas
-        .values()
-        .find(|s| s.name == LaserScan::TYPE_NAME)
-        .unwrap();
+    let scan_schema = summary.schemas.values().find(|s| s.name == LaserScan::TYPE_NAME).unwrap();
     let text = std::str::from_utf8(&scan_schema.data).unwrap();
     assert!(text.starts_with("std_msgs/Header header\nfloat32 angle_min\n"));
-    assert!(text.contains(&format!(
-        "{}\nMSG: builtin_interfaces/Time\n",
-        "=".repeat(80)
-    )));
+    assert!(text.contains(&format!("{}\nMSG: builtin_interfaces/Time\n", "=".repeat(80))));
 
     // Messages: counts, and decoded values.
     let stats = summary.stats.as_ref().unwrap();
@@ -444,18 +369,8 @@ fn sample_bag_reads_back() {
                 assert_eq!(got.ranges[1], f32::INFINITY);
                 assert_eq!(got.intensities, want.intensities);
                 assert_eq!(
-                    (
-                        got.angle_min,
-                        got.angle_max,
-                        got.angle_increment,
-                        got.range_max
-                    ),
-                    (
-                        want.angle_min,
-                        want.angle_max,
-                        want.angle_increment,
-                        want.range_max
-                    )
+                    (got.angle_min, got.angle_max, got.angle_increment, got.range_max),
+                    (want.angle_min, want.angle_max, want.angle_increment, want.range_max)
                 );
                 scans += 1;
             }
@@ -496,10 +411,7 @@ fn sample_bag_reads_back() {
         &format!("    - path: {mcap_name}"),
         "  custom_data: ~",
     ] {
-        assert!(
-            yaml.lines().any(|l| l == line),
-            "missing {line:?} in\n{yaml}"
-        );
+        assert!(yaml.lines().any(|l| l == line), "missing {line:?} in\n{yaml}");
     }
     assert!(yaml.contains("      message_count: 3\n"));
     std::fs::remove_dir_all(&dir).unwrap();
@@ -514,10 +426,7 @@ fn refuses_a_non_empty_directory_and_a_file() {
     assert!(matches!(err, Error::DirectoryNotEmpty { .. }), "{err}");
     assert!(err.to_string().contains("not empty"));
     let file = dir.join("old.txt");
-    assert!(matches!(
-        BagWriter::create(&file),
-        Err(Error::NotADirectory { .. })
-    ));
+    assert!(matches!(BagWriter::create(&file), Err(Error::NotADirectory { .. })));
     // Left as it was.
     assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 1);
     std::fs::remove_dir_all(&dir).unwrap();
@@ -529,10 +438,7 @@ fn an_existing_empty_directory_is_fine() {
     std::fs::create_dir_all(&dir).unwrap();
     BagWriter::create(&dir).unwrap().finish().unwrap();
     let yaml = std::fs::read_to_string(dir.join("metadata.yaml")).unwrap();
-    assert!(
-        yaml.contains("  message_count: 0\n  topics_with_message_count: []\n"),
-        "{yaml}"
-    );
+    assert!(yaml.contains("  message_count: 0\n  topics_with_message_count: []\n"), "{yaml}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -541,10 +447,7 @@ fn bad_input_is_an_error_and_the_bag_stays_consistent() {
     let dir = temp_bag_dir("bad");
     let mut bag = BagWriter::create(&dir).unwrap();
     let scan = sample_scan(0);
-    assert!(matches!(
-        bag.write("scan", T0, &scan),
-        Err(Error::InvalidTopicName { .. })
-    ));
+    assert!(matches!(bag.write("scan", T0, &scan), Err(Error::InvalidTopicName { .. })));
     bag.write("/scan", T0, &scan).unwrap();
     let err = bag.write("/scan", T0, &sample_odom(0)).unwrap_err();
     assert!(matches!(err, Error::TopicTypeMismatch { .. }), "{err}");

@@ -26,13 +26,20 @@ fn warmed_pipeline(warm_s: f64) -> (Pipeline, (f64, u32, u32, Vec<u8>), slam::me
     let world = scenario.world(base, scenario.seed).expect("world");
     let calibration = resolve_calibration(&scenario, base, scenario.seed).expect("calibration");
     let mut sim = Simulation::new(&world, &scenario.sim, sim::derive_seed(scenario.seed, "sim")).expect("simulation");
-    let appearance = Appearance::new(model, camera_geometry(&scenario.sim, &calibration.extrinsics)).expect("appearance");
+    let appearance =
+        Appearance::new(model, camera_geometry(&scenario.sim, &calibration.extrinsics)).expect("appearance");
     let start = world.robot.start;
-    let mut pipeline = Pipeline::with_appearance(config, [start.x, start.y, start.yaw_rad()], Some(appearance)).expect("pipeline");
+    let mut pipeline =
+        Pipeline::with_appearance(config, [start.x, start.y, start.yaw_rad()], Some(appearance)).expect("pipeline");
     let mut image = None;
     while let Some(event) = sim.next_event() {
         match event {
-            SensorEvent::Odometry { odometry, .. } => pipeline.on_odometry(&slam::messages::OdometryIncrement { t: odometry.t, dx: odometry.dx, dy: odometry.dy, dtheta: odometry.dtheta }),
+            SensorEvent::Odometry { odometry, .. } => pipeline.on_odometry(&slam::messages::OdometryIncrement {
+                t: odometry.t,
+                dx: odometry.dx,
+                dy: odometry.dy,
+                dtheta: odometry.dtheta,
+            }),
             SensorEvent::Camera { frame, .. } => {
                 let img = &frame.image;
                 image = Some((frame.t, img.width, img.height, img.rgb.clone()));

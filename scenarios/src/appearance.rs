@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 use sha2::{Digest, Sha256};
-use slam::classifier::{AppearanceModel, TrainingOptions, MODEL_FORMAT_VERSION};
+use slam::classifier::{AppearanceModel, MODEL_FORMAT_VERSION, TrainingOptions};
 use slam::gmm::VbOptions;
 
 use crate::dataset::DatasetConfig;
@@ -37,7 +37,16 @@ pub struct AppearanceSource {
 /// did not give a better map (docs/results.md).
 impl Default for AppearanceSource {
     fn default() -> Self {
-        AppearanceSource { model: None, training_preset: "park".into(), training_world_seed: 1001, training_images: 60, training_seed: 1, max_patches_per_class: 10_000, max_components: 10, pca_dims: 10 }
+        AppearanceSource {
+            model: None,
+            training_preset: "park".into(),
+            training_world_seed: 1001,
+            training_images: 60,
+            training_seed: 1,
+            max_patches_per_class: 10_000,
+            max_components: 10,
+            pca_dims: 10,
+        }
     }
 }
 
@@ -72,21 +81,33 @@ impl AppearanceSource {
     }
 
     fn dataset_config(&self, camera: &sim::camera::CameraConfig) -> DatasetConfig {
-        DatasetConfig { images: self.training_images, seed: self.training_seed, camera: camera.clone(), ..Default::default() }
+        DatasetConfig {
+            images: self.training_images,
+            seed: self.training_seed,
+            camera: camera.clone(),
+            ..Default::default()
+        }
     }
 
     /// The cache file name for this source and camera.
     pub fn cache_key(&self, camera: &sim::camera::CameraConfig) -> String {
         let mut key = self.clone();
         key.model = None;
-        let text = serde_json::to_string(&(MODEL_FORMAT_VERSION, key, self.dataset_config(camera), self.training_options())).expect("JSON");
+        let text =
+            serde_json::to_string(&(MODEL_FORMAT_VERSION, key, self.dataset_config(camera), self.training_options()))
+                .expect("JSON");
         let digest = Sha256::digest(text.as_bytes());
         format!("appearance-{}.json", digest.iter().take(8).map(|b| format!("{b:02x}")).collect::<String>())
     }
 
     /// Loads the named model, or the cached one, training and caching it first if needed.
     /// `progress(stage, done, total)` reports training.
-    pub fn resolve(&self, base_dir: &Path, camera: &sim::camera::CameraConfig, progress: impl Fn(&str, usize, usize)) -> Result<AppearanceModel, AppearanceError> {
+    pub fn resolve(
+        &self,
+        base_dir: &Path,
+        camera: &sim::camera::CameraConfig,
+        progress: impl Fn(&str, usize, usize),
+    ) -> Result<AppearanceModel, AppearanceError> {
         self.resolve_in(&cache_dir(), base_dir, camera, progress)
     }
 
@@ -97,7 +118,13 @@ impl AppearanceSource {
     /// cache looked at again once the lock is held, so the model is trained once and the
     /// later callers load it. Other processes write under their own temporary names and
     /// rename into place, so nobody reads a half-written model.
-    pub fn resolve_in(&self, dir: &Path, base_dir: &Path, camera: &sim::camera::CameraConfig, progress: impl Fn(&str, usize, usize)) -> Result<AppearanceModel, AppearanceError> {
+    pub fn resolve_in(
+        &self,
+        dir: &Path,
+        base_dir: &Path,
+        camera: &sim::camera::CameraConfig,
+        progress: impl Fn(&str, usize, usize),
+    ) -> Result<AppearanceModel, AppearanceError> {
         static TRAINING: std::sync::Mutex<()> = std::sync::Mutex::new(());
         if let Some(file) = &self.model {
             return Ok(AppearanceModel::load(&base_dir.join(file))?);
@@ -112,11 +139,18 @@ impl AppearanceSource {
         if path.exists() {
             return Ok(AppearanceModel::load(&path)?);
         }
-        std::fs::create_dir_all(dir).map_err(|e| AppearanceError::Io { file: dir.to_path_buf(), message: e.to_string() })?;
+        std::fs::create_dir_all(dir)
+            .map_err(|e| AppearanceError::Io { file: dir.to_path_buf(), message: e.to_string() })?;
         let scratch = dir.join(format!("training-{}-{}", std::process::id(), self.training_world_seed));
         let world = worlds::generate::preset(&self.training_preset, None, self.training_world_seed)?;
         let config = self.dataset_config(camera);
-        crate::dataset::make_dataset(&world, &format!("preset {}, seed {}", self.training_preset, self.training_world_seed), &config, &scratch, |done, total| progress("rendering", done, total))?;
+        crate::dataset::make_dataset(
+            &world,
+            &format!("preset {}, seed {}", self.training_preset, self.training_world_seed),
+            &config,
+            &scratch,
+            |done, total| progress("rendering", done, total),
+        )?;
         let trained = crate::train::train_from_dataset(&scratch, &self.training_options(), 0, &progress);
         let _ = std::fs::remove_dir_all(&scratch);
         let model = trained?;

@@ -121,26 +121,41 @@ impl Default for SessionConfig {
 impl SessionConfig {
     /// Checks the settings; `file` names the scenario in errors.
     pub fn check(&self, file: &Path, sim: &SimConfig) -> Result<(), CalibrateError> {
-        let bad = |field: &str, message: String| Err(CalibrateError::Session { file: file.to_path_buf(), field: field.into(), message });
+        let bad = |field: &str, message: String| {
+            Err(CalibrateError::Session { file: file.to_path_buf(), field: field.into(), message })
+        };
         if self.poses == 0 {
             return bad("poses", "must be at least 1".into());
         }
         if !(1..=1000).contains(&self.scans_per_pose) {
             return bad("scans_per_pose", format!("must be 1..1000, got {}", self.scans_per_pose));
         }
-        for (field, v) in [("board_width_m", self.board_width_m), ("board_height_m", self.board_height_m), ("station_spacing_m", self.station_spacing_m)] {
+        for (field, v) in [
+            ("board_width_m", self.board_width_m),
+            ("board_height_m", self.board_height_m),
+            ("station_spacing_m", self.station_spacing_m),
+        ] {
             if !(v.is_finite() && v > 0.0) {
                 return bad(field, format!("must be positive, got {v}"));
             }
         }
         if self.squares[0] < 3 || self.squares[1] < 3 {
-            return bad("squares", format!("the detector needs at least 3 x 3 squares (2 x 2 inner corners), got {:?}", self.squares));
+            return bad(
+                "squares",
+                format!("the detector needs at least 3 x 3 squares (2 x 2 inner corners), got {:?}", self.squares),
+            );
         }
         let (sx, sy) = (self.board_width_m / self.squares[0] as f64, self.board_height_m / self.squares[1] as f64);
         if (sx - sy).abs() > 1e-6 * sx {
             return bad("squares", format!("squares must be square: {sx:.4} m across but {sy:.4} m down"));
         }
-        for (field, r) in [("distance_m", self.distance_m), ("bearing_deg", self.bearing_deg), ("centre_height_m", self.centre_height_m), ("turn_deg", self.turn_deg), ("tilt_deg", self.tilt_deg)] {
+        for (field, r) in [
+            ("distance_m", self.distance_m),
+            ("bearing_deg", self.bearing_deg),
+            ("centre_height_m", self.centre_height_m),
+            ("turn_deg", self.turn_deg),
+            ("tilt_deg", self.tilt_deg),
+        ] {
             if !(r[0].is_finite() && r[1].is_finite() && r[0] <= r[1]) {
                 return bad(field, format!("must be a range [low, high] with low <= high, got {r:?}"));
             }
@@ -148,11 +163,19 @@ impl SessionConfig {
         if self.distance_m[0] <= 0.3 {
             return bad("distance_m", format!("boards must be more than 0.3 m away, got {:?}", self.distance_m));
         }
-        if self.tilt_deg[0] < -worlds::validate::MAX_BOARD_TILT_DEG || self.tilt_deg[1] > worlds::validate::MAX_BOARD_TILT_DEG {
-            return bad("tilt_deg", format!("must be within +-{} deg, got {:?}", worlds::validate::MAX_BOARD_TILT_DEG, self.tilt_deg));
+        if self.tilt_deg[0] < -worlds::validate::MAX_BOARD_TILT_DEG
+            || self.tilt_deg[1] > worlds::validate::MAX_BOARD_TILT_DEG
+        {
+            return bad(
+                "tilt_deg",
+                format!("must be within +-{} deg, got {:?}", worlds::validate::MAX_BOARD_TILT_DEG, self.tilt_deg),
+            );
         }
         if self.turn_deg[0] <= -80.0 || self.turn_deg[1] >= 80.0 {
-            return bad("turn_deg", format!("must be within +-80 deg (the camera must see the board's face), got {:?}", self.turn_deg));
+            return bad(
+                "turn_deg",
+                format!("must be within +-80 deg (the camera must see the board's face), got {:?}", self.turn_deg),
+            );
         }
         // The laser's plane must cut every board, away from its edges.
         let laser_z = sim.laser.mount_xyz_m[2];
@@ -161,19 +184,37 @@ impl SessionConfig {
         if self.centre_height_m[0] - reach > laser_z || self.centre_height_m[1] + reach < laser_z {
             return bad(
                 "centre_height_m",
-                format!("the laser's plane ({laser_z:.2} m up) must cut the boards well inside their height: centres must be within {reach:.2} m of it, got {:?}", self.centre_height_m),
+                format!(
+                    "the laser's plane ({laser_z:.2} m up) must cut the boards well inside their height: centres must be within {reach:.2} m of it, got {:?}",
+                    self.centre_height_m
+                ),
             );
         }
-        let lowest = self.centre_height_m[0] - 0.5 * self.board_height_m * max_tilt.cos() - 0.5 * worlds::BOARD_THICKNESS_M * max_tilt.sin();
+        let lowest = self.centre_height_m[0]
+            - 0.5 * self.board_height_m * max_tilt.cos()
+            - 0.5 * worlds::BOARD_THICKNESS_M * max_tilt.sin();
         if lowest < 0.0 {
-            return bad("centre_height_m", format!("the lowest, most tilted board reaches {:.3} m below the ground", -lowest));
+            return bad(
+                "centre_height_m",
+                format!("the lowest, most tilted board reaches {:.3} m below the ground", -lowest),
+            );
         }
         let footprint = self.board_width_m.max(self.board_height_m) + 2.0 * self.distance_m[1];
         if self.station_spacing_m < footprint {
-            return bad("station_spacing_m", format!("must be at least {footprint:.1} m so neighbouring stations' boards stay out of the camera's view, got {}", self.station_spacing_m));
+            return bad(
+                "station_spacing_m",
+                format!(
+                    "must be at least {footprint:.1} m so neighbouring stations' boards stay out of the camera's view, got {}",
+                    self.station_spacing_m
+                ),
+            );
         }
         if let Some(s) = &self.segmentation
-            && !(s.inlier_m > 0.0 && s.jump_m > 0.0 && s.length_m[0] <= s.length_m[1] && s.range_m[0] <= s.range_m[1] && s.bearing_rad[0] <= s.bearing_rad[1])
+            && !(s.inlier_m > 0.0
+                && s.jump_m > 0.0
+                && s.length_m[0] <= s.length_m[1]
+                && s.range_m[0] <= s.range_m[1]
+                && s.bearing_rad[0] <= s.bearing_rad[1])
         {
             return bad("segmentation", "needs positive inlier_m and jump_m and [low, high] ranges".into());
         }
@@ -200,7 +241,10 @@ impl SessionConfig {
         BoardSegmentation {
             bearing_rad: [yaw - half_fov, yaw + half_fov],
             range_m: [0.5 * self.distance_m[0], 1.5 * self.distance_m[1] + self.board_width_m],
-            length_m: [0.5 * self.board_width_m.min(self.board_height_m), 1.05 * self.board_width_m.hypot(self.board_height_m)],
+            length_m: [
+                0.5 * self.board_width_m.min(self.board_height_m),
+                1.05 * self.board_width_m.hypot(self.board_height_m),
+            ],
             inlier_m: (4.0 * noise + sim.laser.quantum_m()).max(0.01),
             ..Default::default()
         }
@@ -250,7 +294,8 @@ pub fn plan_stations(config: &SessionConfig, sim: &SimConfig, seed: u64) -> Vec<
             let tilt = lerp(config.tilt_deg, (tilt_strata[k] as f64 + rng.random_range(0.0..1.0)) / n as f64);
             let turn = lerp(config.turn_deg, (turn_strata[k] as f64 + rng.random_range(0.0..1.0)) / n as f64);
             let distance = uniform(&mut rng, config.distance_m);
-            let bearing = uniform(&mut rng, config.bearing_deg).to_radians() + theta + sim.laser.mount_yaw_deg.to_radians();
+            let bearing =
+                uniform(&mut rng, config.bearing_deg).to_radians() + theta + sim.laser.mount_yaw_deg.to_radians();
             let centre_z = uniform(&mut rng, config.centre_height_m);
             let centre = [laser[0] + distance * bearing.cos(), laser[1] + distance * bearing.sin()];
             // Facing the laser, then turned.
@@ -272,13 +317,20 @@ pub fn plan_stations(config: &SessionConfig, sim: &SimConfig, seed: u64) -> Vec<
                 let away = bearing;
                 let back = rng.random_range(0.8..1.6) + config.board_width_m / 2.0;
                 let side = rng.random_range(-1.2..1.2);
-                let p = [centre[0] + back * away.cos() - side * away.sin(), centre[1] + back * away.sin() + side * away.cos()];
+                let p = [
+                    centre[0] + back * away.cos() - side * away.sin(),
+                    centre[1] + back * away.sin() + side * away.cos(),
+                ];
                 StaticObject {
                     id: BOARD_ID_BASE + 1000 + k as u16,
                     class: ObjectClass::Post,
                     pose: Pose2 { x: p[0], y: p[1], yaw_deg: 0.0 },
                     shape: Shape::Post { radius_m: 0.1, height_m: 1.2 },
-                    appearance: Appearance { material: Material::Paint, colour: [0.3, 0.25, 0.2], texture_seed: k as u64 },
+                    appearance: Appearance {
+                        material: Material::Paint,
+                        colour: [0.3, 0.25, 0.2],
+                        texture_seed: k as u64,
+                    },
                     mesh: None,
                 }
             });
@@ -309,7 +361,11 @@ pub fn range_world(stations: &[Station], base: &World) -> Result<World, Calibrat
         format_version: worlds::WORLD_FORMAT_VERSION,
         name: "calibration_range".into(),
         seed: 0,
-        ground: worlds::Ground { min_m: [lo[0] - 5.0, lo[1] - 5.0], max_m: [hi[0] + 5.0, hi[1] + 5.0], appearance: base.ground.appearance.clone() },
+        ground: worlds::Ground {
+            min_m: [lo[0] - 5.0, lo[1] - 5.0],
+            max_m: [hi[0] + 5.0, hi[1] + 5.0],
+            appearance: base.ground.appearance.clone(),
+        },
         objects,
         people: vec![],
         robot: worlds::RobotSpec {
@@ -320,7 +376,9 @@ pub fn range_world(stations: &[Station], base: &World) -> Result<World, Calibrat
     };
     let problems = worlds::validate::validate(&world, Path::new("."));
     if !problems.is_empty() {
-        return Err(CalibrateError::World(problems.iter().map(|p| format!("{}: {}", p.field, p.message)).collect::<Vec<_>>().join("; ")));
+        return Err(CalibrateError::World(
+            problems.iter().map(|p| format!("{}: {}", p.field, p.message)).collect::<Vec<_>>().join("; "),
+        ));
     }
     Ok(world)
 }
@@ -396,7 +454,8 @@ impl CalibrationReport {
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
             std::fs::create_dir_all(dir).map_err(|source| CalibrateError::Write { file: dir.to_path_buf(), source })?;
         }
-        std::fs::write(path, serde_json::to_string_pretty(self).expect("JSON") + "\n").map_err(|source| CalibrateError::Write { file: path.to_path_buf(), source })
+        std::fs::write(path, serde_json::to_string_pretty(self).expect("JSON") + "\n")
+            .map_err(|source| CalibrateError::Write { file: path.to_path_buf(), source })
     }
 }
 
@@ -412,7 +471,13 @@ pub fn rigid_to_extrinsics(r: &Rigid) -> Extrinsics {
 /// Runs the calibration session of a scenario with `seed`; `poses` overrides the
 /// session's number of poses; with `images`, each pose's camera image is written there
 /// (`pose_NN.png`, detected corners marked in red).
-pub fn run_session(scenario: &Scenario, base_dir: &Path, seed: u64, poses: Option<usize>, images: Option<&Path>) -> Result<CalibrationReport, CalibrateError> {
+pub fn run_session(
+    scenario: &Scenario,
+    base_dir: &Path,
+    seed: u64,
+    poses: Option<usize>,
+    images: Option<&Path>,
+) -> Result<CalibrationReport, CalibrateError> {
     let file = PathBuf::from(format!("{}.toml", scenario.name));
     let mut config = scenario.calibration.session.clone();
     if let Some(p) = poses {
@@ -429,7 +494,14 @@ pub fn run_session(scenario: &Scenario, base_dir: &Path, seed: u64, poses: Optio
 
 /// Captures a scan and an image at every station of `world` and solves for the
 /// extrinsics.
-pub fn calibrate_stations(world: &World, stations: &[Station], config: &SessionConfig, sim_config: &SimConfig, seed: u64, images: Option<&Path>) -> Result<CalibrationReport, CalibrateError> {
+pub fn calibrate_stations(
+    world: &World,
+    stations: &[Station],
+    config: &SessionConfig,
+    sim_config: &SimConfig,
+    seed: u64,
+    images: Option<&Path>,
+) -> Result<CalibrationReport, CalibrateError> {
     if let Some(dir) = images {
         std::fs::create_dir_all(dir).map_err(|source| CalibrateError::Write { file: dir.to_path_buf(), source })?;
     }
@@ -465,7 +537,8 @@ pub fn calibrate_stations(world: &World, stations: &[Station], config: &SessionC
             tilt_deg: st.tilt_deg,
             turn_deg: st.turn_deg,
         };
-        let detection = slam::checkerboard::detect(&frame.image.rgb, k.width as usize, k.height as usize, inner, square, &km);
+        let detection =
+            slam::checkerboard::detect(&frame.image.rgb, k.width as usize, k.height as usize, inner, square, &km);
         if let Some(dir) = images {
             let mut rgb = frame.image.rgb.clone();
             for c in detection.as_ref().map(|d| d.corners.clone()).unwrap_or_default() {
@@ -480,7 +553,9 @@ pub fn calibrate_stations(world: &World, stations: &[Station], config: &SessionC
                 }
             }
             let file = dir.join(format!("pose_{:02}.png", st.index));
-            crate::record::write_png(&file, k.width, k.height, image::ExtendedColorType::Rgb8, &rgb).map_err(|e| CalibrateError::Write { file: file.clone(), source: std::io::Error::other(e.to_string()) })?;
+            crate::record::write_png(&file, k.width, k.height, image::ExtendedColorType::Rgb8, &rgb).map_err(|e| {
+                CalibrateError::Write { file: file.clone(), source: std::io::Error::other(e.to_string()) }
+            })?;
         }
         let det = match detection {
             Ok(d) => d,
@@ -493,7 +568,8 @@ pub fn calibrate_stations(world: &World, stations: &[Station], config: &SessionC
         pr.plane = Some([det.plane.x, det.plane.y, det.plane.z]);
         pr.reprojection_rms_px = Some(det.reprojection_rms_px);
         if let Some(truth) = true_plane(&st.board, &frame.world_from_camera) {
-            pr.truth_normal_error_deg = Some(det.plane.normalize().dot(&truth.normalize()).clamp(-1.0, 1.0).acos().to_degrees());
+            pr.truth_normal_error_deg =
+                Some(det.plane.normalize().dot(&truth.normalize()).clamp(-1.0, 1.0).acos().to_degrees());
             pr.truth_distance_error_m = Some(det.plane.norm() - truth.norm());
         }
         let camera_range = (det.rotation * board_centre + det.translation).norm();
@@ -501,14 +577,19 @@ pub fn calibrate_stations(world: &World, stations: &[Station], config: &SessionC
         match slam::calibration::segment_board(&s, &segmentation, Some(camera_range)) {
             Ok(cut) => {
                 pr.laser_points = cut.points.len();
-                observations.push(BoardObservation { plane: det.plane, laser_points: cut.points, plane_covariance: Some(det.plane_covariance) });
+                observations.push(BoardObservation {
+                    plane: det.plane,
+                    laser_points: cut.points,
+                    plane_covariance: Some(det.plane_covariance),
+                });
                 obs_pose.push(poses.len());
             }
             Err(e) => pr.skipped = Some(format!("board not found in the scan: {e}")),
         }
         poses.push(pr);
     }
-    let skipped: Vec<String> = poses.iter().filter_map(|p| p.skipped.as_ref().map(|r| format!("pose {}: {r}", p.pose))).collect();
+    let skipped: Vec<String> =
+        poses.iter().filter_map(|p| p.skipped.as_ref().map(|r| format!("pose {}: {r}", p.pose))).collect();
     let result = slam::calibration::calibrate(&observations).map_err(|reason| CalibrateError::Solve {
         requested: stations.len(),
         used: observations.len(),
@@ -559,7 +640,13 @@ pub fn calibrate_stations(world: &World, stations: &[Station], config: &SessionC
 
 /// `n` scans from a standing robot, averaged beam by beam (a beam without a return in any
 /// of them has none).
-fn averaged_scan(laser: &mut sim::laser::Laser, scene: &sim::physics::PhysicsScene, robot: &Pose2D, t: f64, n: usize) -> sim::LaserScan {
+fn averaged_scan(
+    laser: &mut sim::laser::Laser,
+    scene: &sim::physics::PhysicsScene,
+    robot: &Pose2D,
+    t: f64,
+    n: usize,
+) -> sim::LaserScan {
     let period = 1.0 / laser.config.rate_hz;
     let (mut scan, _) = laser.scan(scene, robot, t);
     for k in 1..n {
@@ -578,7 +665,8 @@ fn averaged_scan(laser: &mut sim::laser::Laser, scene: &sim::physics::PhysicsSce
 pub fn true_plane(board: &StaticObject, world_from_camera: &Rigid) -> Option<Vector3<f64>> {
     let f = board.shape.board_frame()?;
     let (s, c) = board.pose.yaw_rad().sin_cos();
-    let to_world = |p: [f64; 3]| Vector3::new(board.pose.x + c * p[0] - s * p[1], board.pose.y + s * p[0] + c * p[1], p[2]);
+    let to_world =
+        |p: [f64; 3]| Vector3::new(board.pose.x + c * p[0] - s * p[1], board.pose.y + s * p[0] + c * p[1], p[2]);
     let n_m = f.normal();
     let n_w = Vector3::new(c * n_m[0] - s * n_m[1], s * n_m[0] + c * n_m[1], n_m[2]);
     let p_w = to_world(f.apply([worlds::BOARD_THICKNESS_M / 2.0, 0.0, 0.0]));
@@ -593,24 +681,37 @@ pub fn true_plane(board: &StaticObject, world_from_camera: &Rigid) -> Option<Vec
 /// row-major) and `delta` (3 numbers, m), as `objslam calibrate` writes; other keys are
 /// ignored. Phi must be a rotation to within 1e-3 (it is re-orthonormalised).
 pub fn load_extrinsics(path: &Path) -> Result<Extrinsics, CalibrateError> {
-    let text = std::fs::read_to_string(path).map_err(|source| CalibrateError::Read { file: path.to_path_buf(), source })?;
-    let bad = |field: &str, message: String| CalibrateError::File { file: path.to_path_buf(), field: field.into(), message };
-    let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| bad("(file)", format!("not valid JSON: {e}")))?;
+    let text =
+        std::fs::read_to_string(path).map_err(|source| CalibrateError::Read { file: path.to_path_buf(), source })?;
+    let bad =
+        |field: &str, message: String| CalibrateError::File { file: path.to_path_buf(), field: field.into(), message };
+    let v: serde_json::Value =
+        serde_json::from_str(&text).map_err(|e| bad("(file)", format!("not valid JSON: {e}")))?;
     let obj = v.as_object().ok_or_else(|| bad("(file)", "must be a JSON object with `phi` and `delta`".into()))?;
     let number = |field: &str, x: &serde_json::Value| -> Result<f64, CalibrateError> {
         x.as_f64().filter(|f| f.is_finite()).ok_or_else(|| bad(field, format!("must be a finite number, got {x}")))
     };
     let phi_v = obj.get("phi").ok_or_else(|| bad("phi", "missing (the 3x3 rotation, row-major)".into()))?;
-    let rows = phi_v.as_array().filter(|r| r.len() == 3).ok_or_else(|| bad("phi", format!("must be 3 rows of 3 numbers, got {phi_v}")))?;
+    let rows = phi_v
+        .as_array()
+        .filter(|r| r.len() == 3)
+        .ok_or_else(|| bad("phi", format!("must be 3 rows of 3 numbers, got {phi_v}")))?;
     let mut phi = [[0.0; 3]; 3];
     for (i, row) in rows.iter().enumerate() {
-        let cols = row.as_array().filter(|c| c.len() == 3).ok_or_else(|| bad(&format!("phi[{i}]"), format!("must be 3 numbers, got {row}")))?;
+        let cols = row
+            .as_array()
+            .filter(|c| c.len() == 3)
+            .ok_or_else(|| bad(&format!("phi[{i}]"), format!("must be 3 numbers, got {row}")))?;
         for (j, x) in cols.iter().enumerate() {
             phi[i][j] = number(&format!("phi[{i}][{j}]"), x)?;
         }
     }
-    let delta_v = obj.get("delta").ok_or_else(|| bad("delta", "missing (the translation, 3 numbers in metres)".into()))?;
-    let d = delta_v.as_array().filter(|d| d.len() == 3).ok_or_else(|| bad("delta", format!("must be 3 numbers, got {delta_v}")))?;
+    let delta_v =
+        obj.get("delta").ok_or_else(|| bad("delta", "missing (the translation, 3 numbers in metres)".into()))?;
+    let d = delta_v
+        .as_array()
+        .filter(|d| d.len() == 3)
+        .ok_or_else(|| bad("delta", format!("must be 3 numbers, got {delta_v}")))?;
     let mut delta = [0.0; 3];
     for (i, x) in d.iter().enumerate() {
         delta[i] = number(&format!("delta[{i}]"), x)?;
@@ -653,7 +754,8 @@ mod tests {
         config.check(Path::new("x.toml"), &sim).unwrap();
         let st = plan_stations(&config, &sim, 4);
         assert_eq!(st.len(), 20);
-        let mut tilts: Vec<f64> = st.iter().map(|s| if let Shape::Board { tilt_deg, .. } = s.board.shape { tilt_deg } else { 0.0 }).collect();
+        let mut tilts: Vec<f64> =
+            st.iter().map(|s| if let Shape::Board { tilt_deg, .. } = s.board.shape { tilt_deg } else { 0.0 }).collect();
         tilts.sort_by(f64::total_cmp);
         // One tilt per stratum of the range.
         for (i, t) in tilts.iter().enumerate() {
@@ -674,7 +776,8 @@ mod tests {
         assert!(e.contains("s.toml") && e.contains("calibration.session.squares") && e.contains("square"), "{e}");
         let e = SessionConfig { tilt_deg: [-85.0, 10.0], ..Default::default() }.check(f, &sim).unwrap_err().to_string();
         assert!(e.contains("tilt_deg"), "{e}");
-        let e = SessionConfig { centre_height_m: [1.5, 1.6], ..Default::default() }.check(f, &sim).unwrap_err().to_string();
+        let e =
+            SessionConfig { centre_height_m: [1.5, 1.6], ..Default::default() }.check(f, &sim).unwrap_err().to_string();
         assert!(e.contains("centre_height_m") && e.contains("laser"), "{e}");
         let e = SessionConfig { poses: 0, ..Default::default() }.check(f, &sim).unwrap_err().to_string();
         assert!(e.contains("poses"), "{e}");
@@ -688,16 +791,29 @@ mod tests {
         std::fs::create_dir_all(&dir).unwrap();
         let truth = true_extrinsics(&SimConfig::default());
         let good = dir.join("good.json");
-        std::fs::write(&good, serde_json::json!({"phi": truth.phi, "delta": truth.delta, "other": 1}).to_string()).unwrap();
+        std::fs::write(&good, serde_json::json!({"phi": truth.phi, "delta": truth.delta, "other": 1}).to_string())
+            .unwrap();
         let e = load_extrinsics(&good).unwrap();
         assert!(e.error_to(&truth).0 < 1e-9 && e.error_to(&truth).1 < 1e-12);
         let cases = [
             ("nojson.json", "{".to_string(), "not valid JSON"),
             ("nophi.json", serde_json::json!({"delta": [0, 0, 0]}).to_string(), "phi: missing"),
             ("shape.json", serde_json::json!({"phi": [[1, 0], [0, 1]], "delta": [0, 0, 0]}).to_string(), "phi"),
-            ("notrot.json", serde_json::json!({"phi": [[1, 0, 0], [0, 2, 0], [0, 0, 1]], "delta": [0, 0, 0]}).to_string(), "not a rotation"),
-            ("reflect.json", serde_json::json!({"phi": [[1, 0, 0], [0, 1, 0], [0, 0, -1]], "delta": [0, 0, 0]}).to_string(), "not a rotation"),
-            ("delta.json", serde_json::json!({"phi": [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "delta": [0, "a", 0]}).to_string(), "delta[1]"),
+            (
+                "notrot.json",
+                serde_json::json!({"phi": [[1, 0, 0], [0, 2, 0], [0, 0, 1]], "delta": [0, 0, 0]}).to_string(),
+                "not a rotation",
+            ),
+            (
+                "reflect.json",
+                serde_json::json!({"phi": [[1, 0, 0], [0, 1, 0], [0, 0, -1]], "delta": [0, 0, 0]}).to_string(),
+                "not a rotation",
+            ),
+            (
+                "delta.json",
+                serde_json::json!({"phi": [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "delta": [0, "a", 0]}).to_string(),
+                "delta[1]",
+            ),
         ];
         for (name, text, want) in cases {
             let f = dir.join(name);

@@ -180,7 +180,8 @@ pub fn look_at(eye: [f64; 3], target: [f64; 3]) -> Rigid {
         let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt().max(1e-12);
         [v[0] / l, v[1] / l, v[2] / l]
     };
-    let cross = |a: [f64; 3], b: [f64; 3]| [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+    let cross =
+        |a: [f64; 3], b: [f64; 3]| [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
     let z = norm(sub);
     let x = norm(cross(z, [0.0, 0.0, 1.0]));
     let y = cross(z, x);
@@ -188,19 +189,33 @@ pub fn look_at(eye: [f64; 3], target: [f64; 3]) -> Rigid {
 }
 
 /// Makes a dataset of `world` in `out`. `progress(done, total)` after each image.
-pub fn make_dataset(world: &World, world_name: &str, config: &DatasetConfig, out: &Path, progress: impl Fn(usize, usize)) -> Result<Manifest, DatasetError> {
+pub fn make_dataset(
+    world: &World,
+    world_name: &str,
+    config: &DatasetConfig,
+    out: &Path,
+    progress: impl Fn(usize, usize),
+) -> Result<Manifest, DatasetError> {
     if config.images == 0 {
         return Err(DatasetError::Config("--images must be at least 1".into()));
     }
     if config.patch_size == 0 || config.patch_size > config.camera.width.min(config.camera.height) {
-        return Err(DatasetError::Config(format!("patch size {} does not fit a {}x{} image", config.patch_size, config.camera.width, config.camera.height)));
+        return Err(DatasetError::Config(format!(
+            "patch size {} does not fit a {}x{} image",
+            config.patch_size, config.camera.width, config.camera.height
+        )));
     }
-    let targets: Vec<&worlds::StaticObject> = world.objects.iter().filter(|o| config.classes.contains(&o.class)).collect();
+    let targets: Vec<&worlds::StaticObject> =
+        world.objects.iter().filter(|o| config.classes.contains(&o.class)).collect();
     if targets.is_empty() && config.background_fraction < 1.0 {
-        return Err(DatasetError::Config(format!("the world has no object of the classes {:?}", config.classes.iter().map(|c| c.name()).collect::<Vec<_>>())));
+        return Err(DatasetError::Config(format!(
+            "the world has no object of the classes {:?}",
+            config.classes.iter().map(|c| c.name()).collect::<Vec<_>>()
+        )));
     }
     for dir in ["images", "masks", "labels"] {
-        std::fs::create_dir_all(out.join(dir)).map_err(|e| DatasetError::Io { file: out.join(dir), message: e.to_string() })?;
+        std::fs::create_dir_all(out.join(dir))
+            .map_err(|e| DatasetError::Io { file: out.join(dir), message: e.to_string() })?;
     }
     let mut cam = CameraSensor::new(world, &config.camera, sim::derive_seed(config.seed, "dataset-camera"))?;
     let base_lighting = cam.lighting;
@@ -216,12 +231,20 @@ pub fn make_dataset(world: &World, world_name: &str, config: &DatasetConfig, out
         let mut rng = ChaCha8Rng::seed_from_u64(sim::derive_seed(config.seed, &format!("dataset-image-{i}")));
         let background = targets.is_empty() || rng.random_range(0.0..1.0) < config.background_fraction;
         let people_time = rng.random_range(0.0..120.0);
-        let people: Vec<sim::PersonState> = world.people.iter().map(|p| sim::people::person_state(p, people_time)).collect();
+        let people: Vec<sim::PersonState> =
+            world.people.iter().map(|p| sim::people::person_state(p, people_time)).collect();
         // Distractors: static objects of other classes, and people where they stand now.
         let distractor = (background && rng.random_range(0.0..1.0) < config.distractor_fraction).then(|| {
-            let mut spots: Vec<([f64; 2], f64)> = world.objects.iter().filter(|o| !config.classes.contains(&o.class) && o.class != ObjectClass::Wall).map(|o| ([o.pose.x, o.pose.y], o.shape.top_m().min(2.0))).collect();
+            let mut spots: Vec<([f64; 2], f64)> = world
+                .objects
+                .iter()
+                .filter(|o| !config.classes.contains(&o.class) && o.class != ObjectClass::Wall)
+                .map(|o| ([o.pose.x, o.pose.y], o.shape.top_m().min(2.0)))
+                .collect();
             spots.extend(people.iter().map(|p| ([p.x, p.y], 1.2)));
-            spots.extend(world.objects.iter().filter(|o| o.class == ObjectClass::Wall).map(|o| ([o.pose.x, o.pose.y], 1.0)));
+            spots.extend(
+                world.objects.iter().filter(|o| o.class == ObjectClass::Wall).map(|o| ([o.pose.x, o.pose.y], 1.0)),
+            );
             spots
         });
         // An object view is redrawn from another viewpoint when its target is hidden
@@ -239,7 +262,8 @@ pub fn make_dataset(world: &World, world_name: &str, config: &DatasetConfig, out
                     let eye = [p[0] + d * a.cos(), p[1] + d * a.sin(), height];
                     (eye, [p[0], p[1], rng.random_range(0.3..top.max(0.4))], None)
                 } else if background {
-                    let eye = [rng.random_range(g.min_m[0]..g.max_m[0]), rng.random_range(g.min_m[1]..g.max_m[1]), height];
+                    let eye =
+                        [rng.random_range(g.min_m[0]..g.max_m[0]), rng.random_range(g.min_m[1]..g.max_m[1]), height];
                     let yaw: f64 = rng.random_range(0.0..std::f64::consts::TAU);
                     (eye, [eye[0] + yaw.cos(), eye[1] + yaw.sin(), height - rng.random_range(0.0..0.3)], None)
                 } else {
@@ -247,19 +271,28 @@ pub fn make_dataset(world: &World, world_name: &str, config: &DatasetConfig, out
                     let d = rng.random_range(config.distance_m[0]..=config.distance_m[1]);
                     let a: f64 = rng.random_range(0.0..std::f64::consts::TAU);
                     let eye = [o.pose.x + d * a.cos(), o.pose.y + d * a.sin(), height];
-                    let aim_h = rng.random_range(0.3..(o.shape.top_m().min(2.5)).max(0.4));
+                    let aim_h = rng.random_range(0.3..o.shape.top_m().clamp(0.4, 2.5));
                     let jitter = 0.15 * d;
-                    let target = [o.pose.x + rng.random_range(-jitter..=jitter) * 0.3, o.pose.y + rng.random_range(-jitter..=jitter) * 0.3, aim_h];
+                    let target = [
+                        o.pose.x + rng.random_range(-jitter..=jitter) * 0.3,
+                        o.pose.y + rng.random_range(-jitter..=jitter) * 0.3,
+                        aim_h,
+                    ];
                     (eye, target, Some(o.id))
                 };
-                let inside = eye[0] > g.min_m[0] + 0.3 && eye[0] < g.max_m[0] - 0.3 && eye[1] > g.min_m[1] + 0.3 && eye[1] < g.max_m[1] - 0.3;
+                let inside = eye[0] > g.min_m[0] + 0.3
+                    && eye[0] < g.max_m[0] - 0.3
+                    && eye[1] > g.min_m[1] + 0.3
+                    && eye[1] < g.max_m[1] - 0.3;
                 if inside && footprints.iter().all(|f| f.distance_to_point([eye[0], eye[1]]) > 0.3) {
                     chosen = Some((eye, target, target_id));
                     break;
                 }
             }
             let Some((eye, target, target_id)) = chosen else {
-                return Err(DatasetError::Config(format!("no free viewpoint found for image {i}; the world is too crowded")));
+                return Err(DatasetError::Config(format!(
+                    "no free viewpoint found for image {i}; the world is too crowded"
+                )));
             };
             // Lighting variation: sun azimuth and elevation, exposure.
             let az: f64 = rng.random_range(0.0..std::f64::consts::TAU);
@@ -279,17 +312,24 @@ pub fn make_dataset(world: &World, world_name: &str, config: &DatasetConfig, out
         let img = &frame.image;
 
         let stem = format!("{i:06}");
-        let names = [format!("images/{stem}.png"), format!("masks/{stem}_instance.png"), format!("masks/{stem}_class.png"), format!("labels/{stem}_patches.json")];
+        let names = [
+            format!("images/{stem}.png"),
+            format!("masks/{stem}_instance.png"),
+            format!("masks/{stem}_class.png"),
+            format!("labels/{stem}_patches.json"),
+        ];
         write_png(&out.join(&names[0]), w, h, image::ExtendedColorType::Rgb8, &img.rgb)?;
         let inst: Vec<u8> = img.instance.iter().flat_map(|v| v.to_ne_bytes()).collect();
         write_png(&out.join(&names[1]), w, h, image::ExtendedColorType::L16, &inst)?;
         write_png(&out.join(&names[2]), w, h, image::ExtendedColorType::L8, &img.class)?;
         let labels = patch_labels(&img.class, w, h, config.patch_size, &wanted);
-        std::fs::write(out.join(&names[3]), serde_json::to_string(&labels).expect("JSON")).map_err(|e| DatasetError::Io { file: out.join(&names[3]), message: e.to_string() })?;
+        std::fs::write(out.join(&names[3]), serde_json::to_string(&labels).expect("JSON"))
+            .map_err(|e| DatasetError::Io { file: out.join(&names[3]), message: e.to_string() })?;
 
         // COCO: one annotation per visible object instance (not ground, not sky).
         coco_images.push(json!({"id": i, "file_name": names[0], "width": w, "height": h}));
-        let mut ids: Vec<u16> = img.instance.iter().copied().filter(|&id| id != 0 && id != worlds::validate::GROUND_INSTANCE_ID).collect();
+        let mut ids: Vec<u16> =
+            img.instance.iter().copied().filter(|&id| id != 0 && id != worlds::validate::GROUND_INSTANCE_ID).collect();
         ids.sort_unstable();
         ids.dedup();
         for id in ids {
@@ -346,11 +386,22 @@ pub fn make_dataset(world: &World, world_name: &str, config: &DatasetConfig, out
         renderer: cam.adapter().to_string(),
         images: entries,
     };
-    let write = |name: &str, v: &serde_json::Value| std::fs::write(out.join(name), serde_json::to_string_pretty(v).expect("JSON")).map_err(|e| DatasetError::Io { file: out.join(name), message: e.to_string() });
+    let write = |name: &str, v: &serde_json::Value| {
+        std::fs::write(out.join(name), serde_json::to_string_pretty(v).expect("JSON"))
+            .map_err(|e| DatasetError::Io { file: out.join(name), message: e.to_string() })
+    };
     write("dataset.json", &serde_json::to_value(&manifest).expect("JSON"))?;
-    let categories: Vec<_> = ObjectClass::ALL.iter().filter(|c| **c != ObjectClass::Ground).map(|c| json!({"id": c.id(), "name": c.name(), "supercategory": "object"})).collect();
-    write("annotations.json", &json!({"info": {"description": format!("objslam dataset of {world_name}"), "version": "1.0"}, "images": coco_images, "annotations": coco_annotations, "categories": categories}))?;
-    std::fs::write(out.join("world.toml"), world.to_toml()).map_err(|e| DatasetError::Io { file: out.join("world.toml"), message: e.to_string() })?;
+    let categories: Vec<_> = ObjectClass::ALL
+        .iter()
+        .filter(|c| **c != ObjectClass::Ground)
+        .map(|c| json!({"id": c.id(), "name": c.name(), "supercategory": "object"}))
+        .collect();
+    write(
+        "annotations.json",
+        &json!({"info": {"description": format!("objslam dataset of {world_name}"), "version": "1.0"}, "images": coco_images, "annotations": coco_annotations, "categories": categories}),
+    )?;
+    std::fs::write(out.join("world.toml"), world.to_toml())
+        .map_err(|e| DatasetError::Io { file: out.join("world.toml"), message: e.to_string() })?;
     Ok(manifest)
 }
 

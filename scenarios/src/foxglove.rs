@@ -102,14 +102,20 @@ impl McapWriter {
             None => {
                 let data = serde_json::to_vec(&schema(schema_name)).expect("schemas serialise");
                 let schema_id = self.writer.add_schema(schema_name, "jsonschema", &data).map_err(|e| self.err(&e))?;
-                let c = self.writer.add_channel(schema_id, topic, "json", &BTreeMap::new()).map_err(|e| self.err(&e))?;
+                let c =
+                    self.writer.add_channel(schema_id, topic, "json", &BTreeMap::new()).map_err(|e| self.err(&e))?;
                 self.channels.insert(topic.to_string(), c);
                 c
             }
         };
         self.sequence += 1;
         let time = (t * 1e9).round() as u64;
-        let header = mcap::records::MessageHeader { channel_id: channel, sequence: self.sequence, log_time: time, publish_time: time };
+        let header = mcap::records::MessageHeader {
+            channel_id: channel,
+            sequence: self.sequence,
+            log_time: time,
+            publish_time: time,
+        };
         let data = serde_json::to_vec(message).expect("JSON values serialise");
         self.writer.write_to_known_channel(&header, &data).map_err(|e| self.err(&e))
     }

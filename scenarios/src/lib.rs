@@ -9,8 +9,8 @@
 //! scenarios::plot::draw_map(&world, &scenarios::plot::Overlays::default(), "map.png".as_ref()).unwrap();
 //! ```
 
-pub mod calibrate;
 pub mod appearance;
+pub mod calibrate;
 pub mod dataset;
 pub mod foxglove;
 pub mod montecarlo;

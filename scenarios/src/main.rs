@@ -7,7 +7,11 @@ use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 
 #[derive(Parser)]
-#[command(name = "objslam", version, about = "Simulation harness for object-recognition SLAM (Ramos, Nieto & Durrant-Whyte)")]
+#[command(
+    name = "objslam",
+    version,
+    about = "Simulation harness for object-recognition SLAM (Ramos, Nieto & Durrant-Whyte)"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Option<Command>,
@@ -168,7 +172,6 @@ enum GmmCommand {
     },
 }
 
-
 #[derive(clap::Args)]
 #[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
 struct MontecarloArgs {
@@ -280,16 +283,39 @@ fn run(cli: Cli) -> Result<()> {
             run_scenario(Some("paper_park"), None, None, None, false)
         }
         Some(Command::World(cmd)) => world(cmd),
-        Some(Command::Run { scenario, seed, method, out, full_frames }) => run_scenario(scenario.as_deref(), seed, method.as_deref(), out, full_frames),
+        Some(Command::Run { scenario, seed, method, out, full_frames }) => {
+            run_scenario(scenario.as_deref(), seed, method.as_deref(), out, full_frames)
+        }
         Some(Command::Montecarlo(args)) => montecarlo(args),
-        Some(Command::MontecarloWorker) => Ok(scenarios::montecarlo::serve_worker(std::io::stdin().lock(), std::io::stdout().lock())?),
-        Some(Command::Dataset { world, preset, images, seed, classes, patch_size, out }) => dataset(world, preset, images, seed, &classes, patch_size, &out),
-        Some(Command::Record { input, seed, duration, sim_config, format, out }) => record(&input, seed, duration, sim_config, format, &out),
-        Some(Command::Calibrate { scenario, poses, seed, out, images }) => calibrate(scenario.as_deref().unwrap_or("calibration"), poses, seed, &out, images.as_deref()),
-        Some(Command::Train { dataset, out, export_features, pca_dims, max_components, heldout_every, threshold, seed }) => train(&dataset, &out, export_features.as_deref(), pca_dims, max_components, heldout_every, threshold, seed),
+        Some(Command::MontecarloWorker) => {
+            Ok(scenarios::montecarlo::serve_worker(std::io::stdin().lock(), std::io::stdout().lock())?)
+        }
+        Some(Command::Dataset { world, preset, images, seed, classes, patch_size, out }) => {
+            dataset(world, preset, images, seed, &classes, patch_size, &out)
+        }
+        Some(Command::Record { input, seed, duration, sim_config, format, out }) => {
+            record(&input, seed, duration, sim_config, format, &out)
+        }
+        Some(Command::Calibrate { scenario, poses, seed, out, images }) => {
+            calibrate(scenario.as_deref().unwrap_or("calibration"), poses, seed, &out, images.as_deref())
+        }
+        Some(Command::Train {
+            dataset,
+            out,
+            export_features,
+            pca_dims,
+            max_components,
+            heldout_every,
+            threshold,
+            seed,
+        }) => {
+            train(&dataset, &out, export_features.as_deref(), pca_dims, max_components, heldout_every, threshold, seed)
+        }
         Some(Command::Segment { model, image, out }) => segment(&model, &image, &out),
         Some(Command::Find { run, image, model, top }) => find(&run, &image, model.as_deref(), top),
-        Some(Command::Gmm(GmmCommand::Fit { data, max_components, fixed_k, seed, out })) => gmm_fit(&data, max_components, fixed_k, seed, &out),
+        Some(Command::Gmm(GmmCommand::Fit { data, max_components, fixed_k, seed, out })) => {
+            gmm_fit(&data, max_components, fixed_k, seed, &out)
+        }
     }
 }
 
@@ -305,15 +331,25 @@ fn load_world(input: &str, seed: u64) -> Result<worlds::World> {
 fn progress_bar(len: u64, what: &str) -> indicatif::ProgressBar {
     let bar = indicatif::ProgressBar::new(len);
     bar.set_style(
-        indicatif::ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} s simulated, {elapsed} elapsed, ETA {eta}")
-            .expect("valid template")
-            .progress_chars("=> "),
+        indicatif::ProgressStyle::with_template(
+            "{msg} [{bar:40}] {pos}/{len} s simulated, {elapsed} elapsed, ETA {eta}",
+        )
+        .expect("valid template")
+        .progress_chars("=> "),
     );
     bar.set_message(what.to_string());
     bar
 }
 
-fn dataset(world: Option<PathBuf>, preset: Option<String>, images: usize, seed: u64, classes: &str, patch_size: u32, out: &std::path::Path) -> Result<()> {
+fn dataset(
+    world: Option<PathBuf>,
+    preset: Option<String>,
+    images: usize,
+    seed: u64,
+    classes: &str,
+    patch_size: u32,
+    out: &std::path::Path,
+) -> Result<()> {
     let (w, name) = match (world, preset) {
         (Some(path), None) => (worlds::load(&path)?, path.display().to_string()),
         (None, preset) => {
@@ -324,15 +360,31 @@ fn dataset(world: Option<PathBuf>, preset: Option<String>, images: usize, seed: 
     };
     let classes = classes
         .split(',')
-        .map(|c| worlds::ObjectClass::from_name(c.trim()).ok_or_else(|| anyhow::anyhow!("unknown class {c:?}; classes: tree, palm, post, wall, person, checkerboard")))
+        .map(|c| {
+            worlds::ObjectClass::from_name(c.trim()).ok_or_else(|| {
+                anyhow::anyhow!("unknown class {c:?}; classes: tree, palm, post, wall, person, checkerboard")
+            })
+        })
         .collect::<Result<Vec<_>>>()?;
     let config = scenarios::dataset::DatasetConfig { images, seed, classes, patch_size, ..Default::default() };
     let bar = indicatif::ProgressBar::new(images as u64);
-    bar.set_style(indicatif::ProgressStyle::with_template("dataset [{bar:40}] {pos}/{len} images, {elapsed} elapsed, ETA {eta}").expect("valid template").progress_chars("=> "));
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("dataset [{bar:40}] {pos}/{len} images, {elapsed} elapsed, ETA {eta}")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
     let started = std::time::Instant::now();
     let manifest = scenarios::dataset::make_dataset(&w, &name, &config, out, |done, _| bar.set_position(done as u64))?;
     bar.finish_and_clear();
-    println!("{} images ({}x{}) in {:.1} s on {} -> {}", manifest.images.len(), manifest.width, manifest.height, started.elapsed().as_secs_f64(), manifest.renderer, out.display());
+    println!(
+        "{} images ({}x{}) in {:.1} s on {} -> {}",
+        manifest.images.len(),
+        manifest.width,
+        manifest.height,
+        started.elapsed().as_secs_f64(),
+        manifest.renderer,
+        out.display()
+    );
     Ok(())
 }
 
@@ -343,7 +395,10 @@ fn montecarlo(args: MontecarloArgs) -> Result<()> {
     } else {
         let count = args.jobs.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
         anyhow::ensure!(count > 0, "--jobs must be at least 1");
-        mc::Workers::Processes { exe: std::env::current_exe().context("cannot find the objslam executable to start worker processes")?, count }
+        mc::Workers::Processes {
+            exe: std::env::current_exe().context("cannot find the objslam executable to start worker processes")?,
+            count,
+        }
     };
     if let Some(MontecarloCommand::Merge { dirs, out }) = args.command {
         let (plan, runs) = mc::merge(&dirs, &out)?;
@@ -365,7 +420,8 @@ fn montecarlo(args: MontecarloArgs) -> Result<()> {
         return Ok(());
     }
     let scenario = args.scenario.expect("clap requires a scenario without a subcommand");
-    let methods: Vec<String> = args.methods.split(',').map(|m| m.trim().to_string()).filter(|m| !m.is_empty()).collect();
+    let methods: Vec<String> =
+        args.methods.split(',').map(|m| m.trim().to_string()).filter(|m| !m.is_empty()).collect();
     for m in &methods {
         parse_method(m)?;
     }
@@ -387,10 +443,21 @@ fn montecarlo(args: MontecarloArgs) -> Result<()> {
 }
 
 /// Runs (or resumes) one study with a progress bar, then writes and prints its summary.
-fn run_plan(plan: &scenarios::montecarlo::StudyPlan, shard: scenarios::montecarlo::Shard, out: &std::path::Path, workers: &scenarios::montecarlo::Workers) -> Result<()> {
+fn run_plan(
+    plan: &scenarios::montecarlo::StudyPlan,
+    shard: scenarios::montecarlo::Shard,
+    out: &std::path::Path,
+    workers: &scenarios::montecarlo::Workers,
+) -> Result<()> {
     use scenarios::montecarlo as mc;
     let bar = indicatif::ProgressBar::new(0);
-    bar.set_style(indicatif::ProgressStyle::with_template("study [{bar:40}] {pos}/{len} runs, {msg}, {elapsed} elapsed, ETA {eta}").expect("valid template").progress_chars("=> "));
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(
+            "study [{bar:40}] {pos}/{len} runs, {msg}, {elapsed} elapsed, ETA {eta}",
+        )
+        .expect("valid template")
+        .progress_chars("=> "),
+    );
     let started = std::time::Instant::now();
     let first_done = std::sync::Mutex::new(None::<usize>);
     let records = mc::run_study_with(plan, shard, out, workers, |done, total| {
@@ -424,9 +491,13 @@ fn run_plan(plan: &scenarios::montecarlo::StudyPlan, shard: scenarios::montecarl
 }
 
 fn print_summary(rows: &[scenarios::montecarlo::SummaryRow]) {
-    println!("{:<12} {:<32} {:>5} {:>8} {:>16} {:>8} {:>8} {:>8}", "method", "parameters", "runs", "fail", "95% CI", "wrong", "false", "ATE m");
+    println!(
+        "{:<12} {:<32} {:>5} {:>8} {:>16} {:>8} {:>8} {:>8}",
+        "method", "parameters", "runs", "fail", "95% CI", "wrong", "false", "ATE m"
+    );
     for r in rows {
-        let params: Vec<String> = r.params.iter().map(|(p, v)| format!("{}={v:.3}", p.rsplit('.').next().unwrap_or(p))).collect();
+        let params: Vec<String> =
+            r.params.iter().map(|(p, v)| format!("{}={v:.3}", p.rsplit('.').next().unwrap_or(p))).collect();
         println!(
             "{:<12} {:<32} {:>5} {:>7.1}% {:>7.1}-{:<7.1}% {:>8.2} {:>8.2} {:>8.3}",
             r.method,
@@ -447,14 +518,21 @@ fn parse_method(name: &str) -> Result<slam::association::AssociationMethod> {
         .ok_or_else(|| anyhow::anyhow!("unknown method {name:?}; use one of combined, nn, jcbb, appearance"))
 }
 
-fn run_scenario(scenario: Option<&str>, seed: Option<u64>, method: Option<&str>, out: Option<PathBuf>, full_frames: bool) -> Result<()> {
+fn run_scenario(
+    scenario: Option<&str>,
+    seed: Option<u64>,
+    method: Option<&str>,
+    out: Option<PathBuf>,
+    full_frames: bool,
+) -> Result<()> {
     let name = scenario.unwrap_or(scenarios::scenario::DEFAULT_SCENARIO);
     let (sc, base) = scenarios::scenario::Scenario::load(name)?;
     let method = method.map(parse_method).transpose()?;
     let seed = seed.unwrap_or(sc.seed);
     let out = out.unwrap_or_else(|| PathBuf::from(format!("runs/{}-{seed}", sc.name)));
     let bar = progress_bar(0, &format!("running {}", sc.name));
-    let options = scenarios::run::RunOptions { seed: Some(seed), method, out: Some(out.clone()), appearance: None, full_frames };
+    let options =
+        scenarios::run::RunOptions { seed: Some(seed), method, out: Some(out.clone()), appearance: None, full_frames };
     let outcome = scenarios::run::run(&sc, &base, &options, |t, total| {
         bar.set_length(total.ceil() as u64);
         bar.set_position((t.floor() as u64).min(total.ceil() as u64));
@@ -468,16 +546,33 @@ fn run_scenario(scenario: Option<&str>, seed: Option<u64>, method: Option<&str>,
     Ok(())
 }
 
-fn calibrate(scenario: &str, poses: Option<usize>, seed: Option<u64>, out: &std::path::Path, images: Option<&std::path::Path>) -> Result<()> {
+fn calibrate(
+    scenario: &str,
+    poses: Option<usize>,
+    seed: Option<u64>,
+    out: &std::path::Path,
+    images: Option<&std::path::Path>,
+) -> Result<()> {
     let (sc, base) = scenarios::scenario::Scenario::load(scenario)?;
     let seed = seed.unwrap_or(sc.seed);
     let started = std::time::Instant::now();
     let report = scenarios::calibrate::run_session(&sc, &base, seed, poses, images)?;
     report.write(out)?;
     let (rs, ts) = (report.rotation_sigma_deg, report.translation_sigma_m);
-    println!("calibration of {} (seed {seed}): {} of {} board poses used, {} laser points, {:.1} s on {}", sc.name, report.poses_used, report.poses_requested, report.points_used, started.elapsed().as_secs_f64(), report.renderer);
+    println!(
+        "calibration of {} (seed {seed}): {} of {} board poses used, {} laser points, {:.1} s on {}",
+        sc.name,
+        report.poses_used,
+        report.poses_requested,
+        report.points_used,
+        started.elapsed().as_secs_f64(),
+        report.renderer
+    );
     println!("  residuals         RMS {:.4} m, max {:.4} m", report.rms_residual_m, report.max_residual_m);
-    println!("  1-sigma           rotation ({:.3}, {:.3}, {:.3}) deg, translation ({:.4}, {:.4}, {:.4}) m", rs[0], rs[1], rs[2], ts[0], ts[1], ts[2]);
+    println!(
+        "  1-sigma           rotation ({:.3}, {:.3}, {:.3}) deg, translation ({:.4}, {:.4}, {:.4}) m",
+        rs[0], rs[1], rs[2], ts[0], ts[1], ts[2]
+    );
     if let (Some(r), Some(t)) = (report.rotation_error_deg, report.translation_error_m) {
         println!("  rotation error    {r:.3} deg (against the simulator's extrinsics)");
         println!("  translation error {t:.4} m");
@@ -489,12 +584,20 @@ fn calibrate(scenario: &str, poses: Option<usize>, seed: Option<u64>, out: &std:
     Ok(())
 }
 
-fn record(input: &str, seed: u64, duration: Option<f64>, sim_config: Option<PathBuf>, format: scenarios::record::RecordFormat, out: &std::path::Path) -> Result<()> {
+fn record(
+    input: &str,
+    seed: u64,
+    duration: Option<f64>,
+    sim_config: Option<PathBuf>,
+    format: scenarios::record::RecordFormat,
+    out: &std::path::Path,
+) -> Result<()> {
     let world = load_world(input, seed)?;
     let mut config = match sim_config {
         Some(path) => {
             let text = std::fs::read_to_string(&path).with_context(|| format!("{}: cannot read", path.display()))?;
-            toml::from_str::<sim::SimConfig>(&text).with_context(|| format!("{}: bad simulator settings", path.display()))?
+            toml::from_str::<sim::SimConfig>(&text)
+                .with_context(|| format!("{}: bad simulator settings", path.display()))?
         }
         None => sim::SimConfig::default(),
     };
@@ -525,8 +628,12 @@ fn world(cmd: WorldCommand) -> Result<()> {
         WorldCommand::Generate { preset, seed, params, out } => {
             let params = match params {
                 Some(path) => {
-                    let text = std::fs::read_to_string(&path).with_context(|| format!("{}: cannot read", path.display()))?;
-                    Some(toml::from_str::<worlds::generate::ParkParams>(&text).with_context(|| format!("{}: bad generator parameters", path.display()))?)
+                    let text =
+                        std::fs::read_to_string(&path).with_context(|| format!("{}: cannot read", path.display()))?;
+                    Some(
+                        toml::from_str::<worlds::generate::ParkParams>(&text)
+                            .with_context(|| format!("{}: bad generator parameters", path.display()))?,
+                    )
                 }
                 None => None,
             };
@@ -534,7 +641,12 @@ fn world(cmd: WorldCommand) -> Result<()> {
             match out {
                 Some(path) => {
                     worlds::save(&world, &path)?;
-                    eprintln!("wrote {} ({} objects, {} people)", path.display(), world.objects.len(), world.people.len());
+                    eprintln!(
+                        "wrote {} ({} objects, {} people)",
+                        path.display(),
+                        world.objects.len(),
+                        world.people.len()
+                    );
                 }
                 None => print!("{}", world.to_toml()),
             }
@@ -561,7 +673,11 @@ fn world(cmd: WorldCommand) -> Result<()> {
         WorldCommand::Plot { file, out } => {
             let w = worlds::load(&file)?;
             let title = format!("{} (seed {}): {:.0} m²", w.name, w.seed, w.ground.area_m2());
-            scenarios::plot::draw_map(&w, &scenarios::plot::Overlays { title, routes: true, ..Default::default() }, &out)?;
+            scenarios::plot::draw_map(
+                &w,
+                &scenarios::plot::Overlays { title, routes: true, ..Default::default() },
+                &out,
+            )?;
             eprintln!("wrote {}", out.display());
         }
     }
@@ -569,11 +685,30 @@ fn world(cmd: WorldCommand) -> Result<()> {
 }
 
 #[allow(clippy::too_many_arguments)]
-fn train(dataset: &std::path::Path, out: &std::path::Path, export: Option<&std::path::Path>, pca_dims: usize, max_components: usize, heldout_every: usize, threshold: f64, seed: u64) -> Result<()> {
+fn train(
+    dataset: &std::path::Path,
+    out: &std::path::Path,
+    export: Option<&std::path::Path>,
+    pca_dims: usize,
+    max_components: usize,
+    heldout_every: usize,
+    threshold: f64,
+    seed: u64,
+) -> Result<()> {
     anyhow::ensure!((0.0..=1.0).contains(&threshold), "--threshold must lie in [0, 1], got {threshold}");
-    let options = slam::classifier::TrainingOptions { pca_dims, seed, threshold, vb: slam::gmm::VbOptions { max_components, ..Default::default() }, ..Default::default() };
+    let options = slam::classifier::TrainingOptions {
+        pca_dims,
+        seed,
+        threshold,
+        vb: slam::gmm::VbOptions { max_components, ..Default::default() },
+        ..Default::default()
+    };
     let bar = indicatif::ProgressBar::new(1);
-    bar.set_style(indicatif::ProgressStyle::with_template("train {msg:>18} [{bar:40}] {pos}/{len}, {elapsed} elapsed").expect("valid template").progress_chars("=> "));
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("train {msg:>18} [{bar:40}] {pos}/{len}, {elapsed} elapsed")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
     let started = std::time::Instant::now();
     let model = scenarios::train::train_from_dataset(dataset, &options, heldout_every, |stage, done, total| {
         bar.set_message(stage.to_string());
@@ -584,16 +719,39 @@ fn train(dataset: &std::path::Path, out: &std::path::Path, export: Option<&std::
     model.save(out)?;
     let t = &model.training;
     println!("trained on {} images in {:.1} s -> {}", t.images, started.elapsed().as_secs_f64(), out.display());
-    println!("  PCA: {} -> {} dimensions, {:.1}% of the variance", model.extractor.config.raw_dims(), model.extractor.pca.dims(), 100.0 * t.pca_explained_variance);
-    println!("  object: {} patches ({} fitted), {} components; background: {} patches ({} fitted), {} components; w_obj = {:.3}",
-        t.object_patches, t.fitted_object_patches, model.object.effective_components(1e-3), t.background_patches, t.fitted_background_patches, model.background.effective_components(1e-3), model.object_weight);
+    println!(
+        "  PCA: {} -> {} dimensions, {:.1}% of the variance",
+        model.extractor.config.raw_dims(),
+        model.extractor.pca.dims(),
+        100.0 * t.pca_explained_variance
+    );
+    println!(
+        "  object: {} patches ({} fitted), {} components; background: {} patches ({} fitted), {} components; w_obj = {:.3}",
+        t.object_patches,
+        t.fitted_object_patches,
+        model.object.effective_components(1e-3),
+        t.background_patches,
+        t.fitted_background_patches,
+        model.background.effective_components(1e-3),
+        model.object_weight
+    );
     match &t.heldout {
-        Some(s) => println!("  held-out patches: precision {:.3}, recall {:.3}, F1 {:.3} ({} object patches of {})", s.precision(), s.recall(), s.f1(), s.true_positives + s.false_negatives, s.true_positives + s.false_negatives + s.false_positives + s.true_negatives),
+        Some(s) => println!(
+            "  held-out patches: precision {:.3}, recall {:.3}, F1 {:.3} ({} object patches of {})",
+            s.precision(),
+            s.recall(),
+            s.f1(),
+            s.true_positives + s.false_negatives,
+            s.true_positives + s.false_negatives + s.false_positives + s.true_negatives
+        ),
         None => println!("  no held-out images (--heldout-every 0)"),
     }
     if heldout_every > 0 {
         let table = scenarios::train::confusion_by_class(dataset, &model, heldout_every)?;
-        let parts: Vec<String> = table.iter().map(|(name, (n, obj))| format!("{name} {obj}/{n} ({:.1}%)", 100.0 * *obj as f64 / (*n).max(1) as f64)).collect();
+        let parts: Vec<String> = table
+            .iter()
+            .map(|(name, (n, obj))| format!("{name} {obj}/{n} ({:.1}%)", 100.0 * *obj as f64 / (*n).max(1) as f64))
+            .collect();
         println!("  held-out patches called object, by true class: {}", parts.join(", "));
     }
     if let Some(csv) = export {
@@ -610,28 +768,46 @@ fn segment(model: &std::path::Path, image: &std::path::Path, out: &std::path::Pa
     Ok(())
 }
 
-fn gmm_fit(data: &std::path::Path, max_components: usize, fixed_k: bool, seed: u64, out: &std::path::Path) -> Result<()> {
+fn gmm_fit(
+    data: &std::path::Path,
+    max_components: usize,
+    fixed_k: bool,
+    seed: u64,
+    out: &std::path::Path,
+) -> Result<()> {
     let options = slam::gmm::VbOptions { max_components, fixed_k, seed, ..Default::default() };
     let started = std::time::Instant::now();
     let model = scenarios::train::gmm_fit_csv(data, &options)?;
     let secs = started.elapsed().as_secs_f64();
     std::fs::write(out, serde_json::to_string_pretty(&model)?).with_context(|| format!("writing {}", out.display()))?;
     println!("{} points x {} dimensions, fitted in {secs:.2} s", model.points, model.dims());
-    println!("  lower bound: {:.6} nats (full PRML 10.70 bound on ln p(X), all constant terms included; {:.6} per point)", model.lower_bound, model.lower_bound / model.points as f64);
-    println!("  components: {} with weight above 1e-3 ({} kept)", model.effective_components(1e-3), model.components.len());
+    println!(
+        "  lower bound: {:.6} nats (full PRML 10.70 bound on ln p(X), all constant terms included; {:.6} per point)",
+        model.lower_bound,
+        model.lower_bound / model.points as f64
+    );
+    println!(
+        "  components: {} with weight above 1e-3 ({} kept)",
+        model.effective_components(1e-3),
+        model.components.len()
+    );
     println!("  VBEM iterations: {}", model.iterations);
     println!("  -> {}", out.display());
     Ok(())
 }
 
 fn find(run: &std::path::Path, image: &std::path::Path, model: Option<&std::path::Path>, top: usize) -> Result<()> {
-    let model_path = model.map(std::path::Path::to_path_buf).unwrap_or_else(|| run.join("objects").join("appearance_model.json"));
+    let model_path =
+        model.map(std::path::Path::to_path_buf).unwrap_or_else(|| run.join("objects").join("appearance_model.json"));
     let model = slam::classifier::AppearanceModel::load(&model_path)?;
     let dims = slam::object_model::ObjectModelConfig::default().appearance_dims;
     let ranked = scenarios::objects::find_similar(run, &model, image, dims)?;
     println!("mapped objects most like {} (appearance KL, nats):", image.display());
     for (id, kl) in ranked.iter().take(top) {
-        println!("  landmark {id:>4}  KL {kl:>10.2}  {}", run.join("objects").join(format!("landmark_{id}.png")).display());
+        println!(
+            "  landmark {id:>4}  KL {kl:>10.2}  {}",
+            run.join("objects").join(format!("landmark_{id}.png")).display()
+        );
     }
     Ok(())
 }

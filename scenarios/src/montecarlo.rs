@@ -69,7 +69,11 @@ impl Vary {
         if param.trim().is_empty() {
             return Err(bad("empty parameter name"));
         }
-        let values = if steps == 1 { vec![a] } else { (0..steps).map(|i| a + (b - a) * i as f64 / (steps - 1) as f64).collect() };
+        let values = if steps == 1 {
+            vec![a]
+        } else {
+            (0..steps).map(|i| a + (b - a) * i as f64 / (steps - 1) as f64).collect()
+        };
         Ok(Vary { param: param.trim().into(), values })
     }
 }
@@ -92,7 +96,13 @@ pub struct StudyPlan {
 /// the nearer, the more a position gate confuses them).
 pub fn builtin_study(runs: usize, base_seed: u64) -> Vec<(&'static str, StudyPlan)> {
     let methods: Vec<String> = ["combined", "nn", "jcbb"].iter().map(|m| m.to_string()).collect();
-    let plan = |param: &str, values: Vec<f64>| StudyPlan { scenario: "paper_park".into(), base_seed, runs, methods: methods.clone(), vary: vec![Vary { param: param.into(), values }] };
+    let plan = |param: &str, values: Vec<f64>| StudyPlan {
+        scenario: "paper_park".into(),
+        base_seed,
+        runs,
+        methods: methods.clone(),
+        vary: vec![Vary { param: param.into(), values }],
+    };
     vec![
         ("odometry", plan("sim.odometry.bias_sigma_rad_per_m", vec![0.0, 0.002, 0.005, 0.01])),
         ("post_distance", plan("world.params.post_distance_m", vec![0.5, 1.0, 2.0, 3.0])),
@@ -147,13 +157,28 @@ impl RunRecord {
 pub fn jobs(plan: &StudyPlan) -> Vec<Job> {
     let mut combos: Vec<Vec<(String, f64)>> = vec![vec![]];
     for v in &plan.vary {
-        combos = combos.into_iter().flat_map(|c| v.values.iter().map(move |x| { let mut c = c.clone(); c.push((v.param.clone(), *x)); c })).collect();
+        combos = combos
+            .into_iter()
+            .flat_map(|c| {
+                v.values.iter().map(move |x| {
+                    let mut c = c.clone();
+                    c.push((v.param.clone(), *x));
+                    c
+                })
+            })
+            .collect();
     }
     let mut out = Vec::new();
     for params in &combos {
         for method in &plan.methods {
             for run in 0..plan.runs {
-                out.push(Job { index: out.len(), method: method.clone(), params: params.clone(), run, seed: sim::derive_seed(plan.base_seed, &format!("run-{run}")) });
+                out.push(Job {
+                    index: out.len(),
+                    method: method.clone(),
+                    params: params.clone(),
+                    run,
+                    seed: sim::derive_seed(plan.base_seed, &format!("run-{run}")),
+                });
             }
         }
     }
@@ -180,7 +205,9 @@ fn set_path(node: &mut toml::Value, parts: &[&str], value: f64) -> Result<(), St
     let table = node.as_table_mut().ok_or_else(|| format!("{} is not a table", parts[0]))?;
     if parts.len() == 1 {
         let new = match table.get(parts[0]) {
-            Some(toml::Value::Array(a)) if a.len() == 2 => toml::Value::Array(vec![toml::Value::Float(value), toml::Value::Float(value)]),
+            Some(toml::Value::Array(a)) if a.len() == 2 => {
+                toml::Value::Array(vec![toml::Value::Float(value), toml::Value::Float(value)])
+            }
             Some(toml::Value::Integer(_)) => toml::Value::Integer(value.round() as i64),
             Some(toml::Value::Float(_)) | None => toml::Value::Float(value),
             Some(other) => return Err(format!("{} is a {}, not a number", parts[0], other.type_str())),
@@ -220,16 +247,31 @@ impl Shard {
     /// Kubernetes Indexed Jobs (`JOB_COMPLETION_INDEX`, with the count from `count`).
     pub fn from_env(env: impl Fn(&str) -> Option<String>, count: Option<usize>) -> Result<Option<Shard>, StudyError> {
         let num = |name: &str| -> Result<Option<usize>, StudyError> {
-            env(name).map(|v| v.trim().parse::<usize>().map_err(|_| StudyError::Shard { spec: format!("{name}={v}"), message: "not a whole number".into() })).transpose()
+            env(name)
+                .map(|v| {
+                    v.trim().parse::<usize>().map_err(|_| StudyError::Shard {
+                        spec: format!("{name}={v}"),
+                        message: "not a whole number".into(),
+                    })
+                })
+                .transpose()
         };
         if let Some(id) = num("SLURM_ARRAY_TASK_ID")? {
             let min = num("SLURM_ARRAY_TASK_MIN")?.unwrap_or(0);
-            let n = num("SLURM_ARRAY_TASK_COUNT")?.or(count).ok_or_else(|| StudyError::Shard { spec: "SLURM_ARRAY_TASK_ID".into(), message: "no SLURM_ARRAY_TASK_COUNT and no --shard-count".into() })?;
+            let n = num("SLURM_ARRAY_TASK_COUNT")?.or(count).ok_or_else(|| StudyError::Shard {
+                spec: "SLURM_ARRAY_TASK_ID".into(),
+                message: "no SLURM_ARRAY_TASK_COUNT and no --shard-count".into(),
+            })?;
             let spec = format!("{}/{n}", id.saturating_sub(min));
             return Shard::parse(&spec).map(Some);
         }
         if let Some(id) = num("JOB_COMPLETION_INDEX")? {
-            let n = count.ok_or_else(|| StudyError::Shard { spec: "JOB_COMPLETION_INDEX".into(), message: "Kubernetes does not say how many indexes there are: pass --shard-count (the Job's completions)".into() })?;
+            let n = count.ok_or_else(|| StudyError::Shard {
+                spec: "JOB_COMPLETION_INDEX".into(),
+                message:
+                    "Kubernetes does not say how many indexes there are: pass --shard-count (the Job's completions)"
+                        .into(),
+            })?;
             return Shard::parse(&format!("{id}/{n}")).map(Some);
         }
         Ok(None)
@@ -253,14 +295,20 @@ pub fn read_runs(path: &Path) -> Result<Vec<RunRecord>, StudyError> {
         None => "",
     };
     if complete.len() != text.len() {
-        let f = OpenOptions::new().write(true).open(path).map_err(|e| StudyError::File { file: path.into(), message: e.to_string() })?;
+        let f = OpenOptions::new()
+            .write(true)
+            .open(path)
+            .map_err(|e| StudyError::File { file: path.into(), message: e.to_string() })?;
         f.set_len(complete.len() as u64).map_err(|e| StudyError::File { file: path.into(), message: e.to_string() })?;
     }
     complete
         .lines()
         .enumerate()
         .filter(|(_, l)| !l.trim().is_empty())
-        .map(|(i, l)| serde_json::from_str(l).map_err(|e| StudyError::File { file: path.into(), message: format!("line {}: {e}", i + 1) }))
+        .map(|(i, l)| {
+            serde_json::from_str(l)
+                .map_err(|e| StudyError::File { file: path.into(), message: format!("line {}: {e}", i + 1) })
+        })
         .collect()
 }
 
@@ -279,23 +327,39 @@ pub enum Workers {
 
 /// Runs (the remaining jobs of) a study into `out` on this process's threads. See
 /// [`run_study_with`].
-pub fn run_study(plan: &StudyPlan, shard: Shard, out: &Path, progress: impl Fn(usize, usize) + Sync) -> Result<Vec<RunRecord>, StudyError> {
+pub fn run_study(
+    plan: &StudyPlan,
+    shard: Shard,
+    out: &Path,
+    progress: impl Fn(usize, usize) + Sync,
+) -> Result<Vec<RunRecord>, StudyError> {
     run_study_with(plan, shard, out, &Workers::Threads, progress)
 }
 
 /// Runs (the remaining jobs of) a study into `out` on `workers`. `progress(done, total)` is
 /// called as runs finish. Returns every record of this shard's jobs.
-pub fn run_study_with(plan: &StudyPlan, shard: Shard, out: &Path, workers: &Workers, progress: impl Fn(usize, usize) + Sync) -> Result<Vec<RunRecord>, StudyError> {
+pub fn run_study_with(
+    plan: &StudyPlan,
+    shard: Shard,
+    out: &Path,
+    workers: &Workers,
+    progress: impl Fn(usize, usize) + Sync,
+) -> Result<Vec<RunRecord>, StudyError> {
     std::fs::create_dir_all(out).map_err(|e| StudyError::File { file: out.into(), message: e.to_string() })?;
     let plan_file = out.join("study.json");
     match std::fs::read_to_string(&plan_file) {
         Ok(text) => {
-            let existing: StudyPlan = serde_json::from_str(&text).map_err(|e| StudyError::File { file: plan_file.clone(), message: e.to_string() })?;
+            let existing: StudyPlan = serde_json::from_str(&text)
+                .map_err(|e| StudyError::File { file: plan_file.clone(), message: e.to_string() })?;
             if &existing != plan {
-                return Err(StudyError::Mismatch { dir: out.into(), message: format!("it was started as {}", serde_json::to_string(&existing).unwrap_or_default()) });
+                return Err(StudyError::Mismatch {
+                    dir: out.into(),
+                    message: format!("it was started as {}", serde_json::to_string(&existing).unwrap_or_default()),
+                });
             }
         }
-        Err(_) => std::fs::write(&plan_file, serde_json::to_string_pretty(plan).expect("JSON")).map_err(|e| StudyError::File { file: plan_file.clone(), message: e.to_string() })?,
+        Err(_) => std::fs::write(&plan_file, serde_json::to_string_pretty(plan).expect("JSON"))
+            .map_err(|e| StudyError::File { file: plan_file.clone(), message: e.to_string() })?,
     }
     let (base_scenario, base_dir) = Scenario::load(&plan.scenario)?;
     let models = StudyModels::new(&base_dir);
@@ -317,7 +381,13 @@ pub fn run_study_with(plan: &StudyPlan, shard: Shard, out: &Path, workers: &Work
     let total = mine.len();
     let finished = std::sync::atomic::AtomicUsize::new(total - todo.len());
     progress(finished.load(std::sync::atomic::Ordering::Relaxed), total);
-    let file = Mutex::new(OpenOptions::new().create(true).append(true).open(&runs_file).map_err(|e| StudyError::File { file: runs_file.clone(), message: e.to_string() })?);
+    let file = Mutex::new(
+        OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(&runs_file)
+            .map_err(|e| StudyError::File { file: runs_file.clone(), message: e.to_string() })?,
+    );
     // Appends a finished run at once, in one write of the whole line: a kill leaves at most
     // one partial line, which the next start drops.
     let record_finished = |record: &RunRecord| {
@@ -389,7 +459,8 @@ impl StudyModels {
         if let Some(model) = models.get(&key) {
             return Ok(model.clone());
         }
-        let model = std::sync::Arc::new(crate::run::resolve_appearance(scenario, &self.base_dir).map_err(|e| e.to_string())?);
+        let model =
+            std::sync::Arc::new(crate::run::resolve_appearance(scenario, &self.base_dir).map_err(|e| e.to_string())?);
         models.insert(key, model.clone());
         Ok(model)
     }
@@ -400,16 +471,22 @@ impl StudyModels {
 pub fn run_job(base: &Scenario, base_dir: &Path, job: &Job, models: &StudyModels) -> RunRecord {
     let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| -> Result<Metrics, String> {
         let scenario = job_scenario(base, job).map_err(|e| e.to_string())?;
-        let method = AssociationMethod::from_name(&job.method).ok_or_else(|| format!("unknown method {:?}", job.method))?;
+        let method =
+            AssociationMethod::from_name(&job.method).ok_or_else(|| format!("unknown method {:?}", job.method))?;
         let appearance = if job_needs_appearance(job, &scenario) { Some(models.get(&scenario)?) } else { None };
-        let options = RunOptions { seed: Some(job.seed), method: Some(method), out: None, appearance, full_frames: false };
+        let options =
+            RunOptions { seed: Some(job.seed), method: Some(method), out: None, appearance, full_frames: false };
         crate::run::run(&scenario, base_dir, &options, |_, _| {}).map(|o| o.metrics).map_err(|e| e.to_string())
     }));
     let (metrics, error) = match result {
         Ok(Ok(m)) => (Some(m), None),
         Ok(Err(e)) => (None, Some(e)),
         Err(panic) => {
-            let msg = panic.downcast_ref::<&str>().map(|s| s.to_string()).or_else(|| panic.downcast_ref::<String>().cloned()).unwrap_or_else(|| "panic".into());
+            let msg = panic
+                .downcast_ref::<&str>()
+                .map(|s| s.to_string())
+                .or_else(|| panic.downcast_ref::<String>().cloned())
+                .unwrap_or_else(|| "panic".into());
             (None, Some(format!("panicked: {msg}")))
         }
     };
@@ -422,23 +499,33 @@ pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<(StudyPlan, Vec<RunRecord>)
     let mut by_key: BTreeMap<String, RunRecord> = BTreeMap::new();
     for d in dirs {
         let f = d.join("study.json");
-        let text = std::fs::read_to_string(&f).map_err(|e| StudyError::File { file: f.clone(), message: e.to_string() })?;
-        let p: StudyPlan = serde_json::from_str(&text).map_err(|e| StudyError::File { file: f.clone(), message: e.to_string() })?;
+        let text =
+            std::fs::read_to_string(&f).map_err(|e| StudyError::File { file: f.clone(), message: e.to_string() })?;
+        let p: StudyPlan =
+            serde_json::from_str(&text).map_err(|e| StudyError::File { file: f.clone(), message: e.to_string() })?;
         match &plan {
-            Some(existing) if existing != &p => return Err(StudyError::Mismatch { dir: d.clone(), message: "shards of different studies cannot be merged".into() }),
+            Some(existing) if existing != &p => {
+                return Err(StudyError::Mismatch {
+                    dir: d.clone(),
+                    message: "shards of different studies cannot be merged".into(),
+                });
+            }
             _ => plan = Some(p),
         }
         for r in read_runs(&d.join("runs.jsonl"))? {
             by_key.entry(r.key.clone()).or_insert(r);
         }
     }
-    let plan = plan.ok_or_else(|| StudyError::File { file: out.into(), message: "no shard directories given".into() })?;
+    let plan =
+        plan.ok_or_else(|| StudyError::File { file: out.into(), message: "no shard directories given".into() })?;
     let mut runs: Vec<RunRecord> = by_key.into_values().collect();
     runs.sort_by_key(|r| r.job.index);
     std::fs::create_dir_all(out).map_err(|e| StudyError::File { file: out.into(), message: e.to_string() })?;
-    std::fs::write(out.join("study.json"), serde_json::to_string_pretty(&plan).expect("JSON")).map_err(|e| StudyError::File { file: out.into(), message: e.to_string() })?;
+    std::fs::write(out.join("study.json"), serde_json::to_string_pretty(&plan).expect("JSON"))
+        .map_err(|e| StudyError::File { file: out.into(), message: e.to_string() })?;
     let lines: String = runs.iter().map(|r| serde_json::to_string(r).expect("JSON") + "\n").collect();
-    std::fs::write(out.join("runs.jsonl"), lines).map_err(|e| StudyError::File { file: out.into(), message: e.to_string() })?;
+    std::fs::write(out.join("runs.jsonl"), lines)
+        .map_err(|e| StudyError::File { file: out.into(), message: e.to_string() })?;
     Ok((plan, runs))
 }
 
@@ -478,7 +565,9 @@ pub fn summarise(plan: &StudyPlan, runs: &[RunRecord]) -> Vec<SummaryRow> {
             let ok: Vec<&Metrics> = rs.iter().filter_map(|r| r.metrics.as_ref()).collect();
             let failures = rs.iter().filter(|r| r.failed_association() == Some(true)).count();
             let n = ok.len();
-            let mean = |f: &dyn Fn(&Metrics) -> f64| if n == 0 { f64::NAN } else { ok.iter().map(|m| f(m)).sum::<f64>() / n as f64 };
+            let mean = |f: &dyn Fn(&Metrics) -> f64| {
+                if n == 0 { f64::NAN } else { ok.iter().map(|m| f(m)).sum::<f64>() / n as f64 }
+            };
             SummaryRow {
                 method,
                 params: all[first].params.clone(),
@@ -511,11 +600,23 @@ pub fn write_summary(plan: &StudyPlan, rows: &[SummaryRow], out: &Path) -> Resul
         }
         csv.push_str(&format!(
             ",{},{},{},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6}\n",
-            r.runs, r.errors, r.failures, r.failure_rate, r.failure_rate_ci95.0, r.failure_rate_ci95.1, r.mean_wrong_associations, r.mean_false_landmarks, r.mean_ate_rmse_m
+            r.runs,
+            r.errors,
+            r.failures,
+            r.failure_rate,
+            r.failure_rate_ci95.0,
+            r.failure_rate_ci95.1,
+            r.mean_wrong_associations,
+            r.mean_false_landmarks,
+            r.mean_ate_rmse_m
         ));
     }
     std::fs::write(out.join("summary.csv"), csv).map_err(|e| io(out.join("summary.csv"), e))?;
-    std::fs::write(out.join("summary.json"), serde_json::to_string_pretty(&serde_json::json!({"study": plan, "rows": rows})).expect("JSON")).map_err(|e| io(out.join("summary.json"), e))?;
+    std::fs::write(
+        out.join("summary.json"),
+        serde_json::to_string_pretty(&serde_json::json!({"study": plan, "rows": rows})).expect("JSON"),
+    )
+    .map_err(|e| io(out.join("summary.json"), e))?;
     crate::plot::failure_rate_plot(plan, rows, &out.join("failure_rate.png"), &out.join("failure_rate.svg"))?;
     Ok(())
 }
@@ -549,7 +650,13 @@ mod tests {
 
     #[test]
     fn shards_partition_the_jobs() {
-        let plan = StudyPlan { scenario: "laser_only".into(), base_seed: 1, runs: 7, methods: vec!["nn".into(), "jcbb".into()], vary: vec![Vary::parse("sim.odometry.scale_sigma=0..0.02:3").unwrap()] };
+        let plan = StudyPlan {
+            scenario: "laser_only".into(),
+            base_seed: 1,
+            runs: 7,
+            methods: vec!["nn".into(), "jcbb".into()],
+            vary: vec![Vary::parse("sim.odometry.scale_sigma=0..0.02:3").unwrap()],
+        };
         let all = jobs(&plan);
         assert_eq!(all.len(), 42);
         let mut seen = BTreeSet::new();
@@ -567,9 +674,21 @@ mod tests {
 
     #[test]
     fn shard_from_scheduler_environment() {
-        let env = |pairs: &'static [(&'static str, &'static str)]| move |k: &str| pairs.iter().find(|(n, _)| *n == k).map(|(_, v)| v.to_string());
-        assert_eq!(Shard::from_env(env(&[("SLURM_ARRAY_TASK_ID", "4"), ("SLURM_ARRAY_TASK_MIN", "1"), ("SLURM_ARRAY_TASK_COUNT", "8")]), None).unwrap(), Some(Shard { index: 3, count: 8 }));
-        assert_eq!(Shard::from_env(env(&[("JOB_COMPLETION_INDEX", "2")]), Some(5)).unwrap(), Some(Shard { index: 2, count: 5 }));
+        let env = |pairs: &'static [(&'static str, &'static str)]| {
+            move |k: &str| pairs.iter().find(|(n, _)| *n == k).map(|(_, v)| v.to_string())
+        };
+        assert_eq!(
+            Shard::from_env(
+                env(&[("SLURM_ARRAY_TASK_ID", "4"), ("SLURM_ARRAY_TASK_MIN", "1"), ("SLURM_ARRAY_TASK_COUNT", "8")]),
+                None
+            )
+            .unwrap(),
+            Some(Shard { index: 3, count: 8 })
+        );
+        assert_eq!(
+            Shard::from_env(env(&[("JOB_COMPLETION_INDEX", "2")]), Some(5)).unwrap(),
+            Some(Shard { index: 2, count: 5 })
+        );
         assert!(Shard::from_env(env(&[("JOB_COMPLETION_INDEX", "2")]), None).is_err());
         assert_eq!(Shard::from_env(env(&[]), None).unwrap(), None);
         assert!(Shard::parse("3/3").is_err());

@@ -49,7 +49,8 @@ pub fn write_objects(dir: &Path, pipeline: &Pipeline) -> Result<usize, ObjectsEr
         models.push((lm.id, model.clone()));
     }
     let file = out.join("models.json");
-    std::fs::write(&file, serde_json::to_string(&ObjectModels { format_version: 1, objects: models }).expect("JSON")).map_err(|e| file_err(&file, e))?;
+    std::fs::write(&file, serde_json::to_string(&ObjectModels { format_version: 1, objects: models }).expect("JSON"))
+        .map_err(|e| file_err(&file, e))?;
     // The appearance model too, so `objslam find` works from the run directory alone.
     app.model.save(&out.join("appearance_model.json"))?;
     Ok(written)
@@ -58,23 +59,36 @@ pub fn write_objects(dir: &Path, pipeline: &Pipeline) -> Result<usize, ObjectsEr
 /// "Find objects that look like this": classifies the example image's patches, fits an
 /// appearance density to its object patches, and ranks a run's mapped objects by the
 /// appearance-only KL divergence (smallest first).
-pub fn find_similar(run_dir: &Path, model: &AppearanceModel, example: &Path, appearance_dims: usize) -> Result<Vec<(u32, f64)>, ObjectsError> {
+pub fn find_similar(
+    run_dir: &Path,
+    model: &AppearanceModel,
+    example: &Path,
+    appearance_dims: usize,
+) -> Result<Vec<(u32, f64)>, ObjectsError> {
     let file = run_dir.join("objects").join("models.json");
     let text = std::fs::read_to_string(&file).map_err(|e| file_err(&file, e))?;
-    let models: ObjectModels = serde_json::from_str(&text).map_err(|e| file_err(&file, format!("not an objects/models.json: {e}")))?;
+    let models: ObjectModels =
+        serde_json::from_str(&text).map_err(|e| file_err(&file, format!("not an objects/models.json: {e}")))?;
     let rgb = image::open(example).map_err(|e| file_err(example, e))?.to_rgb8();
     let (w, h) = rgb.dimensions();
     let image = ImageRef::new(w, h, rgb.as_raw()).map_err(ModelError::from)?;
     let f = model.extractor.features(&image, None).map_err(ModelError::from)?;
     let classifier = PatchClassifier::new(model).map_err(ModelError::from)?;
-    let rows: Vec<usize> = classifier.classify(&f).into_iter().enumerate().filter(|(_, o)| *o).map(|(i, _)| i).collect();
+    let rows: Vec<usize> =
+        classifier.classify(&f).into_iter().enumerate().filter(|(_, o)| *o).map(|(i, _)| i).collect();
     if rows.len() < 2 {
-        return Err(file_err(example, format!("only {} patches look like the object class; nothing to compare", rows.len())));
+        return Err(file_err(
+            example,
+            format!("only {} patches look like the object class; nothing to compare", rows.len()),
+        ));
     }
     let da = appearance_dims.min(f.z.ncols());
     let data = nalgebra::DMatrix::from_fn(rows.len(), da, |i, j| f.z[(rows[i], j)]);
-    let vb = slam::gmm::fit(&data, None, &slam::gmm::VbOptions { max_components: 1, ..Default::default() }).map_err(|e| ObjectsError::Object(e.to_string()))?;
-    let example_model = slam::gmm::StudentTMixture::new(&vb).and_then(|t| t.gaussian_approximation()).map_err(|e| ObjectsError::Object(e.to_string()))?;
+    let vb = slam::gmm::fit(&data, None, &slam::gmm::VbOptions { max_components: 1, ..Default::default() })
+        .map_err(|e| ObjectsError::Object(e.to_string()))?;
+    let example_model = slam::gmm::StudentTMixture::new(&vb)
+        .and_then(|t| t.gaussian_approximation())
+        .map_err(|e| ObjectsError::Object(e.to_string()))?;
     let refs: Vec<(u32, &ObjectModel)> = models.objects.iter().map(|(id, m)| (*id, m)).collect();
     object_model::rank_by_appearance(&example_model, &refs).map_err(|e| ObjectsError::Object(e.to_string()))
 }

@@ -92,7 +92,10 @@ pub fn draw_map(world: &World, overlays: &Overlays, path: &Path) -> Result<(), P
     let px_per_m = plot_w as f64 / (x1 - x0) * 0.97;
 
     chart
-        .draw_series(std::iter::once(Rectangle::new([(min[0], min[1]), (max[0], max[1])], class_colour(ObjectClass::Ground).filled())))
+        .draw_series(std::iter::once(Rectangle::new(
+            [(min[0], min[1]), (max[0], max[1])],
+            class_colour(ObjectClass::Ground).filled(),
+        )))
         .map_err(|e| err(&e))?;
 
     // Canopies first (faint), then footprints.
@@ -100,7 +103,11 @@ pub fn draw_map(world: &World, overlays: &Overlays, path: &Path) -> Result<(), P
         if let Shape::Trunk { canopy_radius_m, .. } = o.shape {
             let r = (canopy_radius_m * px_per_m) as i32;
             chart
-                .draw_series(std::iter::once(Circle::new((o.pose.x, o.pose.y), r, class_colour(ObjectClass::Tree).mix(0.12).filled())))
+                .draw_series(std::iter::once(Circle::new(
+                    (o.pose.x, o.pose.y),
+                    r,
+                    class_colour(ObjectClass::Tree).mix(0.12).filled(),
+                )))
                 .map_err(|e| err(&e))?;
         }
     }
@@ -110,7 +117,10 @@ pub fn draw_map(world: &World, overlays: &Overlays, path: &Path) -> Result<(), P
         let fp = o.shape.footprint(&o.pose);
         let series: Vec<DynElement<'static, BitMapBackend, (f64, f64)>> = match fp {
             worlds::Footprint::Circle { centre, radius } => {
-                vec![Circle::new((centre[0], centre[1]), ((radius * px_per_m) as i32).max(3), colour.filled()).into_dyn()]
+                vec![
+                    Circle::new((centre[0], centre[1]), ((radius * px_per_m) as i32).max(3), colour.filled())
+                        .into_dyn(),
+                ]
             }
             worlds::Footprint::Rect { .. } => {
                 let c = fp.corners();
@@ -136,7 +146,10 @@ pub fn draw_map(world: &World, overlays: &Overlays, path: &Path) -> Result<(), P
         let s = world.robot.start;
         let (dx, dy) = (s.yaw_rad().cos() * 1.0, s.yaw_rad().sin() * 1.0);
         chart
-            .draw_series(std::iter::once(PathElement::new(vec![(s.x, s.y), (s.x + dx, s.y + dy)], BLUE.stroke_width(4))))
+            .draw_series(std::iter::once(PathElement::new(
+                vec![(s.x, s.y), (s.x + dx, s.y + dy)],
+                BLUE.stroke_width(4),
+            )))
             .map_err(|e| err(&e))?;
         for (i, p) in world.people.iter().enumerate() {
             let mut pts: Vec<(f64, f64)> = p.route.waypoints.iter().map(|w| (w[0], w[1])).collect();
@@ -146,13 +159,17 @@ pub fn draw_map(world: &World, overlays: &Overlays, path: &Path) -> Result<(), P
             let colour = class_colour(ObjectClass::Person);
             let a = chart.draw_series(DashedLineSeries::new(pts, 6, 4, colour.stroke_width(2))).map_err(|e| err(&e))?;
             if i == 0 {
-                a.label("person walk").legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour.stroke_width(2)));
+                a.label("person walk")
+                    .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour.stroke_width(2)));
             }
         }
     }
     for track in &overlays.people_tracks {
         chart
-            .draw_series(LineSeries::new(track.iter().map(|p| (p[0], p[1])), class_colour(ObjectClass::Person).mix(0.35)))
+            .draw_series(LineSeries::new(
+                track.iter().map(|p| (p[0], p[1])),
+                class_colour(ObjectClass::Person).mix(0.35),
+            ))
             .map_err(|e| err(&e))?;
     }
     for (name, colour, path) in &overlays.trajectories {
@@ -166,7 +183,9 @@ pub fn draw_map(world: &World, overlays: &Overlays, path: &Path) -> Result<(), P
     for (i, lm) in overlays.landmarks.iter().enumerate() {
         let colour = if lm.flagged { RED } else { BLACK };
         let ellipse = sigma_ellipse(lm.position, lm.covariance, 2.0, 48);
-        let a = chart.draw_series(std::iter::once(PathElement::new(ellipse, colour.stroke_width(2)))).map_err(|e| err(&e))?;
+        let a = chart
+            .draw_series(std::iter::once(PathElement::new(ellipse, colour.stroke_width(2))))
+            .map_err(|e| err(&e))?;
         if i == 0 {
             a.label("landmark (2σ)").legend(|(x, y)| Cross::new((x + 8, y), 5, BLACK.stroke_width(2)));
         }
@@ -174,7 +193,11 @@ pub fn draw_map(world: &World, overlays: &Overlays, path: &Path) -> Result<(), P
             .draw_series(std::iter::once(Cross::new((lm.position[0], lm.position[1]), 5, colour.stroke_width(2))))
             .map_err(|e| err(&e))?;
         chart
-            .draw_series(std::iter::once(Text::new(lm.label.clone(), (lm.position[0] + 0.3, lm.position[1] + 0.3), ("sans-serif", 12).into_font())))
+            .draw_series(std::iter::once(Text::new(
+                lm.label.clone(),
+                (lm.position[0] + 0.3, lm.position[1] + 0.3),
+                ("sans-serif", 12).into_font(),
+            )))
             .map_err(|e| err(&e))?;
     }
 
@@ -190,7 +213,11 @@ pub fn draw_map(world: &World, overlays: &Overlays, path: &Path) -> Result<(), P
             .map_err(|e| err(&e))?;
     }
     chart
-        .draw_series(std::iter::once(Text::new(format!("{bar:.0} m"), (bx + bar + 0.3, by + 0.25), ("sans-serif", 15).into_font())))
+        .draw_series(std::iter::once(Text::new(
+            format!("{bar:.0} m"),
+            (bx + bar + 0.3, by + 0.25),
+            ("sans-serif", 15).into_font(),
+        )))
         .map_err(|e| err(&e))?;
 
     chart
@@ -213,7 +240,13 @@ pub fn sigma_ellipse(mean: [f64; 2], cov: [[f64; 2]; 2], k: f64, n: usize) -> Ve
     let det = a * c - b * b;
     let disc = ((tr * tr / 4.0) - det).max(0.0).sqrt();
     let (l1, l2) = ((tr / 2.0 + disc).max(0.0), (tr / 2.0 - disc).max(0.0));
-    let angle = if b.abs() > 1e-15 { (l1 - a).atan2(b) } else if a >= c { 0.0 } else { std::f64::consts::FRAC_PI_2 };
+    let angle = if b.abs() > 1e-15 {
+        (l1 - a).atan2(b)
+    } else if a >= c {
+        0.0
+    } else {
+        std::f64::consts::FRAC_PI_2
+    };
     let (s, co) = angle.sin_cos();
     (0..=n)
         .map(|i| {
@@ -233,8 +266,10 @@ pub fn failure_rate_plot(
     svg: &Path,
 ) -> Result<(), PlotError> {
     register_fonts();
-    draw_failure_rate(BitMapBackend::new(png, (900, 600)).into_drawing_area(), plan, rows).map_err(|message| PlotError { file: png.to_path_buf(), message })?;
-    draw_failure_rate(SVGBackend::new(svg, (900, 600)).into_drawing_area(), plan, rows).map_err(|message| PlotError { file: svg.to_path_buf(), message })?;
+    draw_failure_rate(BitMapBackend::new(png, (900, 600)).into_drawing_area(), plan, rows)
+        .map_err(|message| PlotError { file: png.to_path_buf(), message })?;
+    draw_failure_rate(SVGBackend::new(svg, (900, 600)).into_drawing_area(), plan, rows)
+        .map_err(|message| PlotError { file: svg.to_path_buf(), message })?;
     Ok(())
 }
 
@@ -253,14 +288,30 @@ fn draw_failure_rate<DB: DrawingBackend>(
     let (lo, hi) = xs.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| (a.min(*x), b.max(*x)));
     let pad = if hi > lo { 0.05 * (hi - lo) } else { 0.5 };
     let mut chart = ChartBuilder::on(&root)
-        .caption(format!("{}: association-failure rate ({} runs per point, 95% CI)", plan.scenario, plan.runs), ("sans-serif", 20))
+        .caption(
+            format!("{}: association-failure rate ({} runs per point, 95% CI)", plan.scenario, plan.runs),
+            ("sans-serif", 20),
+        )
         .margin(15)
         .x_label_area_size(45)
         .y_label_area_size(55)
         .build_cartesian_2d((lo - pad)..(hi + pad), -0.02f64..1.02f64)
         .map_err(|x| e(&x))?;
-    chart.configure_mesh().x_desc(param.clone()).y_desc("failure rate").label_style(("sans-serif", 14)).draw().map_err(|x| e(&x))?;
-    let palette = [RGBColor(0, 114, 178), RGBColor(213, 94, 0), RGBColor(0, 158, 115), RGBColor(204, 121, 167), RGBColor(86, 180, 233), RGBColor(230, 159, 0)];
+    chart
+        .configure_mesh()
+        .x_desc(param.clone())
+        .y_desc("failure rate")
+        .label_style(("sans-serif", 14))
+        .draw()
+        .map_err(|x| e(&x))?;
+    let palette = [
+        RGBColor(0, 114, 178),
+        RGBColor(213, 94, 0),
+        RGBColor(0, 158, 115),
+        RGBColor(204, 121, 167),
+        RGBColor(86, 180, 233),
+        RGBColor(230, 159, 0),
+    ];
     // One series per (method, values of the other varied parameters).
     let mut series: std::collections::BTreeMap<String, Vec<(f64, f64, f64, f64)>> = Default::default();
     for (i, r) in rows.iter().enumerate() {
@@ -286,7 +337,14 @@ fn draw_failure_rate<DB: DrawingBackend>(
             .draw_series(pts.iter().map(|p| ErrorBar::new_vertical(p.0, p.2, p.1, p.3, colour.stroke_width(1), 8)))
             .map_err(|x| e(&x))?;
     }
-    chart.configure_series_labels().position(SeriesLabelPosition::UpperLeft).background_style(WHITE.mix(0.85)).border_style(BLACK).label_font(("sans-serif", 14)).draw().map_err(|x| e(&x))?;
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperLeft)
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .label_font(("sans-serif", 14))
+        .draw()
+        .map_err(|x| e(&x))?;
     root.present().map_err(|x| e(&x))?;
     Ok(())
 }

@@ -137,11 +137,21 @@ pub fn camera_json(config: &SimConfig) -> serde_json::Value {
 }
 
 /// Fast PNG encoding (recordings write many frames).
-pub fn write_png(path: &Path, width: u32, height: u32, color: image::ExtendedColorType, bytes: &[u8]) -> Result<Vec<u8>, RecordError> {
+pub fn write_png(
+    path: &Path,
+    width: u32,
+    height: u32,
+    color: image::ExtendedColorType,
+    bytes: &[u8],
+) -> Result<Vec<u8>, RecordError> {
     use image::ImageEncoder;
     let io = |e: std::io::Error| RecordError::Io { file: path.to_path_buf(), source: e };
     let mut png = Vec::new();
-    let enc = image::codecs::png::PngEncoder::new_with_quality(&mut png, image::codecs::png::CompressionType::Fast, image::codecs::png::FilterType::Sub);
+    let enc = image::codecs::png::PngEncoder::new_with_quality(
+        &mut png,
+        image::codecs::png::CompressionType::Fast,
+        image::codecs::png::FilterType::Sub,
+    );
     enc.write_image(bytes, width, height, color).map_err(|e| io(std::io::Error::other(e.to_string())))?;
     std::fs::write(path, &png).map_err(io)?;
     Ok(png)
@@ -150,13 +160,26 @@ pub fn write_png(path: &Path, width: u32, height: u32, color: image::ExtendedCol
 /// Writes a camera frame's images: colour, 16-bit instance ids, 8-bit classes and 16-bit
 /// depth in millimetres (0 = nothing). Returns the file names relative to `dir`'s parent
 /// and the colour PNG's bytes (for the MCAP).
-pub fn write_camera_frame(dir: &Path, index: usize, frame: &sim::camera::CameraFrame) -> Result<([String; 4], Vec<u8>), RecordError> {
+pub fn write_camera_frame(
+    dir: &Path,
+    index: usize,
+    frame: &sim::camera::CameraFrame,
+) -> Result<([String; 4], Vec<u8>), RecordError> {
     let img = &frame.image;
-    let names = [format!("camera/{index:06}.png"), format!("camera/{index:06}_instance.png"), format!("camera/{index:06}_class.png"), format!("camera/{index:06}_depth.png")];
+    let names = [
+        format!("camera/{index:06}.png"),
+        format!("camera/{index:06}_instance.png"),
+        format!("camera/{index:06}_class.png"),
+        format!("camera/{index:06}_depth.png"),
+    ];
     let root = dir.parent().unwrap_or(dir);
     // The image crate takes 16-bit samples in native byte order (it writes PNG's big-endian).
     let inst: Vec<u8> = img.instance.iter().flat_map(|v| v.to_ne_bytes()).collect();
-    let depth: Vec<u8> = img.depth_m.iter().flat_map(|d| (if d.is_finite() { (d * 1000.0).round().clamp(1.0, 65535.0) as u16 } else { 0 }).to_ne_bytes()).collect();
+    let depth: Vec<u8> = img
+        .depth_m
+        .iter()
+        .flat_map(|d| (if d.is_finite() { (d * 1000.0).round().clamp(1.0, 65535.0) as u16 } else { 0 }).to_ne_bytes())
+        .collect();
     // Encoding dominates recording time: the four images in parallel.
     let jobs: [(&String, image::ExtendedColorType, &[u8]); 4] = [
         (&names[0], image::ExtendedColorType::Rgb8, &img.rgb),
@@ -165,13 +188,23 @@ pub fn write_camera_frame(dir: &Path, index: usize, frame: &sim::camera::CameraF
         (&names[3], image::ExtendedColorType::L16, &depth),
     ];
     use rayon::prelude::*;
-    let mut pngs = jobs.par_iter().map(|(name, color, bytes)| write_png(&root.join(name), img.width, img.height, *color, bytes)).collect::<Result<Vec<Vec<u8>>, RecordError>>()?;
+    let mut pngs = jobs
+        .par_iter()
+        .map(|(name, color, bytes)| write_png(&root.join(name), img.width, img.height, *color, bytes))
+        .collect::<Result<Vec<Vec<u8>>, RecordError>>()?;
     Ok((names, pngs.swap_remove(0)))
 }
 
 /// Records a run of `world` into `out` in `format`. `progress` is called with (sim time,
 /// nominal duration) now and then.
-pub fn record(world: &worlds::World, config: &SimConfig, seed: u64, out: &Path, format: RecordFormat, progress: impl FnMut(f64, f64)) -> Result<RecordSummary, RecordError> {
+pub fn record(
+    world: &worlds::World,
+    config: &SimConfig,
+    seed: u64,
+    out: &Path,
+    format: RecordFormat,
+    progress: impl FnMut(f64, f64),
+) -> Result<RecordSummary, RecordError> {
     match format {
         RecordFormat::Jsonl => record_jsonl(world, config, seed, out, progress),
         RecordFormat::Ros2 => record_ros2(world, config, seed, out, progress),
@@ -179,7 +212,13 @@ pub fn record(world: &worlds::World, config: &SimConfig, seed: u64, out: &Path, 
 }
 
 /// The simulation's stream as a ROS 2 bag in `out` (see [`crate::ros2`]).
-fn record_ros2(world: &worlds::World, config: &SimConfig, seed: u64, out: &Path, mut progress: impl FnMut(f64, f64)) -> Result<RecordSummary, RecordError> {
+fn record_ros2(
+    world: &worlds::World,
+    config: &SimConfig,
+    seed: u64,
+    out: &Path,
+    mut progress: impl FnMut(f64, f64),
+) -> Result<RecordSummary, RecordError> {
     let started = std::time::Instant::now();
     let mut sim = Simulation::new(world, config, seed)?;
     let nominal = config.max_duration_s.unwrap_or_else(|| sim.nominal_duration_s());
@@ -212,7 +251,13 @@ fn record_ros2(world: &worlds::World, config: &SimConfig, seed: u64, out: &Path,
     })
 }
 
-fn record_jsonl(world: &worlds::World, config: &SimConfig, seed: u64, out: &Path, mut progress: impl FnMut(f64, f64)) -> Result<RecordSummary, RecordError> {
+fn record_jsonl(
+    world: &worlds::World,
+    config: &SimConfig,
+    seed: u64,
+    out: &Path,
+    mut progress: impl FnMut(f64, f64),
+) -> Result<RecordSummary, RecordError> {
     std::fs::create_dir_all(out).map_err(|source| RecordError::Io { file: out.to_path_buf(), source })?;
     let started = std::time::Instant::now();
     let mut sim = Simulation::new(world, config, seed)?;
@@ -267,7 +312,8 @@ fn record_jsonl(world: &worlds::World, config: &SimConfig, seed: u64, out: &Path
             SensorEvent::Laser { scan, beams, truth } => {
                 scans += 1;
                 laser.line(&serde_json::to_string(scan).expect("JSON"))?;
-                laser_truth.line(&serde_json::to_string(&json!({"t": scan.t, "hit_ids": beams.hit_ids})).expect("JSON"))?;
+                laser_truth
+                    .line(&serde_json::to_string(&json!({"t": scan.t, "hit_ids": beams.hit_ids})).expect("JSON"))?;
                 let end = scan.angle_min + scan.angle_increment * (scan.ranges.len() as f64 - 1.0);
                 // Foxglove draws non-finite ranges as no return.
                 let ranges: Vec<f64> = scan.ranges.iter().map(|r| if r.is_finite() { *r } else { -1.0 }).collect();
@@ -287,8 +333,14 @@ fn record_jsonl(world: &worlds::World, config: &SimConfig, seed: u64, out: &Path
                                 "translation": {"x": mx, "y": my, "z": mz}, "rotation": {"x": laser_q[0], "y": laser_q[1], "z": laser_q[2], "w": laser_q[3]}}),
                     )?;
                 }
-                let people: Vec<_> = truth.people.iter().map(|p| pose_json(p.x, p.y, 0.0, yaw_quaternion(p.heading))).collect();
-                mcap.write("/ground_truth/people", "foxglove.PosesInFrame", scan.t, &json!({"timestamp": timestamp(scan.t), "frame_id": "world", "poses": people}))?;
+                let people: Vec<_> =
+                    truth.people.iter().map(|p| pose_json(p.x, p.y, 0.0, yaw_quaternion(p.heading))).collect();
+                mcap.write(
+                    "/ground_truth/people",
+                    "foxglove.PosesInFrame",
+                    scan.t,
+                    &json!({"timestamp": timestamp(scan.t), "frame_id": "world", "poses": people}),
+                )?;
             }
             SensorEvent::Camera { frame, .. } => {
                 let (names, png) = write_camera_frame(&camera_dir, frames, frame)?;

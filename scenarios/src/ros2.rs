@@ -15,7 +15,10 @@
 
 use std::path::Path;
 
-use ros2bag::{BagWriter, CameraInfo, Header, Image, LaserScan, Odometry, PoseStamped, Quaternion, TfMessage, Time, Transform, TransformStamped, Vector3};
+use ros2bag::{
+    BagWriter, CameraInfo, Header, Image, LaserScan, Odometry, PoseStamped, Quaternion, TfMessage, Time, Transform,
+    TransformStamped, Vector3,
+};
 use sim::{SensorEvent, SimConfig};
 
 /// Errors while writing a bag.
@@ -63,10 +66,23 @@ impl Ros2Recorder {
         let err = |source| Ros2Error::Bag { dir: dir.to_path_buf(), source };
         let bag = BagWriter::create(dir).map_err(err)?;
         let [lx, ly, lz] = config.laser.mount_xyz_m;
-        let base_from_laser = Transform { translation: Vector3 { x: lx, y: ly, z: lz }, rotation: Quaternion::from_yaw(config.laser.mount_yaw_deg.to_radians()) };
+        let base_from_laser = Transform {
+            translation: Vector3 { x: lx, y: ly, z: lz },
+            rotation: Quaternion::from_yaw(config.laser.mount_yaw_deg.to_radians()),
+        };
         let c = config.camera.base_from_camera();
-        let base_from_camera = Transform { translation: Vector3 { x: c.t[0], y: c.t[1], z: c.t[2] }, rotation: quaternion(&c.r) };
-        Ok(Ros2Recorder { bag, dir: dir.to_path_buf(), odom: [0.0; 3], last_odometry_t: None, static_written: false, base_from_laser, base_from_camera, truth_path: Vec::new() })
+        let base_from_camera =
+            Transform { translation: Vector3 { x: c.t[0], y: c.t[1], z: c.t[2] }, rotation: quaternion(&c.r) };
+        Ok(Ros2Recorder {
+            bag,
+            dir: dir.to_path_buf(),
+            odom: [0.0; 3],
+            last_odometry_t: None,
+            static_written: false,
+            base_from_laser,
+            base_from_camera,
+            truth_path: Vec::new(),
+        })
     }
 
     fn err(&self) -> impl Fn(ros2bag::Error) -> Ros2Error + '_ {
@@ -84,7 +100,11 @@ impl Ros2Recorder {
             self.static_written = true;
             let header = Header::new(stamp(t)?, "base_link");
             let transforms = [("laser", self.base_from_laser), ("camera_optical", self.base_from_camera)]
-                .map(|(child, transform)| TransformStamped { header: header.clone(), child_frame_id: child.into(), transform })
+                .map(|(child, transform)| TransformStamped {
+                    header: header.clone(),
+                    child_frame_id: child.into(),
+                    transform,
+                })
                 .to_vec();
             self.bag.write("/tf_static", nanos(t), &TfMessage { transforms })?;
         }
@@ -98,17 +118,23 @@ impl Ros2Recorder {
                 let [x, y, th] = self.odom;
                 let header = Header::new(stamp(o.t)?, "odom");
                 let pose = planar_pose(x, y, th);
-                let mut odom = Odometry { header: header.clone(), child_frame_id: "base_link".into(), ..Default::default() };
+                let mut odom =
+                    Odometry { header: header.clone(), child_frame_id: "base_link".into(), ..Default::default() };
                 odom.pose.pose = pose;
                 if let Some(dt) = dt {
                     odom.twist.twist.linear = Vector3 { x: o.dx / dt, y: o.dy / dt, z: 0.0 };
                     odom.twist.twist.angular = Vector3 { x: 0.0, y: 0.0, z: o.dtheta / dt };
                 }
                 self.bag.write("/odom", nanos(o.t), &odom)?;
-                let tf = TransformStamped { header, child_frame_id: "base_link".into(), transform: Transform { translation: Vector3 { x, y, z: 0.0 }, rotation: pose.orientation } };
+                let tf = TransformStamped {
+                    header,
+                    child_frame_id: "base_link".into(),
+                    transform: Transform { translation: Vector3 { x, y, z: 0.0 }, rotation: pose.orientation },
+                };
                 self.bag.write("/tf", nanos(o.t), &TfMessage { transforms: vec![tf] })?;
                 let r = truth.robot;
-                let truth_pose = PoseStamped { header: Header::new(stamp(o.t)?, "world"), pose: planar_pose(r.x, r.y, r.theta) };
+                let truth_pose =
+                    PoseStamped { header: Header::new(stamp(o.t)?, "world"), pose: planar_pose(r.x, r.y, r.theta) };
                 self.bag.write("/ground_truth/pose", nanos(o.t), &truth_pose)?;
                 self.truth_path.push(truth_pose);
             }
@@ -132,10 +158,22 @@ impl Ros2Recorder {
             SensorEvent::Camera { frame, .. } => {
                 let img = &frame.image;
                 let header = Header::new(stamp(frame.t)?, "camera_optical");
-                let image = Image { header: header.clone(), height: img.height, width: img.width, encoding: "rgb8".into(), is_bigendian: 0, step: 3 * img.width, data: img.rgb.clone() };
+                let image = Image {
+                    header: header.clone(),
+                    height: img.height,
+                    width: img.width,
+                    encoding: "rgb8".into(),
+                    is_bigendian: 0,
+                    step: 3 * img.width,
+                    data: img.rgb.clone(),
+                };
                 self.bag.write("/camera/image_raw", nanos(frame.t), &image)?;
                 let k = frame.intrinsics;
-                self.bag.write("/camera/camera_info", nanos(frame.t), &CameraInfo::pinhole(header, k.width, k.height, k.fx, k.fy, k.cx, k.cy))?;
+                self.bag.write(
+                    "/camera/camera_info",
+                    nanos(frame.t),
+                    &CameraInfo::pinhole(header, k.width, k.height, k.fx, k.fy, k.cx, k.cy),
+                )?;
             }
         }
         Ok(())

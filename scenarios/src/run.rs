@@ -182,7 +182,12 @@ pub fn resolve_calibration(scenario: &Scenario, base_dir: &Path, seed: u64) -> R
     let truth = crate::calibrate::true_extrinsics(&scenario.sim);
     let (mode, file, extrinsics, report) = match c.mode.as_str() {
         "true" => ("true", None, truth, None),
-        "perturbed" => ("perturbed", None, crate::calibrate::perturb(&truth, c.rotation_sigma_deg, c.translation_sigma_m, seed), None),
+        "perturbed" => (
+            "perturbed",
+            None,
+            crate::calibrate::perturb(&truth, c.rotation_sigma_deg, c.translation_sigma_m, seed),
+            None,
+        ),
         "estimated" => {
             let report = crate::calibrate::run_session(scenario, base_dir, seed, None, None)?;
             ("estimated", None, report.extrinsics(), Some(Box::new(report)))
@@ -194,7 +199,15 @@ pub fn resolve_calibration(scenario: &Scenario, base_dir: &Path, seed: u64) -> R
         }
     };
     let (rotation_error_deg, translation_error_m) = extrinsics.error_to(&truth);
-    Ok(ResolvedCalibration { mode: mode.into(), file, extrinsics, truth, rotation_error_deg, translation_error_m, report })
+    Ok(ResolvedCalibration {
+        mode: mode.into(),
+        file,
+        extrinsics,
+        truth,
+        rotation_error_deg,
+        translation_error_m,
+        report,
+    })
 }
 
 /// Wall-clock split of a run: the simulator (physics, laser, rendering) against the online
@@ -221,14 +234,14 @@ pub struct Timing {
 /// the laser's own rayon tasks and deadlock. The pipeline sees the same event sequence
 /// either way.
 enum EventSource {
-    Inline { sim: Simulation, sim_time: f64 },
+    Inline { sim: Box<Simulation>, sim_time: f64 },
     Threaded { events: std::sync::mpsc::Receiver<SensorEvent>, producer: std::thread::JoinHandle<(Simulation, f64)> },
 }
 
 impl EventSource {
     fn start(mut sim: Simulation) -> Self {
         if rayon::current_thread_index().is_some() {
-            return EventSource::Inline { sim, sim_time: 0.0 };
+            return EventSource::Inline { sim: Box::new(sim), sim_time: 0.0 };
         }
         // A core is free for the physics while the camera renders (see
         // Simulation::render_camera_on_thread); if the thread cannot start, render inline.
@@ -266,7 +279,7 @@ impl EventSource {
     /// The simulator once the stream has ended, and its time (s).
     fn finish(self) -> (Simulation, f64) {
         match self {
-            EventSource::Inline { sim, sim_time } => (sim, sim_time),
+            EventSource::Inline { sim, sim_time } => (*sim, sim_time),
             EventSource::Threaded { events, producer } => {
                 drop(events);
                 match producer.join() {
@@ -336,21 +349,43 @@ pub fn pipeline_config(scenario: &Scenario, method: Option<AssociationMethod>) -
 
 /// The simulator's scan as the pipeline's plain message (the one place the two meet).
 pub fn slam_scan(scan: &sim::LaserScan) -> slam::messages::LaserScan {
-    slam::messages::LaserScan { t: scan.t, angle_min: scan.angle_min, angle_increment: scan.angle_increment, range_min: scan.range_min, range_max: scan.range_max, ranges: scan.ranges.clone() }
+    slam::messages::LaserScan {
+        t: scan.t,
+        angle_min: scan.angle_min,
+        angle_increment: scan.angle_increment,
+        range_min: scan.range_min,
+        range_max: scan.range_max,
+        ranges: scan.ranges.clone(),
+    }
 }
 
 /// The camera as the pipeline is told it: K and the laser <- camera extrinsics (the
 /// run's resolved calibration, see [`resolve_calibration`]).
-pub fn camera_geometry(sim_config: &sim::SimConfig, laser_from_camera: &slam::calibration::Extrinsics) -> CameraGeometry {
+pub fn camera_geometry(
+    sim_config: &sim::SimConfig,
+    laser_from_camera: &slam::calibration::Extrinsics,
+) -> CameraGeometry {
     let k = sim_config.camera.intrinsics();
-    CameraGeometry { fx: k.fx, fy: k.fy, cx: k.cx, cy: k.cy, width: k.width, height: k.height, laser_from_camera: *laser_from_camera }
+    CameraGeometry {
+        fx: k.fx,
+        fy: k.fy,
+        cx: k.cx,
+        cy: k.cy,
+        width: k.width,
+        height: k.height,
+        laser_from_camera: *laser_from_camera,
+    }
 }
 
 /// The scenario's appearance model (a named file, or trained once and cached), with a
 /// progress bar while training.
 pub fn resolve_appearance(scenario: &Scenario, base_dir: &Path) -> Result<AppearanceModel, RunError> {
     let bar = indicatif::ProgressBar::new(1);
-    bar.set_style(indicatif::ProgressStyle::with_template("appearance model: {msg:>16} [{bar:30}] {pos}/{len}").expect("valid template").progress_chars("=> "));
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("appearance model: {msg:>16} [{bar:30}] {pos}/{len}")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
     bar.set_draw_target(indicatif::ProgressDrawTarget::stderr_with_hz(4));
     let model = scenario.appearance.resolve(base_dir, &scenario.sim.camera, |stage, done, total| {
         bar.set_message(stage.to_string());
@@ -362,11 +397,19 @@ pub fn resolve_appearance(scenario: &Scenario, base_dir: &Path) -> Result<Appear
 }
 
 /// Runs a scenario once.
-pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progress: impl FnMut(f64, f64)) -> Result<RunOutcome, RunError> {
+pub fn run(
+    scenario: &Scenario,
+    base_dir: &Path,
+    options: &RunOptions,
+    mut progress: impl FnMut(f64, f64),
+) -> Result<RunOutcome, RunError> {
     let seed = options.seed.unwrap_or(scenario.seed);
     let config = pipeline_config(scenario, options.method)?;
     if config.method.uses_appearance() && !scenario.sim.camera.enabled {
-        return Err(RunError::Method { method: config.method.name().into(), message: "needs the camera, which the scenario disables (sim.camera.enabled = false)".into() });
+        return Err(RunError::Method {
+            method: config.method.name().into(),
+            message: "needs the camera, which the scenario disables (sim.camera.enabled = false)".into(),
+        });
     }
     let appearance_model = if config.method.uses_appearance() {
         Some(match &options.appearance {
@@ -390,29 +433,47 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
     // Where the images came from: results depend on the renderer (metrics.renderer, and
     // the model's training renderer in metadata.json).
     let renderer = sim.camera_adapter().map(|a| a.to_string());
-    let model_provenance = appearance_model.as_ref().map(|m| ModelProvenance { training_seed: m.training.seed, training_images: m.training.images, training_renderer: m.training.renderer.clone() });
+    let model_provenance = appearance_model.as_ref().map(|m| ModelProvenance {
+        training_seed: m.training.seed,
+        training_images: m.training.images,
+        training_renderer: m.training.renderer.clone(),
+    });
     let nominal = scenario.sim.max_duration_s.unwrap_or_else(|| sim.nominal_duration_s());
     let start = world.robot.start;
     let appearance = match &appearance_model {
-        Some(m) => Some(Appearance::new((**m).clone(), camera_geometry(&scenario.sim, &calibration.extrinsics)).map_err(|e| RunError::Online(e.to_string()))?),
+        Some(m) => Some(
+            Appearance::new((**m).clone(), camera_geometry(&scenario.sim, &calibration.extrinsics))
+                .map_err(|e| RunError::Online(e.to_string()))?,
+        ),
         None => None,
     };
-    let mut pipeline = Pipeline::with_appearance(config.clone(), [start.x, start.y, start.yaw_rad()], appearance).map_err(|e| RunError::Online(e.to_string()))?;
+    let mut pipeline = Pipeline::with_appearance(config.clone(), [start.x, start.y, start.yaw_rad()], appearance)
+        .map_err(|e| RunError::Online(e.to_string()))?;
     // The camera renders only the columns segmentation will read, chosen from the scan of
     // the frame's instant as the pipeline will cluster it: most of each frame is never read.
     // Only where no other scan can use the frame (one within image_max_age_s of it): sensors
     // fire on the first physics step at or after their time, so two scans can be up to a
     // step closer than the laser's period.
-    let frame_read_by_one_scan = config.image_max_age_s < 1.0 / sim_config.laser.rate_hz - 1.0 / sim_config.physics_rate_hz;
-    let tree_ids: std::collections::BTreeSet<u16> = world.objects.iter().filter(|o| o.class == ObjectClass::Tree).map(|o| o.id).collect();
+    let frame_read_by_one_scan =
+        config.image_max_age_s < 1.0 / sim_config.laser.rate_hz - 1.0 / sim_config.physics_rate_hz;
+    let tree_ids: std::collections::BTreeSet<u16> =
+        world.objects.iter().filter(|o| o.class == ObjectClass::Tree).map(|o| o.id).collect();
     // The recall's denominators, from ground truth (the camera's true extrinsics).
     let true_camera = sim_config.camera.enabled.then(|| camera_geometry(&scenario.sim, &calibration.truth));
-    let mut visibility = TreeVisibility::new(tree_ids.clone(), true_camera, config.clustering.min_points, config.clustering.max_range_m, config.confirm_observations);
+    let mut visibility = TreeVisibility::new(
+        tree_ids.clone(),
+        true_camera,
+        config.clustering.min_points,
+        config.clustering.max_range_m,
+        config.confirm_observations,
+    );
     if let Some(region) = pipeline.image_region().filter(|_| !options.full_frames && frame_read_by_one_scan) {
         // The columns the ground-truth count reads are rendered too, so that it does not
         // depend on the columns the method asked for.
         let truth_columns = visibility.clone();
-        sim.render_camera_columns(Box::new(move |scan, beams| merge_spans([region.columns(&slam_scan(scan)), truth_columns.columns(scan, beams)].concat())));
+        sim.render_camera_columns(Box::new(move |scan, beams| {
+            merge_spans([region.columns(&slam_scan(scan)), truth_columns.columns(scan, beams)].concat())
+        }));
     }
     // A scan and the frame of its instant fire on the same physics step.
     let same_instant_s = 0.5 / sim_config.physics_rate_hz;
@@ -448,7 +509,12 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
         let t = event.time();
         match event {
             SensorEvent::Odometry { odometry, truth } => {
-                pipeline.on_odometry(&slam::messages::OdometryIncrement { t: odometry.t, dx: odometry.dx, dy: odometry.dy, dtheta: odometry.dtheta });
+                pipeline.on_odometry(&slam::messages::OdometryIncrement {
+                    t: odometry.t,
+                    dx: odometry.dx,
+                    dy: odometry.dy,
+                    dtheta: odometry.dtheta,
+                });
                 let est = pipeline.pose();
                 let r = truth.robot;
                 est_path.push((odometry.t, est.pose));
@@ -522,7 +588,14 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
                     ledger.fuse(m.kept, m.removed);
                 }
                 merges_scored = pipeline.merges().len();
-                let frame = last_frame.as_ref().filter(|f| (f.t - scan.t).abs() < same_instant_s).map(|f| InstanceImage { t: f.t, width: f.width, height: f.height, instance: &f.instance, columns: f.columns.as_deref() });
+                let frame =
+                    last_frame.as_ref().filter(|f| (f.t - scan.t).abs() < same_instant_s).map(|f| InstanceImage {
+                        t: f.t,
+                        width: f.width,
+                        height: f.height,
+                        instance: &f.instance,
+                        columns: f.columns.as_deref(),
+                    });
                 visibility.on_scan(&scan, &beams, frame.as_ref());
                 for p in &truth.people {
                     people_tracks.entry(p.id).or_default().push([p.x, p.y]);
@@ -534,8 +607,17 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
                 let columns_rendered = img.columns.as_ref().map_or(img.width, |c| c.iter().map(|(a, b)| b - a).sum());
                 pixels_rendered += columns_rendered as u64 * img.height as u64;
                 pixels_framed += img.width as u64 * img.height as u64;
-                pipeline.on_image_columns(frame.t, img.width, img.height, img.rgb, img.columns.clone()).map_err(|e| RunError::Online(e.to_string()))?;
-                last_frame = Some(TruthImages { t: frame.t, width: img.width, height: img.height, class: img.class, instance: img.instance, columns: img.columns });
+                pipeline
+                    .on_image_columns(frame.t, img.width, img.height, img.rgb, img.columns.clone())
+                    .map_err(|e| RunError::Online(e.to_string()))?;
+                last_frame = Some(TruthImages {
+                    t: frame.t,
+                    width: img.width,
+                    height: img.height,
+                    class: img.class,
+                    instance: img.instance,
+                    columns: img.columns,
+                });
             }
         }
         pipe_time += tick.elapsed().as_secs_f64();
@@ -557,7 +639,10 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
         )));
     }
     if visibility.unrendered_reads() > 0 {
-        return Err(RunError::Online(format!("the tree-recall count read {} pixels in image columns the camera did not render (a bug; `--full-frames` renders whole frames)", visibility.unrendered_reads())));
+        return Err(RunError::Online(format!(
+            "the tree-recall count read {} pixels in image columns the camera did not render (a bug; `--full-frames` renders whole frames)",
+            visibility.unrendered_reads()
+        )));
     }
     progress(sim.time(), nominal);
     let wall = started.elapsed().as_secs_f64();
@@ -582,7 +667,8 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
             _ => map.nothing += 1,
         }
     }
-    let trees_mapped: std::collections::BTreeSet<u16> = per_object.keys().filter(|id| tree_ids.contains(id)).copied().collect();
+    let trees_mapped: std::collections::BTreeSet<u16> =
+        per_object.keys().filter(|id| tree_ids.contains(id)).copied().collect();
     map.trees_mapped = trees_mapped.len();
     let in_view = visibility.trees_in_view();
     let to_map = if camera_method { in_view.as_ref() } else { Some(visibility.trees_laser_seen()) };
@@ -592,12 +678,26 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
     let false_landmarks = map.posts + map.palms + map.people + map.walls + map.nothing;
 
     // Landmark RMSE after optimal assignment to static objects' centres (gated at 2 m).
-    let statics: Vec<&worlds::StaticObject> = world.objects.iter().filter(|o| matches!(o.class, ObjectClass::Tree | ObjectClass::Post | ObjectClass::Palm)).collect();
+    let statics: Vec<&worlds::StaticObject> = world
+        .objects
+        .iter()
+        .filter(|o| matches!(o.class, ObjectClass::Tree | ObjectClass::Post | ObjectClass::Palm))
+        .collect();
     let lms = pipeline.mapped_landmarks();
-    let cost: Vec<Vec<f64>> = lms.iter().map(|l| statics.iter().map(|o| ((l.position[0] - o.pose.x).powi(2) + (l.position[1] - o.pose.y).powi(2)).sqrt()).collect()).collect();
+    let cost: Vec<Vec<f64>> = lms
+        .iter()
+        .map(|l| {
+            statics
+                .iter()
+                .map(|o| ((l.position[0] - o.pose.x).powi(2) + (l.position[1] - o.pose.y).powi(2)).sqrt())
+                .collect()
+        })
+        .collect();
     let assignment = score::hungarian(&cost);
-    let matched: Vec<f64> = assignment.iter().enumerate().filter_map(|(i, j)| j.map(|j| cost[i][j])).filter(|d| *d <= 2.0).collect();
-    let landmark_rmse = (!matched.is_empty()).then(|| (matched.iter().map(|d| d * d).sum::<f64>() / matched.len() as f64).sqrt());
+    let matched: Vec<f64> =
+        assignment.iter().enumerate().filter_map(|(i, j)| j.map(|j| cost[i][j])).filter(|d| *d <= 2.0).collect();
+    let landmark_rmse =
+        (!matched.is_empty()).then(|| (matched.iter().map(|d| d * d).sum::<f64>() / matched.len() as f64).sqrt());
 
     let est_xy: Vec<[f64; 2]> = est_path.iter().map(|(_, p)| [p[0], p[1]]).collect();
     let gt_xy: Vec<[f64; 2]> = gt_path.iter().map(|(_, p)| [p[0], p[1]]).collect();
@@ -619,7 +719,11 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
         relinearisation_failures: pipeline.relinearisation_failures().len(),
         retracted_landmarks: RetractionCounts {
             total: pipeline.retractions().len(),
-            trees: pipeline.retractions().iter().filter(|r| landmark_object.get(&r.landmark).is_some_and(|o| tree_ids.contains(o))).count(),
+            trees: pipeline
+                .retractions()
+                .iter()
+                .filter(|r| landmark_object.get(&r.landmark).is_some_and(|o| tree_ids.contains(o)))
+                .count(),
         },
         false_landmarks,
         segmentation: if config.method.uses_appearance() {
@@ -638,7 +742,13 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
         route_completed: sim.route_progress() > 0.99,
         passed: false,
         failures: vec![],
-        timing: Timing { simulator_s: sim_time, pipeline_s: pipe_time, scans, mean_scan_ms: if scans > 0 { 1000.0 * scan_time / scans as f64 } else { 0.0 }, rendered_fraction: if pixels_framed > 0 { pixels_rendered as f64 / pixels_framed as f64 } else { 0.0 } },
+        timing: Timing {
+            simulator_s: sim_time,
+            pipeline_s: pipe_time,
+            scans,
+            mean_scan_ms: if scans > 0 { 1000.0 * scan_time / scans as f64 } else { 0.0 },
+            rendered_fraction: if pixels_framed > 0 { pixels_rendered as f64 / pixels_framed as f64 } else { 0.0 },
+        },
         renderer,
         appearance_model: model_provenance.clone(),
     };
@@ -661,7 +771,19 @@ pub fn run(scenario: &Scenario, base_dir: &Path, options: &RunOptions, mut progr
         if let Some(report) = &calibration.report {
             report.write(&out.join("calibration.json"))?;
         }
-        write_outputs(out, &world, &pipeline, &metrics, &resolved, &json!(model_provenance), &est_path, &gt_path, &people_tracks, &landmark_object, &decision_truth)?;
+        write_outputs(
+            out,
+            &world,
+            &pipeline,
+            &metrics,
+            &resolved,
+            &json!(model_provenance),
+            &est_path,
+            &gt_path,
+            &people_tracks,
+            &landmark_object,
+            &decision_truth,
+        )?;
         if camera_method {
             let file = out.join("segmentation.jsonl");
             std::fs::write(&file, segmentation_log).map_err(|source| RunError::Io { file, source })?;
@@ -797,13 +919,23 @@ fn write_outputs(
     write("decisions.jsonl", decisions)?;
     // Each solve of the smoother (combined method): what it solved and how far the cost
     // fell, or why it failed (the filter then carried on as it was).
-    let solves = pipeline.relinearisations().iter().map(|(t, r)| (*t, json!(r))).chain(pipeline.relinearisation_failures().iter().map(|(t, e)| (*t, json!({"error": e.to_string()}))));
+    let solves = pipeline
+        .relinearisations()
+        .iter()
+        .map(|(t, r)| (*t, json!(r)))
+        .chain(pipeline.relinearisation_failures().iter().map(|(t, e)| (*t, json!({"error": e.to_string()}))));
     let mut solves: Vec<(f64, serde_json::Value)> = solves.collect();
     solves.sort_by(|a, b| a.0.total_cmp(&b.0));
-    write("relinearisations.jsonl", solves.into_iter().map(|(t, mut v)| {
-        v["t"] = json!(t);
-        serde_json::to_string(&v).expect("JSON") + "\n"
-    }).collect::<String>())?;
+    write(
+        "relinearisations.jsonl",
+        solves
+            .into_iter()
+            .map(|(t, mut v)| {
+                v["t"] = json!(t);
+                serde_json::to_string(&v).expect("JSON") + "\n"
+            })
+            .collect::<String>(),
+    )?;
     let landmarks: Vec<_> = pipeline
         .mapped_landmarks()
         .iter()
@@ -823,18 +955,33 @@ fn write_outputs(
         .map(|l| {
             let obj = landmark_object.get(&l.id).copied().unwrap_or(0);
             let flagged = world.class_of(obj) != Some(ObjectClass::Tree);
-            crate::plot::LandmarkMark { position: l.position, covariance: l.covariance, label: format!("L{}", l.id), flagged }
+            crate::plot::LandmarkMark {
+                position: l.position,
+                covariance: l.covariance,
+                label: format!("L{}", l.id),
+                flagged,
+            }
         })
         .collect();
     let overlays = crate::plot::Overlays {
         title: format!(
             "{} / {} / seed {}: {} landmarks, {} wrong associations, {} false, {} duplicates",
-            metrics.scenario, metrics.method, metrics.seed, metrics.landmarks, metrics.associations.wrong, metrics.false_landmarks, metrics.duplicate_landmarks
+            metrics.scenario,
+            metrics.method,
+            metrics.seed,
+            metrics.landmarks,
+            metrics.associations.wrong,
+            metrics.false_landmarks,
+            metrics.duplicate_landmarks
         ),
         landmarks: marks,
         trajectories: vec![
             ("true path".into(), plotters::style::RGBColor(0, 0, 200), gt.iter().map(|(_, p)| [p[0], p[1]]).collect()),
-            ("estimated path".into(), plotters::style::RGBColor(230, 120, 0), est.iter().map(|(_, p)| [p[0], p[1]]).collect()),
+            (
+                "estimated path".into(),
+                plotters::style::RGBColor(230, 120, 0),
+                est.iter().map(|(_, p)| [p[0], p[1]]).collect(),
+            ),
         ],
         people_tracks: people_tracks.values().cloned().collect(),
         routes: false,
@@ -848,15 +995,28 @@ fn write_outputs(
         mcap.write("/ground_truth/pose", "foxglove.PosesInFrame", *t, &json!({"timestamp": timestamp(*t), "frame_id": "world", "poses": [pose_json(g[0], g[1], 0.0, yaw_quaternion(g[2]))]}))?;
     }
     let t_end = est.last().map_or(0.0, |(t, _)| *t);
-    let lm_poses: Vec<_> = pipeline.mapped_landmarks().iter().map(|l| crate::foxglove::pose_json(l.position[0], l.position[1], 0.0, [0.0, 0.0, 0.0, 1.0])).collect();
-    mcap.write("/estimate/landmarks", "foxglove.PosesInFrame", t_end, &json!({"timestamp": crate::foxglove::timestamp(t_end), "frame_id": "world", "poses": lm_poses}))?;
+    let lm_poses: Vec<_> = pipeline
+        .mapped_landmarks()
+        .iter()
+        .map(|l| crate::foxglove::pose_json(l.position[0], l.position[1], 0.0, [0.0, 0.0, 0.0, 1.0]))
+        .collect();
+    mcap.write(
+        "/estimate/landmarks",
+        "foxglove.PosesInFrame",
+        t_end,
+        &json!({"timestamp": crate::foxglove::timestamp(t_end), "frame_id": "world", "poses": lm_poses}),
+    )?;
     mcap.finish()?;
     Ok(())
 }
 
 fn odometry_calibration_score(ekf: &slam::ekf::Ekf, truth: [f64; 3]) -> Option<OdometryCalibrationScore> {
     let (estimated, sigma) = (ekf.calibration(), ekf.calibration_sigma());
-    (estimated.len() == 3).then(|| OdometryCalibrationScore { estimated: [estimated[0], estimated[1], estimated[2]], sigma: [sigma[0], sigma[1], sigma[2]], truth })
+    (estimated.len() == 3).then(|| OdometryCalibrationScore {
+        estimated: [estimated[0], estimated[1], estimated[2]],
+        sigma: [sigma[0], sigma[1], sigma[2]],
+        truth,
+    })
 }
 
 /// Retracted landmarks (see [`Metrics::retracted_landmarks`]).
@@ -870,7 +1030,15 @@ pub struct RetractionCounts {
 pub fn summary_table(m: &Metrics) -> String {
     let mut s = String::new();
     s.push_str(&format!("scenario {}  method {}  seed {}\n", m.scenario, m.method, m.seed));
-    s.push_str(&format!("  simulated {:.1} s in {:.2} s ({:.0}x real time; simulator {:.1} s, pipeline {:.1} s, {:.2} ms per scan)\n", m.sim_seconds, m.wall_seconds, m.realtime_factor, m.timing.simulator_s, m.timing.pipeline_s, m.timing.mean_scan_ms));
+    s.push_str(&format!(
+        "  simulated {:.1} s in {:.2} s ({:.0}x real time; simulator {:.1} s, pipeline {:.1} s, {:.2} ms per scan)\n",
+        m.sim_seconds,
+        m.wall_seconds,
+        m.realtime_factor,
+        m.timing.simulator_s,
+        m.timing.pipeline_s,
+        m.timing.mean_scan_ms
+    ));
     if let Some(renderer) = &m.renderer {
         s.push_str(&format!("  rendered by       {renderer}\n"));
     }
@@ -882,7 +1050,10 @@ pub fn summary_table(m: &Metrics) -> String {
     s.push_str(&format!("  false landmarks   {:>4} (posts {}, palms {}, people {}, walls {}, nothing {}; {} retracted, {} of them trees)\n", m.false_landmarks, m.map.posts, m.map.palms, m.map.people, m.map.walls, m.map.nothing, m.retracted_landmarks.total, m.retracted_landmarks.trees));
     s.push_str(&format!("  duplicates        {:>4} ({} fused)\n", m.duplicate_landmarks, m.merged_landmarks));
     if m.relinearisations + m.relinearisation_failures > 0 {
-        s.push_str(&format!("  relinearised      {:>4} times after loop closures ({} failed)\n", m.relinearisations, m.relinearisation_failures));
+        s.push_str(&format!(
+            "  relinearised      {:>4} times after loop closures ({} failed)\n",
+            m.relinearisations, m.relinearisation_failures
+        ));
     }
     s.push_str(&format!("  associations      {:>4} ({} wrong)\n", m.associations.total, m.associations.wrong));
     s.push_str(&format!("  ATE RMSE          {:>8.3} m\n", m.ate_rmse_m));
@@ -891,7 +1062,10 @@ pub fn summary_table(m: &Metrics) -> String {
     }
     s.push_str(&format!("  ANEES             {:>8.2}\n", m.anees));
     if let Some(c) = m.calibration.as_ref().filter(|c| c.mode != "true") {
-        s.push_str(&format!("  calibration       {} extrinsics off by {:.3} deg, {:.4} m\n", c.mode, c.rotation_error_deg, c.translation_error_m));
+        s.push_str(&format!(
+            "  calibration       {} extrinsics off by {:.3} deg, {:.4} m\n",
+            c.mode, c.rotation_error_deg, c.translation_error_m
+        ));
     }
     if let Some(c) = &m.odometry_calibration {
         s.push_str(&format!(
@@ -900,6 +1074,9 @@ pub fn summary_table(m: &Metrics) -> String {
         ));
     }
     s.push_str(&format!("  collisions        {:>4}\n", m.collisions));
-    s.push_str(&format!("  {}\n", if m.passed { "PASSED".to_string() } else { format!("FAILED: {}", m.failures.join("; ")) }));
+    s.push_str(&format!(
+        "  {}\n",
+        if m.passed { "PASSED".to_string() } else { format!("FAILED: {}", m.failures.join("; ")) }
+    ));
     s
 }

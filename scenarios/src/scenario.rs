@@ -76,11 +76,13 @@ impl<'de> Deserialize<'de> for CalibrationSpelling {
                 Ok(CalibrationChoice { mode: v.into(), ..Default::default() })
             }
             fn visit_map<A: serde::de::MapAccess<'de>>(self, map: A) -> Result<CalibrationChoice, A::Error> {
-                CalibrationTable::deserialize(serde::de::value::MapAccessDeserializer::new(map)).map(|t| CalibrationChoice {
-                    mode: t.mode,
-                    rotation_sigma_deg: t.rotation_sigma_deg,
-                    translation_sigma_m: t.translation_sigma_m,
-                    session: t.session,
+                CalibrationTable::deserialize(serde::de::value::MapAccessDeserializer::new(map)).map(|t| {
+                    CalibrationChoice {
+                        mode: t.mode,
+                        rotation_sigma_deg: t.rotation_sigma_deg,
+                        translation_sigma_m: t.translation_sigma_m,
+                        session: t.session,
+                    }
                 })
             }
         }
@@ -108,7 +110,12 @@ impl From<CalibrationSpelling> for CalibrationChoice {
 
 impl Default for CalibrationChoice {
     fn default() -> Self {
-        CalibrationChoice { mode: "true".into(), rotation_sigma_deg: 0.0, translation_sigma_m: 0.0, session: Default::default() }
+        CalibrationChoice {
+            mode: "true".into(),
+            rotation_sigma_deg: 0.0,
+            translation_sigma_m: 0.0,
+            session: Default::default(),
+        }
     }
 }
 
@@ -180,9 +187,14 @@ pub const DEFAULT_SCENARIO: &str = "paper_park";
 impl Scenario {
     /// Parses and checks scenario text; `file` names it in errors.
     pub fn parse(text: &str, file: &Path) -> Result<Scenario, ScenarioError> {
-        let s: Scenario = toml::from_str(text).map_err(|e| ScenarioError::Parse { file: file.to_path_buf(), message: e.to_string().trim_end().to_string() })?;
+        let s: Scenario = toml::from_str(text).map_err(|e| ScenarioError::Parse {
+            file: file.to_path_buf(),
+            message: e.to_string().trim_end().to_string(),
+        })?;
         s.check(file).map_err(|e| match e {
-            ScenarioError::Invalid { file, line: None, field, message } => ScenarioError::Invalid { line: line_of(text, &field), file, field, message },
+            ScenarioError::Invalid { file, line: None, field, message } => {
+                ScenarioError::Invalid { line: line_of(text, &field), file, field, message }
+            }
             other => other,
         })?;
         Ok(s)
@@ -192,26 +204,39 @@ impl Scenario {
     pub fn load(name_or_path: &str) -> Result<(Scenario, PathBuf), ScenarioError> {
         let path = Path::new(name_or_path);
         if path.exists() {
-            let text = std::fs::read_to_string(path).map_err(|source| ScenarioError::Read { file: path.to_path_buf(), source })?;
+            let text = std::fs::read_to_string(path)
+                .map_err(|source| ScenarioError::Read { file: path.to_path_buf(), source })?;
             let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
             return Ok((Scenario::parse(&text, path)?, base));
         }
         let key = name_or_path.trim_end_matches(".toml");
         match LIBRARY.iter().find(|(n, _)| *n == key) {
-            Some((n, text)) => Ok((Scenario::parse(text, Path::new(&format!("<built-in>/{n}.toml")))?, PathBuf::from("."))),
-            None => Err(ScenarioError::Unknown { name: name_or_path.into(), available: LIBRARY.iter().map(|(n, _)| n.to_string()).collect() }),
+            Some((n, text)) => {
+                Ok((Scenario::parse(text, Path::new(&format!("<built-in>/{n}.toml")))?, PathBuf::from(".")))
+            }
+            None => Err(ScenarioError::Unknown {
+                name: name_or_path.into(),
+                available: LIBRARY.iter().map(|(n, _)| n.to_string()).collect(),
+            }),
         }
     }
 
     fn check(&self, file: &Path) -> Result<(), ScenarioError> {
-        let bad = |field: &str, message: String| Err(ScenarioError::Invalid { file: file.to_path_buf(), line: None, field: field.into(), message });
+        let bad = |field: &str, message: String| {
+            Err(ScenarioError::Invalid { file: file.to_path_buf(), line: None, field: field.into(), message })
+        };
         match (&self.world.preset, &self.world.file) {
             (Some(_), Some(_)) => return bad("world", "give either `preset` or `file`, not both".into()),
             (None, None) => return bad("world", "needs `preset` (e.g. \"park\") or `file`".into()),
             (Some(p), None) if !worlds::generate::PRESETS.contains(&p.as_str()) => {
-                return bad("world.preset", format!("unknown preset {p:?}; available: {}", worlds::generate::PRESETS.join(", ")));
+                return bad(
+                    "world.preset",
+                    format!("unknown preset {p:?}; available: {}", worlds::generate::PRESETS.join(", ")),
+                );
             }
-            (None, Some(_)) if self.world.params.is_some() => return bad("world.params", "generator parameters only apply to a preset".into()),
+            (None, Some(_)) if self.world.params.is_some() => {
+                return bad("world.params", "generator parameters only apply to a preset".into());
+            }
             _ => {}
         }
         if let Some(p) = &self.world.params
@@ -226,22 +251,38 @@ impl Scenario {
         match c.mode.as_str() {
             "true" | "estimated" => {}
             "perturbed" => {
-                for (field, v) in [("calibration.rotation_sigma_deg", c.rotation_sigma_deg), ("calibration.translation_sigma_m", c.translation_sigma_m)] {
+                for (field, v) in [
+                    ("calibration.rotation_sigma_deg", c.rotation_sigma_deg),
+                    ("calibration.translation_sigma_m", c.translation_sigma_m),
+                ] {
                     if !(v.is_finite() && v >= 0.0) {
                         return bad(field, format!("perturbation sigmas must be zero or positive, got {v}"));
                     }
                 }
             }
-            "" => return bad("calibration.mode", "must be \"true\", \"perturbed\", \"estimated\" or a calibration.json path".into()),
+            "" => {
+                return bad(
+                    "calibration.mode",
+                    "must be \"true\", \"perturbed\", \"estimated\" or a calibration.json path".into(),
+                );
+            }
             // A calibration file: read when the scenario runs (relative to the scenario).
             _ => {}
         }
         if c.mode != "perturbed" && (c.rotation_sigma_deg != 0.0 || c.translation_sigma_m != 0.0) {
-            return bad("calibration", format!("rotation_sigma_deg and translation_sigma_m only apply to mode \"perturbed\", not {:?}", c.mode));
+            return bad(
+                "calibration",
+                format!(
+                    "rotation_sigma_deg and translation_sigma_m only apply to mode \"perturbed\", not {:?}",
+                    c.mode
+                ),
+            );
         }
         if let Err(e) = c.session.check(file, &self.sim) {
             let message = match e {
-                crate::calibrate::CalibrateError::Session { field, message, .. } => return bad(&format!("calibration.session.{field}"), message),
+                crate::calibrate::CalibrateError::Session { field, message, .. } => {
+                    return bad(&format!("calibration.session.{field}"), message);
+                }
                 other => other.to_string(),
             };
             return bad("calibration.session", message);
@@ -313,13 +354,22 @@ mod tests {
         assert!(e.contains("bad.toml") && e.contains("world.preset") && e.contains("jungle"), "{e}");
         let e = Scenario::parse("name = \"x\"\n[world]\n", f).unwrap_err().to_string();
         assert!(e.contains("needs `preset`"), "{e}");
-        let e = Scenario::parse("name = \"x\"\n[world]\npreset = \"park\"\n[sim.laser]\nrate_hz = -1.0\n", f).unwrap_err().to_string();
+        let e = Scenario::parse("name = \"x\"\n[world]\npreset = \"park\"\n[sim.laser]\nrate_hz = -1.0\n", f)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("laser.rate_hz"), "{e}");
-        let e = Scenario::parse("name = \"x\"\n[world]\npreset = \"park\"\n[pass]\nmin_tree_recall = 2.0\n", f).unwrap_err().to_string();
+        let e = Scenario::parse("name = \"x\"\n[world]\npreset = \"park\"\n[pass]\nmin_tree_recall = 2.0\n", f)
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("min_tree_recall"), "{e}");
         let e = Scenario::parse("name = \"x\"\nwrld = 3\n", f).unwrap_err().to_string();
         assert!(e.contains("wrld") && e.contains("line"), "{e}");
-        let e = Scenario::parse("name = \"x\"\n[world]\npreset = \"park\"\n\n[pipeline.evidence]\n# a comment\nradius_m = -1.0\n", f).unwrap_err().to_string();
+        let e = Scenario::parse(
+            "name = \"x\"\n[world]\npreset = \"park\"\n\n[pipeline.evidence]\n# a comment\nradius_m = -1.0\n",
+            f,
+        )
+        .unwrap_err()
+        .to_string();
         assert!(e.contains("bad.toml: line 7: pipeline.evidence.radius_m"), "{e}");
         let e = Scenario::load("no_such_scenario").unwrap_err().to_string();
         assert!(e.contains("paper_park"), "{e}");

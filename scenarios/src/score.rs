@@ -80,8 +80,7 @@ pub fn hungarian(cost: &[Vec<f64>]) -> Vec<Option<usize>> {
         }
     }
     let mut result = vec![None; rows];
-    for j in 1..=n {
-        let i = p[j];
+    for (j, &i) in p.iter().enumerate().skip(1) {
         if i >= 1 && i <= rows && j <= cols {
             result[i - 1] = Some(j - 1);
         }
@@ -126,8 +125,16 @@ impl MapContent {
     /// The recall's terms, e.g. "8 of 10 trees in view mapped; 12 seen by the laser".
     pub fn recall_in_words(&self) -> String {
         match self.trees_in_view {
-            Some(n) => format!("{} of {n} trees in view mapped; {} seen by the laser", n - self.missed_trees.len(), self.trees_laser_seen),
-            None => format!("{} of {} trees seen by the laser mapped", self.trees_laser_seen - self.missed_trees.len(), self.trees_laser_seen),
+            Some(n) => format!(
+                "{} of {n} trees in view mapped; {} seen by the laser",
+                n - self.missed_trees.len(),
+                self.trees_laser_seen
+            ),
+            None => format!(
+                "{} of {} trees seen by the laser mapped",
+                self.trees_laser_seen - self.missed_trees.len(),
+                self.trees_laser_seen
+            ),
         }
     }
 }
@@ -135,7 +142,10 @@ impl MapContent {
 /// Share of the trees there were to map that were mapped (a mapped tree outside that set
 /// adds nothing: recall never exceeds 1); undefined (`None`) without a denominator or with
 /// none to map, so that a criterion cannot pass on a run that had nothing to find.
-pub fn tree_recall(mapped: &std::collections::BTreeSet<u16>, to_map: Option<&std::collections::BTreeSet<u16>>) -> Option<f64> {
+pub fn tree_recall(
+    mapped: &std::collections::BTreeSet<u16>,
+    to_map: Option<&std::collections::BTreeSet<u16>>,
+) -> Option<f64> {
     to_map.filter(|t| !t.is_empty()).map(|t| t.intersection(mapped).count() as f64 / t.len() as f64)
 }
 
@@ -234,7 +244,10 @@ impl AssociationLedger {
     /// Associations, and those whose observation's object is not the landmark's.
     pub fn counts(&self) -> AssociationCounts {
         let objects = self.landmark_objects();
-        AssociationCounts { total: self.associations.len(), wrong: self.associations.iter().filter(|(id, o)| objects.get(id) != Some(o)).count() }
+        AssociationCounts {
+            total: self.associations.len(),
+            wrong: self.associations.iter().filter(|(id, o)| objects.get(id) != Some(o)).count(),
+        }
     }
 }
 
@@ -258,10 +271,7 @@ pub fn nees3(e: [f64; 3], p: [[f64; 3]; 3]) -> Option<f64> {
     let mut l = [[0.0f64; 3]; 3];
     for i in 0..3 {
         for j in 0..=i {
-            let mut s = p[i][j];
-            for k in 0..j {
-                s -= l[i][k] * l[j][k];
-            }
+            let s = p[i][j] - (0..j).map(|k| l[i][k] * l[j][k]).sum::<f64>();
             if i == j {
                 if s <= 0.0 {
                     return None;

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use nalgebra::DMatrix;
 use slam::classifier::{self, AppearanceModel, LabelledImage, ModelError, PatchClassifier, TrainingOptions};
-use slam::features::{feature_names, ImageRef};
+use slam::features::{ImageRef, feature_names};
 use slam::gmm::{self, VbGmm, VbOptions};
 
 use crate::dataset::{Manifest, PatchLabels};
@@ -44,8 +44,17 @@ pub fn load_image(dir: &Path, manifest: &Manifest, i: usize) -> Result<LabelledI
     let text = std::fs::read_to_string(&labels_path).map_err(|e| file_err(&labels_path, e))?;
     let labels: PatchLabels = serde_json::from_str(&text).map_err(|e| file_err(&labels_path, e))?;
     let (w, h) = rgb.dimensions();
-    if labels.cols != w / labels.patch_size || labels.rows != h / labels.patch_size || labels.fractions.len() != (labels.cols * labels.rows) as usize {
-        return Err(file_err(&labels_path, format!("a {}x{} grid of {} px patches does not fit the {w}x{h} image", labels.cols, labels.rows, labels.patch_size)));
+    if labels.cols != w / labels.patch_size
+        || labels.rows != h / labels.patch_size
+        || labels.fractions.len() != (labels.cols * labels.rows) as usize
+    {
+        return Err(file_err(
+            &labels_path,
+            format!(
+                "a {}x{} grid of {} px patches does not fit the {w}x{h} image",
+                labels.cols, labels.rows, labels.patch_size
+            ),
+        ));
     }
     Ok(LabelledImage { width: w, height: h, rgb: rgb.into_raw(), fractions: labels.fractions })
 }
@@ -58,12 +67,21 @@ fn model_error(e: TrainError) -> ModelError {
 }
 
 /// Trains on a dataset, holding out every `heldout_every`-th image (0: none) for scoring.
-pub fn train_from_dataset(dir: &Path, options: &TrainingOptions, heldout_every: usize, progress: impl Fn(&str, usize, usize)) -> Result<AppearanceModel, TrainError> {
+pub fn train_from_dataset(
+    dir: &Path,
+    options: &TrainingOptions,
+    heldout_every: usize,
+    progress: impl Fn(&str, usize, usize),
+) -> Result<AppearanceModel, TrainError> {
     let manifest = read_manifest(dir)?;
     if manifest.patch_size != options.features.patch_size {
-        return Err(file_err(&dir.join("dataset.json"), format!("patch_size is {}, the model uses {}", manifest.patch_size, options.features.patch_size)));
+        return Err(file_err(
+            &dir.join("dataset.json"),
+            format!("patch_size is {}, the model uses {}", manifest.patch_size, options.features.patch_size),
+        ));
     }
-    let (train_ids, test_ids): (Vec<usize>, Vec<usize>) = (0..manifest.images.len()).partition(|i| heldout_every == 0 || i % heldout_every != heldout_every - 1);
+    let (train_ids, test_ids): (Vec<usize>, Vec<usize>) =
+        (0..manifest.images.len()).partition(|i| heldout_every == 0 || i % heldout_every != heldout_every - 1);
     let load = |ids: &Vec<usize>, k: usize| load_image(dir, &manifest, ids[k]).map_err(model_error);
     let mut model = classifier::train(train_ids.len(), |k| load(&train_ids, k), options, &progress)?;
     model.training.renderer = Some(manifest.renderer.clone());
@@ -77,7 +95,11 @@ pub fn train_from_dataset(dir: &Path, options: &TrainingOptions, heldout_every: 
 
 /// Per ground-truth class (the majority class of each patch's pixels), how many patches
 /// there were and how many the model called object. Shows which distractors it confuses.
-pub fn confusion_by_class(dir: &Path, model: &AppearanceModel, heldout_every: usize) -> Result<std::collections::BTreeMap<String, (usize, usize)>, TrainError> {
+pub fn confusion_by_class(
+    dir: &Path,
+    model: &AppearanceModel,
+    heldout_every: usize,
+) -> Result<std::collections::BTreeMap<String, (usize, usize)>, TrainError> {
     let manifest = read_manifest(dir)?;
     let classifier = PatchClassifier::new(model).map_err(ModelError::from)?;
     let l = model.extractor.config.patch_size;
@@ -97,7 +119,10 @@ pub fn confusion_by_class(dir: &Path, model: &AppearanceModel, heldout_every: us
                 }
             }
             let id = (0..256).max_by_key(|&i| counts[i]).unwrap_or(0) as u8;
-            let name = worlds::ObjectClass::from_id(id).map_or_else(|| if id == 0 { "sky".to_string() } else { format!("class {id}") }, |c| c.name().to_string());
+            let name = worlds::ObjectClass::from_id(id).map_or_else(
+                || if id == 0 { "sky".to_string() } else { format!("class {id}") },
+                |c| c.name().to_string(),
+            );
             let e = out.entry(name).or_default();
             e.0 += 1;
             e.1 += predicted as usize;
@@ -107,7 +132,12 @@ pub fn confusion_by_class(dir: &Path, model: &AppearanceModel, heldout_every: us
 }
 
 /// Writes every patch's feature row with its label fraction and label to a CSV file.
-pub fn export_features(dir: &Path, model: &AppearanceModel, label_fraction: f64, out: &Path) -> Result<usize, TrainError> {
+pub fn export_features(
+    dir: &Path,
+    model: &AppearanceModel,
+    label_fraction: f64,
+    out: &Path,
+) -> Result<usize, TrainError> {
     let manifest = read_manifest(dir)?;
     let file = std::fs::File::create(out).map_err(|e| file_err(out, e))?;
     let mut w = std::io::BufWriter::new(file);
@@ -125,7 +155,8 @@ pub fn export_features(dir: &Path, model: &AppearanceModel, label_fraction: f64,
             let (c, r) = f.rect.patch(k);
             let frac = img.fractions[(r * cols + c) as usize];
             let values: Vec<String> = f.z.row(k).iter().map(|v| format!("{v}")).collect();
-            writeln!(w, "{i},{c},{r},{},{frac},{}", values.join(","), (frac as f64 >= label_fraction) as u8).map_err(io)?;
+            writeln!(w, "{i},{c},{r},{},{frac},{}", values.join(","), (frac as f64 >= label_fraction) as u8)
+                .map_err(io)?;
             rows += 1;
         }
     }
@@ -154,7 +185,11 @@ pub fn segment_image(model: &AppearanceModel, image_path: &Path, out: &Path) -> 
             for x in c * l..(c + 1) * l {
                 let p = rgb.get_pixel_mut(x, y);
                 let edge = x == c * l || y == r * l || x + 1 == (c + 1) * l || y + 1 == (r + 1) * l;
-                *p = if edge { image::Rgb([255, 40, 40]) } else { image::Rgb([((p[0] as u16 + 255) / 2) as u8, p[1] / 2, p[2] / 2]) };
+                *p = if edge {
+                    image::Rgb([255, 40, 40])
+                } else {
+                    image::Rgb([((p[0] as u16 + 255) / 2) as u8, p[1] / 2, p[2] / 2])
+                };
             }
         }
     }
@@ -180,15 +215,29 @@ pub fn read_csv(path: &Path) -> Result<DMatrix<f64>, TrainError> {
             Err(_) if cols.is_none() && rows == 0 && fields.iter().all(|f| f.parse::<f64>().is_err()) => continue, // header
             Err(_) => {
                 let bad = fields.iter().position(|f| f.parse::<f64>().is_err()).unwrap_or(0);
-                return Err(TrainError::Csv { file: path.into(), line: i + 1, message: format!("field {} ({:?}) is not a number", bad + 1, fields[bad]) });
+                return Err(TrainError::Csv {
+                    file: path.into(),
+                    line: i + 1,
+                    message: format!("field {} ({:?}) is not a number", bad + 1, fields[bad]),
+                });
             }
         };
         if let Some(bad) = row.iter().position(|v| !v.is_finite()) {
-            return Err(TrainError::Csv { file: path.into(), line: i + 1, message: format!("field {} is not finite", bad + 1) });
+            return Err(TrainError::Csv {
+                file: path.into(),
+                line: i + 1,
+                message: format!("field {} is not finite", bad + 1),
+            });
         }
         match cols {
             None => cols = Some(row.len()),
-            Some(c) if c != row.len() => return Err(TrainError::Csv { file: path.into(), line: i + 1, message: format!("{} fields, earlier rows have {c}", row.len()) }),
+            Some(c) if c != row.len() => {
+                return Err(TrainError::Csv {
+                    file: path.into(),
+                    line: i + 1,
+                    message: format!("{} fields, earlier rows have {c}", row.len()),
+                });
+            }
             _ => {}
         }
         values.extend(row);

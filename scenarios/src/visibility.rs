@@ -48,17 +48,43 @@ pub struct InstanceImage<'a> {
 impl TreeVisibility {
     /// `camera` carries the simulator's true laser <- camera extrinsics, never the run's
     /// calibration: what the camera shows is a fact of the world, not of the method.
-    pub fn new(tree_ids: BTreeSet<u16>, camera: Option<CameraGeometry>, min_beams: usize, max_range_m: f64, frames_needed: usize) -> Self {
-        TreeVisibility { camera, min_beams, max_range_m, frames_needed, tree_ids, laser_seen: BTreeSet::new(), in_view_scans: BTreeMap::new(), unrendered_reads: 0 }
+    pub fn new(
+        tree_ids: BTreeSet<u16>,
+        camera: Option<CameraGeometry>,
+        min_beams: usize,
+        max_range_m: f64,
+        frames_needed: usize,
+    ) -> Self {
+        TreeVisibility {
+            camera,
+            min_beams,
+            max_range_m,
+            frames_needed,
+            tree_ids,
+            laser_seen: BTreeSet::new(),
+            in_view_scans: BTreeMap::new(),
+            unrendered_reads: 0,
+        }
     }
 
     /// The beams of `scan` that truly hit a tree within range, with the tree's id and the
     /// point they hit in the laser frame.
-    fn tree_beams<'a>(&'a self, angle_min: f64, angle_increment: f64, truth: &'a sim::LaserTruth) -> impl Iterator<Item = (u16, Vector3<f64>)> + 'a {
-        truth.hit_ids.iter().zip(&truth.true_ranges).enumerate().filter(|(_, (id, r))| self.tree_ids.contains(id) && **r <= self.max_range_m).map(move |(i, (id, r))| {
-            let a = angle_min + i as f64 * angle_increment;
-            (*id, Vector3::new(r * a.cos(), r * a.sin(), 0.0))
-        })
+    fn tree_beams<'a>(
+        &'a self,
+        angle_min: f64,
+        angle_increment: f64,
+        truth: &'a sim::LaserTruth,
+    ) -> impl Iterator<Item = (u16, Vector3<f64>)> + 'a {
+        truth
+            .hit_ids
+            .iter()
+            .zip(&truth.true_ranges)
+            .enumerate()
+            .filter(|(_, (id, r))| self.tree_ids.contains(id) && **r <= self.max_range_m)
+            .map(move |(i, (id, r))| {
+                let a = angle_min + i as f64 * angle_increment;
+                (*id, Vector3::new(r * a.cos(), r * a.sin(), 0.0))
+            })
     }
 
     /// The pixel a laser point projects to, if inside the image.
@@ -72,14 +98,20 @@ impl TreeVisibility {
     /// count does not depend on which columns a method asked for.
     pub fn columns(&self, scan: &sim::LaserScan, truth: &sim::LaserTruth) -> Vec<(u32, u32)> {
         let Some(camera) = &self.camera else { return vec![] };
-        merge_spans(self.tree_beams(scan.angle_min, scan.angle_increment, truth).filter_map(|(_, p)| Self::pixel(camera, &p)).map(|(u, _)| (u, u + 1)).collect())
+        merge_spans(
+            self.tree_beams(scan.angle_min, scan.angle_increment, truth)
+                .filter_map(|(_, p)| Self::pixel(camera, &p))
+                .map(|(u, _)| (u, u + 1))
+                .collect(),
+        )
     }
 
     /// Counts one scan; `frame` is the camera frame of the same instant, if there is one.
     pub fn on_scan(&mut self, scan: &sim::LaserScan, truth: &sim::LaserTruth, frame: Option<&InstanceImage>) {
         let mut beams: BTreeMap<u16, usize> = BTreeMap::new();
         let mut shown: BTreeMap<u16, usize> = BTreeMap::new();
-        let tree_beams: Vec<(u16, Vector3<f64>)> = self.tree_beams(scan.angle_min, scan.angle_increment, truth).collect();
+        let tree_beams: Vec<(u16, Vector3<f64>)> =
+            self.tree_beams(scan.angle_min, scan.angle_increment, truth).collect();
         for (id, p) in tree_beams {
             *beams.entry(id).or_default() += 1;
             let (Some(camera), Some(frame)) = (&self.camera, frame) else { continue };
@@ -138,8 +170,20 @@ mod tests {
     /// Five beams straight ahead (-2..2 degrees), the middle three hitting tree 7 at 3 m.
     fn scan_and_truth() -> (sim::LaserScan, sim::LaserTruth) {
         let inc = 1f64.to_radians();
-        let scan = sim::LaserScan { t: 1.0, angle_min: -2.0 * inc, angle_increment: inc, time_increment: 0.0, scan_time: 0.1, range_min: 0.1, range_max: 80.0, ranges: vec![f64::INFINITY; 5] };
-        let truth = sim::LaserTruth { hit_ids: vec![0, 7, 7, 7, 0], true_ranges: vec![f64::INFINITY, 3.0, 3.0, 3.0, f64::INFINITY] };
+        let scan = sim::LaserScan {
+            t: 1.0,
+            angle_min: -2.0 * inc,
+            angle_increment: inc,
+            time_increment: 0.0,
+            scan_time: 0.1,
+            range_min: 0.1,
+            range_max: 80.0,
+            ranges: vec![f64::INFINITY; 5],
+        };
+        let truth = sim::LaserTruth {
+            hit_ids: vec![0, 7, 7, 7, 0],
+            true_ranges: vec![f64::INFINITY, 3.0, 3.0, 3.0, f64::INFINITY],
+        };
         (scan, truth)
     }
 
@@ -200,7 +244,11 @@ mod tests {
                 }
             }
         }
-        part.on_scan(&scan, &truth, Some(&InstanceImage { t: 1.0, width: 100, height: 100, instance: &masked, columns: Some(&cols) }));
+        part.on_scan(
+            &scan,
+            &truth,
+            Some(&InstanceImage { t: 1.0, width: 100, height: 100, instance: &masked, columns: Some(&cols) }),
+        );
         assert_eq!(whole.trees_in_view(), part.trees_in_view());
         assert_eq!(whole.trees_in_view(), Some([7].into()));
     }

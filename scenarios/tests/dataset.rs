@@ -14,8 +14,11 @@ fn manifest_coco_and_patch_labels_agree_with_the_masks() {
     let manifest: Manifest = serde_json::from_str(&std::fs::read_to_string(dir.join("dataset.json")).unwrap()).unwrap();
     assert_eq!(manifest, made);
     assert_eq!(manifest.images.len(), 8);
-    assert!(manifest.images.iter().any(|e| e.kind == "object") && manifest.images.iter().any(|e| e.kind == "background"));
-    let coco: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("annotations.json")).unwrap()).unwrap();
+    assert!(
+        manifest.images.iter().any(|e| e.kind == "object") && manifest.images.iter().any(|e| e.kind == "background")
+    );
+    let coco: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("annotations.json")).unwrap()).unwrap();
     assert_eq!(coco["images"].as_array().unwrap().len(), 8);
     let mut trees_seen = 0;
     for entry in &manifest.images {
@@ -24,20 +27,24 @@ fn manifest_coco_and_patch_labels_agree_with_the_masks() {
         let (w, h) = (inst.width(), inst.height());
         assert_eq!((w, h), (180, 135));
         // Patch labels equal the fraction of tree pixels recomputed from the class mask.
-        let stored: PatchLabels = serde_json::from_str(&std::fs::read_to_string(dir.join(&entry.patches)).unwrap()).unwrap();
+        let stored: PatchLabels =
+            serde_json::from_str(&std::fs::read_to_string(dir.join(&entry.patches)).unwrap()).unwrap();
         let again = patch_labels(class.as_raw(), w, h, 9, &[worlds::ObjectClass::Tree.id()]);
         assert_eq!(stored, again);
         assert_eq!((stored.rows, stored.cols), (15, 20));
         // Every object instance in the mask has exactly one annotation whose RLE decodes
         // to that instance's pixels, with a matching box, area and category.
-        let anns: Vec<&serde_json::Value> = coco["annotations"].as_array().unwrap().iter().filter(|a| a["image_id"] == entry.id).collect();
-        let mut ids: Vec<u16> = inst.pixels().map(|p| p.0[0]).filter(|&id| id != 0 && id != worlds::validate::GROUND_INSTANCE_ID).collect();
+        let anns: Vec<&serde_json::Value> =
+            coco["annotations"].as_array().unwrap().iter().filter(|a| a["image_id"] == entry.id).collect();
+        let mut ids: Vec<u16> =
+            inst.pixels().map(|p| p.0[0]).filter(|&id| id != 0 && id != worlds::validate::GROUND_INSTANCE_ID).collect();
         ids.sort_unstable();
         ids.dedup();
         assert_eq!(anns.len(), ids.len());
         for a in anns {
             let id = a["instance_id"].as_u64().unwrap() as u16;
-            let counts: Vec<u32> = a["segmentation"]["counts"].as_array().unwrap().iter().map(|c| c.as_u64().unwrap() as u32).collect();
+            let counts: Vec<u32> =
+                a["segmentation"]["counts"].as_array().unwrap().iter().map(|c| c.as_u64().unwrap() as u32).collect();
             assert_eq!(a["segmentation"]["size"], serde_json::json!([h, w]));
             let mask = rle_decode(&counts, w, h);
             let truth: Vec<bool> = inst.pixels().map(|p| p.0[0] == id).collect();
@@ -59,7 +66,8 @@ fn manifest_coco_and_patch_labels_agree_with_the_masks() {
         }
         // The camera pose is a proper rotation.
         let r = entry.world_from_camera.r;
-        let det = r[0][0] * (r[1][1] * r[2][2] - r[1][2] * r[2][1]) - r[0][1] * (r[1][0] * r[2][2] - r[1][2] * r[2][0]) + r[0][2] * (r[1][0] * r[2][1] - r[1][1] * r[2][0]);
+        let det = r[0][0] * (r[1][1] * r[2][2] - r[1][2] * r[2][1]) - r[0][1] * (r[1][0] * r[2][2] - r[1][2] * r[2][0])
+            + r[0][2] * (r[1][0] * r[2][1] - r[1][1] * r[2][0]);
         assert!((det - 1.0).abs() < 1e-9);
     }
     assert!(trees_seen >= 4, "object views should show trees");

@@ -32,7 +32,13 @@ fn temp_root(name: &str) -> PathBuf {
 
 fn plan(scenario: String) -> StudyPlan {
     // `combined` needs the camera the scenario lacks: its runs error, in the workers too.
-    StudyPlan { scenario, base_seed: 9, runs: 3, methods: vec!["nn".into(), "jcbb".into(), "combined".into()], vary: vec![] }
+    StudyPlan {
+        scenario,
+        base_seed: 9,
+        runs: 3,
+        methods: vec!["nn".into(), "jcbb".into(), "combined".into()],
+        vary: vec![],
+    }
 }
 
 #[test]
@@ -74,7 +80,8 @@ fn a_worker_that_dies_costs_only_its_run() {
     let workers = Workers::Processes { exe: script, count: 1 };
     let records = mc::run_study_with(&plan, Shard::all(), &root.join("study"), &workers, |_, _| {}).unwrap();
     assert_eq!(records.len(), 9);
-    let died: Vec<&RunRecord> = records.iter().filter(|r| r.error.as_deref().is_some_and(|e| e.contains("worker process failed"))).collect();
+    let died: Vec<&RunRecord> =
+        records.iter().filter(|r| r.error.as_deref().is_some_and(|e| e.contains("worker process failed"))).collect();
     assert_eq!(died.len(), 1, "{records:#?}");
     let error = died[0].error.as_deref().unwrap();
     assert!(error.contains("exit status: 3") && error.contains("simulated crash"), "{error}");
@@ -100,14 +107,40 @@ fn a_study_varying_the_appearance_training_uses_each_settings_model() {
     sc.appearance.pca_dims = 4;
     let path = root.join("paper_park_tiny_models.toml");
     std::fs::write(&path, toml::to_string(&sc).unwrap()).unwrap();
-    let plan = StudyPlan { scenario: path.to_string_lossy().into_owned(), base_seed: 1, runs: 1, methods: vec!["combined".into()], vary: vec![mc::Vary::parse("appearance.training_seed=3..4:2").unwrap()] };
+    let plan = StudyPlan {
+        scenario: path.to_string_lossy().into_owned(),
+        base_seed: 1,
+        runs: 1,
+        methods: vec!["combined".into()],
+        vary: vec![mc::Vary::parse("appearance.training_seed=3..4:2").unwrap()],
+    };
     let seeds = |runs: &[RunRecord]| -> Vec<(f64, u64)> {
-        runs.iter().map(|r| (r.job.params[0].1, r.metrics.as_ref().unwrap_or_else(|| panic!("{:?}", r.error)).appearance_model.as_ref().expect("a camera method's model").training_seed)).collect()
+        runs.iter()
+            .map(|r| {
+                (
+                    r.job.params[0].1,
+                    r.metrics
+                        .as_ref()
+                        .unwrap_or_else(|| panic!("{:?}", r.error))
+                        .appearance_model
+                        .as_ref()
+                        .expect("a camera method's model")
+                        .training_seed,
+                )
+            })
+            .collect()
     };
     let threads = mc::run_study(&plan, Shard::all(), &root.join("threads"), |_, _| {}).unwrap();
     assert_eq!(seeds(&threads), vec![(3.0, 3), (4.0, 4)]);
     let exe = PathBuf::from(env!("CARGO_BIN_EXE_objslam"));
-    let processes = mc::run_study_with(&plan, Shard::all(), &root.join("processes"), &Workers::Processes { exe, count: 2 }, |_, _| {}).unwrap();
+    let processes = mc::run_study_with(
+        &plan,
+        Shard::all(),
+        &root.join("processes"),
+        &Workers::Processes { exe, count: 2 },
+        |_, _| {},
+    )
+    .unwrap();
     assert_eq!(seeds(&processes), vec![(3.0, 3), (4.0, 4)]);
     let _ = std::fs::remove_dir_all(&root);
 }

@@ -8,7 +8,8 @@ fn record_writes_a_readable_consistent_log() {
     let _ = std::fs::remove_dir_all(&dir);
     let world = worlds::generate::park(&Default::default(), 2).unwrap();
     let config = sim::SimConfig { max_duration_s: Some(10.0), ..Default::default() };
-    let summary = scenarios::record::record(&world, &config, 4, &dir, scenarios::record::RecordFormat::Jsonl, |_, _| {}).unwrap();
+    let summary =
+        scenarios::record::record(&world, &config, 4, &dir, scenarios::record::RecordFormat::Jsonl, |_, _| {}).unwrap();
     assert!((summary.sim_seconds - 10.0).abs() < 0.02);
 
     let laser = std::fs::read_to_string(dir.join("laser.jsonl")).unwrap();
@@ -21,17 +22,23 @@ fn record_writes_a_readable_consistent_log() {
     let odo = std::fs::read_to_string(dir.join("odometry.jsonl")).unwrap();
     assert_eq!(odo.lines().count(), 201);
     let tum = std::fs::read_to_string(dir.join("ground_truth.tum")).unwrap();
-    let rows: Vec<Vec<f64>> = tum.lines().filter(|l| !l.starts_with('#')).map(|l| l.split(' ').map(|v| v.parse().unwrap()).collect()).collect();
+    let rows: Vec<Vec<f64>> = tum
+        .lines()
+        .filter(|l| !l.starts_with('#'))
+        .map(|l| l.split(' ').map(|v| v.parse().unwrap()).collect())
+        .collect();
     assert_eq!(rows.len(), 201);
     assert!(rows.iter().all(|r| r.len() == 8));
     // Unit quaternions.
     assert!(rows.iter().all(|r| ((r[4] * r[4] + r[5] * r[5] + r[6] * r[6] + r[7] * r[7]) - 1.0).abs() < 1e-6));
 
-    let sensors: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("sensors.json")).unwrap()).unwrap();
+    let sensors: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("sensors.json")).unwrap()).unwrap();
     assert_eq!(sensors["laser"]["beams"], 361);
     let copy = worlds::load(&dir.join("world.toml")).unwrap();
     assert_eq!(copy, world);
-    let meta: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("metadata.json")).unwrap()).unwrap();
+    let meta: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("metadata.json")).unwrap()).unwrap();
     assert_eq!(meta["seed"], 4);
 
     // Camera frames: 5 Hz, each with aligned instance, class and depth images.
@@ -134,7 +141,10 @@ fn a_ros2_bag_holds_what_the_json_lines_hold_in_standard_messages() {
     let summary = record(&world, &config, 4, &bag, RecordFormat::Ros2, |_, _| {}).unwrap();
 
     let metadata = std::fs::read_to_string(bag.join("metadata.yaml")).unwrap();
-    assert!(metadata.contains("storage_identifier: mcap") && metadata.contains("sensor_msgs/msg/LaserScan"), "{metadata}");
+    assert!(
+        metadata.contains("storage_identifier: mcap") && metadata.contains("sensor_msgs/msg/LaserScan"),
+        "{metadata}"
+    );
     let bytes = std::fs::read(bag.join("bag_0.mcap")).unwrap();
     let summary_section = mcap::read::Summary::read(&bytes).unwrap().expect("an MCAP summary");
     let mut topics: BTreeMap<String, (String, String)> = BTreeMap::new();
@@ -156,8 +166,16 @@ fn a_ros2_bag_holds_what_the_json_lines_hold_in_standard_messages() {
         assert_eq!(topics.get(topic).map(|t| t.0.as_str()), Some(ty), "{topic}: {topics:?}");
     }
 
-    let scans: Vec<sim::LaserScan> = std::fs::read_to_string(root.join("jsonl/laser.jsonl")).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect();
-    let odometry: Vec<sim::Odometry> = std::fs::read_to_string(root.join("jsonl/odometry.jsonl")).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    let scans: Vec<sim::LaserScan> = std::fs::read_to_string(root.join("jsonl/laser.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let odometry: Vec<sim::Odometry> = std::fs::read_to_string(root.join("jsonl/odometry.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
     let (mut bag_scans, mut bag_odom, mut frames, mut static_frames) = (Vec::new(), Vec::new(), 0, Vec::new());
     for m in mcap::MessageStream::new(&bytes).unwrap() {
         let m = m.unwrap();
@@ -203,7 +221,10 @@ fn a_ros2_bag_holds_what_the_json_lines_hold_in_standard_messages() {
             assert!(if a.is_finite() { *b == *a as f32 } else { *b == f32::INFINITY }, "{a} against {b}");
         }
     }
-    assert!(bag_scans.iter().any(|s| s.2.iter().any(|r| r.is_infinite())) && bag_scans.iter().any(|s| s.2.iter().any(|r| r.is_finite())));
+    assert!(
+        bag_scans.iter().any(|s| s.2.iter().any(|r| r.is_infinite()))
+            && bag_scans.iter().any(|s| s.2.iter().any(|r| r.is_finite()))
+    );
     // The odometry integrates the noisy increments from the origin of `odom`.
     assert_eq!(bag_odom.len(), odometry.len());
     let (mut x, mut y, mut th) = (0.0f64, 0.0f64, 0.0f64);
@@ -214,7 +235,10 @@ fn a_ros2_bag_holds_what_the_json_lines_hold_in_standard_messages() {
         assert!((o.t - t).abs() < 1e-9 && (p[0] - x).abs() < 1e-9 && (p[1] - y).abs() < 1e-9, "{p:?} against {x}, {y}");
     }
     assert_eq!(frames, summary.camera_frames);
-    assert_eq!(static_frames, vec![("base_link".to_string(), "laser".to_string()), ("base_link".to_string(), "camera_optical".to_string())]);
+    assert_eq!(
+        static_frames,
+        vec![("base_link".to_string(), "laser".to_string()), ("base_link".to_string(), "camera_optical".to_string())]
+    );
     // Refuses to write over an earlier bag.
     assert!(record(&world, &config, 4, &bag, RecordFormat::Ros2, |_, _| {}).is_err());
     let _ = std::fs::remove_dir_all(&root);

@@ -15,9 +15,13 @@ fn main() {
     eprintln!("rendered in {:.1} ms", start.elapsed().as_secs_f64() * 1e3);
     let img = &frame.image;
     image::RgbImage::from_raw(img.width, img.height, img.rgb.clone()).unwrap().save(format!("{prefix}.png")).unwrap();
-    let mask: Vec<u8> = img.instance.iter().flat_map(|&id| {
-        let h = (id as u32).wrapping_mul(2654435761);
-        if id == 0 { [0, 0, 0] } else { [(h >> 16) as u8, (h >> 8) as u8, h as u8] }
-    }).collect();
+    let mask: Vec<u8> = img
+        .instance
+        .iter()
+        .flat_map(|&id| {
+            let h = (id as u32).wrapping_mul(2654435761);
+            if id == 0 { [0, 0, 0] } else { [(h >> 16) as u8, (h >> 8) as u8, h as u8] }
+        })
+        .collect();
     image::RgbImage::from_raw(img.width, img.height, mask).unwrap().save(format!("{prefix}_instance.png")).unwrap();
 }

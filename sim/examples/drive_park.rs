@@ -19,6 +19,12 @@ fn main() {
     let gt = sim.ground_truth();
     println!(
         "sim {:.1} s in {:.3} s wall ({:.0}x), {scans} scans, {odo} odometry, {frames} camera frames, progress {:.3}, end pose ({:.2}, {:.2}), collisions {:?}",
-        sim.time(), wall, sim.time() / wall, sim.route_progress(), gt.robot.x, gt.robot.y, sim.collisions()
+        sim.time(),
+        wall,
+        sim.time() / wall,
+        sim.route_progress(),
+        gt.robot.x,
+        gt.robot.y,
+        sim.collisions()
     );
 }

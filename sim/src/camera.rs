@@ -56,7 +56,13 @@ pub struct CameraSensor {
 /// counter-clockwise from outside (two-sided parts carry both windings; its tests check
 /// this), so the renderer may skip their back faces.
 fn mesh_data(m: &TriMesh) -> MeshData {
-    MeshData { positions: m.positions.clone(), normals: m.normals.clone(), uvs: m.uvs.clone(), indices: m.indices.clone(), cull_back_faces: true }
+    MeshData {
+        positions: m.positions.clone(),
+        normals: m.normals.clone(),
+        uvs: m.uvs.clone(),
+        indices: m.indices.clone(),
+        cull_back_faces: true,
+    }
 }
 
 fn texture_data(part: &MeshPart) -> TextureData {
@@ -85,7 +91,8 @@ impl CameraSensor {
     /// Uploads the world's meshes and textures. `seed` drives image noise and exposure.
     pub fn new(world: &World, config: &CameraConfig, seed: u64) -> Result<Self, CameraError> {
         config.check().map_err(CameraError::Config)?;
-        let mut renderer = Renderer::new(&RendererConfig { width: config.width, height: config.height, depth: config.depth_image })?;
+        let mut renderer =
+            Renderer::new(&RendererConfig { width: config.width, height: config.height, depth: config.depth_image })?;
         for part in static_world_parts(world) {
             let mesh = renderer.add_mesh(&mesh_data(&part.mesh))?;
             let tex = renderer.add_texture(&texture_data(&part))?;
@@ -99,9 +106,22 @@ impl CameraSensor {
                 let tex = renderer.add_texture(&texture_data(part))?;
                 Ok(renderer.add_instance(mesh, tex, render::IDENTITY, part.instance_id, part.class.id()))
             };
-            people.push(PersonInstances { id: p.id, left: add(&parts.left_leg)?, right: add(&parts.right_leg)?, body: add(&parts.body)?, head: add(&parts.head)? });
+            people.push(PersonInstances {
+                id: p.id,
+                left: add(&parts.left_leg)?,
+                right: add(&parts.right_leg)?,
+                body: add(&parts.body)?,
+                head: add(&parts.head)?,
+            });
         }
-        Ok(CameraSensor { config: config.clone(), renderer, world: world.clone(), people, rng: ChaCha8Rng::seed_from_u64(seed), lighting: Lighting::default() })
+        Ok(CameraSensor {
+            config: config.clone(),
+            renderer,
+            world: world.clone(),
+            people,
+            rng: ChaCha8Rng::seed_from_u64(seed),
+            lighting: Lighting::default(),
+        })
     }
 
     /// The adapter rendering the images.
@@ -133,7 +153,12 @@ impl CameraSensor {
     /// [`CameraSensor::render_from`] rendering only the pixel columns `columns` (see
     /// `render::Renderer::render_columns_into`); noise and exposure draw the same random
     /// numbers either way, so the pixels rendered are those of the whole frame.
-    pub fn render_columns_from(&mut self, t: f64, world_from_camera: Rigid, columns: Option<&[(u32, u32)]>) -> Result<CameraFrame, CameraError> {
+    pub fn render_columns_from(
+        &mut self,
+        t: f64,
+        world_from_camera: Rigid,
+        columns: Option<&[(u32, u32)]>,
+    ) -> Result<CameraFrame, CameraError> {
         let k = self.config.intrinsics();
         let camera = render::Camera {
             fx: k.fx as f32,
@@ -172,7 +197,13 @@ impl CameraSensor {
     }
 
     /// [`CameraSensor::capture`] rendering only the pixel columns `columns`.
-    pub fn capture_columns(&mut self, t: f64, robot: &Pose2D, people: &[PersonState], columns: Option<&[(u32, u32)]>) -> Result<CameraFrame, CameraError> {
+    pub fn capture_columns(
+        &mut self,
+        t: f64,
+        robot: &Pose2D,
+        people: &[PersonState],
+        columns: Option<&[(u32, u32)]>,
+    ) -> Result<CameraFrame, CameraError> {
         self.pose_people(people);
         let pose = self.config.world_from_camera(robot);
         self.render_columns_from(t, pose, columns)

@@ -101,12 +101,8 @@ impl Rigid {
 
     /// Column-major 4x4 in f32, for the renderer.
     pub fn to_mat4(&self) -> [[f32; 4]; 4] {
-        let mut m = [[0.0f32; 4]; 4];
-        for c in 0..3 {
-            for r in 0..3 {
-                m[c][r] = self.r[r][c] as f32;
-            }
-        }
+        let mut m: [[f32; 4]; 4] =
+            std::array::from_fn(|c| std::array::from_fn(|r| if c < 3 && r < 3 { self.r[r][c] as f32 } else { 0.0 }));
         m[3] = [self.t[0] as f32, self.t[1] as f32, self.t[2] as f32, 1.0];
         m
     }
@@ -133,13 +129,23 @@ const BODY_FROM_OPTICAL: [[f64; 3]; 3] = [[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.
 impl CameraConfig {
     pub fn intrinsics(&self) -> Intrinsics {
         let fx = (self.width as f64 / 2.0) / (self.hfov_deg.to_radians() / 2.0).tan();
-        Intrinsics { fx, fy: fx, cx: self.width as f64 / 2.0, cy: self.height as f64 / 2.0, width: self.width, height: self.height }
+        Intrinsics {
+            fx,
+            fy: fx,
+            cx: self.width as f64 / 2.0,
+            cy: self.height as f64 / 2.0,
+            width: self.width,
+            height: self.height,
+        }
     }
 
     /// Robot base <- camera optical frame.
     pub fn base_from_camera(&self) -> Rigid {
         // Yaw, then pitch down (a positive rotation about the body's y axis tilts x down).
-        let r = mul(mul(rot_z(self.mount_yaw_deg.to_radians()), rot_y(self.mount_pitch_deg.to_radians())), BODY_FROM_OPTICAL);
+        let r = mul(
+            mul(rot_z(self.mount_yaw_deg.to_radians()), rot_y(self.mount_pitch_deg.to_radians())),
+            BODY_FROM_OPTICAL,
+        );
         Rigid { r, t: self.mount_xyz_m }
     }
 
@@ -216,7 +222,8 @@ mod tests {
         }
         // Phi is a rotation.
         let r = e.r;
-        let det = r[0][0] * (r[1][1] * r[2][2] - r[1][2] * r[2][1]) - r[0][1] * (r[1][0] * r[2][2] - r[1][2] * r[2][0]) + r[0][2] * (r[1][0] * r[2][1] - r[1][1] * r[2][0]);
+        let det = r[0][0] * (r[1][1] * r[2][2] - r[1][2] * r[2][1]) - r[0][1] * (r[1][0] * r[2][2] - r[1][2] * r[2][0])
+            + r[0][2] * (r[1][0] * r[2][1] - r[1][1] * r[2][0]);
         assert!((det - 1.0).abs() < 1e-12);
     }
 }

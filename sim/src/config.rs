@@ -174,7 +174,16 @@ impl Default for OdometryConfig {
 impl OdometryConfig {
     /// No error at all: integrates to the ground-truth path.
     pub fn noiseless() -> Self {
-        OdometryConfig { scale_sigma: 0.0, turn_scale_sigma: 0.0, bias_sigma_rad_per_m: 0.0, k_dd: 0.0, k_da: 0.0, k_ad: 0.0, k_aa: 0.0, ..Default::default() }
+        OdometryConfig {
+            scale_sigma: 0.0,
+            turn_scale_sigma: 0.0,
+            bias_sigma_rad_per_m: 0.0,
+            k_dd: 0.0,
+            k_da: 0.0,
+            k_ad: 0.0,
+            k_aa: 0.0,
+            ..Default::default()
+        }
     }
 }
 
@@ -219,10 +228,16 @@ impl SimConfig {
             }
         }
         if self.laser.rate_hz > self.physics_rate_hz || self.odometry.rate_hz > self.physics_rate_hz {
-            return bad("physics_rate_hz", format!("{} Hz is slower than a sensor; sensors cannot outpace physics", self.physics_rate_hz));
+            return bad(
+                "physics_rate_hz",
+                format!("{} Hz is slower than a sensor; sensors cannot outpace physics", self.physics_rate_hz),
+            );
         }
         if ![8.0, 16.0, 32.0, 80.0].contains(&self.laser.max_range_m) {
-            return bad("laser.max_range_m", format!("the LMS2xx range modes are 8, 16, 32 and 80 m, got {}", self.laser.max_range_m));
+            return bad(
+                "laser.max_range_m",
+                format!("the LMS2xx range modes are 8, 16, 32 and 80 m, got {}", self.laser.max_range_m),
+            );
         }
         if self.laser.fov_deg > 180.0 {
             return bad("laser.fov_deg", format!("an LMS2xx sees at most 180 deg, got {}", self.laser.fov_deg));

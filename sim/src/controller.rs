@@ -90,7 +90,11 @@ impl PathFollower {
         let mut v = self.config.cruise_speed_mps * alpha.cos().max(0.0).powi(2);
         let remaining = self.total_length() - self.progress;
         v = v.min(0.3 + remaining).min(self.config.max_speed_mps);
-        let omega = if alpha.abs() > 1.2 { max_turn * alpha.signum() } else { (2.0 * v.max(0.15) * alpha.sin() / ld).clamp(-max_turn, max_turn) };
+        let omega = if alpha.abs() > 1.2 {
+            max_turn * alpha.signum()
+        } else {
+            (2.0 * v.max(0.15) * alpha.sin() / ld).clamp(-max_turn, max_turn)
+        };
         if let Some(scan) = scan
             && blocked(scan, self.config.safety_stop_m + self.config.length_m / 2.0 - 0.16)
         {

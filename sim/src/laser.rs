@@ -26,10 +26,12 @@ impl Laser {
         let n = config.beam_count();
         let (a0, da) = (config.angle_min_rad(), config.angle_increment_rad());
         let yaw = config.mount_yaw_deg.to_radians();
-        let directions = (0..n).map(|i| {
-            let a = a0 + da * i as f64 + yaw;
-            [a.cos(), a.sin()]
-        }).collect();
+        let directions = (0..n)
+            .map(|i| {
+                let a = a0 + da * i as f64 + yaw;
+                [a.cos(), a.sin()]
+            })
+            .collect();
         Laser { config: config.clone(), rng: ChaCha8Rng::seed_from_u64(seed), directions, noise: vec![0.0; n] }
     }
 

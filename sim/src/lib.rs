@@ -23,8 +23,8 @@
 //! ```
 
 pub mod camera;
-mod camera_thread;
 pub mod camera_model;
+mod camera_thread;
 pub mod config;
 pub mod controller;
 pub mod laser;
@@ -148,7 +148,8 @@ impl Simulation {
         let scene = PhysicsScene::build(world, &config.robot, dt);
         let follower = PathFollower::new(&world.robot, &config.robot);
         // Without a limit, allow three times the nominal driving time (people may block).
-        let max_duration_s = config.max_duration_s.unwrap_or(3.0 * follower.total_length() / config.robot.cruise_speed_mps + 30.0);
+        let max_duration_s =
+            config.max_duration_s.unwrap_or(3.0 * follower.total_length() / config.robot.cruise_speed_mps + 30.0);
         let mut sim = Simulation {
             world: world.clone(),
             config: config.clone(),
@@ -157,7 +158,11 @@ impl Simulation {
             odometry: OdometryModel::new(&config.odometry, derive_seed(seed, "odometry")),
             laser_schedule: Schedule::new(config.laser.rate_hz),
             odometry_schedule: Schedule::new(config.odometry.rate_hz),
-            camera: if config.camera.enabled { Some(camera::CameraSensor::new(world, &config.camera, derive_seed(seed, "camera"))?) } else { None },
+            camera: if config.camera.enabled {
+                Some(camera::CameraSensor::new(world, &config.camera, derive_seed(seed, "camera"))?)
+            } else {
+                None
+            },
             camera_thread: None,
             camera_schedule: Schedule::new(config.camera.rate_hz),
             camera_error: None,
@@ -233,7 +238,8 @@ impl Simulation {
     /// other runs fill the cores.
     pub fn render_camera_on_thread(&mut self) -> Result<(), SimError> {
         if let Some(camera) = self.camera.take() {
-            self.camera_thread = Some(camera_thread::CameraThread::start(camera).map_err(|e| SimError::Thread(e.to_string()))?);
+            self.camera_thread =
+                Some(camera_thread::CameraThread::start(camera).map_err(|e| SimError::Thread(e.to_string()))?);
         }
         Ok(())
     }
@@ -350,7 +356,10 @@ impl Simulation {
                 self.pending.push_back(Pending::Frame(truth.clone()));
             } else if let Some(cam) = &mut self.camera {
                 match cam.capture_columns(t, &truth.robot, &truth.people, columns.as_deref()) {
-                    Ok(frame) => self.pending.push_back(Pending::Ready(SensorEvent::Camera { frame: Box::new(frame), truth: truth.clone() })),
+                    Ok(frame) => self.pending.push_back(Pending::Ready(SensorEvent::Camera {
+                        frame: Box::new(frame),
+                        truth: truth.clone(),
+                    })),
                     Err(e) => {
                         // A lost GPU device ends the camera, not the run; the error is kept.
                         self.camera_error = Some(e.to_string());

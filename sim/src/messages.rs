@@ -102,10 +102,20 @@ pub struct Collision {
 /// One message of the sensor stream.
 #[derive(Debug, Clone, PartialEq)]
 pub enum SensorEvent {
-    Odometry { odometry: Odometry, truth: GroundTruth },
-    Laser { scan: LaserScan, beams: LaserTruth, truth: GroundTruth },
+    Odometry {
+        odometry: Odometry,
+        truth: GroundTruth,
+    },
+    Laser {
+        scan: LaserScan,
+        beams: LaserTruth,
+        truth: GroundTruth,
+    },
     /// A camera frame; its instance, class and depth images are ground truth.
-    Camera { frame: Box<crate::camera::CameraFrame>, truth: GroundTruth },
+    Camera {
+        frame: Box<crate::camera::CameraFrame>,
+        truth: GroundTruth,
+    },
 }
 
 impl SensorEvent {
@@ -119,7 +129,9 @@ impl SensorEvent {
 
     pub fn truth(&self) -> &GroundTruth {
         match self {
-            SensorEvent::Odometry { truth, .. } | SensorEvent::Laser { truth, .. } | SensorEvent::Camera { truth, .. } => truth,
+            SensorEvent::Odometry { truth, .. }
+            | SensorEvent::Laser { truth, .. }
+            | SensorEvent::Camera { truth, .. } => truth,
         }
     }
 }
@@ -157,7 +169,16 @@ mod tests {
 
     #[test]
     fn no_return_round_trips_through_json() {
-        let s = LaserScan { t: 0.0, angle_min: 0.0, angle_increment: 0.1, time_increment: 0.0, scan_time: 0.1, range_min: 0.0, range_max: 8.0, ranges: vec![1.0, f64::INFINITY] };
+        let s = LaserScan {
+            t: 0.0,
+            angle_min: 0.0,
+            angle_increment: 0.1,
+            time_increment: 0.0,
+            scan_time: 0.1,
+            range_min: 0.0,
+            range_max: 8.0,
+            ranges: vec![1.0, f64::INFINITY],
+        };
         let text = serde_json::to_string(&s).unwrap();
         assert!(text.contains("null"));
         let back: LaserScan = serde_json::from_str(&text).unwrap();

@@ -30,7 +30,14 @@ impl OdometryModel {
         let scale_error = gaussian(&mut rng, config.scale_sigma);
         let turn_scale_error = gaussian(&mut rng, config.turn_scale_sigma);
         let heading_bias_rad_per_m = gaussian(&mut rng, config.bias_sigma_rad_per_m);
-        OdometryModel { config: config.clone(), rng, scale_error, turn_scale_error, heading_bias_rad_per_m, last_truth: None }
+        OdometryModel {
+            config: config.clone(),
+            rng,
+            scale_error,
+            turn_scale_error,
+            heading_bias_rad_per_m,
+            last_truth: None,
+        }
     }
 
     /// The odometry message for the motion from the previous call's true pose to `truth`.

@@ -77,28 +77,44 @@ impl PhysicsScene {
         );
 
         for o in &world.objects {
-            let body = pw.insert_body(RigidBodyBuilder::fixed().pose(pose_z(o.pose.x, o.pose.y, 0.0, o.pose.yaw_rad())));
+            let body =
+                pw.insert_body(RigidBodyBuilder::fixed().pose(pose_z(o.pose.x, o.pose.y, 0.0, o.pose.yaw_rad())));
             let groups = InteractionGroups::new(GROUP_STATIC, Group::ALL, InteractionTestMode::And);
             let collider = match o.shape {
-                Shape::Trunk { radius_m, height_m, .. } | Shape::Palm { radius_m, height_m, .. } | Shape::Post { radius_m, height_m } => {
+                Shape::Trunk { radius_m, height_m, .. }
+                | Shape::Palm { radius_m, height_m, .. }
+                | Shape::Post { radius_m, height_m } => {
                     ColliderBuilder::cylinder((height_m / 2.0) as f32, radius_m as f32)
                         .position(Pose::from_parts(v3(0.0, 0.0, height_m / 2.0), upright()))
                 }
-                Shape::Wall { length_m, thickness_m, height_m } => {
-                    ColliderBuilder::cuboid((length_m / 2.0) as f32, (thickness_m / 2.0) as f32, (height_m / 2.0) as f32).translation(v3(0.0, 0.0, height_m / 2.0))
-                }
+                Shape::Wall { length_m, thickness_m, height_m } => ColliderBuilder::cuboid(
+                    (length_m / 2.0) as f32,
+                    (thickness_m / 2.0) as f32,
+                    (height_m / 2.0) as f32,
+                )
+                .translation(v3(0.0, 0.0, height_m / 2.0)),
                 Shape::Board { width_m, height_m, .. } => {
                     // Turned (tilt, roll) about its centre as the mesh is (worlds::BoardFrame).
                     let f = o.shape.board_frame().expect("a board");
                     let r = f.rotation;
                     let m = Matrix::from_cols_array(&[
-                        r[0][0] as f32, r[1][0] as f32, r[2][0] as f32,
-                        r[0][1] as f32, r[1][1] as f32, r[2][1] as f32,
-                        r[0][2] as f32, r[1][2] as f32, r[2][2] as f32,
+                        r[0][0] as f32,
+                        r[1][0] as f32,
+                        r[2][0] as f32,
+                        r[0][1] as f32,
+                        r[1][1] as f32,
+                        r[2][1] as f32,
+                        r[0][2] as f32,
+                        r[1][2] as f32,
+                        r[2][2] as f32,
                     ]);
                     let c = f.centre_m;
-                    ColliderBuilder::cuboid((worlds::BOARD_THICKNESS_M / 2.0) as f32, (width_m / 2.0) as f32, (height_m / 2.0) as f32)
-                        .position(Pose::from_parts(v3(c[0], c[1], c[2]), Rotation::from_mat3(&m)))
+                    ColliderBuilder::cuboid(
+                        (worlds::BOARD_THICKNESS_M / 2.0) as f32,
+                        (width_m / 2.0) as f32,
+                        (height_m / 2.0) as f32,
+                    )
+                    .position(Pose::from_parts(v3(c[0], c[1], c[2]), Rotation::from_mat3(&m)))
                 }
             };
             pw.insert_collider(collider.user_data(o.id as u128).collision_groups(groups), Some(body));
@@ -109,7 +125,10 @@ impl PhysicsScene {
                 // below a raised board.
                 let h = frame.lowest_m();
                 pw.insert_collider(
-                    ColliderBuilder::cuboid(0.02, 0.02, (h / 2.0) as f32).translation(v3(0.0, 0.0, h / 2.0)).user_data(o.id as u128).collision_groups(groups),
+                    ColliderBuilder::cuboid(0.02, 0.02, (h / 2.0) as f32)
+                        .translation(v3(0.0, 0.0, h / 2.0))
+                        .user_data(o.id as u128)
+                        .collision_groups(groups),
                     Some(body),
                 );
             }
@@ -151,19 +170,29 @@ impl PhysicsScene {
         let robot_body = pw.insert_body(
             RigidBodyBuilder::dynamic()
                 .pose(pose_z(s.x, s.y, 0.0, s.yaw_rad()))
-                .locked_axes(LockedAxes::TRANSLATION_LOCKED_Z | LockedAxes::ROTATION_LOCKED_X | LockedAxes::ROTATION_LOCKED_Y)
+                .locked_axes(
+                    LockedAxes::TRANSLATION_LOCKED_Z | LockedAxes::ROTATION_LOCKED_X | LockedAxes::ROTATION_LOCKED_Y,
+                )
                 .can_sleep(false)
                 .ccd_enabled(true),
         );
         let clearance = 0.06;
         let robot_collider = pw.insert_collider(
-            ColliderBuilder::cuboid((robot.length_m / 2.0) as f32, (robot.width_m / 2.0) as f32, (robot.body_height_m / 2.0) as f32)
-                .translation(v3(0.0, 0.0, clearance + robot.body_height_m / 2.0))
-                .density(100.0)
-                .friction(0.0)
-                .active_events(ActiveEvents::COLLISION_EVENTS)
-                // The robot rolls on wheels: it never touches the ground slab.
-                .collision_groups(InteractionGroups::new(GROUP_ROBOT, GROUP_STATIC | GROUP_PEOPLE, InteractionTestMode::And)),
+            ColliderBuilder::cuboid(
+                (robot.length_m / 2.0) as f32,
+                (robot.width_m / 2.0) as f32,
+                (robot.body_height_m / 2.0) as f32,
+            )
+            .translation(v3(0.0, 0.0, clearance + robot.body_height_m / 2.0))
+            .density(100.0)
+            .friction(0.0)
+            .active_events(ActiveEvents::COLLISION_EVENTS)
+            // The robot rolls on wheels: it never touches the ground slab.
+            .collision_groups(InteractionGroups::new(
+                GROUP_ROBOT,
+                GROUP_STATIC | GROUP_PEOPLE,
+                InteractionTestMode::And,
+            )),
             Some(robot_body),
         );
 
@@ -196,8 +225,13 @@ impl PhysicsScene {
                     // Face to face for long (both waiting): turn back, if the walk is a
                     // back-and-forth one where that is the mirrored point of the cycle.
                     let length = p.route.length_m();
-                    if self.waited[k] > GIVE_UP_WAIT_S && p.route.looping && p.route.waypoints.len() == 2 && length > 0.0 {
-                        self.walked[k] = length - self.walked[k].rem_euclid(length) + length * (self.walked[k] / length).floor();
+                    if self.waited[k] > GIVE_UP_WAIT_S
+                        && p.route.looping
+                        && p.route.waypoints.len() == 2
+                        && length > 0.0
+                    {
+                        self.walked[k] =
+                            length - self.walked[k].rem_euclid(length) + length * (self.walked[k] / length).floor();
                         self.waited[k] = 0.0;
                     }
                 } else {

@@ -46,11 +46,20 @@ fn laser_points_projected_with_extrinsics_land_on_their_objects_pixels() {
                         agreed += 1;
                     } else {
                         // Only acceptable at an object's silhouette edge.
-                        let near_edge = (-1i64..=1).flat_map(|du| (-1i64..=1).map(move |dv| (du, dv))).any(|(du, dv)| {
-                            let (uu, vv) = (u as i64 + du, v as i64 + dv);
-                            uu >= 0 && vv >= 0 && uu < k.width as i64 && vv < k.height as i64 && frame.image.instance_at(uu as u32, vv as u32) == id
-                        });
-                        assert!(near_edge, "beam {i} hit {id} at {r:.2} m but pixel ({u}, {v}) shows {seen} at t = {}", frame.t);
+                        let near_edge =
+                            (-1i64..=1).flat_map(|du| (-1i64..=1).map(move |dv| (du, dv))).any(|(du, dv)| {
+                                let (uu, vv) = (u as i64 + du, v as i64 + dv);
+                                uu >= 0
+                                    && vv >= 0
+                                    && uu < k.width as i64
+                                    && vv < k.height as i64
+                                    && frame.image.instance_at(uu as u32, vv as u32) == id
+                            });
+                        assert!(
+                            near_edge,
+                            "beam {i} hit {id} at {r:.2} m but pixel ({u}, {v}) shows {seen} at t = {}",
+                            frame.t
+                        );
                     }
                     // The rendered depth agrees with the laser point's depth, within what one
                     // pixel spans (z / fx) — except at grazing incidence, where a pixel's
@@ -157,7 +166,11 @@ fn masks_and_colour_do_not_depend_on_whether_depth_is_rendered() {
         assert!(b.depth_m.is_empty());
         let differ = |x: &[u8], y: &[u8]| x.iter().zip(y).filter(|(p, q)| p != q).count();
         let inst = a.instance.iter().zip(&b.instance).filter(|(p, q)| p != q).count();
-        assert_eq!((differ(&a.rgb, &b.rgb), inst, differ(&a.class, &b.class)), (0, 0, 0), "frame {k}: differing rgb values, instance and class pixels");
+        assert_eq!(
+            (differ(&a.rgb, &b.rgb), inst, differ(&a.class, &b.class)),
+            (0, 0, 0),
+            "frame {k}: differing rgb values, instance and class pixels"
+        );
     }
 }
 
@@ -178,7 +191,13 @@ fn rendering_on_the_camera_thread_gives_the_inline_event_stream() {
                 SensorEvent::Camera { frame, truth } => {
                     let img = &frame.image;
                     let mut h: u64 = 0xcbf29ce484222325;
-                    for b in img.rgb.iter().copied().chain(img.class.iter().copied()).chain(img.instance.iter().flat_map(|v| v.to_le_bytes())) {
+                    for b in img
+                        .rgb
+                        .iter()
+                        .copied()
+                        .chain(img.class.iter().copied())
+                        .chain(img.instance.iter().flat_map(|v| v.to_le_bytes()))
+                    {
                         h = (h ^ b as u64).wrapping_mul(0x100000001b3);
                     }
                     format!("camera {} {h:x} {truth:?}", frame.t)
@@ -241,13 +260,18 @@ fn a_column_selector_renders_each_frame_where_the_scan_of_its_instant_says() {
         let (w, p) = (&w.image, &p.image);
         assert_eq!(w.columns, None);
         // The frame at 0 s is made with the simulation, before a selector can be given.
-        let spans = if t == 0.0 { vec![(0, p.width)] } else { chosen.clone().expect("a scan at every frame's instant") };
+        let spans =
+            if t == 0.0 { vec![(0, p.width)] } else { chosen.clone().expect("a scan at every frame's instant") };
         assert_eq!(p.columns, (t > 0.0).then(|| spans.clone()), "frame at {t} s: the columns of its scan");
         for v in 0..p.height {
             for u in 0..p.width {
                 let inside = spans.iter().any(|&(a, b)| (a..b).contains(&u));
                 let expected = if inside { (w.rgb_at(u, v), w.instance_at(u, v)) } else { ([0; 3], 0) };
-                assert_eq!((p.rgb_at(u, v), p.instance_at(u, v)), expected, "pixel ({u}, {v}), inside the columns: {inside}");
+                assert_eq!(
+                    (p.rgb_at(u, v), p.instance_at(u, v)),
+                    expected,
+                    "pixel ({u}, {v}), inside the columns: {inside}"
+                );
             }
         }
     }

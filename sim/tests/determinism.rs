@@ -15,7 +15,15 @@ fn hash_minute(seed: u64, threads: usize) -> String {
         while let Some(e) = s.next_event() {
             match e {
                 SensorEvent::Odometry { odometry, truth } => {
-                    for v in [odometry.t, odometry.dx, odometry.dy, odometry.dtheta, truth.robot.x, truth.robot.y, truth.robot.theta] {
+                    for v in [
+                        odometry.t,
+                        odometry.dx,
+                        odometry.dy,
+                        odometry.dtheta,
+                        truth.robot.x,
+                        truth.robot.y,
+                        truth.robot.theta,
+                    ] {
                         h.update(v.to_le_bytes());
                     }
                 }

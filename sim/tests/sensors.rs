@@ -23,7 +23,11 @@ fn empty_world() -> World {
         ground: Ground { min_m: [-20.0, -20.0], max_m: [20.0, 20.0], appearance: appearance(Material::Grass) },
         objects: vec![],
         people: vec![],
-        robot: RobotSpec { start: Pose2 { x: 0.0, y: 0.0, yaw_deg: 0.0 }, route: Route { waypoints: vec![[0.0, 0.0], [3.0, 0.0]], looping: false }, laps: 1 },
+        robot: RobotSpec {
+            start: Pose2 { x: 0.0, y: 0.0, yaw_deg: 0.0 },
+            route: Route { waypoints: vec![[0.0, 0.0], [3.0, 0.0]], looping: false },
+            laps: 1,
+        },
     }
 }
 
@@ -158,7 +162,11 @@ fn noiseless_odometry_integrates_to_the_true_path() {
                 None => truth.robot,
                 Some(p) => p.compose(odometry.dx, odometry.dy, odometry.dtheta),
             };
-            assert!((p.x - truth.robot.x).abs() < 1e-6 && (p.y - truth.robot.y).abs() < 1e-6, "drift at t = {}", odometry.t);
+            assert!(
+                (p.x - truth.robot.x).abs() < 1e-6 && (p.y - truth.robot.y).abs() < 1e-6,
+                "drift at t = {}",
+                odometry.t
+            );
             pose = Some(p);
             n += 1;
         }
@@ -196,7 +204,10 @@ fn controller_completes_the_park_route_without_collision() {
     assert!(s.collisions().is_empty(), "collisions: {:?}", s.collisions());
     let gt = s.ground_truth();
     let start = world.robot.start;
-    assert!(((gt.robot.x - start.x).powi(2) + (gt.robot.y - start.y).powi(2)).sqrt() < 0.5, "did not return to the start");
+    assert!(
+        ((gt.robot.x - start.x).powi(2) + (gt.robot.y - start.y).powi(2)).sqrt() < 0.5,
+        "did not return to the start"
+    );
 }
 
 #[test]

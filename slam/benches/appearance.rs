@@ -3,8 +3,8 @@
 //! 640x480 image and for the columns of one laser cluster.
 //! `cargo bench -p slam --bench appearance`
 use divan::Bencher;
-use slam::features::{raw_patches, FeatureConfig, FeatureExtractor, ImageRef, PatchRect, Pca};
-use slam::gmm::{fit, VbOptions};
+use slam::features::{FeatureConfig, FeatureExtractor, ImageRef, PatchRect, Pca, raw_patches};
+use slam::gmm::{VbOptions, fit};
 
 fn main() {
     divan::main();

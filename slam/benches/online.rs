@@ -39,7 +39,11 @@ fn gmm(rng: &mut ChaCha8Rng, d: usize) -> Gmm {
     let components = (0..3)
         .map(|_| {
             let a = DMatrix::from_fn(d, d, |_, _| rng.random_range(-0.3..0.3));
-            Component { weight: 1.0 / 3.0, mean: DVector::from_fn(d, |_, _| rng.random_range(-2.0..2.0)), covariance: &a * a.transpose() + DMatrix::identity(d, d) }
+            Component {
+                weight: 1.0 / 3.0,
+                mean: DVector::from_fn(d, |_, _| rng.random_range(-2.0..2.0)),
+                covariance: &a * a.transpose() + DMatrix::identity(d, d),
+            }
         })
         .collect();
     Gmm { components }
@@ -52,7 +56,9 @@ fn kl_association_50_objects(bencher: Bencher) {
     let mut rng = ChaCha8Rng::seed_from_u64(2);
     let mapped: Vec<PreparedGmm> = (0..50).map(|_| PreparedGmm::new(&gmm(&mut rng, 16)).unwrap()).collect();
     let obs = PreparedGmm::new(&gmm(&mut rng, 16)).unwrap();
-    bencher.bench_local(|| mapped.iter().map(|m| kl_variational(&obs, m).unwrap()).enumerate().min_by(|a, b| a.1.total_cmp(&b.1)));
+    bencher.bench_local(|| {
+        mapped.iter().map(|m| kl_variational(&obs, m).unwrap()).enumerate().min_by(|a, b| a.1.total_cmp(&b.1))
+    });
 }
 
 /// Twice round a circle of radius 15 m (0.1 m steps, odometry 2% long and turning 5% more)
@@ -65,7 +71,18 @@ fn loop_drive() -> Drive {
             Vector2::new(19.0 * a.sin(), 15.0 - 19.0 * a.cos())
         })
         .collect();
-    drive(&Route { steps: 3200, step_m: 0.1, turn: 0.1 / 15.0, scale: 0.02, turn_scale: 0.05, observe_every: 4, max_range_m: 8.0 }, &landmarks)
+    drive(
+        &Route {
+            steps: 3200,
+            step_m: 0.1,
+            turn: 0.1 / 15.0,
+            scale: 0.02,
+            turn_scale: 0.05,
+            observe_every: 4,
+            max_range_m: 8.0,
+        },
+        &landmarks,
+    )
 }
 
 #[divan::bench(sample_count = 10)]

@@ -11,11 +11,14 @@ use std::io::Write;
 use std::time::Instant;
 
 use nalgebra::DMatrix;
-use slam::gmm::{bench_data, fit, vbem, VbOptions, VbPrior};
+use slam::gmm::{VbOptions, VbPrior, bench_data, fit, vbem};
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
-    let (mode, dir) = (args.get(1).map(String::as_str).unwrap_or("write"), std::path::PathBuf::from(args.get(2).map(String::as_str).unwrap_or("vbem_compare")));
+    let (mode, dir) = (
+        args.get(1).map(String::as_str).unwrap_or("write"),
+        std::path::PathBuf::from(args.get(2).map(String::as_str).unwrap_or("vbem_compare")),
+    );
     let data = bench_data::mixture_20000x14();
     let prior = VbPrior::from_data(&data).unwrap();
     match mode {
@@ -29,7 +32,8 @@ fn main() {
             std::fs::write(dir.join("prior.json"), serde_json::to_string(&prior).unwrap()).unwrap();
             for fixed_k in [true, false] {
                 let t = Instant::now();
-                let m = fit(&data, Some(&prior), &VbOptions { max_components: 10, fixed_k, ..Default::default() }).unwrap();
+                let m =
+                    fit(&data, Some(&prior), &VbOptions { max_components: 10, fixed_k, ..Default::default() }).unwrap();
                 println!(
                     "objslam {}: {:.3} s, {} VBEM iterations, {} components above 1e-3, full bound {:.3}",
                     if fixed_k { "fixed K = 10" } else { "birth-death (K <= 10)" },
@@ -42,13 +46,18 @@ fn main() {
         }
         "score" => {
             let text = std::fs::read_to_string(dir.join("sklearn_resp.csv")).unwrap();
-            let rows: Vec<Vec<f64>> = text.lines().map(|l| l.split(',').map(|v| v.parse().unwrap()).collect()).collect();
+            let rows: Vec<Vec<f64>> =
+                text.lines().map(|l| l.split(',').map(|v| v.parse().unwrap()).collect()).collect();
             let r = DMatrix::from_fn(rows.len(), rows[0].len(), |i, j| rows[i][j]);
-            println!("scikit-learn's solution under the same full bound: {:.3}", vbem::bound_at_responsibilities(&data, &r, &prior).unwrap());
+            println!(
+                "scikit-learn's solution under the same full bound: {:.3}",
+                vbem::bound_at_responsibilities(&data, &r, &prior).unwrap()
+            );
         }
         "profile" => {
             for _ in 0..5 {
-                fit(&data, Some(&prior), &VbOptions { max_components: 10, fixed_k: true, ..Default::default() }).unwrap();
+                fit(&data, Some(&prior), &VbOptions { max_components: 10, fixed_k: true, ..Default::default() })
+                    .unwrap();
             }
         }
         other => eprintln!("unknown mode {other}: use write, score or profile"),

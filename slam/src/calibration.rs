@@ -26,7 +26,10 @@ pub struct Extrinsics {
 
 impl Extrinsics {
     pub fn from_parts(phi: &Matrix3<f64>, delta: &Vector3<f64>) -> Self {
-        Extrinsics { phi: std::array::from_fn(|r| std::array::from_fn(|c| phi[(r, c)])), delta: [delta.x, delta.y, delta.z] }
+        Extrinsics {
+            phi: std::array::from_fn(|r| std::array::from_fn(|c| phi[(r, c)])),
+            delta: [delta.x, delta.y, delta.z],
+        }
     }
 
     pub fn phi(&self) -> Matrix3<f64> {
@@ -93,7 +96,9 @@ pub struct CalibrationResult {
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum CalibrationError {
-    #[error("calibration needs at least 5 board poses with laser points (each pose constrains 2 of the 9 unknowns of the linear estimate), got {0}")]
+    #[error(
+        "calibration needs at least 5 board poses with laser points (each pose constrains 2 of the 9 unknowns of the linear estimate), got {0}"
+    )]
     TooFewPoses(usize),
     #[error("the board poses do not constrain the extrinsics (degenerate geometry): {0}")]
     Degenerate(String),
@@ -113,14 +118,20 @@ pub const WARN_TRANSLATION_SIGMA_M: f64 = 0.02;
 
 /// Solves for the extrinsics from board observations.
 pub fn calibrate(observations: &[BoardObservation]) -> Result<CalibrationResult, CalibrationError> {
-    let finite = |o: &BoardObservation| o.plane.iter().all(|v| v.is_finite()) && o.laser_points.iter().flatten().all(|v| v.is_finite());
-    let used: Vec<&BoardObservation> = observations.iter().filter(|o| !o.laser_points.is_empty() && o.plane.norm() > 1e-9 && finite(o)).collect();
+    let finite = |o: &BoardObservation| {
+        o.plane.iter().all(|v| v.is_finite()) && o.laser_points.iter().flatten().all(|v| v.is_finite())
+    };
+    let used: Vec<&BoardObservation> =
+        observations.iter().filter(|o| !o.laser_points.is_empty() && o.plane.norm() > 1e-9 && finite(o)).collect();
     if used.len() < MIN_POSES {
         return Err(CalibrationError::TooFewPoses(used.len()));
     }
     let mut warnings = Vec::new();
     if used.len() < RECOMMENDED_POSES {
-        warnings.push(format!("only {} board poses; at least {RECOMMENDED_POSES} are recommended for sub-degree accuracy", used.len()));
+        warnings.push(format!(
+            "only {} board poses; at least {RECOMMENDED_POSES} are recommended for sub-degree accuracy",
+            used.len()
+        ));
     }
     // Spread of the board normals: if they all point the same way, rotation about them is
     // poorly determined.
@@ -145,7 +156,8 @@ pub fn calibrate(observations: &[BoardObservation]) -> Result<CalibrationResult,
     let sd = |c: &Option<DMatrix<f64>>, i: usize| c.as_ref().map_or(f64::NAN, |c| c[(i, i)].max(0.0).sqrt());
     let laser_cov = cov.as_ref().map(|c| c.laser.clone());
     let total_cov = cov.as_ref().map(|c| c.total.clone());
-    let rotation_sigma_deg = [sd(&total_cov, 0).to_degrees(), sd(&total_cov, 1).to_degrees(), sd(&total_cov, 2).to_degrees()];
+    let rotation_sigma_deg =
+        [sd(&total_cov, 0).to_degrees(), sd(&total_cov, 1).to_degrees(), sd(&total_cov, 2).to_degrees()];
     let translation_sigma_m = [sd(&total_cov, 3), sd(&total_cov, 4), sd(&total_cov, 5)];
     let worst_rot = rotation_sigma_deg.iter().cloned().fold(0.0, f64::max);
     let worst_trans = translation_sigma_m.iter().cloned().fold(0.0, f64::max);
@@ -161,7 +173,11 @@ pub fn calibrate(observations: &[BoardObservation]) -> Result<CalibrationResult,
         rms_residual_m: rms,
         rotation_sigma_deg,
         translation_sigma_m,
-        laser_rotation_sigma_deg: [sd(&laser_cov, 0).to_degrees(), sd(&laser_cov, 1).to_degrees(), sd(&laser_cov, 2).to_degrees()],
+        laser_rotation_sigma_deg: [
+            sd(&laser_cov, 0).to_degrees(),
+            sd(&laser_cov, 1).to_degrees(),
+            sd(&laser_cov, 2).to_degrees(),
+        ],
         laser_translation_sigma_m: [sd(&laser_cov, 3), sd(&laser_cov, 4), sd(&laser_cov, 5)],
         poses_used: used.len(),
         points_used,
@@ -194,7 +210,10 @@ fn linear_estimate(obs: &[&BoardObservation]) -> Result<Extrinsics, CalibrationE
     let sv = &svd.singular_values;
     let (max, min) = (sv.max(), sv.min());
     if !(min > 1e-9 * max) {
-        return Err(CalibrationError::Degenerate(format!("the linear system has condition number {:.1e}", max / min.max(1e-300))));
+        return Err(CalibrationError::Degenerate(format!(
+            "the linear system has condition number {:.1e}",
+            max / min.max(1e-300)
+        )));
     }
     let h = svd.solve(&b, 1e-12).map_err(|e| CalibrationError::Degenerate(e.to_string()))?;
     let hm = Matrix3::from_fn(|i, j| h[3 * i + j]);
@@ -290,7 +309,10 @@ fn refine(obs: &[&BoardObservation], init: &Extrinsics) -> (Extrinsics, usize, f
             }
             row += m;
         }
-        Covariances { laser: DMatrix::from_fn(6, 6, |r, c| laser[(r, c)]), total: DMatrix::from_fn(6, 6, |r, c| total[(r, c)]) }
+        Covariances {
+            laser: DMatrix::from_fn(6, 6, |r, c| laser[(r, c)]),
+            total: DMatrix::from_fn(6, 6, |r, c| total[(r, c)]),
+        }
     });
     (ext, fit.iterations, (fit.rss / n.max(1) as f64).sqrt(), cov)
 }
@@ -411,7 +433,9 @@ impl Default for BoardSegmentation {
 pub enum SegmentationError {
     #[error("no straight stretch of board length ({min:.2}-{max:.2} m) in the expected region of the scan")]
     NoCandidate { min: f64, max: f64 },
-    #[error("no board-like stretch at the range the camera sees the board ({expected:.2} m; nearest candidate {nearest:.2} m)")]
+    #[error(
+        "no board-like stretch at the range the camera sees the board ({expected:.2} m; nearest candidate {nearest:.2} m)"
+    )]
     RangeMismatch { expected: f64, nearest: f64 },
 }
 
@@ -437,11 +461,19 @@ pub struct BoardCut {
 /// from the image), the candidate nearest that range wins and must be within
 /// `camera_range_tolerance_m`; without it, the longest candidate. Other objects beside the
 /// board (posts, people's legs, other boards) fail the length or line tests or the range.
-pub fn segment_board(scan: &crate::messages::LaserScan, cfg: &BoardSegmentation, camera_range_m: Option<f64>) -> Result<BoardCut, SegmentationError> {
+pub fn segment_board(
+    scan: &crate::messages::LaserScan,
+    cfg: &BoardSegmentation,
+    camera_range_m: Option<f64>,
+) -> Result<BoardCut, SegmentationError> {
     let n = scan.ranges.len();
     let usable = |i: usize| {
         let a = scan.angle(i);
-        scan.valid(i) && a >= cfg.bearing_rad[0] && a <= cfg.bearing_rad[1] && scan.ranges[i] >= cfg.range_m[0] && scan.ranges[i] <= cfg.range_m[1]
+        scan.valid(i)
+            && a >= cfg.bearing_rad[0]
+            && a <= cfg.bearing_rad[1]
+            && scan.ranges[i] >= cfg.range_m[0]
+            && scan.ranges[i] <= cfg.range_m[1]
     };
     // Runs of consecutive usable beams without jumps.
     let mut runs: Vec<Vec<usize>> = Vec::new();
@@ -497,16 +529,27 @@ pub fn segment_board(scan: &crate::messages::LaserScan, cfg: &BoardSegmentation,
         }
         let kept: Vec<[f64; 2]> = pts[a + cfg.trim..b - cfg.trim].to_vec();
         let Some((c2, d2)) = tls_line(&kept) else { continue };
-        let rms = (kept.iter().map(|p| ((p[0] - c2[0]) * -d2[1] + (p[1] - c2[1]) * d2[0]).powi(2)).sum::<f64>() / kept.len() as f64).sqrt();
+        let rms = (kept.iter().map(|p| ((p[0] - c2[0]) * -d2[1] + (p[1] - c2[1]) * d2[0]).powi(2)).sum::<f64>()
+            / kept.len() as f64)
+            .sqrt();
         let mean_range = kept.iter().map(|p| p[0].hypot(p[1])).sum::<f64>() / kept.len() as f64;
-        candidates.push(BoardCut { points: kept, beams: (run[a + cfg.trim], run[b - cfg.trim - 1]), line_rms_m: rms, length_m: length, mean_range_m: mean_range });
+        candidates.push(BoardCut {
+            points: kept,
+            beams: (run[a + cfg.trim], run[b - cfg.trim - 1]),
+            line_rms_m: rms,
+            length_m: length,
+            mean_range_m: mean_range,
+        });
     }
     if candidates.is_empty() {
         return Err(SegmentationError::NoCandidate { min: cfg.length_m[0], max: cfg.length_m[1] });
     }
     match camera_range_m {
         Some(expected) => {
-            let best = candidates.into_iter().min_by(|a, b| (a.mean_range_m - expected).abs().total_cmp(&(b.mean_range_m - expected).abs())).expect("non-empty");
+            let best = candidates
+                .into_iter()
+                .min_by(|a, b| (a.mean_range_m - expected).abs().total_cmp(&(b.mean_range_m - expected).abs()))
+                .expect("non-empty");
             if (best.mean_range_m - expected).abs() > cfg.camera_range_tolerance_m {
                 return Err(SegmentationError::RangeMismatch { expected, nearest: best.mean_range_m });
             }
@@ -528,7 +571,8 @@ fn robust_line(pts: &[[f64; 2]], tolerance: f64) -> Option<([f64; 2], [f64; 2])>
                 continue;
             }
             let (ux, uy) = (dx / len, dy / len);
-            let count = pts.iter().filter(|p| ((p[0] - pts[i][0]) * -uy + (p[1] - pts[i][1]) * ux).abs() <= tolerance).count();
+            let count =
+                pts.iter().filter(|p| ((p[0] - pts[i][0]) * -uy + (p[1] - pts[i][1]) * ux).abs() <= tolerance).count();
             if best.is_none_or(|b| count > b.0) {
                 best = Some((count, i, j));
             }
@@ -538,7 +582,11 @@ fn robust_line(pts: &[[f64; 2]], tolerance: f64) -> Option<([f64; 2], [f64; 2])>
     let (dx, dy) = (pts[j][0] - pts[i][0], pts[j][1] - pts[i][1]);
     let len = dx.hypot(dy);
     let (ux, uy) = (dx / len, dy / len);
-    let inliers: Vec<[f64; 2]> = pts.iter().copied().filter(|p| ((p[0] - pts[i][0]) * -uy + (p[1] - pts[i][1]) * ux).abs() <= tolerance).collect();
+    let inliers: Vec<[f64; 2]> = pts
+        .iter()
+        .copied()
+        .filter(|p| ((p[0] - pts[i][0]) * -uy + (p[1] - pts[i][1]) * ux).abs() <= tolerance)
+        .collect();
     tls_line(&inliers)
 }
 
@@ -661,9 +709,9 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let noise = Normal::new(0.0, noise_m.max(1e-12)).unwrap();
         let segments: [([f64; 2], [f64; 2]); 3] = [
-            ([1.95, -0.35], [1.75, 0.42]),  // the board
-            ([3.5, -2.5], [3.5, -0.7]),     // a wall, 1.8 m long
-            ([0.9, -0.9], [0.95, -0.92]),   // a 5 cm edge of something
+            ([1.95, -0.35], [1.75, 0.42]), // the board
+            ([3.5, -2.5], [3.5, -0.7]),    // a wall, 1.8 m long
+            ([0.9, -0.9], [0.95, -0.92]),  // a 5 cm edge of something
         ];
         let circles: [([f64; 2], f64); 2] = [([2.6, 0.75], 0.1), ([1.2, 1.1], 0.06)];
         let n = 361;
@@ -696,7 +744,14 @@ mod tests {
                 best + if noise_m > 0.0 { noise.sample(&mut rng) } else { 0.0 }
             })
             .collect();
-        crate::messages::LaserScan { t: 0.0, angle_min: a0, angle_increment: da, range_min: 0.05, range_max: 80.0, ranges }
+        crate::messages::LaserScan {
+            t: 0.0,
+            angle_min: a0,
+            angle_increment: da,
+            range_min: 0.05,
+            range_max: 80.0,
+            ranges,
+        }
     }
 
     #[test]
@@ -720,7 +775,10 @@ mod tests {
         assert!(matches!(e, SegmentationError::RangeMismatch { .. }), "{e}");
         // Outside the bearing window: nothing.
         let narrow = BoardSegmentation { bearing_rad: [0.6, 1.0], ..cfg.clone() };
-        assert!(matches!(segment_board(&scene_scan(0.01, 1), &narrow, None), Err(SegmentationError::NoCandidate { .. })));
+        assert!(matches!(
+            segment_board(&scene_scan(0.01, 1), &narrow, None),
+            Err(SegmentationError::NoCandidate { .. })
+        ));
         // An empty scan is no board, not a panic.
         let mut empty = scene_scan(0.0, 1);
         empty.ranges.iter_mut().for_each(|r| *r = f64::INFINITY);

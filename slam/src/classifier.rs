@@ -9,12 +9,14 @@
 use std::path::Path;
 
 use nalgebra::DMatrix;
-use rand::seq::SliceRandom;
 use rand::SeedableRng;
+use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use crate::features::{raw_patches, FeatureConfig, FeatureError, FeatureExtractor, ImageRef, PatchFeatures, PatchRect, Pca};
+use crate::features::{
+    FeatureConfig, FeatureError, FeatureExtractor, ImageRef, PatchFeatures, PatchRect, Pca, raw_patches,
+};
 use crate::gmm::{self, GmmError, GmmEvaluator, StudentTMixture, VbGmm, VbOptions};
 
 /// Version of the appearance model file layout; files with another version are refused.
@@ -112,7 +114,8 @@ impl AppearanceModel {
     /// Reads a model file; a missing, corrupt or other-version file is a clear error.
     pub fn load(path: &Path) -> Result<Self, ModelError> {
         let file = path.display().to_string();
-        let text = std::fs::read_to_string(path).map_err(|e| ModelError::Io { file: file.clone(), message: e.to_string() })?;
+        let text =
+            std::fs::read_to_string(path).map_err(|e| ModelError::Io { file: file.clone(), message: e.to_string() })?;
         Self::from_json(&text, &file)
     }
 
@@ -122,20 +125,30 @@ impl AppearanceModel {
         struct VersionOnly {
             format_version: Option<u32>,
         }
-        let v: VersionOnly = serde_json::from_str(text).map_err(|e| ModelError::Parse { file: file.into(), message: e.to_string() })?;
+        let v: VersionOnly =
+            serde_json::from_str(text).map_err(|e| ModelError::Parse { file: file.into(), message: e.to_string() })?;
         match v.format_version {
             Some(MODEL_FORMAT_VERSION) => {}
-            Some(found) => return Err(ModelError::Version { file: file.into(), found, expected: MODEL_FORMAT_VERSION }),
-            None => return Err(ModelError::Parse { file: file.into(), message: "missing field `format_version`".into() }),
+            Some(found) => {
+                return Err(ModelError::Version { file: file.into(), found, expected: MODEL_FORMAT_VERSION });
+            }
+            None => {
+                return Err(ModelError::Parse { file: file.into(), message: "missing field `format_version`".into() });
+            }
         }
-        let model: AppearanceModel = serde_json::from_str(text).map_err(|e| ModelError::Parse { file: file.into(), message: e.to_string() })?;
+        let model: AppearanceModel =
+            serde_json::from_str(text).map_err(|e| ModelError::Parse { file: file.into(), message: e.to_string() })?;
         let inconsistent = |message: String| ModelError::Inconsistent { file: file.into(), message };
         let d = model.extractor.dims();
         if model.extractor.pca.input_dims() != model.extractor.config.raw_dims() {
             return Err(inconsistent("the PCA does not match the patch size and filter bank".into()));
         }
         if model.object.dims() != d || model.background.dims() != d {
-            return Err(inconsistent(format!("class models are {}- and {}-dimensional, features are {d}-dimensional", model.object.dims(), model.background.dims())));
+            return Err(inconsistent(format!(
+                "class models are {}- and {}-dimensional, features are {d}-dimensional",
+                model.object.dims(),
+                model.background.dims()
+            )));
         }
         if !(model.object_weight > 0.0 && model.object_weight < 1.0) || !(0.0..=1.0).contains(&model.threshold) {
             return Err(inconsistent("object_weight must lie in (0, 1) and threshold in [0, 1]".into()));
@@ -146,8 +159,10 @@ impl AppearanceModel {
 
     /// Writes the model as JSON.
     pub fn save(&self, path: &Path) -> Result<(), ModelError> {
-        let text = serde_json::to_string(self).map_err(|e| ModelError::Io { file: path.display().to_string(), message: e.to_string() })?;
-        std::fs::write(path, text).map_err(|e| ModelError::Io { file: path.display().to_string(), message: e.to_string() })
+        let text = serde_json::to_string(self)
+            .map_err(|e| ModelError::Io { file: path.display().to_string(), message: e.to_string() })?;
+        std::fs::write(path, text)
+            .map_err(|e| ModelError::Io { file: path.display().to_string(), message: e.to_string() })
     }
 }
 
@@ -165,7 +180,13 @@ impl PatchClassifier {
     pub fn new(model: &AppearanceModel) -> Result<Self, GmmError> {
         let object = StudentTMixture::new(&model.object)?.gaussian_approximation()?.evaluator()?;
         let background = StudentTMixture::new(&model.background)?.gaussian_approximation()?.evaluator()?;
-        Ok(PatchClassifier { object, background, ln_w_obj: model.object_weight.ln(), ln_w_bg: (1.0 - model.object_weight).ln(), threshold: model.threshold })
+        Ok(PatchClassifier {
+            object,
+            background,
+            ln_w_obj: model.object_weight.ln(),
+            ln_w_bg: (1.0 - model.object_weight).ln(),
+            threshold: model.threshold,
+        })
     }
 
     /// R for one feature row.
@@ -245,13 +266,28 @@ pub struct TrainingOptions {
 
 impl Default for TrainingOptions {
     fn default() -> Self {
-        TrainingOptions { features: FeatureConfig::default(), pca_dims: 20, pca_samples: 20_000, max_patches_per_class: 20_000, label_fraction: 0.5, vb: VbOptions { max_components: 20, ..VbOptions::default() }, threshold: 0.5, seed: 1, object_class: "tree".into() }
+        TrainingOptions {
+            features: FeatureConfig::default(),
+            pca_dims: 20,
+            pca_samples: 20_000,
+            max_patches_per_class: 20_000,
+            label_fraction: 0.5,
+            vb: VbOptions { max_components: 20, ..VbOptions::default() },
+            threshold: 0.5,
+            seed: 1,
+            object_class: "tree".into(),
+        }
     }
 }
 
 /// Trains an appearance model. `images` is called with an index and returns that image
 /// (so they need not all be in memory); `progress` gets (stage, done, total).
-pub fn train(count: usize, images: impl Fn(usize) -> Result<LabelledImage, ModelError>, options: &TrainingOptions, progress: impl Fn(&str, usize, usize)) -> Result<AppearanceModel, ModelError> {
+pub fn train(
+    count: usize,
+    images: impl Fn(usize) -> Result<LabelledImage, ModelError>,
+    options: &TrainingOptions,
+    progress: impl Fn(&str, usize, usize),
+) -> Result<AppearanceModel, ModelError> {
     if count == 0 {
         return Err(ModelError::Training("no training images".into()));
     }
@@ -302,17 +338,28 @@ pub fn train(count: usize, images: impl Fn(usize) -> Result<LabelledImage, Model
         let f = extractor.features(&image, None)?;
         let (cols, _) = image.grid(l);
         if img.fractions.len() != f.z.nrows() {
-            return Err(ModelError::Training(format!("image {i}: {} patch labels for {} patches", img.fractions.len(), f.z.nrows())));
+            return Err(ModelError::Training(format!(
+                "image {i}: {} patch labels for {} patches",
+                img.fractions.len(),
+                f.z.nrows()
+            )));
         }
         for k in 0..f.z.nrows() {
             let (c, r) = f.rect.patch(k);
-            let target = if img.fractions[(r * cols + c) as usize] as f64 >= options.label_fraction { &mut obj } else { &mut bg };
+            let target = if img.fractions[(r * cols + c) as usize] as f64 >= options.label_fraction {
+                &mut obj
+            } else {
+                &mut bg
+            };
             target.extend(f.z.row(k).iter());
         }
     }
     let (n_obj, n_bg) = (obj.len() / d, bg.len() / d);
     if n_obj < d + 1 || n_bg < d + 1 {
-        return Err(ModelError::Training(format!("need at least {} patches of each class, found {n_obj} object and {n_bg} background", d + 1)));
+        return Err(ModelError::Training(format!(
+            "need at least {} patches of each class, found {n_obj} object and {n_bg} background",
+            d + 1
+        )));
     }
     let subsample = |rows: &[f64], n: usize, rng: &mut ChaCha8Rng| -> DMatrix<f64> {
         let mut idx: Vec<usize> = (0..n).collect();
@@ -352,7 +399,12 @@ pub fn train(count: usize, images: impl Fn(usize) -> Result<LabelledImage, Model
 }
 
 /// Scores a model's patch decisions on labelled images.
-pub fn evaluate(model: &AppearanceModel, count: usize, images: impl Fn(usize) -> Result<LabelledImage, ModelError>, label_fraction: f64) -> Result<PatchScores, ModelError> {
+pub fn evaluate(
+    model: &AppearanceModel,
+    count: usize,
+    images: impl Fn(usize) -> Result<LabelledImage, ModelError>,
+    label_fraction: f64,
+) -> Result<PatchScores, ModelError> {
     let classifier = PatchClassifier::new(model)?;
     let l = model.extractor.config.patch_size;
     let mut scores = PatchScores::default();
@@ -415,7 +467,12 @@ mod tests {
 
     #[test]
     fn trains_and_separates_synthetic_trunks_from_grass() {
-        let options = TrainingOptions { pca_dims: 6, max_patches_per_class: 3000, vb: VbOptions { max_components: 4, ..Default::default() }, ..Default::default() };
+        let options = TrainingOptions {
+            pca_dims: 6,
+            max_patches_per_class: 3000,
+            vb: VbOptions { max_components: 4, ..Default::default() },
+            ..Default::default()
+        };
         let model = train(6, |i| Ok(scene(i as u64, 160, 120)), &options, |_, _, _| {}).unwrap();
         let scores = evaluate(&model, 4, |i| Ok(scene(100 + i as u64, 160, 120)), 0.5).unwrap();
         assert!(scores.f1() > 0.9, "{scores:?}: F1 {}", scores.f1());
@@ -424,7 +481,12 @@ mod tests {
 
     #[test]
     fn posteriors_of_many_rows_equal_the_posterior_of_each_bit_for_bit() {
-        let options = TrainingOptions { pca_dims: 6, max_patches_per_class: 2000, vb: VbOptions { max_components: 4, ..Default::default() }, ..Default::default() };
+        let options = TrainingOptions {
+            pca_dims: 6,
+            max_patches_per_class: 2000,
+            vb: VbOptions { max_components: 4, ..Default::default() },
+            ..Default::default()
+        };
         let model = train(3, |i| Ok(scene(i as u64, 120, 90)), &options, |_, _, _| {}).unwrap();
         let classifier = PatchClassifier::new(&model).unwrap();
         let image = scene(50, 120, 90);
@@ -432,7 +494,8 @@ mod tests {
         // 13 x 10 patches: 130 rows, not a multiple of the four lanes.
         assert_eq!(features.z.nrows() % 4, 2);
         let together = classifier.posteriors(&features);
-        let one_by_one: Vec<f64> = (0..features.z.nrows()).map(|i| classifier.posterior(features.z.row(i).transpose().as_slice())).collect();
+        let one_by_one: Vec<f64> =
+            (0..features.z.nrows()).map(|i| classifier.posterior(features.z.row(i).transpose().as_slice())).collect();
         assert_eq!(together.len(), one_by_one.len());
         for (i, (a, b)) in together.iter().zip(&one_by_one).enumerate() {
             assert_eq!(a.to_bits(), b.to_bits(), "row {i}: {a} against {b}");
@@ -442,7 +505,12 @@ mod tests {
 
     #[test]
     fn model_files_round_trip_and_bad_files_are_clear_errors() {
-        let options = TrainingOptions { pca_dims: 4, max_patches_per_class: 1000, vb: VbOptions { max_components: 2, ..Default::default() }, ..Default::default() };
+        let options = TrainingOptions {
+            pca_dims: 4,
+            max_patches_per_class: 1000,
+            vb: VbOptions { max_components: 2, ..Default::default() },
+            ..Default::default()
+        };
         let model = train(2, |i| Ok(scene(i as u64, 90, 63)), &options, |_, _, _| {}).unwrap();
         let text = serde_json::to_string(&model).unwrap();
         assert_eq!(AppearanceModel::from_json(&text, "m.json").unwrap(), model);

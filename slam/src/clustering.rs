@@ -26,7 +26,14 @@ pub struct ClusteringConfig {
 
 impl Default for ClusteringConfig {
     fn default() -> Self {
-        ClusteringConfig { lambda_deg: 10.0, range_sigma_m: 0.01, min_points: 3, min_diameter_m: 0.15, max_diameter_m: 1.0, max_range_m: 12.0 }
+        ClusteringConfig {
+            lambda_deg: 10.0,
+            range_sigma_m: 0.01,
+            min_points: 3,
+            min_diameter_m: 0.15,
+            max_diameter_m: 1.0,
+            max_range_m: 12.0,
+        }
     }
 }
 
@@ -35,20 +42,32 @@ impl ClusteringConfig {
     pub fn validate(&self) -> Result<(), (&'static str, String)> {
         // Incidence angles beyond 90 degrees do not exist; at 0 every beam would split.
         if !(self.lambda_deg > 0.0 && self.lambda_deg < 90.0) {
-            return Err(("lambda_deg", format!("must be between 0 and 90 degrees (exclusive), got {}", self.lambda_deg)));
+            return Err((
+                "lambda_deg",
+                format!("must be between 0 and 90 degrees (exclusive), got {}", self.lambda_deg),
+            ));
         }
         if !(self.range_sigma_m.is_finite() && self.range_sigma_m >= 0.0) {
             return Err(("range_sigma_m", format!("must be finite and not negative, got {}", self.range_sigma_m)));
         }
         // A circle needs three points to be fitted.
         if self.min_points < 3 {
-            return Err(("min_points", format!("must be at least 3 (a circle fit needs three points), got {}", self.min_points)));
+            return Err((
+                "min_points",
+                format!("must be at least 3 (a circle fit needs three points), got {}", self.min_points),
+            ));
         }
         if !(self.min_diameter_m.is_finite() && self.min_diameter_m >= 0.0) {
             return Err(("min_diameter_m", format!("must be finite and not negative, got {}", self.min_diameter_m)));
         }
         if !(self.max_diameter_m.is_finite() && self.max_diameter_m > self.min_diameter_m) {
-            return Err(("max_diameter_m", format!("must be finite and above min_diameter_m ({}), got {}", self.min_diameter_m, self.max_diameter_m)));
+            return Err((
+                "max_diameter_m",
+                format!(
+                    "must be finite and above min_diameter_m ({}), got {}",
+                    self.min_diameter_m, self.max_diameter_m
+                ),
+            ));
         }
         if !(self.max_range_m.is_finite() && self.max_range_m > 0.0) {
             return Err(("max_range_m", format!("must be a positive number of metres, got {}", self.max_range_m)));
@@ -119,7 +138,9 @@ pub fn cluster(scan: &LaserScan, config: &ClusteringConfig) -> Vec<Cluster> {
                 return None;
             }
             let c = fit(scan, a, b);
-            let keep = c.diameter_m >= config.min_diameter_m && c.diameter_m <= config.max_diameter_m && c.range_m <= config.max_range_m;
+            let keep = c.diameter_m >= config.min_diameter_m
+                && c.diameter_m <= config.max_diameter_m
+                && c.range_m <= config.max_range_m;
             keep.then_some(c)
         })
         .collect()
@@ -171,7 +192,8 @@ pub fn fit(scan: &LaserScan, a: usize, b: usize) -> Cluster {
     if !(centre_range > min_range - 1e-3 && centre_range < min_range + diameter) {
         c = [(min_range + radius) * mid_bearing.cos(), (min_range + radius) * mid_bearing.sin()];
     }
-    let occluded = (a > 0 && scan.valid(a - 1) && scan.ranges[a - 1] < scan.ranges[a]) || (b + 1 < scan.ranges.len() && scan.valid(b + 1) && scan.ranges[b + 1] < scan.ranges[b]);
+    let occluded = (a > 0 && scan.valid(a - 1) && scan.ranges[a - 1] < scan.ranges[a])
+        || (b + 1 < scan.ranges.len() && scan.valid(b + 1) && scan.ranges[b + 1] < scan.ranges[b]);
     Cluster {
         first_beam: a,
         last_beam: b,
@@ -212,7 +234,14 @@ mod tests {
                 if best.is_finite() && noise > 0.0 { best + normal.sample(&mut rng) } else { best }
             })
             .collect();
-        LaserScan { t: 0.0, angle_min: -std::f64::consts::FRAC_PI_2, angle_increment: inc, range_min: 0.05, range_max: 80.0, ranges }
+        LaserScan {
+            t: 0.0,
+            angle_min: -std::f64::consts::FRAC_PI_2,
+            angle_increment: inc,
+            range_min: 0.05,
+            range_max: 80.0,
+            ranges,
+        }
     }
 
     #[test]
@@ -233,7 +262,11 @@ mod tests {
                     .unwrap();
                 let err = (best.centre[0] - c[0]).hypot(best.centre[1] - c[1]);
                 assert!(err < 0.08, "seed {seed}: centre off by {err} for {c:?}");
-                assert!((best.diameter_m - 2.0 * r).abs() < 0.1, "seed {seed}: diameter {} for radius {r}", best.diameter_m);
+                assert!(
+                    (best.diameter_m - 2.0 * r).abs() < 0.1,
+                    "seed {seed}: diameter {} for radius {r}",
+                    best.diameter_m
+                );
             }
         }
     }
@@ -258,7 +291,14 @@ mod tests {
                 if a.abs() < 0.6 { 5.0 / a.cos() } else { f64::INFINITY }
             })
             .collect();
-        let wall = LaserScan { t: 0.0, angle_min: -std::f64::consts::FRAC_PI_2, angle_increment: inc, range_min: 0.05, range_max: 80.0, ranges };
+        let wall = LaserScan {
+            t: 0.0,
+            angle_min: -std::f64::consts::FRAC_PI_2,
+            angle_increment: inc,
+            range_min: 0.05,
+            range_max: 80.0,
+            ranges,
+        };
         assert!(cluster(&wall, &ClusteringConfig::default()).is_empty());
         let tiny = synthetic_scan(&[([5.0, 0.0], 0.03)], 0.0, 1);
         assert!(cluster(&tiny, &ClusteringConfig::default()).is_empty());

@@ -51,7 +51,19 @@ pub struct EvidenceConfig {
 
 impl Default for EvidenceConfig {
     fn default() -> Self {
-        EvidenceConfig { pooled: true, radius_m: 0.3, forget_after_s: 5.0, min_frames: 4, undecided_by_frame: false, retract: true, retract_range_m: 7.5, retract_min_frames: 8, retract_max_hit_fraction: 0.5, min_hit_fraction: 0.7, min_above_fraction: 0.6 }
+        EvidenceConfig {
+            pooled: true,
+            radius_m: 0.3,
+            forget_after_s: 5.0,
+            min_frames: 4,
+            undecided_by_frame: false,
+            retract: true,
+            retract_range_m: 7.5,
+            retract_min_frames: 8,
+            retract_max_hit_fraction: 0.5,
+            min_hit_fraction: 0.7,
+            min_above_fraction: 0.6,
+        }
     }
 }
 
@@ -73,7 +85,11 @@ impl EvidenceConfig {
         if !self.retract_range_m.is_finite() || self.retract_range_m <= 0.0 {
             return Err(("retract_range_m", format!("must be positive, got {}", self.retract_range_m)));
         }
-        for (name, v) in [("min_hit_fraction", self.min_hit_fraction), ("min_above_fraction", self.min_above_fraction), ("retract_max_hit_fraction", self.retract_max_hit_fraction)] {
+        for (name, v) in [
+            ("min_hit_fraction", self.min_hit_fraction),
+            ("min_above_fraction", self.min_above_fraction),
+            ("retract_max_hit_fraction", self.retract_max_hit_fraction),
+        ] {
             if !(0.0..=1.0).contains(&v) {
                 return Err((name, format!("must be in [0, 1], got {v}")));
             }
@@ -100,7 +116,9 @@ pub struct Judgement {
 impl Judgement {
     /// Whether the frames from near enough say the place is not an object after all.
     pub fn retracts(&self, config: &EvidenceConfig) -> bool {
-        config.retract && self.near_frames >= config.retract_min_frames && self.mean_near_hit_fraction < config.retract_max_hit_fraction
+        config.retract
+            && self.near_frames >= config.retract_min_frames
+            && self.mean_near_hit_fraction < config.retract_max_hit_fraction
     }
 }
 
@@ -135,7 +153,15 @@ impl ObjectEvidence {
         let i = match self.nearest(centre) {
             Some(i) => i,
             None => {
-                self.places.push(Place { centre, frames: 0, hit_sum: 0.0, above_sum: 0.0, near_frames: 0, near_hit_sum: 0.0, last_t: t });
+                self.places.push(Place {
+                    centre,
+                    frames: 0,
+                    hit_sum: 0.0,
+                    above_sum: 0.0,
+                    near_frames: 0,
+                    near_hit_sum: 0.0,
+                    last_t: t,
+                });
                 self.places.len() - 1
             }
         };
@@ -176,7 +202,9 @@ impl ObjectEvidence {
         let r2 = self.config.radius_m * self.config.radius_m;
         // Ties go to the older place (lower index), so the result does not depend on
         // anything but the order of frames.
-        (0..self.places.len()).filter(|&i| d2(&self.places[i]) <= r2).min_by(|&a, &b| d2(&self.places[a]).total_cmp(&d2(&self.places[b])).then(a.cmp(&b)))
+        (0..self.places.len())
+            .filter(|&i| d2(&self.places[i]) <= r2)
+            .min_by(|&a, &b| d2(&self.places[a]).total_cmp(&d2(&self.places[b])).then(a.cmp(&b)))
     }
 
     fn judgement(&self, i: usize) -> Judgement {
@@ -185,7 +213,14 @@ impl ObjectEvidence {
         let (h, a) = (p.hit_sum / n, p.above_sum / n);
         let c = &self.config;
         let near = p.near_hit_sum / p.near_frames.max(1) as f64;
-        Judgement { frames: p.frames, mean_hit_fraction: h, mean_above_fraction: a, is_object: p.frames >= c.min_frames && h >= c.min_hit_fraction && a >= c.min_above_fraction, near_frames: p.near_frames, mean_near_hit_fraction: near }
+        Judgement {
+            frames: p.frames,
+            mean_hit_fraction: h,
+            mean_above_fraction: a,
+            is_object: p.frames >= c.min_frames && h >= c.min_hit_fraction && a >= c.min_above_fraction,
+            near_frames: p.near_frames,
+            mean_near_hit_fraction: near,
+        }
     }
 }
 
@@ -243,7 +278,10 @@ mod tests {
     fn nonsense_settings_are_named() {
         assert_eq!(EvidenceConfig { radius_m: 0.0, ..config() }.validate().unwrap_err().0, "radius_m");
         assert_eq!(EvidenceConfig { min_frames: 0, ..config() }.validate().unwrap_err().0, "min_frames");
-        assert_eq!(EvidenceConfig { min_above_fraction: 1.5, ..config() }.validate().unwrap_err().0, "min_above_fraction");
+        assert_eq!(
+            EvidenceConfig { min_above_fraction: 1.5, ..config() }.validate().unwrap_err().0,
+            "min_above_fraction"
+        );
         assert!(config().validate().is_ok());
     }
 

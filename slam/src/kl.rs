@@ -238,7 +238,9 @@ mod tests {
 
     #[test]
     fn bad_inputs_are_errors() {
-        let bad = Gmm { components: vec![Component { weight: 1.0, mean: DVector::zeros(2), covariance: DMatrix::zeros(2, 2) }] };
+        let bad = Gmm {
+            components: vec![Component { weight: 1.0, mean: DVector::zeros(2), covariance: DMatrix::zeros(2, 2) }],
+        };
         assert!(matches!(PreparedGmm::new(&bad), Err(KlError::NotPositiveDefinite { component: 0 })));
         assert!(matches!(PreparedGmm::new(&Gmm { components: vec![] }), Err(KlError::Empty)));
     }

@@ -12,7 +12,7 @@ use nalgebra::{DMatrix, DVector, Matrix2};
 use serde::{Deserialize, Serialize};
 
 use crate::features::FeatureExtractor;
-use crate::gmm::{self, Component, GmmError, Gmm, StudentTMixture, VbOptions, VbPrior};
+use crate::gmm::{self, Component, Gmm, GmmError, StudentTMixture, VbOptions, VbPrior};
 use crate::kl::{self, KlError, PreparedGmm};
 
 /// How object models are learnt and compared.
@@ -37,7 +37,13 @@ pub struct ObjectModelConfig {
 
 impl Default for ObjectModelConfig {
     fn default() -> Self {
-        ObjectModelConfig { components: 1, position_floor_m: 0.3, kl_threshold: 80.0, mosaic_patches: 400, appearance_dims: 4 }
+        ObjectModelConfig {
+            components: 1,
+            position_floor_m: 0.3,
+            kl_threshold: 80.0,
+            mosaic_patches: 400,
+            appearance_dims: 4,
+        }
     }
 }
 
@@ -49,10 +55,16 @@ impl ObjectModelConfig {
     /// The first setting that makes no sense, as (field, problem).
     pub fn validate(&self) -> Result<(), (&'static str, String)> {
         if self.components > MAX_OBJECT_COMPONENTS {
-            return Err(("components", format!("must be at most {MAX_OBJECT_COMPONENTS} (0 searches), got {}", self.components)));
+            return Err((
+                "components",
+                format!("must be at most {MAX_OBJECT_COMPONENTS} (0 searches), got {}", self.components),
+            ));
         }
         if !(self.position_floor_m.is_finite() && self.position_floor_m >= 0.0) {
-            return Err(("position_floor_m", format!("must be finite and not negative, got {}", self.position_floor_m)));
+            return Err((
+                "position_floor_m",
+                format!("must be finite and not negative, got {}", self.position_floor_m),
+            ));
         }
         if !(self.kl_threshold.is_finite() && self.kl_threshold > 0.0) {
             return Err(("kl_threshold", format!("must be a positive number of nats, got {}", self.kl_threshold)));
@@ -119,7 +131,11 @@ pub enum ObjectModelError {
 /// Fits the density of one observation (rows with positions relative to its centre).
 /// `general` (the classifier's object model, appearance only) supplies the appearance
 /// block of the prior (the paper's footnote 2).
-pub fn fit_observation(obs: &ObjectObservation, general: Option<&Gmm>, config: &ObjectModelConfig) -> Result<Gmm, ObjectModelError> {
+pub fn fit_observation(
+    obs: &ObjectObservation,
+    general: Option<&Gmm>,
+    config: &ObjectModelConfig,
+) -> Result<Gmm, ObjectModelError> {
     let n = obs.rows.nrows();
     if n < 2 {
         return Err(ObjectModelError::TooFewPatches(n));
@@ -141,7 +157,14 @@ pub fn fit_observation(obs: &ObjectObservation, general: Option<&Gmm>, config: &
         }
         prior.check(d)?;
     }
-    let options = VbOptions { max_components: config.components.max(1).min(n), fixed_k: config.components > 0, max_iterations: 200, tolerance: 1e-6, seed: 0, ..Default::default() };
+    let options = VbOptions {
+        max_components: config.components.max(1).min(n),
+        fixed_k: config.components > 0,
+        max_iterations: 200,
+        tolerance: 1e-6,
+        seed: 0,
+        ..Default::default()
+    };
     let vb = gmm::fit(&obs.rows, Some(&prior), &options)?;
     let mut g = StudentTMixture::new(&vb)?.gaussian_approximation()?;
     // Drop components without weight: they add nothing and slow the KL.
@@ -177,7 +200,11 @@ pub fn marginal(g: &Gmm, dims: usize) -> Gmm {
         components: g
             .components
             .iter()
-            .map(|c| Component { weight: c.weight, mean: c.mean.rows(0, dims).into_owned(), covariance: c.covariance.view((0, 0), (dims, dims)).into_owned() })
+            .map(|c| Component {
+                weight: c.weight,
+                mean: c.mean.rows(0, dims).into_owned(),
+                covariance: c.covariance.view((0, 0), (dims, dims)).into_owned(),
+            })
             .collect(),
     }
 }
@@ -185,7 +212,12 @@ pub fn marginal(g: &Gmm, dims: usize) -> Gmm {
 impl ObjectModel {
     /// A new object's model from its first observation (`fitted` from [`fit_observation`]).
     pub fn new(obs: &ObjectObservation, fitted: Gmm, pca_dims: usize) -> Self {
-        ObjectModel { gmm: fitted, patches: obs.rows.nrows() as f64, observations: 1, mosaic: mosaic_view(obs, pca_dims) }
+        ObjectModel {
+            gmm: fitted,
+            patches: obs.rows.nrows() as f64,
+            observations: 1,
+            mosaic: mosaic_view(obs, pca_dims),
+        }
     }
 
     /// KL(observation || this model) with the observation placed relative to a landmark at
@@ -197,7 +229,15 @@ impl ObjectModel {
     /// model's sufficient statistics stay those of the patches, so merging observations
     /// (eq. 5) never dilutes the floor, and a trunk seen from a new side (its patches in a
     /// plane turned against the earlier views') still matches.
-    pub fn kl_from(&self, fitted_obs: &Gmm, obs_centre: [f64; 2], landmark: [f64; 2], offset_covariance: &Matrix2<f64>, config: &ObjectModelConfig, appearance_only: bool) -> Result<f64, ObjectModelError> {
+    pub fn kl_from(
+        &self,
+        fitted_obs: &Gmm,
+        obs_centre: [f64; 2],
+        landmark: [f64; 2],
+        offset_covariance: &Matrix2<f64>,
+        config: &ObjectModelConfig,
+        appearance_only: bool,
+    ) -> Result<f64, ObjectModelError> {
         let d = self.gmm.dims();
         let (f, g) = if appearance_only {
             (marginal(fitted_obs, d - 3), marginal(&self.gmm, d - 3))
@@ -207,8 +247,16 @@ impl ObjectModel {
             // the less readily an observation joins it: after a long drift this makes
             // duplicates rather than wrong associations. (Widening the model instead leaves
             // the decision to appearance, and the trees' appearances are too alike.)
-            let obs = shifted(fitted_obs, d - 3, [obs_centre[0] - landmark[0], obs_centre[1] - landmark[1]], offset_covariance);
-            (with_position_floor(&obs, d - 3, config.position_floor_m), with_position_floor(&self.gmm, d - 3, config.position_floor_m))
+            let obs = shifted(
+                fitted_obs,
+                d - 3,
+                [obs_centre[0] - landmark[0], obs_centre[1] - landmark[1]],
+                offset_covariance,
+            );
+            (
+                with_position_floor(&obs, d - 3, config.position_floor_m),
+                with_position_floor(&self.gmm, d - 3, config.position_floor_m),
+            )
         };
         Ok(kl::kl_variational(&PreparedGmm::new(&f)?, &PreparedGmm::new(&g)?)?)
     }
@@ -218,7 +266,12 @@ impl ObjectModel {
     /// means and second moments add up:
     /// pi_s <- (M pi_s^new + N pi_s) / (M + N), mu_s <- (M_s mu_s^new + N_s mu_s) / (M_s + N_s),
     /// Gamma_s from the summed second moments.
-    pub fn update(&mut self, obs: &ObjectObservation, landmark: [f64; 2], pca_dims: usize) -> Result<(), ObjectModelError> {
+    pub fn update(
+        &mut self,
+        obs: &ObjectObservation,
+        landmark: [f64; 2],
+        pca_dims: usize,
+    ) -> Result<(), ObjectModelError> {
         let d = self.gmm.dims();
         let (xy, m) = (d - 3, obs.rows.nrows());
         let shift = [obs.centre[0] - landmark[0], obs.centre[1] - landmark[1]];
@@ -292,8 +345,10 @@ pub fn render_mosaic(view: &MosaicView, extractor: &FeatureExtractor) -> (u32, u
         return (0, 0, Vec::new());
     }
     let l = patch_size as usize;
-    let (c0, c1) = (view.cells.iter().map(|c| c.0).min().unwrap_or(0), view.cells.iter().map(|c| c.0).max().unwrap_or(0));
-    let (r0, r1) = (view.cells.iter().map(|c| c.1).min().unwrap_or(0), view.cells.iter().map(|c| c.1).max().unwrap_or(0));
+    let (c0, c1) =
+        (view.cells.iter().map(|c| c.0).min().unwrap_or(0), view.cells.iter().map(|c| c.0).max().unwrap_or(0));
+    let (r0, r1) =
+        (view.cells.iter().map(|c| c.1).min().unwrap_or(0), view.cells.iter().map(|c| c.1).max().unwrap_or(0));
     let (w, h) = (((c1 - c0 + 1) as usize * l), ((r1 - r0 + 1) as usize * l));
     let mut rgb = vec![0u8; w * h * 3];
     for (cell, z) in view.cells.iter().zip(&view.appearance) {
@@ -345,7 +400,13 @@ mod tests {
             _ => 1.5 * (i as f64 / n as f64),
         });
         let appearance = (0..n).map(|i| rows.row(i).columns(0, 3).iter().copied().collect()).collect();
-        ObjectObservation { centre, rows, appearance, cells: (0..n as u32).map(|i| (i % 5, i / 5)).collect(), centre_covariance: Matrix2::identity() * 0.01 }
+        ObjectObservation {
+            centre,
+            rows,
+            appearance,
+            cells: (0..n as u32).map(|i| (i % 5, i / 5)).collect(),
+            centre_covariance: Matrix2::identity() * 0.01,
+        }
     }
 
     #[test]
@@ -356,14 +417,22 @@ mod tests {
         let again = observation(2, [1.0, 0.0, 0.0], [5.1, 2.05], 50);
         let post = observation(3, [-1.0, 1.5, 0.5], [5.1, 2.05], 50);
         let cov = Matrix2::identity() * 0.02;
-        let same = model.kl_from(&fit_observation(&again, None, &config).unwrap(), again.centre, [5.0, 2.0], &cov, &config, false).unwrap();
-        let other = model.kl_from(&fit_observation(&post, None, &config).unwrap(), post.centre, [5.0, 2.0], &cov, &config, false).unwrap();
+        let same = model
+            .kl_from(&fit_observation(&again, None, &config).unwrap(), again.centre, [5.0, 2.0], &cov, &config, false)
+            .unwrap();
+        let other = model
+            .kl_from(&fit_observation(&post, None, &config).unwrap(), post.centre, [5.0, 2.0], &cov, &config, false)
+            .unwrap();
         assert!(same < 10.0 && other > 2.0 * same + 10.0, "same {same}, other {other}");
         // The same object far from the landmark is far in KL too (position counts)...
-        let far = model.kl_from(&fit_observation(&again, None, &config).unwrap(), [9.0, 2.0], [5.0, 2.0], &cov, &config, false).unwrap();
+        let far = model
+            .kl_from(&fit_observation(&again, None, &config).unwrap(), [9.0, 2.0], [5.0, 2.0], &cov, &config, false)
+            .unwrap();
         assert!(far > 2.0 * same + 10.0, "far {far}");
         // ...unless positions are marginalised out.
-        let far_app = model.kl_from(&fit_observation(&again, None, &config).unwrap(), [9.0, 2.0], [5.0, 2.0], &cov, &config, true).unwrap();
+        let far_app = model
+            .kl_from(&fit_observation(&again, None, &config).unwrap(), [9.0, 2.0], [5.0, 2.0], &cov, &config, true)
+            .unwrap();
         assert!(far_app < same.max(1.0) * 2.0, "appearance only {far_app}");
     }
 
@@ -381,7 +450,9 @@ mod tests {
         let mut side = observation(50, [1.0, 0.0, 0.0], [5.0, 2.0], 60);
         side.rows.swap_columns(3, 4);
         let cov = Matrix2::identity() * 0.02;
-        let kl = model.kl_from(&fit_observation(&side, None, &config).unwrap(), side.centre, [5.0, 2.0], &cov, &config, false).unwrap();
+        let kl = model
+            .kl_from(&fit_observation(&side, None, &config).unwrap(), side.centre, [5.0, 2.0], &cov, &config, false)
+            .unwrap();
         // 0.2 nats now; 16 when the floor lived in the model.
         assert!(kl < 3.0, "KL from a new side {kl}");
     }
@@ -408,8 +479,13 @@ mod tests {
     #[test]
     fn ranking_puts_the_look_alike_first() {
         let config = ObjectModelConfig::default();
-        let objs: Vec<ObjectObservation> = vec![observation(6, [1.0, 0.0, 0.0], [0.0, 0.0], 50), observation(7, [-2.0, 1.0, 0.0], [3.0, 0.0], 50), observation(8, [0.0, 3.0, 1.0], [6.0, 0.0], 50)];
-        let models: Vec<ObjectModel> = objs.iter().map(|o| ObjectModel::new(o, fit_observation(o, None, &config).unwrap(), 3)).collect();
+        let objs: Vec<ObjectObservation> = vec![
+            observation(6, [1.0, 0.0, 0.0], [0.0, 0.0], 50),
+            observation(7, [-2.0, 1.0, 0.0], [3.0, 0.0], 50),
+            observation(8, [0.0, 3.0, 1.0], [6.0, 0.0], 50),
+        ];
+        let models: Vec<ObjectModel> =
+            objs.iter().map(|o| ObjectModel::new(o, fit_observation(o, None, &config).unwrap(), 3)).collect();
         let example = observation(9, [-2.0, 1.0, 0.0], [0.0, 0.0], 40);
         let ex = marginal(&fit_observation(&example, None, &config).unwrap(), 3);
         let refs: Vec<(u32, &ObjectModel)> = models.iter().enumerate().map(|(i, m)| (i as u32, m)).collect();

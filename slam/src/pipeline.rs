@@ -13,18 +13,23 @@ use std::collections::HashSet;
 use nalgebra::{DMatrix, DVector, Matrix2, Matrix3, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
-use crate::association::{AssociationDecision, AssociationMethod, Candidate, Choice, chi2_quantile, jcbb::jcbb, jcbb::unambiguous_jcbb, nn::nearest_neighbour};
+use crate::association::{
+    AssociationDecision, AssociationMethod, Candidate, Choice, chi2_quantile, jcbb::jcbb, jcbb::unambiguous_jcbb,
+    nn::nearest_neighbour,
+};
 use crate::classifier::{AppearanceModel, PatchClassifier};
 use crate::clustering::{Cluster, ClusteringConfig, cluster};
-use crate::evidence::{EvidenceConfig, Judgement, ObjectEvidence};
 use crate::ekf::smoother::{History, Relinearisation, SmootherError};
 use crate::ekf::{Ekf, MotionModel, OdometryMotionModel, RangeBearingModel};
+use crate::evidence::{EvidenceConfig, Judgement, ObjectEvidence};
 use crate::features::ImageRef;
 use crate::gmm::{Gmm, StudentTMixture};
 use crate::messages::{LaserScan, OdometryIncrement};
-use crate::object_model::{fit_observation, ObjectModel, ObjectModelConfig, ObjectObservation};
+use crate::object_model::{ObjectModel, ObjectModelConfig, ObjectObservation, fit_observation};
+use crate::segmentation::{
+    CameraGeometry, ImageRegion, SegmentationConfig, SegmentedCluster, locate_cluster, segment_located, spans_cover,
+};
 use crate::settings::InvalidSetting;
-use crate::segmentation::{locate_cluster, segment_located, spans_cover, CameraGeometry, ImageRegion, SegmentationConfig, SegmentedCluster};
 use rayon::prelude::*;
 
 /// Pipeline settings.
@@ -125,9 +130,16 @@ impl DiameterCheck {
 
     /// The first setting that makes no sense, as (field, problem).
     pub fn validate(&self) -> Result<(), (&'static str, String)> {
-        for (name, v, positive) in [("sigma_m", self.sigma_m, false), ("sigma_per_m", self.sigma_per_m, false), ("max_sigmas", self.max_sigmas, true)] {
+        for (name, v, positive) in [
+            ("sigma_m", self.sigma_m, false),
+            ("sigma_per_m", self.sigma_per_m, false),
+            ("max_sigmas", self.max_sigmas, true),
+        ] {
             if !(v.is_finite() && v >= 0.0) || (positive && v <= 0.0) {
-                return Err((name, format!("must be {}, got {v}", if positive { "positive" } else { "zero or positive" })));
+                return Err((
+                    name,
+                    format!("must be {}, got {v}", if positive { "positive" } else { "zero or positive" }),
+                ));
             }
         }
         if self.sigma_m + self.sigma_per_m <= 0.0 {
@@ -237,30 +249,55 @@ impl PipelineConfig {
         self.diameter.validate().map_err(|e| InvalidSetting::in_table("diameter", e))?;
         // Chi-square quantiles exist for probabilities strictly between 0 and 1: at 1 every
         // gate is infinite (everything associates), at 0 empty.
-        for (name, p) in [("gate_probability", self.gate_probability), ("new_landmark_probability", self.new_landmark_probability), ("jcbb_probability", self.jcbb_probability)] {
+        for (name, p) in [
+            ("gate_probability", self.gate_probability),
+            ("new_landmark_probability", self.new_landmark_probability),
+            ("jcbb_probability", self.jcbb_probability),
+        ] {
             if !(p > 0.0 && p < 1.0) {
-                return Err(InvalidSetting::new(name, format!("must be a probability between 0 and 1 (exclusive), got {p}")));
+                return Err(InvalidSetting::new(
+                    name,
+                    format!("must be a probability between 0 and 1 (exclusive), got {p}"),
+                ));
             }
         }
         if let Some((i, s)) = self.initial_pose_sigma.iter().enumerate().find(|(_, s)| !(s.is_finite() && **s > 0.0)) {
-            return Err(InvalidSetting::new(format!("initial_pose_sigma[{i}]"), format!("must be a positive standard deviation, got {s}")));
+            return Err(InvalidSetting::new(
+                format!("initial_pose_sigma[{i}]"),
+                format!("must be a positive standard deviation, got {s}"),
+            ));
         }
         if !(self.image_max_age_s.is_finite() && self.image_max_age_s >= 0.0) {
-            return Err(InvalidSetting::new("image_max_age_s", format!("must be zero or a positive number of seconds, got {}", self.image_max_age_s)));
+            return Err(InvalidSetting::new(
+                "image_max_age_s",
+                format!("must be zero or a positive number of seconds, got {}", self.image_max_age_s),
+            ));
         }
         if self.confirm_observations == 0 {
-            return Err(InvalidSetting::new("confirm_observations", "must be at least 1 (1 confirms a landmark at its first observation)"));
+            return Err(InvalidSetting::new(
+                "confirm_observations",
+                "must be at least 1 (1 confirms a landmark at its first observation)",
+            ));
         }
         if !(self.confirm_window_s.is_finite() && self.confirm_window_s > 0.0) {
-            return Err(InvalidSetting::new("confirm_window_s", format!("must be a positive number of seconds, got {}", self.confirm_window_s)));
+            return Err(InvalidSetting::new(
+                "confirm_window_s",
+                format!("must be a positive number of seconds, got {}", self.confirm_window_s),
+            ));
         }
         if let Some(every) = self.relinearise_every_s
             && !(every.is_finite() && every > 0.0)
         {
-            return Err(InvalidSetting::new("relinearise_every_s", format!("must be a positive number of seconds, got {every}")));
+            return Err(InvalidSetting::new(
+                "relinearise_every_s",
+                format!("must be a positive number of seconds, got {every}"),
+            ));
         }
         if self.relinearise_every_s.is_some() && !self.relinearise_loop_closures {
-            return Err(InvalidSetting::new("relinearise_every_s", "only applies with relinearise_loop_closures = true"));
+            return Err(InvalidSetting::new(
+                "relinearise_every_s",
+                "only applies with relinearise_loop_closures = true",
+            ));
         }
         Ok(())
     }
@@ -428,19 +465,51 @@ impl Pipeline {
     /// Starts at `pose` (x, y, theta) in the map frame.
     pub fn new(config: PipelineConfig, pose: [f64; 3]) -> Self {
         let s = config.initial_pose_sigma;
-        let mut ekf = Ekf::with_calibration(Vector3::from(pose), Matrix3::from_diagonal(&Vector3::new(s[0] * s[0], s[1] * s[1], s[2] * s[2])), &config.motion.calibration_prior());
+        let mut ekf = Ekf::with_calibration(
+            Vector3::from(pose),
+            Matrix3::from_diagonal(&Vector3::new(s[0] * s[0], s[1] * s[1], s[2] * s[2])),
+            &config.motion.calibration_prior(),
+        );
         if config.first_estimate_jacobians {
             ekf.use_first_estimates();
         }
         let evidence = ObjectEvidence::new(config.evidence.clone());
-        let history = (config.relinearise_loop_closures && config.method == AssociationMethod::Combined).then(|| History::new(ekf.pose(), ekf.pose_covariance(), &config.motion.calibration_prior()));
-        let mut p = Pipeline { config, ekf, landmarks: Vec::new(), objects: Vec::new(), places: Vec::new(), retractions: Vec::new(), decisions: Vec::new(), poses: Vec::new(), t: 0.0, next_id: 0, appearance: None, image: None, segmentations: Vec::new(), unrendered_reads: 0, evidence, odometry_pose: pose, co_observed: HashSet::new(), merges: Vec::new(), history, relinearisations: Vec::new(), relinearisation_failures: Vec::new(), relinearised_at: 0.0 };
+        let history = (config.relinearise_loop_closures && config.method == AssociationMethod::Combined)
+            .then(|| History::new(ekf.pose(), ekf.pose_covariance(), &config.motion.calibration_prior()));
+        let mut p = Pipeline {
+            config,
+            ekf,
+            landmarks: Vec::new(),
+            objects: Vec::new(),
+            places: Vec::new(),
+            retractions: Vec::new(),
+            decisions: Vec::new(),
+            poses: Vec::new(),
+            t: 0.0,
+            next_id: 0,
+            appearance: None,
+            image: None,
+            segmentations: Vec::new(),
+            unrendered_reads: 0,
+            evidence,
+            odometry_pose: pose,
+            co_observed: HashSet::new(),
+            merges: Vec::new(),
+            history,
+            relinearisations: Vec::new(),
+            relinearisation_failures: Vec::new(),
+            relinearised_at: 0.0,
+        };
         p.record_pose();
         p
     }
 
     /// A pipeline for any method; the appearance methods need `appearance`.
-    pub fn with_appearance(config: PipelineConfig, pose: [f64; 3], appearance: Option<Appearance>) -> Result<Self, PipelineError> {
+    pub fn with_appearance(
+        config: PipelineConfig,
+        pose: [f64; 3],
+        appearance: Option<Appearance>,
+    ) -> Result<Self, PipelineError> {
         config.validate()?;
         if config.method.uses_appearance() && appearance.is_none() {
             return Err(PipelineError::NeedsAppearance(config.method.name()));
@@ -450,7 +519,11 @@ impl Pipeline {
         if let Some(app) = &appearance
             && config.object_model.appearance_dims > app.model.extractor.pca.dims()
         {
-            let problem = format!("must be at most the appearance model's {} PCA dimensions, got {}", app.model.extractor.pca.dims(), config.object_model.appearance_dims);
+            let problem = format!(
+                "must be at most the appearance model's {} PCA dimensions, got {}",
+                app.model.extractor.pca.dims(),
+                config.object_model.appearance_dims
+            );
             return Err(InvalidSetting::new("object_model.appearance_dims", problem).into());
         }
         let mut p = Pipeline::new(config, pose);
@@ -467,7 +540,14 @@ impl Pipeline {
     /// (`start..end`, sorted and disjoint; see [`Pipeline::image_region`]). A cluster whose
     /// segmentation would read outside them is not segmented and is counted in
     /// [`Pipeline::unrendered_reads`].
-    pub fn on_image_columns(&mut self, t: f64, width: u32, height: u32, rgb: Vec<u8>, columns: Option<Vec<(u32, u32)>>) -> Result<(), PipelineError> {
+    pub fn on_image_columns(
+        &mut self,
+        t: f64,
+        width: u32,
+        height: u32,
+        rgb: Vec<u8>,
+        columns: Option<Vec<(u32, u32)>>,
+    ) -> Result<(), PipelineError> {
         let expected = width as usize * height as usize * 3;
         if rgb.len() != expected {
             return Err(PipelineError::Image { width, height, expected, found: rgb.len() });
@@ -480,7 +560,12 @@ impl Pipeline {
     /// methods only): a camera that renders just those gives it the same results.
     pub fn image_region(&self) -> Option<ImageRegion> {
         let app = self.appearance.as_ref()?;
-        Some(ImageRegion { clustering: self.config.clustering, segmentation: self.config.segmentation.clone(), features: app.model.extractor.config.clone(), camera: app.camera.clone() })
+        Some(ImageRegion {
+            clustering: self.config.clustering,
+            segmentation: self.config.segmentation.clone(),
+            features: app.model.extractor.config.clone(),
+            camera: app.camera.clone(),
+        })
     }
 
     /// Clusters left unsegmented because their image was not rendered where segmentation
@@ -511,7 +596,8 @@ impl Pipeline {
         }
         let [x, y, th] = self.odometry_pose;
         let (s, c) = th.sin_cos();
-        self.odometry_pose = [x + c * o.dx - s * o.dy, y + s * o.dx + c * o.dy, crate::messages::wrap_angle(th + o.dtheta)];
+        self.odometry_pose =
+            [x + c * o.dx - s * o.dy, y + s * o.dx + c * o.dy, crate::messages::wrap_angle(th + o.dtheta)];
         self.t = o.t;
         self.record_pose();
     }
@@ -565,7 +651,9 @@ impl Pipeline {
                 if c.occluded {
                     return Ok(None);
                 }
-                let Some(located) = locate_cluster(c, &app.camera, image.width, image.height, l, seg_config) else { return Ok(None) };
+                let Some(located) = locate_cluster(c, &app.camera, image.width, image.height, l, seg_config) else {
+                    return Ok(None);
+                };
                 if let Some(columns) = &img.columns
                     && !spans_cover(columns, extractor.config.columns_read(&located.rect, image.width))
                 {
@@ -584,7 +672,10 @@ impl Pipeline {
                     record.cells.push((col, row, o));
                 }
             }
-            let hit_rows = (seg.hit_patches.iter().map(|h| h.1).min().unwrap_or(0), seg.hit_patches.iter().map(|h| h.1).max().unwrap_or(0));
+            let hit_rows = (
+                seg.hit_patches.iter().map(|h| h.1).min().unwrap_or(0),
+                seg.hit_patches.iter().map(|h| h.1).max().unwrap_or(0),
+            );
             let (centre, rot) = self.to_map(c.centre);
             // Pooling: a frame the camera judged fully adds to its place's evidence; one it
             // could not judge takes its place's judgement, or its own where no place is yet
@@ -602,7 +693,11 @@ impl Pipeline {
                 }
             });
             let observed = match pooled {
-                Some(Some(j)) if j.frames >= self.config.evidence.min_frames || !self.config.evidence.undecided_by_frame => j.is_object && enough_patches,
+                Some(Some(j))
+                    if j.frames >= self.config.evidence.min_frames || !self.config.evidence.undecided_by_frame =>
+                {
+                    j.is_object && enough_patches
+                }
                 _ => seg.is_object,
             };
             record.clusters.push(ClusterSegmentation {
@@ -651,7 +746,11 @@ impl Pipeline {
             // A place the pooled evidence calls an object was judged in earlier frames: a
             // frame too close to judge on its own may then start and confirm landmarks.
             let judged = seg.fully_judged() || matches!(pooled, Some(Some(j)) if j.is_object);
-            out.push((ci, ObjectObservation { centre, rows, appearance, cells, centre_covariance: Matrix2::zeros() }, judged));
+            out.push((
+                ci,
+                ObjectObservation { centre, rows, appearance, cells, centre_covariance: Matrix2::zeros() },
+                judged,
+            ));
         }
         self.evidence.forget_before(t);
         self.segmentations.push(record);
@@ -686,28 +785,49 @@ impl Pipeline {
             return none;
         }
         let zs: Vec<Vector2<f64>> = plans.iter().map(|p| p.3).collect();
-        let Some(h) = unambiguous_jcbb(&self.ekf, &self.config.sensor, &zs, &allowed, self.config.jcbb_probability) else { return none };
+        let Some(h) = unambiguous_jcbb(&self.ekf, &self.config.sensor, &zs, &allowed, self.config.jcbb_probability)
+        else {
+            return none;
+        };
         // Two or more of the unexplained observations must pair: one alone is only
         // individually gated, and a new tree near an uncertain old one would pass.
         if h.iter().zip(plans).filter(|(j, p)| j.is_some() && p.5.is_none()).count() < 2 {
             return none;
         }
-        h.iter().zip(plans).map(|(j, p)| if p.5.is_some() { None } else { j.map(|j| (self.landmarks[j].id, j)) }).collect()
+        h.iter()
+            .zip(plans)
+            .map(|(j, p)| if p.5.is_some() { None } else { j.map(|j| (self.landmarks[j].id, j)) })
+            .collect()
     }
 
     /// Indices of the confirmed candidates whose object model looks like the observation
     /// (appearance KL under the threshold).
-    fn confirmed_lookalikes<'a>(&'a self, obs: &'a ObjectObservation, fitted: &'a Gmm, candidates: &'a [Candidate], cfg: &'a ObjectModelConfig) -> impl Iterator<Item = usize> + 'a {
+    fn confirmed_lookalikes<'a>(
+        &'a self,
+        obs: &'a ObjectObservation,
+        fitted: &'a Gmm,
+        candidates: &'a [Candidate],
+        cfg: &'a ObjectModelConfig,
+    ) -> impl Iterator<Item = usize> + 'a {
         candidates.iter().filter_map(move |c| {
             let j = self.landmarks.iter().position(|l| l.id == c.landmark)?;
             let model = self.objects[j].as_ref().filter(|_| self.landmarks[j].confirmed)?;
-            model.kl_from(fitted, obs.centre, [0.0; 2], &Matrix2::zeros(), cfg, true).is_ok_and(|kl| kl.is_finite() && kl < cfg.kl_threshold).then_some(j)
+            model
+                .kl_from(fitted, obs.centre, [0.0; 2], &Matrix2::zeros(), cfg, true)
+                .is_ok_and(|kl| kl.is_finite() && kl < cfg.kl_threshold)
+                .then_some(j)
         })
     }
 
     /// Whether a confirmed landmark that looks like the observation lies within its
     /// new-landmark gate (`candidates` holds those).
-    fn near_lookalike(&self, obs: &ObjectObservation, fitted: &Gmm, candidates: &[Candidate], cfg: &ObjectModelConfig) -> bool {
+    fn near_lookalike(
+        &self,
+        obs: &ObjectObservation,
+        fitted: &Gmm,
+        candidates: &[Candidate],
+        cfg: &ObjectModelConfig,
+    ) -> bool {
         self.confirmed_lookalikes(obs, fitted, candidates, cfg).next().is_some()
     }
 
@@ -750,7 +870,14 @@ impl Pipeline {
                     continue;
                 }
                 let Some(model) = &self.objects[j] else { continue };
-                if method == AssociationMethod::Combined && !self.config.diameter.compatible(clusters[ci].diameter_m, z.x, self.landmarks[j].diameter_m, self.landmarks[j].observations) {
+                if method == AssociationMethod::Combined
+                    && !self.config.diameter.compatible(
+                        clusters[ci].diameter_m,
+                        z.x,
+                        self.landmarks[j].diameter_m,
+                        self.landmarks[j].observations,
+                    )
+                {
                     continue;
                 }
                 // A cluster too close for the camera to tell a trunk from a post may only
@@ -759,17 +886,34 @@ impl Pipeline {
                     continue;
                 }
                 let lm = self.ekf.landmark(j);
-                let kl = model.kl_from(&fitted, obs.centre, [lm.x, lm.y], &self.offset_covariance(j, &z), &cfg, method == AssociationMethod::Appearance).ok();
+                let kl = model
+                    .kl_from(
+                        &fitted,
+                        obs.centre,
+                        [lm.x, lm.y],
+                        &self.offset_covariance(j, &z),
+                        &cfg,
+                        method == AssociationMethod::Appearance,
+                    )
+                    .ok();
                 candidates.push(Candidate { landmark: self.landmarks[j].id, mahalanobis2: m2, kl });
             }
             // The combined method's candidates lie within the new-landmark gate (for the
             // deferral and the joint test); to join one by KL, an observation must also be
             // within the association gate, as for the position-only methods.
-            let best = candidates.iter().filter(|c| method != AssociationMethod::Combined || c.mahalanobis2 <= assoc_gate).filter_map(|c| c.kl.filter(|k| k.is_finite() && *k < cfg.kl_threshold).map(|k| (c.landmark, k))).min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+            let best = candidates
+                .iter()
+                .filter(|c| method != AssociationMethod::Combined || c.mahalanobis2 <= assoc_gate)
+                .filter_map(|c| c.kl.filter(|k| k.is_finite() && *k < cfg.kl_threshold).map(|k| (c.landmark, k)))
+                .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
             let best = best.and_then(|(id, _)| self.landmarks.iter().position(|l| l.id == id).map(|j| (id, j)));
             plans.push((ci, obs, fitted, z, candidates, best, fully_judged));
         }
-        let joint = if method == AssociationMethod::Combined && self.config.joint_loop_closing { self.close_loop_jointly(&plans, &cfg) } else { vec![None; plans.len()] };
+        let joint = if method == AssociationMethod::Combined && self.config.joint_loop_closing {
+            self.close_loop_jointly(&plans, &cfg)
+        } else {
+            vec![None; plans.len()]
+        };
         let mut new_ones = Vec::new();
         let mut closed_jointly = false;
         for ((ci, obs, fitted, z, candidates, best, fully_judged), joint) in plans.into_iter().zip(joint) {
@@ -788,7 +932,8 @@ impl Pipeline {
                         }
                         self.places[j] = Some(self.laser_point_in(&self.odometry_pose, clusters[ci].centre).0);
                         let l = &mut self.landmarks[j];
-                        l.diameter_m = (l.diameter_m * l.observations as f64 + clusters[ci].diameter_m) / (l.observations + 1) as f64;
+                        l.diameter_m = (l.diameter_m * l.observations as f64 + clusters[ci].diameter_m)
+                            / (l.observations + 1) as f64;
                         l.observations += 1;
                         assigned[ci] = Some(id);
                         closed_jointly |= closes_jointly;
@@ -801,7 +946,12 @@ impl Pipeline {
                     }
                 }
                 None if !fully_judged => Choice::Rejected,
-                None if method == AssociationMethod::Combined && self.config.defer_near_lookalike && self.near_lookalike(&obs, &fitted, &candidates, &cfg) => Choice::Deferred,
+                None if method == AssociationMethod::Combined
+                    && self.config.defer_near_lookalike
+                    && self.near_lookalike(&obs, &fitted, &candidates, &cfg) =>
+                {
+                    Choice::Deferred
+                }
                 None => {
                     new_ones.push((ci, self.decisions.len(), obs, fitted, z));
                     Choice::Rejected // replaced below once the id exists
@@ -823,7 +973,16 @@ impl Pipeline {
                 c.mean[d - 3] += obs.centre[0] - lm.x;
                 c.mean[d - 2] += obs.centre[1] - lm.y;
             }
-            self.landmarks.push(Landmark { id, position: [0.0; 2], covariance: [[0.0; 2]; 2], class: class.clone(), observations: 1, diameter_m: clusters[ci].diameter_m, created_t: t, confirmed: self.config.confirm_observations <= 1 });
+            self.landmarks.push(Landmark {
+                id,
+                position: [0.0; 2],
+                covariance: [[0.0; 2]; 2],
+                class: class.clone(),
+                observations: 1,
+                diameter_m: clusters[ci].diameter_m,
+                created_t: t,
+                confirmed: self.config.confirm_observations <= 1,
+            });
             self.objects.push(Some(model));
             self.places.push(Some(self.laser_point_in(&self.odometry_pose, clusters[ci].centre).0));
             assigned[ci] = Some(id);
@@ -833,7 +992,9 @@ impl Pipeline {
             }
         }
         let due = self.config.relinearise_every_s.is_some_and(|every| t - self.relinearised_at >= every);
-        if (closed_jointly || due) && let Some(before) = &before {
+        if (closed_jointly || due)
+            && let Some(before) = &before
+        {
             self.relinearise(before);
         }
         if self.config.evidence.pooled {
@@ -850,14 +1011,24 @@ impl Pipeline {
 
     /// Processes clusters of which only those with `is_object[i]` are observations of
     /// objects of interest (labelled `class`).
-    pub fn on_scan_with_objects(&mut self, t: f64, clusters: Vec<Cluster>, is_object: &[bool], class: &str) -> ScanResult {
+    pub fn on_scan_with_objects(
+        &mut self,
+        t: f64,
+        clusters: Vec<Cluster>,
+        is_object: &[bool],
+        class: &str,
+    ) -> ScanResult {
         self.t = t;
         let idx: Vec<usize> = (0..clusters.len()).filter(|&i| is_object[i] && !clusters[i].occluded).collect();
-        let zs: Vec<Vector2<f64>> = idx.iter().map(|&i| Vector2::new(clusters[i].range_m, clusters[i].bearing_rad)).collect();
+        let zs: Vec<Vector2<f64>> =
+            idx.iter().map(|&i| Vector2::new(clusters[i].range_m, clusters[i].bearing_rad)).collect();
         let gate = chi2_quantile(2, self.config.gate_probability);
         let new_gate = chi2_quantile(2, self.config.new_landmark_probability);
         let n_before = self.ekf.landmark_count();
-        let distances: Vec<Vec<f64>> = zs.iter().map(|z| (0..n_before).map(|j| self.ekf.mahalanobis2(&self.config.sensor, j, z)).collect()).collect();
+        let distances: Vec<Vec<f64>> = zs
+            .iter()
+            .map(|z| (0..n_before).map(|j| self.ekf.mahalanobis2(&self.config.sensor, j, z)).collect())
+            .collect();
         let pairing: Vec<Option<usize>> = match self.config.method {
             AssociationMethod::Jcbb => jcbb(&self.ekf, &self.config.sensor, &zs, gate, self.config.jcbb_probability),
             // Appearance methods fall back to nearest neighbour on position until their
@@ -879,7 +1050,8 @@ impl Pipeline {
                 Some(j) => {
                     if self.ekf.update(&self.config.sensor, j, &zs[k]).is_ok() {
                         let lm = &mut self.landmarks[j];
-                        lm.diameter_m = (lm.diameter_m * lm.observations as f64 + clusters[ci].diameter_m) / (lm.observations + 1) as f64;
+                        lm.diameter_m = (lm.diameter_m * lm.observations as f64 + clusters[ci].diameter_m)
+                            / (lm.observations + 1) as f64;
                         lm.observations += 1;
                         assigned[ci] = Some(lm.id);
                         if let Some(h) = &mut self.history {
@@ -896,7 +1068,13 @@ impl Pipeline {
                 }
                 None => Choice::Rejected,
             };
-            self.decisions.push(AssociationDecision { t, observation: ci, candidates, choice, method: self.config.method });
+            self.decisions.push(AssociationDecision {
+                t,
+                observation: ci,
+                candidates,
+                choice,
+                method: self.config.method,
+            });
         }
         let first_decision = self.decisions.len() - idx.len();
         for (k, ci) in new_ones {
@@ -904,7 +1082,16 @@ impl Pipeline {
             let id = self.next_id;
             self.next_id += 1;
             debug_assert_eq!(j, self.landmarks.len());
-            self.landmarks.push(Landmark { id, position: [0.0; 2], covariance: [[0.0; 2]; 2], class: class.to_string(), observations: 1, diameter_m: clusters[ci].diameter_m, created_t: t, confirmed: self.config.confirm_observations <= 1 });
+            self.landmarks.push(Landmark {
+                id,
+                position: [0.0; 2],
+                covariance: [[0.0; 2]; 2],
+                class: class.to_string(),
+                observations: 1,
+                diameter_m: clusters[ci].diameter_m,
+                created_t: t,
+                confirmed: self.config.confirm_observations <= 1,
+            });
             self.objects.push(None);
             self.places.push(None);
             assigned[ci] = Some(id);
@@ -934,7 +1121,8 @@ impl Pipeline {
     fn retract_landmarks(&mut self) {
         let mut j = 0;
         while j < self.landmarks.len() {
-            if self.places[j].and_then(|p| self.evidence.judge(p)).is_some_and(|jd| jd.retracts(&self.config.evidence)) {
+            if self.places[j].and_then(|p| self.evidence.judge(p)).is_some_and(|jd| jd.retracts(&self.config.evidence))
+            {
                 self.ekf.remove_landmark(j);
                 let gone = self.forget_landmark(j);
                 self.retractions.push(LandmarkRetraction { t: self.t, landmark: gone.id });
@@ -1007,7 +1195,10 @@ impl Pipeline {
                 let li = self.ekf.landmark(i);
                 for j in i + 1..self.landmarks.len() {
                     let (a, b) = (self.landmarks[i].id, self.landmarks[j].id);
-                    if !self.landmarks[j].confirmed || (self.ekf.landmark(j) - li).norm() > reach || self.co_observed.contains(&(a.min(b), a.max(b))) {
+                    if !self.landmarks[j].confirmed
+                        || (self.ekf.landmark(j) - li).norm() > reach
+                        || self.co_observed.contains(&(a.min(b), a.max(b)))
+                    {
                         continue;
                     }
                     let (m2, c) = self.ekf.landmark_difference(i, j);
@@ -1025,10 +1216,23 @@ impl Pipeline {
             }
             let gone = self.forget_landmark(j);
             let kept = &mut self.landmarks[i];
-            kept.diameter_m = (kept.diameter_m * kept.observations as f64 + gone.diameter_m * gone.observations as f64) / (kept.observations + gone.observations).max(1) as f64;
+            kept.diameter_m = (kept.diameter_m * kept.observations as f64 + gone.diameter_m * gone.observations as f64)
+                / (kept.observations + gone.observations).max(1) as f64;
             kept.observations += gone.observations;
             // The fused landmark is never fused with what either was seen beside.
-            let partners: Vec<u32> = self.co_observed.iter().filter_map(|&(a, b)| if a == gone.id { Some(b) } else if b == gone.id { Some(a) } else { None }).collect();
+            let partners: Vec<u32> = self
+                .co_observed
+                .iter()
+                .filter_map(|&(a, b)| {
+                    if a == gone.id {
+                        Some(b)
+                    } else if b == gone.id {
+                        Some(a)
+                    } else {
+                        None
+                    }
+                })
+                .collect();
             let kept_id = kept.id;
             for p in partners {
                 self.co_observed.insert((kept_id.min(p), kept_id.max(p)));
@@ -1049,7 +1253,8 @@ impl Pipeline {
         }
         let (Some(a), Some(b)) = (&self.objects[i], &self.objects[j]) else { return false };
         let cfg = &self.config.object_model;
-        a.kl_from(&b.gmm, [0.0; 2], [0.0; 2], &Matrix2::zeros(), cfg, true).is_ok_and(|kl| kl.is_finite() && kl < cfg.kl_threshold)
+        a.kl_from(&b.gmm, [0.0; 2], [0.0; 2], &Matrix2::zeros(), cfg, true)
+            .is_ok_and(|kl| kl.is_finite() && kl < cfg.kl_threshold)
     }
 
     /// Landmarks fused so far.
@@ -1083,7 +1288,11 @@ impl Pipeline {
     fn record_pose(&mut self) {
         let p = self.ekf.pose();
         let c = self.ekf.pose_covariance();
-        let est = PoseEstimate { t: self.t, pose: [p.x, p.y, p.z], covariance: std::array::from_fn(|r| std::array::from_fn(|k| c[(r, k)])) };
+        let est = PoseEstimate {
+            t: self.t,
+            pose: [p.x, p.y, p.z],
+            covariance: std::array::from_fn(|r| std::array::from_fn(|k| c[(r, k)])),
+        };
         // One pose per time stamp: a scan at the same instant as odometry replaces it.
         match self.poses.last_mut() {
             Some(last) if last.t == est.t => *last = est,
@@ -1123,14 +1332,24 @@ mod merge_tests {
     use super::*;
 
     fn cluster_at(range: f64, bearing: f64) -> Cluster {
-        Cluster { first_beam: 0, last_beam: 3, points: vec![], centre: [range * bearing.cos(), range * bearing.sin()], diameter_m: 0.3, range_m: range, bearing_rad: bearing, occluded: false }
+        Cluster {
+            first_beam: 0,
+            last_beam: 3,
+            points: vec![],
+            centre: [range * bearing.cos(), range * bearing.sin()],
+            diameter_m: 0.3,
+            range_m: range,
+            bearing_rad: bearing,
+            occluded: false,
+        }
     }
 
     /// Two landmarks, seen in one scan or in two, then landmark 1 moved to 2 cm from
     /// landmark 0 (as if a loop closure had pulled a duplicate onto its original).
     fn pair(seen_together: bool, extra_variance: f64, merge: bool) -> Pipeline {
         let merge = MergeConfig { enabled: merge, ..Default::default() };
-        let config = PipelineConfig { method: AssociationMethod::Nn, confirm_observations: 1, merge, ..Default::default() };
+        let config =
+            PipelineConfig { method: AssociationMethod::Nn, confirm_observations: 1, merge, ..Default::default() };
         let mut p = Pipeline::new(config, [0.0; 3]);
         let (a, b) = (cluster_at(5.0, 0.0), cluster_at(5.0, 0.5));
         if seen_together {
@@ -1198,14 +1417,34 @@ mod association_rule_tests {
     fn one_landmark(confirm_observations: usize) -> Pipeline {
         let config = PipelineConfig { method: AssociationMethod::Nn, confirm_observations, ..Default::default() };
         let mut p = Pipeline::new(config, [0.0; 3]);
-        let c = Cluster { first_beam: 0, last_beam: 3, points: vec![], centre: [5.0, 0.0], diameter_m: 0.3, range_m: 5.0, bearing_rad: 0.0, occluded: false };
+        let c = Cluster {
+            first_beam: 0,
+            last_beam: 3,
+            points: vec![],
+            centre: [5.0, 0.0],
+            diameter_m: 0.3,
+            range_m: 5.0,
+            bearing_rad: 0.0,
+            occluded: false,
+        };
         p.on_scan_with_objects(0.1, vec![c], &[true], "tree");
-        p.objects[0] = Some(ObjectModel { gmm: density(0.0), patches: 20.0, observations: 1, mosaic: MosaicView { cells: vec![], appearance: vec![] } });
+        p.objects[0] = Some(ObjectModel {
+            gmm: density(0.0),
+            patches: 20.0,
+            observations: 1,
+            mosaic: MosaicView { cells: vec![], appearance: vec![] },
+        });
         p
     }
 
     fn observation() -> ObjectObservation {
-        ObjectObservation { centre: [5.2, 0.1], rows: DMatrix::zeros(0, 7), appearance: vec![], cells: vec![], centre_covariance: Matrix2::zeros() }
+        ObjectObservation {
+            centre: [5.2, 0.1],
+            rows: DMatrix::zeros(0, 7),
+            appearance: vec![],
+            cells: vec![],
+            centre_covariance: Matrix2::zeros(),
+        }
     }
 
     #[test]
@@ -1214,7 +1453,10 @@ mod association_rule_tests {
         let cfg = ObjectModelConfig::default();
         let candidate = [Candidate { landmark: 0, mahalanobis2: 1.0, kl: Some(500.0) }];
         assert!(p.near_lookalike(&observation(), &density(0.05), &candidate, &cfg), "same appearance, in the gate");
-        assert!(!p.near_lookalike(&observation(), &density(5.0), &candidate, &cfg), "another kind of object starts its own landmark");
+        assert!(
+            !p.near_lookalike(&observation(), &density(5.0), &candidate, &cfg),
+            "another kind of object starts its own landmark"
+        );
         assert!(!p.near_lookalike(&observation(), &density(0.05), &[], &cfg), "nothing in the gate");
         // A tentative landmark (maybe a person) never holds a new tree back.
         let q = one_landmark(8);
@@ -1237,7 +1479,13 @@ mod association_rule_tests {
         assert!(off.compatible(1.0, 5.0, 0.2, 10));
         assert!(check.validate().is_ok());
         assert_eq!(DiameterCheck { max_sigmas: 0.0, ..Default::default() }.validate().unwrap_err().0, "max_sigmas");
-        assert_eq!(DiameterCheck { sigma_per_m: f64::NAN, ..Default::default() }.validate().unwrap_err().0, "sigma_per_m");
-        assert_eq!(DiameterCheck { sigma_m: 0.0, sigma_per_m: 0.0, ..Default::default() }.validate().unwrap_err().0, "sigma_m");
+        assert_eq!(
+            DiameterCheck { sigma_per_m: f64::NAN, ..Default::default() }.validate().unwrap_err().0,
+            "sigma_per_m"
+        );
+        assert_eq!(
+            DiameterCheck { sigma_m: 0.0, sigma_per_m: 0.0, ..Default::default() }.validate().unwrap_err().0,
+            "sigma_m"
+        );
     }
 }

@@ -92,14 +92,24 @@ pub struct SegmentationConfig {
 
 impl Default for SegmentationConfig {
     fn default() -> Self {
-        SegmentationConfig { min_hit_fraction: 0.75, min_object_patches: 4, min_above_fraction: 0.6, above_band_from_m: 2.2, above_band_m: 2.7, min_band_rows: 2, column_margin: 0, patch_threshold: None }
+        SegmentationConfig {
+            min_hit_fraction: 0.75,
+            min_object_patches: 4,
+            min_above_fraction: 0.6,
+            above_band_from_m: 2.2,
+            above_band_m: 2.7,
+            min_band_rows: 2,
+            column_margin: 0,
+            patch_threshold: None,
+        }
     }
 }
 
 impl SegmentationConfig {
     /// The first setting that makes no sense, as (field, problem).
     pub fn validate(&self) -> Result<(), (&'static str, String)> {
-        for (name, v) in [("min_hit_fraction", self.min_hit_fraction), ("min_above_fraction", self.min_above_fraction)] {
+        for (name, v) in [("min_hit_fraction", self.min_hit_fraction), ("min_above_fraction", self.min_above_fraction)]
+        {
             if !(0.0..=1.0).contains(&v) {
                 return Err((name, format!("must be in [0, 1], got {v}")));
             }
@@ -108,10 +118,19 @@ impl SegmentationConfig {
             return Err(("above_band_from_m", format!("must be finite, got {}", self.above_band_from_m)));
         }
         if !(self.above_band_m.is_finite() && self.above_band_m > self.above_band_from_m) {
-            return Err(("above_band_m", format!("the band's top must be above its bottom (above_band_from_m = {}), got {}", self.above_band_from_m, self.above_band_m)));
+            return Err((
+                "above_band_m",
+                format!(
+                    "the band's top must be above its bottom (above_band_from_m = {}), got {}",
+                    self.above_band_from_m, self.above_band_m
+                ),
+            ));
         }
         if self.min_band_rows == 0 {
-            return Err(("min_band_rows", "must be at least 1 (a band with no row in the image judges nothing)".into()));
+            return Err((
+                "min_band_rows",
+                "must be at least 1 (a band with no row in the image judges nothing)".into(),
+            ));
         }
         // The image is at most a few thousand pixels wide: a wider margin is a typo.
         if self.column_margin > 1000 {
@@ -181,7 +200,14 @@ pub struct ClusterInImage {
 
 /// Projects a cluster into an image of `width` x `height` pixels cut into `patch_size`
 /// patches; `None` when none of its points lands in the patch grid.
-pub fn locate_cluster(cluster: &Cluster, geometry: &CameraGeometry, width: u32, height: u32, patch_size: u32, config: &SegmentationConfig) -> Option<ClusterInImage> {
+pub fn locate_cluster(
+    cluster: &Cluster,
+    geometry: &CameraGeometry,
+    width: u32,
+    height: u32,
+    patch_size: u32,
+    config: &SegmentationConfig,
+) -> Option<ClusterInImage> {
     let l = patch_size;
     let (cols, rows) = (width / l, height / l);
     let mut hits: Vec<(u32, u32)> = Vec::new();
@@ -222,12 +248,21 @@ pub struct ImageRegion {
 impl ImageRegion {
     /// Pixel columns `start..end`, sorted and disjoint, that segmenting `scan` reads.
     pub fn columns(&self, scan: &LaserScan) -> Vec<(u32, u32)> {
-        merge_spans(cluster(scan, &self.clustering).iter().filter(|c| !c.occluded).filter_map(|c| self.columns_of(c)).collect())
+        merge_spans(
+            cluster(scan, &self.clustering).iter().filter(|c| !c.occluded).filter_map(|c| self.columns_of(c)).collect(),
+        )
     }
 
     /// Pixel columns segmenting `cluster` reads, `None` when it is not in the image.
     pub fn columns_of(&self, cluster: &Cluster) -> Option<(u32, u32)> {
-        let located = locate_cluster(cluster, &self.camera, self.camera.width, self.camera.height, self.features.patch_size, &self.segmentation)?;
+        let located = locate_cluster(
+            cluster,
+            &self.camera,
+            self.camera.width,
+            self.camera.height,
+            self.features.patch_size,
+            &self.segmentation,
+        )?;
         Some(self.features.columns_read(&located.rect, self.camera.width))
     }
 }
@@ -253,7 +288,15 @@ pub fn spans_cover(spans: &[(u32, u32)], needed: (u32, u32)) -> bool {
 
 /// Segments a cluster [`locate_cluster`] found in the image (a cluster that it does not
 /// find is outside the camera's field of view).
-pub fn segment_located(cluster: &Cluster, located: ClusterInImage, image: &ImageRef, extractor: &FeatureExtractor, classifier: &PatchClassifier, geometry: &CameraGeometry, config: &SegmentationConfig) -> Result<SegmentedCluster, FeatureError> {
+pub fn segment_located(
+    cluster: &Cluster,
+    located: ClusterInImage,
+    image: &ImageRef,
+    extractor: &FeatureExtractor,
+    classifier: &PatchClassifier,
+    geometry: &CameraGeometry,
+    config: &SegmentationConfig,
+) -> Result<SegmentedCluster, FeatureError> {
     let l = extractor.config.patch_size;
     let ClusterInImage { hits, rect, at_image_edge } = located;
     let features = extractor.features(image, Some(rect))?;
@@ -269,7 +312,9 @@ pub fn segment_located(cluster: &Cluster, located: ClusterInImage, image: &Image
     // Height above the laser plane and object fraction of every row above the laser's.
     let row_profile: Vec<(f64, f64)> = (rect.row0..top_hit_row)
         .map(|row| {
-            let height = geometry.point_on_object_plane(u_mid, (row as f64 + 0.5) * l as f64, cluster.centre).map_or(f64::NAN, |p| p.z);
+            let height = geometry
+                .point_on_object_plane(u_mid, (row as f64 + 0.5) * l as f64, cluster.centre)
+                .map_or(f64::NAN, |p| p.z);
             let first = (row - rect.row0) as usize * width;
             let n = object[first..first + width].iter().filter(|&&o| o).count();
             (height, n as f64 / width as f64)
@@ -277,8 +322,13 @@ pub fn segment_located(cluster: &Cluster, located: ClusterInImage, image: &Image
         .collect();
     // The band is judged in the columns where the laser hit object patches: a thin trunk
     // fills only some of the cluster's columns, and it is that trunk that must go on up.
-    let trunk_columns: Vec<u32> = hits.iter().filter(|&&(c, r)| features.index(c, r).is_some_and(|i| object[i])).map(|h| h.0).collect();
-    let band_rows: Vec<u32> = (rect.row0..top_hit_row).filter(|&row| (config.above_band_from_m..=config.above_band_m).contains(&row_profile[(row - rect.row0) as usize].0)).collect();
+    let trunk_columns: Vec<u32> =
+        hits.iter().filter(|&&(c, r)| features.index(c, r).is_some_and(|i| object[i])).map(|h| h.0).collect();
+    let band_rows: Vec<u32> = (rect.row0..top_hit_row)
+        .filter(|&row| {
+            (config.above_band_from_m..=config.above_band_m).contains(&row_profile[(row - rect.row0) as usize].0)
+        })
+        .collect();
     let band_visible = band_rows.len() >= config.min_band_rows.max(1);
     let above_fraction = if !band_visible {
         hit_fraction
@@ -288,11 +338,29 @@ pub fn segment_located(cluster: &Cluster, located: ClusterInImage, image: &Image
         let mut columns = trunk_columns;
         columns.sort_unstable();
         columns.dedup();
-        let n = band_rows.iter().flat_map(|&row| columns.iter().map(move |&c| (c, row))).filter(|&(c, row)| features.index(c, row).is_some_and(|i| object[i])).count();
+        let n = band_rows
+            .iter()
+            .flat_map(|&row| columns.iter().map(move |&c| (c, row)))
+            .filter(|&(c, row)| features.index(c, row).is_some_and(|i| object[i]))
+            .count();
         n as f64 / (band_rows.len() * columns.len()) as f64
     };
-    let is_object = hit_fraction >= config.min_hit_fraction && n_object >= config.min_object_patches && above_fraction >= config.min_above_fraction;
-    Ok(SegmentedCluster { rect, features, posteriors, object, hit_patches: hits, hit_fraction, above_fraction, band_visible, at_image_edge, row_profile, is_object })
+    let is_object = hit_fraction >= config.min_hit_fraction
+        && n_object >= config.min_object_patches
+        && above_fraction >= config.min_above_fraction;
+    Ok(SegmentedCluster {
+        rect,
+        features,
+        posteriors,
+        object,
+        hit_patches: hits,
+        hit_fraction,
+        above_fraction,
+        band_visible,
+        at_image_edge,
+        row_profile,
+        is_object,
+    })
 }
 
 #[cfg(test)]
@@ -304,7 +372,15 @@ mod tests {
     /// optical x = -laser y, optical y = -laser z.
     fn geometry() -> CameraGeometry {
         let phi = Matrix3::new(0.0, 0.0, 1.0, -1.0, 0.0, 0.0, 0.0, -1.0, 0.0);
-        CameraGeometry { fx: 500.0, fy: 500.0, cx: 320.0, cy: 240.0, width: 640, height: 480, laser_from_camera: Extrinsics::from_parts(&phi, &Vector3::new(0.0, 0.0, 0.3)) }
+        CameraGeometry {
+            fx: 500.0,
+            fy: 500.0,
+            cx: 320.0,
+            cy: 240.0,
+            width: 640,
+            height: 480,
+            laser_from_camera: Extrinsics::from_parts(&phi, &Vector3::new(0.0, 0.0, 0.3)),
+        }
     }
 
     #[test]

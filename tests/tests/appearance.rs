@@ -1,7 +1,7 @@
 //! The offline phase on rendered images: trees (trunks) against everything else in the
 //! park, posts, palms, walls, grass and people included.
 
-use scenarios::dataset::{make_dataset, DatasetConfig};
+use scenarios::dataset::{DatasetConfig, make_dataset};
 use slam::classifier::TrainingOptions;
 
 /// A CI-sized run (40 images, 6,000 patches per class) measured held-out patch F1 0.82
@@ -13,7 +13,8 @@ fn tree_patches_are_found_on_held_out_rendered_images() {
     let dir = std::env::temp_dir().join(format!("objslam-appearance-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     let world = worlds::generate::preset("park", None, 1001).unwrap();
-    make_dataset(&world, "park 1001", &DatasetConfig { images: 40, seed: 4, ..Default::default() }, &dir, |_, _| {}).unwrap();
+    make_dataset(&world, "park 1001", &DatasetConfig { images: 40, seed: 4, ..Default::default() }, &dir, |_, _| {})
+        .unwrap();
     let options = TrainingOptions { max_patches_per_class: 6000, ..Default::default() };
     let model = scenarios::train::train_from_dataset(&dir, &options, 4, |_, _, _| {}).unwrap();
     // The model says which renderer made its training images (the dataset's).
@@ -32,7 +33,13 @@ fn tree_patches_are_found_on_held_out_rendered_images() {
 fn concurrent_requests_for_an_uncached_model_train_it_once() {
     let cache = std::env::temp_dir().join(format!("objslam-cache-race-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&cache);
-    let source = scenarios::appearance::AppearanceSource { training_images: 3, max_patches_per_class: 300, max_components: 3, pca_dims: 4, ..Default::default() };
+    let source = scenarios::appearance::AppearanceSource {
+        training_images: 3,
+        max_patches_per_class: 300,
+        max_components: 3,
+        pca_dims: 4,
+        ..Default::default()
+    };
     let camera = sim::camera::CameraConfig::default();
     let trained = std::sync::atomic::AtomicUsize::new(0);
     let models: Vec<_> = std::thread::scope(|scope| {
@@ -51,7 +58,8 @@ fn concurrent_requests_for_an_uncached_model_train_it_once() {
     });
     assert_eq!(trained.into_inner(), 1, "the model is trained once");
     assert!(models.iter().all(|m| *m == models[0]), "every caller gets the same model");
-    let files: Vec<String> = std::fs::read_dir(&cache).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    let files: Vec<String> =
+        std::fs::read_dir(&cache).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
     assert_eq!(files, vec![source.cache_key(&camera)], "only the model is left in the cache");
     let _ = std::fs::remove_dir_all(&cache);
 }

@@ -23,7 +23,10 @@ fn twenty_board_poses_calibrate_within_0_3_deg_and_1_cm() {
     for seed in [sc.seed, 2, 3] {
         let r = session(&sc, seed);
         let (rot, trans) = (r.rotation_error_deg.unwrap(), r.translation_error_m.unwrap());
-        eprintln!("seed {seed}: {rot:.3} deg, {trans:.4} m; {} of 20 poses, residual RMS {:.4} m", r.poses_used, r.rms_residual_m);
+        eprintln!(
+            "seed {seed}: {rot:.3} deg, {trans:.4} m; {} of 20 poses, residual RMS {:.4} m",
+            r.poses_used, r.rms_residual_m
+        );
         assert!(rot < 0.3, "seed {seed}: rotation error {rot} deg");
         assert!(trans < 0.01, "seed {seed}: translation error {trans} m");
         assert_eq!(r.poses_requested, 20);
@@ -34,7 +37,10 @@ fn twenty_board_poses_calibrate_within_0_3_deg_and_1_cm() {
         // The reported uncertainty is consistent with the error made.
         let rot_sigma = r.rotation_sigma_deg.iter().map(|s| s * s).sum::<f64>().sqrt();
         let trans_sigma = r.translation_sigma_m.iter().map(|s| s * s).sum::<f64>().sqrt();
-        assert!(rot < 4.0 * rot_sigma && trans < 4.0 * trans_sigma, "seed {seed}: errors {rot}, {trans} vs sigmas {rot_sigma}, {trans_sigma}");
+        assert!(
+            rot < 4.0 * rot_sigma && trans < 4.0 * trans_sigma,
+            "seed {seed}: errors {rot}, {trans} vs sigmas {rot_sigma}, {trans_sigma}"
+        );
         assert!(r.rotation_sigma_deg.iter().zip(&r.laser_rotation_sigma_deg).all(|(t, l)| t >= l));
         // Every used pose's plane is close to the truth.
         for p in r.poses.iter().filter(|p| p.skipped.is_none()) {
@@ -60,7 +66,18 @@ fn the_session_is_deterministic_and_its_file_round_trips() {
     let back: CalibrationReport = serde_json::from_str(&std::fs::read_to_string(&file).unwrap()).unwrap();
     assert_eq!(back, a);
     let json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&file).unwrap()).unwrap();
-    for key in ["phi", "delta", "rms_residual_m", "rotation_sigma_deg", "translation_sigma_m", "poses_used", "poses_skipped", "seed", "poses", "warnings"] {
+    for key in [
+        "phi",
+        "delta",
+        "rms_residual_m",
+        "rotation_sigma_deg",
+        "translation_sigma_m",
+        "poses_used",
+        "poses_skipped",
+        "seed",
+        "poses",
+        "warnings",
+    ] {
         assert!(json.get(key).is_some(), "calibration.json lacks {key}");
     }
     let e = calibrate::load_extrinsics(&file).unwrap();
@@ -94,7 +111,8 @@ fn images_without_the_board_are_reported_and_skipped() {
 #[test]
 fn degenerate_pose_sets_are_flagged() {
     let (sc, _) = Scenario::load("calibration").unwrap();
-    let upright = SessionConfig { poses: 12, tilt_deg: [0.0, 0.0], turn_deg: [-3.0, 3.0], ..sc.calibration.session.clone() };
+    let upright =
+        SessionConfig { poses: 12, tilt_deg: [0.0, 0.0], turn_deg: [-3.0, 3.0], ..sc.calibration.session.clone() };
     let stations = calibrate::plan_stations(&upright, &sc.sim, 3);
     let world = calibrate::range_world(&stations, &worlds::generate::park(&Default::default(), 1).unwrap()).unwrap();
     match calibrate::calibrate_stations(&world, &stations, &upright, &sc.sim, 3, None) {
@@ -125,7 +143,8 @@ fn the_runner_resolves_estimated_and_file_calibrations() {
     let c = m.calibration.as_ref().unwrap();
     assert_eq!(c.mode, "estimated");
     assert!(c.rotation_error_deg < 0.3 && c.translation_error_m < 0.01, "{c:?}");
-    let meta: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("metadata.json")).unwrap()).unwrap();
+    let meta: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("metadata.json")).unwrap()).unwrap();
     let cal = &meta["configuration"]["calibration"];
     assert_eq!(cal["mode"], "estimated");
     assert!(cal["extrinsics"]["phi"].is_array() && cal["truth"]["delta"].is_array());
@@ -165,18 +184,38 @@ fn bad_calibration_settings_in_scenarios_are_named() {
     let base = "name = \"x\"\n[world]\npreset = \"park\"\n";
     let f = Path::new("bad_cal.toml");
     // The short spelling: just the mode.
-    let sc = Scenario::parse(&format!("name = \"x\"\ncalibration = \"cal/calibration.json\"\n{}", &base[11..]), f).unwrap();
+    let sc =
+        Scenario::parse(&format!("name = \"x\"\ncalibration = \"cal/calibration.json\"\n{}", &base[11..]), f).unwrap();
     assert_eq!(sc.calibration.mode, "cal/calibration.json");
     let e = Scenario::parse(&format!("name = \"x\"\ncalibration = 3\n{}", &base[11..]), f).unwrap_err().to_string();
     assert!(e.contains("bad_cal.toml") && e.contains("calibration"), "{e}");
-    let e = Scenario::parse(&format!("{base}[calibration]\nmode = \"estimated\"\n[calibration.session]\nsquares = [8, 5]\n"), f).unwrap_err().to_string();
+    let e = Scenario::parse(
+        &format!("{base}[calibration]\nmode = \"estimated\"\n[calibration.session]\nsquares = [8, 5]\n"),
+        f,
+    )
+    .unwrap_err()
+    .to_string();
     assert!(e.contains("bad_cal.toml") && e.contains("calibration.session.squares"), "{e}");
-    let e = Scenario::parse(&format!("{base}[calibration]\nmode = \"estimated\"\n[calibration.session]\ntilt_deg = [-90.0, 10.0]\n"), f).unwrap_err().to_string();
+    let e = Scenario::parse(
+        &format!("{base}[calibration]\nmode = \"estimated\"\n[calibration.session]\ntilt_deg = [-90.0, 10.0]\n"),
+        f,
+    )
+    .unwrap_err()
+    .to_string();
     assert!(e.contains("calibration.session.tilt_deg"), "{e}");
-    let e = Scenario::parse(&format!("{base}[calibration]\nmode = \"estimated\"\n[calibration.session]\nboard_colour = 3\n"), f).unwrap_err().to_string();
+    let e = Scenario::parse(
+        &format!("{base}[calibration]\nmode = \"estimated\"\n[calibration.session]\nboard_colour = 3\n"),
+        f,
+    )
+    .unwrap_err()
+    .to_string();
     assert!(e.contains("board_colour"), "{e}");
-    let e = Scenario::parse(&format!("{base}[calibration]\nmode = \"perturbed\"\nrotation_sigma_deg = -1.0\n"), f).unwrap_err().to_string();
+    let e = Scenario::parse(&format!("{base}[calibration]\nmode = \"perturbed\"\nrotation_sigma_deg = -1.0\n"), f)
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("calibration.rotation_sigma_deg"), "{e}");
-    let e = Scenario::parse(&format!("{base}[calibration]\nmode = \"true\"\ntranslation_sigma_m = 0.1\n"), f).unwrap_err().to_string();
+    let e = Scenario::parse(&format!("{base}[calibration]\nmode = \"true\"\ntranslation_sigma_m = 0.1\n"), f)
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("only apply to mode \\\"perturbed\\\"") || e.contains("perturbed"), "{e}");
 }

@@ -27,14 +27,20 @@ fn rendered_checkerboards_are_detected_with_their_planes() {
         // Facing back towards the camera, turned by turn_deg.
         let yaw = b + std::f64::consts::PI + turn_deg.to_radians();
         let mut w = world.clone();
-        let shape = Shape::Board { width_m: 0.8, height_m: 0.6, bottom_m: 0.3, squares: [8, 6], tilt_deg, roll_deg: 0.0 };
+        let shape =
+            Shape::Board { width_m: 0.8, height_m: 0.6, bottom_m: 0.3, squares: [8, 6], tilt_deg, roll_deg: 0.0 };
         let frame = shape.board_frame().unwrap();
         w.objects.push(StaticObject::checkerboard(700, Pose2 { x: bx, y: by, yaw_deg: yaw.to_degrees() }, shape));
         let mut cam = sim::camera::CameraSensor::new(&w, &cam_cfg, 1).unwrap();
         let pose = scenarios::dataset::look_at(eye, [bx, by, 0.6]);
         let fr = cam.render_from(0.0, pose).unwrap();
-        let det = slam::checkerboard::detect(&fr.image.rgb, 640, 480, (7, 5), 0.1, &km).unwrap_or_else(|e| panic!("board {i}: {e}"));
-        assert!(det.rms_px < 0.2 && det.reprojection_rms_px < 0.2, "board {i}: corner residual {} px", det.reprojection_rms_px);
+        let det = slam::checkerboard::detect(&fr.image.rgb, 640, 480, (7, 5), 0.1, &km)
+            .unwrap_or_else(|e| panic!("board {i}: {e}"));
+        assert!(
+            det.rms_px < 0.2 && det.reprojection_rms_px < 0.2,
+            "board {i}: corner residual {} px",
+            det.reprojection_rms_px
+        );
         // True plane: the board's front face, in the camera frame.
         let (s, c) = yaw.sin_cos();
         let nm = frame.normal();
@@ -49,7 +55,12 @@ fn rendered_checkerboards_are_detected_with_their_planes() {
         let truth = n_c * n_c.dot(&p_c);
         let angle = det.plane.normalize().dot(&truth.normalize()).clamp(-1.0, 1.0).acos().to_degrees();
         let distance = (det.plane.norm() - truth.norm()).abs();
-        eprintln!("board {i}: angle {angle:.3} deg, distance est {:.4} true {:.4}, rms {:.3}", det.plane.norm(), truth.norm(), det.reprojection_rms_px);
+        eprintln!(
+            "board {i}: angle {angle:.3} deg, distance est {:.4} true {:.4}, rms {:.3}",
+            det.plane.norm(),
+            truth.norm(),
+            det.reprojection_rms_px
+        );
         // Measured (llvmpipe): at most 0.06 deg and 1 mm. Before the pose fit and the
         // gradient corner refinement, boards turned 15-35 deg were off by up to 0.85 deg
         // and 3 cm (the plane read from the homography's columns amplified corner noise).

@@ -43,8 +43,14 @@ fn runs_are_deterministic() {
     let mut outs = Vec::new();
     for k in 0..2 {
         let out = dir.join(format!("run{k}"));
-        let m = run(&sc, &base, &RunOptions { seed: Some(9), out: Some(out.clone()), ..Default::default() }, |_, _| {}).unwrap().metrics;
-        outs.push((m, std::fs::read_to_string(out.join("trajectory_est.tum")).unwrap(), std::fs::read_to_string(out.join("decisions.jsonl")).unwrap()));
+        let m = run(&sc, &base, &RunOptions { seed: Some(9), out: Some(out.clone()), ..Default::default() }, |_, _| {})
+            .unwrap()
+            .metrics;
+        outs.push((
+            m,
+            std::fs::read_to_string(out.join("trajectory_est.tum")).unwrap(),
+            std::fs::read_to_string(out.join("decisions.jsonl")).unwrap(),
+        ));
     }
     let strip = |m: &scenarios::run::Metrics| m.without_wall_clock();
     assert_eq!(strip(&outs[0].0), strip(&outs[1].0));
@@ -99,7 +105,14 @@ fn rendering_only_the_columns_the_pipeline_reads_changes_no_result() {
     let dir = std::env::temp_dir().join(format!("objslam-columns-{}", std::process::id()));
     let (mut sc, base) = Scenario::load("paper_park").unwrap();
     sc.sim.max_duration_s = Some(60.0);
-    let with = |full_frames: bool| run_and_read(&sc, &base, RunOptions { full_frames, ..Default::default() }, &dir.join(format!("full{full_frames}")));
+    let with = |full_frames: bool| {
+        run_and_read(
+            &sc,
+            &base,
+            RunOptions { full_frames, ..Default::default() },
+            &dir.join(format!("full{full_frames}")),
+        )
+    };
     let (mut columns, whole) = (with(false), with(true));
     assert_eq!(whole.0.timing.rendered_fraction, 1.0);
     let fraction = columns.0.timing.rendered_fraction;
@@ -131,21 +144,46 @@ fn run_writes_every_output() {
     let dir = std::env::temp_dir().join(format!("objslam-outputs-{}", std::process::id()));
     let (mut sc, base) = Scenario::load("laser_only").unwrap();
     sc.sim.max_duration_s = Some(20.0);
-    let m = run(&sc, &base, &RunOptions { seed: Some(3), out: Some(dir.clone()), ..Default::default() }, |_, _| {}).unwrap().metrics;
-    let metrics: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("metrics.json")).unwrap()).unwrap();
-    for key in ["scenario", "seed", "method", "sim_seconds", "wall_seconds", "realtime_factor", "ate_rmse_m", "landmark_rmse_m", "map", "associations", "duplicate_landmarks", "merged_landmarks", "retracted_landmarks", "segmentation", "odometry_calibration", "anees", "passed"] {
+    let m = run(&sc, &base, &RunOptions { seed: Some(3), out: Some(dir.clone()), ..Default::default() }, |_, _| {})
+        .unwrap()
+        .metrics;
+    let metrics: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("metrics.json")).unwrap()).unwrap();
+    for key in [
+        "scenario",
+        "seed",
+        "method",
+        "sim_seconds",
+        "wall_seconds",
+        "realtime_factor",
+        "ate_rmse_m",
+        "landmark_rmse_m",
+        "map",
+        "associations",
+        "duplicate_landmarks",
+        "merged_landmarks",
+        "retracted_landmarks",
+        "segmentation",
+        "odometry_calibration",
+        "anees",
+        "passed",
+    ] {
         assert!(metrics.get(key).is_some(), "metrics.json lacks {key}");
     }
-    for key in ["trees_in_view", "trees_laser_seen", "tree_recall", "trees_mapped", "posts", "palms", "people", "walls"] {
+    for key in ["trees_in_view", "trees_laser_seen", "tree_recall", "trees_mapped", "posts", "palms", "people", "walls"]
+    {
         assert!(metrics["map"].get(key).is_some(), "metrics.json map lacks {key}");
     }
     assert_eq!(metrics["seed"], 3);
-    let meta: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("metadata.json")).unwrap()).unwrap();
+    let meta: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("metadata.json")).unwrap()).unwrap();
     assert_eq!(meta["configuration"]["seed"], 3);
     assert!(meta["configuration"]["world"]["objects"].is_array());
     // The simulator as it ran: no camera for a position-only method, so no renderer.
     assert_eq!(meta["configuration"]["sim"]["camera"]["enabled"], false);
-    assert!(meta.get("renderer").is_some_and(|r| r.is_null()) && meta.get("appearance_model").is_some_and(|r| r.is_null()));
+    assert!(
+        meta.get("renderer").is_some_and(|r| r.is_null()) && meta.get("appearance_model").is_some_and(|r| r.is_null())
+    );
     assert!(metrics.get("renderer").is_none() && m.renderer.is_none());
     let est = std::fs::read_to_string(dir.join("trajectory_est.tum")).unwrap();
     let gt = std::fs::read_to_string(dir.join("trajectory_gt.tum")).unwrap();
@@ -184,9 +222,14 @@ fn combined_method_runs_end_to_end_with_camera_segmentation() {
     assert!(lines.iter().any(|l| l["is_object"] == true && l["true_class"] == "tree"));
     assert!(lines.iter().all(|l| l["hit_fraction"].is_f64() && l["above_fraction"].is_f64()));
     // The renderer that made the images is recorded: results depend on it.
-    let meta: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(out.join("metadata.json")).unwrap()).unwrap();
+    let meta: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("metadata.json")).unwrap()).unwrap();
     assert!(meta["renderer"].as_str().is_some_and(|r| !r.is_empty()), "{}", meta["renderer"]);
-    assert_eq!(m.renderer.as_deref(), meta["renderer"].as_str(), "metrics.json and metadata.json name the same renderer");
+    assert_eq!(
+        m.renderer.as_deref(),
+        meta["renderer"].as_str(),
+        "metrics.json and metadata.json name the same renderer"
+    );
     assert!(meta["appearance_model"].get("training_renderer").is_some());
     let _ = std::fs::remove_dir_all(&out);
 }
@@ -254,7 +297,12 @@ fn long_loop_closes_its_loop_without_wrong_associations_or_duplicates() {
     assert!(m.route_completed);
     // The closure relinearises the filter, which puts the first lap's trees where the
     // closure says they are: landmark RMSE 0.147 m (0.203 m without).
-    assert!(m.relinearisations >= 1 && m.relinearisation_failures == 0, "relinearised {} times, {} failed", m.relinearisations, m.relinearisation_failures);
+    assert!(
+        m.relinearisations >= 1 && m.relinearisation_failures == 0,
+        "relinearised {} times, {} failed",
+        m.relinearisations,
+        m.relinearisation_failures
+    );
     assert!(m.landmark_rmse_m.is_some_and(|r| r < 0.18), "landmark RMSE {:?}", m.landmark_rmse_m);
 }
 
@@ -267,7 +315,12 @@ fn long_loop_closes_its_loop_without_wrong_associations_or_duplicates() {
 #[test]
 fn long_loop_relinearises_from_the_map_its_poses_agree_with() {
     let m = run_named("long_loop", Some(6734981651720448964), Some(300.0));
-    assert!(m.relinearisations >= 1 && m.relinearisation_failures == 0, "relinearised {} times, {} failed", m.relinearisations, m.relinearisation_failures);
+    assert!(
+        m.relinearisations >= 1 && m.relinearisation_failures == 0,
+        "relinearised {} times, {} failed",
+        m.relinearisations,
+        m.relinearisation_failures
+    );
     assert_eq!(m.duplicate_landmarks, 0, "{:?}", m.failures);
     assert_eq!(m.associations.wrong, 0);
     assert!(m.landmark_rmse_m.is_some_and(|r| r < 0.3), "landmark RMSE {:?}", m.landmark_rmse_m);
@@ -284,11 +337,23 @@ fn relinearising_every_30_s_happens_on_schedule() {
     assert_eq!((m.relinearisations, m.relinearisation_failures), (3, 0), "at 30, 60 and 90 s");
     assert_eq!(m.associations.wrong, 0);
     // Each solve is written out: when, what it solved, and a cost that did not rise.
-    let solves: Vec<serde_json::Value> = std::fs::read_to_string(out.join("relinearisations.jsonl")).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    let solves: Vec<serde_json::Value> = std::fs::read_to_string(out.join("relinearisations.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
     let times: Vec<f64> = solves.iter().map(|v| v["t"].as_f64().unwrap()).collect();
-    assert!(times.len() == 3 && times.iter().zip([30.0, 60.0, 90.0]).all(|(t, due)| (t - due).abs() < 0.2), "{times:?}");
+    assert!(
+        times.len() == 3 && times.iter().zip([30.0, 60.0, 90.0]).all(|(t, due)| (t - due).abs() < 0.2),
+        "{times:?}"
+    );
     for v in &solves {
-        assert!(v["poses"].as_u64().unwrap() > 10 && v["landmarks"].as_u64().unwrap() > 0 && v["iterations"].as_u64().unwrap() >= 1, "{v}");
+        assert!(
+            v["poses"].as_u64().unwrap() > 10
+                && v["landmarks"].as_u64().unwrap() > 0
+                && v["iterations"].as_u64().unwrap() >= 1,
+            "{v}"
+        );
         assert!(v["final_cost"].as_f64().unwrap() <= v["initial_cost"].as_f64().unwrap(), "{v}");
     }
     let _ = std::fs::remove_dir_all(&out);
@@ -342,7 +407,15 @@ fn nonsense_pipeline_settings_are_named_with_their_line() {
         let name = field.split(' ').next().unwrap();
         assert!(e.contains("x.toml: line 5:") && e.contains(&format!("pipeline.{table}.{name}")), "{e}");
     }
-    for field in ["relinearise_every_s = 0.0", "gate_probability = 1.5", "gate_probability = 1.0", "gate_probability = nan", "image_max_age_s = -1.0", "confirm_observations = 0", "initial_pose_sigma = [0.001, nan, 0.001]"] {
+    for field in [
+        "relinearise_every_s = 0.0",
+        "gate_probability = 1.5",
+        "gate_probability = 1.0",
+        "gate_probability = nan",
+        "image_max_age_s = -1.0",
+        "confirm_observations = 0",
+        "initial_pose_sigma = [0.001, nan, 0.001]",
+    ] {
         let text = format!("name = \"x\"\n[world]\npreset = \"park\"\n[pipeline]\n{field}\n");
         let e = Scenario::parse(&text, std::path::Path::new("x.toml")).unwrap_err().to_string();
         let name = field.split(' ').next().unwrap();

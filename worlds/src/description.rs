@@ -144,7 +144,14 @@ impl StaticObject {
     /// A calibration checkerboard (`shape` should be a `Shape::Board`): near-white squares
     /// on the checker material, so detection sees full contrast.
     pub fn checkerboard(id: u16, pose: Pose2, shape: Shape) -> StaticObject {
-        StaticObject { id, class: ObjectClass::Checkerboard, pose, shape, appearance: Appearance { material: Material::Checker, colour: [0.95, 0.95, 0.95], texture_seed: 0 }, mesh: None }
+        StaticObject {
+            id,
+            class: ObjectClass::Checkerboard,
+            pose,
+            shape,
+            appearance: Appearance { material: Material::Checker, colour: [0.95, 0.95, 0.95], texture_seed: 0 },
+            mesh: None,
+        }
     }
 }
 
@@ -153,26 +160,13 @@ impl StaticObject {
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]
 pub enum Shape {
     /// A tree: cylindrical trunk under an ellipsoidal canopy.
-    Trunk {
-        radius_m: f64,
-        height_m: f64,
-        canopy_radius_m: f64,
-        canopy_height_m: f64,
-    },
+    Trunk { radius_m: f64, height_m: f64, canopy_radius_m: f64, canopy_height_m: f64 },
     /// A palm: slightly tapering ringed trunk with a crown of fronds.
-    Palm {
-        radius_m: f64,
-        height_m: f64,
-        crown_radius_m: f64,
-    },
+    Palm { radius_m: f64, height_m: f64, crown_radius_m: f64 },
     /// A painted post: a plain cylinder.
     Post { radius_m: f64, height_m: f64 },
     /// A wall: a box centred on the pose, `length_m` along the pose's x axis.
-    Wall {
-        length_m: f64,
-        thickness_m: f64,
-        height_m: f64,
-    },
+    Wall { length_m: f64, thickness_m: f64, height_m: f64 },
     /// A flat board (calibration target) [`BOARD_THICKNESS_M`] thick, facing the pose's
     /// +x axis; `squares` = (across, down) checker squares. Untilted it stands upright
     /// with its lower edge `bottom_m` above the ground. It turns about its centre (which
@@ -311,7 +305,9 @@ impl Shape {
     /// A board's placement in its model frame; `None` for other shapes.
     pub fn board_frame(&self) -> Option<BoardFrame> {
         match *self {
-            Shape::Board { width_m, height_m, bottom_m, tilt_deg, roll_deg, .. } => Some(BoardFrame::new(width_m, height_m, bottom_m, tilt_deg, roll_deg)),
+            Shape::Board { width_m, height_m, bottom_m, tilt_deg, roll_deg, .. } => {
+                Some(BoardFrame::new(width_m, height_m, bottom_m, tilt_deg, roll_deg))
+            }
             _ => None,
         }
     }
@@ -320,9 +316,16 @@ impl Shape {
 /// A 2-D region on the ground an object occupies.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Footprint {
-    Circle { centre: [f64; 2], radius: f64 },
+    Circle {
+        centre: [f64; 2],
+        radius: f64,
+    },
     /// Oriented rectangle: half extents along its own x and y axes, rotated by `yaw` (rad).
-    Rect { centre: [f64; 2], half_extents: [f64; 2], yaw: f64 },
+    Rect {
+        centre: [f64; 2],
+        half_extents: [f64; 2],
+        yaw: f64,
+    },
 }
 
 impl Footprint {
@@ -576,9 +579,12 @@ mod tests {
         let across = r.apply([0.0, 0.4, 0.0]);
         assert!((across[2] - 0.6 - 0.4).abs() < 1e-12, "{across:?}");
         // Untilted: the old geometry.
-        let u = Shape::Board { width_m: 0.8, height_m: 0.6, bottom_m: 0.3, squares: [8, 6], tilt_deg: 0.0, roll_deg: 0.0 };
+        let u =
+            Shape::Board { width_m: 0.8, height_m: 0.6, bottom_m: 0.3, squares: [8, 6], tilt_deg: 0.0, roll_deg: 0.0 };
         assert!((u.top_m() - 0.9).abs() < 1e-12);
-        let Footprint::Rect { half_extents, .. } = u.footprint(&Pose2 { x: 0.0, y: 0.0, yaw_deg: 0.0 }) else { panic!() };
+        let Footprint::Rect { half_extents, .. } = u.footprint(&Pose2 { x: 0.0, y: 0.0, yaw_deg: 0.0 }) else {
+            panic!()
+        };
         assert!((half_extents[0] - 0.01).abs() < 1e-12 && (half_extents[1] - 0.4).abs() < 1e-12);
     }
 }

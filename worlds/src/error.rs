@@ -39,7 +39,9 @@ pub enum WorldError {
     Mesh { file: PathBuf, mesh: PathBuf, message: String },
     #[error("generator parameter {field}: {message}")]
     Parameter { field: String, message: String },
-    #[error("generator could not place {what} after {attempts} attempts; loosen the parameters (more area, fewer objects or smaller clearances)")]
+    #[error(
+        "generator could not place {what} after {attempts} attempts; loosen the parameters (more area, fewer objects or smaller clearances)"
+    )]
     Placement { what: String, attempts: usize },
 }
 

@@ -196,7 +196,8 @@ pub fn park(params: &ParkParams, seed: u64) -> Result<World, WorldError> {
 
     let route = loop_route(min, max, params.route_margin_m, params.route_corner_radius_m);
     let segs = route.segments();
-    let route_distance = |p: [f64; 2]| segs.iter().map(|(a, b)| point_segment_distance(p, *a, *b)).fold(f64::INFINITY, f64::min);
+    let route_distance =
+        |p: [f64; 2]| segs.iter().map(|(a, b)| point_segment_distance(p, *a, *b)).fold(f64::INFINITY, f64::min);
 
     let mut objects: Vec<StaticObject> = Vec::new();
     let mut next_id: u16 = 1;
@@ -238,7 +239,11 @@ pub fn park(params: &ParkParams, seed: u64) -> Result<World, WorldError> {
     }
 
     // Trees, then palms: anywhere within sight of the route, clear of it and each other.
-    let mut place_free = |rng: &mut ChaCha8Rng, objects: &mut Vec<StaticObject>, class: ObjectClass, what: &str| -> Result<(), WorldError> {
+    let mut place_free = |rng: &mut ChaCha8Rng,
+                          objects: &mut Vec<StaticObject>,
+                          class: ObjectClass,
+                          what: &str|
+     -> Result<(), WorldError> {
         for _ in 0..ATTEMPTS {
             let p = [r3(sample(rng, [min[0], max[0]])), r3(sample(rng, [min[1], max[1]]))];
             let (shape, appearance) = match class {
@@ -247,7 +252,12 @@ pub fn park(params: &ParkParams, seed: u64) -> Result<World, WorldError> {
                     let height = r3(sample(rng, params.tree_height_m));
                     let canopy = r3(sample(rng, params.canopy_radius_m));
                     (
-                        Shape::Trunk { radius_m: radius, height_m: height, canopy_radius_m: canopy, canopy_height_m: r3(canopy * 1.4) },
+                        Shape::Trunk {
+                            radius_m: radius,
+                            height_m: height,
+                            canopy_radius_m: canopy,
+                            canopy_height_m: r3(canopy * 1.4),
+                        },
                         Appearance {
                             material: Material::Bark,
                             colour: colour(rng, [0.26, 0.19, 0.13], [0.45, 0.35, 0.26]),
@@ -271,7 +281,10 @@ pub fn park(params: &ParkParams, seed: u64) -> Result<World, WorldError> {
             let pose = Pose2 { x: p[0], y: p[1], yaw_deg: 0.0 };
             let fp = shape.footprint(&pose);
             let dr = route_distance(p);
-            if dr > params.max_route_distance_m || !clear_of_route(&fp, params.route_gap_m) || !fits(objects, &fp, params.object_gap_m, None) {
+            if dr > params.max_route_distance_m
+                || !clear_of_route(&fp, params.route_gap_m)
+                || !fits(objects, &fp, params.object_gap_m, None)
+            {
                 continue;
             }
             objects.push(StaticObject { id: next_id, class, pose, shape, appearance, mesh: None });
@@ -295,7 +308,11 @@ pub fn park(params: &ParkParams, seed: u64) -> Result<World, WorldError> {
         let mut placed = false;
         for attempt in 0..ATTEMPTS {
             // Try the assigned tree first; after many failures, any tree.
-            let tree_id = if attempt < ATTEMPTS / 2 { order[k % order.len()] } else { tree_ids[rng.random_range(0..tree_ids.len())] };
+            let tree_id = if attempt < ATTEMPTS / 2 {
+                order[k % order.len()]
+            } else {
+                tree_ids[rng.random_range(0..tree_ids.len())]
+            };
             let tree = objects.iter().find(|o| o.id == tree_id).expect("tree id from this world");
             let angle = rng.random_range(0.0..std::f64::consts::TAU);
             let dist = sample(&mut rng, params.post_distance_m);
@@ -304,17 +321,26 @@ pub fn park(params: &ParkParams, seed: u64) -> Result<World, WorldError> {
             if cd < params.post_distance_m[0] || cd > params.post_distance_m[1] {
                 continue;
             }
-            let shape = Shape::Post { radius_m: r3(sample(&mut rng, params.post_radius_m)), height_m: r3(sample(&mut rng, params.post_height_m)) };
+            let shape = Shape::Post {
+                radius_m: r3(sample(&mut rng, params.post_radius_m)),
+                height_m: r3(sample(&mut rng, params.post_height_m)),
+            };
             let pose = Pose2 { x: p[0], y: p[1], yaw_deg: 0.0 };
             let fp = shape.footprint(&pose);
             if !clear_of_route(&fp, params.route_gap_m) {
                 continue;
             }
-            if tree.shape.footprint(&tree.pose).gap(&fp) < params.post_tree_gap_m || !fits(&objects, &fp, params.object_gap_m.min(params.post_tree_gap_m), None) {
+            if tree.shape.footprint(&tree.pose).gap(&fp) < params.post_tree_gap_m
+                || !fits(&objects, &fp, params.object_gap_m.min(params.post_tree_gap_m), None)
+            {
                 continue;
             }
             // Keep the usual gap from everything but trees (posts sit close to trees on purpose).
-            if !objects.iter().filter(|o| o.class != ObjectClass::Tree).all(|o| o.shape.footprint(&o.pose).gap(&fp) >= params.object_gap_m) {
+            if !objects
+                .iter()
+                .filter(|o| o.class != ObjectClass::Tree)
+                .all(|o| o.shape.footprint(&o.pose).gap(&fp) >= params.object_gap_m)
+            {
                 continue;
             }
             let appearance = Appearance {
@@ -346,7 +372,8 @@ pub fn park(params: &ParkParams, seed: u64) -> Result<World, WorldError> {
             let dir = heading + std::f64::consts::FRAC_PI_2 + skew;
             let a = [r3(c[0] + half * dir.cos()), r3(c[1] + half * dir.sin())];
             let b = [r3(c[0] - half * dir.cos()), r3(c[1] - half * dir.sin())];
-            let inside = |p: [f64; 2]| p[0] > min[0] + 0.5 && p[0] < max[0] - 0.5 && p[1] > min[1] + 0.5 && p[1] < max[1] - 0.5;
+            let inside =
+                |p: [f64; 2]| p[0] > min[0] + 0.5 && p[0] < max[0] - 0.5 && p[1] > min[1] + 0.5 && p[1] < max[1] - 0.5;
             if !inside(a) || !inside(b) {
                 continue;
             }
@@ -437,6 +464,9 @@ pub const PRESETS: &[&str] = &["park"];
 pub fn preset(name: &str, params: Option<&ParkParams>, seed: u64) -> Result<World, WorldError> {
     match name {
         "park" => park(params.unwrap_or(&ParkParams::default()), seed),
-        other => Err(WorldError::Parameter { field: "preset".into(), message: format!("unknown preset {other:?}; available: {}", PRESETS.join(", ")) }),
+        other => Err(WorldError::Parameter {
+            field: "preset".into(),
+            message: format!("unknown preset {other:?}; available: {}", PRESETS.join(", ")),
+        }),
     }
 }

@@ -213,7 +213,12 @@ fn mat_mul(a: [[f32; 4]; 4], b: [[f32; 4]; 4]) -> [[f32; 4]; 4] {
     m
 }
 
-fn visit(node: &gltf::Node, parent: [[f32; 4]; 4], buffers: &[gltf::buffer::Data], out: &mut TriMesh) -> Result<(), String> {
+fn visit(
+    node: &gltf::Node,
+    parent: [[f32; 4]; 4],
+    buffers: &[gltf::buffer::Data],
+    out: &mut TriMesh,
+) -> Result<(), String> {
     let world = mat_mul(parent, node.transform().matrix());
     if let Some(mesh) = node.mesh() {
         for prim in mesh.primitives() {
@@ -221,10 +226,13 @@ fn visit(node: &gltf::Node, parent: [[f32; 4]; 4], buffers: &[gltf::buffer::Data
                 continue;
             }
             let reader = prim.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
-            let positions: Vec<[f32; 3]> = reader.read_positions().ok_or("a primitive has no POSITION attribute")?.collect();
+            let positions: Vec<[f32; 3]> =
+                reader.read_positions().ok_or("a primitive has no POSITION attribute")?.collect();
             let n = positions.len();
-            let normals: Vec<[f32; 3]> = reader.read_normals().map(|r| r.collect()).unwrap_or_else(|| vec![[0.0, 0.0, 1.0]; n]);
-            let uvs: Vec<[f32; 2]> = reader.read_tex_coords(0).map(|r| r.into_f32().collect()).unwrap_or_else(|| vec![[0.0, 0.0]; n]);
+            let normals: Vec<[f32; 3]> =
+                reader.read_normals().map(|r| r.collect()).unwrap_or_else(|| vec![[0.0, 0.0, 1.0]; n]);
+            let uvs: Vec<[f32; 2]> =
+                reader.read_tex_coords(0).map(|r| r.into_f32().collect()).unwrap_or_else(|| vec![[0.0, 0.0]; n]);
             let indices: Vec<u32> = match reader.read_indices() {
                 Some(i) => i.into_u32().collect(),
                 None => (0..n as u32).collect(),
@@ -234,8 +242,10 @@ fn visit(node: &gltf::Node, parent: [[f32; 4]; 4], buffers: &[gltf::buffer::Data
             }
             let base = out.positions.len() as u32;
             for (p, nrm) in positions.iter().zip(&normals) {
-                let tp: [f32; 3] = std::array::from_fn(|r| world[0][r] * p[0] + world[1][r] * p[1] + world[2][r] * p[2] + world[3][r]);
-                let tn: [f32; 3] = std::array::from_fn(|r| world[0][r] * nrm[0] + world[1][r] * nrm[1] + world[2][r] * nrm[2]);
+                let tp: [f32; 3] =
+                    std::array::from_fn(|r| world[0][r] * p[0] + world[1][r] * p[1] + world[2][r] * p[2] + world[3][r]);
+                let tn: [f32; 3] =
+                    std::array::from_fn(|r| world[0][r] * nrm[0] + world[1][r] * nrm[1] + world[2][r] * nrm[2]);
                 out.positions.push(tp);
                 out.normals.push(tn);
             }
@@ -269,7 +279,10 @@ mod tests {
             .iter()
             .map(|p| {
                 let pp = person_parts(p);
-                pp.left_leg.mesh.vertex_count() + pp.right_leg.mesh.vertex_count() + pp.body.mesh.vertex_count() + pp.head.mesh.vertex_count()
+                pp.left_leg.mesh.vertex_count()
+                    + pp.right_leg.mesh.vertex_count()
+                    + pp.body.mesh.vertex_count()
+                    + pp.head.mesh.vertex_count()
             })
             .sum();
         assert_eq!(imported.vertex_count(), expected.vertex_count() + people_vertices);

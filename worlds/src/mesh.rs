@@ -66,7 +66,9 @@ impl TriMesh {
 
     /// Rotates by `r` (row-major) about the origin, then translates by `t`, in place.
     pub fn rigid(&mut self, r: &[[f64; 3]; 3], t: [f64; 3]) {
-        let rot = |v: [f32; 3]| -> [f64; 3] { std::array::from_fn(|i| r[i][0] * v[0] as f64 + r[i][1] * v[1] as f64 + r[i][2] * v[2] as f64) };
+        let rot = |v: [f32; 3]| -> [f64; 3] {
+            std::array::from_fn(|i| r[i][0] * v[0] as f64 + r[i][1] * v[1] as f64 + r[i][2] * v[2] as f64)
+        };
         for p in &mut self.positions {
             let q = rot(*p);
             *p = [(q[0] + t[0]) as f32, (q[1] + t[1]) as f32, (q[2] + t[2]) as f32];
@@ -107,7 +109,8 @@ pub fn cylinder(r_bottom: f64, r_top: f64, z0: f64, height: f64, segments: usize
         m.indices.extend_from_slice(&[b0, b1, t1, b0, t1, t0]);
     }
     // Caps: top always, bottom only when lifted off the ground.
-    let caps: &[(f64, f64, f64)] = if z0 > 1e-6 { &[(z0 + height, r_top, 1.0), (z0, r_bottom, -1.0)] } else { &[(z0 + height, r_top, 1.0)] };
+    let caps: &[(f64, f64, f64)] =
+        if z0 > 1e-6 { &[(z0 + height, r_top, 1.0), (z0, r_bottom, -1.0)] } else { &[(z0 + height, r_top, 1.0)] };
     for &(z, r, dir) in caps {
         let centre = m.push([0.0, 0.0, z], [0.0, 0.0, dir], [0.5, 0.5]);
         let first = m.positions.len() as u32;
@@ -227,15 +230,27 @@ pub fn object_parts(o: &StaticObject) -> Vec<MeshPart> {
                 let yaw = TAU * k as f64 / fronds as f64;
                 crown.append(&frond(crown_radius_m, height_m, yaw));
             }
-            let foliage = Appearance { material: Material::Foliage, colour: [0.22, 0.40, 0.12], texture_seed: a.texture_seed.wrapping_add(1) };
+            let foliage = Appearance {
+                material: Material::Foliage,
+                colour: [0.22, 0.40, 0.12],
+                texture_seed: a.texture_seed.wrapping_add(1),
+            };
             vec![part("trunk", trunk, a), part("crown", crown, foliage)]
         }
         Shape::Post { radius_m, height_m } => {
-            vec![part("post", cylinder(radius_m, radius_m, 0.0, height_m, TRUNK_SEGMENTS, tile_size_m(Material::Paint)), a)]
+            vec![part(
+                "post",
+                cylinder(radius_m, radius_m, 0.0, height_m, TRUNK_SEGMENTS, tile_size_m(Material::Paint)),
+                a,
+            )]
         }
         Shape::Wall { length_m, thickness_m, height_m } => {
             let tile = tile_size_m(a.material);
-            vec![part("wall", cuboid([0.0, 0.0, height_m / 2.0], [length_m / 2.0, thickness_m / 2.0, height_m / 2.0], tile), a)]
+            vec![part(
+                "wall",
+                cuboid([0.0, 0.0, height_m / 2.0], [length_m / 2.0, thickness_m / 2.0, height_m / 2.0], tile),
+                a,
+            )]
         }
         Shape::Board { width_m, height_m, squares, .. } => {
             // Built facing +x about the origin, then turned and placed by the board's frame.
@@ -243,7 +258,8 @@ pub fn object_parts(o: &StaticObject) -> Vec<MeshPart> {
             // squares/2 repeats to show squares[0] x squares[1] squares exactly; the back
             // and the edges are plain.
             let frame = o.shape.board_frame().expect("a board");
-            let mut board = cuboid([0.0; 3], [BOARD_THICKNESS_M / 2.0, width_m / 2.0, height_m / 2.0], [width_m, height_m]);
+            let mut board =
+                cuboid([0.0; 3], [BOARD_THICKNESS_M / 2.0, width_m / 2.0, height_m / 2.0], [width_m, height_m]);
             for (k, uv) in board.uvs.iter_mut().enumerate() {
                 if k < 4 {
                     // The front (+x) face. With the tile equal to the face's size, cuboid
@@ -371,7 +387,8 @@ pub fn person_parts(p: &Person) -> PersonParts {
 pub fn ground_part(g: &Ground) -> MeshPart {
     let mut m = TriMesh::default();
     let tile = tile_size_m(g.appearance.material);
-    let corners = [[g.min_m[0], g.min_m[1]], [g.max_m[0], g.min_m[1]], [g.max_m[0], g.max_m[1]], [g.min_m[0], g.max_m[1]]];
+    let corners =
+        [[g.min_m[0], g.min_m[1]], [g.max_m[0], g.min_m[1]], [g.max_m[0], g.max_m[1]], [g.min_m[0], g.max_m[1]]];
     for c in corners {
         m.push([c[0], c[1], 0.0], [0.0, 0.0, 1.0], [c[0] / tile[0], -c[1] / tile[1]]);
     }
@@ -414,7 +431,14 @@ mod tests {
             id,
             class: ObjectClass::Checkerboard,
             pose: Pose2 { x: 0.0, y: 0.0, yaw_deg },
-            shape: Shape::Board { width_m: 0.8, height_m: 0.6, bottom_m: 0.4, squares: [8, 6], tilt_deg: -20.0, roll_deg: 15.0 },
+            shape: Shape::Board {
+                width_m: 0.8,
+                height_m: 0.6,
+                bottom_m: 0.4,
+                squares: [8, 6],
+                tilt_deg: -20.0,
+                roll_deg: 15.0,
+            },
             appearance: Appearance { material: Material::Checker, colour: [0.9; 3], texture_seed: 0 },
             mesh: None,
         }

@@ -113,7 +113,11 @@ fn shade(material: Material, base: [f64; 3], seed: u64, u: f64, v: f64) -> [f64;
             let brick_id = ((u * cols + offset).floor() as i64).rem_euclid(cols as i64) as u64 + 17 * row as u64;
             let per_brick = hash01(seed ^ brick_id.wrapping_mul(0x9e3779b97f4a7c15));
             let n = value_noise(seed, u * 48.0, v * 48.0, 48, 48);
-            if mortar { [0.62, 0.60, 0.56].map(|m| m * (0.9 + 0.2 * n)) } else { scale(base, (0.8 + 0.35 * per_brick) * (0.92 + 0.16 * n)) }
+            if mortar {
+                [0.62, 0.60, 0.56].map(|m| m * (0.9 + 0.2 * n))
+            } else {
+                scale(base, (0.8 + 0.35 * per_brick) * (0.92 + 0.16 * n))
+            }
         }
         Material::Concrete => {
             let n = fbm(seed, u * 16.0, v * 16.0, 16, 16, 3);
@@ -127,7 +131,8 @@ fn shade(material: Material, base: [f64; 3], seed: u64, u: f64, v: f64) -> [f64;
         }
         Material::Clothes => {
             // Woven fabric: a fine cross-hatch and folds.
-            let weave = ((u * 64.0 * std::f64::consts::TAU).sin() * (v * 64.0 * std::f64::consts::TAU).sin()) * 0.5 + 0.5;
+            let weave =
+                ((u * 64.0 * std::f64::consts::TAU).sin() * (v * 64.0 * std::f64::consts::TAU).sin()) * 0.5 + 0.5;
             let folds = fbm(seed, u * 4.0, v * 4.0, 4, 4, 2);
             scale(base, 0.8 + 0.1 * weave + 0.3 * folds)
         }
@@ -135,7 +140,11 @@ fn shade(material: Material, base: [f64; 3], seed: u64, u: f64, v: f64) -> [f64;
         // A 2 x 2 tile of squares; boards repeat it (see the board's UVs). `base` is the
         // light squares' colour, the dark ones are near black.
         Material::Checker => {
-            if (u < 0.5) != (v < 0.5) { [0.05, 0.05, 0.05] } else { base }
+            if (u < 0.5) != (v < 0.5) {
+                [0.05, 0.05, 0.05]
+            } else {
+                base
+            }
         }
     }
 }

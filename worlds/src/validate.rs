@@ -3,7 +3,7 @@
 use std::collections::HashMap;
 use std::path::Path;
 
-use crate::description::{Footprint, Material, ObjectClass, Shape, World, WORLD_FORMAT_VERSION};
+use crate::description::{Footprint, Material, ObjectClass, Shape, WORLD_FORMAT_VERSION, World};
 use crate::error::Problem;
 
 /// Instance id reserved for the ground in instance images.
@@ -30,7 +30,9 @@ pub fn validate(world: &World, base_dir: &Path) -> Vec<Problem> {
         );
     }
     let g = &world.ground;
-    if !(g.max_m[0] > g.min_m[0] && g.max_m[1] > g.min_m[1]) || !all_finite(&[g.min_m[0], g.min_m[1], g.max_m[0], g.max_m[1]]) {
+    if !(g.max_m[0] > g.min_m[0] && g.max_m[1] > g.min_m[1])
+        || !all_finite(&[g.min_m[0], g.min_m[1], g.max_m[0], g.max_m[1]])
+    {
         push("ground".into(), "max_m must be greater than min_m in x and y".into());
     }
     check_colour(&mut push, "ground.appearance.colour", &g.appearance.colour);
@@ -64,7 +66,12 @@ pub fn validate(world: &World, base_dir: &Path) -> Vec<Problem> {
             }
             let tilt_ok = tilt_deg.is_finite() && tilt_deg.abs() <= MAX_BOARD_TILT_DEG;
             if !tilt_ok {
-                push(format!("{f}.shape.tilt_deg"), format!("must be within +-{MAX_BOARD_TILT_DEG} deg (a board lying flat cannot stand), got {tilt_deg}"));
+                push(
+                    format!("{f}.shape.tilt_deg"),
+                    format!(
+                        "must be within +-{MAX_BOARD_TILT_DEG} deg (a board lying flat cannot stand), got {tilt_deg}"
+                    ),
+                );
             }
             let roll_ok = roll_deg.is_finite() && roll_deg.abs() <= 180.0;
             if !roll_ok {
@@ -77,7 +84,10 @@ pub fn validate(world: &World, base_dir: &Path) -> Vec<Problem> {
                     let field = if tilt_deg != 0.0 { "tilt_deg" } else { "roll_deg" };
                     push(
                         format!("{f}.shape.{field}"),
-                        format!("the turned board reaches {:.3} m below the ground; raise bottom_m by at least that much", -lowest),
+                        format!(
+                            "the turned board reaches {:.3} m below the ground; raise bottom_m by at least that much",
+                            -lowest
+                        ),
                     );
                 }
             }
@@ -86,13 +96,22 @@ pub fn validate(world: &World, base_dir: &Path) -> Vec<Problem> {
         if let Some(kind) = expected
             && kind != o.shape.kind()
         {
-            push(format!("{f}.shape.kind"), format!("class {} needs shape kind \"{kind}\", got \"{}\"", o.class.name(), o.shape.kind()));
+            push(
+                format!("{f}.shape.kind"),
+                format!("class {} needs shape kind \"{kind}\", got \"{}\"", o.class.name(), o.shape.kind()),
+            );
         }
         if o.class == ObjectClass::Person || o.class == ObjectClass::Ground {
-            push(format!("{f}.class"), format!("class {} is not a static object (people go in [[people]])", o.class.name()));
+            push(
+                format!("{f}.class"),
+                format!("class {} is not a static object (people go in [[people]])", o.class.name()),
+            );
         }
         if o.class == ObjectClass::Foliage {
-            push(format!("{f}.class"), "class foliage labels canopies in class images; it is not an object class (use tree or palm)".into());
+            push(
+                format!("{f}.class"),
+                "class foliage labels canopies in class images; it is not an object class (use tree or palm)".into(),
+            );
         }
         check_colour(&mut push, &format!("{f}.appearance.colour"), &o.appearance.colour);
         if let Some(mesh) = &o.mesh
@@ -233,7 +252,9 @@ fn check_mesh(base_dir: &Path, mesh: &str) -> Result<(), String> {
     if !path.exists() {
         return Err(format!("mesh file {} does not exist", path.display()));
     }
-    crate::gltf_io::import_mesh(&path).map(|_| ()).map_err(|e| format!("{} is not a readable glTF/.glb mesh: {e}", path.display()))
+    crate::gltf_io::import_mesh(&path)
+        .map(|_| ())
+        .map_err(|e| format!("{} is not a readable glTF/.glb mesh: {e}", path.display()))
 }
 
 fn all_finite(v: &[f64]) -> bool {
@@ -247,11 +268,13 @@ pub fn locate_line(text: &str, field: &str) -> Option<usize> {
         Some((h, r)) => (h, r),
         None => {
             let key = field.split('.').next()?;
-            return text.lines().position(|l| {
-                let t = l.trim();
-                t == format!("[{key}]") || t.starts_with(&format!("{key} ")) || t.starts_with(&format!("{key}="))
-            })
-            .map(|i| i + 1);
+            return text
+                .lines()
+                .position(|l| {
+                    let t = l.trim();
+                    t == format!("[{key}]") || t.starts_with(&format!("{key} ")) || t.starts_with(&format!("{key}="))
+                })
+                .map(|i| i + 1);
         }
     };
     if head.contains('.') {
@@ -270,7 +293,11 @@ pub fn locate_line(text: &str, field: &str) -> Option<usize> {
             if t.starts_with("[[") && !t.starts_with(&format!("[[{head}.")) {
                 break;
             }
-            if t.starts_with(&format!("{key} ")) || t.starts_with(&format!("{key}=")) || t.contains(&format!(" {key} =")) || t.contains(&format!("{{ {key} =")) {
+            if t.starts_with(&format!("{key} "))
+                || t.starts_with(&format!("{key}="))
+                || t.contains(&format!(" {key} ="))
+                || t.contains(&format!("{{ {key} ="))
+            {
                 return Some(i + 1);
             }
         }

@@ -7,8 +7,8 @@ use worlds::generate::{ParkParams, park};
 use worlds::{ObjectClass, validate::validate};
 
 fn params() -> impl Strategy<Value = ParkParams> {
-    (500.0f64..900.0, 1.2f64..2.0, 4usize..14, 0usize..6, 0usize..3, 0usize..6, any::<bool>(), 0.5f64..1.5)
-        .prop_map(|(area, aspect, trees, posts, palms, people, wall, post_min)| ParkParams {
+    (500.0f64..900.0, 1.2f64..2.0, 4usize..14, 0usize..6, 0usize..3, 0usize..6, any::<bool>(), 0.5f64..1.5).prop_map(
+        |(area, aspect, trees, posts, palms, people, wall, post_min)| ParkParams {
             area_m2: area,
             aspect,
             trees,
@@ -18,7 +18,8 @@ fn params() -> impl Strategy<Value = ParkParams> {
             wall,
             post_distance_m: [post_min, post_min + 1.5],
             ..Default::default()
-        })
+        },
+    )
 }
 
 proptest! {
@@ -64,7 +65,12 @@ fn park_matches_the_papers_scene() {
     let w = park(&ParkParams::default(), 2006).unwrap();
     let count = |c| w.objects.iter().filter(|o| o.class == c).count();
     assert!((w.ground.area_m2() - 600.0).abs() < 1.0);
-    assert!(count(ObjectClass::Tree) >= 10 && count(ObjectClass::Post) >= 4 && count(ObjectClass::Palm) >= 1 && count(ObjectClass::Wall) == 1);
+    assert!(
+        count(ObjectClass::Tree) >= 10
+            && count(ObjectClass::Post) >= 4
+            && count(ObjectClass::Palm) >= 1
+            && count(ObjectClass::Wall) == 1
+    );
     for o in w.objects.iter().filter(|o| o.class == ObjectClass::Tree) {
         let worlds::Shape::Trunk { radius_m, .. } = o.shape else { panic!("tree without trunk") };
         assert!((0.1..=0.4).contains(&radius_m));

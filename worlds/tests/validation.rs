@@ -3,7 +3,10 @@
 
 use std::path::{Path, PathBuf};
 
-use worlds::{WorldError, generate::{ParkParams, park}};
+use worlds::{
+    WorldError,
+    generate::{ParkParams, park},
+};
 
 fn good_text() -> String {
     park(&ParkParams::default(), 11).unwrap().to_toml()
@@ -75,7 +78,8 @@ fn zero_size_is_named() {
 #[test]
 fn overlapping_objects_are_named() {
     let mut bad = park(&ParkParams::default(), 11).unwrap();
-    let trees: Vec<usize> = bad.objects.iter().enumerate().filter(|(_, o)| o.class == worlds::ObjectClass::Tree).map(|(i, _)| i).collect();
+    let trees: Vec<usize> =
+        bad.objects.iter().enumerate().filter(|(_, o)| o.class == worlds::ObjectClass::Tree).map(|(i, _)| i).collect();
     let (a, b) = (trees[0], trees[1]);
     bad.objects[b].pose = bad.objects[a].pose;
     let msg = message(&bad.to_toml());

@@ -26,7 +26,8 @@ pub fn serve_worker(input: impl BufRead, mut output: impl Write) -> Result<(), S
     exit_when_orphaned();
     let mut lines = input.lines();
     let Some(first) = lines.next() else { return Ok(()) };
-    let plan: StudyPlan = serde_json::from_str(&first.map_err(|e| protocol(e.to_string()))?).map_err(|e| protocol(format!("the first line is not a study plan: {e}")))?;
+    let plan: StudyPlan = serde_json::from_str(&first.map_err(|e| protocol(e.to_string()))?)
+        .map_err(|e| protocol(format!("the first line is not a study plan: {e}")))?;
     let (base, base_dir) = Scenario::load(&plan.scenario)?;
     // The parent resolved every model first, so these load cached ones.
     let models = StudyModels::new(&base_dir);
@@ -37,7 +38,9 @@ pub fn serve_worker(input: impl BufRead, mut output: impl Write) -> Result<(), S
         let line = line.map_err(|e| protocol(e.to_string()))?;
         let job: Job = serde_json::from_str(&line).map_err(|e| protocol(format!("not a job: {e}")))?;
         let record = pool.install(|| run_job(&base, &base_dir, &job, &models));
-        writeln!(output, "{}", serde_json::to_string(&record).expect("JSON")).and_then(|_| output.flush()).map_err(|e| protocol(format!("cannot answer: {e}")))?;
+        writeln!(output, "{}", serde_json::to_string(&record).expect("JSON"))
+            .and_then(|_| output.flush())
+            .map_err(|e| protocol(format!("cannot answer: {e}")))?;
     }
     Ok(())
 }
@@ -101,13 +104,19 @@ impl WorkerProcess {
 
     /// Runs one job; what went wrong when the child did not answer with its record.
     fn run(&mut self, job: &Job) -> Result<RunRecord, String> {
-        writeln!(self.stdin, "{}", serde_json::to_string(job).expect("JSON")).and_then(|_| self.stdin.flush()).map_err(|e| format!("cannot send the job: {e}"))?;
+        writeln!(self.stdin, "{}", serde_json::to_string(job).expect("JSON"))
+            .and_then(|_| self.stdin.flush())
+            .map_err(|e| format!("cannot send the job: {e}"))?;
         let mut line = String::new();
         match self.stdout.read_line(&mut line) {
             Ok(0) => Err("it stopped without answering".into()),
             Ok(_) => {
                 let record: RunRecord = serde_json::from_str(&line).map_err(|e| format!("unreadable answer: {e}"))?;
-                if record.key == job.key() { Ok(record) } else { Err(format!("it answered for {} instead", record.key)) }
+                if record.key == job.key() {
+                    Ok(record)
+                } else {
+                    Err(format!("it answered for {} instead", record.key))
+                }
             }
             Err(e) => Err(format!("cannot read its answer: {e}")),
         }
@@ -134,13 +143,22 @@ fn error_record(job: &Job, error: String) -> RunRecord {
 
 /// Runs `todo` on `count` child processes of `exe`, calling `finished` for each record as
 /// it arrives. Fails only when no child can be started at all.
-pub(super) fn run_in_processes(plan: &StudyPlan, todo: &[&Job], exe: &Path, count: usize, finished: &(dyn Fn(&RunRecord) + Sync)) -> Result<Vec<RunRecord>, StudyError> {
+pub(super) fn run_in_processes(
+    plan: &StudyPlan,
+    todo: &[&Job],
+    exe: &Path,
+    count: usize,
+    finished: &(dyn Fn(&RunRecord) + Sync),
+) -> Result<Vec<RunRecord>, StudyError> {
     if todo.is_empty() {
         return Ok(Vec::new());
     }
     let mut workers = Vec::new();
     for _ in 0..count.clamp(1, todo.len()) {
-        workers.push(WorkerProcess::spawn(exe, plan).map_err(|e| StudyError::Worker(format!("cannot start {} montecarlo-worker: {e}", exe.display())))?);
+        workers.push(
+            WorkerProcess::spawn(exe, plan)
+                .map_err(|e| StudyError::Worker(format!("cannot start {} montecarlo-worker: {e}", exe.display())))?,
+        );
     }
     let queue = Mutex::new(todo.iter().copied().collect::<VecDeque<&Job>>());
     let records = Mutex::new(Vec::new());

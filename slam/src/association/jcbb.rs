@@ -24,15 +24,30 @@ struct Prepared {
 
 /// Runs JCBB; `individual_gate` is the 2-dof squared-distance gate for single pairs and
 /// `confidence` the probability for the joint test (e.g. 0.99).
-pub fn jcbb(ekf: &Ekf, model: &RangeBearingModel, observations: &[Vector2<f64>], individual_gate: f64, confidence: f64) -> Hypothesis {
+pub fn jcbb(
+    ekf: &Ekf,
+    model: &RangeBearingModel,
+    observations: &[Vector2<f64>],
+    individual_gate: f64,
+    confidence: f64,
+) -> Hypothesis {
     let n = ekf.landmark_count();
-    let allowed: Vec<Vec<bool>> = observations.iter().map(|z| (0..n).map(|j| ekf.mahalanobis2(model, j, z) < individual_gate).collect()).collect();
+    let allowed: Vec<Vec<bool>> = observations
+        .iter()
+        .map(|z| (0..n).map(|j| ekf.mahalanobis2(model, j, z) < individual_gate).collect())
+        .collect();
     jcbb_with(ekf, model, observations, &allowed, confidence)
 }
 
 /// JCBB over the pairs `allowed[i][j]` (observation i may be landmark j) chosen by the
 /// caller, e.g. individually gated and alike in appearance.
-pub fn jcbb_with(ekf: &Ekf, model: &RangeBearingModel, observations: &[Vector2<f64>], allowed: &[Vec<bool>], confidence: f64) -> Hypothesis {
+pub fn jcbb_with(
+    ekf: &Ekf,
+    model: &RangeBearingModel,
+    observations: &[Vector2<f64>],
+    allowed: &[Vec<bool>],
+    confidence: f64,
+) -> Hypothesis {
     let m = observations.len();
     let n = ekf.landmark_count();
     if m == 0 {
@@ -41,7 +56,17 @@ pub fn jcbb_with(ekf: &Ekf, model: &RangeBearingModel, observations: &[Vector2<f
     let pred: Vec<_> = (0..n).map(|j| model.observe(&ekf.pose(), &ekf.landmark(j))).collect();
     let individual = allowed.iter().map(|row| (0..n).map(|j| row.get(j).copied().unwrap_or(false)).collect()).collect();
     let prep = Prepared { pred, individual };
-    let mut search = Search { ekf, model, obs: observations, prep: &prep, confidence, best: vec![None; m], best_pairs: 0, best_d2: f64::INFINITY, nodes: 0 };
+    let mut search = Search {
+        ekf,
+        model,
+        obs: observations,
+        prep: &prep,
+        confidence,
+        best: vec![None; m],
+        best_pairs: 0,
+        best_d2: f64::INFINITY,
+        nodes: 0,
+    };
     let mut current = vec![None; m];
     search.recurse(0, &mut current, 0);
     search.best
@@ -50,7 +75,13 @@ pub fn jcbb_with(ekf: &Ekf, model: &RangeBearingModel, observations: &[Vector2<f
 /// The JCBB hypothesis over `allowed` if no other hypothesis pairs as many observations:
 /// for each of its pairs, the search without that pair must find fewer pairs. `None` when
 /// it pairs nothing or a rival exists (two constellations fit: wait for more evidence).
-pub fn unambiguous_jcbb(ekf: &Ekf, model: &RangeBearingModel, observations: &[Vector2<f64>], allowed: &[Vec<bool>], confidence: f64) -> Option<Hypothesis> {
+pub fn unambiguous_jcbb(
+    ekf: &Ekf,
+    model: &RangeBearingModel,
+    observations: &[Vector2<f64>],
+    allowed: &[Vec<bool>],
+    confidence: f64,
+) -> Option<Hypothesis> {
     let best = jcbb_with(ekf, model, observations, allowed, confidence);
     let pairs = |h: &Hypothesis| h.iter().flatten().count();
     let k = pairs(&best);
@@ -142,7 +173,10 @@ impl Search<'_> {
                 let prl_b = p.fixed_view::<3, 2>(0, lb);
                 let pla_r = p.fixed_view::<2, 3>(la, 0);
                 let pla_lb = p.fixed_view::<2, 2>(la, lb);
-                let block = hra * prr * hrb.transpose() + hra * prl_b * hlb.transpose() + hla * pla_r * hrb.transpose() + hla * pla_lb * hlb.transpose();
+                let block = hra * prr * hrb.transpose()
+                    + hra * prl_b * hlb.transpose()
+                    + hla * pla_r * hrb.transpose()
+                    + hla * pla_lb * hlb.transpose();
                 let block = if a == b { block + self.model.noise() } else { block };
                 s.view_mut((2 * a, 2 * b), (2, 2)).copy_from(&block);
                 if a != b {
@@ -170,7 +204,8 @@ mod tests {
         // of 0.08 and 0.04 at once, impossible with 0.002 rad bearing noise. Jointly, only
         // (b, c) fits one common heading error.
         let model = RangeBearingModel { mount_x: 0.0, mount_y: 0.0, range_sigma_m: 0.02, bearing_sigma_rad: 0.002 };
-        let mut ekf = Ekf::new(Vector3::new(0.0, 0.0, 0.0), Matrix3::new(1e-6, 0.0, 0.0, 0.0, 1e-6, 0.0, 0.0, 0.0, 0.02));
+        let mut ekf =
+            Ekf::new(Vector3::new(0.0, 0.0, 0.0), Matrix3::new(1e-6, 0.0, 0.0, 0.0, 1e-6, 0.0, 0.0, 0.0, 0.02));
         for bearing in [0.0f64, 0.20, 0.28] {
             ekf.add_landmark(&model, &Vector2::new(5.0, bearing));
         }

@@ -17,12 +17,22 @@ pub struct NnResult {
 
 /// Nearest neighbour with a chi-square gate on the squared Mahalanobis distance.
 /// Observations are treated independently (two may take the same landmark).
-pub fn nearest_neighbour(ekf: &Ekf, model: &RangeBearingModel, observations: &[Vector2<f64>], gate: f64) -> Vec<NnResult> {
+pub fn nearest_neighbour(
+    ekf: &Ekf,
+    model: &RangeBearingModel,
+    observations: &[Vector2<f64>],
+    gate: f64,
+) -> Vec<NnResult> {
     observations
         .iter()
         .map(|z| {
             let distances: Vec<f64> = (0..ekf.landmark_count()).map(|i| ekf.mahalanobis2(model, i, z)).collect();
-            let best = distances.iter().enumerate().filter(|(_, d)| **d < gate).min_by(|a, b| a.1.total_cmp(b.1)).map(|(i, _)| i);
+            let best = distances
+                .iter()
+                .enumerate()
+                .filter(|(_, d)| **d < gate)
+                .min_by(|a, b| a.1.total_cmp(b.1))
+                .map(|(i, _)| i);
             NnResult { landmark: best, distances }
         })
         .collect()

@@ -167,7 +167,11 @@ impl Ekf {
 
     /// Predicted observation of landmark `i`, its Jacobians (robot 2x3, landmark 2x2) and
     /// innovation covariance `S`.
-    pub fn predict_observation(&self, model: &RangeBearingModel, i: usize) -> (Vector2<f64>, nalgebra::Matrix2x3<f64>, Matrix2<f64>, Matrix2<f64>) {
+    pub fn predict_observation(
+        &self,
+        model: &RangeBearingModel,
+        i: usize,
+    ) -> (Vector2<f64>, nalgebra::Matrix2x3<f64>, Matrix2<f64>, Matrix2<f64>) {
         let (z, mut hr, mut hl) = model.observe(&self.pose(), &self.landmark(i));
         if let Some(fe) = &self.first_estimates {
             (_, hr, hl) = model.observe(&fe.predicted_pose, &fe.landmarks[i]);
@@ -176,7 +180,11 @@ impl Ekf {
         let prr = self.pose_covariance();
         let pll = self.landmark_covariance(i);
         let prl = self.p.fixed_view::<3, 2>(0, li).into_owned();
-        let s = hr * prr * hr.transpose() + hr * prl * hl.transpose() + hl * prl.transpose() * hr.transpose() + hl * pll * hl.transpose() + model.noise();
+        let s = hr * prr * hr.transpose()
+            + hr * prl * hl.transpose()
+            + hl * prl.transpose() * hr.transpose()
+            + hl * pll * hl.transpose()
+            + model.noise();
         (z, hr, hl, s)
     }
 
@@ -202,7 +210,13 @@ impl Ekf {
     /// linearisation at the predicted pose leaves the filter overconfident. With first
     /// estimates on, the Jacobians stay at those and only the prediction moves, so use one
     /// iteration there.
-    pub fn update_iterated(&mut self, model: &RangeBearingModel, i: usize, z: &Vector2<f64>, iterations: usize) -> Result<(), EkfError> {
+    pub fn update_iterated(
+        &mut self,
+        model: &RangeBearingModel,
+        i: usize,
+        z: &Vector2<f64>,
+        iterations: usize,
+    ) -> Result<(), EkfError> {
         if i >= self.landmark_count() {
             return Err(EkfError::UnknownLandmark(i));
         }

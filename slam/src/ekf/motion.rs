@@ -108,7 +108,19 @@ impl OdometryMotionModel {
     /// White per-step noise only, no calibration random walks: for odometry without
     /// systematic errors (synthetic tests).
     pub fn white(a_dd: f64, a_da: f64, a_ad: f64, a_aa: f64) -> Self {
-        OdometryMotionModel { a_dd, a_da, a_ad, a_aa, d_per_m: 0.0, a_per_m: 0.0, a_per_rad: 0.0, floor: 1e-8, scale_sigma: 0.0, turn_scale_sigma: 0.0, bias_sigma_rad_per_m: 0.0 }
+        OdometryMotionModel {
+            a_dd,
+            a_da,
+            a_ad,
+            a_aa,
+            d_per_m: 0.0,
+            a_per_m: 0.0,
+            a_per_rad: 0.0,
+            floor: 1e-8,
+            scale_sigma: 0.0,
+            turn_scale_sigma: 0.0,
+            bias_sigma_rad_per_m: 0.0,
+        }
     }
 
     /// The first setting that makes no sense, as (field, problem): every term is a
@@ -149,7 +161,8 @@ impl OdometryMotionModel {
         let turn_c = (dth - bias * d * q) * r;
         let corrected = [dx * q, dy * q, turn_c];
         // Columns: d/d scale, d/d turn scale, d/d bias.
-        let j = Matrix3::new(-dx * q * q, 0.0, 0.0, -dy * q * q, 0.0, 0.0, bias * d * q * q * r, -turn_c * r, -d * q * r);
+        let j =
+            Matrix3::new(-dx * q * q, 0.0, 0.0, -dy * q * q, 0.0, 0.0, bias * d * q * q * r, -turn_c * r, -d * q * r);
         (corrected, j)
     }
 }
@@ -177,7 +190,11 @@ impl MotionModel for OdometryMotionModel {
     }
 
     fn calibration_prior(&self) -> Vec<f64> {
-        if self.estimates_calibration() { vec![self.scale_sigma, self.turn_scale_sigma, self.bias_sigma_rad_per_m] } else { Vec::new() }
+        if self.estimates_calibration() {
+            vec![self.scale_sigma, self.turn_scale_sigma, self.bias_sigma_rad_per_m]
+        } else {
+            Vec::new()
+        }
     }
 
     fn predict_calibrated(&self, pose: &Vector3<f64>, calibration: &[f64], u: &[f64]) -> CalibratedPrediction {
@@ -219,7 +236,8 @@ impl MotionModel for AckermannMotionModel {
         let (v, steer, dt) = (u[0], u[1], u[2]);
         let (s, c) = pose.z.sin_cos();
         let l = self.wheelbase_m;
-        let next = Vector3::new(pose.x + v * dt * c, pose.y + v * dt * s, wrap_angle(pose.z + v * dt * steer.tan() / l));
+        let next =
+            Vector3::new(pose.x + v * dt * c, pose.y + v * dt * s, wrap_angle(pose.z + v * dt * steer.tan() / l));
         let f = Matrix3::new(1.0, 0.0, -v * dt * s, 0.0, 1.0, v * dt * c, 0.0, 0.0, 1.0);
         let sec2 = 1.0 / steer.cos().powi(2);
         let g = Matrix3x2::new(dt * c, 0.0, dt * s, 0.0, dt * steer.tan() / l, v * dt * sec2 / l);
@@ -262,7 +280,12 @@ mod tests {
 
     #[test]
     fn calibration_jacobian_matches_numeric_differentiation() {
-        let m = OdometryMotionModel { scale_sigma: 0.01, turn_scale_sigma: 0.02, bias_sigma_rad_per_m: 0.002, ..Default::default() };
+        let m = OdometryMotionModel {
+            scale_sigma: 0.01,
+            turn_scale_sigma: 0.02,
+            bias_sigma_rad_per_m: 0.002,
+            ..Default::default()
+        };
         let pose = Vector3::new(1.0, -2.0, 2.5);
         let u = [0.3, 0.05, 0.2];
         let c = [0.02, -0.03, 0.004];
@@ -274,7 +297,11 @@ mod tests {
             let (pa, pb) = (m.predict_calibrated(&pose, &a, &u).pose, m.predict_calibrated(&pose, &b, &u).pose);
             let mut d = (pa - pb) / 2e-6;
             d.z = wrap_angle(pa.z - pb.z) / 2e-6;
-            assert!((d - pred.f_calibration.column(k)).norm() < 1e-6, "column {k}: {d} vs {}", pred.f_calibration.column(k));
+            assert!(
+                (d - pred.f_calibration.column(k)).norm() < 1e-6,
+                "column {k}: {d} vs {}",
+                pred.f_calibration.column(k)
+            );
         }
         // Zero calibration is the plain prediction; the calibration undoes the simulator's
         // error model exactly.
@@ -289,13 +316,17 @@ mod tests {
     #[test]
     fn nonsense_motion_settings_are_named() {
         assert!(OdometryMotionModel::default().validate().is_ok());
-        assert_eq!(OdometryMotionModel { bias_sigma_rad_per_m: -0.1, ..Default::default() }.validate().unwrap_err().0, "bias_sigma_rad_per_m");
+        assert_eq!(
+            OdometryMotionModel { bias_sigma_rad_per_m: -0.1, ..Default::default() }.validate().unwrap_err().0,
+            "bias_sigma_rad_per_m"
+        );
         assert_eq!(OdometryMotionModel { a_dd: f64::NAN, ..Default::default() }.validate().unwrap_err().0, "a_dd");
     }
 
     #[test]
     fn odometry_composes_in_the_robot_frame() {
-        let (p, _, _) = OdometryMotionModel::default().predict(&Vector3::new(0.0, 0.0, std::f64::consts::FRAC_PI_2), &[1.0, 0.0, 0.0]);
+        let (p, _, _) = OdometryMotionModel::default()
+            .predict(&Vector3::new(0.0, 0.0, std::f64::consts::FRAC_PI_2), &[1.0, 0.0, 0.0]);
         assert!((p.x).abs() < 1e-12 && (p.y - 1.0).abs() < 1e-12);
     }
 }

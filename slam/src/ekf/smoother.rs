@@ -97,7 +97,15 @@ struct Normal {
 
 impl Normal {
     fn new(chain: usize, nb: usize) -> Self {
-        Normal { diag: vec![Matrix3::zeros(); chain], off: vec![Matrix3::zeros(); chain.saturating_sub(1)], coupling: vec![Matrix3xX::zeros(nb); chain], border: DMatrix::zeros(nb, nb), g_chain: vec![Vector3::zeros(); chain], g_border: DVector::zeros(nb), cost: 0.0 }
+        Normal {
+            diag: vec![Matrix3::zeros(); chain],
+            off: vec![Matrix3::zeros(); chain.saturating_sub(1)],
+            coupling: vec![Matrix3xX::zeros(nb); chain],
+            border: DMatrix::zeros(nb, nb),
+            g_chain: vec![Vector3::zeros(); chain],
+            g_border: DVector::zeros(nb),
+            cost: 0.0,
+        }
     }
 
     /// Adds a factor with residual `r`, information `w` and Jacobian blocks `blocks`.
@@ -123,10 +131,14 @@ impl Normal {
         match (a, b) {
             (Var::Chain(i), Var::Chain(j)) if i == j => self.diag[i] += Matrix3::from_column_slice(h.as_slice()),
             (Var::Chain(i), Var::Chain(j)) if j == i + 1 => self.off[i] += Matrix3::from_column_slice(h.as_slice()),
-            (Var::Chain(i), Var::Chain(j)) if i == j + 1 => self.off[j] += Matrix3::from_column_slice(h.transpose().as_slice()),
+            (Var::Chain(i), Var::Chain(j)) if i == j + 1 => {
+                self.off[j] += Matrix3::from_column_slice(h.transpose().as_slice())
+            }
             (Var::Chain(_), Var::Chain(_)) => unreachable!("odometry links only neighbouring poses"),
             (Var::Chain(k), Var::Border(o)) => self.coupling[k].view_mut((0, o), (3, h.ncols())).add_assign(h),
-            (Var::Border(o), Var::Chain(k)) => self.coupling[k].view_mut((0, o), (3, h.nrows())).add_assign(&h.transpose()),
+            (Var::Border(o), Var::Chain(k)) => {
+                self.coupling[k].view_mut((0, o), (3, h.nrows())).add_assign(&h.transpose())
+            }
             (Var::Border(o1), Var::Border(o2)) => {
                 self.border.view_mut((o1, o2), (h.nrows(), h.ncols())).add_assign(h);
                 if o1 != o2 {
@@ -199,7 +211,12 @@ impl History {
     /// A history starting at `start` with covariance `start_covariance`; the filter
     /// estimates calibration parameters with prior standard deviations `calibration_sigma`.
     pub fn new(start: Vector3<f64>, start_covariance: Matrix3<f64>, calibration_sigma: &[f64]) -> Self {
-        History { start, start_covariance, calibration_sigma: calibration_sigma.to_vec(), nodes: vec![Node { controls: Vec::new(), observations: Vec::new(), estimate: start }] }
+        History {
+            start,
+            start_covariance,
+            calibration_sigma: calibration_sigma.to_vec(),
+            nodes: vec![Node { controls: Vec::new(), observations: Vec::new(), estimate: start }],
+        }
     }
 
     /// Odometry `u` moved the robot; `estimate` is the filter's pose after it.
@@ -241,7 +258,15 @@ impl History {
 
     /// Weighted squared residuals and the normal equations at `poses`, `calibration` and
     /// `landmarks` (ordered as `ids`).
-    fn linearise(&self, motion: &dyn MotionModel, sensor: &RangeBearingModel, poses: &[Vector3<f64>], calibration: &DVector<f64>, landmarks: &[Vector2<f64>], slot: &impl Fn(u32) -> Option<usize>) -> Normal {
+    fn linearise(
+        &self,
+        motion: &dyn MotionModel,
+        sensor: &RangeBearingModel,
+        poses: &[Vector3<f64>],
+        calibration: &DVector<f64>,
+        landmarks: &[Vector2<f64>],
+        slot: &impl Fn(u32) -> Option<usize>,
+    ) -> Normal {
         let k_now = poses.len() - 1;
         let nc = calibration.len();
         let nb = 3 + nc + 2 * landmarks.len();
@@ -252,9 +277,16 @@ impl History {
         let mut r = poses[0] - self.start;
         r.z = wrap_angle(r.z);
         let w = self.start_covariance.try_inverse().unwrap_or_else(|| Matrix3::identity() * 1e12);
-        normal.add(&DVector::from_column_slice(r.as_slice()), &DMatrix::from_column_slice(3, 3, w.as_slice()), &[(pose_var(0), DMatrix::identity(3, 3))]);
+        normal.add(
+            &DVector::from_column_slice(r.as_slice()),
+            &DMatrix::from_column_slice(3, 3, w.as_slice()),
+            &[(pose_var(0), DMatrix::identity(3, 3))],
+        );
         if nc > 0 {
-            let w = DMatrix::from_diagonal(&DVector::from_iterator(nc, self.calibration_sigma.iter().map(|s| 1.0 / (s * s).max(1e-12))));
+            let w = DMatrix::from_diagonal(&DVector::from_iterator(
+                nc,
+                self.calibration_sigma.iter().map(|s| 1.0 / (s * s).max(1e-12)),
+            ));
             normal.add(calibration, &w, &[(Var::Border(3), DMatrix::identity(nc, nc))]);
         }
         let cal = calibration.as_slice();
@@ -277,17 +309,31 @@ impl History {
                 let mut r = poses[k] - pose;
                 r.z = wrap_angle(r.z);
                 let w = q.try_inverse().unwrap_or_else(|| Matrix3::identity() * 1e12);
-                let mut blocks = vec![(pose_var(k), DMatrix::identity(3, 3)), (pose_var(k - 1), -DMatrix::from_column_slice(3, 3, phi.as_slice()))];
+                let mut blocks = vec![
+                    (pose_var(k), DMatrix::identity(3, 3)),
+                    (pose_var(k - 1), -DMatrix::from_column_slice(3, 3, phi.as_slice())),
+                ];
                 if nc > 0 {
                     blocks.push((Var::Border(3), -DMatrix::from_column_slice(3, nc, psi.as_slice())));
                 }
-                normal.add(&DVector::from_column_slice(r.as_slice()), &DMatrix::from_column_slice(3, 3, w.as_slice()), &blocks);
+                normal.add(
+                    &DVector::from_column_slice(r.as_slice()),
+                    &DMatrix::from_column_slice(3, 3, w.as_slice()),
+                    &blocks,
+                );
             }
             for (id, z) in &node.observations {
                 let Some(j) = slot(*id) else { continue };
                 let (zp, hr, hl) = sensor.observe(&poses[k], &landmarks[j]);
                 let r = DVector::from_column_slice(&[zp.x - z.x, wrap_angle(zp.y - z.y)]);
-                normal.add(&r, &r_inv, &[(pose_var(k), DMatrix::from_column_slice(2, 3, hr.as_slice())), (landmark_var(j), DMatrix::from_column_slice(2, 2, hl.as_slice()))]);
+                normal.add(
+                    &r,
+                    &r_inv,
+                    &[
+                        (pose_var(k), DMatrix::from_column_slice(2, 3, hr.as_slice())),
+                        (landmark_var(j), DMatrix::from_column_slice(2, 2, hl.as_slice())),
+                    ],
+                );
             }
         }
         normal
@@ -304,7 +350,15 @@ impl History {
     /// move poses by tens of metres and can end in another minimum (`long_loop`: trees
     /// 7 m from where the filter had them right). Landmarks that `before` lacks (added
     /// since) start at the filter's estimates.
-    pub fn relinearise(&mut self, ekf: &mut Ekf, before: &DVector<f64>, motion: &dyn MotionModel, sensor: &RangeBearingModel, ids: &[u32], max_iterations: usize) -> Result<Relinearisation, SmootherError> {
+    pub fn relinearise(
+        &mut self,
+        ekf: &mut Ekf,
+        before: &DVector<f64>,
+        motion: &dyn MotionModel,
+        sensor: &RangeBearingModel,
+        ids: &[u32],
+        max_iterations: usize,
+    ) -> Result<Relinearisation, SmootherError> {
         let nc = ekf.vehicle_dims - 3;
         if nc != self.calibration_sigma.len() {
             return Err(SmootherError::Mismatch("calibration parameters"));
@@ -345,7 +399,11 @@ impl History {
             trial_poses[last] += Vector3::new(step_border[0], step_border[1], step_border[2]);
             trial_poses[last].z = wrap_angle(trial_poses[last].z);
             let trial_calibration = &calibration + step_border.rows(3, nc);
-            let trial_landmarks: Vec<Vector2<f64>> = landmarks.iter().enumerate().map(|(j, l)| l + Vector2::new(step_border[3 + nc + 2 * j], step_border[3 + nc + 2 * j + 1])).collect();
+            let trial_landmarks: Vec<Vector2<f64>> = landmarks
+                .iter()
+                .enumerate()
+                .map(|(j, l)| l + Vector2::new(step_border[3 + nc + 2 * j], step_border[3 + nc + 2 * j + 1]))
+                .collect();
             let trial = self.linearise(motion, sensor, &trial_poses, &trial_calibration, &trial_landmarks, &slot);
             if trial.cost <= normal.cost {
                 let size = step_border.amax().max(step_chain.iter().map(|s| s.amax()).fold(0.0, f64::max));
@@ -380,7 +438,13 @@ impl History {
         for (node, p) in self.nodes.iter_mut().zip(&poses) {
             node.estimate = *p;
         }
-        Ok(Relinearisation { poses: poses.len(), landmarks: landmarks.len(), iterations, initial_cost, final_cost: normal.cost })
+        Ok(Relinearisation {
+            poses: poses.len(),
+            landmarks: landmarks.len(),
+            iterations,
+            initial_cost,
+            final_cost: normal.cost,
+        })
     }
 }
 
@@ -392,18 +456,34 @@ mod tests {
     /// `steps` 0.1 m steps turning `turn` rad each, landmarks seen out to 7 m every fifth
     /// step; the odometry reads `scale` long and turns `turn_scale` more.
     fn drive(steps: usize, turn: f64, landmarks: &[Vector2<f64>], scale: f64, turn_scale: f64) -> Drive {
-        synthetic::drive(&Route { steps, step_m: 0.1, turn, scale, turn_scale, observe_every: 5, max_range_m: 7.0 }, landmarks)
+        synthetic::drive(
+            &Route { steps, step_m: 0.1, turn, scale, turn_scale, observe_every: 5, max_range_m: 7.0 },
+            landmarks,
+        )
     }
 
     fn square() -> Drive {
-        drive(120, 0.02, &[Vector2::new(5.0, 3.0), Vector2::new(5.0, -3.0), Vector2::new(12.0, 2.0), Vector2::new(2.0, 9.0)], 0.0, 0.0)
+        drive(
+            120,
+            0.02,
+            &[Vector2::new(5.0, 3.0), Vector2::new(5.0, -3.0), Vector2::new(12.0, 2.0), Vector2::new(2.0, 9.0)],
+            0.0,
+            0.0,
+        )
     }
 
     /// Once round a circle of radius 10 m, seeing landmarks only near the start and on the
     /// far side, and on past the first ones: the loop closes after ~35 m unseen with the
     /// heading ~0.3 rad off.
     fn circle() -> Drive {
-        let landmarks = [Vector2::new(3.0, -3.0), Vector2::new(-2.0, -4.0), Vector2::new(4.0, 3.0), Vector2::new(3.0, 23.0), Vector2::new(-2.0, 24.0), Vector2::new(-4.0, 17.0)];
+        let landmarks = [
+            Vector2::new(3.0, -3.0),
+            Vector2::new(-2.0, -4.0),
+            Vector2::new(4.0, 3.0),
+            Vector2::new(3.0, 23.0),
+            Vector2::new(-2.0, 24.0),
+            Vector2::new(-4.0, 17.0),
+        ];
         drive(700, 0.01, &landmarks, 0.02, 0.05)
     }
 
@@ -437,11 +517,17 @@ mod tests {
         let start = d.ekf.x.clone();
         let report = d.history.relinearise(&mut d.ekf, &start, &d.motion, &d.sensor, &d.ids, 20).unwrap();
         let (smoothed_pose, smoothed_map) = ((d.ekf.pose() - d.truth).xy().norm(), landmark_rmse(&d));
-        eprintln!("{report:?}; pose error {filter_pose:.4} -> {smoothed_pose:.4} m, map RMSE {filter_map:.4} -> {smoothed_map:.4} m; calibration {:?}", d.ekf.calibration());
+        eprintln!(
+            "{report:?}; pose error {filter_pose:.4} -> {smoothed_pose:.4} m, map RMSE {filter_map:.4} -> {smoothed_map:.4} m; calibration {:?}",
+            d.ekf.calibration()
+        );
         // The filter closed the loop far from its own model (cost ~3,700 against a few);
         // the solution fits, and lies within centimetres of the truth.
         assert!(report.final_cost < 0.01 * report.initial_cost, "{report:?}");
-        assert!(smoothed_map < 0.05 && smoothed_pose < 0.05, "map RMSE {filter_map} -> {smoothed_map}, pose {filter_pose} -> {smoothed_pose}");
+        assert!(
+            smoothed_map < 0.05 && smoothed_pose < 0.05,
+            "map RMSE {filter_map} -> {smoothed_map}, pose {filter_pose} -> {smoothed_pose}"
+        );
         // It is a minimum: solving again from it moves nothing.
         let solved = d.ekf.clone();
         let start = d.ekf.x.clone();
@@ -460,10 +546,16 @@ mod tests {
         ids[0] = 7;
         let before = d.ekf.clone();
         let start = d.ekf.x.clone();
-        assert_eq!(d.history.relinearise(&mut d.ekf, &start, &d.motion, &d.sensor, &ids, 10), Err(SmootherError::Unobserved(7)));
+        assert_eq!(
+            d.history.relinearise(&mut d.ekf, &start, &d.motion, &d.sensor, &ids, 10),
+            Err(SmootherError::Unobserved(7))
+        );
         assert_eq!(d.ekf, before);
         let start = d.ekf.x.clone();
-        assert_eq!(d.history.relinearise(&mut d.ekf, &start, &d.motion, &d.sensor, &ids[1..], 10), Err(SmootherError::Mismatch("landmark count")));
+        assert_eq!(
+            d.history.relinearise(&mut d.ekf, &start, &d.motion, &d.sensor, &ids[1..], 10),
+            Err(SmootherError::Mismatch("landmark count"))
+        );
         assert_eq!(d.ekf, before);
     }
 }

@@ -5,7 +5,11 @@ use rand_distr::{Distribution, Normal};
 
 use super::*;
 
-fn numeric_observation_jacobians(m: &RangeBearingModel, pose: &Vector3<f64>, l: &Vector2<f64>) -> (nalgebra::Matrix2x3<f64>, Matrix2<f64>) {
+fn numeric_observation_jacobians(
+    m: &RangeBearingModel,
+    pose: &Vector3<f64>,
+    l: &Vector2<f64>,
+) -> (nalgebra::Matrix2x3<f64>, Matrix2<f64>) {
     let h = 1e-6;
     let mut hr = nalgebra::Matrix2x3::zeros();
     for k in 0..3 {
@@ -77,7 +81,14 @@ fn synthetic_run(seed: u64, steps: usize) -> (Vec<f64>, Ekf) {
 /// heading bias per metre, as the simulator draws them), per-step noise from `noise`'s
 /// white terms, and the filter's model `motion`; the turn rate swings by `turn_swing`
 /// (rad per step) around the circle's. Also returns the true final pose.
-fn synthetic_run_with(seed: u64, steps: usize, motion: &OdometryMotionModel, noise: &OdometryMotionModel, errors: [f64; 3], turn_swing: f64) -> (Vec<f64>, Ekf, Vector3<f64>) {
+fn synthetic_run_with(
+    seed: u64,
+    steps: usize,
+    motion: &OdometryMotionModel,
+    noise: &OdometryMotionModel,
+    errors: [f64; 3],
+    turn_swing: f64,
+) -> (Vec<f64>, Ekf, Vector3<f64>) {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let sensor = RangeBearingModel::default();
     let landmarks: Vec<Vector2<f64>> = (0..24)
@@ -113,7 +124,10 @@ fn synthetic_run_with(seed: u64, steps: usize, motion: &OdometryMotionModel, noi
             if z.x > 7.0 || z.y.abs() > std::f64::consts::FRAC_PI_2 {
                 continue;
             }
-            let zn = Vector2::new(z.x + std(sensor.range_sigma_m.powi(2)).sample(&mut rng), z.y + std(sensor.bearing_sigma_rad.powi(2)).sample(&mut rng));
+            let zn = Vector2::new(
+                z.x + std(sensor.range_sigma_m.powi(2)).sample(&mut rng),
+                z.y + std(sensor.bearing_sigma_rad.powi(2)).sample(&mut rng),
+            );
             match mapped[j] {
                 Some(i) => ekf.update(&sensor, i, &zn).unwrap(),
                 None => mapped[j] = Some(ekf.add_landmark(&sensor, &zn)),
@@ -175,7 +189,12 @@ fn update_rejects_unknown_landmarks_and_non_finite_observations() {
 /// alone vanishes as the rate rises, which left the filter overconfident).
 #[test]
 fn calibration_noise_does_not_vanish_with_the_odometry_rate() {
-    let motion = OdometryMotionModel { d_per_m: 0.004, a_per_m: 0.0003, a_per_rad: 0.003, ..OdometryMotionModel::white(0.005, 0.0002, 0.002, 0.005) };
+    let motion = OdometryMotionModel {
+        d_per_m: 0.004,
+        a_per_m: 0.0003,
+        a_per_rad: 0.003,
+        ..OdometryMotionModel::white(0.005, 0.0002, 0.002, 0.005)
+    };
     let heading_variance = |steps: usize| {
         let mut ekf = Ekf::new(Vector3::zeros(), Matrix3::zeros());
         for _ in 0..steps {
@@ -201,7 +220,8 @@ fn calibration_noise_does_not_vanish_with_the_odometry_rate() {
 fn estimated_odometry_calibration_converges_to_the_true_errors() {
     let errors = [0.02, -0.04, 0.005];
     let white = OdometryMotionModel::white(0.005, 0.0002, 0.002, 0.005);
-    let calibrated = OdometryMotionModel { scale_sigma: 0.03, turn_scale_sigma: 0.06, bias_sigma_rad_per_m: 0.006, ..white };
+    let calibrated =
+        OdometryMotionModel { scale_sigma: 0.03, turn_scale_sigma: 0.06, bias_sigma_rad_per_m: 0.006, ..white };
     // A swinging turn rate separates the turn scale from the heading bias (on a circle only
     // their sum is observable).
     let (nees, ekf, truth) = synthetic_run_with(3, 1500, &calibrated, &white, errors, 0.06);
@@ -209,8 +229,18 @@ fn estimated_odometry_calibration_converges_to_the_true_errors() {
     assert!(ekf.landmark_count() >= 12, "{} landmarks seen", ekf.landmark_count());
     let (estimate, sigma) = (ekf.calibration(), ekf.calibration_sigma());
     for k in 0..3 {
-        assert!((estimate[k] - errors[k]).abs() < 3.0 * sigma[k], "parameter {k}: {} +- {} vs {}", estimate[k], sigma[k], errors[k]);
-        assert!(sigma[k] < 0.3 * calibrated.calibration_prior()[k], "parameter {k} barely observed: sigma {}", sigma[k]);
+        assert!(
+            (estimate[k] - errors[k]).abs() < 3.0 * sigma[k],
+            "parameter {k}: {} +- {} vs {}",
+            estimate[k],
+            sigma[k],
+            errors[k]
+        );
+        assert!(
+            sigma[k] < 0.3 * calibrated.calibration_prior()[k],
+            "parameter {k} barely observed: sigma {}",
+            sigma[k]
+        );
     }
     // The pose NEES stays under the 99.9% chi-square quantile (3 dof: 16.27) at the end.
     assert!(nees[nees.len() - 1] < 16.27, "final pose NEES {}", nees[nees.len() - 1]);
@@ -225,7 +255,12 @@ fn estimated_odometry_calibration_converges_to_the_true_errors() {
 
 #[test]
 fn a_filter_without_calibration_parameters_has_the_plain_layout() {
-    let motion = OdometryMotionModel { scale_sigma: 0.0, turn_scale_sigma: 0.0, bias_sigma_rad_per_m: 0.0, ..Default::default() };
+    let motion = OdometryMotionModel {
+        scale_sigma: 0.0,
+        turn_scale_sigma: 0.0,
+        bias_sigma_rad_per_m: 0.0,
+        ..Default::default()
+    };
     assert!(!motion.estimates_calibration() && motion.calibration_prior().is_empty());
     let a = Ekf::with_calibration(Vector3::new(1.0, 2.0, 0.3), Matrix3::identity() * 0.01, &motion.calibration_prior());
     assert_eq!(a, Ekf::new(Vector3::new(1.0, 2.0, 0.3), Matrix3::identity() * 0.01));
@@ -241,7 +276,6 @@ fn a_filter_without_calibration_parameters_has_the_plain_layout() {
     assert_eq!(b.landmark(0), lj);
     assert_eq!(b.calibration(), &[0.0, 0.0, 0.0]);
 }
-
 
 /// Guards landmark fusion: the constraint pulls the two estimates together (their
 /// correlated pose moves with them), the kept landmark's variance shrinks, and the state
@@ -300,7 +334,12 @@ fn iterated_update_relinearises_large_corrections() {
         let (zp, _, _) = m.observe(&e.pose(), &e.landmark(0));
         Vector2::new(z.x - zp.x, wrap_angle(z.y - zp.y)).norm()
     };
-    assert!(residual(&iterated) < 0.5 * residual(&plain), "iterated residual {} vs plain {}", residual(&iterated), residual(&plain));
+    assert!(
+        residual(&iterated) < 0.5 * residual(&plain),
+        "iterated residual {} vs plain {}",
+        residual(&iterated),
+        residual(&plain)
+    );
     assert!((&iterated.p - iterated.p.transpose()).norm() == 0.0);
     assert!(iterated.p.clone().symmetric_eigen().eigenvalues.iter().all(|e| *e > 0.0));
 }
@@ -335,7 +374,10 @@ fn first_estimates_keep_the_global_heading_unobservable() {
             ekf.predict(&motion, &u);
             for (i, l) in landmarks.iter().enumerate() {
                 let (z, _, _) = sensor.observe(&truth, l);
-                let zn = Vector2::new(z.x + std(sensor.range_sigma_m.powi(2)).sample(&mut rng), z.y + std(sensor.bearing_sigma_rad.powi(2)).sample(&mut rng));
+                let zn = Vector2::new(
+                    z.x + std(sensor.range_sigma_m.powi(2)).sample(&mut rng),
+                    z.y + std(sensor.bearing_sigma_rad.powi(2)).sample(&mut rng),
+                );
                 ekf.update(&sensor, i, &zn).unwrap();
             }
         }

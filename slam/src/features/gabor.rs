@@ -69,9 +69,11 @@ impl GaborFilter {
         let rotated = self.orientation()?;
         let (rc, ra) = (self.carrier_radius() as i64, self.across_radius() as i64);
         let carrier: Vec<f64> = (-rc..=rc).map(|x| self.carrier_1d(x as f64)).collect();
-        let across: Vec<f64> = (-ra..=ra).map(|y| (-(self.gamma * y as f64).powi(2) / (2.0 * self.sigma_px.powi(2))).exp()).collect();
+        let across: Vec<f64> =
+            (-ra..=ra).map(|y| (-(self.gamma * y as f64).powi(2) / (2.0 * self.sigma_px.powi(2))).exp()).collect();
         let norm = carrier.iter().map(|v| v.abs()).sum::<f64>() * across.iter().sum::<f64>();
-        let (a, b): (Vec<f32>, Vec<f32>) = (carrier.iter().map(|v| (v / norm) as f32).collect(), across.iter().map(|&v| v as f32).collect());
+        let (a, b): (Vec<f32>, Vec<f32>) =
+            (carrier.iter().map(|v| (v / norm) as f32).collect(), across.iter().map(|&v| v as f32).collect());
         Some(if rotated { (b, a) } else { (a, b) })
     }
 
@@ -80,7 +82,8 @@ impl GaborFilter {
         let r = self.carrier_radius() as i64;
         let env = |x: f64| (-x * x / (2.0 * self.sigma_px.powi(2))).exp();
         let wave = |x: f64| (2.0 * std::f64::consts::PI * x / self.lambda_px + self.psi).cos();
-        let (s_wave, s_env): (f64, f64) = (-r..=r).map(|x| x as f64).fold((0.0, 0.0), |(a, b), x| (a + env(x) * wave(x), b + env(x)));
+        let (s_wave, s_env): (f64, f64) =
+            (-r..=r).map(|x| x as f64).fold((0.0, 0.0), |(a, b), x| (a + env(x) * wave(x), b + env(x)));
         env(x) * (wave(x) - s_wave / s_env)
     }
 
@@ -90,7 +93,10 @@ impl GaborFilter {
         let (st, ct) = self.theta_deg.to_radians().sin_cos();
         let env = |x: f64, y: f64| {
             let (xr, yr) = (x * ct + y * st, -x * st + y * ct);
-            ((-(xr * xr + self.gamma.powi(2) * yr * yr) / (2.0 * self.sigma_px.powi(2))).exp(), (2.0 * std::f64::consts::PI * xr / self.lambda_px + self.psi).cos())
+            (
+                (-(xr * xr + self.gamma.powi(2) * yr * yr) / (2.0 * self.sigma_px.powi(2))).exp(),
+                (2.0 * std::f64::consts::PI * xr / self.lambda_px + self.psi).cos(),
+            )
         };
         let pts: Vec<(f64, f64)> = (-ry..=ry).flat_map(|y| (-rx..=rx).map(move |x| (x as f64, y as f64))).collect();
         let (sw, se) = pts.iter().fold((0.0, 0.0), |(a, b), &(x, y)| {
@@ -166,7 +172,12 @@ impl GaborBank {
     /// default bank's 20 px margin around a cluster's patches that is over half the pixels.
     pub fn apply_within(&self, grey: &Plane, region: (usize, usize, usize, usize)) -> Vec<Plane> {
         let (x0, y0, rw, rh) = region;
-        assert!(x0 + rw <= grey.width && y0 + rh <= grey.height, "region {region:?} outside a {}x{} plane", grey.width, grey.height);
+        assert!(
+            x0 + rw <= grey.width && y0 + rh <= grey.height,
+            "region {region:?} outside a {}x{} plane",
+            grey.width,
+            grey.height
+        );
         self.filters
             .iter()
             .map(|f| {
@@ -175,7 +186,9 @@ impl GaborBank {
                     // Not separable: filter everything and keep the region.
                     None => {
                         let full = convolve_2d(grey, &f.kernel_2d(), f.support());
-                        let data = (y0..y0 + rh).flat_map(|y| full.data[y * grey.width + x0..y * grey.width + x0 + rw].iter().copied()).collect();
+                        let data = (y0..y0 + rh)
+                            .flat_map(|y| full.data[y * grey.width + x0..y * grey.width + x0 + rw].iter().copied())
+                            .collect();
                         Plane { width: rw, height: rh, data }
                     }
                 };
@@ -190,7 +203,12 @@ impl GaborBank {
 /// region's columns and the rows the column pass reads, then the column pass over the
 /// region. Borders replicate `src`'s edges as the full passes do, and every output sums
 /// the same taps in the same order, so the values are identical.
-fn convolve_separable_within(src: &Plane, h: &[f32], v: &[f32], (x0, y0, rw, rh): (usize, usize, usize, usize)) -> Plane {
+fn convolve_separable_within(
+    src: &Plane,
+    h: &[f32],
+    v: &[f32],
+    (x0, y0, rw, rh): (usize, usize, usize, usize),
+) -> Plane {
     let (rx, ry) = (h.len() / 2, v.len() / 2);
     let (w, height) = (src.width, src.height);
     if rw == 0 || rh == 0 {
@@ -338,10 +356,12 @@ pub fn convolve_2d(src: &Plane, kernel: &[f32], (rx, r): (usize, usize)) -> Plan
         let shifted = Plane {
             width: w,
             height: h,
-            data: (0..h).flat_map(|y| {
-                let sy = (y as i64 + ky as i64 - r as i64).clamp(0, h as i64 - 1) as usize;
-                src.data[sy * w..(sy + 1) * w].iter().copied()
-            }).collect(),
+            data: (0..h)
+                .flat_map(|y| {
+                    let sy = (y as i64 + ky as i64 - r as i64).clamp(0, h as i64 - 1) as usize;
+                    src.data[sy * w..(sy + 1) * w].iter().copied()
+                })
+                .collect(),
         };
         let part = convolve_rows(&shifted, row_kernel);
         for (o, p) in out.data.iter_mut().zip(part.data) {
@@ -377,7 +397,11 @@ mod tests {
                 for x in 0..w {
                     let mut acc = 0.0f32;
                     for (k, &kv) in kernel.iter().enumerate() {
-                        let (sx, sy) = if vertical { (x, (y + k as i64 - r).clamp(0, h - 1)) } else { ((x + k as i64 - r).clamp(0, w - 1), y) };
+                        let (sx, sy) = if vertical {
+                            (x, (y + k as i64 - r).clamp(0, h - 1))
+                        } else {
+                            ((x + k as i64 - r).clamp(0, w - 1), y)
+                        };
                         acc += kv * p.data[(sy * w + sx) as usize];
                     }
                     out.push(acc);
@@ -404,15 +428,26 @@ mod tests {
             let img = random_plane(w, h);
             let whole = bank.apply(&img);
             // Interior, touching each edge, the whole plane, one pixel, none.
-            for region in [(21, 20, 30, 25), (0, 0, 12, 9), (w - 13, h - 4, 13, 4), (0, 0, w, h), (w / 2, h / 2, 1, 1), (3, 2, 0, 4)] {
+            for region in [
+                (21, 20, 30, 25),
+                (0, 0, 12, 9),
+                (w - 13, h - 4, 13, 4),
+                (0, 0, w, h),
+                (w / 2, h / 2, 1, 1),
+                (3, 2, 0, 4),
+            ] {
                 let (x0, y0, rw, rh) = region;
                 if x0 + rw > w || y0 + rh > h {
                     continue;
                 }
                 for (k, (part, full)) in bank.apply_within(&img, region).iter().zip(&whole).enumerate() {
-                    let expected: Vec<f32> = (y0..y0 + rh).flat_map(|y| full.data[y * w + x0..y * w + x0 + rw].iter().copied()).collect();
+                    let expected: Vec<f32> =
+                        (y0..y0 + rh).flat_map(|y| full.data[y * w + x0..y * w + x0 + rw].iter().copied()).collect();
                     assert_eq!((part.width, part.height), (rw, rh));
-                    assert!(part.data.iter().zip(&expected).all(|(a, b)| a.to_bits() == b.to_bits()), "filter {k}, {w}x{h}, region {region:?}");
+                    assert!(
+                        part.data.iter().zip(&expected).all(|(a, b)| a.to_bits() == b.to_bits()),
+                        "filter {k}, {w}x{h}, region {region:?}"
+                    );
                 }
             }
         }

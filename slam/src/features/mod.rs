@@ -107,7 +107,12 @@ impl PatchRect {
     }
 
     fn grown(&self, cols: u32, rows: u32) -> PatchRect {
-        PatchRect { col0: self.col0.saturating_sub(1), col1: (self.col1 + 1).min(cols), row0: self.row0.saturating_sub(1), row1: (self.row1 + 1).min(rows) }
+        PatchRect {
+            col0: self.col0.saturating_sub(1),
+            col1: (self.col1 + 1).min(cols),
+            row0: self.row0.saturating_sub(1),
+            row1: (self.row1 + 1).min(rows),
+        }
     }
 
     fn check(&self, image: &ImageRef, patch_size: u32) -> Result<(), FeatureError> {
@@ -245,7 +250,8 @@ impl PatchFeatures {
     /// Row index of patch (col, row), if it lies in the rectangle.
     pub fn index(&self, col: u32, row: u32) -> Option<usize> {
         let r = &self.rect;
-        (col >= r.col0 && col < r.col1 && row >= r.row0 && row < r.row1).then(|| ((row - r.row0) * r.cols() + (col - r.col0)) as usize)
+        (col >= r.col0 && col < r.col1 && row >= r.row0 && row < r.row1)
+            .then(|| ((row - r.row0) * r.cols() + (col - r.col0)) as usize)
     }
 }
 
@@ -258,13 +264,20 @@ pub struct FeatureExtractor {
 
 /// Name of one feature dimension, for CSV headers.
 pub fn feature_names(d: usize) -> Vec<String> {
-    (0..d).map(|i| format!("z{i}")).chain(["norm_up", "norm_down", "norm_left", "norm_right"].map(String::from)).collect()
+    (0..d)
+        .map(|i| format!("z{i}"))
+        .chain(["norm_up", "norm_down", "norm_left", "norm_right"].map(String::from))
+        .collect()
 }
 
 impl FeatureExtractor {
     pub fn new(config: FeatureConfig, pca: Pca) -> Result<Self, FeatureError> {
         if !config.channel_gain.is_empty() && config.channel_gain.len() != 3 + config.bank.len() {
-            return Err(FeatureError::Training(format!("{} channel gains for {} channels", config.channel_gain.len(), 3 + config.bank.len())));
+            return Err(FeatureError::Training(format!(
+                "{} channel gains for {} channels",
+                config.channel_gain.len(),
+                3 + config.bank.len()
+            )));
         }
         if pca.input_dims() != config.raw_dims() {
             return Err(FeatureError::PcaMismatch { expected: pca.input_dims(), found: config.raw_dims() });
@@ -362,7 +375,12 @@ mod tests {
             let rect = PatchRect::columns(&image, 9, c0, c1);
             let (x0, x1) = fx.config.columns_read(&rect, w);
             // A different image outside the columns: the features must not change.
-            let mixed: Vec<u8> = (0..(w * h) as usize).flat_map(|i| if (x0..x1).contains(&(i as u32 % w)) { &rgb[3 * i..3 * i + 3] } else { &other[3 * i..3 * i + 3] }).copied().collect();
+            let mixed: Vec<u8> = (0..(w * h) as usize)
+                .flat_map(|i| {
+                    if (x0..x1).contains(&(i as u32 % w)) { &rgb[3 * i..3 * i + 3] } else { &other[3 * i..3 * i + 3] }
+                })
+                .copied()
+                .collect();
             let a = fx.features(&image, Some(rect)).unwrap();
             let b = fx.features(&ImageRef::new(w, h, &mixed).unwrap(), Some(rect)).unwrap();
             assert_eq!(a, b, "columns {c0}..{c1} read outside pixels {x0}..{x1}");
@@ -415,7 +433,10 @@ mod tests {
         let rgb = vec![0u8; 40 * 40 * 3];
         let image = ImageRef::new(40, 40, &rgb).unwrap();
         let fx = extractor(&ImageRef::new(130, 100, &textured_image(130, 100, 1)).unwrap());
-        assert!(matches!(fx.features(&image, Some(PatchRect { col0: 3, col1: 9, row0: 0, row1: 1 })), Err(FeatureError::Rect { .. })));
+        assert!(matches!(
+            fx.features(&image, Some(PatchRect { col0: 3, col1: 9, row0: 0, row1: 1 })),
+            Err(FeatureError::Rect { .. })
+        ));
         let tiny = vec![0u8; 5 * 5 * 3];
         assert!(matches!(fx.features(&ImageRef::new(5, 5, &tiny).unwrap(), None), Err(FeatureError::TooSmall { .. })));
     }

@@ -20,7 +20,7 @@ use nalgebra::{Cholesky, DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
 pub use predictive::{StudentT, StudentTMixture};
-pub use search::{fit, fit_with_history, VbGmm, VbOptions};
+pub use search::{VbGmm, VbOptions, fit, fit_with_history};
 pub use vbem::{VbComponent, VbPrior};
 
 /// What can go wrong fitting or evaluating a mixture.
@@ -114,8 +114,15 @@ impl GmmEvaluator {
             }
             let chol = Cholesky::new(c.covariance.clone()).ok_or(GmmError::NotPositiveDefinite { component: k })?;
             let ln_det = 2.0 * chol.l_dirty().diagonal().iter().map(|v| v.ln()).sum::<f64>();
-            let whiten = chol.l().solve_lower_triangular(&DMatrix::identity(d, d)).ok_or(GmmError::NotPositiveDefinite { component: k })?;
-            out.log_norm.push(c.weight.max(f64::MIN_POSITIVE).ln() - 0.5 * d as f64 * (2.0 * std::f64::consts::PI).ln() - 0.5 * ln_det);
+            let whiten = chol
+                .l()
+                .solve_lower_triangular(&DMatrix::identity(d, d))
+                .ok_or(GmmError::NotPositiveDefinite { component: k })?;
+            out.log_norm.push(
+                c.weight.max(f64::MIN_POSITIVE).ln()
+                    - 0.5 * d as f64 * (2.0 * std::f64::consts::PI).ln()
+                    - 0.5 * ln_det,
+            );
             out.means.extend(c.mean.iter());
             for i in 0..d {
                 out.whiten.extend((0..=i).map(|j| whiten[(i, j)]));

@@ -50,8 +50,16 @@ impl StudentTMixture {
             let precision = (&precision + precision.transpose()) * 0.5;
             let chol = Cholesky::new(precision.clone()).ok_or(GmmError::NotPositiveDefinite { component: k })?;
             let ln_det_l = 2.0 * chol.l_dirty().diagonal().iter().map(|v| v.ln()).sum::<f64>();
-            let log_norm = ln_gamma((dof + df) / 2.0) - ln_gamma(dof / 2.0) + 0.5 * ln_det_l - 0.5 * df * (dof * std::f64::consts::PI).ln();
-            components.push(StudentT { weight: w_weight(weight), mean: c.mean.clone(), precision, dof, chol, log_norm });
+            let log_norm = ln_gamma((dof + df) / 2.0) - ln_gamma(dof / 2.0) + 0.5 * ln_det_l
+                - 0.5 * df * (dof * std::f64::consts::PI).ln();
+            components.push(StudentT {
+                weight: w_weight(weight),
+                mean: c.mean.clone(),
+                precision,
+                dof,
+                chol,
+                log_norm,
+            });
         }
         Ok(StudentTMixture { components })
     }
@@ -69,7 +77,11 @@ impl StudentTMixture {
         for c in &self.components {
             let scale = if c.dof > 2.0 { c.dof / (c.dof - 2.0) } else { 1.0 };
             let cov = c.chol.inverse() * scale;
-            components.push(Component { weight: c.weight, mean: c.mean.clone(), covariance: (&cov + cov.transpose()) * 0.5 });
+            components.push(Component {
+                weight: c.weight,
+                mean: c.mean.clone(),
+                covariance: (&cov + cov.transpose()) * 0.5,
+            });
         }
         Ok(Gmm { components })
     }

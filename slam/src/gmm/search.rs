@@ -6,8 +6,8 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-use super::vbem::{self, check_data, Run, VbComponent, VbPrior};
 use super::GmmError;
+use super::vbem::{self, Run, VbComponent, VbPrior, check_data};
 
 /// How a mixture is fitted.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -31,7 +31,15 @@ pub struct VbOptions {
 
 impl Default for VbOptions {
     fn default() -> Self {
-        VbOptions { max_components: 10, fixed_k: false, tolerance: 1e-7, max_iterations: 1000, split_gain: 1e-5, min_points: 1.0, seed: 0 }
+        VbOptions {
+            max_components: 10,
+            fixed_k: false,
+            tolerance: 1e-7,
+            max_iterations: 1000,
+            split_gain: 1e-5,
+            min_points: 1.0,
+            seed: 0,
+        }
     }
 }
 
@@ -73,7 +81,11 @@ pub fn fit(data: &DMatrix<f64>, prior: Option<&VbPrior>, options: &VbOptions) ->
 }
 
 /// Like [`fit`], also returning the bound after every VBEM iteration of the final run.
-pub fn fit_with_history(data: &DMatrix<f64>, prior: Option<&VbPrior>, options: &VbOptions) -> Result<(VbGmm, Vec<f64>), GmmError> {
+pub fn fit_with_history(
+    data: &DMatrix<f64>,
+    prior: Option<&VbPrior>,
+    options: &VbOptions,
+) -> Result<(VbGmm, Vec<f64>), GmmError> {
     check_data(data)?;
     if options.max_components == 0 {
         return Err(GmmError::BadOptions("max_components must be at least 1".into()));
@@ -89,7 +101,14 @@ pub fn fit_with_history(data: &DMatrix<f64>, prior: Option<&VbPrior>, options: &
         None => VbPrior::from_data(data)?,
     };
     let run = if options.fixed_k { fixed_k(data, &prior, options)? } else { birth_death(data, &prior, options)? };
-    let model = VbGmm { counts: run.stats.nk.clone(), components: run.comps, lower_bound: run.bound, iterations: run.iterations, points: data.nrows(), prior };
+    let model = VbGmm {
+        counts: run.stats.nk.clone(),
+        components: run.comps,
+        lower_bound: run.bound,
+        iterations: run.iterations,
+        points: data.nrows(),
+        prior,
+    };
     Ok((model, run.history))
 }
 
@@ -112,7 +131,13 @@ fn prune(r: &DMatrix<f64>, min_points: f64) -> Option<DMatrix<f64>> {
 }
 
 /// Runs VBEM, deleting emptied components (and re-running) until none empties.
-fn run_pruned(data: &DMatrix<f64>, r: DMatrix<f64>, prior: &VbPrior, options: &VbOptions, total_iterations: &mut usize) -> Result<Run, GmmError> {
+fn run_pruned(
+    data: &DMatrix<f64>,
+    r: DMatrix<f64>,
+    prior: &VbPrior,
+    options: &VbOptions,
+    total_iterations: &mut usize,
+) -> Result<Run, GmmError> {
     let mut run = vbem::run(data, r, prior, options.max_iterations, options.tolerance)?;
     *total_iterations += run.iterations;
     while let Some(r) = prune(&run.r, options.min_points) {
@@ -127,14 +152,22 @@ fn run_pruned(data: &DMatrix<f64>, r: DMatrix<f64>, prior: &VbPrior, options: &V
 fn split(data: &DMatrix<f64>, run: &Run, c: usize) -> Option<DMatrix<f64>> {
     let (n, k) = (data.nrows(), run.r.ncols());
     let eig = SymmetricEigen::new(run.stats.s[c].clone());
-    let (axis, _) = eig.eigenvalues.iter().enumerate().fold((0, f64::NEG_INFINITY), |(bi, bv), (i, &v)| if v > bv { (i, v) } else { (bi, bv) });
+    let (axis, _) = eig
+        .eigenvalues
+        .iter()
+        .enumerate()
+        .fold((0, f64::NEG_INFINITY), |(bi, bv), (i, &v)| if v > bv { (i, v) } else { (bi, bv) });
     let v = eig.eigenvectors.column(axis);
     let xbar = &run.stats.xbar[c];
     let mut r = run.r.clone().insert_column(k, 0.0);
     let (mut moved, mut stayed) = (0usize, 0usize);
     for i in 0..n {
         let row = run.r.row(i);
-        let owner = row.iter().enumerate().fold((0, f64::NEG_INFINITY), |(bi, bv), (j, &x)| if x > bv { (j, x) } else { (bi, bv) }).0;
+        let owner = row
+            .iter()
+            .enumerate()
+            .fold((0, f64::NEG_INFINITY), |(bi, bv), (j, &x)| if x > bv { (j, x) } else { (bi, bv) })
+            .0;
         if owner != c {
             continue;
         }
@@ -162,7 +195,9 @@ fn birth_death(data: &DMatrix<f64>, prior: &VbPrior, options: &VbOptions) -> Res
         for c in order {
             let Some(r) = split(data, &best, c) else { continue };
             let candidate = run_pruned(data, r, prior, options, &mut total)?;
-            if candidate.bound > best.bound + options.split_gain * best.bound.abs() && candidate.comps.len() > best.comps.len() {
+            if candidate.bound > best.bound + options.split_gain * best.bound.abs()
+                && candidate.comps.len() > best.comps.len()
+            {
                 best = candidate;
                 continue 'grow;
             }

@@ -14,7 +14,9 @@ fn mixture_data(seed: u64, counts: &[usize], d: usize, spacing: f64) -> DMatrix<
     let mut data = DMatrix::zeros(n, d);
     let mut row = 0;
     for (k, &c) in counts.iter().enumerate() {
-        let centre: Vec<f64> = (0..d).map(|j| if j == k % d { spacing * (k / d + 1) as f64 * if k % 2 == 0 { 1.0 } else { -1.0 } } else { 0.0 }).collect();
+        let centre: Vec<f64> = (0..d)
+            .map(|j| if j == k % d { spacing * (k / d + 1) as f64 * if k % 2 == 0 { 1.0 } else { -1.0 } } else { 0.0 })
+            .collect();
         let scales: Vec<f64> = (0..d).map(|_| rng.random_range(0.5..1.5)).collect();
         for _ in 0..c {
             for j in 0..d {
@@ -53,7 +55,12 @@ fn lower_bound_never_decreases_on_random_data_sets() {
         let r = random_soft_r(&mut rng, n, k);
         let run = vbem::run(&data, r, &prior, 200, 0.0).unwrap();
         for w in run.history.windows(2) {
-            assert!(w[1] >= w[0] - 1e-9 * w[0].abs(), "case {case} (n={n}, d={d}, k={k}): bound fell from {} to {}", w[0], w[1]);
+            assert!(
+                w[1] >= w[0] - 1e-9 * w[0].abs(),
+                "case {case} (n={n}, d={d}, k={k}): bound fell from {} to {}",
+                w[0],
+                w[1]
+            );
         }
         assert!(run.history.iter().all(|b| b.is_finite()));
     }
@@ -89,7 +96,12 @@ fn translating_the_data_translates_the_means_and_nothing_else() {
     let a = fit(&data, None, &VbOptions::default()).unwrap();
     let b = fit(&moved, None, &VbOptions::default()).unwrap();
     assert_eq!(a.components.len(), b.components.len());
-    assert!((a.lower_bound - b.lower_bound).abs() < 1e-6 * a.lower_bound.abs(), "{} vs {}", a.lower_bound, b.lower_bound);
+    assert!(
+        (a.lower_bound - b.lower_bound).abs() < 1e-6 * a.lower_bound.abs(),
+        "{} vs {}",
+        a.lower_bound,
+        b.lower_bound
+    );
     for (ca, cb) in a.components.iter().zip(&b.components) {
         assert!(((&cb.mean - &ca.mean) - &shift).amax() < 1e-7);
         assert!((&cb.w_inv - &ca.w_inv).amax() < 1e-6 * ca.w_inv.amax());
@@ -105,7 +117,8 @@ fn student_t_predictive_integrates_to_one_in_1d_and_2d() {
     let p1 = StudentTMixture::new(&m1).unwrap();
     let (lo, hi, steps) = (-400.0, 400.0, 400_000);
     let h = (hi - lo) / steps as f64;
-    let integral: f64 = (0..steps).map(|i| p1.log_density(&DVector::from_element(1, lo + (i as f64 + 0.5) * h)).exp() * h).sum();
+    let integral: f64 =
+        (0..steps).map(|i| p1.log_density(&DVector::from_element(1, lo + (i as f64 + 0.5) * h)).exp() * h).sum();
     assert!((integral - 1.0).abs() < 2e-3, "1-D integral {integral}");
     // 2-D: few points so the tails are heavy.
     let data2 = mixture_data(6, &[25, 25], 2, 8.0);
@@ -150,7 +163,8 @@ fn degenerate_data_gives_finite_fits() {
     let one = DMatrix::from_row_slice(1, 2, &[4.0, -1.0]);
     for (name, data) in [("duplicates", dup), ("few", few), ("collinear", line), ("one", one)] {
         for fixed_k in [false, true] {
-            let m = fit(&data, None, &VbOptions { fixed_k, max_components: 3, ..Default::default() }).unwrap_or_else(|e| panic!("{name}: {e}"));
+            let m = fit(&data, None, &VbOptions { fixed_k, max_components: 3, ..Default::default() })
+                .unwrap_or_else(|e| panic!("{name}: {e}"));
             assert!(m.lower_bound.is_finite(), "{name}");
             for c in &m.components {
                 assert!(c.mean.iter().chain(c.w_inv.iter()).all(|v| v.is_finite()), "{name}");
@@ -169,7 +183,10 @@ fn bad_data_and_options_are_clear_errors() {
     data[(4, 1)] = f64::NAN;
     assert_eq!(fit(&data, None, &VbOptions::default()).unwrap_err(), GmmError::NotFinite { row: 4, column: 1 });
     let ok = DMatrix::from_fn(10, 2, |i, j| (i + j) as f64);
-    assert!(matches!(fit(&ok, None, &VbOptions { max_components: 0, ..Default::default() }), Err(GmmError::BadOptions(_))));
+    assert!(matches!(
+        fit(&ok, None, &VbOptions { max_components: 0, ..Default::default() }),
+        Err(GmmError::BadOptions(_))
+    ));
     let mut prior = VbPrior::from_data(&ok).unwrap();
     prior.nu0 = 0.5;
     assert!(matches!(fit(&ok, Some(&prior), &VbOptions::default()), Err(GmmError::BadPrior(_))));
@@ -196,13 +213,18 @@ fn prior_from_another_model_is_proper_and_usable() {
 
 #[test]
 fn evaluator_matches_the_gaussian_formula() {
-    let c = Component { weight: 1.0, mean: DVector::from_vec(vec![1.0, -2.0]), covariance: DMatrix::from_row_slice(2, 2, &[2.0, 0.3, 0.3, 0.5]) };
+    let c = Component {
+        weight: 1.0,
+        mean: DVector::from_vec(vec![1.0, -2.0]),
+        covariance: DMatrix::from_row_slice(2, 2, &[2.0, 0.3, 0.3, 0.5]),
+    };
     let g = Gmm { components: vec![c.clone()] };
     let e = g.evaluator().unwrap();
     let x = [0.3, -1.1];
     let dx = DVector::from_vec(vec![x[0] - 1.0, x[1] + 2.0]);
     let inv = c.covariance.clone().try_inverse().unwrap();
-    let expected = -0.5 * (dx.dot(&(&inv * &dx))) - (2.0 * std::f64::consts::PI).ln() - 0.5 * c.covariance.determinant().ln();
+    let expected =
+        -0.5 * (dx.dot(&(&inv * &dx))) - (2.0 * std::f64::consts::PI).ln() - 0.5 * c.covariance.determinant().ln();
     assert!((e.log_density(&x) - expected).abs() < 1e-12);
 }
 
@@ -217,8 +239,13 @@ fn one_component_bound_equals_the_exact_marginal_likelihood() {
     let prior = VbPrior::from_data(&data).unwrap();
     let m = fit(&data, Some(&prior), &VbOptions { max_components: 1, ..Default::default() }).unwrap();
     let c = &m.components[0];
-    let ln_gamma_d = |a: f64| 0.25 * (d * (d - 1)) as f64 * std::f64::consts::PI.ln() + (1..=d).map(|i| ln_gamma(a + (1.0 - i as f64) / 2.0)).sum::<f64>();
-    let exact = -0.5 * (n * d) as f64 * std::f64::consts::PI.ln() + ln_gamma_d(c.nu / 2.0) - ln_gamma_d(prior.nu0 / 2.0) + 0.5 * prior.nu0 * prior.w0_inv.determinant().ln()
+    let ln_gamma_d = |a: f64| {
+        0.25 * (d * (d - 1)) as f64 * std::f64::consts::PI.ln()
+            + (1..=d).map(|i| ln_gamma(a + (1.0 - i as f64) / 2.0)).sum::<f64>()
+    };
+    let exact = -0.5 * (n * d) as f64 * std::f64::consts::PI.ln() + ln_gamma_d(c.nu / 2.0)
+        - ln_gamma_d(prior.nu0 / 2.0)
+        + 0.5 * prior.nu0 * prior.w0_inv.determinant().ln()
         - 0.5 * c.nu * c.w_inv.determinant().ln()
         + 0.5 * d as f64 * (prior.beta0 / c.beta).ln();
     assert!((m.lower_bound - exact).abs() < 1e-8 * exact.abs(), "bound {} vs exact {exact}", m.lower_bound);
@@ -230,7 +257,13 @@ fn large_fits_are_identical_on_one_thread_and_on_many() {
     let data = mixture_data(5, &[3000, 3000, 3000, 3000], 4, 6.0);
     let options = VbOptions { fixed_k: true, max_components: 8, seed: 1, ..Default::default() };
     assert!(data.nrows() * options.max_components >= 1 << 16, "large enough to run in parallel");
-    let on = |threads: usize| rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap().install(|| fit(&data, None, &options).unwrap());
+    let on = |threads: usize| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| fit(&data, None, &options).unwrap())
+    };
     let (one, many) = (on(1), on(3));
     assert_eq!(one.lower_bound.to_bits(), many.lower_bound.to_bits());
     assert_eq!(one.iterations, many.iterations);

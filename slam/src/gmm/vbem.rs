@@ -144,11 +144,7 @@ fn runs_in_parallel(n: usize, k: usize) -> bool {
 /// depend on the thread count.
 fn per_component<T: Send>(n: usize, k: usize, f: impl Fn(usize) -> T + Sync + Send) -> Vec<T> {
     use rayon::prelude::*;
-    if runs_in_parallel(n, k) {
-        (0..k).into_par_iter().map(f).collect()
-    } else {
-        (0..k).map(f).collect()
-    }
+    if runs_in_parallel(n, k) { (0..k).into_par_iter().map(f).collect() } else { (0..k).map(f).collect() }
 }
 
 /// M-step: sufficient statistics from responsibilities `r` (N x K), then the posterior.
@@ -156,7 +152,12 @@ pub(crate) fn m_step(data: &DMatrix<f64>, r: &DMatrix<f64>, prior: &VbPrior) -> 
     let (n, _) = data.shape();
     let k = r.ncols();
     let per = per_component(n, k, |kk| m_step_component(data, r, prior, kk));
-    let mut stats = Stats { nk: Vec::with_capacity(k), xbar: Vec::with_capacity(k), s: Vec::with_capacity(k), r_ln_r: Vec::with_capacity(k) };
+    let mut stats = Stats {
+        nk: Vec::with_capacity(k),
+        xbar: Vec::with_capacity(k),
+        s: Vec::with_capacity(k),
+        r_ln_r: Vec::with_capacity(k),
+    };
     let mut comps = Vec::with_capacity(k);
     for (comp, nk, xbar, s, r_ln_r) in per {
         comps.push(comp);
@@ -169,7 +170,12 @@ pub(crate) fn m_step(data: &DMatrix<f64>, r: &DMatrix<f64>, prior: &VbPrior) -> 
 }
 
 /// One component's statistics (N_k, xbar_k, S_k, sum r ln r) and posterior.
-fn m_step_component(data: &DMatrix<f64>, r: &DMatrix<f64>, prior: &VbPrior, kk: usize) -> (VbComponent, f64, DVector<f64>, DMatrix<f64>, f64) {
+fn m_step_component(
+    data: &DMatrix<f64>,
+    r: &DMatrix<f64>,
+    prior: &VbPrior,
+    kk: usize,
+) -> (VbComponent, f64, DVector<f64>, DMatrix<f64>, f64) {
     let (n, d) = data.shape();
     let rk = r.column(kk);
     let nk: f64 = rk.sum();
@@ -196,7 +202,13 @@ fn m_step_component(data: &DMatrix<f64>, r: &DMatrix<f64>, prior: &VbPrior, kk: 
     let beta = prior.beta0 + nk;
     let dx = &xbar - &prior.m0;
     let w_inv = &prior.w0_inv + &s * nk + &dx * dx.transpose() * (prior.beta0 * nk / beta);
-    let comp = VbComponent { alpha: prior.alpha0 + nk, beta, nu: prior.nu0 + nk, mean: (&prior.m0 * prior.beta0 + &xbar * nk) / beta, w_inv: (&w_inv + w_inv.transpose()) * 0.5 };
+    let comp = VbComponent {
+        alpha: prior.alpha0 + nk,
+        beta,
+        nu: prior.nu0 + nk,
+        mean: (&prior.m0 * prior.beta0 + &xbar * nk) / beta,
+        w_inv: (&w_inv + w_inv.transpose()) * 0.5,
+    };
     (comp, nk, xbar, s, r_ln_r)
 }
 
@@ -221,7 +233,9 @@ fn expectations(comps: &[VbComponent]) -> Result<Vec<Expect>, GmmError> {
             let d = c.mean.len();
             let chol = Cholesky::new(c.w_inv.clone()).ok_or(GmmError::NotPositiveDefinite { component: k })?;
             let ln_w = -2.0 * chol.l_dirty().diagonal().iter().map(|v| v.ln()).sum::<f64>();
-            let ln_lambda = (1..=d).map(|i| digamma((c.nu + 1.0 - i as f64) / 2.0)).sum::<f64>() + d as f64 * std::f64::consts::LN_2 + ln_w;
+            let ln_lambda = (1..=d).map(|i| digamma((c.nu + 1.0 - i as f64) / 2.0)).sum::<f64>()
+                + d as f64 * std::f64::consts::LN_2
+                + ln_w;
             Ok(Expect { ln_pi: digamma(c.alpha) - dig_sum, ln_lambda, ln_w, chol })
         })
         .collect()
@@ -235,7 +249,11 @@ pub(crate) fn e_step(data: &DMatrix<f64>, comps: &[VbComponent]) -> Result<DMatr
     let columns = per_component(n, k, |kk| -> Result<Vec<f64>, GmmError> {
         let (c, e) = (&comps[kk], &ex[kk]);
         // (x - m)^T W (x - m) = |C^-1 (x - m)|^2 with C C^T = W^-1: Y = X C^-T - 1 (C^-1 m)^T.
-        let c_inv = e.chol.l().solve_lower_triangular(&DMatrix::identity(d, d)).ok_or(GmmError::NotPositiveDefinite { component: kk })?;
+        let c_inv = e
+            .chol
+            .l()
+            .solve_lower_triangular(&DMatrix::identity(d, d))
+            .ok_or(GmmError::NotPositiveDefinite { component: kk })?;
         let y = data * c_inv.transpose();
         let shift = &c_inv * &c.mean;
         let mut quad = vec![0.0; n];
@@ -295,7 +313,10 @@ pub(crate) fn e_step(data: &DMatrix<f64>, comps: &[VbComponent]) -> Result<DMatr
 /// ln B(W, nu), the Wishart normaliser (PRML B.79), from ln |W|.
 fn ln_wishart_norm(ln_w: f64, nu: f64, d: usize) -> f64 {
     let df = d as f64;
-    -0.5 * nu * ln_w - (0.5 * nu * df * std::f64::consts::LN_2 + 0.25 * df * (df - 1.0) * LN_PI + (1..=d).map(|i| ln_gamma((nu + 1.0 - i as f64) / 2.0)).sum::<f64>())
+    -0.5 * nu * ln_w
+        - (0.5 * nu * df * std::f64::consts::LN_2
+            + 0.25 * df * (df - 1.0) * LN_PI
+            + (1..=d).map(|i| ln_gamma((nu + 1.0 - i as f64) / 2.0)).sum::<f64>())
 }
 
 /// The full variational lower bound (PRML 10.70-10.77, constants included) and each
@@ -305,7 +326,8 @@ pub(crate) fn lower_bound(prior: &VbPrior, comps: &[VbComponent], stats: &Stats)
     let df = d as f64;
     let k = comps.len();
     let ex = expectations(comps)?;
-    let prior_chol = Cholesky::new(prior.w0_inv.clone()).ok_or(GmmError::BadPrior("W0^-1 is not positive definite".into()))?;
+    let prior_chol =
+        Cholesky::new(prior.w0_inv.clone()).ok_or(GmmError::BadPrior("W0^-1 is not positive definite".into()))?;
     let ln_w0 = -2.0 * prior_chol.l_dirty().diagonal().iter().map(|v| v.ln()).sum::<f64>();
     let ln_b0 = ln_wishart_norm(ln_w0, prior.nu0, d);
     let mut shares = Vec::with_capacity(k);
@@ -325,7 +347,11 @@ pub(crate) fn lower_bound(prior: &VbPrior, comps: &[VbComponent], stats: &Stats)
         // 10.73 E[ln p(pi)] without ln C(alpha0)
         l += (prior.alpha0 - 1.0) * e.ln_pi;
         // 10.74 E[ln p(mu, Lambda)]
-        l += 0.5 * (df * (prior.beta0 / (2.0 * std::f64::consts::PI)).ln() + e.ln_lambda - df * prior.beta0 / c.beta - prior.beta0 * c.nu * q_m) + ln_b0
+        l += 0.5
+            * (df * (prior.beta0 / (2.0 * std::f64::consts::PI)).ln() + e.ln_lambda
+                - df * prior.beta0 / c.beta
+                - prior.beta0 * c.nu * q_m)
+            + ln_b0
             + 0.5 * (prior.nu0 - df - 1.0) * e.ln_lambda
             - 0.5 * c.nu * tr_w0w;
         // 10.75 -E[ln q(Z)]
@@ -333,7 +359,8 @@ pub(crate) fn lower_bound(prior: &VbPrior, comps: &[VbComponent], stats: &Stats)
         // 10.76 -E[ln q(pi)] without ln C(alpha)
         l -= (c.alpha - 1.0) * e.ln_pi;
         // 10.77 -E[ln q(mu, Lambda)]
-        let entropy_wishart = -ln_wishart_norm(e.ln_w, c.nu, d) - 0.5 * (c.nu - df - 1.0) * e.ln_lambda + 0.5 * c.nu * df;
+        let entropy_wishart =
+            -ln_wishart_norm(e.ln_w, c.nu, d) - 0.5 * (c.nu - df - 1.0) * e.ln_lambda + 0.5 * c.nu * df;
         l -= 0.5 * e.ln_lambda + 0.5 * df * (c.beta / (2.0 * std::f64::consts::PI)).ln() - 0.5 * df - entropy_wishart;
         shares.push(l);
     }
@@ -362,9 +389,17 @@ pub(crate) struct Run {
 
 /// Runs VBEM from responsibilities `r` until the bound's relative gain falls below
 /// `tolerance` or `max_iterations` is reached.
-pub(crate) fn run(data: &DMatrix<f64>, mut r: DMatrix<f64>, prior: &VbPrior, max_iterations: usize, tolerance: f64) -> Result<Run, GmmError> {
+pub(crate) fn run(
+    data: &DMatrix<f64>,
+    mut r: DMatrix<f64>,
+    prior: &VbPrior,
+    max_iterations: usize,
+    tolerance: f64,
+) -> Result<Run, GmmError> {
+    type LastIteration = (Vec<VbComponent>, Stats, DMatrix<f64>, f64, Vec<f64>);
     let mut history = Vec::new();
-    let mut last: Option<(Vec<VbComponent>, Stats, DMatrix<f64>, f64, Vec<f64>)> = None;
+    // The previous iteration: components, statistics, responsibilities, bound, weights.
+    let mut last: Option<LastIteration> = None;
     for it in 0..max_iterations.max(1) {
         let (comps, stats) = m_step(data, &r, prior);
         let (bound, shares) = lower_bound(prior, &comps, &stats)?;
