@@ -492,14 +492,14 @@ fn run_plan(
 
 fn print_summary(rows: &[scenarios::montecarlo::SummaryRow]) {
     println!(
-        "{:<12} {:<32} {:>5} {:>8} {:>16} {:>8} {:>8} {:>8}",
-        "method", "parameters", "runs", "fail", "95% CI", "wrong", "false", "ATE m"
+        "{:<12} {:<32} {:>5} {:>8} {:>16} {:>8} {:>8} {:>8} {:>12}",
+        "method", "parameters", "runs", "fail", "95% CI", "wrong", "false", "ATE m", "recall (min)"
     );
     for r in rows {
         let params: Vec<String> =
             r.params.iter().map(|(p, v)| format!("{}={v:.3}", p.rsplit('.').next().unwrap_or(p))).collect();
         println!(
-            "{:<12} {:<32} {:>5} {:>7.1}% {:>7.1}-{:<7.1}% {:>8.2} {:>8.2} {:>8.3}",
+            "{:<12} {:<32} {:>5} {:>7.1}% {:>7.1}-{:<7.1}% {:>8.2} {:>8.2} {:>8.3} {:>5.2} ({:.2})",
             r.method,
             params.join(" "),
             r.runs,
@@ -508,7 +508,9 @@ fn print_summary(rows: &[scenarios::montecarlo::SummaryRow]) {
             100.0 * r.failure_rate_ci95.1,
             r.mean_wrong_associations,
             r.mean_false_landmarks,
-            r.mean_ate_rmse_m
+            r.mean_ate_rmse_m,
+            r.mean_tree_recall,
+            r.min_tree_recall
         );
     }
 }

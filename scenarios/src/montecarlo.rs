@@ -44,6 +44,12 @@ pub enum StudyError {
     Appearance(String),
     #[error("{0}")]
     Worker(String),
+    #[error("{}: another study is running in this directory (it holds the lock); wait for it, or use another --out", file.display())]
+    Locked { file: PathBuf },
+    #[error("job {key}: {message}")]
+    Job { key: String, message: String },
+    #[error("{}: {count} finished runs could not be appended ({message}); they are not in the file: run the same command again to redo them", file.display())]
+    Append { file: PathBuf, count: usize, message: String },
 }
 
 /// One varied parameter: a dotted path into the scenario and its values.
@@ -138,6 +144,10 @@ pub struct RunRecord {
     pub metrics: Option<Metrics>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub error: Option<String>,
+    /// The run ended through the infrastructure (its worker process died or could not
+    /// start), not through the run itself: a resumed study runs it again.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub retryable: bool,
 }
 
 impl RunRecord {
@@ -283,8 +293,39 @@ impl Shard {
 }
 
 /// Reads `runs.jsonl`, dropping a truncated last line (and truncating the file to the last
-/// complete line so appends start clean).
+/// complete line so appends start clean). A job recorded twice keeps one record: a final
+/// record wins over a retryable one, the later retryable one over an earlier; two final
+/// records that differ (wall clock aside) are an error naming both lines.
 pub fn read_runs(path: &Path) -> Result<Vec<RunRecord>, StudyError> {
+    let mut kept: Vec<(usize, RunRecord)> = Vec::new();
+    let mut by_key: BTreeMap<String, usize> = BTreeMap::new();
+    for (line, record) in read_run_lines(path)? {
+        match by_key.get(&record.key) {
+            None => {
+                by_key.insert(record.key.clone(), kept.len());
+                kept.push((line, record));
+            }
+            Some(&i) => {
+                let (first_line, first) = &kept[i];
+                if first.retryable {
+                    kept[i] = (line, record);
+                } else if !record.retryable && first.without_wall_clock() != record.without_wall_clock() {
+                    return Err(StudyError::File {
+                        file: path.into(),
+                        message: format!(
+                            "lines {first_line} and {line} record job {} differently; remove the one that is wrong",
+                            record.key
+                        ),
+                    });
+                }
+            }
+        }
+    }
+    Ok(kept.into_iter().map(|(_, r)| r).collect())
+}
+
+/// The records of `runs.jsonl` with their line numbers, repairing a torn last line.
+fn read_run_lines(path: &Path) -> Result<Vec<(usize, RunRecord)>, StudyError> {
     let text = match std::fs::read_to_string(path) {
         Ok(t) => t,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(vec![]),
@@ -306,10 +347,37 @@ pub fn read_runs(path: &Path) -> Result<Vec<RunRecord>, StudyError> {
         .enumerate()
         .filter(|(_, l)| !l.trim().is_empty())
         .map(|(i, l)| {
-            serde_json::from_str(l)
-                .map_err(|e| StudyError::File { file: path.into(), message: format!("line {}: {e}", i + 1) })
+            serde_json::from_str(l).map(|r| (i + 1, r)).map_err(|e| StudyError::File {
+                file: path.into(),
+                message: format!("line {}: not a run record ({e}); remove the line to go on", i + 1),
+            })
         })
         .collect()
+}
+
+/// Writes `text` to `file` through a temporary file and a rename, so that a failed write
+/// never leaves a partial file behind.
+pub fn write_atomically(file: &Path, text: &str) -> Result<(), StudyError> {
+    let tmp = file.with_extension("tmp");
+    let io = |e: std::io::Error| StudyError::File { file: file.into(), message: e.to_string() };
+    let mut f = std::fs::File::create(&tmp).map_err(io)?;
+    f.write_all(text.as_bytes()).and_then(|_| f.sync_all()).map_err(|e| {
+        let _ = std::fs::remove_file(&tmp);
+        io(e)
+    })?;
+    std::fs::rename(&tmp, file).map_err(io)
+}
+
+/// Appends one record as a whole line and syncs it; on failure the file is cut back to its
+/// length before the write, so no torn line is left for the next record to join.
+fn append_record(f: &mut std::fs::File, record: &RunRecord) -> std::io::Result<()> {
+    let line = serde_json::to_string(record).expect("JSON") + "\n";
+    let before = f.metadata()?.len();
+    let written = f.write_all(line.as_bytes()).and_then(|_| f.sync_data());
+    if written.is_err() {
+        let _ = f.set_len(before);
+    }
+    written
 }
 
 /// Where a study's runs execute.
@@ -346,11 +414,20 @@ pub fn run_study_with(
     progress: impl Fn(usize, usize) + Sync,
 ) -> Result<Vec<RunRecord>, StudyError> {
     std::fs::create_dir_all(out).map_err(|e| StudyError::File { file: out.into(), message: e.to_string() })?;
+    // One study at a time per directory: the lock goes with the process, however it ends.
+    let lock_file = out.join("study.lock");
+    let lock = std::fs::File::create(&lock_file)
+        .map_err(|e| StudyError::File { file: lock_file.clone(), message: e.to_string() })?;
+    lock.try_lock().map_err(|_| StudyError::Locked { file: lock_file.clone() })?;
     let plan_file = out.join("study.json");
-    match std::fs::read_to_string(&plan_file) {
-        Ok(text) => {
-            let existing: StudyPlan = serde_json::from_str(&text)
-                .map_err(|e| StudyError::File { file: plan_file.clone(), message: e.to_string() })?;
+    match std::fs::read(&plan_file) {
+        Ok(bytes) => {
+            let existing: StudyPlan = serde_json::from_slice(&bytes).map_err(|e| StudyError::File {
+                file: plan_file.clone(),
+                message: format!(
+                    "not a study plan ({e}); remove the directory, or this file if runs.jsonl is empty, to start again"
+                ),
+            })?;
             if &existing != plan {
                 return Err(StudyError::Mismatch {
                     dir: out.into(),
@@ -358,23 +435,34 @@ pub fn run_study_with(
                 });
             }
         }
-        Err(_) => std::fs::write(&plan_file, serde_json::to_string_pretty(plan).expect("JSON"))
-            .map_err(|e| StudyError::File { file: plan_file.clone(), message: e.to_string() })?,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            write_atomically(&plan_file, &serde_json::to_string_pretty(plan).expect("JSON"))?
+        }
+        Err(e) => {
+            return Err(StudyError::File {
+                file: plan_file.clone(),
+                message: format!("cannot read the study plan: {e}"),
+            });
+        }
     }
     let (base_scenario, base_dir) = Scenario::load(&plan.scenario)?;
     let models = StudyModels::new(&base_dir);
     let runs_file = out.join("runs.jsonl");
-    let existing = read_runs(&runs_file)?;
+    let existing: Vec<RunRecord> = read_runs(&runs_file)?.into_iter().filter(|r| !r.retryable).collect();
     let done: BTreeSet<String> = existing.iter().map(|r| r.key.clone()).collect();
     let mine: Vec<Job> = jobs(plan).into_iter().filter(|j| shard.contains(j)).collect();
     let todo: Vec<&Job> = mine.iter().filter(|j| !done.contains(&j.key())).collect();
-    // Every appearance model the jobs need (one per setting of the training and the camera
-    // a study varies) is resolved here first, trained and cached if need be, so runs and
-    // worker processes only load them.
+    // Every job's scenario and method are checked before the first run, so a bad setting
+    // fails the study at once instead of every run. Every appearance model the jobs need
+    // (one per setting of the training and the camera a study varies) is resolved here
+    // too, trained and cached if need be, so runs and worker processes only load them.
     for job in &todo {
-        if let Ok(scenario) = job_scenario(&base_scenario, job)
-            && job_needs_appearance(job, &scenario)
-        {
+        let scenario = job_scenario(&base_scenario, job)?;
+        let method = AssociationMethod::from_name(&job.method)
+            .ok_or_else(|| StudyError::Job { key: job.key(), message: format!("unknown method {:?}", job.method) })?;
+        crate::run::pipeline_config(&scenario, Some(method))
+            .map_err(|e| StudyError::Job { key: job.key(), message: e.to_string() })?;
+        if job_needs_appearance(job, &scenario) {
             models.get(&scenario).map_err(StudyError::Appearance)?;
         }
     }
@@ -388,14 +476,17 @@ pub fn run_study_with(
             .open(&runs_file)
             .map_err(|e| StudyError::File { file: runs_file.clone(), message: e.to_string() })?,
     );
-    // Appends a finished run at once, in one write of the whole line: a kill leaves at most
-    // one partial line, which the next start drops.
+    // Appends a finished run at once, in one synced write of the whole line: a kill leaves
+    // at most one partial line, which the next start drops; a failed write is cut back and
+    // fails the study once the other runs are done (the run is redone on resume).
+    let append_failures: Mutex<(usize, String)> = Mutex::new((0, String::new()));
     let record_finished = |record: &RunRecord| {
-        let line = serde_json::to_string(record).expect("JSON") + "\n";
         {
             let mut f = file.lock().unwrap_or_else(|p| p.into_inner());
-            if let Err(e) = f.write_all(line.as_bytes()).and_then(|_| f.flush()) {
-                eprintln!("warning: {}: cannot append run {}: {e}", runs_file.display(), record.key);
+            if let Err(e) = append_record(&mut f, record) {
+                let mut failed = append_failures.lock().unwrap_or_else(|p| p.into_inner());
+                failed.0 += 1;
+                failed.1 = e.to_string();
             }
         }
         let n = finished.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
@@ -412,9 +503,14 @@ pub fn run_study_with(
             .collect(),
         Workers::Processes { exe, count } => workers::run_in_processes(plan, &todo, exe, *count, &record_finished)?,
     };
+    let (count, message) = append_failures.into_inner().unwrap_or_else(|p| p.into_inner());
+    if count > 0 {
+        return Err(StudyError::Append { file: runs_file, count, message });
+    }
     let keys: BTreeSet<String> = mine.iter().map(|j| j.key()).collect();
     let mut all: Vec<RunRecord> = existing.into_iter().filter(|r| keys.contains(&r.key)).chain(new).collect();
     all.sort_by_key(|r| r.job.index);
+    drop(lock);
     Ok(all)
 }
 
@@ -490,7 +586,7 @@ pub fn run_job(base: &Scenario, base_dir: &Path, job: &Job, models: &StudyModels
             (None, Some(format!("panicked: {msg}")))
         }
     };
-    RunRecord { key: job.key(), job: job.clone(), metrics, error }
+    RunRecord { key: job.key(), job: job.clone(), metrics, error, retryable: false }
 }
 
 /// Merges shard directories into `out`: runs de-duplicated by job and ordered by job index.
@@ -513,7 +609,24 @@ pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<(StudyPlan, Vec<RunRecord>)
             _ => plan = Some(p),
         }
         for r in read_runs(&d.join("runs.jsonl"))? {
-            by_key.entry(r.key.clone()).or_insert(r);
+            match by_key.get(&r.key) {
+                None => {
+                    by_key.insert(r.key.clone(), r);
+                }
+                Some(kept) if kept.retryable => {
+                    by_key.insert(r.key.clone(), r);
+                }
+                Some(kept) if !r.retryable && kept.without_wall_clock() != r.without_wall_clock() => {
+                    return Err(StudyError::File {
+                        file: d.join("runs.jsonl"),
+                        message: format!(
+                            "job {} is recorded differently in another shard; merge without one of them",
+                            r.key
+                        ),
+                    });
+                }
+                Some(_) => {}
+            }
         }
     }
     let plan =
@@ -521,11 +634,9 @@ pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<(StudyPlan, Vec<RunRecord>)
     let mut runs: Vec<RunRecord> = by_key.into_values().collect();
     runs.sort_by_key(|r| r.job.index);
     std::fs::create_dir_all(out).map_err(|e| StudyError::File { file: out.into(), message: e.to_string() })?;
-    std::fs::write(out.join("study.json"), serde_json::to_string_pretty(&plan).expect("JSON"))
-        .map_err(|e| StudyError::File { file: out.into(), message: e.to_string() })?;
+    write_atomically(&out.join("study.json"), &serde_json::to_string_pretty(&plan).expect("JSON"))?;
     let lines: String = runs.iter().map(|r| serde_json::to_string(r).expect("JSON") + "\n").collect();
-    std::fs::write(out.join("runs.jsonl"), lines)
-        .map_err(|e| StudyError::File { file: out.into(), message: e.to_string() })?;
+    write_atomically(&out.join("runs.jsonl"), &lines)?;
     Ok((plan, runs))
 }
 
@@ -547,6 +658,11 @@ pub struct SummaryRow {
     pub mean_false_landmarks: f64,
     #[serde(with = "crate::score::nan_as_null")]
     pub mean_ate_rmse_m: f64,
+    /// Mean and lowest `map.tree_recall` over the runs where it is defined.
+    #[serde(default, with = "crate::score::nan_as_null")]
+    pub mean_tree_recall: f64,
+    #[serde(default, with = "crate::score::nan_as_null")]
+    pub min_tree_recall: f64,
 }
 
 /// Summarises runs per method and parameter values, in plan order.
@@ -579,6 +695,11 @@ pub fn summarise(plan: &StudyPlan, runs: &[RunRecord]) -> Vec<SummaryRow> {
                 mean_wrong_associations: mean(&|m| m.associations.wrong as f64),
                 mean_false_landmarks: mean(&|m| m.false_landmarks as f64),
                 mean_ate_rmse_m: mean(&|m| m.ate_rmse_m),
+                mean_tree_recall: {
+                    let r: Vec<f64> = ok.iter().filter_map(|m| m.map.tree_recall).collect();
+                    if r.is_empty() { f64::NAN } else { r.iter().sum::<f64>() / r.len() as f64 }
+                },
+                min_tree_recall: ok.iter().filter_map(|m| m.map.tree_recall).fold(f64::NAN, f64::min),
             }
         })
         .collect()
@@ -592,14 +713,14 @@ pub fn write_summary(plan: &StudyPlan, rows: &[SummaryRow], out: &Path) -> Resul
         csv.push(',');
         csv.push_str(&v.param);
     }
-    csv.push_str(",runs,errors,failures,failure_rate,failure_rate_ci95_low,failure_rate_ci95_high,mean_wrong_associations,mean_false_landmarks,mean_ate_rmse_m\n");
+    csv.push_str(",runs,errors,failures,failure_rate,failure_rate_ci95_low,failure_rate_ci95_high,mean_wrong_associations,mean_false_landmarks,mean_ate_rmse_m,mean_tree_recall,min_tree_recall\n");
     for r in rows {
         csv.push_str(&r.method);
         for (_, v) in &r.params {
             csv.push_str(&format!(",{v}"));
         }
         csv.push_str(&format!(
-            ",{},{},{},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6}\n",
+            ",{},{},{},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6}\n",
             r.runs,
             r.errors,
             r.failures,
@@ -608,7 +729,9 @@ pub fn write_summary(plan: &StudyPlan, rows: &[SummaryRow], out: &Path) -> Resul
             r.failure_rate_ci95.1,
             r.mean_wrong_associations,
             r.mean_false_landmarks,
-            r.mean_ate_rmse_m
+            r.mean_ate_rmse_m,
+            r.mean_tree_recall,
+            r.min_tree_recall
         ));
     }
     std::fs::write(out.join("summary.csv"), csv).map_err(|e| io(out.join("summary.csv"), e))?;
@@ -711,7 +834,7 @@ mod tests {
         std::fs::create_dir_all(&dir).unwrap();
         let f = dir.join("runs.jsonl");
         let job = Job { index: 0, method: "nn".into(), params: vec![], run: 0, seed: 1 };
-        let rec = RunRecord { key: job.key(), job, metrics: None, error: Some("x".into()) };
+        let rec = RunRecord { key: job.key(), job, metrics: None, error: Some("x".into()), retryable: false };
         let line = serde_json::to_string(&rec).unwrap();
         std::fs::write(&f, format!("{line}\n{}", &line[..20])).unwrap();
         let runs = read_runs(&f).unwrap();

@@ -87,6 +87,20 @@ fn a_worker_that_dies_costs_only_its_run() {
     assert!(error.contains("exit status: 3") && error.contains("simulated crash"), "{error}");
     // The other runs went on: the position-only ones have metrics.
     assert_eq!(records.iter().filter(|r| r.metrics.is_some()).count(), 5);
+    // The death was the infrastructure's, not the run's: resuming runs that job again, and
+    // the file then holds one record per job, the new one.
+    assert!(died[0].retryable);
+    let key = died[0].key.clone();
+    let resumed = mc::run_study(&plan, Shard::all(), &root.join("study"), |_, _| {}).unwrap();
+    assert_eq!(resumed.len(), 9);
+    let again = resumed.iter().find(|r| r.key == key).unwrap();
+    assert!(
+        !again.retryable && again.error.as_deref().is_none_or(|e| !e.contains("worker process failed")),
+        "{again:?}"
+    );
+    let on_file = mc::read_runs(&root.join("study/runs.jsonl")).unwrap();
+    assert_eq!(on_file.len(), 9);
+    assert!(on_file.iter().all(|r| !r.retryable));
     let _ = std::fs::remove_dir_all(&root);
 }
 

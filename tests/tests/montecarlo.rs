@@ -88,5 +88,69 @@ fn sharded_merged_study_equals_the_unsharded_one_and_resumes() {
     // A different plan in the same directory is refused.
     let other = StudyPlan { runs: 4, ..plan.clone() };
     assert!(mc::run_study(&other, Shard::all(), &root.join("whole"), |_, _| {}).is_err());
+
+    // A job recorded twice, identically, counts once; differently, it is an error naming
+    // both lines; a merge of shards that disagree is refused.
+    let twice = root.join("twice");
+    std::fs::create_dir_all(&twice).unwrap();
+    std::fs::copy(root.join("whole/study.json"), twice.join("study.json")).unwrap();
+    let first = text.lines().next().unwrap();
+    std::fs::write(twice.join("runs.jsonl"), format!("{text}{first}\n")).unwrap();
+    assert_same(&comparable(&mc::run_study(&plan, Shard::all(), &twice, |_, _| {}).unwrap()), &comparable(&whole));
+    let mut changed: RunRecord = serde_json::from_str(first).unwrap();
+    changed.metrics.as_mut().expect("a position-only run").ate_rmse_m += 1.0;
+    let conflicting = format!("{text}{}\n", serde_json::to_string(&changed).unwrap());
+    std::fs::write(twice.join("runs.jsonl"), &conflicting).unwrap();
+    let e = mc::run_study(&plan, Shard::all(), &twice, |_, _| {}).unwrap_err().to_string();
+    assert!(e.contains("runs.jsonl") && e.contains("lines 1 and 19"), "{e}");
+    std::fs::write(dirs[0].join("runs.jsonl"), format!("{}\n", serde_json::to_string(&changed).unwrap())).unwrap();
+    let e = mc::merge(&[root.join("whole"), dirs[0].clone()], &root.join("merged2")).unwrap_err().to_string();
+    assert!(e.contains("recorded differently"), "{e}");
+
+    // A study.json that is not a plan (a torn first write of an older version) is refused
+    // with what to do, not overwritten.
+    let torn = root.join("torn");
+    std::fs::create_dir_all(&torn).unwrap();
+    std::fs::write(torn.join("study.json"), [0xff, 0xfe, 0x00]).unwrap();
+    let e = mc::run_study(&plan, Shard::all(), &torn, |_, _| {}).unwrap_err().to_string();
+    assert!(e.contains("study.json") && e.contains("remove"), "{e}");
+    assert_eq!(std::fs::read(torn.join("study.json")).unwrap(), [0xff, 0xfe, 0x00]);
+
+    // A second study in a directory a running one holds is refused.
+    let lock = std::fs::File::create(root.join("whole/study.lock")).unwrap();
+    lock.lock().unwrap();
+    let e = mc::run_study(&plan, Shard::all(), &root.join("whole"), |_, _| {}).unwrap_err().to_string();
+    assert!(e.contains("another study is running"), "{e}");
+    drop(lock);
+    assert!(mc::run_study(&plan, Shard::all(), &root.join("whole"), |_, _| {}).is_ok());
+    let _ = std::fs::remove_dir_all(&root);
+}
+
+/// A study whose scenario or method is bad for some job fails before its first run,
+/// naming the job, instead of recording an error for every run and exiting 0.
+#[test]
+fn bad_jobs_fail_the_study_before_any_run() {
+    let root: PathBuf = std::env::temp_dir().join(format!("objslam-mc-bad-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+    let scenario = short_scenario(&root);
+    let bad_method = StudyPlan {
+        scenario: scenario.clone(),
+        base_seed: 5,
+        runs: 2,
+        methods: vec!["nn".into(), "bogus".into()],
+        vary: vec![],
+    };
+    let e = mc::run_study(&bad_method, Shard::all(), &root.join("a"), |_, _| {}).unwrap_err().to_string();
+    assert!(e.contains("bogus"), "{e}");
+    let bad_value = StudyPlan {
+        vary: vec![Vary::parse("pipeline.gate_probability=0.5..1.5:2").unwrap()],
+        methods: vec!["nn".into()],
+        ..bad_method
+    };
+    let e = mc::run_study(&bad_value, Shard::all(), &root.join("b"), |_, _| {}).unwrap_err().to_string();
+    assert!(e.contains("gate_probability"), "{e}");
+    for dir in ["a", "b"] {
+        assert!(mc::read_runs(&root.join(dir).join("runs.jsonl")).unwrap().is_empty(), "no run was made");
+    }
     let _ = std::fs::remove_dir_all(&root);
 }

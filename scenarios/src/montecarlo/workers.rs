@@ -137,8 +137,9 @@ impl WorkerProcess {
     }
 }
 
+/// The record of a run its worker process could not finish: retried when the study resumes.
 fn error_record(job: &Job, error: String) -> RunRecord {
-    RunRecord { key: job.key(), job: job.clone(), metrics: None, error: Some(error) }
+    RunRecord { key: job.key(), job: job.clone(), metrics: None, error: Some(error), retryable: true }
 }
 
 /// Runs `todo` on `count` child processes of `exe`, calling `finished` for each record as
