@@ -124,8 +124,9 @@ impl SessionConfig {
         let bad = |field: &str, message: String| {
             Err(CalibrateError::Session { file: file.to_path_buf(), field: field.into(), message })
         };
-        if self.poses == 0 {
-            return bad("poses", "must be at least 1".into());
+        // Zhang & Pless need a handful of poses; thousands add nothing but time.
+        if !(1..=10_000).contains(&self.poses) {
+            return bad("poses", format!("must be 1..10000, got {}", self.poses));
         }
         if !(1..=1000).contains(&self.scans_per_pose) {
             return bad("scans_per_pose", format!("must be 1..1000, got {}", self.scans_per_pose));

@@ -196,8 +196,10 @@ pub fn make_dataset(
     out: &Path,
     progress: impl Fn(usize, usize),
 ) -> Result<Manifest, DatasetError> {
-    if config.images == 0 {
-        return Err(DatasetError::Config("--images must be at least 1".into()));
+    // Each image is written as it is made (memory stays flat), but the COCO annotations
+    // are gathered for one file: a million images is far beyond any training run here.
+    if !(1..=1_000_000).contains(&config.images) {
+        return Err(DatasetError::Config(format!("--images must be 1..1000000, got {}", config.images)));
     }
     if config.patch_size == 0 || config.patch_size > config.camera.width.min(config.camera.height) {
         return Err(DatasetError::Config(format!(

@@ -69,8 +69,11 @@ impl Vary {
         let a: f64 = a.trim().parse().map_err(|_| bad("A is not a number"))?;
         let b: f64 = b.trim().parse().map_err(|_| bad("B is not a number"))?;
         let steps: usize = steps.trim().parse().map_err(|_| bad("STEPS is not a whole number"))?;
-        if steps == 0 || !a.is_finite() || !b.is_finite() {
-            return Err(bad("STEPS must be at least 1 and A, B finite"));
+        if steps == 0 || !a.is_finite() || !b.is_finite() || !(b - a).is_finite() {
+            return Err(bad("STEPS must be at least 1 and A, B finite (and B - A too)"));
+        }
+        if steps > MAX_VARY_STEPS {
+            return Err(bad(&format!("at most {MAX_VARY_STEPS} steps")));
         }
         if param.trim().is_empty() {
             return Err(bad("empty parameter name"));
@@ -83,6 +86,12 @@ impl Vary {
         Ok(Vary { param: param.trim().into(), values })
     }
 }
+
+/// Most values one varied parameter may take.
+pub const MAX_VARY_STEPS: usize = 1000;
+/// Most jobs a study may plan: each needs its record in memory and a line in runs.jsonl
+/// (a million is days of runs on a cluster).
+pub const MAX_JOBS: usize = 1_000_000;
 
 /// The plan of a study: everything that determines its jobs.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -160,6 +169,36 @@ impl RunRecord {
     /// An association failure: one or more wrong associations or false landmarks.
     pub fn failed_association(&self) -> Option<bool> {
         self.metrics.as_ref().map(|m| m.associations.wrong > 0 || m.false_landmarks > 0)
+    }
+}
+
+impl StudyPlan {
+    /// Whether the plan can run: runs and methods given, methods known and not repeated,
+    /// and not more jobs than [`MAX_JOBS`] (checked before any is made).
+    pub fn check(&self) -> Result<(), StudyError> {
+        let bad = |message: String| StudyError::Job { key: "study plan".into(), message };
+        if self.runs == 0 {
+            return Err(bad("--runs must be at least 1".into()));
+        }
+        if self.methods.is_empty() {
+            return Err(bad("no method given (--methods combined,nn,jcbb,appearance)".into()));
+        }
+        for (i, m) in self.methods.iter().enumerate() {
+            if AssociationMethod::from_name(m).is_none() {
+                return Err(bad(format!("unknown method {m:?}; use combined, nn, jcbb or appearance")));
+            }
+            if self.methods[..i].contains(m) {
+                return Err(bad(format!("method {m:?} given twice")));
+            }
+        }
+        let jobs = self
+            .vary
+            .iter()
+            .try_fold(self.runs.saturating_mul(self.methods.len()), |n, v| n.checked_mul(v.values.len()));
+        match jobs {
+            Some(n) if n <= MAX_JOBS => Ok(()),
+            _ => Err(bad(format!("more than {MAX_JOBS} runs planned; split the study"))),
+        }
     }
 }
 
@@ -413,6 +452,7 @@ pub fn run_study_with(
     workers: &Workers,
     progress: impl Fn(usize, usize) + Sync,
 ) -> Result<Vec<RunRecord>, StudyError> {
+    plan.check()?;
     std::fs::create_dir_all(out).map_err(|e| StudyError::File { file: out.into(), message: e.to_string() })?;
     // One study at a time per directory: the lock goes with the process, however it ends.
     let lock_file = out.join("study.lock");

@@ -257,6 +257,15 @@ pub fn sigma_ellipse(mean: [f64; 2], cov: [[f64; 2]; 2], k: f64, n: usize) -> Ve
         .collect()
 }
 
+/// The finite extent of `xs`, a unit range about 0 when none is finite (no method, or
+/// values beyond f64's range): an infinite or inverted axis would never finish drawing.
+fn axis_range(xs: &[f64]) -> (f64, f64) {
+    let finite = xs.iter().copied().filter(|x| x.is_finite());
+    let (lo, hi) = finite.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| (a.min(x), b.max(x)));
+    // The padded span must stay finite too.
+    if lo <= hi && (hi - lo).is_finite() { (lo, hi) } else { (0.0, 0.0) }
+}
+
 /// Failure rate against the first varied parameter, one line per method, with 95%
 /// intervals; written as PNG and SVG.
 pub fn failure_rate_plot(
@@ -285,7 +294,7 @@ fn draw_failure_rate<DB: DrawingBackend>(
         Some(v) => v.values.clone(),
         None => (0..plan.methods.len()).map(|i| i as f64).collect(),
     };
-    let (lo, hi) = xs.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| (a.min(*x), b.max(*x)));
+    let (lo, hi) = axis_range(&xs);
     let pad = if hi > lo { 0.05 * (hi - lo) } else { 0.5 };
     let mut chart = ChartBuilder::on(&root)
         .caption(
@@ -352,6 +361,14 @@ fn draw_failure_rate<DB: DrawingBackend>(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn axes_are_finite_whatever_the_values() {
+        assert_eq!(axis_range(&[]), (0.0, 0.0));
+        assert_eq!(axis_range(&[f64::INFINITY, f64::NEG_INFINITY, f64::NAN]), (0.0, 0.0));
+        assert_eq!(axis_range(&[-f64::MAX, f64::MAX]), (0.0, 0.0), "a span beyond f64");
+        assert_eq!(axis_range(&[2.0, 0.5, f64::NAN]), (0.5, 2.0));
+    }
 
     #[test]
     fn sigma_ellipse_of_axis_aligned_covariance() {

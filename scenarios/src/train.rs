@@ -44,6 +44,9 @@ pub fn load_image(dir: &Path, manifest: &Manifest, i: usize) -> Result<LabelledI
     let text = std::fs::read_to_string(&labels_path).map_err(|e| file_err(&labels_path, e))?;
     let labels: PatchLabels = serde_json::from_str(&text).map_err(|e| file_err(&labels_path, e))?;
     let (w, h) = rgb.dimensions();
+    if labels.patch_size == 0 {
+        return Err(file_err(&labels_path, "patch_size: must be at least 1 pixel"));
+    }
     if labels.cols != w / labels.patch_size
         || labels.rows != h / labels.patch_size
         || labels.fractions.len() != (labels.cols * labels.rows) as usize
@@ -93,6 +96,9 @@ pub fn train_from_dataset(
     Ok(model)
 }
 
+/// Largest image `objslam segment` classifies: 16 megapixels, under 1 GB of features.
+pub const MAX_SEGMENT_PIXELS: u64 = 16_000_000;
+
 /// Per ground-truth class (the majority class of each patch's pixels), how many patches
 /// there were and how many the model called object. Shows which distractors it confuses.
 pub fn confusion_by_class(
@@ -108,6 +114,13 @@ pub fn confusion_by_class(
         let img = load_image(dir, &manifest, i)?;
         let class_path = dir.join(&manifest.images[i].class);
         let class = image::open(&class_path).map_err(|e| file_err(&class_path, e))?.to_luma8();
+        if class.dimensions() != (img.width, img.height) {
+            let (cw, ch) = class.dimensions();
+            return Err(file_err(
+                &class_path,
+                format!("the class mask is {cw}x{ch}, its image {}x{}", img.width, img.height),
+            ));
+        }
         let image = ImageRef::new(img.width, img.height, &img.rgb).map_err(ModelError::from)?;
         let f = model.extractor.features(&image, None).map_err(ModelError::from)?;
         for (k, predicted) in classifier.classify(&f).into_iter().enumerate() {
@@ -167,6 +180,14 @@ pub fn export_features(
 /// Classifies every patch of an image and draws the object patches over it (tinted, with
 /// their outlines). Returns (object patches, all patches).
 pub fn segment_image(model: &AppearanceModel, image_path: &Path, out: &Path) -> Result<(usize, usize), TrainError> {
+    // Features take about 50 bytes a pixel: refuse before decoding an image too large.
+    let (w, h) = image::image_dimensions(image_path).map_err(|e| file_err(image_path, e))?;
+    if u64::from(w) * u64::from(h) > MAX_SEGMENT_PIXELS {
+        return Err(file_err(
+            image_path,
+            format!("{w}x{h} is more than {MAX_SEGMENT_PIXELS} pixels; crop or scale it down"),
+        ));
+    }
     let mut rgb = image::open(image_path).map_err(|e| file_err(image_path, e))?.to_rgb8();
     let (w, h) = rgb.dimensions();
     let classifier = PatchClassifier::new(model).map_err(ModelError::from)?;

@@ -187,6 +187,9 @@ impl OdometryConfig {
     }
 }
 
+/// Fastest physics step rate a simulation may be set to.
+pub const MAX_PHYSICS_RATE_HZ: f64 = 10_000.0;
+
 impl SimConfig {
     /// Checks every setting; the error names the field.
     pub fn check(&self) -> Result<(), SimError> {
@@ -226,6 +229,14 @@ impl SimConfig {
             if !(v.is_finite() && v >= 0.0) {
                 return bad(field, format!("must be zero or positive, got {v}"));
             }
+        }
+        // Rapier's contacts are stable from about 60 Hz; past a few kHz a run only burns time
+        // (1e7 Hz would take days for the park's loop).
+        if self.physics_rate_hz > MAX_PHYSICS_RATE_HZ {
+            return bad(
+                "physics_rate_hz",
+                format!("must be at most {MAX_PHYSICS_RATE_HZ} Hz, got {}", self.physics_rate_hz),
+            );
         }
         if self.laser.rate_hz > self.physics_rate_hz || self.odometry.rate_hz > self.physics_rate_hz {
             return bad(

@@ -139,6 +139,7 @@ impl AppearanceModel {
         let model: AppearanceModel =
             serde_json::from_str(text).map_err(|e| ModelError::Parse { file: file.into(), message: e.to_string() })?;
         let inconsistent = |message: String| ModelError::Inconsistent { file: file.into(), message };
+        model.extractor.config.validate().map_err(|e| inconsistent(format!("extractor.config.{e}")))?;
         let d = model.extractor.dims();
         if model.extractor.pca.input_dims() != model.extractor.config.raw_dims() {
             return Err(inconsistent("the PCA does not match the patch size and filter bank".into()));

@@ -186,8 +186,27 @@ fn import_document(doc: &gltf::Document, buffers: &[gltf::buffer::Data]) -> Resu
     let scene = doc.default_scene().or_else(|| doc.scenes().next()).ok_or("the file has no scene")?;
     let mut out = TriMesh::default();
     let identity = [[1.0f32, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]];
-    for node in scene.nodes() {
-        visit(&node, identity, buffers, &mut out)?;
+    // Depth first with a stack of our own, not recursion: a file's node graph may be
+    // deep enough to overflow the thread's stack, or (against the spec) hold a cycle.
+    let mut seen = vec![false; doc.nodes().len()];
+    let mut stack: Vec<(gltf::Node, [[f32; 4]; 4], usize)> = scene.nodes().map(|n| (n, identity, 1)).collect();
+    stack.reverse();
+    while let Some((node, parent, depth)) = stack.pop() {
+        if depth > MAX_NODE_DEPTH {
+            return Err(format!("node {} is nested more than {MAX_NODE_DEPTH} levels deep", node.index()));
+        }
+        let Some(seen) = seen.get_mut(node.index()) else {
+            return Err(format!("node {} does not exist", node.index()));
+        };
+        if std::mem::replace(seen, true) {
+            return Err(format!(
+                "node {} is reached twice: the node graph is not a tree (a cycle, or a shared child)",
+                node.index()
+            ));
+        }
+        let world = add_node_meshes(&node, parent, buffers, &mut out)?;
+        let children: Vec<gltf::Node> = node.children().collect();
+        stack.extend(children.into_iter().rev().map(|c| (c, world, depth + 1)));
     }
     if out.positions.is_empty() {
         return Err("the file has no triangle meshes".into());
@@ -213,12 +232,17 @@ fn mat_mul(a: [[f32; 4]; 4], b: [[f32; 4]; 4]) -> [[f32; 4]; 4] {
     m
 }
 
-fn visit(
+/// Deepest node nesting a mesh file may have (real scenes nest a few levels).
+pub const MAX_NODE_DEPTH: usize = 256;
+
+/// Appends `node`'s own triangles, placed by `parent`'s transform and its own; returns its
+/// world transform for its children.
+fn add_node_meshes(
     node: &gltf::Node,
     parent: [[f32; 4]; 4],
     buffers: &[gltf::buffer::Data],
     out: &mut TriMesh,
-) -> Result<(), String> {
+) -> Result<[[f32; 4]; 4], String> {
     let world = mat_mul(parent, node.transform().matrix());
     if let Some(mesh) = node.mesh() {
         for prim in mesh.primitives() {
@@ -253,16 +277,32 @@ fn visit(
             out.indices.extend(indices.iter().map(|i| i + base));
         }
     }
-    for child in node.children() {
-        visit(&child, world, buffers, out)?;
-    }
-    Ok(())
+    Ok(world)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::generate::{ParkParams, park};
+
+    /// A glTF document whose node `i` has the children `children(i)`, scene root node 0.
+    fn gltf_with_nodes(n: usize, children: impl Fn(usize) -> Vec<usize>) -> Vec<u8> {
+        let nodes: Vec<serde_json::Value> = (0..n).map(|i| serde_json::json!({"children": children(i)})).collect();
+        serde_json::to_vec(
+            &serde_json::json!({"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": nodes}),
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn node_cycles_and_deep_nesting_are_errors_not_stack_overflows() {
+        let cycle = gltf_with_nodes(2, |i| vec![1 - i]);
+        let e = import_mesh_slice(&cycle).unwrap_err();
+        assert!(e.contains("reached twice") || e.contains("cycle") || e.contains("invalid"), "{e}");
+        let deep = gltf_with_nodes(200_000, |i| if i + 1 < 200_000 { vec![i + 1] } else { vec![] });
+        let e = import_mesh_slice(&deep).unwrap_err();
+        assert!(e.contains("levels deep"), "{e}");
+    }
 
     #[test]
     fn glb_export_then_import_keeps_vertex_counts_and_bounds() {

@@ -26,7 +26,31 @@ pub struct GaborFilter {
     pub psi: f64,
 }
 
+/// Widest envelope a filter may have (pixels): its kernel is then 321 pixels across, half
+/// an image; wider ones only cost time (and 1e6 would allocate without bound).
+pub const MAX_SIGMA_PX: f64 = 64.0;
+
 impl GaborFilter {
+    /// The first setting that makes no sense, as (field, problem).
+    pub fn validate(&self) -> Result<(), (&'static str, String)> {
+        // A carrier shorter than two pixels aliases (Nyquist); a zero one divides by zero.
+        if !(self.lambda_px.is_finite() && self.lambda_px >= 2.0) {
+            return Err(("lambda_px", format!("must be at least 2 pixels, got {}", self.lambda_px)));
+        }
+        if !(self.sigma_px > 0.0 && self.sigma_px <= MAX_SIGMA_PX) {
+            return Err(("sigma_px", format!("must be in (0, {MAX_SIGMA_PX}] pixels, got {}", self.sigma_px)));
+        }
+        if !(self.gamma > 0.0 && self.gamma <= 10.0) {
+            return Err(("gamma", format!("must be in (0, 10], got {}", self.gamma)));
+        }
+        for (name, v) in [("theta_deg", self.theta_deg), ("psi", self.psi)] {
+            if !v.is_finite() {
+                return Err((name, format!("must be finite, got {v}")));
+            }
+        }
+        Ok(())
+    }
+
     /// Kernel half-width along the carrier: 2.5 envelope standard deviations.
     pub fn carrier_radius(&self) -> usize {
         (2.5 * self.sigma_px).ceil() as usize

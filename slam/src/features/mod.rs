@@ -148,6 +148,32 @@ impl Default for FeatureConfig {
 }
 
 impl FeatureConfig {
+    /// The first setting that makes no sense, with its path (`bank.filters[1].sigma_px`).
+    pub fn validate(&self) -> Result<(), crate::settings::InvalidSetting> {
+        use crate::settings::InvalidSetting;
+        if !(1..=64).contains(&self.patch_size) {
+            return Err(InvalidSetting::new("patch_size", format!("must be 1 to 64 pixels, got {}", self.patch_size)));
+        }
+        for (i, f) in self.bank.filters.iter().enumerate() {
+            f.validate().map_err(|e| InvalidSetting::in_table(&format!("bank.filters[{i}]"), e))?;
+        }
+        let n = 3 + self.bank.len();
+        if !self.channel_gain.is_empty() && self.channel_gain.len() != n {
+            return Err(InvalidSetting::new(
+                "channel_gain",
+                format!(
+                    "has {} gains for {n} channels (r, g, b and {} filters)",
+                    self.channel_gain.len(),
+                    self.bank.len()
+                ),
+            ));
+        }
+        if let Some(g) = self.channel_gain.iter().find(|g| !(g.is_finite() && **g > 0.0)) {
+            return Err(InvalidSetting::new("channel_gain", format!("gains must be positive, got {g}")));
+        }
+        Ok(())
+    }
+
     /// The gain of every channel (1 where none is set).
     pub fn gains(&self) -> Vec<f32> {
         let n = 3 + self.bank.len();
@@ -272,6 +298,7 @@ pub fn feature_names(d: usize) -> Vec<String> {
 
 impl FeatureExtractor {
     pub fn new(config: FeatureConfig, pca: Pca) -> Result<Self, FeatureError> {
+        config.validate().map_err(|e| FeatureError::Training(e.to_string()))?;
         if !config.channel_gain.is_empty() && config.channel_gain.len() != 3 + config.bank.len() {
             return Err(FeatureError::Training(format!(
                 "{} channel gains for {} channels",
