@@ -153,6 +153,16 @@ enum Command {
     /// Variational Bayesian Gaussian mixtures on any numeric CSV.
     #[command(subcommand)]
     Gmm(GmmCommand),
+    /// Settings: print every scenario setting at its default.
+    #[command(subcommand)]
+    Config(ConfigCommand),
+}
+
+#[derive(Subcommand)]
+enum ConfigCommand {
+    /// Print the complete default scenario as TOML, from the code's defaults (or one
+    /// table of it, e.g. `pipeline.evidence`).
+    Defaults { table: Option<String> },
 }
 
 #[derive(Subcommand)]
@@ -316,6 +326,10 @@ fn run(cli: Cli) -> Result<()> {
         Some(Command::Gmm(GmmCommand::Fit { data, max_components, fixed_k, seed, out })) => {
             gmm_fit(&data, max_components, fixed_k, seed, &out)
         }
+        Some(Command::Config(ConfigCommand::Defaults { table })) => {
+            print!("{}", scenarios::scenario::Scenario::defaults_toml(table.as_deref())?);
+            Ok(())
+        }
     }
 }
 
@@ -438,6 +452,7 @@ fn montecarlo(args: MontecarloArgs) -> Result<()> {
         None => mc::Shard::from_env(|k| std::env::var(k).ok(), args.shard_count)?.unwrap_or(mc::Shard::all()),
     };
     let plan = mc::StudyPlan { scenario: scenario.clone(), base_seed: args.seed, runs: args.runs, methods, vary };
+    plan.check()?;
     let out = args.out.unwrap_or_else(|| PathBuf::from(format!("runs/montecarlo-{}-{}", sc.name, args.seed)));
     run_plan(&plan, shard, &out, &workers)
 }

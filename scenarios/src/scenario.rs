@@ -130,7 +130,8 @@ pub struct PassCriteria {
     /// on things that are not trees.
     pub min_false_landmarks: Option<usize>,
     pub max_duplicate_landmarks: Option<usize>,
-    /// Fraction of trees seen that must be mapped.
+    /// Least `map.tree_recall` (mapped share of the trees there were to map, by ground
+    /// truth); a run with no tree to map fails it.
     pub min_tree_recall: Option<f64>,
     pub max_ate_rmse_m: Option<f64>,
     pub max_landmark_rmse_m: Option<f64>,
@@ -311,6 +312,58 @@ impl Scenario {
     }
 }
 
+impl Scenario {
+    /// A scenario with every setting at the code's default: the park preset and its
+    /// generator parameters, the simulator, calibration, pipeline and appearance model; no
+    /// pass criterion.
+    pub fn with_defaults(name: &str) -> Scenario {
+        Scenario {
+            name: name.into(),
+            description: String::new(),
+            seed: default_seed(),
+            world: WorldSource {
+                preset: Some("park".into()),
+                file: None,
+                seed: None,
+                params: Some(Default::default()),
+            },
+            sim: Default::default(),
+            calibration: Default::default(),
+            pipeline: Default::default(),
+            appearance: Default::default(),
+            pass: Default::default(),
+        }
+    }
+
+    /// [`Scenario::with_defaults`] as TOML (what `objslam config defaults` prints), or only
+    /// the table at the dotted path `table` (`pipeline.evidence`).
+    pub fn defaults_toml(table: Option<&str>) -> Result<String, ScenarioError> {
+        let file = PathBuf::from("<defaults>");
+        let err = |message: String| ScenarioError::Parse { file: file.clone(), message };
+        let mut value =
+            toml::Value::try_from(Scenario::with_defaults("my_scenario")).map_err(|e| err(e.to_string()))?;
+        if let Some(path) = table {
+            for key in path.split('.') {
+                value = match value {
+                    toml::Value::Table(mut t) => {
+                        t.remove(key).ok_or_else(|| err(format!("no table {path:?} in a scenario")))?
+                    }
+                    _ => return Err(err(format!("{path:?} is a value, not a table"))),
+                };
+            }
+            if !value.is_table() {
+                return Err(err(format!("{path:?} is a value, not a table")));
+            }
+        }
+        let body = toml::to_string_pretty(&value).map_err(|e| err(e.to_string()))?;
+        let heading = match table {
+            Some(t) => format!("# [{t}] of a scenario, every setting at its default.\n"),
+            None => "# A scenario with every setting at its default (objslam config defaults).\n# Pass criteria ([pass]) have none: a criterion left out is not checked.\n".into(),
+        };
+        Ok(heading + &body)
+    }
+}
+
 /// The line (1-based) of the dotted key `path` in TOML `text`, where it is written as
 /// `key = ...` under its table's header (`[a.b]` then `c = ...` for `a.b.c`); `None` when
 /// it is spelled another way or not written (a default).
@@ -345,6 +398,33 @@ mod tests {
             assert_eq!(&s.name, name);
             s.world(&base, s.seed).unwrap();
         }
+    }
+
+    /// The default scenario parses back to itself, and docs/reference/scenario.md shows
+    /// exactly what `objslam config defaults` prints (regenerate it with
+    /// `OBJSLAM_WRITE_REFERENCE=1 cargo test -p scenarios defaults`).
+    #[test]
+    fn defaults_parse_back_and_the_reference_page_agrees() {
+        let text = Scenario::defaults_toml(None).unwrap();
+        let parsed = Scenario::parse(&text, Path::new("defaults.toml")).unwrap();
+        assert_eq!(parsed, Scenario::with_defaults("my_scenario"));
+        let evidence = Scenario::defaults_toml(Some("pipeline.evidence")).unwrap();
+        assert!(evidence.contains("radius_m = 0.3"), "{evidence}");
+        assert!(Scenario::defaults_toml(Some("pipeline.nothing")).is_err());
+        assert!(Scenario::defaults_toml(Some("seed")).is_err());
+        let page = format!(
+            "# Scenario reference\n\nEvery setting of a scenario file at its default, as `objslam config defaults` prints it\n(generated from the code; a test checks this page agrees). What each setting means:\n[scenarios](../guide/scenarios.md), [runs and metrics](../guide/runs-and-metrics.md) and the\ndoc comments of `slam::pipeline::PipelineConfig` and `sim::SimConfig`.\n\n```toml\n{text}```\n"
+        );
+        let file = Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/reference/scenario.md");
+        if std::env::var_os("OBJSLAM_WRITE_REFERENCE").is_some() {
+            std::fs::write(&file, &page).unwrap();
+        }
+        let on_disk = std::fs::read_to_string(&file).unwrap_or_default();
+        assert!(
+            on_disk == page,
+            "{} is out of date: OBJSLAM_WRITE_REFERENCE=1 cargo test -p scenarios defaults",
+            file.display()
+        );
     }
 
     #[test]
