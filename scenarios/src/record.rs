@@ -6,7 +6,9 @@
 //! - `laser_truth.jsonl`: per scan, the instance id each beam hit (scoring only);
 //! - `sensors.json`: sensor mountings and rates; `world.toml`: the world;
 //! - `collisions.jsonl`: robot contacts; `metadata.json`: seed, configuration, versions;
-//! - `run.mcap`: the same with Foxglove schemas (LaserScan, FrameTransform, PosesInFrame).
+//! - `run.mcap`: the same with Foxglove schemas (LaserScan, FrameTransform, PosesInFrame):
+//!   `/tf` is odom -> base_link from the noisy odometry, `/odom` its poses, `/tf_static`
+//!   base_link -> laser and camera_optical; the truth is on `/ground_truth/*` only.
 
 use std::fs::File;
 use std::io::{BufWriter, Write};
@@ -78,6 +80,12 @@ impl Out {
 pub fn base64(bytes: &[u8]) -> String {
     use base64::Engine;
     base64::engine::general_purpose::STANDARD.encode(bytes)
+}
+
+/// A rotation matrix (row-major) as a unit quaternion [x, y, z, w].
+pub fn rotation_quaternion(r: &[[f64; 3]; 3]) -> [f64; 4] {
+    let q = nalgebra::UnitQuaternion::from_matrix(&nalgebra::Matrix3::from_fn(|i, j| r[i][j]));
+    [q.i, q.j, q.k, q.w]
 }
 
 /// A TUM trajectory line: `timestamp tx ty tz qx qy qz qw`.
@@ -285,6 +293,11 @@ fn record_jsonl(
     let [mx, my, mz] = config.laser.mount_xyz_m;
     let laser_q = yaw_quaternion(config.laser.mount_yaw_deg.to_radians());
 
+    let camera = config.camera.base_from_camera();
+    let camera_q = rotation_quaternion(&camera.r);
+    // The noisy odometry integrated from the origin of `odom`: what a robot's /tf says.
+    let mut odom = [0.0f64; 3];
+
     let (mut scans, mut odos) = (0, 0);
     let mut last_progress = -1.0;
     while let Some(event) = sim.next_event() {
@@ -294,14 +307,24 @@ fn record_jsonl(
                 odometry.line(&serde_json::to_string(o).expect("JSON"))?;
                 let r = truth.robot;
                 tum.line(&tum_line(o.t, r.x, r.y, r.theta))?;
-                let q = yaw_quaternion(r.theta);
+                let (s, c) = odom[2].sin_cos();
+                odom =
+                    [odom[0] + c * o.dx - s * o.dy, odom[1] + s * o.dx + c * o.dy, sim::wrap_angle(odom[2] + o.dtheta)];
+                let oq = yaw_quaternion(odom[2]);
                 mcap.write(
                     "/tf",
                     "foxglove.FrameTransform",
                     o.t,
-                    &json!({"timestamp": timestamp(o.t), "parent_frame_id": "world", "child_frame_id": "base_link",
-                            "translation": {"x": r.x, "y": r.y, "z": 0.0}, "rotation": {"x": q[0], "y": q[1], "z": q[2], "w": q[3]}}),
+                    &json!({"timestamp": timestamp(o.t), "parent_frame_id": "odom", "child_frame_id": "base_link",
+                            "translation": {"x": odom[0], "y": odom[1], "z": 0.0}, "rotation": {"x": oq[0], "y": oq[1], "z": oq[2], "w": oq[3]}}),
                 )?;
+                mcap.write(
+                    "/odom",
+                    "foxglove.PosesInFrame",
+                    o.t,
+                    &json!({"timestamp": timestamp(o.t), "frame_id": "odom", "poses": [pose_json(odom[0], odom[1], 0.0, oq)]}),
+                )?;
+                let q = yaw_quaternion(r.theta);
                 mcap.write(
                     "/ground_truth/pose",
                     "foxglove.PosesInFrame",
@@ -331,6 +354,16 @@ fn record_jsonl(
                         scan.t,
                         &json!({"timestamp": timestamp(scan.t), "parent_frame_id": "base_link", "child_frame_id": "laser",
                                 "translation": {"x": mx, "y": my, "z": mz}, "rotation": {"x": laser_q[0], "y": laser_q[1], "z": laser_q[2], "w": laser_q[3]}}),
+                    )?;
+                    // The camera's optical frame (z forward, x right, y down), so images can
+                    // be placed in 3-D.
+                    mcap.write(
+                        "/tf_static",
+                        "foxglove.FrameTransform",
+                        scan.t,
+                        &json!({"timestamp": timestamp(scan.t), "parent_frame_id": "base_link", "child_frame_id": "camera_optical",
+                                "translation": {"x": camera.t[0], "y": camera.t[1], "z": camera.t[2]},
+                                "rotation": {"x": camera_q[0], "y": camera_q[1], "z": camera_q[2], "w": camera_q[3]}}),
                     )?;
                 }
                 let people: Vec<_> =

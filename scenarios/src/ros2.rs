@@ -43,9 +43,8 @@ pub struct Ros2Recorder {
 
 /// A rotation matrix (row-major) as a unit quaternion.
 fn quaternion(r: &[[f64; 3]; 3]) -> Quaternion {
-    let m = nalgebra::Matrix3::from_fn(|i, j| r[i][j]);
-    let q = nalgebra::UnitQuaternion::from_matrix(&m);
-    Quaternion { x: q.i, y: q.j, z: q.k, w: q.w }
+    let [x, y, z, w] = crate::record::rotation_quaternion(r);
+    Quaternion { x, y, z, w }
 }
 
 fn stamp(t: f64) -> Result<Time, ros2bag::Error> {

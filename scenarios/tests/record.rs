@@ -76,7 +76,9 @@ fn record_writes_a_readable_consistent_log() {
         let _: serde_json::Value = serde_json::from_slice(&m.data).unwrap();
     }
     assert_eq!(per_topic["/laser"], ("foxglove.LaserScan".to_string(), 101));
-    assert_eq!(per_topic["/tf"].0, "foxglove.FrameTransform");
+    assert_eq!(per_topic["/tf"], ("foxglove.FrameTransform".to_string(), 201));
+    assert_eq!(per_topic["/odom"], ("foxglove.PosesInFrame".to_string(), 201));
+    assert_eq!(per_topic["/tf_static"].1, 2, "base_link -> laser and -> camera_optical");
     assert_eq!(per_topic["/ground_truth/pose"].0, "foxglove.PosesInFrame");
     assert_eq!(per_topic["/camera/image"], ("foxglove.CompressedImage".to_string(), 51));
     assert_eq!(per_topic["/camera/calibration"].0, "foxglove.CameraCalibration");
