@@ -39,6 +39,10 @@ enum Command {
         /// same results, more slowly).
         #[arg(long)]
         full_frames: bool,
+        /// Also write the run's sensor stream as a ROS 2 bag in this directory (frames are
+        /// then rendered whole).
+        #[arg(long)]
+        bag: Option<PathBuf>,
     },
     /// Monte Carlo association-failure studies (parallel, resumable, shardable).
     Montecarlo(MontecarloArgs),
@@ -290,11 +294,11 @@ fn run(cli: Cli) -> Result<()> {
         // from generated images on first use and caches it).
         None => {
             eprintln!("no command given: running the paper's experiment, scenario paper_park (see `objslam --help`)");
-            run_scenario(Some("paper_park"), None, None, None, false)
+            run_scenario(Some("paper_park"), None, None, None, false, None)
         }
         Some(Command::World(cmd)) => world(cmd),
-        Some(Command::Run { scenario, seed, method, out, full_frames }) => {
-            run_scenario(scenario.as_deref(), seed, method.as_deref(), out, full_frames)
+        Some(Command::Run { scenario, seed, method, out, full_frames, bag }) => {
+            run_scenario(scenario.as_deref(), seed, method.as_deref(), out, full_frames, bag)
         }
         Some(Command::Montecarlo(args)) => montecarlo(args),
         Some(Command::MontecarloWorker) => {
@@ -541,6 +545,7 @@ fn run_scenario(
     method: Option<&str>,
     out: Option<PathBuf>,
     full_frames: bool,
+    bag: Option<PathBuf>,
 ) -> Result<()> {
     let name = scenario.unwrap_or(scenarios::scenario::DEFAULT_SCENARIO);
     let (sc, base) = scenarios::scenario::Scenario::load(name)?;
@@ -548,8 +553,14 @@ fn run_scenario(
     let seed = seed.unwrap_or(sc.seed);
     let out = out.unwrap_or_else(|| PathBuf::from(format!("runs/{}-{seed}", sc.name)));
     let bar = progress_bar(0, &format!("running {}", sc.name));
-    let options =
-        scenarios::run::RunOptions { seed: Some(seed), method, out: Some(out.clone()), appearance: None, full_frames };
+    let options = scenarios::run::RunOptions {
+        seed: Some(seed),
+        method,
+        out: Some(out.clone()),
+        appearance: None,
+        full_frames,
+        bag,
+    };
     let outcome = scenarios::run::run(&sc, &base, &options, |t, total| {
         bar.set_length(total.ceil() as u64);
         bar.set_position((t.floor() as u64).min(total.ceil() as u64));

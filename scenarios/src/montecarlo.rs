@@ -610,8 +610,14 @@ pub fn run_job(base: &Scenario, base_dir: &Path, job: &Job, models: &StudyModels
         let method =
             AssociationMethod::from_name(&job.method).ok_or_else(|| format!("unknown method {:?}", job.method))?;
         let appearance = if job_needs_appearance(job, &scenario) { Some(models.get(&scenario)?) } else { None };
-        let options =
-            RunOptions { seed: Some(job.seed), method: Some(method), out: None, appearance, full_frames: false };
+        let options = RunOptions {
+            seed: Some(job.seed),
+            method: Some(method),
+            out: None,
+            appearance,
+            full_frames: false,
+            bag: None,
+        };
         crate::run::run(&scenario, base_dir, &options, |_, _| {}).map(|o| o.metrics).map_err(|e| e.to_string())
     }));
     let (metrics, error) = match result {

@@ -43,6 +43,8 @@ pub enum RunError {
     Objects(#[from] crate::objects::ObjectsError),
     #[error(transparent)]
     Calibration(#[from] crate::calibrate::CalibrateError),
+    #[error(transparent)]
+    Ros2(#[from] crate::ros2::Ros2Error),
 }
 
 /// Segmentation quality against the rendered masks (absent without a camera).
@@ -304,6 +306,9 @@ pub struct RunOptions {
     /// Render whole camera frames, not only the pixel columns the pipeline reads: the same
     /// results, more slowly (for checking exactly that).
     pub full_frames: bool,
+    /// Also write the run's sensor stream as a ROS 2 bag in this directory (see
+    /// [`crate::ros2`]); its frames are then rendered whole.
+    pub bag: Option<PathBuf>,
 }
 
 /// Result of a run, with what the reports need.
@@ -467,7 +472,9 @@ pub fn run(
         config.clustering.max_range_m,
         config.confirm_observations,
     );
-    if let Some(region) = pipeline.image_region().filter(|_| !options.full_frames && frame_read_by_one_scan) {
+    // A bag holds whole images.
+    let whole_frames = options.full_frames || options.bag.is_some();
+    if let Some(region) = pipeline.image_region().filter(|_| !whole_frames && frame_read_by_one_scan) {
         // The columns the ground-truth count reads are rendered too, so that it does not
         // depend on the columns the method asked for.
         let truth_columns = visibility.clone();
@@ -503,8 +510,15 @@ pub fn run(
     let mut merges_scored = 0;
 
     let (mut pipe_time, mut scan_time, mut scans) = (0.0f64, 0.0f64, 0usize);
+    let mut bag = match &options.bag {
+        Some(dir) => Some(crate::ros2::Ros2Recorder::create(dir, &sim_config)?),
+        None => None,
+    };
     let mut events = EventSource::start(sim);
     while let Some(event) = events.next() {
+        if let Some(bag) = &mut bag {
+            bag.write(&event)?;
+        }
         let tick = std::time::Instant::now();
         let t = event.time();
         match event {
@@ -627,6 +641,9 @@ pub fn run(
         }
     }
     let (sim, sim_time) = events.finish();
+    if let Some(bag) = bag {
+        bag.finish()?;
+    }
     // A camera that stopped (a lost GPU device) leaves a camera method blind for the rest of
     // the run: its scores would not be the method's.
     if let Some(e) = sim.camera_error().filter(|_| camera_method) {

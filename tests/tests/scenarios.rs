@@ -197,6 +197,33 @@ fn run_writes_every_output() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// `objslam run --bag` writes the run's own sensor stream as a ROS 2 bag: a scan message
+/// per scan the pipeline took, whole camera frames, and the same metrics as without it.
+#[test]
+fn a_run_writes_its_sensor_stream_as_a_ros2_bag() {
+    let dir = std::env::temp_dir().join(format!("objslam-run-bag-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let (mut sc, base) = Scenario::load("paper_park").unwrap();
+    sc.sim.max_duration_s = Some(6.0);
+    let plain = run(&sc, &base, &RunOptions::default(), |_, _| {}).unwrap().metrics;
+    let bagged =
+        run(&sc, &base, &RunOptions { bag: Some(dir.join("bag")), ..Default::default() }, |_, _| {}).unwrap().metrics;
+    assert_eq!(bagged.timing.rendered_fraction, 1.0, "a bag holds whole frames");
+    let same =
+        |m: &scenarios::run::Metrics| scenarios::run::Metrics { timing: Default::default(), ..m.without_wall_clock() };
+    assert_eq!(same(&plain), same(&bagged));
+    let metadata = std::fs::read_to_string(dir.join("bag/metadata.yaml")).unwrap();
+    let count = |topic: &str| -> usize {
+        let at = metadata.find(&format!("name: {topic}\n")).unwrap_or_else(|| panic!("{topic} missing: {metadata}"));
+        let rest = &metadata[at..];
+        let line = rest.lines().find(|l| l.trim_start().starts_with("message_count:")).unwrap();
+        line.split(':').nth(1).unwrap().trim().parse().unwrap()
+    };
+    assert_eq!(count("/scan"), bagged.timing.scans);
+    assert!(count("/camera/image_raw") >= 30 && count("/odom") >= 120, "{metadata}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 #[test]
 fn combined_method_runs_end_to_end_with_camera_segmentation() {
     // The paper's method on the first 40 s of paper_park: the appearance model is trained
