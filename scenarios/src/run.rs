@@ -785,6 +785,7 @@ pub fn run(
     });
 
     if let Some(out) = &options.out {
+        clear_stale_outputs(out)?;
         if let Some(report) = &calibration.report {
             report.write(&out.join("calibration.json"))?;
         }
@@ -807,6 +808,23 @@ pub fn run(
         }
     }
     Ok(RunOutcome { metrics, resolved })
+}
+
+/// Outputs that only some runs write (camera methods, estimated calibrations): removed from
+/// a reused output directory first, so none is left from an earlier run to be taken for
+/// this one's. The other outputs every run rewrites.
+const CONDITIONAL_OUTPUTS: [&str; 3] = ["calibration.json", "segmentation.jsonl", "objects"];
+
+fn clear_stale_outputs(out: &Path) -> Result<(), RunError> {
+    for name in CONDITIONAL_OUTPUTS {
+        let path = out.join(name);
+        let removed = if path.is_dir() { std::fs::remove_dir_all(&path) } else { std::fs::remove_file(&path) };
+        match removed {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(RunError::Io { file: path, source: e }),
+            _ => {}
+        }
+    }
+    Ok(())
 }
 
 /// Checks the scenario's pass criteria; returns the failures in words.

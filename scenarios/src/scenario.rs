@@ -226,6 +226,14 @@ impl Scenario {
         let bad = |field: &str, message: String| {
             Err(ScenarioError::Invalid { file: file.to_path_buf(), line: None, field: field.into(), message })
         };
+        // The name makes the default output directory (runs/<name>-<seed>): a path in it
+        // would write elsewhere.
+        let name_ok = !self.name.is_empty()
+            && !self.name.starts_with('.')
+            && self.name.chars().all(|c| c.is_ascii_alphanumeric() || matches!(c, '_' | '-' | '.'));
+        if !name_ok {
+            return bad("name", format!("must be letters, digits, '_', '-' and '.' (not first), got {:?}", self.name));
+        }
         match (&self.world.preset, &self.world.file) {
             (Some(_), Some(_)) => return bad("world", "give either `preset` or `file`, not both".into()),
             (None, None) => return bad("world", "needs `preset` (e.g. \"park\") or `file`".into()),
@@ -451,6 +459,11 @@ mod tests {
         .unwrap_err()
         .to_string();
         assert!(e.contains("bad.toml: line 7: pipeline.evidence.radius_m"), "{e}");
+        for name in ["../../x", "a/b", "", ".hidden"] {
+            let e =
+                Scenario::parse(&format!("name = {name:?}\n[world]\npreset = \"park\"\n"), f).unwrap_err().to_string();
+            assert!(e.contains("line 1: name"), "{name}: {e}");
+        }
         let e = Scenario::load("no_such_scenario").unwrap_err().to_string();
         assert!(e.contains("paper_park"), "{e}");
     }

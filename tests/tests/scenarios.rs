@@ -142,11 +142,17 @@ fn frames_that_later_scans_may_read_are_rendered_whole() {
 #[test]
 fn run_writes_every_output() {
     let dir = std::env::temp_dir().join(format!("objslam-outputs-{}", std::process::id()));
+    // A reused directory: an earlier camera run's outputs, which this run does not write,
+    // must not be left to be taken for its own.
+    std::fs::create_dir_all(dir.join("objects")).unwrap();
+    std::fs::write(dir.join("segmentation.jsonl"), "{}\n").unwrap();
+    std::fs::write(dir.join("objects/models.json"), "[]").unwrap();
     let (mut sc, base) = Scenario::load("laser_only").unwrap();
     sc.sim.max_duration_s = Some(20.0);
     let m = run(&sc, &base, &RunOptions { seed: Some(3), out: Some(dir.clone()), ..Default::default() }, |_, _| {})
         .unwrap()
         .metrics;
+    assert!(!dir.join("segmentation.jsonl").exists() && !dir.join("objects").exists(), "stale outputs left");
     let metrics: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("metrics.json")).unwrap()).unwrap();
     for key in [
