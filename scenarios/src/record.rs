@@ -82,6 +82,13 @@ pub fn base64(bytes: &[u8]) -> String {
     base64::engine::general_purpose::STANDARD.encode(bytes)
 }
 
+/// The pose `pose` (x, y, theta) moved by the odometry increment `o`, which is given in
+/// the robot frame at `pose`: how the `odom` frame's pose is integrated.
+pub fn integrate_odometry(pose: [f64; 3], o: &sim::Odometry) -> [f64; 3] {
+    let (s, c) = pose[2].sin_cos();
+    [pose[0] + c * o.dx - s * o.dy, pose[1] + s * o.dx + c * o.dy, sim::wrap_angle(pose[2] + o.dtheta)]
+}
+
 /// A rotation matrix (row-major) as a unit quaternion [x, y, z, w].
 pub fn rotation_quaternion(r: &[[f64; 3]; 3]) -> [f64; 4] {
     let q = nalgebra::UnitQuaternion::from_matrix(&nalgebra::Matrix3::from_fn(|i, j| r[i][j]));
@@ -307,9 +314,7 @@ fn record_jsonl(
                 odometry.line(&serde_json::to_string(o).expect("JSON"))?;
                 let r = truth.robot;
                 tum.line(&tum_line(o.t, r.x, r.y, r.theta))?;
-                let (s, c) = odom[2].sin_cos();
-                odom =
-                    [odom[0] + c * o.dx - s * o.dy, odom[1] + s * o.dx + c * o.dy, sim::wrap_angle(odom[2] + o.dtheta)];
+                odom = integrate_odometry(odom, o);
                 let oq = yaw_quaternion(odom[2]);
                 mcap.write(
                     "/tf",

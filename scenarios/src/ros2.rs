@@ -109,9 +109,7 @@ impl Ros2Recorder {
         }
         match event {
             SensorEvent::Odometry { odometry: o, truth } => {
-                let [x, y, th] = self.odom;
-                let (s, c) = th.sin_cos();
-                self.odom = [x + c * o.dx - s * o.dy, y + s * o.dx + c * o.dy, sim::wrap_angle(th + o.dtheta)];
+                self.odom = crate::record::integrate_odometry(self.odom, o);
                 let dt = self.last_odometry_t.map(|p| o.t - p).filter(|d| *d > 0.0);
                 self.last_odometry_t = Some(o.t);
                 let [x, y, th] = self.odom;

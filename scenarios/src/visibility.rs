@@ -233,9 +233,9 @@ mod tests {
         assert!(cols[0].0 >= 48 && cols[0].1 <= 52, "{cols:?}");
         // Only those columns rendered: the count is the same as with the whole frame.
         let img = image_of(7);
-        let mut whole = TreeVisibility::new([7].into(), Some(forward_camera()), 3, 12.0, 1);
-        let mut part = TreeVisibility::new([7].into(), Some(forward_camera()), 3, 12.0, 1);
-        whole.on_scan(&scan, &truth, Some(&super::tests::whole(&img)));
+        let mut all_columns = TreeVisibility::new([7].into(), Some(forward_camera()), 3, 12.0, 1);
+        let mut some_columns = TreeVisibility::new([7].into(), Some(forward_camera()), 3, 12.0, 1);
+        all_columns.on_scan(&scan, &truth, Some(&whole(&img)));
         let mut masked = vec![0u16; 100 * 100];
         for v in 0..100 {
             for &(a, b) in &cols {
@@ -244,12 +244,12 @@ mod tests {
                 }
             }
         }
-        part.on_scan(
+        some_columns.on_scan(
             &scan,
             &truth,
             Some(&InstanceImage { t: 1.0, width: 100, height: 100, instance: &masked, columns: Some(&cols) }),
         );
-        assert_eq!(whole.trees_in_view(), part.trees_in_view());
-        assert_eq!(whole.trees_in_view(), Some([7].into()));
+        assert_eq!(all_columns.trees_in_view(), some_columns.trees_in_view());
+        assert_eq!(all_columns.trees_in_view(), Some([7].into()));
     }
 }
