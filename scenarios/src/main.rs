@@ -74,14 +74,20 @@ enum Command {
     /// systems can read.
     Record {
         /// A world file, or the name of a preset (`park`).
-        input: String,
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
+        #[arg(required_unless_present = "scenario", conflicts_with = "scenario")]
+        input: Option<String>,
+        /// Record a scenario's world and simulator as `objslam run` simulates them for the
+        /// same seed, with its pass criteria for `objslam score` (a file or built-in name).
+        #[arg(long)]
+        scenario: Option<String>,
+        /// World and simulator seed (default: 1, or the scenario's seed).
+        #[arg(long)]
+        seed: Option<u64>,
         /// Stop after this many simulated seconds (default: when the route is done).
         #[arg(long)]
         duration: Option<f64>,
         /// TOML file of simulator settings (see `sim::SimConfig`).
-        #[arg(long)]
+        #[arg(long, conflicts_with = "scenario")]
         sim_config: Option<PathBuf>,
         /// `jsonl`: JSON lines, TUM, PNGs and a Foxglove MCAP; `ros2`: a ROS 2 bag
         /// (`ros2 bag play OUT`).
@@ -157,9 +163,38 @@ enum Command {
     /// Variational Bayesian Gaussian mixtures on any numeric CSV.
     #[command(subcommand)]
     Gmm(GmmCommand),
+    /// Score any SLAM system's trajectory (and map and associations) against a log of
+    /// `objslam record`, by the rules `objslam run` scores its own runs with.
+    Score(ScoreArgs),
     /// Settings: print every scenario setting at its default.
     #[command(subcommand)]
     Config(ConfigCommand),
+}
+
+#[derive(clap::Args)]
+struct ScoreArgs {
+    /// The log directory `objslam record` wrote.
+    #[arg(long)]
+    log: PathBuf,
+    /// The estimated trajectory, TUM format, world frame.
+    #[arg(long)]
+    trajectory: PathBuf,
+    /// The estimated map: a JSON array of {"id", "position": [x, y]}.
+    #[arg(long)]
+    landmarks: Option<PathBuf>,
+    /// What each laser cluster of each scan went to (JSON lines, as `objslam run` writes
+    /// associations.jsonl).
+    #[arg(long)]
+    associations: Option<PathBuf>,
+    /// The system's name in the report.
+    #[arg(long)]
+    method: Option<String>,
+    /// The recall's denominator (default: trees in view when the log has camera frames).
+    #[arg(long, value_enum)]
+    recall_basis: Option<scenarios::score::scorer::RecallBasis>,
+    /// Where to write metrics.json.
+    #[arg(long)]
+    out: PathBuf,
 }
 
 #[derive(Subcommand)]
@@ -307,9 +342,15 @@ fn run(cli: Cli) -> Result<()> {
         Some(Command::Dataset { world, preset, images, seed, classes, patch_size, out }) => {
             dataset(world, preset, images, seed, &classes, patch_size, &out)
         }
-        Some(Command::Record { input, seed, duration, sim_config, format, out }) => {
-            record(&input, seed, duration, sim_config, format, &out)
+        Some(Command::Record { input, scenario, seed, duration, sim_config, format, out }) => {
+            let source = match (scenario, input) {
+                (Some(name), _) => RecordSource::Scenario(name),
+                (None, Some(input)) => RecordSource::World { input, sim_config },
+                (None, None) => unreachable!("clap requires one of them"),
+            };
+            record(source, seed, duration, format, &out)
         }
+        Some(Command::Score(args)) => score(args),
         Some(Command::Calibrate { scenario, poses, seed, out, images }) => {
             calibrate(scenario.as_deref().unwrap_or("calibration"), poses, seed, &out, images.as_deref())
         }
@@ -335,6 +376,27 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
     }
+}
+
+fn score(args: ScoreArgs) -> Result<()> {
+    let estimate = scenarios::score::log::Estimate {
+        trajectory: args.trajectory,
+        landmarks: args.landmarks,
+        associations: args.associations,
+        method: args.method,
+        recall_basis: args.recall_basis,
+    };
+    let m = scenarios::score::log::score_log(&args.log, &estimate)?;
+    std::fs::create_dir_all(&args.out).with_context(|| format!("{}: cannot create", args.out.display()))?;
+    let file = args.out.join("metrics.json");
+    std::fs::write(&file, serde_json::to_string_pretty(&m)? + "\n")
+        .with_context(|| format!("{}: cannot write", file.display()))?;
+    print!("{}", scenarios::score::log::summary_table(&m));
+    println!("  metrics in {}", file.display());
+    if m.passed == Some(false) {
+        std::process::exit(1);
+    }
+    Ok(())
 }
 
 /// A world from a file path, or generated from a preset name with the seed.
@@ -612,28 +674,51 @@ fn calibrate(
     Ok(())
 }
 
+/// What `objslam record` simulates.
+enum RecordSource {
+    World { input: String, sim_config: Option<PathBuf> },
+    Scenario(String),
+}
+
 fn record(
-    input: &str,
-    seed: u64,
+    source: RecordSource,
+    seed: Option<u64>,
     duration: Option<f64>,
-    sim_config: Option<PathBuf>,
     format: scenarios::record::RecordFormat,
     out: &std::path::Path,
 ) -> Result<()> {
-    let world = load_world(input, seed)?;
-    let mut config = match sim_config {
-        Some(path) => {
-            let text = std::fs::read_to_string(&path).with_context(|| format!("{}: cannot read", path.display()))?;
-            toml::from_str::<sim::SimConfig>(&text)
-                .with_context(|| format!("{}: bad simulator settings", path.display()))?
+    let (world, mut config, sim_seed, scoring) = match source {
+        RecordSource::World { input, sim_config } => {
+            let seed = seed.unwrap_or(1);
+            let config = match sim_config {
+                Some(path) => {
+                    let text =
+                        std::fs::read_to_string(&path).with_context(|| format!("{}: cannot read", path.display()))?;
+                    toml::from_str::<sim::SimConfig>(&text)
+                        .with_context(|| format!("{}: bad simulator settings", path.display()))?
+                }
+                None => sim::SimConfig::default(),
+            };
+            (load_world(&input, seed)?, config, seed, scenarios::score::log::LogScoring::of_world())
         }
-        None => sim::SimConfig::default(),
+        RecordSource::Scenario(name) => {
+            let (sc, base) = scenarios::scenario::Scenario::load(&name)?;
+            let seed = seed.unwrap_or(sc.seed);
+            // The world and simulator seeds a run of this scenario and seed uses.
+            let world = sc.world(&base, seed)?;
+            (
+                world,
+                sc.sim.clone(),
+                sim::derive_seed(seed, "sim"),
+                scenarios::score::log::LogScoring::of_scenario(&sc, seed),
+            )
+        }
     };
     if duration.is_some() {
         config.max_duration_s = duration;
     }
     let bar = progress_bar(0, "recording");
-    let summary = scenarios::record::record(&world, &config, seed, out, format, |t, total| {
+    let summary = scenarios::record::record(&world, &config, sim_seed, &scoring, out, format, |t, total| {
         bar.set_length(total.ceil() as u64);
         bar.set_position((t.floor() as u64).min(total.ceil() as u64));
     })?;

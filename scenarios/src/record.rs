@@ -3,7 +3,8 @@
 //! - `laser.jsonl`: one scan per line, like ROS LaserScan (`null` = no return);
 //! - `odometry.jsonl`: incremental odometry (t, dx, dy, dtheta) in the previous robot frame;
 //! - `ground_truth.tum`: the robot base pose in TUM format at the odometry rate;
-//! - `laser_truth.jsonl`: per scan, the instance id each beam hit (scoring only);
+//! - `laser_truth.jsonl`: per scan, the instance id each beam hit and its noise-free range
+//!   (scoring only);
 //! - `sensors.json`: sensor mountings and rates; `world.toml`: the world;
 //! - `collisions.jsonl`: robot contacts; `metadata.json`: seed, configuration, versions;
 //! - `run.mcap`: the same with Foxglove schemas (LaserScan, FrameTransform, PosesInFrame):
@@ -53,6 +54,8 @@ pub struct RecordSummary {
     /// The adapter that rendered the camera frames.
     pub renderer: Option<String>,
     pub collisions: usize,
+    /// Whether the robot finished its route (the rule `objslam run` scores).
+    pub route_completed: bool,
 }
 
 struct Out {
@@ -95,10 +98,12 @@ pub fn rotation_quaternion(r: &[[f64; 3]; 3]) -> [f64; 4] {
     [q.i, q.j, q.k, q.w]
 }
 
-/// A TUM trajectory line: `timestamp tx ty tz qx qy qz qw`.
+/// A TUM trajectory line: `timestamp tx ty tz qx qy qz qw`, each number written with as
+/// many digits as it takes to read back the same `f64` (so that `objslam score` sees
+/// exactly what `objslam run` scored).
 pub fn tum_line(t: f64, x: f64, y: f64, yaw: f64) -> String {
     let q = yaw_quaternion(yaw);
-    format!("{t:.6} {x:.6} {y:.6} 0.000000 {:.9} {:.9} {:.9} {:.9}", q[0], q[1], q[2], q[3])
+    format!("{t} {x} {y} 0 {} {} {} {}", q[0], q[1], q[2], q[3])
 }
 
 /// The sensor mountings as written to `sensors.json`.
@@ -210,18 +215,20 @@ pub fn write_camera_frame(
     Ok((names, pngs.swap_remove(0)))
 }
 
-/// Records a run of `world` into `out` in `format`. `progress` is called with (sim time,
-/// nominal duration) now and then.
+/// Records a run of `world` into `out` in `format`, the simulator seeded with `seed`.
+/// `scoring` says how `objslam score` is to score systems on a JSON-lines log. `progress`
+/// is called with (sim time, nominal duration) now and then.
 pub fn record(
     world: &worlds::World,
     config: &SimConfig,
     seed: u64,
+    scoring: &crate::score::log::LogScoring,
     out: &Path,
     format: RecordFormat,
     progress: impl FnMut(f64, f64),
 ) -> Result<RecordSummary, RecordError> {
     match format {
-        RecordFormat::Jsonl => record_jsonl(world, config, seed, out, progress),
+        RecordFormat::Jsonl => record_jsonl(world, config, seed, scoring, out, progress),
         RecordFormat::Ros2 => record_ros2(world, config, seed, out, progress),
     }
 }
@@ -263,6 +270,7 @@ fn record_ros2(
         camera_frames,
         renderer: sim.camera_adapter().map(|a| a.to_string()),
         collisions: sim.collisions().len(),
+        route_completed: sim.route_progress() > 0.99,
     })
 }
 
@@ -270,6 +278,7 @@ fn record_jsonl(
     world: &worlds::World,
     config: &SimConfig,
     seed: u64,
+    scoring: &crate::score::log::LogScoring,
     out: &Path,
     mut progress: impl FnMut(f64, f64),
 ) -> Result<RecordSummary, RecordError> {
@@ -340,8 +349,9 @@ fn record_jsonl(
             SensorEvent::Laser { scan, beams, truth } => {
                 scans += 1;
                 laser.line(&serde_json::to_string(scan).expect("JSON"))?;
-                laser_truth
-                    .line(&serde_json::to_string(&json!({"t": scan.t, "hit_ids": beams.hit_ids})).expect("JSON"))?;
+                let mut line = serde_json::to_value(beams).expect("JSON");
+                line["t"] = json!(scan.t);
+                laser_truth.line(&serde_json::to_string(&line).expect("JSON"))?;
                 let end = scan.angle_min + scan.angle_increment * (scan.ranges.len() as f64 - 1.0);
                 // Foxglove draws non-finite ranges as no return.
                 let ranges: Vec<f64> = scan.ranges.iter().map(|r| if r.is_finite() { *r } else { -1.0 }).collect();
@@ -428,6 +438,7 @@ fn record_jsonl(
         camera_frames: frames,
         renderer: sim.camera_adapter().map(|a| a.to_string()),
         collisions: sim.collisions().len(),
+        route_completed: sim.route_progress() > 0.99,
     };
     write_file(
         "metadata.json",
@@ -438,6 +449,7 @@ fn record_jsonl(
             "world": {"name": world.name, "seed": world.seed},
             "sim_config": config,
             "summary": summary,
+            "scoring": scoring,
         }))
         .expect("JSON"),
     )?;

@@ -14,8 +14,11 @@ use slam::segmentation::CameraGeometry;
 use worlds::ObjectClass;
 
 use crate::scenario::{Scenario, ScenarioError};
-use crate::score::{self, AssociationCounts, MapContent};
-use crate::visibility::{InstanceImage, TreeVisibility};
+use crate::score::scorer::{
+    Fusion, MapLandmark, RecallBasis, RunScorer, ScoredObservation, VisibilitySettings, true_object,
+};
+use crate::score::{AssociationCounts, MapContent};
+use crate::visibility::InstanceImage;
 use slam::segmentation::merge_spans;
 
 /// Errors of a run.
@@ -327,16 +330,6 @@ struct TruthImages {
     columns: Option<Vec<(u32, u32)>>,
 }
 
-/// Which object a cluster truly belongs to: the most frequent instance id of its beams
-/// (0 if the beams hit nothing known).
-fn true_object(hit_ids: &[u16], first: usize, last: usize) -> u16 {
-    let mut counts: BTreeMap<u16, usize> = BTreeMap::new();
-    for &id in &hit_ids[first..=last] {
-        *counts.entry(id).or_default() += 1;
-    }
-    counts.into_iter().max_by_key(|(id, n)| (*n, *id != 0)).map(|(id, _)| id).unwrap_or(0)
-}
-
 /// The pipeline settings of a scenario, with a method override and the laser's mounting.
 /// Scenarios read from files were checked when parsed; this checks again for ones built or
 /// changed in code.
@@ -461,23 +454,19 @@ pub fn run(
     // step closer than the laser's period.
     let frame_read_by_one_scan =
         config.image_max_age_s < 1.0 / sim_config.laser.rate_hz - 1.0 / sim_config.physics_rate_hz;
-    let tree_ids: std::collections::BTreeSet<u16> =
-        world.objects.iter().filter(|o| o.class == ObjectClass::Tree).map(|o| o.id).collect();
-    // The recall's denominators, from ground truth (the camera's true extrinsics).
+    // Every ground-truth figure; the recall's denominators come from the camera's true
+    // extrinsics, whatever the run's calibration.
     let true_camera = sim_config.camera.enabled.then(|| camera_geometry(&scenario.sim, &calibration.truth));
-    let mut visibility = TreeVisibility::new(
-        tree_ids.clone(),
-        true_camera,
-        config.clustering.min_points,
-        config.clustering.max_range_m,
-        config.confirm_observations,
-    );
+    let camera_method = config.method.uses_appearance();
+    let basis = if camera_method { RecallBasis::InView } else { RecallBasis::LaserSeen };
+    let mut scorer = RunScorer::new(&world, true_camera, VisibilitySettings::of(&config), basis);
+    let tree_ids = scorer.tree_ids().clone();
     // A bag holds whole images.
     let whole_frames = options.full_frames || options.bag.is_some();
     if let Some(region) = pipeline.image_region().filter(|_| !whole_frames && frame_read_by_one_scan) {
         // The columns the ground-truth count reads are rendered too, so that it does not
         // depend on the columns the method asked for.
-        let truth_columns = visibility.clone();
+        let truth_columns = scorer.visibility().clone();
         sim.render_camera_columns(Box::new(move |scan, beams| {
             merge_spans([region.columns(&slam_scan(scan)), truth_columns.columns(scan, beams)].concat())
         }));
@@ -494,17 +483,14 @@ pub fn run(
 
     let mut est_path: Vec<(f64, [f64; 3])> = Vec::new();
     let mut gt_path: Vec<(f64, [f64; 3])> = Vec::new();
-    let mut nees_sum = 0.0;
-    let mut nees_n = 0usize;
-    // Per landmark id, the true object of each observation, and the associations to score.
-    let mut ledger = crate::score::AssociationLedger::default();
+    // What the pipeline did with each scan, as `objslam score` reads it (associations.jsonl).
+    let mut association_log = String::new();
     // Camera methods: trees whose cluster the method's own segmentation judged in enough
     // frames to be confirmed (a count that depends on the method, kept to explain misses).
     let mut trees_judged: std::collections::BTreeSet<u16> = Default::default();
     let mut judged_frames: BTreeMap<u16, usize> = BTreeMap::new();
     // One line per segmented cluster (camera methods): why it was or was not an object.
     let mut segmentation_log = String::new();
-    let camera_method = config.method.uses_appearance();
     let mut people_tracks: BTreeMap<u16, Vec<[f64; 2]>> = BTreeMap::new();
     let mut last_progress = -1.0;
     let mut merges_scored = 0;
@@ -533,11 +519,7 @@ pub fn run(
                 let r = truth.robot;
                 est_path.push((odometry.t, est.pose));
                 gt_path.push((odometry.t, [r.x, r.y, r.theta]));
-                let e = [est.pose[0] - r.x, est.pose[1] - r.y, sim::wrap_angle(est.pose[2] - r.theta)];
-                if let Some(n) = score::nees3(e, est.covariance) {
-                    nees_sum += n;
-                    nees_n += 1;
-                }
+                scorer.on_pose(est.pose, Some(est.covariance), [r.x, r.y, r.theta]);
             }
             SensorEvent::Laser { scan, beams, truth } => {
                 let s = slam_scan(&scan);
@@ -590,17 +572,20 @@ pub fn run(
                         }
                     }
                 }
-                for (ci, c) in result.clusters.iter().enumerate() {
-                    let obj = true_object(&beams.hit_ids, c.first_beam, c.last_beam);
-                    if let Some(id) = result.assigned[ci] {
-                        ledger.observe(id, obj);
-                    }
-                }
-                // A fusion associates every observation of the removed landmark with the
-                // kept one: scored like any association (wrong if the objects differ).
-                for m in &pipeline.merges()[merges_scored..] {
-                    ledger.fuse(m.kept, m.removed);
-                }
+                let observations: Vec<ScoredObservation> = result
+                    .clusters
+                    .iter()
+                    .zip(&result.assigned)
+                    .map(|(c, landmark)| ScoredObservation {
+                        first_beam: c.first_beam,
+                        last_beam: c.last_beam,
+                        landmark: *landmark,
+                    })
+                    .collect();
+                let fusions: Vec<Fusion> = pipeline.merges()[merges_scored..]
+                    .iter()
+                    .map(|m| Fusion { kept: m.kept, removed: m.removed })
+                    .collect();
                 merges_scored = pipeline.merges().len();
                 let frame =
                     last_frame.as_ref().filter(|f| (f.t - scan.t).abs() < same_instant_s).map(|f| InstanceImage {
@@ -610,7 +595,10 @@ pub fn run(
                         instance: &f.instance,
                         columns: f.columns.as_deref(),
                     });
-                visibility.on_scan(&scan, &beams, frame.as_ref());
+                scorer.on_scan(&scan, &beams, frame.as_ref(), &observations, &fusions);
+                if options.out.is_some() {
+                    association_log.push_str(&association_line(scan.t, &observations, &fusions));
+                }
                 for p in &truth.people {
                     people_tracks.entry(p.id).or_default().push([p.x, p.y]);
                 }
@@ -655,69 +643,22 @@ pub fn run(
             pipeline.unrendered_reads()
         )));
     }
-    if visibility.unrendered_reads() > 0 {
+    if scorer.unrendered_reads() > 0 {
         return Err(RunError::Online(format!(
             "the tree-recall count read {} pixels in image columns the camera did not render (a bug; `--full-frames` renders whole frames)",
-            visibility.unrendered_reads()
+            scorer.unrendered_reads()
         )));
     }
     progress(sim.time(), nominal);
     let wall = started.elapsed().as_secs_f64();
 
-    let landmark_object = ledger.landmark_objects();
-    let mut map = MapContent {
-        trees_in_view: visibility.trees_in_view().map(|t| t.len()),
-        trees_laser_seen: visibility.trees_laser_seen().len(),
-        trees_judged: camera_method.then_some(trees_judged.len()),
-        ..Default::default()
-    };
-    let mut per_object: BTreeMap<u16, usize> = BTreeMap::new();
-    for lm in pipeline.mapped_landmarks() {
-        let obj = landmark_object.get(&lm.id).copied().unwrap_or(0);
-        *per_object.entry(obj).or_default() += 1;
-        match world.class_of(obj) {
-            Some(ObjectClass::Tree) => {}
-            Some(ObjectClass::Post) => map.posts += 1,
-            Some(ObjectClass::Palm) => map.palms += 1,
-            Some(ObjectClass::Person) => map.people += 1,
-            Some(ObjectClass::Wall) => map.walls += 1,
-            _ => map.nothing += 1,
-        }
-    }
-    let trees_mapped: std::collections::BTreeSet<u16> =
-        per_object.keys().filter(|id| tree_ids.contains(id)).copied().collect();
-    map.trees_mapped = trees_mapped.len();
-    let in_view = visibility.trees_in_view();
-    let to_map = if camera_method { in_view.as_ref() } else { Some(visibility.trees_laser_seen()) };
-    map.tree_recall = score::tree_recall(&trees_mapped, to_map);
-    map.missed_trees = to_map.map(|t| t.difference(&trees_mapped).copied().collect()).unwrap_or_default();
-    let duplicates: usize = per_object.iter().filter(|(id, _)| **id != 0).map(|(_, n)| n.saturating_sub(1)).sum();
-    let false_landmarks = map.posts + map.palms + map.people + map.walls + map.nothing;
-
-    // Landmark RMSE after optimal assignment to static objects' centres (gated at 2 m).
-    let statics: Vec<&worlds::StaticObject> = world
-        .objects
-        .iter()
-        .filter(|o| matches!(o.class, ObjectClass::Tree | ObjectClass::Post | ObjectClass::Palm))
-        .collect();
     let lms = pipeline.mapped_landmarks();
-    let cost: Vec<Vec<f64>> = lms
-        .iter()
-        .map(|l| {
-            statics
-                .iter()
-                .map(|o| ((l.position[0] - o.pose.x).powi(2) + (l.position[1] - o.pose.y).powi(2)).sqrt())
-                .collect()
-        })
-        .collect();
-    let assignment = score::hungarian(&cost);
-    let matched: Vec<f64> =
-        assignment.iter().enumerate().filter_map(|(i, j)| j.map(|j| cost[i][j])).filter(|d| *d <= 2.0).collect();
-    let landmark_rmse =
-        (!matched.is_empty()).then(|| (matched.iter().map(|d| d * d).sum::<f64>() / matched.len() as f64).sqrt());
+    let map_landmarks: Vec<MapLandmark> = lms.iter().map(|l| MapLandmark { id: l.id, position: l.position }).collect();
+    let scored = scorer.finish(&map_landmarks);
+    let landmark_object = scored.landmark_objects;
+    let mut map = scored.map;
+    map.trees_judged = camera_method.then_some(trees_judged.len());
 
-    let est_xy: Vec<[f64; 2]> = est_path.iter().map(|(_, p)| [p[0], p[1]]).collect();
-    let gt_xy: Vec<[f64; 2]> = gt_path.iter().map(|(_, p)| [p[0], p[1]]).collect();
     let mut metrics = Metrics {
         scenario: scenario.name.clone(),
         seed,
@@ -725,12 +666,12 @@ pub fn run(
         sim_seconds: sim.time(),
         wall_seconds: wall,
         realtime_factor: sim.time() / wall.max(1e-9),
-        ate_rmse_m: score::ate_rmse(&est_xy, &gt_xy),
-        landmark_rmse_m: landmark_rmse,
+        ate_rmse_m: scored.ate_rmse_m,
+        landmark_rmse_m: scored.landmark_rmse_m,
         map,
-        landmarks: lms.len(),
-        associations: ledger.counts(),
-        duplicate_landmarks: duplicates,
+        landmarks: scored.landmarks,
+        associations: scored.associations,
+        duplicate_landmarks: scored.duplicate_landmarks,
         merged_landmarks: pipeline.merges().len(),
         relinearisations: pipeline.relinearisations().len(),
         relinearisation_failures: pipeline.relinearisation_failures().len(),
@@ -742,7 +683,7 @@ pub fn run(
                 .filter(|r| landmark_object.get(&r.landmark).is_some_and(|o| tree_ids.contains(o)))
                 .count(),
         },
-        false_landmarks,
+        false_landmarks: scored.false_landmarks,
         segmentation: if config.method.uses_appearance() {
             SegmentationScore { precision: Some(seg_scores.precision()), recall: Some(seg_scores.recall()) }
         } else {
@@ -754,7 +695,7 @@ pub fn run(
             translation_error_m: calibration.translation_error_m,
         }),
         odometry_calibration: odometry_calibration_score(pipeline.ekf(), sim.odometry_errors()),
-        anees: if nees_n > 0 { nees_sum / nees_n as f64 } else { f64::NAN },
+        anees: scored.anees,
         collisions: sim.collisions().len(),
         route_completed: sim.route_progress() > 0.99,
         passed: false,
@@ -769,7 +710,7 @@ pub fn run(
         renderer,
         appearance_model: model_provenance.clone(),
     };
-    metrics.failures = check_pass(scenario, &metrics);
+    metrics.failures = check_pass(&scenario.pass, &metrics);
     metrics.passed = metrics.failures.is_empty();
 
     let resolved = json!({
@@ -802,12 +743,20 @@ pub fn run(
             &landmark_object,
             &decision_truth,
         )?;
+        let file = out.join("associations.jsonl");
+        std::fs::write(&file, association_log).map_err(|source| RunError::Io { file, source })?;
         if camera_method {
             let file = out.join("segmentation.jsonl");
             std::fs::write(&file, segmentation_log).map_err(|source| RunError::Io { file, source })?;
         }
     }
     Ok(RunOutcome { metrics, resolved })
+}
+
+/// One line of `associations.jsonl`: a scan's time, what each of its laser clusters went
+/// to, and the fusions made after it (the format `objslam score --associations` reads).
+fn association_line(t: f64, observations: &[ScoredObservation], fusions: &[Fusion]) -> String {
+    serde_json::to_string(&json!({"t": t, "observations": observations, "fusions": fusions})).expect("JSON") + "\n"
 }
 
 /// Outputs that only some runs write (camera methods, estimated calibrations): removed from
@@ -828,8 +777,7 @@ fn clear_stale_outputs(out: &Path) -> Result<(), RunError> {
 }
 
 /// Checks the scenario's pass criteria; returns the failures in words.
-pub fn check_pass(scenario: &Scenario, m: &Metrics) -> Vec<String> {
-    let p = &scenario.pass;
+pub fn check_pass(p: &crate::scenario::PassCriteria, m: &Metrics) -> Vec<String> {
     let mut f = Vec::new();
     if let Some(max) = p.max_wrong_associations
         && m.associations.wrong > max
@@ -976,7 +924,10 @@ fn write_outputs(
         .iter()
         .map(|l| {
             let obj = landmark_object.get(&l.id).copied().unwrap_or(0);
-            json!({"landmark": l, "true_object": obj, "true_class": world.class_of(obj).map(|c| c.name()).unwrap_or("nothing")})
+            let mut v = serde_json::to_value(l).expect("JSON");
+            v["true_object"] = json!(obj);
+            v["true_class"] = json!(world.class_of(obj).map(|c| c.name()).unwrap_or("nothing"));
+            v
         })
         .collect();
     write("landmarks.json", serde_json::to_string_pretty(&landmarks).expect("JSON"))?;

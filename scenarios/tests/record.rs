@@ -8,8 +8,16 @@ fn record_writes_a_readable_consistent_log() {
     let _ = std::fs::remove_dir_all(&dir);
     let world = worlds::generate::park(&Default::default(), 2).unwrap();
     let config = sim::SimConfig { max_duration_s: Some(10.0), ..Default::default() };
-    let summary =
-        scenarios::record::record(&world, &config, 4, &dir, scenarios::record::RecordFormat::Jsonl, |_, _| {}).unwrap();
+    let summary = scenarios::record::record(
+        &world,
+        &config,
+        4,
+        &scenarios::score::log::LogScoring::of_world(),
+        &dir,
+        scenarios::record::RecordFormat::Jsonl,
+        |_, _| {},
+    )
+    .unwrap();
     assert!((summary.sim_seconds - 10.0).abs() < 0.02);
 
     let laser = std::fs::read_to_string(dir.join("laser.jsonl")).unwrap();
@@ -138,9 +146,20 @@ fn a_ros2_bag_holds_what_the_json_lines_hold_in_standard_messages() {
     let world = worlds::generate::park(&Default::default(), 2).unwrap();
     let config = sim::SimConfig { max_duration_s: Some(3.0), ..Default::default() };
     use scenarios::record::{RecordFormat, record};
-    record(&world, &config, 4, &root.join("jsonl"), RecordFormat::Jsonl, |_, _| {}).unwrap();
+    record(
+        &world,
+        &config,
+        4,
+        &scenarios::score::log::LogScoring::of_world(),
+        &root.join("jsonl"),
+        RecordFormat::Jsonl,
+        |_, _| {},
+    )
+    .unwrap();
     let bag = root.join("bag");
-    let summary = record(&world, &config, 4, &bag, RecordFormat::Ros2, |_, _| {}).unwrap();
+    let summary =
+        record(&world, &config, 4, &scenarios::score::log::LogScoring::of_world(), &bag, RecordFormat::Ros2, |_, _| {})
+            .unwrap();
 
     let metadata = std::fs::read_to_string(bag.join("metadata.yaml")).unwrap();
     assert!(
@@ -242,6 +261,9 @@ fn a_ros2_bag_holds_what_the_json_lines_hold_in_standard_messages() {
         vec![("base_link".to_string(), "laser".to_string()), ("base_link".to_string(), "camera_optical".to_string())]
     );
     // Refuses to write over an earlier bag.
-    assert!(record(&world, &config, 4, &bag, RecordFormat::Ros2, |_, _| {}).is_err());
+    assert!(
+        record(&world, &config, 4, &scenarios::score::log::LogScoring::of_world(), &bag, RecordFormat::Ros2, |_, _| {})
+            .is_err()
+    );
     let _ = std::fs::remove_dir_all(&root);
 }

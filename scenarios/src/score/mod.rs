@@ -1,6 +1,9 @@
 //! Scoring against ground truth: trajectory error, landmark error after optimal
 //! assignment, map content per class, wrong associations, duplicates, NEES.
 
+pub mod log;
+pub mod scorer;
+
 use serde::{Deserialize, Serialize};
 
 /// Root-mean-square of the position differences of time-aligned pose pairs (ATE without

@@ -1,0 +1,271 @@
+//! [`RunScorer`]: every ground-truth scoring rule of a run in one place, fed the same way
+//! by `objslam run` (from the pipeline, as it runs) and by `objslam score` (from a sensor
+//! log and files any SLAM system can write), so that both give the same figures.
+
+use std::collections::{BTreeMap, BTreeSet, HashMap};
+
+use serde::{Deserialize, Serialize};
+use slam::segmentation::CameraGeometry;
+use worlds::{ObjectClass, World};
+
+use super::{AssociationCounts, AssociationLedger, MapContent};
+use crate::visibility::{InstanceImage, TreeVisibility};
+
+/// Which trees the recall counts as there to map.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum RecallBasis {
+    /// Trees the camera showed where the laser hit them (`map.trees_in_view`): for methods
+    /// that need the camera to map a tree.
+    InView,
+    /// Trees the laser hit (`map.trees_laser_seen`): for position-only methods.
+    LaserSeen,
+}
+
+/// What makes a tree count as seen: the clustering's fewest points and range, and the
+/// observations that confirm a landmark (see [`TreeVisibility`]).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct VisibilitySettings {
+    pub min_beams: usize,
+    pub max_range_m: f64,
+    pub frames_needed: usize,
+}
+
+impl VisibilitySettings {
+    /// The settings a pipeline configuration implies.
+    pub fn of(config: &slam::pipeline::PipelineConfig) -> Self {
+        VisibilitySettings {
+            min_beams: config.clustering.min_points,
+            max_range_m: config.clustering.max_range_m,
+            frames_needed: config.confirm_observations,
+        }
+    }
+}
+
+/// One laser observation of a scan as the system under test used it: the beams it spans
+/// and the landmark it went to (a new or an existing one), if any.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ScoredObservation {
+    pub first_beam: usize,
+    pub last_beam: usize,
+    pub landmark: Option<u32>,
+}
+
+/// Two landmarks the system found to be one: `removed` was fused into `kept`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Fusion {
+    pub kept: u32,
+    pub removed: u32,
+}
+
+/// A mapped landmark as the scoring needs it.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct MapLandmark {
+    pub id: u32,
+    pub position: [f64; 2],
+}
+
+/// The ground-truth figures of a run.
+#[derive(Debug, Clone)]
+pub struct GroundTruthScore {
+    pub ate_rmse_m: f64,
+    pub landmark_rmse_m: Option<f64>,
+    pub map: MapContent,
+    pub landmarks: usize,
+    pub associations: AssociationCounts,
+    pub duplicate_landmarks: usize,
+    pub false_landmarks: usize,
+    /// Average NEES of the pose (NaN without covariances).
+    pub anees: f64,
+    /// The object each landmark stands on (0: none), from its observations.
+    pub landmark_objects: HashMap<u32, u16>,
+}
+
+/// Which object a run of beams truly belongs to: the most frequent instance id among them
+/// (0 if they hit nothing known; a real object wins a tie against nothing, then the
+/// higher id).
+pub fn true_object(hit_ids: &[u16], first: usize, last: usize) -> u16 {
+    let mut counts: BTreeMap<u16, usize> = BTreeMap::new();
+    for &id in hit_ids.get(first..=last).unwrap_or(&[]) {
+        *counts.entry(id).or_default() += 1;
+    }
+    counts.into_iter().max_by_key(|(id, n)| (*n, *id != 0)).map(|(id, _)| id).unwrap_or(0)
+}
+
+/// Scores a run as it goes: poses, scans with their observations, then the final map.
+pub struct RunScorer<'w> {
+    world: &'w World,
+    tree_ids: BTreeSet<u16>,
+    visibility: TreeVisibility,
+    basis: RecallBasis,
+    ledger: AssociationLedger,
+    estimate: Vec<[f64; 2]>,
+    truth: Vec<[f64; 2]>,
+    nees_sum: f64,
+    nees_n: usize,
+}
+
+impl<'w> RunScorer<'w> {
+    /// `camera` carries the simulator's true extrinsics (absent without a camera).
+    pub fn new(
+        world: &'w World,
+        camera: Option<CameraGeometry>,
+        settings: VisibilitySettings,
+        basis: RecallBasis,
+    ) -> Self {
+        let tree_ids: BTreeSet<u16> =
+            world.objects.iter().filter(|o| o.class == ObjectClass::Tree).map(|o| o.id).collect();
+        let visibility = TreeVisibility::new(
+            tree_ids.clone(),
+            camera,
+            settings.min_beams,
+            settings.max_range_m,
+            settings.frames_needed,
+        );
+        RunScorer {
+            world,
+            tree_ids,
+            visibility,
+            basis,
+            ledger: AssociationLedger::default(),
+            estimate: Vec::new(),
+            truth: Vec::new(),
+            nees_sum: 0.0,
+            nees_n: 0,
+        }
+    }
+
+    /// The tree counter, for a camera that must render the columns it reads.
+    pub fn visibility(&self) -> &TreeVisibility {
+        &self.visibility
+    }
+
+    /// Ids of the world's trees.
+    pub fn tree_ids(&self) -> &BTreeSet<u16> {
+        &self.tree_ids
+    }
+
+    /// An estimated pose (x, y, theta) with its covariance, if known, and the true pose of
+    /// the same instant.
+    pub fn on_pose(&mut self, estimate: [f64; 3], covariance: Option<[[f64; 3]; 3]>, truth: [f64; 3]) {
+        self.estimate.push([estimate[0], estimate[1]]);
+        self.truth.push([truth[0], truth[1]]);
+        let e = [estimate[0] - truth[0], estimate[1] - truth[1], sim::wrap_angle(estimate[2] - truth[2])];
+        if let Some(n) = covariance.and_then(|p| super::nees3(e, p)) {
+            self.nees_sum += n;
+            self.nees_n += 1;
+        }
+    }
+
+    /// A scan, its beams' truth, the camera frame of the same instant (if any), the
+    /// observations the system made of it and the fusions it made after it.
+    pub fn on_scan(
+        &mut self,
+        scan: &sim::LaserScan,
+        beams: &sim::LaserTruth,
+        frame: Option<&InstanceImage>,
+        observations: &[ScoredObservation],
+        fusions: &[Fusion],
+    ) {
+        for o in observations {
+            if let Some(id) = o.landmark {
+                self.ledger.observe(id, true_object(&beams.hit_ids, o.first_beam, o.last_beam));
+            }
+        }
+        // A fusion associates every observation of the removed landmark with the kept one:
+        // scored like any association (wrong if the objects differ).
+        for f in fusions {
+            self.ledger.fuse(f.kept, f.removed);
+        }
+        self.visibility.on_scan(scan, beams, frame);
+    }
+
+    /// Pixels the tree count read in image columns the camera did not render (must be 0).
+    pub fn unrendered_reads(&self) -> usize {
+        self.visibility.unrendered_reads()
+    }
+
+    /// The figures, given the final map.
+    pub fn finish(self, landmarks: &[MapLandmark]) -> GroundTruthScore {
+        let landmark_objects = self.ledger.landmark_objects();
+        let mut map = MapContent {
+            trees_in_view: self.visibility.trees_in_view().map(|t| t.len()),
+            trees_laser_seen: self.visibility.trees_laser_seen().len(),
+            ..Default::default()
+        };
+        let mut per_object: BTreeMap<u16, usize> = BTreeMap::new();
+        for lm in landmarks {
+            let obj = landmark_objects.get(&lm.id).copied().unwrap_or(0);
+            *per_object.entry(obj).or_default() += 1;
+            match self.world.class_of(obj) {
+                Some(ObjectClass::Tree) => {}
+                Some(ObjectClass::Post) => map.posts += 1,
+                Some(ObjectClass::Palm) => map.palms += 1,
+                Some(ObjectClass::Person) => map.people += 1,
+                Some(ObjectClass::Wall) => map.walls += 1,
+                _ => map.nothing += 1,
+            }
+        }
+        let trees_mapped: BTreeSet<u16> = per_object.keys().filter(|id| self.tree_ids.contains(id)).copied().collect();
+        map.trees_mapped = trees_mapped.len();
+        let to_map = match self.basis {
+            RecallBasis::InView => self.visibility.trees_in_view(),
+            RecallBasis::LaserSeen => Some(self.visibility.trees_laser_seen().clone()),
+        };
+        map.tree_recall = super::tree_recall(&trees_mapped, to_map.as_ref());
+        map.missed_trees = to_map.map(|t| t.difference(&trees_mapped).copied().collect()).unwrap_or_default();
+        let duplicate_landmarks = per_object.iter().filter(|(id, _)| **id != 0).map(|(_, n)| n.saturating_sub(1)).sum();
+        let false_landmarks = map.posts + map.palms + map.people + map.walls + map.nothing;
+        GroundTruthScore {
+            ate_rmse_m: super::ate_rmse(&self.estimate, &self.truth),
+            landmark_rmse_m: landmark_rmse(self.world, landmarks),
+            map,
+            landmarks: landmarks.len(),
+            associations: self.ledger.counts(),
+            duplicate_landmarks,
+            false_landmarks,
+            anees: if self.nees_n > 0 { self.nees_sum / self.nees_n as f64 } else { f64::NAN },
+            landmark_objects,
+        }
+    }
+}
+
+/// Landmark RMSE after optimal assignment to the static objects' centres (trees, posts,
+/// palms), pairs further apart than 2 m left out; `None` when no pair is that close.
+pub fn landmark_rmse(world: &World, landmarks: &[MapLandmark]) -> Option<f64> {
+    let statics: Vec<&worlds::StaticObject> = world
+        .objects
+        .iter()
+        .filter(|o| matches!(o.class, ObjectClass::Tree | ObjectClass::Post | ObjectClass::Palm))
+        .collect();
+    let cost: Vec<Vec<f64>> = landmarks
+        .iter()
+        .map(|l| {
+            statics
+                .iter()
+                .map(|o| ((l.position[0] - o.pose.x).powi(2) + (l.position[1] - o.pose.y).powi(2)).sqrt())
+                .collect()
+        })
+        .collect();
+    let assignment = super::hungarian(&cost);
+    let matched: Vec<f64> =
+        assignment.iter().enumerate().filter_map(|(i, j)| j.map(|j| cost[i][j])).filter(|d| *d <= 2.0).collect();
+    (!matched.is_empty()).then(|| (matched.iter().map(|d| d * d).sum::<f64>() / matched.len() as f64).sqrt())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_run_of_beams_belongs_to_its_most_frequent_object_and_a_real_one_wins_a_tie() {
+        assert_eq!(true_object(&[0, 3, 3, 5], 0, 3), 3);
+        assert_eq!(true_object(&[0, 0, 7, 7], 0, 3), 7);
+        assert_eq!(true_object(&[0, 0, 7], 0, 1), 0);
+        assert_eq!(true_object(&[4, 9], 0, 1), 9, "a tie between objects goes to the higher id");
+        assert_eq!(true_object(&[1, 2], 1, 5), 0, "beams past the scan's end belong to nothing");
+    }
+}
