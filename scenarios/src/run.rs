@@ -314,6 +314,10 @@ pub struct RunOptions {
     pub bag: Option<PathBuf>,
 }
 
+/// A solve of the smoother after a loop closure, at a scan's time: what it did, or why it
+/// failed.
+type Solve = (f64, Result<slam::ekf::smoother::Relinearisation, slam::ekf::smoother::SmootherError>);
+
 /// Result of a run, with what the reports need.
 pub struct RunOutcome {
     pub metrics: Metrics,
@@ -477,8 +481,13 @@ pub fn run(
     // The latest frame's ground-truth images, for scoring the segmentation and the recall.
     let mut last_frame: Option<TruthImages> = None;
     let mut seg_scores = PatchScores::default();
-    // The true object of each association decision's observation, in decision order.
-    let mut decision_truth: Vec<u16> = Vec::new();
+    // Each association decision with its observation's true object (runs that write
+    // outputs), the smoother's solves, retracted landmarks and the count of fusions: what
+    // the scan reports say, kept here (the pipeline keeps no history).
+    let mut decisions: Vec<(slam::association::AssociationDecision, u16)> = Vec::new();
+    let mut solves: Vec<Solve> = Vec::new();
+    let mut retractions: Vec<slam::pipeline::LandmarkRetraction> = Vec::new();
+    let mut merged = 0usize;
     let tree_class = ObjectClass::Tree.id();
 
     let mut est_path: Vec<(f64, [f64; 3])> = Vec::new();
@@ -493,7 +502,6 @@ pub fn run(
     let mut segmentation_log = String::new();
     let mut people_tracks: BTreeMap<u16, Vec<[f64; 2]>> = BTreeMap::new();
     let mut last_progress = -1.0;
-    let mut merges_scored = 0;
 
     let (mut pipe_time, mut scan_time, mut scans) = (0.0f64, 0.0f64, 0usize);
     let mut bag = match &options.bag {
@@ -523,16 +531,22 @@ pub fn run(
             }
             SensorEvent::Laser { scan, beams, truth } => {
                 let s = slam_scan(&scan);
-                let before = pipeline.decisions().len();
                 let scan_tick = std::time::Instant::now();
-                let result = pipeline.on_scan(&s);
+                let mut result = pipeline.on_scan(&s);
                 scan_time += scan_tick.elapsed().as_secs_f64();
                 scans += 1;
-                for d in &pipeline.decisions()[before..] {
-                    let c = &result.clusters[d.observation];
-                    decision_truth.push(true_object(&beams.hit_ids, c.first_beam, c.last_beam));
+                // Only runs that write outputs keep the decisions (not Monte Carlo runs).
+                if options.out.is_some() {
+                    for d in std::mem::take(&mut result.decisions) {
+                        let c = &result.clusters[d.observation];
+                        let truth = true_object(&beams.hit_ids, c.first_beam, c.last_beam);
+                        decisions.push((d, truth));
+                    }
                 }
-                for rec in pipeline.take_segmentations() {
+                solves.extend(result.relinearisations.drain(..).map(|r| (s.t, r)));
+                retractions.append(&mut result.retractions);
+                merged += result.merges.len();
+                for rec in &result.segmentations {
                     // Camera methods can only map trees the camera saw where the laser did.
                     for cs in &rec.clusters {
                         let c = &result.clusters[cs.index];
@@ -582,11 +596,8 @@ pub fn run(
                         landmark: *landmark,
                     })
                     .collect();
-                let fusions: Vec<Fusion> = pipeline.merges()[merges_scored..]
-                    .iter()
-                    .map(|m| Fusion { kept: m.kept, removed: m.removed })
-                    .collect();
-                merges_scored = pipeline.merges().len();
+                let fusions: Vec<Fusion> =
+                    result.merges.iter().map(|m| Fusion { kept: m.kept, removed: m.removed }).collect();
                 let frame =
                     last_frame.as_ref().filter(|f| (f.t - scan.t).abs() < same_instant_s).map(|f| InstanceImage {
                         t: f.t,
@@ -672,13 +683,12 @@ pub fn run(
         landmarks: scored.landmarks,
         associations: scored.associations,
         duplicate_landmarks: scored.duplicate_landmarks,
-        merged_landmarks: pipeline.merges().len(),
-        relinearisations: pipeline.relinearisations().len(),
-        relinearisation_failures: pipeline.relinearisation_failures().len(),
+        merged_landmarks: merged,
+        relinearisations: solves.iter().filter(|(_, r)| r.is_ok()).count(),
+        relinearisation_failures: solves.iter().filter(|(_, r)| r.is_err()).count(),
         retracted_landmarks: RetractionCounts {
-            total: pipeline.retractions().len(),
-            trees: pipeline
-                .retractions()
+            total: retractions.len(),
+            trees: retractions
                 .iter()
                 .filter(|r| landmark_object.get(&r.landmark).is_some_and(|o| tree_ids.contains(o)))
                 .count(),
@@ -741,7 +751,8 @@ pub fn run(
             &gt_path,
             &people_tracks,
             &landmark_object,
-            &decision_truth,
+            &decisions,
+            &solves,
         )?;
         let file = out.join("associations.jsonl");
         std::fs::write(&file, association_log).map_err(|source| RunError::Io { file, source })?;
@@ -851,7 +862,8 @@ fn write_outputs(
     gt: &[(f64, [f64; 3])],
     people_tracks: &BTreeMap<u16, Vec<[f64; 2]>>,
     landmark_object: &HashMap<u32, u16>,
-    decision_truth: &[u16],
+    decisions: &[(slam::association::AssociationDecision, u16)],
+    solves: &[Solve],
 ) -> Result<(), RunError> {
     std::fs::create_dir_all(out).map_err(|source| RunError::Io { file: out.to_path_buf(), source })?;
     let write = |name: &str, text: String| {
@@ -883,10 +895,8 @@ fn write_outputs(
     write("trajectory_gt.tum", tum(gt))?;
     // Each decision with the ground truth beside it: the observation's true object and the
     // true object of every candidate landmark.
-    let decisions: String = pipeline
-        .decisions()
+    let decisions: String = decisions
         .iter()
-        .zip(decision_truth)
         .map(|(d, truth)| {
             let mut v = serde_json::to_value(d).expect("JSON");
             v["true_object"] = json!(truth);
@@ -902,18 +912,15 @@ fn write_outputs(
     write("decisions.jsonl", decisions)?;
     // Each solve of the smoother (combined method): what it solved and how far the cost
     // fell, or why it failed (the filter then carried on as it was).
-    let solves = pipeline
-        .relinearisations()
-        .iter()
-        .map(|(t, r)| (*t, json!(r)))
-        .chain(pipeline.relinearisation_failures().iter().map(|(t, e)| (*t, json!({"error": e.to_string()}))));
-    let mut solves: Vec<(f64, serde_json::Value)> = solves.collect();
-    solves.sort_by(|a, b| a.0.total_cmp(&b.0));
     write(
         "relinearisations.jsonl",
         solves
-            .into_iter()
-            .map(|(t, mut v)| {
+            .iter()
+            .map(|(t, solve)| {
+                let mut v = match solve {
+                    Ok(r) => json!(r),
+                    Err(e) => json!({"error": e.to_string()}),
+                };
                 v["t"] = json!(t);
                 serde_json::to_string(&v).expect("JSON") + "\n"
             })

@@ -332,13 +332,27 @@ pub struct PoseEstimate {
     pub covariance: [[f64; 3]; 3],
 }
 
-/// What one scan produced: the observations (clusters) and what became of each.
-#[derive(Debug, Clone, PartialEq)]
-pub struct ScanResult {
+/// What one scan did: its observations (clusters) and what became of each, with every
+/// decision, fusion, retraction, segmentation and relinearisation made since the previous
+/// scan. The pipeline keeps none of these: a caller that wants the history keeps the
+/// reports (a pipeline on a robot runs for hours).
+#[derive(Debug, Clone)]
+pub struct ScanReport {
     pub t: f64,
     pub clusters: Vec<Cluster>,
     /// Per cluster: the landmark id it went to (existing or new), if any.
     pub assigned: Vec<Option<u32>>,
+    /// The association decisions, in the order they were made.
+    pub decisions: Vec<AssociationDecision>,
+    /// Landmarks fused into others.
+    pub merges: Vec<LandmarkMerge>,
+    /// Landmarks taken off the map because nearer frames judged their place not an object.
+    pub retractions: Vec<LandmarkRetraction>,
+    /// The segmented images' patch decisions (appearance methods).
+    pub segmentations: Vec<SegmentationRecord>,
+    /// Solves of the smoother after a loop closure: what each did, or why it failed (the
+    /// filter then carried on as it was).
+    pub relinearisations: Vec<Result<Relinearisation, SmootherError>>,
 }
 
 /// What the appearance methods need: the trained model, ready to classify, and the camera.
@@ -423,9 +437,12 @@ pub struct Pipeline {
     /// Per landmark: the evidence place (odometry frame) of its latest camera observation,
     /// where later frames may judge it not an object (see [`Pipeline::retractions`]).
     places: Vec<Option<[f64; 2]>>,
+    /// Made during the current scan, handed over in its [`ScanReport`].
     retractions: Vec<LandmarkRetraction>,
+    /// Made during the current scan (indexed while it lasts), handed over in its report.
     decisions: Vec<AssociationDecision>,
-    poses: Vec<PoseEstimate>,
+    /// The latest pose estimate.
+    pose: PoseEstimate,
     t: f64,
     /// Id of the next landmark (ids are never reused after a tentative one is deleted).
     next_id: u32,
@@ -444,8 +461,7 @@ pub struct Pipeline {
     merges: Vec<LandmarkMerge>,
     /// What the filter was told, when loop closures are relinearised.
     history: Option<History>,
-    relinearisations: Vec<(f64, Relinearisation)>,
-    relinearisation_failures: Vec<(f64, SmootherError)>,
+    relinearisations: Vec<Result<Relinearisation, SmootherError>>,
     /// When the latest relinearisation was tried.
     relinearised_at: f64,
 }
@@ -484,7 +500,7 @@ impl Pipeline {
             places: Vec::new(),
             retractions: Vec::new(),
             decisions: Vec::new(),
-            poses: Vec::new(),
+            pose: PoseEstimate { t: 0.0, pose, covariance: [[0.0; 3]; 3] },
             t: 0.0,
             next_id: 0,
             appearance: None,
@@ -497,7 +513,6 @@ impl Pipeline {
             merges: Vec::new(),
             history,
             relinearisations: Vec::new(),
-            relinearisation_failures: Vec::new(),
             relinearised_at: 0.0,
         };
         p.record_pose();
@@ -574,9 +589,18 @@ impl Pipeline {
         self.unrendered_reads
     }
 
-    /// Segmentation records since the last call (for scoring).
-    pub fn take_segmentations(&mut self) -> Vec<SegmentationRecord> {
-        std::mem::take(&mut self.segmentations)
+    /// The report of the scan at `t`: its observations and what it did, handed over.
+    fn report(&mut self, t: f64, clusters: Vec<Cluster>, assigned: Vec<Option<u32>>) -> ScanReport {
+        ScanReport {
+            t,
+            clusters,
+            assigned,
+            decisions: std::mem::take(&mut self.decisions),
+            merges: std::mem::take(&mut self.merges),
+            retractions: std::mem::take(&mut self.retractions),
+            segmentations: std::mem::take(&mut self.segmentations),
+            relinearisations: std::mem::take(&mut self.relinearisations),
+        }
     }
 
     /// Object model of landmark `id`, if it has one.
@@ -605,7 +629,7 @@ impl Pipeline {
     /// Processes a scan. Position-only methods: every size-compatible cluster is an
     /// observation. Appearance methods: the clusters are segmented in the latest image (if
     /// it is recent enough) and only objects are observed.
-    pub fn on_scan(&mut self, scan: &LaserScan) -> ScanResult {
+    pub fn on_scan(&mut self, scan: &LaserScan) -> ScanReport {
         let clusters = cluster(scan, &self.config.clustering);
         if self.config.method.uses_appearance() {
             return self.on_scan_with_appearance(scan.t, clusters);
@@ -845,7 +869,7 @@ impl Pipeline {
     }
 
     /// Appearance methods: segmentation, object models and KL association.
-    fn on_scan_with_appearance(&mut self, t: f64, clusters: Vec<Cluster>) -> ScanResult {
+    fn on_scan_with_appearance(&mut self, t: f64, clusters: Vec<Cluster>) -> ScanReport {
         self.t = t;
         // The state the recorded poses agree with, where a relinearisation starts.
         let before = self.history.as_ref().map(|_| self.ekf.x.clone());
@@ -1006,7 +1030,7 @@ impl Pipeline {
             h.set_estimate(self.ekf.pose());
         }
         self.record_pose();
-        ScanResult { t, clusters, assigned }
+        self.report(t, clusters, assigned)
     }
 
     /// Processes clusters of which only those with `is_object[i]` are observations of
@@ -1017,7 +1041,7 @@ impl Pipeline {
         clusters: Vec<Cluster>,
         is_object: &[bool],
         class: &str,
-    ) -> ScanResult {
+    ) -> ScanReport {
         self.t = t;
         let idx: Vec<usize> = (0..clusters.len()).filter(|&i| is_object[i] && !clusters[i].occluded).collect();
         let zs: Vec<Vector2<f64>> =
@@ -1106,7 +1130,7 @@ impl Pipeline {
             h.set_estimate(self.ekf.pose());
         }
         self.record_pose();
-        ScanResult { t, clusters, assigned }
+        self.report(t, clusters, assigned)
     }
 
     /// Takes landmark `j` out of the pipeline's per-landmark lists (not the filter's state).
@@ -1130,11 +1154,6 @@ impl Pipeline {
                 j += 1;
             }
         }
-    }
-
-    /// Landmarks retracted so far, oldest first.
-    pub fn retractions(&self) -> &[LandmarkRetraction] {
-        &self.retractions
     }
 
     fn refresh_landmarks(&mut self) {
@@ -1257,11 +1276,6 @@ impl Pipeline {
             .is_ok_and(|kl| kl.is_finite() && kl < cfg.kl_threshold)
     }
 
-    /// Landmarks fused so far.
-    pub fn merges(&self) -> &[LandmarkMerge] {
-        &self.merges
-    }
-
     /// Solves the history again and gives the filter the result (see
     /// [`PipelineConfig::relinearise_loop_closures`]); a failed solve leaves the filter as
     /// it was.
@@ -1269,20 +1283,8 @@ impl Pipeline {
         let Some(history) = &mut self.history else { return };
         self.relinearised_at = self.t;
         let ids: Vec<u32> = self.landmarks.iter().map(|l| l.id).collect();
-        match history.relinearise(&mut self.ekf, before, &self.config.motion, &self.config.sensor, &ids, 10) {
-            Ok(r) => self.relinearisations.push((self.t, r)),
-            Err(e) => self.relinearisation_failures.push((self.t, e)),
-        }
-    }
-
-    /// Relinearisations that failed (the filter carried on as it was), with their times.
-    pub fn relinearisation_failures(&self) -> &[(f64, SmootherError)] {
-        &self.relinearisation_failures
-    }
-
-    /// The relinearisations done so far, with their times.
-    pub fn relinearisations(&self) -> &[(f64, Relinearisation)] {
-        &self.relinearisations
+        let solved = history.relinearise(&mut self.ekf, before, &self.config.motion, &self.config.sensor, &ids, 10);
+        self.relinearisations.push(solved);
     }
 
     fn record_pose(&mut self) {
@@ -1293,15 +1295,12 @@ impl Pipeline {
             pose: [p.x, p.y, p.z],
             covariance: std::array::from_fn(|r| std::array::from_fn(|k| c[(r, k)])),
         };
-        // One pose per time stamp: a scan at the same instant as odometry replaces it.
-        match self.poses.last_mut() {
-            Some(last) if last.t == est.t => *last = est,
-            _ => self.poses.push(est),
-        }
+        self.pose = est;
     }
 
+    /// The latest pose estimate.
     pub fn pose(&self) -> PoseEstimate {
-        *self.poses.last().expect("a pose is recorded at construction")
+        self.pose
     }
 
     /// Every landmark in the filter, tentative ones included.
@@ -1312,14 +1311,6 @@ impl Pipeline {
     /// The map: confirmed landmarks only.
     pub fn mapped_landmarks(&self) -> Vec<Landmark> {
         self.landmarks.iter().filter(|l| l.confirmed).cloned().collect()
-    }
-
-    pub fn decisions(&self) -> &[AssociationDecision] {
-        &self.decisions
-    }
-
-    pub fn poses(&self) -> &[PoseEstimate] {
-        &self.poses
     }
 
     pub fn ekf(&self) -> &Ekf {
@@ -1374,7 +1365,7 @@ mod merge_tests {
         assert_eq!(p.landmarks().len(), 1);
         assert_eq!(p.landmarks()[0].id, 0);
         assert_eq!(p.landmarks()[0].observations, 2);
-        assert_eq!(p.merges(), &[LandmarkMerge { t: 0.2, kept: 0, removed: 1 }]);
+        assert_eq!(p.merges, [LandmarkMerge { t: 0.2, kept: 0, removed: 1 }]);
         assert_eq!(p.ekf().landmark_count(), 1);
         let c = p.ekf().landmark_covariance(0);
         assert!(c.symmetric_eigenvalues().min() > 0.0);
@@ -1384,7 +1375,7 @@ mod merge_tests {
     fn landmarks_seen_in_one_scan_are_never_fused() {
         let p = pair(true, 0.0, true);
         assert_eq!(p.landmarks().len(), 2);
-        assert!(p.merges().is_empty());
+        assert!(p.merges.is_empty());
     }
 
     #[test]
@@ -1394,7 +1385,7 @@ mod merge_tests {
         // Disabled, a pair that would qualify stays apart too.
         let q = pair(false, 0.0, false);
         assert_eq!(q.landmarks().len(), 2);
-        assert!(q.merges().is_empty());
+        assert!(q.merges.is_empty());
     }
 }
 
