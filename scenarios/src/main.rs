@@ -255,9 +255,13 @@ struct MontecarloArgs {
     #[arg(long, global = true)]
     jobs: Option<usize>,
     /// Run on threads of this process instead of worker processes (slower: runs in one
-    /// process share the software renderer's locks).
+    /// process share the software renderer's locks; no --run-timeout).
     #[arg(long, global = true)]
     in_process: bool,
+    /// Seconds a worker process may spend on one run before it is killed and the run
+    /// recorded as retryable (resuming the study runs it again); 0: no limit.
+    #[arg(long, global = true, default_value_t = 1800.0)]
+    run_timeout: f64,
 }
 
 #[derive(Subcommand)]
@@ -475,9 +479,15 @@ fn montecarlo(args: MontecarloArgs) -> Result<()> {
     } else {
         let count = args.jobs.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
         anyhow::ensure!(count > 0, "--jobs must be at least 1");
+        anyhow::ensure!(
+            args.run_timeout.is_finite() && args.run_timeout >= 0.0,
+            "--run-timeout must be a number of seconds, 0 or more (0: no limit), not {}",
+            args.run_timeout
+        );
         mc::Workers::Processes {
             exe: std::env::current_exe().context("cannot find the objslam executable to start worker processes")?,
             count,
+            run_timeout: (args.run_timeout > 0.0).then(|| std::time::Duration::from_secs_f64(args.run_timeout)),
         }
     };
     if let Some(MontecarloCommand::Merge { dirs, out }) = args.command {

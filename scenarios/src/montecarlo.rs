@@ -428,8 +428,10 @@ pub enum Workers {
     /// jobs with its hidden `montecarlo-worker` command, see [`serve_worker`]). Runs in
     /// one process share the software renderer's locks: 8 `paper_park` runs on 2 cores
     /// took 63 s on threads and 49 s in two processes. A child that dies costs only the
-    /// run it had, recorded as an error with the end of its stderr.
-    Processes { exe: PathBuf, count: usize },
+    /// run it had, recorded as an error with the end of its stderr; so does one that takes
+    /// longer than `run_timeout` over a run (`None`: no limit), which is killed. Both are
+    /// retried when the study resumes.
+    Processes { exe: PathBuf, count: usize, run_timeout: Option<std::time::Duration> },
 }
 
 /// Runs (the remaining jobs of) a study into `out` on this process's threads. See
@@ -541,7 +543,9 @@ pub fn run_study_with(
                 record
             })
             .collect(),
-        Workers::Processes { exe, count } => workers::run_in_processes(plan, &todo, exe, *count, &record_finished)?,
+        Workers::Processes { exe, count, run_timeout } => {
+            workers::run_in_processes(plan, &todo, exe, *count, *run_timeout, &record_finished)?
+        }
     };
     let (count, message) = append_failures.into_inner().unwrap_or_else(|p| p.into_inner());
     if count > 0 {

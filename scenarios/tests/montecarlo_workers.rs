@@ -46,7 +46,7 @@ fn worker_processes_give_the_records_threads_give() {
     let root = temp_root("mc-workers");
     let plan = plan(short_scenario(&root));
     let threads = mc::run_study(&plan, Shard::all(), &root.join("threads"), |_, _| {}).unwrap();
-    let workers = Workers::Processes { exe: env!("CARGO_BIN_EXE_objslam").into(), count: 2 };
+    let workers = Workers::Processes { exe: env!("CARGO_BIN_EXE_objslam").into(), count: 2, run_timeout: None };
     let processes = mc::run_study_with(&plan, Shard::all(), &root.join("processes"), &workers, |_, _| {}).unwrap();
     assert_eq!(processes.len(), 9);
     assert_eq!(processes.iter().filter(|r| r.metrics.is_some()).count(), 6);
@@ -77,7 +77,7 @@ fn a_worker_that_dies_costs_only_its_run() {
     )
     .unwrap();
     std::fs::set_permissions(&script, std::fs::Permissions::from_mode(0o755)).unwrap();
-    let workers = Workers::Processes { exe: script, count: 1 };
+    let workers = Workers::Processes { exe: script, count: 1, run_timeout: None };
     let records = mc::run_study_with(&plan, Shard::all(), &root.join("study"), &workers, |_, _| {}).unwrap();
     assert_eq!(records.len(), 9);
     let died: Vec<&RunRecord> =
@@ -101,6 +101,40 @@ fn a_worker_that_dies_costs_only_its_run() {
     let on_file = mc::read_runs(&root.join("study/runs.jsonl")).unwrap();
     assert_eq!(on_file.len(), 9);
     assert!(on_file.iter().all(|r| !r.retryable));
+    let _ = std::fs::remove_dir_all(&root);
+}
+
+/// A worker stuck in a run is killed after the run timeout, its run recorded as retryable,
+/// and the study goes on with a new worker.
+#[cfg(unix)]
+#[test]
+fn a_stuck_worker_is_killed_after_the_run_timeout() {
+    use std::os::unix::fs::PermissionsExt;
+    let root = temp_root("mc-stuck-worker");
+    let plan = plan(short_scenario(&root));
+    // The first worker started hangs on its first job; the ones after it are real workers.
+    let marker = root.join("stuck");
+    let script = root.join("stuck-worker.sh");
+    std::fs::write(
+        &script,
+        format!(
+            "#!/bin/sh\nread plan\nread job\nif mkdir {marker:?} 2>/dev/null; then exec sleep 600; fi\n{{ echo \"$plan\"; echo \"$job\"; cat; }} | exec {exe:?} \"$1\"\n",
+            marker = marker,
+            exe = env!("CARGO_BIN_EXE_objslam")
+        ),
+    )
+    .unwrap();
+    std::fs::set_permissions(&script, std::fs::Permissions::from_mode(0o755)).unwrap();
+    let workers = Workers::Processes { exe: script, count: 1, run_timeout: Some(std::time::Duration::from_secs(20)) };
+    let started = std::time::Instant::now();
+    let records = mc::run_study_with(&plan, Shard::all(), &root.join("study"), &workers, |_, _| {}).unwrap();
+    assert!(started.elapsed().as_secs() < 300, "the study waited for the stuck worker");
+    assert_eq!(records.len(), 9);
+    let stuck: Vec<&RunRecord> =
+        records.iter().filter(|r| r.error.as_deref().is_some_and(|e| e.contains("--run-timeout"))).collect();
+    assert_eq!(stuck.len(), 1, "{records:#?}");
+    assert!(stuck[0].retryable);
+    assert_eq!(records.iter().filter(|r| r.metrics.is_some()).count(), 5, "the other runs went on");
     let _ = std::fs::remove_dir_all(&root);
 }
 
@@ -151,7 +185,7 @@ fn a_study_varying_the_appearance_training_uses_each_settings_model() {
         &plan,
         Shard::all(),
         &root.join("processes"),
-        &Workers::Processes { exe, count: 2 },
+        &Workers::Processes { exe, count: 2, run_timeout: None },
         |_, _| {},
     )
     .unwrap();

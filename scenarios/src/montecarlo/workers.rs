@@ -5,13 +5,16 @@
 //! Child to parent: one [`RunRecord`] per job. The parent closes the child's stdin when no
 //! job is left and the child exits. A child that dies or answers nonsense costs the run it
 //! had, recorded as an error with the end of its stderr; a new child takes the next job.
+//! So does a child that takes longer than the run timeout over one run: it is killed.
 
 use std::collections::VecDeque;
 use std::io::{BufRead, BufReader, Write};
 use std::path::Path;
-use std::process::{Child, ChildStdin, ChildStdout, Command, Stdio};
+use std::process::{Child, ChildStdin, Command, Stdio};
+use std::sync::mpsc::{Receiver, RecvTimeoutError};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
+use std::time::Duration;
 
 use super::{Job, RunRecord, StudyError, StudyModels, StudyPlan, run_job};
 use crate::scenario::Scenario;
@@ -62,11 +65,13 @@ fn exit_when_orphaned() {
     }
 }
 
-/// One child process and its pipes.
+/// One child process and its pipes. Its answers are read on a thread of their own, so
+/// that waiting for one can time out.
 struct WorkerProcess {
     child: Child,
     stdin: ChildStdin,
-    stdout: BufReader<ChildStdout>,
+    answers: Receiver<std::io::Result<String>>,
+    stdout_reader: JoinHandle<()>,
     stderr_tail: Arc<Mutex<VecDeque<String>>>,
     stderr_reader: JoinHandle<()>,
 }
@@ -85,6 +90,15 @@ impl WorkerProcess {
         let mut child = command.spawn()?;
         let mut stdin = child.stdin.take().expect("piped");
         let stdout = BufReader::new(child.stdout.take().expect("piped"));
+        let (sender, answers) = std::sync::mpsc::channel();
+        let stdout_reader = std::thread::spawn(move || {
+            for line in stdout.lines() {
+                let failed = line.is_err();
+                if sender.send(line).is_err() || failed {
+                    break;
+                }
+            }
+        });
         let stderr = child.stderr.take().expect("piped");
         let stderr_tail = Arc::new(Mutex::new(VecDeque::new()));
         let tail = stderr_tail.clone();
@@ -99,18 +113,26 @@ impl WorkerProcess {
             }
         });
         writeln!(stdin, "{}", serde_json::to_string(plan).expect("JSON"))?;
-        Ok(WorkerProcess { child, stdin, stdout, stderr_tail, stderr_reader })
+        Ok(WorkerProcess { child, stdin, answers, stdout_reader, stderr_tail, stderr_reader })
     }
 
-    /// Runs one job; what went wrong when the child did not answer with its record.
-    fn run(&mut self, job: &Job) -> Result<RunRecord, String> {
+    /// Runs one job, waiting at most `timeout` (`None`: for ever); what went wrong when the
+    /// child did not answer with its record in time.
+    fn run(&mut self, job: &Job, timeout: Option<Duration>) -> Result<RunRecord, String> {
         writeln!(self.stdin, "{}", serde_json::to_string(job).expect("JSON"))
             .and_then(|_| self.stdin.flush())
             .map_err(|e| format!("cannot send the job: {e}"))?;
-        let mut line = String::new();
-        match self.stdout.read_line(&mut line) {
-            Ok(0) => Err("it stopped without answering".into()),
-            Ok(_) => {
+        let answer = match timeout {
+            Some(limit) => self.answers.recv_timeout(limit).map_err(|e| match e {
+                RecvTimeoutError::Timeout => {
+                    format!("the run took longer than {} s (--run-timeout)", limit.as_secs_f64())
+                }
+                RecvTimeoutError::Disconnected => "it stopped without answering".to_string(),
+            })?,
+            None => self.answers.recv().map_err(|_| "it stopped without answering".to_string())?,
+        };
+        match answer {
+            Ok(line) => {
                 let record: RunRecord = serde_json::from_str(&line).map_err(|e| format!("unreadable answer: {e}"))?;
                 if record.key == job.key() {
                     Ok(record)
@@ -124,13 +146,14 @@ impl WorkerProcess {
 
     /// Ends the child (killed if it still runs) and says how it ended, with its stderr's end.
     fn end(self, kill: bool) -> String {
-        let WorkerProcess { mut child, stdin, stdout, stderr_tail, stderr_reader } = self;
+        let WorkerProcess { mut child, stdin, answers, stdout_reader, stderr_tail, stderr_reader } = self;
         drop(stdin);
-        drop(stdout);
         if kill {
             let _ = child.kill();
         }
         let status = child.wait().map(|s| s.to_string()).unwrap_or_else(|e| e.to_string());
+        drop(answers);
+        let _ = stdout_reader.join();
         let _ = stderr_reader.join();
         let tail: Vec<String> = stderr_tail.lock().unwrap_or_else(|p| p.into_inner()).drain(..).collect();
         if tail.is_empty() { status } else { format!("{status}; its stderr ended with: {}", tail.join(" | ")) }
@@ -143,12 +166,14 @@ fn error_record(job: &Job, error: String) -> RunRecord {
 }
 
 /// Runs `todo` on `count` child processes of `exe`, calling `finished` for each record as
-/// it arrives. Fails only when no child can be started at all.
+/// it arrives; a child that takes longer than `run_timeout` over a run is killed and the
+/// run recorded as retryable. Fails only when no child can be started at all.
 pub(super) fn run_in_processes(
     plan: &StudyPlan,
     todo: &[&Job],
     exe: &Path,
     count: usize,
+    run_timeout: Option<Duration>,
     finished: &(dyn Fn(&RunRecord) + Sync),
 ) -> Result<Vec<RunRecord>, StudyError> {
     if todo.is_empty() {
@@ -173,7 +198,7 @@ pub(super) fn run_in_processes(
                     if worker.is_none() {
                         worker = WorkerProcess::spawn(exe, plan).ok();
                     }
-                    let record = match worker.as_mut().map(|w| w.run(job)) {
+                    let record = match worker.as_mut().map(|w| w.run(job, run_timeout)) {
                         Some(Ok(record)) => record,
                         Some(Err(what)) => {
                             let how = worker.take().expect("it ran").end(true);
