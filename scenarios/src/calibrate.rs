@@ -681,6 +681,9 @@ pub fn true_plane(board: &StaticObject, world_from_camera: &Rigid) -> Option<Vec
 /// Reads the extrinsics from a calibration file: a JSON object with `phi` (3x3 rotation,
 /// row-major) and `delta` (3 numbers, m), as `objslam calibrate` writes; other keys are
 /// ignored. Phi must be a rotation to within 1e-3 (it is re-orthonormalised).
+/// Largest laser-to-camera offset a calibration file may give, per axis.
+pub const MAX_MOUNT_OFFSET_M: f64 = 10.0;
+
 pub fn load_extrinsics(path: &Path) -> Result<Extrinsics, CalibrateError> {
     let text =
         std::fs::read_to_string(path).map_err(|source| CalibrateError::Read { file: path.to_path_buf(), source })?;
@@ -716,6 +719,15 @@ pub fn load_extrinsics(path: &Path) -> Result<Extrinsics, CalibrateError> {
     let mut delta = [0.0; 3];
     for (i, x) in d.iter().enumerate() {
         delta[i] = number(&format!("delta[{i}]"), x)?;
+        if delta[i].abs() > MAX_MOUNT_OFFSET_M {
+            return Err(bad(
+                &format!("delta[{i}]"),
+                format!(
+                    "must be within ±{MAX_MOUNT_OFFSET_M} m (a camera that far from the laser is not on the same robot), got {}",
+                    delta[i]
+                ),
+            ));
+        }
     }
     let m = Matrix3::from_fn(|r, c| phi[r][c]);
     let off = (m.transpose() * m - Matrix3::identity()).abs().max();
@@ -814,6 +826,11 @@ mod tests {
                 "delta.json",
                 serde_json::json!({"phi": [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "delta": [0, "a", 0]}).to_string(),
                 "delta[1]",
+            ),
+            (
+                "far.json",
+                serde_json::json!({"phi": [[1, 0, 0], [0, 1, 0], [0, 0, 1]], "delta": [0, 0, 1e300]}).to_string(),
+                "delta[2]: must be within",
             ),
         ];
         for (name, text, want) in cases {

@@ -304,6 +304,35 @@ impl Scenario {
         {
             return bad("pass.min_tree_recall", format!("must be in [0, 1], got {r}"));
         }
+        // Criteria that no run could pass.
+        let p = &self.pass;
+        if let (Some(min), Some(max)) = (p.min_false_landmarks, p.max_false_landmarks)
+            && min > max
+        {
+            return bad(
+                "pass.min_false_landmarks",
+                format!("{min} is above pass.max_false_landmarks = {max}: no run could pass both"),
+            );
+        }
+        for (field, max) in
+            [("pass.max_ate_rmse_m", p.max_ate_rmse_m), ("pass.max_landmark_rmse_m", p.max_landmark_rmse_m)]
+        {
+            if let Some(max) = max
+                && !(max > 0.0 && max.is_finite())
+            {
+                return bad(field, format!("must be a positive number of metres, got {max}: no run could pass"));
+            }
+        }
+        for (field, max) in [
+            ("pass.max_calibration_rotation_error_deg", p.max_calibration_rotation_error_deg),
+            ("pass.max_calibration_translation_error_m", p.max_calibration_translation_error_m),
+        ] {
+            if let Some(max) = max
+                && !(max >= 0.0 && max.is_finite())
+            {
+                return bad(field, format!("must be 0 or more, got {max}: no run could pass"));
+            }
+        }
         Ok(())
     }
 

@@ -65,3 +65,38 @@ fn absurd_rates_and_filter_widths_are_errors() {
     let features = slam::features::FeatureConfig { channel_gain: vec![1.0; 3], ..Default::default() };
     assert!(features.validate().unwrap_err().to_string().contains("channel_gain"));
 }
+
+#[test]
+fn criteria_no_run_could_pass_are_errors_naming_the_line() {
+    let base = "name = \"x\"\n[world]\npreset = \"park\"\n[pass]\n";
+    for (criteria, field) in [
+        ("min_false_landmarks = 3\nmax_false_landmarks = 1\n", "pass.min_false_landmarks"),
+        ("max_ate_rmse_m = -0.5\n", "pass.max_ate_rmse_m"),
+        ("max_landmark_rmse_m = 0.0\n", "pass.max_landmark_rmse_m"),
+        ("max_calibration_rotation_error_deg = -1.0\n", "pass.max_calibration_rotation_error_deg"),
+    ] {
+        let text = format!("{base}{criteria}");
+        let e = scenarios::scenario::Scenario::parse(&text, std::path::Path::new("x.toml"))
+            .expect_err("a criterion no run could pass")
+            .to_string();
+        assert!(e.contains("x.toml") && e.contains(field) && e.contains("no run could pass"), "{e}");
+    }
+}
+
+#[test]
+fn a_covariance_of_the_wrong_shape_says_so_rather_than_a_dimension_mismatch_of_equal_numbers() {
+    use nalgebra::{DMatrix, DVector};
+    let g = slam::gmm::Gmm {
+        components: vec![slam::gmm::Component {
+            weight: 1.0,
+            mean: DVector::zeros(7),
+            covariance: DMatrix::identity(7, 6),
+        }],
+    };
+    let Err(e) = slam::gmm::GmmEvaluator::new(&g) else { panic!("a 7x6 covariance was accepted") };
+    let e = e.to_string();
+    assert!(e.contains("7x6") && e.contains("7 dimensions"), "{e}");
+    let Err(e) = slam::kl::PreparedGmm::new(&g) else { panic!("a 7x6 covariance was accepted") };
+    let e = e.to_string();
+    assert!(e.contains("7x6") && e.contains("7 dimensions"), "{e}");
+}

@@ -13,6 +13,8 @@ pub enum KlError {
     NotPositiveDefinite { component: usize },
     #[error("dimension mismatch: {0} vs {1}")]
     Dimension(usize, usize),
+    #[error("component {component}: a {rows}x{cols} covariance for a mean of {dims} dimensions")]
+    CovarianceShape { component: usize, dims: usize, rows: usize, cols: usize },
     #[error("empty mixture")]
     Empty,
 }
@@ -28,8 +30,9 @@ pub struct PreparedGaussian {
 
 impl PreparedGaussian {
     pub fn new(mean: &DVector<f64>, covariance: &DMatrix<f64>, component: usize) -> Result<Self, KlError> {
-        if mean.len() != covariance.nrows() || !covariance.is_square() {
-            return Err(KlError::Dimension(mean.len(), covariance.nrows()));
+        if covariance.shape() != (mean.len(), mean.len()) {
+            let (rows, cols) = covariance.shape();
+            return Err(KlError::CovarianceShape { component, dims: mean.len(), rows, cols });
         }
         let chol = Cholesky::new(covariance.clone()).ok_or(KlError::NotPositiveDefinite { component })?;
         let log_det = 2.0 * chol.l_dirty().diagonal().iter().map(|d| d.ln()).sum::<f64>();

@@ -348,16 +348,28 @@ impl Footprint {
     pub fn distance_to_segment(&self, a: [f64; 2], b: [f64; 2]) -> f64 {
         match *self {
             Footprint::Circle { centre, radius } => (point_segment_distance(centre, a, b) - radius).max(0.0),
-            Footprint::Rect { .. } => {
-                // Sample finely along the segment: exact enough for clearance checks at
-                // centimetre scale and far simpler than a segment-box distance.
-                let len = dist(a, b);
-                let n = ((len / 0.02).ceil() as usize).max(1);
-                (0..=n)
-                    .map(|i| {
-                        let t = i as f64 / n as f64;
-                        self.distance_to_point([a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])])
-                    })
+            Footprint::Rect { centre, half_extents: h, yaw } => {
+                // In the rectangle's frame: 0 if the segment crosses the box, else the
+                // nearest of the segment's ends to the box and the box's corners to the
+                // segment (the closest pair of two disjoint convex shapes has a vertex).
+                let (s, c) = yaw.sin_cos();
+                let local = |p: [f64; 2]| {
+                    let d = [p[0] - centre[0], p[1] - centre[1]];
+                    [c * d[0] + s * d[1], -s * d[0] + c * d[1]]
+                };
+                let (la, lb) = (local(a), local(b));
+                if segment_crosses_box(la, lb, h) {
+                    return 0.0;
+                }
+                let to_box = |p: [f64; 2]| {
+                    let q = [(p[0].abs() - h[0]).max(0.0), (p[1].abs() - h[1]).max(0.0)];
+                    (q[0] * q[0] + q[1] * q[1]).sqrt()
+                };
+                let corners = [[-h[0], -h[1]], [h[0], -h[1]], [h[0], h[1]], [-h[0], h[1]]];
+                corners
+                    .iter()
+                    .map(|q| point_segment_distance(*q, la, lb))
+                    .chain([to_box(la), to_box(lb)])
                     .fold(f64::INFINITY, f64::min)
             }
         }
@@ -416,6 +428,24 @@ impl Footprint {
 
 pub(crate) fn dist(a: [f64; 2], b: [f64; 2]) -> f64 {
     ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt()
+}
+
+/// Whether segment `ab` touches the box `|x| <= h[0], |y| <= h[1]` (Liang-Barsky clipping).
+fn segment_crosses_box(a: [f64; 2], b: [f64; 2], h: [f64; 2]) -> bool {
+    let (mut enter, mut exit) = (0.0f64, 1.0f64);
+    for axis in 0..2 {
+        let d = b[axis] - a[axis];
+        if d == 0.0 {
+            if a[axis].abs() > h[axis] {
+                return false;
+            }
+        } else {
+            let (t0, t1) = ((-h[axis] - a[axis]) / d, (h[axis] - a[axis]) / d);
+            enter = enter.max(t0.min(t1));
+            exit = exit.min(t0.max(t1));
+        }
+    }
+    enter <= exit
 }
 
 /// Distance from point `p` to segment `ab`.
@@ -564,6 +594,42 @@ impl World {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        /// The exact segment-to-rectangle distance agrees with a dense sampling of the
+        /// segment (which can only overestimate it, by at most half the sample spacing).
+        #[test]
+        fn segment_to_rectangle_distance_matches_dense_sampling(
+            a in prop::array::uniform2(-6.0f64..6.0), b in prop::array::uniform2(-6.0f64..6.0),
+            centre in prop::array::uniform2(-2.0f64..2.0), h in prop::array::uniform2(0.05f64..2.0),
+            yaw in -3.2f64..3.2,
+        ) {
+            let fp = Footprint::Rect { centre, half_extents: h, yaw };
+            let n = 20_000;
+            let sampled = (0..=n)
+                .map(|i| {
+                    let t = i as f64 / n as f64;
+                    fp.distance_to_point([a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])])
+                })
+                .fold(f64::INFINITY, f64::min);
+            let exact = fp.distance_to_segment(a, b);
+            let spacing = dist(a, b) / n as f64;
+            prop_assert!(exact <= sampled + 1e-12 && sampled - exact <= spacing, "exact {exact}, sampled {sampled}");
+        }
+    }
+
+    #[test]
+    fn a_segment_thousands_of_kilometres_long_is_measured_at_once() {
+        let fp = Footprint::Rect { centre: [0.0, 0.0], half_extents: [1.0, 0.5], yaw: 0.3 };
+        let started = std::time::Instant::now();
+        assert_eq!(fp.distance_to_segment([-1e300, 0.0], [1e300, 0.0]), 0.0);
+        assert!(
+            (fp.distance_to_segment([5.0, -1e6], [5.0, 1e6]) - (5.0 - (1.0 * 0.3f64.cos() + 0.5 * 0.3f64.sin()))).abs()
+                < 1e-6
+        );
+        assert!(started.elapsed().as_millis() < 100);
+    }
 
     #[test]
     fn a_tilted_board_turns_its_face_upwards_about_its_centre() {

@@ -32,6 +32,8 @@ pub enum GmmError {
     NotFinite { row: usize, column: usize },
     #[error("dimension mismatch: expected {expected}, found {found}")]
     Dimension { expected: usize, found: usize },
+    #[error("component {component}: a {rows}x{cols} covariance for a mean of {dims} dimensions")]
+    CovarianceShape { component: usize, dims: usize, rows: usize, cols: usize },
     #[error("bad prior: {0}")]
     BadPrior(String),
     #[error("bad options: {0}")]
@@ -109,8 +111,12 @@ impl GmmEvaluator {
         let d = g.dims();
         let mut out = GmmEvaluator { dims: d, log_norm: vec![], means: vec![], whiten: vec![] };
         for (k, c) in g.components.iter().enumerate() {
-            if c.mean.len() != d || c.covariance.shape() != (d, d) {
+            if c.mean.len() != d {
                 return Err(GmmError::Dimension { expected: d, found: c.mean.len() });
+            }
+            if c.covariance.shape() != (d, d) {
+                let (rows, cols) = c.covariance.shape();
+                return Err(GmmError::CovarianceShape { component: k, dims: d, rows, cols });
             }
             let chol = Cholesky::new(c.covariance.clone()).ok_or(GmmError::NotPositiveDefinite { component: k })?;
             let ln_det = 2.0 * chol.l_dirty().diagonal().iter().map(|v| v.ln()).sum::<f64>();
