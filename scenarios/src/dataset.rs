@@ -328,14 +328,22 @@ pub fn make_dataset(
         std::fs::write(out.join(&names[3]), serde_json::to_string(&labels).expect("JSON"))
             .map_err(|e| DatasetError::Io { file: out.join(&names[3]), message: e.to_string() })?;
 
-        // COCO: one annotation per visible object instance (not ground, not sky).
+        // COCO: one annotation per visible part of an object instance, by the class image:
+        // a tree's trunk is a `tree` annotation and its canopy a `foliage` one with the
+        // same `instance_id` (likewise a palm's trunk and crown), so that each category
+        // means what it means in the class masks. Ground and sky are not annotated.
         coco_images.push(json!({"id": i, "file_name": names[0], "width": w, "height": h}));
-        let mut ids: Vec<u16> =
-            img.instance.iter().copied().filter(|&id| id != 0 && id != worlds::validate::GROUND_INSTANCE_ID).collect();
-        ids.sort_unstable();
-        ids.dedup();
-        for id in ids {
-            let mask: Vec<bool> = img.instance.iter().map(|&v| v == id).collect();
+        let mut parts: Vec<(u16, u8)> = img
+            .instance
+            .iter()
+            .zip(&img.class)
+            .filter(|(id, _)| **id != 0 && **id != worlds::validate::GROUND_INSTANCE_ID)
+            .map(|(id, class)| (*id, *class))
+            .collect();
+        parts.sort_unstable();
+        parts.dedup();
+        for (id, class) in parts {
+            let mask: Vec<bool> = img.instance.iter().zip(&img.class).map(|(v, c)| *v == id && *c == class).collect();
             let (mut x0, mut y0, mut x1, mut y1) = (u32::MAX, u32::MAX, 0, 0);
             let mut area = 0u32;
             for y in 0..h {
@@ -349,7 +357,6 @@ pub fn make_dataset(
                     }
                 }
             }
-            let class = world.class_of(id).map(|c| c.id()).unwrap_or(0);
             coco_annotations.push(json!({
                 "id": coco_annotations.len() + 1,
                 "image_id": i,

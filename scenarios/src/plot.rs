@@ -62,19 +62,58 @@ pub struct Overlays {
     pub routes: bool,
 }
 
-/// Draws a top view of `world` with `overlays` into a PNG at `path`.
+/// How a legend entry is drawn.
+#[derive(Debug, Clone, Copy)]
+enum Swatch {
+    /// A filled disc (an object's footprint).
+    Disc(RGBColor),
+    /// A faint wide disc (a canopy).
+    Faint(RGBColor, f64),
+    /// A line of this width (paths, routes, tracks).
+    Line(RGBColor, u32),
+    /// A dashed line (people's planned walks).
+    Dashed(RGBColor),
+    /// A cross in an ellipse (a landmark and its 2-sigma ellipse).
+    Landmark(RGBColor),
+    /// A thick bar (a wall).
+    Bar(RGBColor),
+}
+
+/// Width of the legend panel to the right of the map, pixels.
+const LEGEND_W: u32 = 250;
+
+/// Drops points closer than `min_step` to the last kept one (the last point is always
+/// kept): a path logged at the odometry rate moves a fraction of a pixel per point, and
+/// drawing every one of them only costs time.
+fn thin_path(path: &[[f64; 2]], min_step: f64) -> Vec<(f64, f64)> {
+    let mut out: Vec<(f64, f64)> = Vec::new();
+    for (i, p) in path.iter().enumerate() {
+        let keep = match out.last() {
+            None => true,
+            Some(&(x, y)) => (p[0] - x).hypot(p[1] - y) >= min_step || i + 1 == path.len(),
+        };
+        if keep {
+            out.push((p[0], p[1]));
+        }
+    }
+    out
+}
+
+/// Draws a top view of `world` with `overlays` into a PNG at `path`, with a legend that
+/// explains every mark in a panel of its own beside the map.
 pub fn draw_map(world: &World, overlays: &Overlays, path: &Path) -> Result<(), PlotError> {
     register_fonts();
     let err = |e: &dyn std::fmt::Display| PlotError { file: path.to_path_buf(), message: e.to_string() };
     let (min, max) = (world.ground.min_m, world.ground.max_m);
     let margin = 1.0;
     let (x0, x1, y0, y1) = (min[0] - margin, max[0] + margin, min[1] - margin, max[1] + margin);
-    let width_px = 1200u32;
-    let plot_w = width_px - 90;
-    let height_px = ((plot_w as f64) * (y1 - y0) / (x1 - x0)) as u32 + 130;
-    let root = BitMapBackend::new(path, (width_px, height_px)).into_drawing_area();
+    let map_w = 1200u32;
+    let plot_w = map_w - 90;
+    let height_px = (((plot_w as f64) * (y1 - y0) / (x1 - x0)) as u32 + 130).max(420);
+    let root = BitMapBackend::new(path, (map_w + LEGEND_W, height_px)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| err(&e))?;
-    let mut chart = ChartBuilder::on(&root)
+    let (map_area, legend_area) = root.split_horizontally(map_w);
+    let mut chart = ChartBuilder::on(&map_area)
         .caption(&overlays.title, ("sans-serif", 22).into_font())
         .margin(15)
         .x_label_area_size(35)
@@ -90,6 +129,7 @@ pub fn draw_map(world: &World, overlays: &Overlays, path: &Path) -> Result<(), P
         .draw()
         .map_err(|e| err(&e))?;
     let px_per_m = plot_w as f64 / (x1 - x0) * 0.97;
+    let mut legend: Vec<(String, Swatch)> = Vec::new();
 
     chart
         .draw_series(std::iter::once(Rectangle::new(
@@ -99,19 +139,16 @@ pub fn draw_map(world: &World, overlays: &Overlays, path: &Path) -> Result<(), P
         .map_err(|e| err(&e))?;
 
     // Canopies first (faint), then footprints.
+    let canopy = class_colour(ObjectClass::Tree);
     for o in &world.objects {
         if let Shape::Trunk { canopy_radius_m, .. } = o.shape {
             let r = (canopy_radius_m * px_per_m) as i32;
             chart
-                .draw_series(std::iter::once(Circle::new(
-                    (o.pose.x, o.pose.y),
-                    r,
-                    class_colour(ObjectClass::Tree).mix(0.12).filled(),
-                )))
+                .draw_series(std::iter::once(Circle::new((o.pose.x, o.pose.y), r, canopy.mix(0.12).filled())))
                 .map_err(|e| err(&e))?;
         }
     }
-    let mut legend_done = std::collections::BTreeSet::new();
+    let mut classes_drawn = std::collections::BTreeSet::new();
     for o in &world.objects {
         let colour = class_colour(o.class);
         let fp = o.shape.footprint(&o.pose);
@@ -127,9 +164,22 @@ pub fn draw_map(world: &World, overlays: &Overlays, path: &Path) -> Result<(), P
                 vec![Polygon::new(c.iter().map(|p| (p[0], p[1])).collect::<Vec<_>>(), colour.filled()).into_dyn()]
             }
         };
-        let anno = chart.draw_series(series).map_err(|e| err(&e))?;
-        if legend_done.insert(o.class) {
-            anno.label(o.class.name()).legend(move |(x, y)| Circle::new((x + 8, y), 5, colour.filled()));
+        chart.draw_series(series).map_err(|e| err(&e))?;
+        classes_drawn.insert(o.class);
+    }
+    for class in &classes_drawn {
+        let name = match class {
+            ObjectClass::Tree => "tree trunk".to_string(),
+            other => other.name().to_string(),
+        };
+        let swatch = if *class == ObjectClass::Wall {
+            Swatch::Bar(class_colour(*class))
+        } else {
+            Swatch::Disc(class_colour(*class))
+        };
+        legend.push((name, swatch));
+        if *class == ObjectClass::Tree {
+            legend.push(("tree canopy".into(), Swatch::Faint(canopy, 0.12)));
         }
     }
 
@@ -138,11 +188,8 @@ pub fn draw_map(world: &World, overlays: &Overlays, path: &Path) -> Result<(), P
         if world.robot.route.looping {
             pts.push(pts[0]);
         }
-        chart
-            .draw_series(LineSeries::new(pts, BLUE.stroke_width(2)))
-            .map_err(|e| err(&e))?
-            .label(format!("robot route ({} laps)", world.robot.laps))
-            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], BLUE.stroke_width(2)));
+        chart.draw_series(LineSeries::new(pts, BLUE.stroke_width(2))).map_err(|e| err(&e))?;
+        legend.push((format!("robot route ({} laps)", world.robot.laps), Swatch::Line(BLUE, 2)));
         let s = world.robot.start;
         let (dx, dy) = (s.yaw_rad().cos() * 1.0, s.yaw_rad().sin() * 1.0);
         chart
@@ -151,44 +198,41 @@ pub fn draw_map(world: &World, overlays: &Overlays, path: &Path) -> Result<(), P
                 BLUE.stroke_width(4),
             )))
             .map_err(|e| err(&e))?;
-        for (i, p) in world.people.iter().enumerate() {
+        for p in &world.people {
             let mut pts: Vec<(f64, f64)> = p.route.waypoints.iter().map(|w| (w[0], w[1])).collect();
             if p.route.looping && pts.len() > 2 {
                 pts.push(pts[0]);
             }
             let colour = class_colour(ObjectClass::Person);
-            let a = chart.draw_series(DashedLineSeries::new(pts, 6, 4, colour.stroke_width(2))).map_err(|e| err(&e))?;
-            if i == 0 {
-                a.label("person walk")
-                    .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour.stroke_width(2)));
-            }
+            chart.draw_series(DashedLineSeries::new(pts, 6, 4, colour.stroke_width(2))).map_err(|e| err(&e))?;
+        }
+        if !world.people.is_empty() {
+            legend.push(("person's walk".into(), Swatch::Dashed(class_colour(ObjectClass::Person))));
         }
     }
+    let min_step = 2.0 / px_per_m;
+    let person = class_colour(ObjectClass::Person);
     for track in &overlays.people_tracks {
-        chart
-            .draw_series(LineSeries::new(
-                track.iter().map(|p| (p[0], p[1])),
-                class_colour(ObjectClass::Person).mix(0.35),
-            ))
-            .map_err(|e| err(&e))?;
+        chart.draw_series(LineSeries::new(thin_path(track, min_step), person.mix(0.35))).map_err(|e| err(&e))?;
     }
+    if overlays.people_tracks.iter().any(|t| t.len() > 1) {
+        legend.push(("person's track".into(), Swatch::Line(person, 1)));
+    }
+    // Drawn as 1-pixel lines side by side: plotters leaves out the parts of a line wider
+    // than a pixel that run (nearly) straight up or down.
+    let px = 1.0 / px_per_m;
     for (name, colour, path) in &overlays.trajectories {
-        let c = *colour;
-        chart
-            .draw_series(LineSeries::new(path.iter().map(|p| (p[0], p[1])), c.stroke_width(2)))
-            .map_err(|e| err(&e))?
-            .label(name.clone())
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], c.stroke_width(2)));
+        let pts = thin_path(path, min_step);
+        for (ox, oy) in [(0.0, 0.0), (px, 0.0), (0.0, px), (px, px)] {
+            let shifted = pts.iter().map(|(x, y)| (x + ox, y + oy));
+            chart.draw_series(LineSeries::new(shifted, colour.stroke_width(1))).map_err(|e| err(&e))?;
+        }
+        legend.push((name.clone(), Swatch::Line(*colour, 2)));
     }
-    for (i, lm) in overlays.landmarks.iter().enumerate() {
+    for lm in &overlays.landmarks {
         let colour = if lm.flagged { RED } else { BLACK };
         let ellipse = sigma_ellipse(lm.position, lm.covariance, 2.0, 48);
-        let a = chart
-            .draw_series(std::iter::once(PathElement::new(ellipse, colour.stroke_width(2))))
-            .map_err(|e| err(&e))?;
-        if i == 0 {
-            a.label("landmark (2σ)").legend(|(x, y)| Cross::new((x + 8, y), 5, BLACK.stroke_width(2)));
-        }
+        chart.draw_series(std::iter::once(PathElement::new(ellipse, colour.stroke_width(2)))).map_err(|e| err(&e))?;
         chart
             .draw_series(std::iter::once(Cross::new((lm.position[0], lm.position[1]), 5, colour.stroke_width(2))))
             .map_err(|e| err(&e))?;
@@ -199,6 +243,10 @@ pub fn draw_map(world: &World, overlays: &Overlays, path: &Path) -> Result<(), P
                 ("sans-serif", 12).into_font(),
             )))
             .map_err(|e| err(&e))?;
+    }
+    if !overlays.landmarks.is_empty() {
+        legend.push(("landmark, 2σ ellipse".into(), Swatch::Landmark(BLACK)));
+        legend.push(("landmark on no tree".into(), Swatch::Landmark(RED)));
     }
 
     // Scale bar: 5 m in the lower left corner of the ground.
@@ -220,15 +268,45 @@ pub fn draw_map(world: &World, overlays: &Overlays, path: &Path) -> Result<(), P
         )))
         .map_err(|e| err(&e))?;
 
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .label_font(("sans-serif", 14))
-        .draw()
-        .map_err(|e| err(&e))?;
+    draw_legend(&legend_area, &legend).map_err(|e| err(&e))?;
     root.present().map_err(|e| err(&e))?;
+    Ok(())
+}
+
+/// The legend panel: one row per entry, its swatch then its name.
+fn draw_legend<DB: DrawingBackend>(
+    area: &DrawingArea<DB, plotters::coord::Shift>,
+    entries: &[(String, Swatch)],
+) -> Result<(), DrawingAreaErrorKind<DB::ErrorType>> {
+    let font = ("sans-serif", 15).into_font();
+    let (left, top, row) = (10i32, 60i32, 26i32);
+    area.draw(&Text::new("legend", (left, top - 30), ("sans-serif", 16).into_font().style(FontStyle::Bold)))?;
+    for (i, (name, swatch)) in entries.iter().enumerate() {
+        let y = top + i as i32 * row;
+        let (a, b, mid) = (left, left + 30, left + 15);
+        match *swatch {
+            Swatch::Disc(c) => area.draw(&Circle::new((mid, y), 6, c.filled()))?,
+            Swatch::Faint(c, alpha) => area.draw(&Circle::new((mid, y), 11, c.mix(alpha).filled()))?,
+            Swatch::Line(c, w) => area.draw(&PathElement::new(vec![(a, y), (b, y)], c.stroke_width(w)))?,
+            Swatch::Dashed(c) => {
+                for k in 0..3 {
+                    area.draw(&PathElement::new(vec![(a + 11 * k, y), (a + 11 * k + 6, y)], c.stroke_width(2)))?;
+                }
+            }
+            Swatch::Landmark(c) => {
+                area.draw(&Cross::new((mid, y), 5, c.stroke_width(2)))?;
+                let ring: Vec<(i32, i32)> = (0..=24)
+                    .map(|k| {
+                        let t = std::f64::consts::TAU * k as f64 / 24.0;
+                        (mid + (13.0 * t.cos()) as i32, y + (8.0 * t.sin()) as i32)
+                    })
+                    .collect();
+                area.draw(&PathElement::new(ring, c.stroke_width(2)))?;
+            }
+            Swatch::Bar(c) => area.draw(&Rectangle::new([(a, y - 4), (b, y + 4)], c.filled()))?,
+        }
+        area.draw(&Text::new(name.clone(), (b + 12, y - 8), font.clone()))?;
+    }
     Ok(())
 }
 
@@ -266,6 +344,14 @@ fn axis_range(xs: &[f64]) -> (f64, f64) {
     if lo <= hi && (hi - lo).is_finite() { (lo, hi) } else { (0.0, 0.0) }
 }
 
+/// Width of a study plot without its legend panel, pixels.
+const STUDY_PLOT_W: u32 = 900;
+
+/// How many methods a study's rows hold.
+fn series_count_hint(rows: &[crate::montecarlo::SummaryRow]) -> usize {
+    rows.iter().map(|r| r.method.as_str()).collect::<std::collections::BTreeSet<_>>().len()
+}
+
 /// Failure rate against the first varied parameter, one line per method, with 95%
 /// intervals; written as PNG and SVG.
 pub fn failure_rate_plot(
@@ -275,9 +361,10 @@ pub fn failure_rate_plot(
     svg: &Path,
 ) -> Result<(), PlotError> {
     register_fonts();
-    draw_failure_rate(BitMapBackend::new(png, (900, 600)).into_drawing_area(), plan, rows)
+    let size = (STUDY_PLOT_W + LEGEND_W, 600);
+    draw_failure_rate(BitMapBackend::new(png, size).into_drawing_area(), plan, rows)
         .map_err(|message| PlotError { file: png.to_path_buf(), message })?;
-    draw_failure_rate(SVGBackend::new(svg, (900, 600)).into_drawing_area(), plan, rows)
+    draw_failure_rate(SVGBackend::new(svg, size).into_drawing_area(), plan, rows)
         .map_err(|message| PlotError { file: svg.to_path_buf(), message })?;
     Ok(())
 }
@@ -289,6 +376,9 @@ fn draw_failure_rate<DB: DrawingBackend>(
 ) -> Result<(), String> {
     let e = |x: &dyn std::fmt::Display| x.to_string();
     root.fill(&WHITE).map_err(|x| e(&x))?;
+    // The legend in a panel of its own: inside the plot it would cover points.
+    let (plot_area, legend_area) = root.split_horizontally(STUDY_PLOT_W);
+    let mut legend: Vec<(String, Swatch)> = Vec::new();
     let param = plan.vary.first().map(|v| v.param.clone()).unwrap_or_else(|| "method".into());
     let xs: Vec<f64> = match plan.vary.first() {
         Some(v) => v.values.clone(),
@@ -296,7 +386,7 @@ fn draw_failure_rate<DB: DrawingBackend>(
     };
     let (lo, hi) = axis_range(&xs);
     let pad = if hi > lo { 0.05 * (hi - lo) } else { 0.5 };
-    let mut chart = ChartBuilder::on(&root)
+    let mut chart = ChartBuilder::on(&plot_area)
         .caption(
             format!("{}: association-failure rate ({} runs per point, 95% CI)", plan.scenario, plan.runs),
             ("sans-serif", 20),
@@ -308,7 +398,11 @@ fn draw_failure_rate<DB: DrawingBackend>(
         .map_err(|x| e(&x))?;
     chart
         .configure_mesh()
-        .x_desc(param.clone())
+        .x_desc(if series_count_hint(rows) > 1 {
+            format!("{param} (methods drawn slightly apart)")
+        } else {
+            param.clone()
+        })
         .y_desc("failure rate")
         .label_style(("sans-serif", 14))
         .draw()
@@ -334,26 +428,31 @@ fn draw_failure_rate<DB: DrawingBackend>(
             series.entry(name).or_default().push((x, r.failure_rate, r.failure_rate_ci95.0, r.failure_rate_ci95.1));
         }
     }
+    // Methods with equal rates would hide each other's lines: each series is moved sideways
+    // by a small step of its own (the x label says so).
+    let step = 0.012 * ((hi - lo).max(1e-9) + 2.0 * pad);
+    let n = series.len() as f64;
     for (k, (name, pts)) in series.iter().enumerate() {
         let colour = palette[k % palette.len()];
-        chart
-            .draw_series(LineSeries::new(pts.iter().map(|p| (p.0, p.1)), colour.stroke_width(2)))
-            .map_err(|x| e(&x))?
-            .label(name.clone())
-            .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], colour.stroke_width(2)));
+        let dodge = (k as f64 - (n - 1.0) / 2.0) * step;
+        let pts: Vec<(f64, f64, f64, f64)> = pts.iter().map(|p| (p.0 + dodge, p.1, p.2, p.3)).collect();
+        // The first series solid and wide, the others dashed over it: lines at equal rates
+        // show both colours.
+        let line: Vec<(f64, f64)> = pts.iter().map(|p| (p.0, p.1)).collect();
+        if k == 0 {
+            chart.draw_series(LineSeries::new(line, colour.stroke_width(3))).map_err(|x| e(&x))?;
+        } else {
+            chart
+                .draw_series(DashedLineSeries::new(line, 6 + 4 * k as u32, 6, colour.stroke_width(2)))
+                .map_err(|x| e(&x))?;
+        }
+        legend.push((name.clone(), if k == 0 { Swatch::Line(colour, 3) } else { Swatch::Dashed(colour) }));
         chart.draw_series(pts.iter().map(|p| Circle::new((p.0, p.1), 4, colour.filled()))).map_err(|x| e(&x))?;
         chart
             .draw_series(pts.iter().map(|p| ErrorBar::new_vertical(p.0, p.2, p.1, p.3, colour.stroke_width(1), 8)))
             .map_err(|x| e(&x))?;
     }
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperLeft)
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .label_font(("sans-serif", 14))
-        .draw()
-        .map_err(|x| e(&x))?;
+    draw_legend(&legend_area, &legend).map_err(|x| e(&x))?;
     root.present().map_err(|x| e(&x))?;
     Ok(())
 }
@@ -389,5 +488,49 @@ mod tests {
         // Tree green must appear (objects were drawn), and white margins exist.
         let green = img.pixels().filter(|p| p.0 == [34, 139, 34]).count();
         assert!(green > 50, "only {green} tree-coloured pixels");
+    }
+
+    /// The path the robot drives twice round `paper_park`'s loop, logged at the odometry
+    /// rate, is drawn without a gap: plotters fills a wide line as one polygon, and that
+    /// polygon lost the loop's straights (they showed broken, or not at all). And the legend
+    /// beside the map names the path without covering the map.
+    #[test]
+    fn a_driven_path_is_drawn_whole_and_the_legend_stays_beside_the_map() {
+        let world = worlds::generate::park(&Default::default(), 2006).unwrap();
+        let config = sim::SimConfig {
+            camera: sim::camera::CameraConfig { enabled: false, ..Default::default() },
+            ..Default::default()
+        };
+        let mut simulation = sim::Simulation::new(&world, &config, 1).unwrap();
+        let mut driven: Vec<[f64; 2]> = Vec::new();
+        while let Some(event) = simulation.next_event() {
+            if let sim::SensorEvent::Odometry { truth, .. } = event {
+                driven.push([truth.robot.x, truth.robot.y]);
+            }
+        }
+        assert!(simulation.route_progress() > 0.99 && driven.len() > 5000);
+        let dir = std::env::temp_dir().join(format!("objslam-plot-driven-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("map.png");
+        let colour = RGBColor(0, 0, 255);
+        let overlays = Overlays {
+            title: "driven path".into(),
+            trajectories: vec![("path".into(), colour, driven)],
+            ..Default::default()
+        };
+        draw_map(&world, &overlays, &path).unwrap();
+        let img = image::open(&path).unwrap().to_rgb8();
+        let map_w = img.width() - LEGEND_W;
+        // The rows where the loop's east side shows, in the right half of the map: pixels of
+        // the path's blue, within a tolerance (a grid line drawn under it tints a few).
+        let blue = |p: &image::Rgb<u8>| p.0[2] >= 220 && p.0[0] <= 80 && p.0[1] <= 80;
+        let rows: Vec<u32> =
+            (0..img.height()).filter(|&y| (map_w / 2 + 20..map_w).any(|x| blue(img.get_pixel(x, y)))).collect();
+        let (first, last) = (rows[0], rows[rows.len() - 1]);
+        assert!(last - first > 300, "the path spans {first}..{last}");
+        assert_eq!(rows.len() as u32, last - first + 1, "rows without the path between {first} and {last}");
+        // The legend's swatch is in the panel to the right of the map.
+        let in_legend = (map_w..img.width()).flat_map(|x| (0..img.height()).map(move |y| (x, y)));
+        assert!(in_legend.filter(|&(x, y)| blue(img.get_pixel(x, y))).count() > 20);
     }
 }

@@ -20,7 +20,7 @@ fn manifest_coco_and_patch_labels_agree_with_the_masks() {
     let coco: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("annotations.json")).unwrap()).unwrap();
     assert_eq!(coco["images"].as_array().unwrap().len(), 8);
-    let mut trees_seen = 0;
+    let (mut trees_seen, mut foliage_parts) = (0, 0);
     for entry in &manifest.images {
         let inst = image::open(dir.join(&entry.instance)).unwrap().to_luma16();
         let class = image::open(dir.join(&entry.class)).unwrap().to_luma8();
@@ -32,37 +32,53 @@ fn manifest_coco_and_patch_labels_agree_with_the_masks() {
         let again = patch_labels(class.as_raw(), w, h, 9, &[worlds::ObjectClass::Tree.id()]);
         assert_eq!(stored, again);
         assert_eq!((stored.rows, stored.cols), (15, 20));
-        // Every object instance in the mask has exactly one annotation whose RLE decodes
-        // to that instance's pixels, with a matching box, area and category.
+        // Every visible part of an object instance (its pixels of one class) has exactly
+        // one annotation whose RLE decodes to those pixels, with a matching box, area and
+        // the class mask's category; together they cover every object pixel once.
         let anns: Vec<&serde_json::Value> =
             coco["annotations"].as_array().unwrap().iter().filter(|a| a["image_id"] == entry.id).collect();
-        let mut ids: Vec<u16> =
-            inst.pixels().map(|p| p.0[0]).filter(|&id| id != 0 && id != worlds::validate::GROUND_INSTANCE_ID).collect();
-        ids.sort_unstable();
-        ids.dedup();
-        assert_eq!(anns.len(), ids.len());
+        let is_object = |id: u16| id != 0 && id != worlds::validate::GROUND_INSTANCE_ID;
+        let mut parts: Vec<(u16, u8)> =
+            inst.pixels().zip(class.pixels()).map(|(i, c)| (i.0[0], c.0[0])).filter(|(id, _)| is_object(*id)).collect();
+        parts.sort_unstable();
+        parts.dedup();
+        assert_eq!(anns.len(), parts.len());
+        let mut covered = vec![0u32; (w * h) as usize];
         for a in anns {
             let id = a["instance_id"].as_u64().unwrap() as u16;
+            let category = a["category_id"].as_u64().unwrap() as u8;
             let counts: Vec<u32> =
                 a["segmentation"]["counts"].as_array().unwrap().iter().map(|c| c.as_u64().unwrap() as u32).collect();
             assert_eq!(a["segmentation"]["size"], serde_json::json!([h, w]));
             let mask = rle_decode(&counts, w, h);
-            let truth: Vec<bool> = inst.pixels().map(|p| p.0[0] == id).collect();
-            assert_eq!(mask, truth, "RLE of instance {id}");
+            let truth: Vec<bool> =
+                inst.pixels().zip(class.pixels()).map(|(i, c)| i.0[0] == id && c.0[0] == category).collect();
+            assert_eq!(mask, truth, "RLE of instance {id}, class {category}");
             let area = truth.iter().filter(|b| **b).count() as u64;
+            assert!(area > 0);
             assert_eq!(a["area"].as_u64().unwrap(), area);
             let b = a["bbox"].as_array().unwrap().iter().map(|v| v.as_u64().unwrap() as u32).collect::<Vec<_>>();
             for (i, &on) in truth.iter().enumerate() {
                 if on {
                     let (x, y) = (i as u32 % w, i as u32 / w);
                     assert!(x >= b[0] && x < b[0] + b[2] && y >= b[1] && y < b[1] + b[3]);
+                    covered[i] += 1;
                 }
             }
-            let expected_class = world.class_of(id).unwrap().id() as u64;
-            assert_eq!(a["category_id"].as_u64().unwrap(), expected_class);
-            if expected_class == worlds::ObjectClass::Tree.id() as u64 {
+            // A part is its object's class, or the foliage of a tree or palm.
+            let object_class = world.class_of(id).unwrap();
+            if category == worlds::ObjectClass::Foliage.id() {
+                assert!(matches!(object_class, worlds::ObjectClass::Tree | worlds::ObjectClass::Palm));
+                foliage_parts += 1;
+            } else {
+                assert_eq!(category, object_class.id());
+            }
+            if category == worlds::ObjectClass::Tree.id() {
                 trees_seen += 1;
             }
+        }
+        for (i, p) in inst.pixels().enumerate() {
+            assert_eq!(covered[i], is_object(p.0[0]) as u32, "pixel {i}");
         }
         // The camera pose is a proper rotation.
         let r = entry.world_from_camera.r;
@@ -71,6 +87,7 @@ fn manifest_coco_and_patch_labels_agree_with_the_masks() {
         assert!((det - 1.0).abs() < 1e-9);
     }
     assert!(trees_seen >= 4, "object views should show trees");
+    assert!(foliage_parts >= 1, "canopies are annotated as foliage");
     // Object views show their target.
     for entry in manifest.images.iter().filter(|e| e.kind == "object") {
         let inst = image::open(dir.join(&entry.instance)).unwrap().to_luma16();
