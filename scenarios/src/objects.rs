@@ -40,9 +40,8 @@ pub fn write_objects(dir: &Path, pipeline: &Pipeline) -> Result<usize, ObjectsEr
     let mut written = 0;
     for lm in pipeline.mapped_landmarks() {
         let Some(model) = pipeline.object_model(lm.id) else { continue };
-        let (w, h, rgb) = object_model::render_mosaic(&model.mosaic, &app.model.extractor);
-        if w > 0 && h > 0 {
-            let file = out.join(format!("landmark_{}.png", lm.id));
+        let file = out.join(format!("landmark_{}.png", lm.id));
+        if let Some((w, h, rgb)) = mosaic_picture(lm.id, &lm.class, model, &app.model.extractor) {
             image::save_buffer(&file, &rgb, w, h, image::ExtendedColorType::Rgb8).map_err(|e| file_err(&file, e))?;
             written += 1;
         }
@@ -54,6 +53,70 @@ pub fn write_objects(dir: &Path, pipeline: &Pipeline) -> Result<usize, ObjectsEr
     // The appearance model too, so `objslam find` works from the run directory alone.
     app.model.save(&out.join("appearance_model.json"))?;
     Ok(written)
+}
+
+/// Height of a mosaic picture's caption, pixels.
+const CAPTION_H: u32 = 48;
+
+/// An object's mosaic as a picture to read: its best view's patches as the camera saw
+/// them beside their reconstruction through the PCA (the paper's figure 3), each enlarged
+/// to a readable size with the patch grid drawn, under a caption with its id and class.
+/// The reconstruction keeps only the d leading principal components of colour and texture
+/// together, so its colours lean towards the training images' mean (bark comes out olive
+/// among grass and leaves); the view as seen shows the true colours. `None` without patches.
+pub fn mosaic_picture(
+    id: u32,
+    class: &str,
+    model: &ObjectModel,
+    extractor: &slam::features::FeatureExtractor,
+) -> Option<(u32, u32, Vec<u8>)> {
+    let l = extractor.config.patch_size;
+    let (mw, mh, modelled) = object_model::render_mosaic(&model.mosaic, extractor);
+    if mw == 0 || mh == 0 {
+        return None;
+    }
+    let seen = object_model::render_mosaic_as_seen(&model.mosaic, l);
+    let scale = 160u32.div_ceil(mw).clamp(3, 8);
+    let (pw, ph) = (mw * scale, mh * scale);
+    let (margin, gap) = (12u32, 24u32);
+    let panels: Vec<(&str, &[u8])> = match &seen {
+        Some((_, _, rgb)) => vec![("as seen", rgb.as_slice()), ("PCA reconstruction", modelled.as_slice())],
+        None => vec![("PCA reconstruction", modelled.as_slice())],
+    };
+    let width = (2 * margin + panels.len() as u32 * pw + (panels.len() as u32 - 1) * gap).max(320);
+    let height = CAPTION_H + ph + margin;
+    let mut out = vec![255u8; (width * height * 3) as usize];
+    for (k, (_, rgb)) in panels.iter().enumerate() {
+        let x0 = margin + k as u32 * (pw + gap);
+        for y in 0..ph {
+            for x in 0..pw {
+                let (sx, sy) = (x / scale, y / scale);
+                let on_grid = x % (l * scale) == 0 || y % (l * scale) == 0;
+                let src = ((sy * mw + sx) * 3) as usize;
+                let dst = (((CAPTION_H + y) * width + x0 + x) * 3) as usize;
+                let px = if on_grid { [40, 40, 40] } else { [rgb[src], rgb[src + 1], rgb[src + 2]] };
+                out[dst..dst + 3].copy_from_slice(&px);
+            }
+        }
+    }
+    // The caption, drawn over the buffer.
+    crate::plot::register_fonts();
+    {
+        use plotters::prelude::*;
+        let root = BitMapBackend::with_buffer(&mut out, (width, height)).into_drawing_area();
+        let title = format!(
+            "landmark {id} ({class}): {} patches of {l} px, {} views",
+            model.mosaic.cells.len(),
+            model.observations
+        );
+        root.draw(&Text::new(title, (margin as i32, 6), ("sans-serif", 14).into_font())).ok()?;
+        for (k, (label, _)) in panels.iter().enumerate() {
+            let x0 = (margin + k as u32 * (pw + gap)) as i32;
+            root.draw(&Text::new(label.to_string(), (x0, 26), ("sans-serif", 13).into_font())).ok()?;
+        }
+        root.present().ok()?;
+    }
+    Some((width, height, out))
 }
 
 /// "Find objects that look like this": classifies the example image's patches, fits an

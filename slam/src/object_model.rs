@@ -88,6 +88,8 @@ pub struct ObjectObservation {
     pub appearance: Vec<Vec<f64>>,
     /// (col, row) of each patch in the image's patch grid.
     pub cells: Vec<(u32, u32)>,
+    /// Each patch's pixels as the camera saw them (L x L RGB, row-major), for the mosaic.
+    pub pixels: Vec<Vec<u8>>,
     /// Covariance of `centre` (2x2, map frame).
     pub centre_covariance: Matrix2<f64>,
 }
@@ -104,6 +106,10 @@ pub struct MosaicView {
     pub cells: Vec<(u32, u32)>,
     /// PCA coordinates z_A (d values) per cell.
     pub appearance: Vec<Vec<f64>>,
+    /// The pixels of each cell as seen (L x L RGB); empty in models saved before they were
+    /// kept.
+    #[serde(default)]
+    pub pixels: Vec<Vec<u8>>,
 }
 
 /// A mapped object's model.
@@ -333,7 +339,7 @@ impl ObjectModel {
 }
 
 fn mosaic_view(obs: &ObjectObservation, _pca_dims: usize) -> MosaicView {
-    MosaicView { cells: obs.cells.clone(), appearance: obs.appearance.clone() }
+    MosaicView { cells: obs.cells.clone(), appearance: obs.appearance.clone(), pixels: obs.pixels.clone() }
 }
 
 /// Figure 3 (right): the mosaic's patches back-projected through the PCA eigenvectors into
@@ -365,6 +371,30 @@ pub fn render_mosaic(view: &MosaicView, extractor: &FeatureExtractor) -> (u32, u
         }
     }
     (w as u32, h as u32, rgb)
+}
+
+/// The mosaic's patches as the camera saw them, laid out as [`render_mosaic`] lays out
+/// their reconstructions; `None` for models saved without pixels.
+pub fn render_mosaic_as_seen(view: &MosaicView, patch_size: u32) -> Option<(u32, u32, Vec<u8>)> {
+    let l = patch_size as usize;
+    if view.cells.is_empty()
+        || view.pixels.len() != view.cells.len()
+        || view.pixels.iter().any(|p| p.len() != l * l * 3)
+    {
+        return None;
+    }
+    let (c0, c1) = (view.cells.iter().map(|c| c.0).min()?, view.cells.iter().map(|c| c.0).max()?);
+    let (r0, r1) = (view.cells.iter().map(|c| c.1).min()?, view.cells.iter().map(|c| c.1).max()?);
+    let (w, h) = ((c1 - c0 + 1) as usize * l, (r1 - r0 + 1) as usize * l);
+    let mut rgb = vec![0u8; w * h * 3];
+    for (cell, patch) in view.cells.iter().zip(&view.pixels) {
+        let (ox, oy) = ((cell.0 - c0) as usize * l, (cell.1 - r0) as usize * l);
+        for py in 0..l {
+            let o = ((oy + py) * w + ox) * 3;
+            rgb[o..o + l * 3].copy_from_slice(&patch[py * l * 3..(py + 1) * l * 3]);
+        }
+    }
+    Some((w as u32, h as u32, rgb))
 }
 
 /// "Find objects that look like this": mapped objects ranked by the appearance-only KL
@@ -405,6 +435,7 @@ mod tests {
             rows,
             appearance,
             cells: (0..n as u32).map(|i| (i % 5, i / 5)).collect(),
+            pixels: vec![],
             centre_covariance: Matrix2::identity() * 0.01,
         }
     }

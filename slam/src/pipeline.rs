@@ -426,6 +426,13 @@ pub struct ClusterSegmentation {
     pub posteriors: Vec<f32>,
 }
 
+/// The L x L RGB pixels (row-major) of patch (`col`, `row`) of an image `width` pixels wide.
+fn patch_pixels(rgb: &[u8], width: u32, col: u32, row: u32, l: u32) -> Vec<u8> {
+    let (w, l) = (width as usize, l as usize);
+    let (x0, y0) = (col as usize * l, row as usize * l);
+    (y0..y0 + l).flat_map(|y| rgb[(y * w + x0) * 3..(y * w + x0 + l) * 3].iter().copied()).collect()
+}
+
 /// The online SLAM pipeline. Cloning it forks a run (benchmarks, what-if studies).
 #[derive(Clone)]
 pub struct Pipeline {
@@ -747,6 +754,7 @@ impl Pipeline {
             let mut appearance = Vec::with_capacity(rows_idx.len());
             let mut rows = DMatrix::zeros(rows_idx.len(), da + 3);
             let mut cells = Vec::with_capacity(rows_idx.len());
+            let mut pixels = Vec::with_capacity(rows_idx.len());
             let mut n = 0;
             for &i in &rows_idx {
                 let (col, row) = seg.rect.patch(i);
@@ -761,6 +769,7 @@ impl Pipeline {
                 rows[(n, da + 2)] = p.z;
                 appearance.push(seg.features.z.row(i).columns(0, pca_dims).iter().copied().collect());
                 cells.push((col, row));
+                pixels.push(patch_pixels(&img.rgb, img.width, col, row, l));
                 n += 1;
             }
             if n < 2 {
@@ -772,7 +781,7 @@ impl Pipeline {
             let judged = seg.fully_judged() || matches!(pooled, Some(Some(j)) if j.is_object);
             out.push((
                 ci,
-                ObjectObservation { centre, rows, appearance, cells, centre_covariance: Matrix2::zeros() },
+                ObjectObservation { centre, rows, appearance, cells, pixels, centre_covariance: Matrix2::zeros() },
                 judged,
             ));
         }
@@ -1423,7 +1432,7 @@ mod association_rule_tests {
             gmm: density(0.0),
             patches: 20.0,
             observations: 1,
-            mosaic: MosaicView { cells: vec![], appearance: vec![] },
+            mosaic: MosaicView { cells: vec![], appearance: vec![], pixels: vec![] },
         });
         p
     }
@@ -1434,6 +1443,7 @@ mod association_rule_tests {
             rows: DMatrix::zeros(0, 7),
             appearance: vec![],
             cells: vec![],
+            pixels: vec![],
             centre_covariance: Matrix2::zeros(),
         }
     }

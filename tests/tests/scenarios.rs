@@ -466,3 +466,44 @@ fn nonsense_pipeline_settings_are_named_with_their_line() {
     let e = scenarios::run::pipeline_config(&sc, None).unwrap_err().to_string();
     assert!(e.contains("paper_park") && e.contains("pipeline.confirm_observations"), "{e}");
 }
+
+/// A camera run's object pictures are readable: each mapped object's patches as the camera
+/// saw them (bark brown: more red than green) beside their PCA reconstruction, enlarged,
+/// under a caption.
+#[test]
+fn object_pictures_show_the_patches_as_seen_beside_their_reconstruction() {
+    let dir = std::env::temp_dir().join(format!("objslam-objects-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let (mut sc, base) = Scenario::load("paper_park").unwrap();
+    sc.sim.max_duration_s = Some(30.0);
+    let m = run(&sc, &base, &RunOptions { seed: Some(2), out: Some(dir.clone()), ..Default::default() }, |_, _| {})
+        .unwrap()
+        .metrics;
+    assert!(m.landmarks >= 1, "{:?}", m.map);
+    let pictures: Vec<_> = std::fs::read_dir(dir.join("objects"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "png"))
+        .collect();
+    assert_eq!(pictures.len(), m.landmarks);
+    for p in pictures {
+        let img = image::open(&p).unwrap().to_rgb8();
+        assert!(img.width() >= 320 && img.height() > 100, "{}: {:?}", p.display(), img.dimensions());
+        // The left panel (as seen), below the caption: the bark's mean colour.
+        let (mut sum, mut n) = ([0.0f64; 3], 0.0);
+        for y in 60..img.height() - 12 {
+            for x in 12..img.width() / 2 - 12 {
+                let px = img.get_pixel(x, y).0;
+                let grid_or_empty = px == [40, 40, 40] || px == [0, 0, 0] || px == [255, 255, 255];
+                if !grid_or_empty {
+                    for c in 0..3 {
+                        sum[c] += px[c] as f64;
+                    }
+                    n += 1.0;
+                }
+            }
+        }
+        assert!(n > 100.0 && sum[0] > sum[1], "{}: mean colour {:?}", p.display(), sum.map(|s| s / n));
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
