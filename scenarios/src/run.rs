@@ -15,7 +15,7 @@ use worlds::ObjectClass;
 
 use crate::scenario::{Scenario, ScenarioError};
 use crate::score::scorer::{
-    Fusion, MapLandmark, RecallBasis, RunScorer, ScoredObservation, VisibilitySettings, true_object,
+    Fusion, MapLandmark, RecallBasis, RunScorer, ScoredObservation, VisibilitySettings, as_written_to_tum, true_object,
 };
 use crate::score::{AssociationCounts, MapContent};
 use crate::visibility::InstanceImage;
@@ -69,6 +69,10 @@ pub struct Metrics {
     pub realtime_factor: f64,
     #[serde(with = "crate::score::nan_as_null")]
     pub ate_rmse_m: f64,
+    /// Translational relative pose error over 1 s (`score::scorer::rpe_rmse`); null when
+    /// the run is shorter, and in records written before it was measured.
+    #[serde(default = "crate::score::nan", with = "crate::score::nan_as_null")]
+    pub rpe_rmse_m: f64,
     pub landmark_rmse_m: Option<f64>,
     pub map: MapContent,
     pub landmarks: usize,
@@ -527,7 +531,12 @@ pub fn run(
                 let r = truth.robot;
                 est_path.push((odometry.t, est.pose));
                 gt_path.push((odometry.t, [r.x, r.y, r.theta]));
-                scorer.on_pose(est.pose, Some(est.covariance), [r.x, r.y, r.theta]);
+                scorer.on_pose(
+                    odometry.t,
+                    as_written_to_tum(est.pose),
+                    Some(est.covariance),
+                    as_written_to_tum([r.x, r.y, r.theta]),
+                );
             }
             SensorEvent::Laser { scan, beams, truth } => {
                 let s = slam_scan(&scan);
@@ -678,6 +687,7 @@ pub fn run(
         wall_seconds: wall,
         realtime_factor: sim.time() / wall.max(1e-9),
         ate_rmse_m: scored.ate_rmse_m,
+        rpe_rmse_m: scored.rpe_rmse_m,
         landmark_rmse_m: scored.landmark_rmse_m,
         map,
         landmarks: scored.landmarks,
@@ -1050,6 +1060,7 @@ pub fn summary_table(m: &Metrics) -> String {
     }
     s.push_str(&format!("  associations      {:>4} ({} wrong)\n", m.associations.total, m.associations.wrong));
     s.push_str(&format!("  ATE RMSE          {:>8.3} m\n", m.ate_rmse_m));
+    s.push_str(&format!("  RPE RMSE          {:>8.3} m over 1 s\n", m.rpe_rmse_m));
     if let Some(r) = m.landmark_rmse_m {
         s.push_str(&format!("  landmark RMSE     {r:>8.3} m\n"));
     }

@@ -54,7 +54,7 @@ fn assert_reproduced(run_dir: &Path, scored: &scenarios::score::log::ScoredMetri
         scored["map"].as_object_mut().unwrap().remove(key);
     }
     let compared: Vec<&String> = scored.as_object().unwrap().keys().collect();
-    assert_eq!(compared.len(), 16, "the keys compared: {compared:?}");
+    assert_eq!(compared.len(), 17, "the keys compared: {compared:?}");
     for (key, value) in scored.as_object().unwrap() {
         let expected = if key == "map" {
             let mut m = run["map"].clone();

@@ -95,6 +95,8 @@ pub struct ScoredMetrics {
     pub sim_seconds: f64,
     #[serde(with = "super::nan_as_null")]
     pub ate_rmse_m: f64,
+    #[serde(with = "super::nan_as_null")]
+    pub rpe_rmse_m: f64,
     pub landmark_rmse_m: Option<f64>,
     pub map: Option<MapContent>,
     pub landmarks: Option<usize>,
@@ -187,8 +189,7 @@ pub fn read_tum(file: &Path) -> Result<Vec<(f64, [f64; 3])>, ScoreError> {
         {
             return Err(invalid(file, Some(i + 1), format!("timestamp {t} does not follow {last}")));
         }
-        let yaw = (2.0 * (qw * qz + qx * qy)).atan2(1.0 - 2.0 * (qy * qy + qz * qz));
-        poses.push((t, [x, y, yaw]));
+        poses.push((t, [x, y, super::scorer::yaw_of_quaternion([qx, qy, qz, qw])]));
     }
     if poses.is_empty() {
         return Err(invalid(file, None, "no pose"));
@@ -327,7 +328,7 @@ pub fn score_log(log: &Path, estimate: &Estimate) -> Result<ScoredMetrics, Score
                 ),
             ));
         };
-        scorer.on_pose(*pose, None, true_pose);
+        scorer.on_pose(*t, *pose, None, true_pose);
     }
 
     let associations = match &estimate.associations {
@@ -426,6 +427,7 @@ pub fn score_log(log: &Path, estimate: &Estimate) -> Result<ScoredMetrics, Score
         method: estimate.method.clone().unwrap_or_else(|| "external".into()),
         sim_seconds: meta.sim_seconds,
         ate_rmse_m: scored.ate_rmse_m,
+        rpe_rmse_m: scored.rpe_rmse_m,
         landmark_rmse_m: scored.landmark_rmse_m.filter(|_| have_map),
         // Which landmark stands on which object comes from the associations.
         map: (have_map && have_associations).then(|| scored.map.clone()),
@@ -470,6 +472,7 @@ fn check(pass: &PassCriteria, m: &mut ScoredMetrics, map: &MapContent) {
         wall_seconds: 0.0,
         realtime_factor: 0.0,
         ate_rmse_m: m.ate_rmse_m,
+        rpe_rmse_m: m.rpe_rmse_m,
         landmark_rmse_m: m.landmark_rmse_m,
         map: map.clone(),
         landmarks: m.landmarks.unwrap_or(0),
@@ -511,6 +514,7 @@ pub fn summary_table(m: &ScoredMetrics) -> String {
         m.sim_seconds
     );
     s.push_str(&format!("  ATE RMSE          {:>8.3} m\n", m.ate_rmse_m));
+    s.push_str(&format!("  RPE RMSE          {:>8.3} m over {:.0} s\n", m.rpe_rmse_m, super::scorer::RPE_DELTA_S));
     if let Some(map) = &m.map {
         let recall = map.tree_recall.map_or("undefined".to_string(), |r| format!("{:.0}%", 100.0 * r));
         s.push_str(&format!("  tree recall       {recall:>4} ({})\n", map.recall_in_words()));

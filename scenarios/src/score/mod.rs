@@ -384,6 +384,11 @@ mod tests {
 
 /// Serde helpers for figures that may be undefined: NaN is written as `null` (JSON has no
 /// NaN) and read back as NaN.
+/// NaN, for fields absent from older records.
+pub fn nan() -> f64 {
+    f64::NAN
+}
+
 pub mod nan_as_null {
     use serde::{Deserialize, Deserializer, Serializer};
 

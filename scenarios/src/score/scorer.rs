@@ -72,6 +72,8 @@ pub struct MapLandmark {
 #[derive(Debug, Clone)]
 pub struct GroundTruthScore {
     pub ate_rmse_m: f64,
+    /// Translational relative pose error over [`RPE_DELTA_S`] (NaN with too short a run).
+    pub rpe_rmse_m: f64,
     pub landmark_rmse_m: Option<f64>,
     pub map: MapContent,
     pub landmarks: usize,
@@ -82,6 +84,48 @@ pub struct GroundTruthScore {
     pub anees: f64,
     /// The object each landmark stands on (0: none), from its observations.
     pub landmark_objects: HashMap<u32, u16>,
+}
+
+/// The interval of the relative pose error, s.
+pub const RPE_DELTA_S: f64 = 1.0;
+
+/// A pose as a TUM file holds it: the heading through its quaternion. Scoring poses this
+/// way gives a run and the trajectory it wrote the same figures, to the last bit.
+pub fn as_written_to_tum(pose: [f64; 3]) -> [f64; 3] {
+    [pose[0], pose[1], yaw_of_quaternion(crate::foxglove::yaw_quaternion(pose[2]))]
+}
+
+/// The heading of a yaw-only unit quaternion [x, y, z, w].
+pub fn yaw_of_quaternion(q: [f64; 4]) -> f64 {
+    let [qx, qy, qz, qw] = q;
+    (2.0 * (qw * qz + qx * qy)).atan2(1.0 - 2.0 * (qy * qy + qz * qz))
+}
+
+/// Root-mean-square translational relative pose error: for each pose i and the first pose
+/// j at least `delta_s` later, the length of the difference between the estimated and the
+/// true motion from i to j, each expressed in its own frame at i (the TUM RGB-D benchmark's
+/// translational RPE, without alignment). NaN when no pair is that far apart.
+pub fn rpe_rmse(times: &[f64], estimate: &[[f64; 3]], truth: &[[f64; 3]], delta_s: f64) -> f64 {
+    let motion = |a: &[f64; 3], b: &[f64; 3]| {
+        let (s, c) = a[2].sin_cos();
+        let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
+        [c * dx + s * dy, -s * dx + c * dy]
+    };
+    let (mut sum, mut n) = (0.0, 0usize);
+    let mut j = 0;
+    for i in 0..times.len() {
+        j = j.max(i);
+        while j < times.len() && times[j] < times[i] + delta_s {
+            j += 1;
+        }
+        if j == times.len() {
+            break;
+        }
+        let (e, g) = (motion(&estimate[i], &estimate[j]), motion(&truth[i], &truth[j]));
+        sum += (e[0] - g[0]).powi(2) + (e[1] - g[1]).powi(2);
+        n += 1;
+    }
+    if n == 0 { f64::NAN } else { (sum / n as f64).sqrt() }
 }
 
 /// Which object a run of beams truly belongs to: the most frequent instance id among them
@@ -102,8 +146,11 @@ pub struct RunScorer<'w> {
     visibility: TreeVisibility,
     basis: RecallBasis,
     ledger: AssociationLedger,
-    estimate: Vec<[f64; 2]>,
-    truth: Vec<[f64; 2]>,
+    /// Time of each scored pose.
+    times: Vec<f64>,
+    /// Scored poses (x, y, yaw), estimated and true.
+    estimate: Vec<[f64; 3]>,
+    truth: Vec<[f64; 3]>,
     nees_sum: f64,
     nees_n: usize,
 }
@@ -131,6 +178,7 @@ impl<'w> RunScorer<'w> {
             visibility,
             basis,
             ledger: AssociationLedger::default(),
+            times: Vec::new(),
             estimate: Vec::new(),
             truth: Vec::new(),
             nees_sum: 0.0,
@@ -148,11 +196,13 @@ impl<'w> RunScorer<'w> {
         &self.tree_ids
     }
 
-    /// An estimated pose (x, y, theta) with its covariance, if known, and the true pose of
-    /// the same instant.
-    pub fn on_pose(&mut self, estimate: [f64; 3], covariance: Option<[[f64; 3]; 3]>, truth: [f64; 3]) {
-        self.estimate.push([estimate[0], estimate[1]]);
-        self.truth.push([truth[0], truth[1]]);
+    /// An estimated pose (x, y, theta) at time `t` with its covariance, if known, and the
+    /// true pose of the same instant. A caller holding poses that were not read from TUM
+    /// files passes them through [`as_written_to_tum`] first.
+    pub fn on_pose(&mut self, t: f64, estimate: [f64; 3], covariance: Option<[[f64; 3]; 3]>, truth: [f64; 3]) {
+        self.times.push(t);
+        self.estimate.push(estimate);
+        self.truth.push(truth);
         let e = [estimate[0] - truth[0], estimate[1] - truth[1], sim::wrap_angle(estimate[2] - truth[2])];
         if let Some(n) = covariance.and_then(|p| super::nees3(e, p)) {
             self.nees_sum += n;
@@ -219,8 +269,10 @@ impl<'w> RunScorer<'w> {
         map.missed_trees = to_map.map(|t| t.difference(&trees_mapped).copied().collect()).unwrap_or_default();
         let duplicate_landmarks = per_object.iter().filter(|(id, _)| **id != 0).map(|(_, n)| n.saturating_sub(1)).sum();
         let false_landmarks = map.posts + map.palms + map.people + map.walls + map.nothing;
+        let xy = |poses: &[[f64; 3]]| poses.iter().map(|p| [p[0], p[1]]).collect::<Vec<_>>();
         GroundTruthScore {
-            ate_rmse_m: super::ate_rmse(&self.estimate, &self.truth),
+            ate_rmse_m: super::ate_rmse(&xy(&self.estimate), &xy(&self.truth)),
+            rpe_rmse_m: rpe_rmse(&self.times, &self.estimate, &self.truth, RPE_DELTA_S),
             landmark_rmse_m: landmark_rmse(self.world, landmarks),
             map,
             landmarks: landmarks.len(),
@@ -259,6 +311,19 @@ pub fn landmark_rmse(world: &World, landmarks: &[MapLandmark]) -> Option<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn relative_pose_error_sees_drift_per_second_not_an_offset() {
+        let times: Vec<f64> = (0..=40).map(|i| 0.1 * i as f64).collect();
+        let truth: Vec<[f64; 3]> = times.iter().map(|t| [*t, 0.0, 0.0]).collect();
+        // A constant offset: no relative error at all.
+        let shifted: Vec<[f64; 3]> = truth.iter().map(|p| [p[0] + 3.0, p[1] - 1.0, 0.0]).collect();
+        assert!(rpe_rmse(&times, &shifted, &truth, 1.0) < 1e-12);
+        // 10% too far: 0.1 m error per 1 m (1 s) of motion.
+        let stretched: Vec<[f64; 3]> = truth.iter().map(|p| [1.1 * p[0], 0.0, 0.0]).collect();
+        assert!((rpe_rmse(&times, &stretched, &truth, 1.0) - 0.1).abs() < 1e-9);
+        assert!(rpe_rmse(&times[..5], &stretched[..5], &truth[..5], 1.0).is_nan(), "no pair 1 s apart");
+    }
 
     #[test]
     fn a_run_of_beams_belongs_to_its_most_frequent_object_and_a_real_one_wins_a_tie() {
