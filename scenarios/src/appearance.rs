@@ -141,6 +141,7 @@ impl AppearanceSource {
         }
         std::fs::create_dir_all(dir)
             .map_err(|e| AppearanceError::Io { file: dir.to_path_buf(), message: e.to_string() })?;
+        remove_stale_scratch(dir);
         let scratch = dir.join(format!("training-{}-{}", std::process::id(), self.training_world_seed));
         let world = worlds::generate::preset(&self.training_preset, None, self.training_world_seed)?;
         let config = self.dataset_config(camera);
@@ -159,5 +160,72 @@ impl AppearanceSource {
         model.save(&tmp)?;
         std::fs::rename(&tmp, &path).map_err(|e| AppearanceError::Io { file: path.clone(), message: e.to_string() })?;
         Ok(model)
+    }
+}
+
+/// Removes what trainings killed midway left in the cache `dir`: their scratch datasets
+/// (`training-<pid>-<seed>/`, about 15 MB each) and half-written models (`.<pid>.<key>`),
+/// where process `pid` no longer runs here and the file has not changed for an hour (a
+/// cache shared between machines may hold another machine's live training, whose pid
+/// means nothing here). Where that cannot be known (no `/proc`), nothing is removed.
+pub(crate) fn remove_stale_scratch(dir: &Path) {
+    let Ok(entries) = std::fs::read_dir(dir) else { return };
+    for entry in entries.flatten() {
+        let name = entry.file_name().to_string_lossy().into_owned();
+        let pid = name
+            .strip_prefix("training-")
+            .or_else(|| name.strip_prefix('.'))
+            .and_then(|rest| rest.split(['-', '.']).next())
+            .and_then(|pid| pid.parse::<u32>().ok());
+        let Some(pid) = pid else { continue };
+        let idle = entry.metadata().and_then(|m| m.modified()).ok().and_then(|t| t.elapsed().ok());
+        if pid == std::process::id() || !process_ended(pid) || idle.is_none_or(|d| d < SCRATCH_IDLE) {
+            continue;
+        }
+        let path = entry.path();
+        let _ = if path.is_dir() { std::fs::remove_dir_all(&path) } else { std::fs::remove_file(&path) };
+    }
+}
+
+/// How long a dead training's files stay untouched before they are removed.
+const SCRATCH_IDLE: std::time::Duration = std::time::Duration::from_secs(3600);
+
+/// Whether process `pid` has certainly ended.
+fn process_ended(pid: u32) -> bool {
+    let proc = Path::new("/proc");
+    proc.join("self").exists() && !proc.join(pid.to_string()).exists()
+}
+
+#[cfg(test)]
+mod scratch_tests {
+    use super::*;
+
+    #[test]
+    fn what_a_killed_training_left_is_removed_and_nothing_else() {
+        let dir = std::env::temp_dir().join(format!("objslam-cache-scratch-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        // Pid 999999999 is above Linux's largest: no such process runs.
+        let dead_scratch = dir.join("training-999999999-1");
+        std::fs::create_dir_all(dead_scratch.join("images")).unwrap();
+        let dead_model = dir.join(".999999999.appearance-0123.json");
+        std::fs::write(&dead_model, "{").unwrap();
+        let mine = dir.join(format!("training-{}-1", std::process::id()));
+        std::fs::create_dir_all(&mine).unwrap();
+        let model = dir.join("appearance-0123.json");
+        std::fs::write(&model, "{}").unwrap();
+        // Another machine's live training: its pid means nothing here, and it is recent.
+        let recent = dir.join("training-999999998-1");
+        std::fs::create_dir_all(&recent).unwrap();
+        let two_hours_ago = std::time::SystemTime::now() - std::time::Duration::from_secs(7200);
+        for old in [&dead_scratch, &dead_model] {
+            std::fs::File::open(old).unwrap().set_modified(two_hours_ago).unwrap();
+        }
+        remove_stale_scratch(&dir);
+        if Path::new("/proc/self").exists() {
+            assert!(!dead_scratch.exists() && !dead_model.exists(), "a dead training's files are left");
+        }
+        assert!(mine.exists() && model.exists() && recent.exists(), "a live training's scratch or a model was removed");
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }
