@@ -347,11 +347,6 @@ fn axis_range(xs: &[f64]) -> (f64, f64) {
 /// Width of a study plot without its legend panel, pixels.
 const STUDY_PLOT_W: u32 = 900;
 
-/// How many methods a study's rows hold.
-fn series_count_hint(rows: &[crate::montecarlo::SummaryRow]) -> usize {
-    rows.iter().map(|r| r.method.as_str()).collect::<std::collections::BTreeSet<_>>().len()
-}
-
 /// Failure rate against the first varied parameter, one line per method, with 95%
 /// intervals; written as PNG and SVG.
 pub fn failure_rate_plot(
@@ -396,25 +391,6 @@ fn draw_failure_rate<DB: DrawingBackend>(
         .y_label_area_size(55)
         .build_cartesian_2d((lo - pad)..(hi + pad), -0.02f64..1.02f64)
         .map_err(|x| e(&x))?;
-    chart
-        .configure_mesh()
-        .x_desc(if series_count_hint(rows) > 1 {
-            format!("{param} (methods drawn slightly apart)")
-        } else {
-            param.clone()
-        })
-        .y_desc("failure rate")
-        .label_style(("sans-serif", 14))
-        .draw()
-        .map_err(|x| e(&x))?;
-    let palette = [
-        RGBColor(0, 114, 178),
-        RGBColor(213, 94, 0),
-        RGBColor(0, 158, 115),
-        RGBColor(204, 121, 167),
-        RGBColor(86, 180, 233),
-        RGBColor(230, 159, 0),
-    ];
     // One series per (method, values of the other varied parameters).
     let mut series: std::collections::BTreeMap<String, Vec<(f64, f64, f64, f64)>> = Default::default();
     for (i, r) in rows.iter().enumerate() {
@@ -428,6 +404,21 @@ fn draw_failure_rate<DB: DrawingBackend>(
             series.entry(name).or_default().push((x, r.failure_rate, r.failure_rate_ci95.0, r.failure_rate_ci95.1));
         }
     }
+    chart
+        .configure_mesh()
+        .x_desc(if series.len() > 1 { format!("{param} (lines drawn slightly apart)") } else { param.clone() })
+        .y_desc("failure rate")
+        .label_style(("sans-serif", 14))
+        .draw()
+        .map_err(|x| e(&x))?;
+    let palette = [
+        RGBColor(0, 114, 178),
+        RGBColor(213, 94, 0),
+        RGBColor(0, 158, 115),
+        RGBColor(204, 121, 167),
+        RGBColor(86, 180, 233),
+        RGBColor(230, 159, 0),
+    ];
     // Methods with equal rates would hide each other's lines: each series is moved sideways
     // by a small step of its own (the x label says so).
     let step = 0.012 * ((hi - lo).max(1e-9) + 2.0 * pad);

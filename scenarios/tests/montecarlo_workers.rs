@@ -57,26 +57,31 @@ fn worker_processes_give_the_records_threads_give() {
     let _ = std::fs::remove_dir_all(&root);
 }
 
+/// A worker program whose first start runs `first` (a shell command) on its first job;
+/// every later start is a real worker, fed the plan and the job the script has read.
 #[cfg(unix)]
-#[test]
-fn a_worker_that_dies_costs_only_its_run() {
+fn first_worker_then_real(root: &Path, name: &str, first: &str) -> PathBuf {
     use std::os::unix::fs::PermissionsExt;
-    let root = temp_root("mc-dying-worker");
-    let plan = plan(short_scenario(&root));
-    // The first worker started dies on its first job; the ones after it are real workers
-    // (fed the plan and the job the script has read).
-    let marker = root.join("died");
-    let script = root.join("dying-worker.sh");
+    let marker = root.join(format!("{name}-started"));
+    let script = root.join(format!("{name}-worker.sh"));
     std::fs::write(
         &script,
         format!(
-            "#!/bin/sh\nread plan\nread job\nif mkdir {marker:?} 2>/dev/null; then echo 'simulated crash' >&2; exit 3; fi\n{{ echo \"$plan\"; echo \"$job\"; cat; }} | exec {exe:?} \"$1\"\n",
-            marker = marker,
+            "#!/bin/sh\nread plan\nread job\nif mkdir {marker:?} 2>/dev/null; then {first}; fi\n{{ echo \"$plan\"; echo \"$job\"; cat; }} | exec {exe:?} \"$1\"\n",
             exe = env!("CARGO_BIN_EXE_objslam")
         ),
     )
     .unwrap();
     std::fs::set_permissions(&script, std::fs::Permissions::from_mode(0o755)).unwrap();
+    script
+}
+
+#[cfg(unix)]
+#[test]
+fn a_worker_that_dies_costs_only_its_run() {
+    let root = temp_root("mc-dying-worker");
+    let plan = plan(short_scenario(&root));
+    let script = first_worker_then_real(&root, "dying", "echo 'simulated crash' >&2; exit 3");
     let workers = Workers::Processes { exe: script, count: 1, run_timeout: None };
     let records = mc::run_study_with(&plan, Shard::all(), &root.join("study"), &workers, |_, _| {}).unwrap();
     assert_eq!(records.len(), 9);
@@ -109,22 +114,9 @@ fn a_worker_that_dies_costs_only_its_run() {
 #[cfg(unix)]
 #[test]
 fn a_stuck_worker_is_killed_after_the_run_timeout() {
-    use std::os::unix::fs::PermissionsExt;
     let root = temp_root("mc-stuck-worker");
     let plan = plan(short_scenario(&root));
-    // The first worker started hangs on its first job; the ones after it are real workers.
-    let marker = root.join("stuck");
-    let script = root.join("stuck-worker.sh");
-    std::fs::write(
-        &script,
-        format!(
-            "#!/bin/sh\nread plan\nread job\nif mkdir {marker:?} 2>/dev/null; then exec sleep 600; fi\n{{ echo \"$plan\"; echo \"$job\"; cat; }} | exec {exe:?} \"$1\"\n",
-            marker = marker,
-            exe = env!("CARGO_BIN_EXE_objslam")
-        ),
-    )
-    .unwrap();
-    std::fs::set_permissions(&script, std::fs::Permissions::from_mode(0o755)).unwrap();
+    let script = first_worker_then_real(&root, "stuck", "exec sleep 600");
     let workers = Workers::Processes { exe: script, count: 1, run_timeout: Some(std::time::Duration::from_secs(20)) };
     let started = std::time::Instant::now();
     let records = mc::run_study_with(&plan, Shard::all(), &root.join("study"), &workers, |_, _| {}).unwrap();
