@@ -260,7 +260,7 @@ struct MontecarloArgs {
     in_process: bool,
     /// Seconds a worker process may spend on one run before it is killed and the run
     /// recorded as retryable (resuming the study runs it again); 0: no limit.
-    #[arg(long, global = true, default_value_t = 1800.0)]
+    #[arg(long, global = true, default_value_t = 1800.0, allow_negative_numbers = true)]
     run_timeout: f64,
 }
 

@@ -25,8 +25,9 @@ use crate::visibility::InstanceImage;
 /// Errors of `objslam score`: each names the file, and the line where there is one.
 #[derive(Debug, thiserror::Error)]
 pub enum ScoreError {
-    #[error("{}: {source}", file.display())]
-    Io { file: PathBuf, source: std::io::Error },
+    /// The I/O error is in the message, not a `source()`: printed as a chain it would repeat.
+    #[error("{}: {error}", file.display())]
+    Io { file: PathBuf, error: std::io::Error },
     #[error("{}{}: {message}", file.display(), line.map(|l| format!(":{l}")).unwrap_or_default())]
     Invalid { file: PathBuf, line: Option<usize>, message: String },
     #[error(transparent)]
@@ -126,7 +127,7 @@ struct LogMetadata {
 }
 
 fn read_text(file: &Path) -> Result<String, ScoreError> {
-    std::fs::read_to_string(file).map_err(|source| ScoreError::Io { file: file.to_path_buf(), source })
+    std::fs::read_to_string(file).map_err(|error| ScoreError::Io { file: file.to_path_buf(), error })
 }
 
 fn field<T: serde::de::DeserializeOwned>(file: &Path, v: &serde_json::Value, path: &str) -> Result<T, ScoreError> {
