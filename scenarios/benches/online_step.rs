@@ -34,12 +34,14 @@ fn warmed_pipeline(warm_s: f64) -> (Pipeline, (f64, u32, u32, Vec<u8>), slam::me
     let mut image = None;
     while let Some(event) = sim.next_event() {
         match event {
-            SensorEvent::Odometry { odometry, .. } => pipeline.on_odometry(&slam::messages::OdometryIncrement {
-                t: odometry.t,
-                dx: odometry.dx,
-                dy: odometry.dy,
-                dtheta: odometry.dtheta,
-            }),
+            SensorEvent::Odometry { odometry, .. } => pipeline
+                .on_odometry(&slam::messages::OdometryIncrement {
+                    t: odometry.t,
+                    dx: odometry.dx,
+                    dy: odometry.dy,
+                    dtheta: odometry.dtheta,
+                })
+                .expect("odometry"),
             SensorEvent::Camera { frame, .. } => {
                 let img = &frame.image;
                 image = Some((frame.t, img.width, img.height, img.rgb.clone()));
@@ -51,7 +53,7 @@ fn warmed_pipeline(warm_s: f64) -> (Pipeline, (f64, u32, u32, Vec<u8>), slam::me
                 if s.t >= warm_s && fresh {
                     return (pipeline, image.expect("checked"), s);
                 }
-                pipeline.on_scan(&s);
+                pipeline.on_scan(&s).expect("scan");
             }
         }
     }
@@ -63,7 +65,7 @@ fn image_and_scan_in_the_park(bencher: Bencher) {
     let (pipeline, (t, w, h, rgb), scan) = warmed_pipeline(60.0);
     bencher.with_inputs(|| (pipeline.clone(), rgb.clone())).bench_local_values(|(mut p, rgb)| {
         p.on_image(t, w, h, rgb).expect("image");
-        let result = p.on_scan(&scan);
+        let result = p.on_scan(&scan).expect("scan");
         (p, result)
     });
 }

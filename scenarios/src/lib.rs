@@ -17,6 +17,7 @@ pub mod montecarlo;
 pub mod objects;
 pub mod plot;
 pub mod record;
+pub mod replay;
 pub mod ros2;
 pub mod run;
 pub mod scenario;

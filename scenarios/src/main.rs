@@ -90,11 +90,25 @@ enum Command {
         #[arg(long, conflicts_with = "scenario")]
         sim_config: Option<PathBuf>,
         /// `jsonl`: JSON lines, TUM, PNGs and a Foxglove MCAP; `ros2`: a ROS 2 bag
-        /// (`ros2 bag play OUT`).
+        /// (`ros2 bag play OUT`); `log`: a robot log for `objslam replay`.
         #[arg(long, value_enum, default_value_t = scenarios::record::RecordFormat::Jsonl)]
         format: scenarios::record::RecordFormat,
         #[arg(long)]
         out: PathBuf,
+    },
+    /// Run the `slam` pipeline on a recorded log: a real robot's (docs/reference/robot-log.md),
+    /// one that `objslam record --format log` wrote, or a published data set
+    /// (`objslam replay victoria-park --data DIR`). Writes what `objslam run` writes, where
+    /// it applies, scored against the log's ground truth or GPS.
+    #[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
+    Replay {
+        /// The log directory.
+        #[arg(required = true)]
+        log: Option<PathBuf>,
+        #[command(flatten)]
+        options: ReplayArgs,
+        #[command(subcommand)]
+        dataset: Option<ReplayDataset>,
     },
     /// Laser-camera extrinsic calibration (Zhang & Pless) on a scenario's checkerboard
     /// session; prints the errors against the simulator's true extrinsics.
@@ -355,6 +369,7 @@ fn run(cli: Cli) -> Result<()> {
             record(source, seed, duration, format, &out)
         }
         Some(Command::Score(args)) => score(args),
+        Some(Command::Replay { log, options, dataset }) => replay(log, options, dataset),
         Some(Command::Calibrate { scenario, poses, seed, out, images }) => {
             calibrate(scenario.as_deref().unwrap_or("calibration"), poses, seed, &out, images.as_deref())
         }
@@ -380,6 +395,55 @@ fn run(cli: Cli) -> Result<()> {
             Ok(())
         }
     }
+}
+
+/// What every replay takes.
+#[derive(clap::Args, Debug)]
+struct ReplayArgs {
+    /// Association method: `nn` or `jcbb` (the camera methods need images; default `nn`).
+    #[arg(long)]
+    method: Option<String>,
+    /// A TOML file of pipeline settings (`[pipeline]` keys, as in a scenario) over the
+    /// replay's defaults and the log's own `pipeline.toml`.
+    #[arg(long)]
+    config: Option<PathBuf>,
+    #[arg(long, required = true)]
+    out: Option<PathBuf>,
+}
+
+/// Published data sets that `objslam replay` reads as they are published.
+#[derive(Subcommand, Debug)]
+enum ReplayDataset {
+    /// Victoria Park (ACFR, University of Sydney: Guivant & Nebot). DIR holds the published
+    /// files: `VictoriaParkSinSincronizar.mat` (tree detections), or `aa3_dr.mat` with
+    /// `aa3_lsr2.mat`; and `aa3_gpsx.mat` for GPS.
+    VictoriaPark {
+        #[arg(long)]
+        data: PathBuf,
+        #[command(flatten)]
+        options: ReplayArgs,
+    },
+}
+
+fn replay(log: Option<PathBuf>, options: ReplayArgs, dataset: Option<ReplayDataset>) -> Result<()> {
+    let (log_dir, log, options) = match (dataset, log) {
+        (Some(ReplayDataset::VictoriaPark { data, options }), _) => {
+            (None, robotlog::victoria_park::read(&data)?, options)
+        }
+        (None, Some(dir)) => {
+            let log = robotlog::format::read(&dir)?;
+            (Some(dir), log, options)
+        }
+        (None, None) => anyhow::bail!("give a log directory, or a data set: `objslam replay victoria-park --data DIR`"),
+    };
+    let method = options.method.as_deref().map(parse_method).transpose()?;
+    let out = options.out.expect("clap requires --out");
+    let config = scenarios::replay::resolve_config(log_dir.as_deref(), &log, method, options.config.as_deref())?;
+    let result = scenarios::replay::replay(&log, config)?;
+    scenarios::replay::write_outputs(&out, &log, &result)?;
+    println!("{}", scenarios::replay::summary(&result.metrics));
+    println!("  outputs in {}", out.display());
+    Ok(())
 }
 
 fn score(args: ScoreArgs) -> Result<()> {
@@ -697,7 +761,7 @@ fn record(
     format: scenarios::record::RecordFormat,
     out: &std::path::Path,
 ) -> Result<()> {
-    let (world, mut config, sim_seed, scoring) = match source {
+    let (world, mut config, sim_seed, scoring, pipeline) = match source {
         RecordSource::World { input, sim_config } => {
             let seed = seed.unwrap_or(1);
             let config = match sim_config {
@@ -709,7 +773,7 @@ fn record(
                 }
                 None => sim::SimConfig::default(),
             };
-            (load_world(&input, seed)?, config, seed, scenarios::score::log::LogScoring::of_world())
+            (load_world(&input, seed)?, config, seed, scenarios::score::log::LogScoring::of_world(), None)
         }
         RecordSource::Scenario(name) => {
             let (sc, base) = scenarios::scenario::Scenario::load(&name)?;
@@ -721,6 +785,7 @@ fn record(
                 sc.sim.clone(),
                 sim::derive_seed(seed, "sim"),
                 scenarios::score::log::LogScoring::of_scenario(&sc, seed),
+                Some(scenarios::run::pipeline_config(&sc, None)?),
             )
         }
     };
@@ -728,10 +793,17 @@ fn record(
         config.max_duration_s = duration;
     }
     let bar = progress_bar(0, "recording");
-    let summary = scenarios::record::record(&world, &config, sim_seed, &scoring, out, format, |t, total| {
+    let show = |t: f64, total: f64| {
         bar.set_length(total.ceil() as u64);
         bar.set_position((t.floor() as u64).min(total.ceil() as u64));
-    })?;
+    };
+    let summary = match format {
+        // A scenario's log carries its pipeline settings, for `objslam replay`.
+        scenarios::record::RecordFormat::Log => {
+            scenarios::record::record_log(&world, &config, sim_seed, pipeline.as_ref(), out, show)?
+        }
+        _ => scenarios::record::record(&world, &config, sim_seed, &scoring, out, format, show)?,
+    };
     bar.finish_and_clear();
     println!(
         "recorded {:.1} s in {:.2} s ({:.0}x real time): {} scans, {} odometry messages, {} collisions -> {}",

@@ -448,6 +448,70 @@ fn draw_failure_rate<DB: DrawingBackend>(
     Ok(())
 }
 
+/// The map of a replayed log: the reference track (GPS or ground truth) in grey, the
+/// estimated path in blue and the mapped landmarks as black dots, all in the reference's
+/// frame.
+pub fn draw_replay_map(
+    title: &str,
+    path: &[[f64; 2]],
+    reference: &[[f64; 2]],
+    landmarks: &[[f64; 2]],
+    file: &Path,
+) -> Result<(), PlotError> {
+    register_fonts();
+    let all: Vec<&[f64; 2]> = path.iter().chain(reference).chain(landmarks).collect();
+    let (xs, ys): (Vec<f64>, Vec<f64>) = all.iter().map(|p| (p[0], p[1])).unzip();
+    let (x0, x1) = axis_range(&xs);
+    let (y0, y1) = axis_range(&ys);
+    // Equal scales on both axes: a map, not a chart.
+    let span = (x1 - x0).max(y1 - y0).max(1.0) * 1.05;
+    let (cx, cy) = (0.5 * (x0 + x1), 0.5 * (y0 + y1));
+    let draw = || -> Result<(), String> {
+        let e = |x: &dyn std::fmt::Display| x.to_string();
+        let root = BitMapBackend::new(file, (1000, 1000)).into_drawing_area();
+        root.fill(&WHITE).map_err(|x| e(&x))?;
+        let mut chart = ChartBuilder::on(&root)
+            .caption(title, ("sans-serif", 20))
+            .margin(15)
+            .x_label_area_size(40)
+            .y_label_area_size(50)
+            .build_cartesian_2d((cx - span / 2.0)..(cx + span / 2.0), (cy - span / 2.0)..(cy + span / 2.0))
+            .map_err(|x| e(&x))?;
+        chart
+            .configure_mesh()
+            .x_desc("x (m)")
+            .y_desc("y (m)")
+            .label_style(("sans-serif", 14))
+            .draw()
+            .map_err(|x| e(&x))?;
+        let grey = RGBColor(150, 150, 150);
+        chart
+            .draw_series(reference.iter().map(|p| Circle::new((p[0], p[1]), 1, grey.filled())))
+            .map_err(|x| e(&x))?
+            .label("reference")
+            .legend(move |(x, y)| Circle::new((x + 10, y), 3, grey.filled()));
+        chart
+            .draw_series(LineSeries::new(path.iter().map(|p| (p[0], p[1])), BLUE.stroke_width(1)))
+            .map_err(|x| e(&x))?
+            .label("estimate")
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], BLUE));
+        chart
+            .draw_series(landmarks.iter().map(|p| Circle::new((p[0], p[1]), 2, BLACK.filled())))
+            .map_err(|x| e(&x))?
+            .label("landmarks")
+            .legend(|(x, y)| Circle::new((x + 10, y), 3, BLACK.filled()));
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.9))
+            .border_style(BLACK)
+            .label_font(("sans-serif", 14))
+            .draw()
+            .map_err(|x| e(&x))?;
+        root.present().map_err(|x| e(&x))
+    };
+    draw().map_err(|message| PlotError { file: file.to_path_buf(), message })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -31,6 +31,8 @@ pub enum RecordError {
     Mcap(#[from] crate::foxglove::McapError),
     #[error(transparent)]
     Ros2(#[from] crate::ros2::Ros2Error),
+    #[error(transparent)]
+    Log(#[from] robotlog::LogError),
 }
 
 /// What `objslam record` writes.
@@ -41,6 +43,9 @@ pub enum RecordFormat {
     Jsonl,
     /// A ROS 2 bag: the directory holds `metadata.yaml` and one MCAP of CDR messages.
     Ros2,
+    /// A robot log (docs/reference/robot-log.md): plain CSV files that `objslam replay`
+    /// reads, as it reads a real robot's.
+    Log,
 }
 
 /// What a recording contains.
@@ -230,7 +235,106 @@ pub fn record(
     match format {
         RecordFormat::Jsonl => record_jsonl(world, config, seed, scoring, out, progress),
         RecordFormat::Ros2 => record_ros2(world, config, seed, out, progress),
+        RecordFormat::Log => record_log(world, config, seed, None, out, progress),
     }
+}
+
+/// The simulation's stream as a robot log in `out` (see [`robotlog::format`]): the noisy
+/// odometry, the raw laser scans and the robot's true pose as the reference. With
+/// `pipeline` (a scenario's settings), `pipeline.toml` beside it holds them, so that
+/// `objslam replay` estimates what `objslam run` does.
+pub fn record_log(
+    world: &worlds::World,
+    config: &SimConfig,
+    seed: u64,
+    pipeline: Option<&slam::pipeline::PipelineConfig>,
+    out: &Path,
+    mut progress: impl FnMut(f64, f64),
+) -> Result<RecordSummary, RecordError> {
+    let started = std::time::Instant::now();
+    // The log holds no images: rendering them would only cost (the camera's noise is a
+    // stream of its own, so the other sensors' messages are the same without it).
+    let mut without_camera = config.clone();
+    without_camera.camera.enabled = false;
+    let config = &without_camera;
+    let mut sim = Simulation::new(world, config, seed)?;
+    let nominal = config.max_duration_s.unwrap_or_else(|| sim.nominal_duration_s());
+    let (mut increments, mut scans, mut reference) = (Vec::new(), Vec::new(), Vec::new());
+    let mut camera_frames = 0;
+    let mut last_progress = -1.0;
+    while let Some(event) = sim.next_event() {
+        let t = event.time();
+        match event {
+            SensorEvent::Odometry { odometry: o, truth } => {
+                increments.push(slam::messages::OdometryIncrement { t: o.t, dx: o.dx, dy: o.dy, dtheta: o.dtheta });
+                let r = truth.robot;
+                reference.push(robotlog::ReferenceSample { t: o.t, x: r.x, y: r.y, theta: Some(r.theta) });
+            }
+            SensorEvent::Laser { scan, .. } => scans.push(crate::run::slam_scan(&scan)),
+            SensorEvent::Camera { .. } => camera_frames += 1,
+        }
+        if t - last_progress >= 1.0 {
+            progress(t, nominal);
+            last_progress = t;
+        }
+    }
+    let start = world.robot.start;
+    let [mx, my, _] = config.laser.mount_xyz_m;
+    let laser = scans.first().map(|s: &slam::messages::LaserScan| robotlog::manifest::LaserGeometry {
+        angle_min_rad: s.angle_min,
+        angle_increment_rad: s.angle_increment,
+        range_min_m: s.range_min,
+        range_max_m: s.range_max,
+    });
+    let sensor = pipeline.map(|p| p.sensor);
+    let log = robotlog::Log {
+        manifest: robotlog::Manifest {
+            format_version: 1,
+            name: world.name.clone(),
+            source: format!("objslam record, simulator seed {seed}"),
+            vehicle: robotlog::manifest::Vehicle {
+                motion: "odometry".into(),
+                wheelbase_m: None,
+                encoder_offset_m: None,
+                start_pose: [start.x, start.y, start.yaw_rad()],
+            },
+            sensor: robotlog::manifest::Sensor {
+                x_m: mx,
+                y_m: my,
+                yaw_rad: 0.0,
+                range_sigma_m: sensor.map(|s| s.range_sigma_m),
+                range_sigma_per_m: sensor.map(|s| s.range_sigma_per_m),
+                bearing_sigma_rad: sensor.map(|s| s.bearing_sigma_rad),
+            },
+            laser,
+            reference: Some(robotlog::manifest::Reference {
+                kind: robotlog::ReferenceKind::GroundTruth,
+                point: robotlog::ReferencePoint::Vehicle,
+            }),
+        },
+        motion: robotlog::Motion::Increments(increments),
+        observations: robotlog::Observations::Scans(scans),
+        reference,
+    };
+    robotlog::format::write(out, &log)?;
+    if let Some(p) = pipeline {
+        let file = out.join(crate::replay::PIPELINE_FILE);
+        let text =
+            toml::to_string(p).map_err(|e| RecordError::Io { file: file.clone(), source: std::io::Error::other(e) })?;
+        std::fs::write(&file, format!("# The pipeline settings of the scenario this log was recorded from.\n{text}"))
+            .map_err(|source| RecordError::Io { file, source })?;
+    }
+    progress(sim.time(), nominal);
+    Ok(RecordSummary {
+        sim_seconds: sim.time(),
+        wall_seconds: started.elapsed().as_secs_f64(),
+        scans: log.observations.len(),
+        odometry: log.motion.len(),
+        camera_frames,
+        renderer: sim.camera_adapter().map(|a| a.to_string()),
+        collisions: sim.collisions().len(),
+        route_completed: sim.route_progress() > 0.99,
+    })
 }
 
 /// The simulation's stream as a ROS 2 bag in `out` (see [`crate::ros2`]).

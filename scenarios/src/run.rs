@@ -41,7 +41,13 @@ pub enum RunError {
     #[error("appearance model: {0}")]
     Appearance(#[from] crate::appearance::AppearanceError),
     #[error("pipeline: {0}")]
-    Online(String),
+    Filter(#[from] slam::pipeline::PipelineError),
+    #[error("appearance model: {0}")]
+    Mixture(#[from] slam::gmm::GmmError),
+    #[error("the camera stopped during the run: {0}")]
+    CameraStopped(String),
+    #[error("{count} {what} in image columns the camera did not render (a bug; `--full-frames` renders whole frames)")]
+    Unrendered { what: &'static str, count: usize },
     #[error(transparent)]
     Objects(#[from] crate::objects::ObjectsError),
     #[error(transparent)]
@@ -447,14 +453,10 @@ pub fn run(
     let nominal = scenario.sim.max_duration_s.unwrap_or_else(|| sim.nominal_duration_s());
     let start = world.robot.start;
     let appearance = match &appearance_model {
-        Some(m) => Some(
-            Appearance::new((**m).clone(), camera_geometry(&scenario.sim, &calibration.extrinsics))
-                .map_err(|e| RunError::Online(e.to_string()))?,
-        ),
+        Some(m) => Some(Appearance::new((**m).clone(), camera_geometry(&scenario.sim, &calibration.extrinsics))?),
         None => None,
     };
-    let mut pipeline = Pipeline::with_appearance(config.clone(), [start.x, start.y, start.yaw_rad()], appearance)
-        .map_err(|e| RunError::Online(e.to_string()))?;
+    let mut pipeline = Pipeline::with_appearance(config.clone(), [start.x, start.y, start.yaw_rad()], appearance)?;
     // The camera renders only the columns segmentation will read, chosen from the scan of
     // the frame's instant as the pipeline will cluster it: most of each frame is never read.
     // Only where no other scan can use the frame (one within image_max_age_s of it): sensors
@@ -526,7 +528,7 @@ pub fn run(
                     dx: odometry.dx,
                     dy: odometry.dy,
                     dtheta: odometry.dtheta,
-                });
+                })?;
                 let est = pipeline.pose();
                 let r = truth.robot;
                 est_path.push((odometry.t, est.pose));
@@ -541,7 +543,7 @@ pub fn run(
             SensorEvent::Laser { scan, beams, truth } => {
                 let s = slam_scan(&scan);
                 let scan_tick = std::time::Instant::now();
-                let mut result = pipeline.on_scan(&s);
+                let mut result = pipeline.on_scan(&s)?;
                 scan_time += scan_tick.elapsed().as_secs_f64();
                 scans += 1;
                 // Only runs that write outputs keep the decisions (not Monte Carlo runs).
@@ -629,9 +631,7 @@ pub fn run(
                 let columns_rendered = img.columns.as_ref().map_or(img.width, |c| c.iter().map(|(a, b)| b - a).sum());
                 pixels_rendered += columns_rendered as u64 * img.height as u64;
                 pixels_framed += img.width as u64 * img.height as u64;
-                pipeline
-                    .on_image_columns(frame.t, img.width, img.height, img.rgb, img.columns.clone())
-                    .map_err(|e| RunError::Online(e.to_string()))?;
+                pipeline.on_image_columns(frame.t, img.width, img.height, img.rgb, img.columns.clone())?;
                 last_frame = Some(TruthImages {
                     t: frame.t,
                     width: img.width,
@@ -655,19 +655,19 @@ pub fn run(
     // A camera that stopped (a lost GPU device) leaves a camera method blind for the rest of
     // the run: its scores would not be the method's.
     if let Some(e) = sim.camera_error().filter(|_| camera_method) {
-        return Err(RunError::Online(format!("the camera stopped during the run: {e}")));
+        return Err(RunError::CameraStopped(e.to_string()));
     }
     if pipeline.unrendered_reads() > 0 {
-        return Err(RunError::Online(format!(
-            "{} clusters were not segmented: the camera did not render the image columns they read (a bug; `--full-frames` renders whole frames)",
-            pipeline.unrendered_reads()
-        )));
+        return Err(RunError::Unrendered {
+            what: "clusters were not segmented: they read pixels",
+            count: pipeline.unrendered_reads(),
+        });
     }
     if scorer.unrendered_reads() > 0 {
-        return Err(RunError::Online(format!(
-            "the tree-recall count read {} pixels in image columns the camera did not render (a bug; `--full-frames` renders whole frames)",
-            scorer.unrendered_reads()
-        )));
+        return Err(RunError::Unrendered {
+            what: "pixels read by the tree-recall count lie",
+            count: scorer.unrendered_reads(),
+        });
     }
     progress(sim.time(), nominal);
     let wall = started.elapsed().as_secs_f64();

@@ -1,4 +1,5 @@
-//! Online-phase benchmarks: one EKF update with 100 and 1,000 landmarks, one KL
+//! Online-phase benchmarks: one EKF update with 100 and 1,000 landmarks; one scan's
+//! updates (7 observations) at 500 landmarks, one by one and batched; one KL
 //! association of an observation model against 50 mapped object models, and one
 //! relinearisation after a loop closure (800 poses, 20 landmarks: `long_loop`'s size).
 //! `cargo bench -p slam --bench online`
@@ -31,6 +32,31 @@ fn ekf_update(bencher: Bencher, n: usize) {
     bencher.with_inputs(|| ekf.clone()).bench_local_values(|mut e| {
         let (z, _, _, _) = e.predict_observation(&model, n / 2);
         e.update(&model, n / 2, &Vector2::new(z.x + 0.01, z.y)).unwrap();
+        e
+    });
+}
+
+/// One scan of a real log at 500 landmarks (Victoria Park's median is 7 trees a scan):
+/// seven observations, each its own update, or one stacked update.
+#[divan::bench(args = [false, true])]
+fn scan_update_500_landmarks(bencher: Bencher, batched: bool) {
+    let (ekf, model) = filter_with(500);
+    let landmarks = [10, 80, 150, 220, 290, 360, 430];
+    let pairs: Vec<(usize, Vector2<f64>)> = landmarks
+        .iter()
+        .map(|&i| {
+            let (z, _, _, _) = ekf.predict_observation(&model, i);
+            (i, Vector2::new(z.x + 0.01, z.y))
+        })
+        .collect();
+    bencher.with_inputs(|| ekf.clone()).bench_local_values(|mut e| {
+        if batched {
+            e.update_batch(&model, &pairs).unwrap();
+        } else {
+            for (i, z) in &pairs {
+                e.update(&model, *i, z).unwrap();
+            }
+        }
         e
     });
 }

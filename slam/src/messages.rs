@@ -42,6 +42,45 @@ pub struct OdometryIncrement {
     pub dtheta: f64,
 }
 
+/// A vehicle's control, held until the next input: what a car's CAN bus or a
+/// differential drive's controller reports, where no odometry increments exist.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum Control {
+    /// Forward speed (m/s) and turn rate (rad/s), for the `odometry` motion model.
+    Differential { v: f64, omega: f64 },
+    /// Speed (m/s) and steering angle (rad, positive left), for the `ackermann` model.
+    Ackermann { speed: f64, steering: f64 },
+}
+
+/// A point feature extracted from a scan by the robot's own detector: range (m) and
+/// bearing (rad, counter-clockwise from the sensor's forward axis, REP-103) from the
+/// sensor, and the object's diameter (m) where the detector measures one.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Detection {
+    pub range_m: f64,
+    pub bearing_rad: f64,
+    pub diameter_m: Option<f64>,
+}
+
+impl Detection {
+    /// The detection as the pipeline's cluster (index `k` stands for its beams; no points;
+    /// an unknown diameter is NaN).
+    pub fn as_cluster(&self, k: usize) -> crate::clustering::Cluster {
+        let (s, c) = self.bearing_rad.sin_cos();
+        crate::clustering::Cluster {
+            first_beam: k,
+            last_beam: k,
+            points: Vec::new(),
+            centre: [self.range_m * c, self.range_m * s],
+            diameter_m: self.diameter_m.unwrap_or(f64::NAN),
+            range_m: self.range_m,
+            bearing_rad: self.bearing_rad,
+            occluded: false,
+        }
+    }
+}
+
 /// Wraps an angle to (-pi, pi].
 pub fn wrap_angle(a: f64) -> f64 {
     let mut a = a.rem_euclid(std::f64::consts::TAU);

@@ -14,17 +14,16 @@ use nalgebra::{DMatrix, DVector, Matrix2, Matrix3, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::association::{
-    AssociationDecision, AssociationMethod, Candidate, Choice, chi2_quantile, jcbb::jcbb, jcbb::unambiguous_jcbb,
-    nn::nearest_neighbour,
+    AssociationDecision, AssociationMethod, Candidate, Choice, chi2_quantile, jcbb::jcbb_with, jcbb::unambiguous_jcbb,
 };
 use crate::classifier::{AppearanceModel, PatchClassifier};
 use crate::clustering::{Cluster, ClusteringConfig, cluster};
 use crate::ekf::smoother::{History, Relinearisation, SmootherError};
-use crate::ekf::{Ekf, MotionModel, OdometryMotionModel, RangeBearingModel};
+use crate::ekf::{Ekf, MotionConfig, MotionModel, RangeBearingModel};
 use crate::evidence::{EvidenceConfig, Judgement, ObjectEvidence};
 use crate::features::ImageRef;
 use crate::gmm::{Gmm, StudentTMixture};
-use crate::messages::{LaserScan, OdometryIncrement};
+use crate::messages::{Control, Detection, LaserScan, OdometryIncrement};
 use crate::object_model::{ObjectModel, ObjectModelConfig, ObjectObservation, fit_observation};
 use crate::segmentation::{
     CameraGeometry, ImageRegion, SegmentationConfig, SegmentedCluster, locate_cluster, segment_located, spans_cover,
@@ -38,7 +37,8 @@ use rayon::prelude::*;
 pub struct PipelineConfig {
     pub method: AssociationMethod,
     pub clustering: ClusteringConfig,
-    pub motion: OdometryMotionModel,
+    /// The vehicle model (`model = "odometry"` or `"ackermann"`, see [`MotionConfig`]).
+    pub motion: MotionConfig,
     pub sensor: RangeBearingModel,
     /// Probability of the chi-square gate for individual association (2 dof).
     pub gate_probability: f64,
@@ -94,6 +94,11 @@ pub struct PipelineConfig {
     /// data hardly constrain the odometry's calibration, and the batch solution can move
     /// the pose further off than the filter had it (docs/results.md).
     pub relinearise_every_s: Option<f64>,
+    /// Position-only methods: update the filter once per scan with all its associated
+    /// observations stacked, instead of once per observation. At hundreds of landmarks the
+    /// filter's cost is the passes over its covariance, one per update; the stacked update
+    /// makes one. The estimate differs from the sequential one only in linearisation points.
+    pub batch_updates: bool,
 }
 
 /// The laser's trunk diameter as an association cue: an observation is compatible with a
@@ -106,6 +111,10 @@ pub struct PipelineConfig {
 #[serde(default, deny_unknown_fields)]
 pub struct DiameterCheck {
     pub enabled: bool,
+    /// Also a cue for the position-only methods (`nn`, `jcbb`): a landmark whose diameter
+    /// disagrees is not a candidate. Off by default, where the simulator's figures were
+    /// measured without it; real logs whose detections carry a diameter turn it on.
+    pub for_position_methods: bool,
     pub sigma_m: f64,
     pub sigma_per_m: f64,
     pub max_sigmas: f64,
@@ -113,7 +122,7 @@ pub struct DiameterCheck {
 
 impl Default for DiameterCheck {
     fn default() -> Self {
-        DiameterCheck { enabled: true, sigma_m: 0.01, sigma_per_m: 0.003, max_sigmas: 3.0 }
+        DiameterCheck { enabled: true, for_position_methods: false, sigma_m: 0.01, sigma_per_m: 0.003, max_sigmas: 3.0 }
     }
 }
 
@@ -121,7 +130,8 @@ impl DiameterCheck {
     /// Whether a cluster of `diameter_m` at `range_m` may be a landmark of mean diameter
     /// `landmark_m` from `observations` clusters.
     pub fn compatible(&self, diameter_m: f64, range_m: f64, landmark_m: f64, observations: usize) -> bool {
-        if !self.enabled {
+        // A detection without a diameter (NaN) fits any landmark.
+        if !self.enabled || !diameter_m.is_finite() || !landmark_m.is_finite() {
             return true;
         }
         let sigma = (self.sigma_m + self.sigma_per_m * range_m) * (1.0 + 1.0 / observations.max(1) as f64).sqrt();
@@ -212,7 +222,7 @@ impl Default for PipelineConfig {
         PipelineConfig {
             method: AssociationMethod::Combined,
             clustering: ClusteringConfig::default(),
-            motion: OdometryMotionModel::default(),
+            motion: MotionConfig::default(),
             sensor: RangeBearingModel::default(),
             gate_probability: 0.99,
             new_landmark_probability: 0.999,
@@ -231,6 +241,7 @@ impl Default for PipelineConfig {
             merge: MergeConfig::default(),
             relinearise_loop_closures: true,
             relinearise_every_s: None,
+            batch_updates: false,
         }
     }
 }
@@ -427,6 +438,23 @@ pub struct ClusterSegmentation {
 }
 
 /// The L x L RGB pixels (row-major) of patch (`col`, `row`) of an image `width` pixels wide.
+/// The index of the smallest distance under `gate` (the first of equals), if any.
+fn nearest_within(distances: &[f64], gate: f64) -> Option<usize> {
+    distances.iter().enumerate().filter(|(_, d)| **d < gate).min_by(|a, b| a.1.total_cmp(b.1)).map(|(i, _)| i)
+}
+
+/// A landmark's mean diameter after one more observation; detections without a diameter
+/// (NaN) leave it as it was.
+fn mean_diameter(mean: f64, observations: usize, diameter: f64) -> f64 {
+    if !diameter.is_finite() {
+        mean
+    } else if !mean.is_finite() {
+        diameter
+    } else {
+        (mean * observations as f64 + diameter) / (observations + 1) as f64
+    }
+}
+
 fn patch_pixels(rgb: &[u8], width: u32, col: u32, row: u32, l: u32) -> Vec<u8> {
     let (w, l) = (width as usize, l as usize);
     let (x0, y0) = (col as usize * l, row as usize * l);
@@ -471,6 +499,8 @@ pub struct Pipeline {
     relinearisations: Vec<Result<Relinearisation, SmootherError>>,
     /// When the latest relinearisation was tried.
     relinearised_at: f64,
+    /// The latest control and the time it was given: it holds until the next input.
+    control: Option<(f64, Control)>,
 }
 
 /// Errors of the online pipeline.
@@ -482,6 +512,16 @@ pub enum PipelineError {
     Image { width: u32, height: u32, expected: usize, found: usize },
     #[error("pipeline settings: {0}")]
     Invalid(#[from] InvalidSetting),
+    #[error("{input} at t = {t} s comes before the previous input at t = {previous} s: inputs must be in time order")]
+    TimeReversed { input: &'static str, t: f64, previous: f64 },
+    #[error("{input} at t = {t} s holds a value that is not finite")]
+    NonFinite { input: &'static str, t: f64 },
+    #[error("the `{model}` motion model cannot use {input}")]
+    MotionInput { model: &'static str, input: &'static str },
+    #[error("association method `{0}` observes objects in camera images: it cannot use point detections")]
+    DetectionsNeedPositionMethod(&'static str),
+    #[error("{given} object flags for {clusters} clusters")]
+    ObjectFlags { given: usize, clusters: usize },
 }
 
 impl Pipeline {
@@ -521,9 +561,35 @@ impl Pipeline {
             history,
             relinearisations: Vec::new(),
             relinearised_at: 0.0,
+            control: None,
         };
         p.record_pose();
         p
+    }
+
+    /// The same pipeline with its clock starting at `t` (a log's first instant), so the
+    /// first pose is stamped `t` rather than 0 and earlier inputs are errors.
+    pub fn starting_at(mut self, t: f64) -> Self {
+        self.t = t;
+        self.relinearised_at = t;
+        self.record_pose();
+        self
+    }
+
+    /// The time of the latest input.
+    pub fn time(&self) -> f64 {
+        self.t
+    }
+
+    /// Refuses an input stamped before the previous one.
+    fn check_time(&self, input: &'static str, t: f64) -> Result<(), PipelineError> {
+        if !t.is_finite() {
+            return Err(PipelineError::NonFinite { input, t });
+        }
+        if t < self.t {
+            return Err(PipelineError::TimeReversed { input, t, previous: self.t });
+        }
+        Ok(())
     }
 
     /// A pipeline for any method; the appearance methods need `appearance`.
@@ -620,29 +686,114 @@ impl Pipeline {
         self.appearance.as_ref()
     }
 
-    pub fn on_odometry(&mut self, o: &OdometryIncrement) {
-        self.ekf.predict(&self.config.motion, &[o.dx, o.dy, o.dtheta]);
-        if let Some(h) = &mut self.history {
-            h.push_control([o.dx, o.dy, o.dtheta], self.ekf.pose());
+    /// Odometry: the motion since the previous message, in the robot frame (the `odometry`
+    /// motion model).
+    pub fn on_odometry(&mut self, o: &OdometryIncrement) -> Result<(), PipelineError> {
+        self.check_time("odometry", o.t)?;
+        if ![o.dx, o.dy, o.dtheta].iter().all(|v| v.is_finite()) {
+            return Err(PipelineError::NonFinite { input: "odometry", t: o.t });
         }
-        let [x, y, th] = self.odometry_pose;
-        let (s, c) = th.sin_cos();
-        self.odometry_pose =
-            [x + c * o.dx - s * o.dy, y + s * o.dx + c * o.dy, crate::messages::wrap_angle(th + o.dtheta)];
-        self.t = o.t;
+        if !matches!(self.config.motion, MotionConfig::Odometry(_)) {
+            return Err(PipelineError::MotionInput { model: self.config.motion.name(), input: "odometry increments" });
+        }
+        self.predict([o.dx, o.dy, o.dtheta], o.t);
+        Ok(())
+    }
+
+    /// A control (speeds, or speed and steering) that holds from `t` until the next input:
+    /// the pipeline first moves on to `t` with the control held so far, so odometry needs no
+    /// splitting at scan times.
+    pub fn on_control(&mut self, t: f64, control: Control) -> Result<(), PipelineError> {
+        self.check_time("control", t)?;
+        let finite = match control {
+            Control::Differential { v, omega } => v.is_finite() && omega.is_finite(),
+            Control::Ackermann { speed, steering } => speed.is_finite() && steering.is_finite(),
+        };
+        if !finite {
+            return Err(PipelineError::NonFinite { input: "control", t });
+        }
+        match (control, self.config.motion) {
+            (Control::Differential { .. }, MotionConfig::Odometry(_))
+            | (Control::Ackermann { .. }, MotionConfig::Ackermann(_)) => {}
+            (Control::Differential { .. }, m) => {
+                return Err(PipelineError::MotionInput { model: m.name(), input: "differential-drive controls" });
+            }
+            (Control::Ackermann { .. }, m) => {
+                return Err(PipelineError::MotionInput { model: m.name(), input: "speed and steering controls" });
+            }
+        }
+        self.advance_to(t);
+        self.control = Some((t, control));
+        Ok(())
+    }
+
+    /// Moves the filter on to `t` with the control held since the previous input (nothing
+    /// when there is none, as with odometry increments).
+    fn advance_to(&mut self, t: f64) {
+        let Some((_, control)) = self.control else { return };
+        let dt = t - self.t;
+        if dt <= 0.0 {
+            return;
+        }
+        let u = match control {
+            // Along the arc of constant speeds, in the robot frame at the start.
+            Control::Differential { v, omega } => {
+                let turn = omega * dt;
+                let (dx, dy) = if turn.abs() < 1e-9 {
+                    (v * dt, 0.5 * v * dt * turn)
+                } else {
+                    (v / omega * turn.sin(), v / omega * (1.0 - turn.cos()))
+                };
+                [dx, dy, turn]
+            }
+            Control::Ackermann { speed, steering } => [speed, steering, dt],
+        };
+        self.predict(u, t);
+    }
+
+    /// The prediction with control `u` of the motion model, up to time `t`.
+    fn predict(&mut self, u: [f64; 3], t: f64) {
+        self.ekf.predict(&self.config.motion, &u);
+        if let Some(h) = &mut self.history {
+            h.push_control(u, self.ekf.pose());
+        }
+        // The dead-reckoned pose follows the same model, without the filter's corrections.
+        let (next, _, _) = self.config.motion.predict(&Vector3::from(self.odometry_pose), &u);
+        self.odometry_pose = [next.x, next.y, next.z];
+        self.t = t;
         self.record_pose();
+    }
+
+    /// Point features already extracted from a scan (range, bearing and, where known,
+    /// diameter, as in Victoria Park's tree detections), for the position-only methods.
+    pub fn on_detections(&mut self, t: f64, detections: &[Detection]) -> Result<ScanReport, PipelineError> {
+        self.check_time("detections", t)?;
+        if self.config.method.uses_appearance() {
+            return Err(PipelineError::DetectionsNeedPositionMethod(self.config.method.name()));
+        }
+        if detections.iter().any(|d| {
+            !(d.range_m.is_finite() && d.bearing_rad.is_finite()) || d.diameter_m.is_some_and(|v| !v.is_finite())
+        }) {
+            return Err(PipelineError::NonFinite { input: "detections", t });
+        }
+        self.advance_to(t);
+        let clusters: Vec<Cluster> = detections.iter().enumerate().map(|(k, d)| d.as_cluster(k)).collect();
+        let keep = vec![true; clusters.len()];
+        Ok(self.observe_positions(t, clusters, &keep, "unknown"))
     }
 
     /// Processes a scan. Position-only methods: every size-compatible cluster is an
     /// observation. Appearance methods: the clusters are segmented in the latest image (if
     /// it is recent enough) and only objects are observed.
-    pub fn on_scan(&mut self, scan: &LaserScan) -> ScanReport {
+    pub fn on_scan(&mut self, scan: &LaserScan) -> Result<ScanReport, PipelineError> {
+        self.check_time("scan", scan.t)?;
+        self.advance_to(scan.t);
         let clusters = cluster(scan, &self.config.clustering);
         if self.config.method.uses_appearance() {
-            return self.on_scan_with_appearance(scan.t, clusters);
+            return Ok(self.on_scan_with_appearance(scan.t, clusters));
         }
         let keep = vec![true; clusters.len()];
-        self.on_scan_with_objects(scan.t, clusters, &keep, "unknown")
+        Ok(self.observe_positions(scan.t, clusters, &keep, "unknown"))
     }
 
     /// Map-frame position of a laser-frame point, and the rotation robot -> map.
@@ -1043,14 +1194,24 @@ impl Pipeline {
     }
 
     /// Processes clusters of which only those with `is_object[i]` are observations of
-    /// objects of interest (labelled `class`).
+    /// objects of interest (labelled `class`), for the position-only association.
     pub fn on_scan_with_objects(
         &mut self,
         t: f64,
         clusters: Vec<Cluster>,
         is_object: &[bool],
         class: &str,
-    ) -> ScanReport {
+    ) -> Result<ScanReport, PipelineError> {
+        if is_object.len() != clusters.len() {
+            return Err(PipelineError::ObjectFlags { given: is_object.len(), clusters: clusters.len() });
+        }
+        self.check_time("scan", t)?;
+        self.advance_to(t);
+        Ok(self.observe_positions(t, clusters, is_object, class))
+    }
+
+    /// Position-only association and the filter's update for one scan's clusters.
+    fn observe_positions(&mut self, t: f64, clusters: Vec<Cluster>, is_object: &[bool], class: &str) -> ScanReport {
         self.t = t;
         let idx: Vec<usize> = (0..clusters.len()).filter(|&i| is_object[i] && !clusters[i].occluded).collect();
         let zs: Vec<Vector2<f64>> =
@@ -1058,19 +1219,76 @@ impl Pipeline {
         let gate = chi2_quantile(2, self.config.gate_probability);
         let new_gate = chi2_quantile(2, self.config.new_landmark_probability);
         let n_before = self.ekf.landmark_count();
+        let diameter = &self.config.diameter;
+        let use_diameter = diameter.for_position_methods;
+        // Each landmark's predicted observation and inverse innovation covariance, once a
+        // scan rather than once an observation (the same numbers as Ekf::mahalanobis2).
+        let predicted: Vec<(Vector2<f64>, Option<Matrix2<f64>>)> = if zs.is_empty() {
+            Vec::new()
+        } else {
+            (0..n_before)
+                .map(|j| {
+                    let (zp, _, _, s) = self.ekf.predict_observation(&self.config.sensor, j);
+                    (zp, s.try_inverse())
+                })
+                .collect()
+        };
         let distances: Vec<Vec<f64>> = zs
             .iter()
-            .map(|z| (0..n_before).map(|j| self.ekf.mahalanobis2(&self.config.sensor, j, z)).collect())
+            .zip(&idx)
+            .map(|(z, &ci)| {
+                predicted
+                    .iter()
+                    .enumerate()
+                    .map(|(j, (zp, s_inv))| {
+                        let lm = &self.landmarks[j];
+                        if use_diameter
+                            && !diameter.compatible(clusters[ci].diameter_m, z.x, lm.diameter_m, lm.observations)
+                        {
+                            return f64::INFINITY;
+                        }
+                        let nu = Vector2::new(z.x - zp.x, crate::messages::wrap_angle(z.y - zp.y));
+                        match s_inv {
+                            Some(si) => (nu.transpose() * si * nu)[(0, 0)],
+                            None => f64::INFINITY,
+                        }
+                    })
+                    .collect()
+            })
             .collect();
         let pairing: Vec<Option<usize>> = match self.config.method {
-            AssociationMethod::Jcbb => jcbb(&self.ekf, &self.config.sensor, &zs, gate, self.config.jcbb_probability),
-            // Appearance methods fall back to nearest neighbour on position until their
+            AssociationMethod::Jcbb => {
+                let allowed: Vec<Vec<bool>> =
+                    distances.iter().map(|row| row.iter().map(|d| *d < gate).collect()).collect();
+                jcbb_with(&self.ekf, &self.config.sensor, &zs, &allowed, self.config.jcbb_probability)
+            }
+            // Nearest neighbour; appearance methods fall back to it until their
             // observations carry object models.
-            _ => nearest_neighbour(&self.ekf, &self.config.sensor, &zs, gate).into_iter().map(|r| r.landmark).collect(),
+            _ => distances.iter().map(|row| nearest_within(row, gate)).collect(),
         };
         let mut assigned = vec![None; clusters.len()];
         // Updates first (against the landmarks that existed before this scan), then new
         // landmarks, so the order of observations does not matter.
+        let updated: Vec<bool> = if self.config.batch_updates {
+            let pairs: Vec<(usize, Vector2<f64>)> =
+                pairing.iter().zip(&zs).filter_map(|(j, z)| j.map(|j| (j, *z))).collect();
+            match self.ekf.update_batch(&self.config.sensor, &pairs) {
+                Ok(()) => pairing.iter().map(|j| j.is_some()).collect(),
+                // A stacked innovation covariance that is not positive definite: the
+                // observations one by one, each accepted or refused on its own.
+                Err(_) => pairing
+                    .iter()
+                    .zip(&zs)
+                    .map(|(j, z)| j.is_some_and(|j| self.ekf.update(&self.config.sensor, j, z).is_ok()))
+                    .collect(),
+            }
+        } else {
+            pairing
+                .iter()
+                .zip(&zs)
+                .map(|(j, z)| j.is_some_and(|j| self.ekf.update(&self.config.sensor, j, z).is_ok()))
+                .collect()
+        };
         let mut new_ones = Vec::new();
         for (k, &ci) in idx.iter().enumerate() {
             let candidates: Vec<Candidate> = distances[k]
@@ -1080,21 +1298,17 @@ impl Pipeline {
                 .map(|(j, d)| Candidate { landmark: self.landmarks[j].id, mahalanobis2: *d, kl: None })
                 .collect();
             let choice = match pairing[k] {
-                Some(j) => {
-                    if self.ekf.update(&self.config.sensor, j, &zs[k]).is_ok() {
-                        let lm = &mut self.landmarks[j];
-                        lm.diameter_m = (lm.diameter_m * lm.observations as f64 + clusters[ci].diameter_m)
-                            / (lm.observations + 1) as f64;
-                        lm.observations += 1;
-                        assigned[ci] = Some(lm.id);
-                        if let Some(h) = &mut self.history {
-                            h.observe(lm.id, zs[k]);
-                        }
-                        Choice::Existing { landmark: lm.id }
-                    } else {
-                        Choice::Rejected
+                Some(j) if updated[k] => {
+                    let lm = &mut self.landmarks[j];
+                    lm.diameter_m = mean_diameter(lm.diameter_m, lm.observations, clusters[ci].diameter_m);
+                    lm.observations += 1;
+                    assigned[ci] = Some(lm.id);
+                    if let Some(h) = &mut self.history {
+                        h.observe(lm.id, zs[k]);
                     }
+                    Choice::Existing { landmark: lm.id }
                 }
+                Some(_) => Choice::Rejected,
                 None if distances[k].iter().all(|d| *d > new_gate) => {
                     new_ones.push((k, ci));
                     Choice::Rejected // replaced below once the id exists
@@ -1110,11 +1324,17 @@ impl Pipeline {
             });
         }
         let first_decision = self.decisions.len() - idx.len();
+        if self.config.batch_updates {
+            let new_zs: Vec<Vector2<f64>> = new_ones.iter().map(|&(k, _)| zs[k]).collect();
+            self.ekf.add_landmarks(&self.config.sensor, &new_zs);
+        } else {
+            for &(k, _) in &new_ones {
+                self.ekf.add_landmark(&self.config.sensor, &zs[k]);
+            }
+        }
         for (k, ci) in new_ones {
-            let j = self.ekf.add_landmark(&self.config.sensor, &zs[k]);
             let id = self.next_id;
             self.next_id += 1;
-            debug_assert_eq!(j, self.landmarks.len());
             self.landmarks.push(Landmark {
                 id,
                 position: [0.0; 2],
@@ -1133,6 +1353,7 @@ impl Pipeline {
                 h.observe(id, zs[k]);
             }
         }
+        debug_assert_eq!(self.ekf.landmark_count(), self.landmarks.len());
         self.note_co_observed(&assigned);
         self.refresh_landmarks();
         if let Some(h) = &mut self.history {
@@ -1215,29 +1436,36 @@ impl Pipeline {
         // Past the gate and the sigma bound, two positions are at most this far apart.
         let reach = gate.sqrt() * cfg.max_sigma_m * std::f64::consts::SQRT_2;
         loop {
-            let mut pair = None;
-            'search: for i in 0..self.landmarks.len() {
-                if !self.landmarks[i].confirmed {
-                    continue;
-                }
-                let li = self.ekf.landmark(i);
-                for j in i + 1..self.landmarks.len() {
-                    let (a, b) = (self.landmarks[i].id, self.landmarks[j].id);
-                    if !self.landmarks[j].confirmed
-                        || (self.ekf.landmark(j) - li).norm() > reach
-                        || self.co_observed.contains(&(a.min(b), a.max(b)))
-                    {
-                        continue;
+            // Pairs of confirmed landmarks within reach, found by a sweep along x rather
+            // than over all pairs (the map holds hundreds on a real log), then taken in
+            // (i, j) order as a search over all pairs would meet them.
+            let mut order: Vec<(f64, usize)> = (0..self.landmarks.len())
+                .filter(|&i| self.landmarks[i].confirmed)
+                .map(|i| (self.ekf.landmark(i).x, i))
+                .collect();
+            order.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            let mut near = Vec::new();
+            for (k, &(xa, a)) in order.iter().enumerate() {
+                let la = self.ekf.landmark(a);
+                for &(xb, b) in &order[k + 1..] {
+                    if xb - xa > reach {
+                        break;
                     }
-                    let (m2, c) = self.ekf.landmark_difference(i, j);
-                    let widest = c.symmetric_eigenvalues().max();
-                    if m2 > gate || widest > cfg.max_sigma_m * cfg.max_sigma_m || !self.look_alike(i, j) {
-                        continue;
+                    if (self.ekf.landmark(b) - la).norm() <= reach {
+                        near.push((a.min(b), a.max(b)));
                     }
-                    pair = Some((i, j));
-                    break 'search;
                 }
             }
+            near.sort_unstable();
+            let pair = near.into_iter().find(|&(i, j)| {
+                let (a, b) = (self.landmarks[i].id, self.landmarks[j].id);
+                if self.co_observed.contains(&(a.min(b), a.max(b))) {
+                    return false;
+                }
+                let (m2, c) = self.ekf.landmark_difference(i, j);
+                let widest = c.symmetric_eigenvalues().max();
+                m2 <= gate && widest <= cfg.max_sigma_m * cfg.max_sigma_m && self.look_alike(i, j)
+            });
             let Some((i, j)) = pair else { break };
             if self.ekf.merge_landmarks(i, j, cfg.noise_sigma_m).is_err() {
                 break;
@@ -1353,10 +1581,10 @@ mod merge_tests {
         let mut p = Pipeline::new(config, [0.0; 3]);
         let (a, b) = (cluster_at(5.0, 0.0), cluster_at(5.0, 0.5));
         if seen_together {
-            p.on_scan_with_objects(0.1, vec![a, b], &[true, true], "tree");
+            p.on_scan_with_objects(0.1, vec![a, b], &[true, true], "tree").unwrap();
         } else {
-            p.on_scan_with_objects(0.1, vec![a], &[true], "tree");
-            p.on_scan_with_objects(0.2, vec![b], &[true], "tree");
+            p.on_scan_with_objects(0.1, vec![a], &[true], "tree").unwrap();
+            p.on_scan_with_objects(0.2, vec![b], &[true], "tree").unwrap();
         }
         assert_eq!(p.landmarks().len(), 2);
         let (l0, l1) = (p.ekf.landmark_offset(), p.ekf.landmark_offset() + 2);
@@ -1427,7 +1655,7 @@ mod association_rule_tests {
             bearing_rad: 0.0,
             occluded: false,
         };
-        p.on_scan_with_objects(0.1, vec![c], &[true], "tree");
+        p.on_scan_with_objects(0.1, vec![c], &[true], "tree").unwrap();
         p.objects[0] = Some(ObjectModel {
             gmm: density(0.0),
             patches: 20.0,
@@ -1488,5 +1716,128 @@ mod association_rule_tests {
             DiameterCheck { sigma_m: 0.0, sigma_per_m: 0.0, ..Default::default() }.validate().unwrap_err().0,
             "sigma_m"
         );
+    }
+}
+
+#[cfg(test)]
+mod input_tests {
+    use super::*;
+    use crate::ekf::AckermannMotionModel;
+
+    fn car_config(method: AssociationMethod) -> PipelineConfig {
+        PipelineConfig {
+            method,
+            motion: MotionConfig::Ackermann(AckermannMotionModel::default()),
+            confirm_observations: 1,
+            ..Default::default()
+        }
+    }
+
+    fn detection(range_m: f64, bearing_rad: f64, diameter_m: f64) -> Detection {
+        Detection { range_m, bearing_rad, diameter_m: Some(diameter_m) }
+    }
+
+    #[test]
+    fn inputs_out_of_time_order_are_errors() {
+        let mut p = Pipeline::new(PipelineConfig { method: AssociationMethod::Nn, ..Default::default() }, [0.0; 3])
+            .starting_at(100.0);
+        assert_eq!(p.pose().t, 100.0, "the first pose is stamped at the log's start");
+        let early = OdometryIncrement { t: 99.0, dx: 0.1, dy: 0.0, dtheta: 0.0 };
+        assert!(matches!(p.on_odometry(&early), Err(PipelineError::TimeReversed { t: 99.0, previous: 100.0, .. })));
+        p.on_odometry(&OdometryIncrement { t: 101.0, ..early }).unwrap();
+        let bad = p.on_detections(100.5, &[]).unwrap_err();
+        assert!(bad.to_string().contains("t = 100.5 s comes before the previous input at t = 101 s"), "{bad}");
+        let nan = OdometryIncrement { t: 102.0, dx: f64::NAN, dy: 0.0, dtheta: 0.0 };
+        assert!(matches!(p.on_odometry(&nan), Err(PipelineError::NonFinite { .. })));
+        assert!(matches!(
+            p.on_scan_with_objects(103.0, vec![detection(5.0, 0.0, 0.3).as_cluster(0)], &[], "tree"),
+            Err(PipelineError::ObjectFlags { given: 0, clusters: 1 })
+        ));
+        // A car's controls do not fit the odometry model, nor increments the car model.
+        assert!(matches!(
+            p.on_control(104.0, Control::Ackermann { speed: 1.0, steering: 0.0 }),
+            Err(PipelineError::MotionInput { model: "odometry", .. })
+        ));
+        let mut car = Pipeline::new(car_config(AssociationMethod::Nn), [0.0; 3]);
+        assert!(matches!(
+            car.on_odometry(&OdometryIncrement { t: 1.0, ..early }),
+            Err(PipelineError::MotionInput { .. })
+        ));
+        let mut combined = Pipeline::new(PipelineConfig::default(), [0.0; 3]);
+        assert!(matches!(combined.on_detections(1.0, &[]), Err(PipelineError::DetectionsNeedPositionMethod(_))));
+    }
+
+    #[test]
+    fn a_held_control_moves_the_car_up_to_each_detection() {
+        let mut p = Pipeline::new(car_config(AssociationMethod::Nn), [0.0; 3]);
+        p.on_control(0.0, Control::Ackermann { speed: 2.0, steering: 0.0 }).unwrap();
+        // No further control: the detections at 1.5 s find the car 3 m on.
+        p.on_detections(1.5, &[]).unwrap();
+        assert!((p.pose().pose[0] - 3.0).abs() < 1e-12 && p.pose().t == 1.5);
+        p.on_control(2.0, Control::Ackermann { speed: 0.0, steering: 0.0 }).unwrap();
+        assert!((p.pose().pose[0] - 4.0).abs() < 1e-12);
+        // A differential drive's speeds through the odometry model: a quarter circle.
+        let mut robot = Pipeline::new(PipelineConfig { method: AssociationMethod::Nn, ..Default::default() }, [0.0; 3]);
+        robot.on_control(0.0, Control::Differential { v: 1.0, omega: std::f64::consts::FRAC_PI_2 }).unwrap();
+        robot.on_detections(1.0, &[]).unwrap();
+        let r = 2.0 / std::f64::consts::PI;
+        let [x, y, th] = robot.pose().pose;
+        assert!((x - r).abs() < 1e-9 && (y - r).abs() < 1e-9 && (th - std::f64::consts::FRAC_PI_2).abs() < 1e-9);
+    }
+
+    #[test]
+    fn the_diameter_cue_keeps_a_thin_post_off_a_thick_tree() {
+        // A thick tree mapped at 10 m; then, from the same place, a thin one 0.4 m beside
+        // it, well inside the position gate of a filter this unsure.
+        let run = |for_position_methods: bool| {
+            let config = PipelineConfig {
+                diameter: DiameterCheck { for_position_methods, ..Default::default() },
+                sensor: RangeBearingModel { range_sigma_m: 0.3, bearing_sigma_rad: 0.05, ..Default::default() },
+                ..car_config(AssociationMethod::Nn)
+            };
+            let mut p = Pipeline::new(config, [0.0; 3]);
+            p.on_detections(0.1, &[detection(10.0, 0.0, 0.8)]).unwrap();
+            let report = p.on_detections(0.2, &[detection(10.0, 0.04, 0.2)]).unwrap();
+            report.decisions[0].choice
+        };
+        assert_eq!(run(false), Choice::Existing { landmark: 0 }, "position alone takes the tree");
+        assert!(!matches!(run(true), Choice::Existing { .. }), "the diameter refuses it");
+        // Without a diameter the detection fits any landmark.
+        let d = DiameterCheck::default();
+        assert!(d.compatible(f64::NAN, 10.0, 0.8, 3) && d.compatible(0.2, 10.0, f64::NAN, 1));
+    }
+
+    #[test]
+    fn batched_updates_make_the_same_associations() {
+        // A car driving along a row of trees, detections with a little noise: the batched
+        // and sequential filters associate identically and end within centimetres.
+        let trees: Vec<[f64; 2]> = (0..12).map(|k| [4.0 * k as f64, if k % 2 == 0 { 6.0 } else { -5.0 }]).collect();
+        let run = |batch_updates: bool| {
+            let mut p = Pipeline::new(PipelineConfig { batch_updates, ..car_config(AssociationMethod::Nn) }, [0.0; 3]);
+            let mut choices = Vec::new();
+            for step in 0..100 {
+                let t = step as f64 * 0.25;
+                p.on_control(t, Control::Ackermann { speed: 2.0 * 1.01, steering: 0.002 }).unwrap();
+                let truth = [2.0 * t, 0.0];
+                let dets: Vec<Detection> = trees
+                    .iter()
+                    .enumerate()
+                    .filter_map(|(k, tr)| {
+                        let (dx, dy) = (tr[0] - truth[0] - 0.16, tr[1] - truth[1]);
+                        let r = dx.hypot(dy);
+                        let noise = ((step * 7 + k * 3) % 5) as f64 * 0.004 - 0.008;
+                        (r < 15.0).then(|| detection(r + noise, dy.atan2(dx) + noise * 0.1, 0.3))
+                    })
+                    .collect();
+                let report = p.on_detections(t + 0.1, &dets).unwrap();
+                choices.extend(report.decisions.into_iter().map(|d| d.choice));
+            }
+            (choices, p.pose().pose)
+        };
+        let (seq_choices, seq_pose) = run(false);
+        let (batch_choices, batch_pose) = run(true);
+        assert_eq!(seq_choices, batch_choices);
+        assert!(seq_choices.iter().filter(|c| matches!(c, Choice::Existing { .. })).count() > 300);
+        assert!((seq_pose[0] - batch_pose[0]).hypot(seq_pose[1] - batch_pose[1]) < 0.02, "{seq_pose:?} {batch_pose:?}");
     }
 }

@@ -177,7 +177,7 @@ impl Search<'_> {
                     + hra * prl_b * hlb.transpose()
                     + hla * pla_r * hrb.transpose()
                     + hla * pla_lb * hlb.transpose();
-                let block = if a == b { block + self.model.noise() } else { block };
+                let block = if a == b { block + self.model.noise_at(self.prep.pred[ja].0.x) } else { block };
                 s.view_mut((2 * a, 2 * b), (2, 2)).copy_from(&block);
                 if a != b {
                     s.view_mut((2 * b, 2 * a), (2, 2)).copy_from(&block.transpose());
@@ -203,7 +203,13 @@ mod tests {
         // b and c at 0.08 and 0.16. Individually nearest: a and b, implying heading errors
         // of 0.08 and 0.04 at once, impossible with 0.002 rad bearing noise. Jointly, only
         // (b, c) fits one common heading error.
-        let model = RangeBearingModel { mount_x: 0.0, mount_y: 0.0, range_sigma_m: 0.02, bearing_sigma_rad: 0.002 };
+        let model = RangeBearingModel {
+            mount_x: 0.0,
+            mount_y: 0.0,
+            range_sigma_m: 0.02,
+            range_sigma_per_m: 0.0,
+            bearing_sigma_rad: 0.002,
+        };
         let mut ekf =
             Ekf::new(Vector3::new(0.0, 0.0, 0.0), Matrix3::new(1e-6, 0.0, 0.0, 0.0, 1e-6, 0.0, 0.0, 0.0, 0.02));
         for bearing in [0.0f64, 0.20, 0.28] {
@@ -227,7 +233,13 @@ mod tests {
 
     #[test]
     fn jcbb_leaves_spurious_observations_unpaired() {
-        let model = RangeBearingModel { mount_x: 0.0, mount_y: 0.0, range_sigma_m: 0.02, bearing_sigma_rad: 0.01 };
+        let model = RangeBearingModel {
+            mount_x: 0.0,
+            mount_y: 0.0,
+            range_sigma_m: 0.02,
+            range_sigma_per_m: 0.0,
+            bearing_sigma_rad: 0.01,
+        };
         let mut ekf = Ekf::new(Vector3::zeros(), Matrix3::identity() * 1e-4);
         ekf.add_landmark(&model, &Vector2::new(4.0, 0.5));
         ekf.add_landmark(&model, &Vector2::new(6.0, -0.5));
@@ -239,7 +251,13 @@ mod tests {
     /// fits two ways (a symmetric map, a large heading uncertainty) is not.
     #[test]
     fn an_ambiguous_constellation_is_refused() {
-        let model = RangeBearingModel { mount_x: 0.0, mount_y: 0.0, range_sigma_m: 0.02, bearing_sigma_rad: 0.002 };
+        let model = RangeBearingModel {
+            mount_x: 0.0,
+            mount_y: 0.0,
+            range_sigma_m: 0.02,
+            range_sigma_per_m: 0.0,
+            bearing_sigma_rad: 0.002,
+        };
         // Heading sigma 0.5 rad: both observations gate with every landmark.
         let pose_cov = Matrix3::new(1e-6, 0.0, 0.0, 0.0, 1e-6, 0.0, 0.0, 0.0, 0.25);
         let place = |bearings: &[f64]| {

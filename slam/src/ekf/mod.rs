@@ -4,7 +4,10 @@
 //! motion model's calibration parameters, if it estimates any (the vehicle block is the
 //! pose and those). Prediction touches only the
 //! vehicle block and its cross-covariances (O(n)); an update uses the sparsity of the
-//! observation Jacobian (O(n²) per observation, one pass over P). Updates are in Joseph
+//! observation Jacobian (O(n²) per observation, one pass over P), and a scan's
+//! observations can be stacked into one update ([`Ekf::update_batch`], one pass over P for
+//! them all). Landmarks are added a scan at a time and removed in place, without copies
+//! of P. Single updates are in Joseph
 //! form, expanded as `P - K(HP) - (HP)ᵀKᵀ + K S Kᵀ`, which equals
 //! `(I-KH)P(I-KH)ᵀ + KRKᵀ` for any gain, evaluated so that P stays exactly symmetric.
 //! Jacobians can be taken at first estimates ([`FirstEstimates`]), which keeps the global
@@ -18,7 +21,7 @@ pub mod synthetic;
 use nalgebra::{DMatrix, DVector, Matrix2, Matrix3, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
-pub use motion::{AckermannMotionModel, CalibratedPrediction, MotionModel, OdometryMotionModel};
+pub use motion::{AckermannMotionModel, CalibratedPrediction, MotionConfig, MotionModel, OdometryMotionModel};
 pub use observation::RangeBearingModel;
 
 use crate::messages::wrap_angle;
@@ -184,7 +187,7 @@ impl Ekf {
             + hr * prl * hl.transpose()
             + hl * prl.transpose() * hr.transpose()
             + hl * pll * hl.transpose()
-            + model.noise();
+            + model.noise_at(z.x);
         (z, hr, hl, s)
     }
 
@@ -289,29 +292,135 @@ impl Ekf {
         Ok(())
     }
 
+    /// Updates with several observations at once, `(landmark, z)` pairs, as one stacked
+    /// observation: one pass over P for the whole scan where [`Ekf::update`] makes one per
+    /// observation, which is what costs at hundreds of landmarks. The result differs from
+    /// the sequential updates only in where the later observations are linearised (at the
+    /// prior rather than at the estimate after the earlier ones).
+    pub fn update_batch(&mut self, model: &RangeBearingModel, pairs: &[(usize, Vector2<f64>)]) -> Result<(), EkfError> {
+        if let Some(&(i, _)) = pairs.iter().find(|(i, _)| *i >= self.landmark_count()) {
+            return Err(EkfError::UnknownLandmark(i));
+        }
+        if pairs.iter().any(|(_, z)| !(z.x.is_finite() && z.y.is_finite())) {
+            return Err(EkfError::NonFinite);
+        }
+        let n = self.x.len();
+        let m = 2 * pairs.len();
+        if m == 0 {
+            return Ok(());
+        }
+        let rows: Vec<_> = pairs
+            .iter()
+            .map(|(i, z)| {
+                let (zp, hr, hl, _) = self.predict_observation(model, *i);
+                (self.vehicle_dims + 2 * i, Vector2::new(z.x - zp.x, wrap_angle(z.y - zp.y)), hr, hl, zp.x)
+            })
+            .collect();
+        // W = P Hᵀ (n x m, column-major), from the five columns of P each observation touches.
+        let pcol = |c: usize| &self.p.as_slice()[c * n..(c + 1) * n];
+        let mut w = vec![0.0; n * m];
+        for (a, (li, _, hr, hl, _)) in rows.iter().enumerate() {
+            for k in 0..2 {
+                let col = &mut w[(2 * a + k) * n..(2 * a + k + 1) * n];
+                let terms = [
+                    (pcol(0), hr[(k, 0)]),
+                    (pcol(1), hr[(k, 1)]),
+                    (pcol(2), hr[(k, 2)]),
+                    (pcol(*li), hl[(k, 0)]),
+                    (pcol(li + 1), hl[(k, 1)]),
+                ];
+                for (src, h) in terms {
+                    for (o, v) in col.iter_mut().zip(src) {
+                        *o += v * h;
+                    }
+                }
+            }
+        }
+        // S = H W + R.
+        let mut s = DMatrix::zeros(m, m);
+        for (a, (li, _, hr, hl, range)) in rows.iter().enumerate() {
+            for col in 0..m {
+                let wc = &w[col * n..(col + 1) * n];
+                for k in 0..2 {
+                    s[(2 * a + k, col)] = hr[(k, 0)] * wc[0]
+                        + hr[(k, 1)] * wc[1]
+                        + hr[(k, 2)] * wc[2]
+                        + hl[(k, 0)] * wc[*li]
+                        + hl[(k, 1)] * wc[li + 1];
+                }
+            }
+            let r = model.noise_at(*range);
+            for (k, l) in [(0, 0), (0, 1), (1, 0), (1, 1)] {
+                s[(2 * a + k, 2 * a + l)] += r[(k, l)];
+            }
+        }
+        let s = 0.5 * (&s + s.transpose());
+        let chol = s.cholesky().ok_or(EkfError::NotPositiveDefinite)?;
+        let nu = DVector::from_iterator(m, rows.iter().flat_map(|r| [r.1.x, r.1.y]));
+        // x += W S⁻¹ ν.
+        let s_inv_nu = chol.solve(&nu);
+        for (col, c) in s_inv_nu.iter().enumerate() {
+            for (xr, wr) in self.x.iter_mut().zip(&w[col * n..(col + 1) * n]) {
+                *xr += wr * c;
+            }
+        }
+        self.x[2] = wrap_angle(self.x[2]);
+        // P -= W S⁻¹ Wᵀ = V Vᵀ with V = W L⁻ᵀ (S = L Lᵀ).
+        let wt = DMatrix::from_fn(m, n, |r, c| w[r * n + c]);
+        let vt = chol.l().solve_lower_triangular(&wt).ok_or(EkfError::NotPositiveDefinite)?; // m x n
+        let vcols: Vec<Vec<f64>> = (0..m).map(|k| vt.row(k).iter().copied().collect()).collect();
+        subtract_outer_product(self.p.as_mut_slice(), n, &vcols);
+        Ok(())
+    }
+
     /// Adds a landmark from observation `z` with full cross-covariances; returns its index.
     pub fn add_landmark(&mut self, model: &RangeBearingModel, z: &Vector2<f64>) -> usize {
-        let (l, gr, gz) = model.inverse(&self.pose(), z);
+        self.add_landmarks(model, std::slice::from_ref(z)).start
+    }
+
+    /// Adds one landmark per observation in `zs`, all seen from the current pose, with one
+    /// growth of the covariance (adding them one by one copies it once each); returns their
+    /// indices. The result is the same as adding them one at a time.
+    pub fn add_landmarks(&mut self, model: &RangeBearingModel, zs: &[Vector2<f64>]) -> std::ops::Range<usize> {
+        let first = self.landmark_count();
+        if zs.is_empty() {
+            return first..first;
+        }
         let n = self.x.len();
-        let mut x = DVector::zeros(n + 2);
-        x.rows_mut(0, n).copy_from(&self.x);
-        x[n] = l.x;
-        x[n + 1] = l.y;
-        let mut p = DMatrix::zeros(n + 2, n + 2);
-        p.view_mut((0, 0), (n, n)).copy_from(&self.p);
-        // P_lx = Gr P_rx ; P_ll = Gr P_rr Grᵀ + Gz R Gzᵀ.
-        let prx = self.p.view((0, 0), (3, n)).into_owned();
-        let plx = gr * prx;
-        p.view_mut((n, 0), (2, n)).copy_from(&plx);
-        p.view_mut((0, n), (n, 2)).copy_from(&plx.transpose());
-        let pll = gr * self.pose_covariance() * gr.transpose() + gz * model.noise() * gz.transpose();
-        p.view_mut((n, n), (2, 2)).copy_from(&pll);
+        let m = 2 * zs.len();
+        let pose = self.pose();
+        let prr = self.pose_covariance();
+        let jacobians: Vec<_> = zs.iter().map(|z| (model.inverse(&pose, z), z.x)).collect();
+        // Grow in place: the old entries keep their place in the top-left block.
+        let mut p = std::mem::replace(&mut self.p, DMatrix::zeros(0, 0)).resize(n + m, n + m, 0.0);
+        let prx = p.view((0, 0), (3, n)).into_owned();
+        for (a, ((l, gr, gz), range)) in jacobians.iter().enumerate() {
+            let la = n + 2 * a;
+            // P_lx = Gr P_rx (x: the old state and the landmarks added before this one);
+            // P_ll = Gr P_rr Grᵀ + Gz R Gzᵀ.
+            let plx = gr * &prx;
+            p.view_mut((la, 0), (2, n)).copy_from(&plx);
+            p.view_mut((0, la), (n, 2)).copy_from(&plx.transpose());
+            for (b, ((_, gr_b, _), _)) in jacobians[..a].iter().enumerate() {
+                let lb = n + 2 * b;
+                let cross = gr * prr * gr_b.transpose();
+                p.view_mut((la, lb), (2, 2)).copy_from(&cross);
+                p.view_mut((lb, la), (2, 2)).copy_from(&cross.transpose());
+            }
+            let pll = gr * prr * gr.transpose() + gz * model.noise_at(*range) * gz.transpose();
+            p.view_mut((la, la), (2, 2)).copy_from(&pll);
+            if let Some(fe) = &mut self.first_estimates {
+                fe.landmarks.push(*l);
+            }
+        }
+        let mut x = std::mem::replace(&mut self.x, DVector::zeros(0)).resize_vertically(n + m, 0.0);
+        for (a, ((l, _, _), _)) in jacobians.iter().enumerate() {
+            x[n + 2 * a] = l.x;
+            x[n + 2 * a + 1] = l.y;
+        }
         self.x = x;
         self.p = p;
-        if let Some(fe) = &mut self.first_estimates {
-            fe.landmarks.push(l);
-        }
-        self.landmark_count() - 1
+        first..self.landmark_count()
     }
 
     /// Squared Mahalanobis distance between landmarks `i` and `j` (the covariance of their
@@ -365,12 +474,100 @@ impl Ekf {
     /// Removes landmark `i` (its rows and columns), shifting later indices down.
     pub fn remove_landmark(&mut self, i: usize) {
         let li = self.vehicle_dims + 2 * i;
-        self.x = self.x.clone().remove_rows(li, 2);
-        self.p = self.p.clone().remove_rows(li, 2).remove_columns(li, 2);
+        // Shrunk in place, not copied.
+        self.x = std::mem::replace(&mut self.x, DVector::zeros(0)).remove_rows(li, 2);
+        self.p = std::mem::replace(&mut self.p, DMatrix::zeros(0, 0)).remove_rows(li, 2).remove_columns(li, 2);
         if let Some(fe) = &mut self.first_estimates {
             fe.landmarks.remove(i);
         }
     }
+}
+
+/// `p` (n x n, column-major) minus `V Vᵀ`, where `v[k]` is column k of V (n long). Every
+/// entry is computed, column by column, so `p` is written in one stream (computing only
+/// the lower triangle and mirroring it costs more in scattered writes than it saves in
+/// arithmetic); entry (i, j) and entry (j, i) add the same products in the same order, so
+/// `p` stays exactly as symmetric as it was.
+fn subtract_outer_product(p: &mut [f64], n: usize, v: &[Vec<f64>]) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx") {
+        // SAFETY: the processor has AVX, checked just above.
+        return unsafe { subtract_outer_product_avx(p, n, v) };
+    }
+    subtract_outer_product_body(p, n, v)
+}
+
+/// The same loops compiled for AVX's 4-wide f64 registers (the baseline x86-64 target has
+/// 2-wide SSE). Without FMA every product and sum is rounded as in the baseline code, so
+/// results are bit-identical on every x86-64 processor.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+unsafe fn subtract_outer_product_avx(p: &mut [f64], n: usize, v: &[Vec<f64>]) {
+    subtract_outer_product_body(p, n, v)
+}
+
+/// A tile of rows x columns whose sums stay in registers over all of V's columns: each
+/// value of V loaded serves four columns.
+const TILE_ROWS: usize = 8;
+const TILE_COLS: usize = 4;
+
+#[inline(always)]
+fn subtract_outer_product_body(p: &mut [f64], n: usize, v: &[Vec<f64>]) {
+    let mut w = vec![[0.0; TILE_COLS]; v.len()];
+    let mut j = 0;
+    while j + TILE_COLS <= n {
+        for (wk, vk) in w.iter_mut().zip(v) {
+            wk.copy_from_slice(&vk[j..j + TILE_COLS]);
+        }
+        let cols = &mut p[j * n..(j + TILE_COLS) * n];
+        let mut r = 0;
+        while r + TILE_ROWS <= n {
+            let sums = outer_tile(v, &w, r);
+            for (c, s) in sums.iter().enumerate() {
+                for (pij, a) in cols[c * n + r..c * n + r + TILE_ROWS].iter_mut().zip(s) {
+                    *pij -= a;
+                }
+            }
+            r += TILE_ROWS;
+        }
+        for c in 0..TILE_COLS {
+            for i in r..n {
+                cols[c * n + i] -= outer_entry(v, i, j + c);
+            }
+        }
+        j += TILE_COLS;
+    }
+    for jj in j..n {
+        for i in 0..n {
+            p[jj * n + i] -= outer_entry(v, i, jj);
+        }
+    }
+}
+
+/// Sums over k of v_k[i0 + r] v_k[j + c] for a tile, added in k order from zero, as
+/// [`outer_entry`] adds them.
+#[inline(always)]
+fn outer_tile(v: &[Vec<f64>], w: &[[f64; TILE_COLS]], i0: usize) -> [[f64; TILE_ROWS]; TILE_COLS] {
+    let mut acc = [[0.0f64; TILE_ROWS]; TILE_COLS];
+    for (vk, wk) in v.iter().zip(w) {
+        let s = &vk[i0..i0 + TILE_ROWS];
+        for c in 0..TILE_COLS {
+            for r in 0..TILE_ROWS {
+                acc[c][r] += s[r] * wk[c];
+            }
+        }
+    }
+    acc
+}
+
+/// Sum over k of v_k[i] v_k[j], added in k order from zero.
+#[inline(always)]
+fn outer_entry(v: &[Vec<f64>], i: usize, j: usize) -> f64 {
+    let mut a = 0.0;
+    for vk in v {
+        a += vk[i] * vk[j];
+    }
+    a
 }
 
 #[cfg(test)]

@@ -6,13 +6,16 @@ use serde::{Deserialize, Serialize};
 use crate::messages::wrap_angle;
 
 /// A range-bearing sensor at `(mount_x, mount_y)` in the robot frame, bearings measured
-/// from the robot's heading.
+/// from the robot's heading. The range noise may grow with range (`range_sigma_per_m`): a
+/// tree's centre from a circle fit at 40 m is worse than at 4 m, as the beams spread.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct RangeBearingModel {
     pub mount_x: f64,
     pub mount_y: f64,
     pub range_sigma_m: f64,
+    /// Added to `range_sigma_m` per metre of range.
+    pub range_sigma_per_m: f64,
     pub bearing_sigma_rad: f64,
 }
 
@@ -20,7 +23,13 @@ impl Default for RangeBearingModel {
     fn default() -> Self {
         // Cluster centres are noisier than single beams: a few centimetres and about a
         // degree, covering the circle fit and the laser's angular resolution.
-        RangeBearingModel { mount_x: 0.16, mount_y: 0.0, range_sigma_m: 0.05, bearing_sigma_rad: 1.0f64.to_radians() }
+        RangeBearingModel {
+            mount_x: 0.16,
+            mount_y: 0.0,
+            range_sigma_m: 0.05,
+            range_sigma_per_m: 0.0,
+            bearing_sigma_rad: 1.0f64.to_radians(),
+        }
     }
 }
 
@@ -38,11 +47,19 @@ impl RangeBearingModel {
                 return Err((name, format!("must be positive, got {v}")));
             }
         }
+        if !(self.range_sigma_per_m.is_finite() && self.range_sigma_per_m >= 0.0) {
+            return Err((
+                "range_sigma_per_m",
+                format!("must be finite and not negative, got {}", self.range_sigma_per_m),
+            ));
+        }
         Ok(())
     }
 
-    pub fn noise(&self) -> Matrix2<f64> {
-        Matrix2::new(self.range_sigma_m.powi(2), 0.0, 0.0, self.bearing_sigma_rad.powi(2))
+    /// The observation noise of a landmark at `range_m`.
+    pub fn noise_at(&self, range_m: f64) -> Matrix2<f64> {
+        let sigma_r = self.range_sigma_m + self.range_sigma_per_m * range_m.abs();
+        Matrix2::new(sigma_r * sigma_r, 0.0, 0.0, self.bearing_sigma_rad.powi(2))
     }
 
     fn sensor(&self, pose: &Vector3<f64>) -> (f64, f64) {

@@ -290,8 +290,6 @@ impl History {
             normal.add(calibration, &w, &[(Var::Border(3), DMatrix::identity(nc, nc))]);
         }
         let cal = calibration.as_slice();
-        let r_inv = sensor.noise().try_inverse().unwrap_or_else(|| Matrix2::identity() * 1e12);
-        let r_inv = DMatrix::from_column_slice(2, 2, r_inv.as_slice());
         for (k, node) in self.nodes.iter().enumerate() {
             if k > 0 {
                 // Odometry from pose k - 1: composed prediction, its Jacobians and noise.
@@ -326,6 +324,8 @@ impl History {
                 let Some(j) = slot(*id) else { continue };
                 let (zp, hr, hl) = sensor.observe(&poses[k], &landmarks[j]);
                 let r = DVector::from_column_slice(&[zp.x - z.x, wrap_angle(zp.y - z.y)]);
+                let r_inv = sensor.noise_at(zp.x).try_inverse().unwrap_or_else(|| Matrix2::identity() * 1e12);
+                let r_inv = DMatrix::from_column_slice(2, 2, r_inv.as_slice());
                 normal.add(
                     &r,
                     &r_inv,

@@ -312,7 +312,13 @@ fn merging_two_estimates_of_one_point_fuses_them() {
 /// single linearisation does, and the covariance stays symmetric positive definite.
 #[test]
 fn iterated_update_relinearises_large_corrections() {
-    let m = RangeBearingModel { mount_x: 0.0, mount_y: 0.0, range_sigma_m: 0.01, bearing_sigma_rad: 0.001 };
+    let m = RangeBearingModel {
+        mount_x: 0.0,
+        mount_y: 0.0,
+        range_sigma_m: 0.01,
+        range_sigma_per_m: 0.0,
+        bearing_sigma_rad: 0.001,
+    };
     let build = || {
         let mut ekf = Ekf::new(Vector3::zeros(), Matrix3::identity() * 1e-6);
         ekf.add_landmark(&m, &Vector2::new(4.0, 0.0));
@@ -387,4 +393,89 @@ fn first_estimates_keep_the_global_heading_unobservable() {
     assert!(first > 0.99, "first estimates: heading variance fell to {first} of its start");
     // Measured: 0.07 with the latest estimates, 1.002 with first estimates.
     assert!(standard < 0.5, "latest estimates: heading variance only fell to {standard} of its start");
+}
+
+/// A filter with `count` landmarks around the robot, correlated through a few updates.
+fn filter_with_landmarks(count: usize) -> (Ekf, RangeBearingModel) {
+    let m = RangeBearingModel { range_sigma_per_m: 0.01, ..Default::default() };
+    let mut ekf = Ekf::new(Vector3::new(1.0, 2.0, 0.3), Matrix3::from_diagonal(&Vector3::new(0.04, 0.04, 0.01)));
+    for k in 0..count {
+        let a = k as f64 * 0.7;
+        ekf.add_landmark(&m, &Vector2::new(3.0 + (k % 5) as f64, a.sin() * 1.4));
+    }
+    ekf.predict(&OdometryMotionModel::default(), &[0.5, 0.0, 0.05]);
+    (ekf, m)
+}
+
+#[test]
+fn adding_landmarks_together_equals_adding_them_one_by_one() {
+    let (base, m) = filter_with_landmarks(4);
+    let zs = [Vector2::new(4.0, 0.2), Vector2::new(7.5, -1.1), Vector2::new(2.0, 2.5)];
+    let mut one_by_one = base.clone();
+    for z in &zs {
+        one_by_one.add_landmark(&m, z);
+    }
+    let mut together = base.clone();
+    assert_eq!(together.add_landmarks(&m, &zs), 4..7);
+    assert!((&together.x - &one_by_one.x).amax() < 1e-12);
+    assert!((&together.p - &one_by_one.p).amax() < 1e-12, "{}", (&together.p - &one_by_one.p).amax());
+    // Nothing to add changes nothing.
+    assert_eq!(together.clone().add_landmarks(&m, &[]), 7..7);
+}
+
+#[test]
+fn batched_update_agrees_with_sequential_updates() {
+    let (base, m) = filter_with_landmarks(12);
+    // Observations of five landmarks, a little off their predictions.
+    let pairs: Vec<(usize, Vector2<f64>)> = [1usize, 3, 4, 8, 11]
+        .iter()
+        .enumerate()
+        .map(|(k, &i)| {
+            let (z, _, _, _) = base.predict_observation(&m, i);
+            (i, z + Vector2::new(0.03 * (k as f64 - 2.0), 0.004 * k as f64))
+        })
+        .collect();
+    let sequential_of = |pairs: &[(usize, Vector2<f64>)]| {
+        let mut e = base.clone();
+        for (i, z) in pairs {
+            e.update(&m, *i, z).unwrap();
+        }
+        e
+    };
+    // Observations exactly as predicted leave the linearisation points where they were:
+    // then the batch is the sequential updates to rounding.
+    let exact: Vec<_> = pairs.iter().map(|&(i, _)| (i, base.predict_observation(&m, i).0)).collect();
+    let mut batched = base.clone();
+    batched.update_batch(&m, &exact).unwrap();
+    let sequential = sequential_of(&exact);
+    assert!((&batched.x - &sequential.x).amax() < 1e-12);
+    assert!((&batched.p - &sequential.p).amax() < 1e-12, "{}", (&batched.p - &sequential.p).amax());
+    // With innovations the later sequential updates linearise elsewhere: close, not equal.
+    let mut batched = base.clone();
+    batched.update_batch(&m, &pairs).unwrap();
+    let sequential = sequential_of(&pairs);
+    assert!((&batched.x - &sequential.x).amax() < 2e-3, "{}", (&batched.x - &sequential.x).amax());
+    let asymmetry = |p: &DMatrix<f64>| (p - p.transpose()).amax();
+    assert!(asymmetry(&batched.p) <= asymmetry(&base.p), "the update adds no asymmetry");
+    assert!(batched.p.clone().cholesky().is_some());
+    // One observation: the batch is the plain update.
+    let mut single = base.clone();
+    single.update_batch(&m, &pairs[..1]).unwrap();
+    let mut plain = base.clone();
+    plain.update(&m, pairs[0].0, &pairs[0].1).unwrap();
+    assert!((&single.x - &plain.x).amax() < 1e-12 && (&single.p - &plain.p).amax() < 1e-12);
+    // Misuse is an error that leaves the filter as it was.
+    let mut bad = base.clone();
+    assert_eq!(bad.update_batch(&m, &[(12, Vector2::new(1.0, 0.0))]), Err(EkfError::UnknownLandmark(12)));
+    assert_eq!(bad.update_batch(&m, &[(0, Vector2::new(f64::NAN, 0.0))]), Err(EkfError::NonFinite));
+    assert!(bad == base);
+}
+
+#[test]
+fn range_dependent_noise_widens_far_observations() {
+    let m = RangeBearingModel { range_sigma_m: 0.05, range_sigma_per_m: 0.01, ..Default::default() };
+    assert!((m.noise_at(0.0)[(0, 0)] - 0.0025).abs() < 1e-15);
+    assert!((m.noise_at(40.0)[(0, 0)] - 0.45f64.powi(2)).abs() < 1e-12);
+    assert_eq!(m.noise_at(40.0)[(1, 1)], m.noise_at(0.0)[(1, 1)]);
+    assert_eq!(RangeBearingModel { range_sigma_per_m: -1.0, ..m }.validate().unwrap_err().0, "range_sigma_per_m");
 }

@@ -1,0 +1,346 @@
+//! Victoria Park (ACFR, University of Sydney; Guivant & Nebot): a utility car with a SICK
+//! laser driving 26 minutes through a Sydney park, among trees. The data's licence is not
+//! stated, so objslam reads the files where the user put them and never ships them.
+//!
+//! Two published forms are read, from one directory:
+//! - the ACFR originals: `aa3_dr.mat` (`time` ms, `speed` m/s of the rear left wheel,
+//!   `steering` rad, at 40 Hz) with `aa3_lsr2.mat` (`TLsr` ms, `LASER` N x 361 ranges in cm,
+//!   0.5 degree steps from the right, above 8000 cm no return);
+//! - the tree detections found in public EKF-SLAM benchmarks,
+//!   `VictoriaParkSinSincronizar.mat`: `time` s, `u` = [speed; steering], `TLsr` s and `zt`,
+//!   per scan a 3 x N matrix [range m; bearing rad, 0..pi with pi/2 straight ahead;
+//!   diameter m]. Used when present.
+//!
+//! `aa3_gpsx.mat` (`timeGps` ms, `Lo_m`, `La_m`) is the reference where present: GPS of the
+//! laser's position, with gaps and spikes.
+//!
+//! The car's geometry (REFERENCES: wheelbase 2.83 m, encoder 0.76 m left of the rear
+//! axle's centre, laser 3.78 m ahead of the rear axle and 0.5 m to its left; info.txt's
+//! 0.95 m is measured from the front axle) goes into the manifest.
+
+use std::path::Path;
+
+use matrw::{MatFile, MatVariable};
+use slam::messages::{Control, Detection, LaserScan};
+
+use crate::manifest::{LaserGeometry, Reference, ReferenceKind, ReferencePoint, Sensor, Vehicle};
+use crate::{DetectionScan, Log, LogError, Manifest, Motion, Observations, ReferenceSample};
+
+pub const DETECTIONS_FILE: &str = "VictoriaParkSinSincronizar.mat";
+pub const DEAD_RECKONING_FILE: &str = "aa3_dr.mat";
+pub const LASER_FILE: &str = "aa3_lsr2.mat";
+pub const GPS_FILE: &str = "aa3_gpsx.mat";
+
+/// Wheelbase (m).
+pub const WHEELBASE_M: f64 = 2.83;
+/// The speed encoder's wheel: rear left, this far from the rear axle's centre (m).
+pub const ENCODER_OFFSET_M: f64 = 0.76;
+/// The laser: ahead of the rear axle, and to the left (m).
+pub const LASER_X_M: f64 = 3.78;
+pub const LASER_Y_M: f64 = 0.5;
+
+/// Reads the data set in `dir` (either form, see the module documentation).
+pub fn read(dir: &Path) -> Result<Log, LogError> {
+    let (motion, observations) = if dir.join(DETECTIONS_FILE).exists() {
+        read_detections_form(&dir.join(DETECTIONS_FILE))?
+    } else if dir.join(DEAD_RECKONING_FILE).exists() && dir.join(LASER_FILE).exists() {
+        (read_dead_reckoning(&dir.join(DEAD_RECKONING_FILE))?, read_laser(&dir.join(LASER_FILE))?)
+    } else {
+        return Err(LogError::Missing {
+            dir: dir.to_path_buf(),
+            what: "Victoria Park files",
+            expected: "VictoriaParkSinSincronizar.mat, or aa3_dr.mat with aa3_lsr2.mat (aa3_gpsx.mat for GPS)",
+        });
+    };
+    let gps_file = dir.join(GPS_FILE);
+    let reference = if gps_file.exists() { read_gps(&gps_file)? } else { Vec::new() };
+    let laser = matches!(observations, Observations::Scans(_)).then(|| LaserGeometry {
+        angle_min_rad: -std::f64::consts::FRAC_PI_2,
+        angle_increment_rad: 0.5f64.to_radians(),
+        range_min_m: 0.5,
+        range_max_m: 80.0,
+    });
+    let manifest = Manifest {
+        format_version: 1,
+        name: "victoria_park".into(),
+        source: "Victoria Park, Sydney: ACFR, University of Sydney (Guivant & Nebot)".into(),
+        vehicle: Vehicle {
+            motion: "ackermann".into(),
+            wheelbase_m: Some(WHEELBASE_M),
+            encoder_offset_m: Some(ENCODER_OFFSET_M),
+            start_pose: [0.0; 3],
+        },
+        sensor: Sensor {
+            x_m: LASER_X_M,
+            y_m: LASER_Y_M,
+            yaw_rad: 0.0,
+            range_sigma_m: None,
+            range_sigma_per_m: None,
+            bearing_sigma_rad: None,
+        },
+        laser,
+        reference: (!reference.is_empty())
+            .then_some(Reference { kind: ReferenceKind::Gps, point: ReferencePoint::Sensor }),
+    };
+    Ok(Log { manifest, motion, observations, reference })
+}
+
+/// Loads a MAT-file. A corrupt file must be an error, not a crash: the parser is a
+/// third-party crate, so a panic inside it is caught and reported as such.
+fn load(file: &Path) -> Result<MatFile, LogError> {
+    let bytes = std::fs::read(file).map_err(|source| LogError::Io { file: file.to_path_buf(), source })?;
+    let parsed = std::panic::catch_unwind(|| matrw::load_matfile_from_u8(&bytes));
+    match parsed {
+        Ok(Ok(mat)) => Ok(mat),
+        Ok(Err(e)) => {
+            Err(LogError::File { file: file.to_path_buf(), problem: format!("not a readable MAT-file: {e}") })
+        }
+        Err(_) => Err(LogError::File {
+            file: file.to_path_buf(),
+            problem: "not a readable MAT-file (the parser failed)".into(),
+        }),
+    }
+}
+
+/// A numeric variable as f64, whatever its stored type.
+fn numbers(var: &MatVariable) -> Option<Vec<f64>> {
+    var.to_vec::<f64>()
+        .or_else(|| var.to_vec::<f32>().map(|v| v.into_iter().map(f64::from).collect()))
+        .or_else(|| var.to_vec::<i32>().map(|v| v.into_iter().map(f64::from).collect()))
+        .or_else(|| var.to_vec::<u32>().map(|v| v.into_iter().map(f64::from).collect()))
+        .or_else(|| var.to_vec::<u16>().map(|v| v.into_iter().map(f64::from).collect()))
+        .or_else(|| var.to_vec::<i16>().map(|v| v.into_iter().map(f64::from).collect()))
+        .or_else(|| var.to_vec::<u8>().map(|v| v.into_iter().map(f64::from).collect()))
+}
+
+/// Variable `name` of `mat` as numbers, with its dimensions.
+fn variable(mat: &MatFile, file: &Path, name: &str) -> Result<(Vec<f64>, Vec<usize>), LogError> {
+    let var = &mat[name];
+    if matches!(var, MatVariable::Null) {
+        return Err(LogError::File { file: file.to_path_buf(), problem: format!("no variable `{name}`") });
+    }
+    let values = numbers(var).ok_or_else(|| LogError::File {
+        file: file.to_path_buf(),
+        problem: format!("variable `{name}` is not a numeric array"),
+    })?;
+    Ok((values, var.dim()))
+}
+
+/// A vector variable (1 x N or N x 1).
+fn vector(mat: &MatFile, file: &Path, name: &str) -> Result<Vec<f64>, LogError> {
+    let (values, dim) = variable(mat, file, name)?;
+    if dim.iter().filter(|&&d| d > 1).count() > 1 {
+        return Err(LogError::File { file: file.to_path_buf(), problem: format!("`{name}` is {dim:?}, not a vector") });
+    }
+    Ok(values)
+}
+
+fn check_times(file: &Path, name: &str, t: &[f64]) -> Result<(), LogError> {
+    for (k, w) in t.windows(2).enumerate() {
+        if !(w[0].is_finite() && w[1] >= w[0]) {
+            return Err(LogError::File {
+                file: file.to_path_buf(),
+                problem: format!("`{name}` element {} ({}) comes before element {} ({})", k + 2, w[1], k + 1, w[0]),
+            });
+        }
+    }
+    Ok(())
+}
+
+fn controls(file: &Path, time_s: &[f64], speed: &[f64], steering: &[f64]) -> Result<Motion, LogError> {
+    if speed.len() != time_s.len() || steering.len() != time_s.len() {
+        return Err(LogError::File {
+            file: file.to_path_buf(),
+            problem: format!(
+                "{} times, {} speeds and {} steering angles: they must match",
+                time_s.len(),
+                speed.len(),
+                steering.len()
+            ),
+        });
+    }
+    check_times(file, "time", time_s)?;
+    if let Some(k) = (0..time_s.len()).find(|&k| !(speed[k].is_finite() && steering[k].is_finite())) {
+        return Err(LogError::File { file: file.to_path_buf(), problem: format!("control {} is not finite", k + 1) });
+    }
+    Ok(Motion::Controls(
+        (0..time_s.len()).map(|k| (time_s[k], Control::Ackermann { speed: speed[k], steering: steering[k] })).collect(),
+    ))
+}
+
+fn read_detections_form(file: &Path) -> Result<(Motion, Observations), LogError> {
+    let mat = load(file)?;
+    let time = vector(&mat, file, "time")?;
+    let (u, u_dim) = variable(&mat, file, "u")?;
+    if u_dim.first() != Some(&2) || u.len() != 2 * time.len() {
+        return Err(LogError::File {
+            file: file.to_path_buf(),
+            problem: format!("`u` is {u_dim:?}; expected 2 x {} (speed; steering)", time.len()),
+        });
+    }
+    // Column-major 2 x N: speed, steering alternate.
+    let speed: Vec<f64> = u.iter().step_by(2).copied().collect();
+    let steering: Vec<f64> = u.iter().skip(1).step_by(2).copied().collect();
+    let motion = controls(file, &time, &speed, &steering)?;
+    let scan_times = vector(&mat, file, "TLsr")?;
+    check_times(file, "TLsr", &scan_times)?;
+    let zt = &mat["zt"];
+    let MatVariable::CellArray(_) = zt else {
+        return Err(LogError::File { file: file.to_path_buf(), problem: "`zt` is missing or not a cell array".into() });
+    };
+    let mut scans = Vec::with_capacity(scan_times.len());
+    for (k, &t) in scan_times.iter().enumerate() {
+        let cell = &zt[k];
+        if matches!(cell, MatVariable::Null) {
+            return Err(LogError::File {
+                file: file.to_path_buf(),
+                problem: format!("`zt` has fewer cells than `TLsr` has times ({})", scan_times.len()),
+            });
+        }
+        let values = numbers(cell).unwrap_or_default();
+        let dim = cell.dim();
+        if values.is_empty() {
+            continue;
+        }
+        if dim.first() != Some(&3) || !values.len().is_multiple_of(3) {
+            return Err(LogError::File {
+                file: file.to_path_buf(),
+                problem: format!("`zt` cell {} is {dim:?}; expected 3 x N (range; bearing; diameter)", k + 1),
+            });
+        }
+        let mut detections = Vec::with_capacity(values.len() / 3);
+        for d in values.chunks_exact(3) {
+            if !d.iter().all(|v| v.is_finite()) || d[0] <= 0.0 {
+                return Err(LogError::File {
+                    file: file.to_path_buf(),
+                    problem: format!("`zt` cell {} holds a detection that is not finite or not ahead: {d:?}", k + 1),
+                });
+            }
+            // Bearings run 0..pi from the laser's right, pi/2 straight ahead.
+            let diameter_m = (d[2] > 0.0).then_some(d[2]);
+            detections.push(Detection { range_m: d[0], bearing_rad: d[1] - std::f64::consts::FRAC_PI_2, diameter_m });
+        }
+        scans.push(DetectionScan { t, detections });
+    }
+    Ok((motion, Observations::Detections(scans)))
+}
+
+fn read_dead_reckoning(file: &Path) -> Result<Motion, LogError> {
+    let mat = load(file)?;
+    let time_s: Vec<f64> = vector(&mat, file, "time")?.into_iter().map(|ms| ms / 1000.0).collect();
+    controls(file, &time_s, &vector(&mat, file, "speed")?, &vector(&mat, file, "steering")?)
+}
+
+fn read_laser(file: &Path) -> Result<Observations, LogError> {
+    let mat = load(file)?;
+    let times: Vec<f64> = vector(&mat, file, "TLsr")?.into_iter().map(|ms| ms / 1000.0).collect();
+    check_times(file, "TLsr", &times)?;
+    let (ranges, dim) = variable(&mat, file, "LASER")?;
+    if dim != [times.len(), 361] {
+        return Err(LogError::File {
+            file: file.to_path_buf(),
+            problem: format!("`LASER` is {dim:?}; expected {} x 361 (one row per time of `TLsr`)", times.len()),
+        });
+    }
+    let n = times.len();
+    let scans = times
+        .iter()
+        .enumerate()
+        .map(|(k, &t)| LaserScan {
+            t,
+            angle_min: -std::f64::consts::FRAC_PI_2,
+            angle_increment: 0.5f64.to_radians(),
+            range_min: 0.5,
+            range_max: 80.0,
+            // Column-major N x 361; cm, above 8000 no return.
+            ranges: (0..361)
+                .map(|b| {
+                    let cm = ranges[b * n + k];
+                    if cm > 8000.0 { f64::INFINITY } else { cm / 100.0 }
+                })
+                .collect(),
+        })
+        .collect();
+    Ok(Observations::Scans(scans))
+}
+
+fn read_gps(file: &Path) -> Result<Vec<ReferenceSample>, LogError> {
+    let mat = load(file)?;
+    let t = vector(&mat, file, "timeGps")?;
+    let (x, y) = (vector(&mat, file, "Lo_m")?, vector(&mat, file, "La_m")?);
+    if x.len() != t.len() || y.len() != t.len() {
+        return Err(LogError::File {
+            file: file.to_path_buf(),
+            problem: format!("{} times, {} longitudes and {} latitudes: they must match", t.len(), x.len(), y.len()),
+        });
+    }
+    check_times(file, "timeGps", &t)?;
+    Ok((0..t.len())
+        .filter(|&k| x[k].is_finite() && y[k].is_finite())
+        .map(|k| ReferenceSample { t: t[k] / 1000.0, x: x[k], y: y[k], theta: None })
+        .collect())
+}
+
+/// Writes `log` in the detections form and the GPS file (`VictoriaParkSinSincronizar.mat`,
+/// `aa3_gpsx.mat`), as the published copies are laid out: for tests that need the
+/// data set's form without the data set.
+pub fn write_detections_form(dir: &Path, log: &Log) -> Result<(), LogError> {
+    use matrw::{CellArray, NumericArray};
+    let (Motion::Controls(controls), Observations::Detections(scans)) = (&log.motion, &log.observations) else {
+        return Err(LogError::File {
+            file: dir.join(DETECTIONS_FILE),
+            problem: "the detections form holds speed and steering controls and detections".into(),
+        });
+    };
+    let mut time = Vec::new();
+    let mut u = Vec::new();
+    for (t, c) in controls {
+        let Control::Ackermann { speed, steering } = c else {
+            return Err(LogError::File { file: dir.join(DETECTIONS_FILE), problem: "controls must be a car's".into() });
+        };
+        time.push(*t);
+        u.extend([*speed, *steering]);
+    }
+    let numeric = |dim: Vec<usize>, v: Vec<f64>| -> Result<MatVariable, LogError> {
+        NumericArray::new(dim, v.into(), None)
+            .map(MatVariable::NumericArray)
+            .map_err(|e| LogError::File { file: dir.join(DETECTIONS_FILE), problem: e.to_string() })
+    };
+    let cells = scans
+        .iter()
+        .map(|s| {
+            let v: Vec<f64> = s
+                .detections
+                .iter()
+                .flat_map(|d| [d.range_m, d.bearing_rad + std::f64::consts::FRAC_PI_2, d.diameter_m.unwrap_or(0.0)])
+                .collect();
+            numeric(vec![3, s.detections.len()], v)
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    let mut mat = MatFile::new();
+    let n = time.len();
+    mat.insert("time", numeric(vec![1, n], time)?);
+    mat.insert("u", numeric(vec![2, n], u)?);
+    mat.insert("TLsr", numeric(vec![1, scans.len()], scans.iter().map(|s| s.t).collect())?);
+    let zt = CellArray::new(vec![1, cells.len()], cells)
+        .map_err(|e| LogError::File { file: dir.join(DETECTIONS_FILE), problem: e.to_string() })?;
+    mat.insert("zt", MatVariable::CellArray(zt));
+    save(&dir.join(DETECTIONS_FILE), mat)?;
+    if !log.reference.is_empty() {
+        let mut gps = MatFile::new();
+        let col = |v: Vec<f64>| numeric(vec![v.len(), 1], v);
+        gps.insert("timeGps", col(log.reference.iter().map(|r| (r.t * 1000.0).round()).collect())?);
+        gps.insert("Lo_m", col(log.reference.iter().map(|r| r.x).collect())?);
+        gps.insert("La_m", col(log.reference.iter().map(|r| r.y).collect())?);
+        save(&dir.join(GPS_FILE), gps)?;
+    }
+    Ok(())
+}
+
+fn save(file: &Path, mat: MatFile) -> Result<(), LogError> {
+    let path = file
+        .to_str()
+        .ok_or_else(|| LogError::File { file: file.to_path_buf(), problem: "path is not UTF-8".into() })?;
+    matrw::save_matfile_v7(path, mat, true)
+        .map_err(|e| LogError::File { file: file.to_path_buf(), problem: e.to_string() })
+}

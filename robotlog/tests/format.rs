@@ -1,0 +1,192 @@
+//! The log directory format: what is written reads back the same, and every malformed
+//! file is an error naming the file and line.
+
+use std::path::{Path, PathBuf};
+
+use proptest::prelude::*;
+use robotlog::manifest::{LaserGeometry, Reference, Sensor, Vehicle};
+use robotlog::{
+    DetectionScan, Log, LogError, Manifest, Motion, Observations, ReferenceKind, ReferencePoint, ReferenceSample,
+};
+use slam::messages::{Control, Detection, LaserScan, OdometryIncrement};
+
+fn dir(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("robotlog-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    d
+}
+
+fn manifest(motion: &str, laser: bool) -> Manifest {
+    Manifest {
+        format_version: 1,
+        name: "test".into(),
+        source: String::new(),
+        vehicle: Vehicle { motion: motion.into(), ..Default::default() },
+        sensor: Sensor {
+            x_m: 0.2,
+            y_m: 0.0,
+            yaw_rad: 0.0,
+            range_sigma_m: Some(0.05),
+            range_sigma_per_m: None,
+            bearing_sigma_rad: None,
+        },
+        laser: laser.then_some(LaserGeometry {
+            angle_min_rad: -1.5,
+            angle_increment_rad: 0.5,
+            range_min_m: 0.1,
+            range_max_m: 30.0,
+        }),
+        reference: Some(Reference { kind: ReferenceKind::GroundTruth, point: ReferencePoint::Vehicle }),
+    }
+}
+
+fn scan_log(ranges: Vec<Vec<f64>>, odometry: Vec<[f64; 3]>) -> Log {
+    Log {
+        manifest: manifest("odometry", true),
+        motion: Motion::Increments(
+            odometry
+                .iter()
+                .enumerate()
+                .map(|(k, o)| OdometryIncrement { t: k as f64 * 0.1, dx: o[0], dy: o[1], dtheta: o[2] })
+                .collect(),
+        ),
+        observations: Observations::Scans(
+            ranges
+                .into_iter()
+                .enumerate()
+                .map(|(k, r)| LaserScan {
+                    t: k as f64 * 0.2,
+                    angle_min: -1.5,
+                    angle_increment: 0.5,
+                    range_min: 0.1,
+                    range_max: 30.0,
+                    ranges: r,
+                })
+                .collect(),
+        ),
+        reference: vec![ReferenceSample { t: 0.0, x: 1.0, y: 2.0, theta: Some(0.3) }],
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(32))]
+    /// Any finite numbers, and no returns, survive writing and reading bit for bit.
+    #[test]
+    fn logs_read_back_as_written(
+        ranges in proptest::collection::vec(proptest::collection::vec(prop_oneof![0.1f64..30.0, Just(f64::INFINITY)], 7), 1..5),
+        odometry in proptest::collection::vec([-1.0f64..1.0, -0.1f64..0.1, -0.5f64..0.5], 1..20),
+    ) {
+        let d = dir("roundtrip");
+        let log = scan_log(ranges, odometry);
+        robotlog::format::write(&d, &log).unwrap();
+        prop_assert_eq!(robotlog::format::read(&d).unwrap(), log);
+        std::fs::remove_dir_all(&d).ok();
+    }
+}
+
+#[test]
+fn controls_and_detections_read_back_as_written() {
+    let d = dir("detections");
+    let log = Log {
+        manifest: Manifest {
+            vehicle: Vehicle {
+                motion: "ackermann".into(),
+                wheelbase_m: Some(2.83),
+                encoder_offset_m: Some(0.76),
+                start_pose: [1.0, 2.0, 0.5],
+            },
+            reference: Some(Reference { kind: ReferenceKind::Gps, point: ReferencePoint::Sensor }),
+            ..manifest("ackermann", false)
+        },
+        motion: Motion::Controls(vec![
+            (0.0, Control::Ackermann { speed: 2.0, steering: 0.1 }),
+            (0.025, Control::Ackermann { speed: 2.1, steering: -0.05 }),
+        ]),
+        observations: Observations::Detections(vec![
+            DetectionScan {
+                t: 0.01,
+                detections: vec![
+                    Detection { range_m: 10.0, bearing_rad: 0.3, diameter_m: Some(0.4) },
+                    Detection { range_m: 5.5, bearing_rad: -1.0, diameter_m: None },
+                ],
+            },
+            DetectionScan { t: 0.3, detections: vec![Detection { range_m: 7.0, bearing_rad: 0.0, diameter_m: None }] },
+        ]),
+        reference: vec![ReferenceSample { t: 0.1, x: 5.0, y: 6.0, theta: None }],
+    };
+    robotlog::format::write(&d, &log).unwrap();
+    assert_eq!(robotlog::format::read(&d).unwrap(), log);
+    std::fs::remove_dir_all(&d).ok();
+}
+
+/// Writes a valid scan log, replaces `file` with `text`, and returns the read error.
+fn error_with(file: &str, text: &str) -> String {
+    let d = dir(&format!("bad-{}", file.replace('.', "-")));
+    robotlog::format::write(&d, &scan_log(vec![vec![1.0; 7], vec![2.0; 7]], vec![[0.1, 0.0, 0.0]; 3])).unwrap();
+    std::fs::write(d.join(file), text).unwrap();
+    let e = robotlog::format::read(&d).unwrap_err();
+    std::fs::remove_dir_all(&d).ok();
+    e.to_string()
+}
+
+#[test]
+fn malformed_files_are_errors_that_name_file_and_line() {
+    let cases = [
+        (
+            "odometry.csv",
+            "t,dx,dy,dtheta\n0,0.1,0,0\n-1,0.1,0,0\n",
+            "odometry.csv:3: t = -1 s comes before the previous row's 0 s",
+        ),
+        ("odometry.csv", "t,dx,dy\n0,1,2\n", "odometry.csv:1: header `t,dx,dy`"),
+        ("odometry.csv", "t,dx,dy,dtheta\n0,abc,0,0\n", "odometry.csv:2: column `dx`: `abc` is not a number"),
+        ("odometry.csv", "t,dx,dy,dtheta\n0,NaN,0,0\n", "odometry.csv:2: `dx` must be finite"),
+        ("odometry.csv", "t,dx,dy,dtheta\n0,1,0\n", "odometry.csv:2: 3 columns, the header has 4"),
+        ("odometry.csv", "t,speed,steering\n0,1,0\n", "needs `t,dx,dy,dtheta` or `t,v,omega`"),
+        ("scans.csv", "t,r0,r1\n0,1,NaN\n", "scans.csv:2: a range is NaN"),
+        ("reference.csv", "t,x,y\n0,1,inf\n", "reference.csv:2: `y` must be finite"),
+        (
+            "manifest.toml",
+            "format_version = 2\n[sensor]\nx_m = 0\ny_m = 0\n",
+            "format_version: this objslam reads version 1, the file is version 2",
+        ),
+        (
+            "manifest.toml",
+            "format_version = 1\nbogus = 3\n[sensor]\nx_m = 0\ny_m = 0\n",
+            "manifest.toml:2: unknown field `bogus`",
+        ),
+        (
+            "manifest.toml",
+            "format_version = 1\n[vehicle]\nmotion = \"tank\"\n[sensor]\nx_m = 0\ny_m = 0\n",
+            "vehicle.motion: must be \"odometry\" or \"ackermann\"",
+        ),
+    ];
+    for (file, text, expected) in cases {
+        let e = error_with(file, text);
+        assert!(e.contains(expected), "{file} with {text:?}: {e}");
+        assert!(e.contains(file), "{e} names the file");
+    }
+}
+
+#[test]
+fn missing_or_doubled_observation_files_are_errors() {
+    let d = dir("missing");
+    robotlog::format::write(&d, &scan_log(vec![vec![1.0; 7]], vec![[0.1, 0.0, 0.0]])).unwrap();
+    std::fs::write(d.join("detections.csv"), "t,range_m,bearing_rad,diameter_m\n").unwrap();
+    assert!(robotlog::format::read(&d).unwrap_err().to_string().contains("both scans.csv and detections.csv"));
+    std::fs::remove_file(d.join("detections.csv")).unwrap();
+    std::fs::remove_file(d.join("scans.csv")).unwrap();
+    assert!(matches!(robotlog::format::read(&d), Err(LogError::Missing { .. })));
+    assert!(matches!(robotlog::format::read(Path::new("/nonexistent/log")), Err(LogError::Io { .. })));
+    std::fs::remove_dir_all(&d).ok();
+}
+
+#[test]
+fn victoria_park_files_that_are_not_mat_files_are_errors() {
+    let d = dir("vp-bad");
+    std::fs::create_dir_all(&d).unwrap();
+    assert!(matches!(robotlog::victoria_park::read(&d), Err(LogError::Missing { .. })));
+    std::fs::write(d.join("VictoriaParkSinSincronizar.mat"), b"MATLAB 5.0 MAT-file, not really").unwrap();
+    let e = robotlog::victoria_park::read(&d).unwrap_err().to_string();
+    assert!(e.contains("VictoriaParkSinSincronizar.mat") && e.contains("not a readable MAT-file"), "{e}");
+    std::fs::remove_dir_all(&d).ok();
+}

@@ -1,0 +1,535 @@
+//! `objslam replay`: the `slam` pipeline on a recorded log (a real robot's, or one that
+//! `objslam record --format log` wrote), scored against the log's reference path.
+//!
+//! Inputs are fed in time order, motion first at equal times (as the simulator emits
+//! them). Against ground truth the estimate is scored as it is; against GPS, which has its
+//! own frame, after the rigid 2-D motion (rotation and translation, no scale) that best
+//! fits the estimate to it, once GPS spikes are removed (see [`gps_spikes`]).
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use robotlog::{Log, Motion, Observations, ReferenceKind, ReferencePoint, ReferenceSample};
+use serde::Serialize;
+use serde_json::json;
+use slam::association::{AssociationDecision, AssociationMethod, Choice};
+use slam::ekf::{AckermannMotionModel, MotionConfig, OdometryMotionModel, RangeBearingModel};
+use slam::pipeline::{Pipeline, PipelineConfig};
+
+/// Errors of a replay.
+#[derive(Debug, thiserror::Error)]
+pub enum ReplayError {
+    #[error(transparent)]
+    Log(#[from] robotlog::LogError),
+    #[error("{}:{line}: {problem}", file.display())]
+    Config { file: PathBuf, line: usize, problem: String },
+    #[error("{}: {setting}", file.display())]
+    Setting { file: PathBuf, setting: slam::settings::InvalidSetting },
+    #[error("replay at t = {t} s: {source}")]
+    Pipeline { t: f64, source: slam::pipeline::PipelineError },
+    #[error("{}: {source}", file.display())]
+    Io { file: PathBuf, source: std::io::Error },
+    #[error(transparent)]
+    Plot(#[from] crate::plot::PlotError),
+}
+
+/// The pipeline settings a log's producer recommends, beside its data (optional; `objslam
+/// record --format log` writes the scenario's).
+pub const PIPELINE_FILE: &str = "pipeline.toml";
+
+/// Highest speed a GPS fix may imply from both its neighbours before it is taken for a
+/// spike (m/s): far above what a vehicle in a park drives (Victoria Park's car: 6.6 m/s
+/// at most), far below the spikes' hundreds of m/s.
+pub const GPS_SPIKE_SPEED_MPS: f64 = 15.0;
+
+/// The settings a replay starts from, before the log's `pipeline.toml` and `--config`:
+/// the pipeline's defaults with the log's vehicle and sensor, and the rules a real sensor
+/// at tens of metres needs (a landmark confirmed by three sightings within five seconds,
+/// new landmarks only far from every known one, one filter update per scan). The
+/// detectors' diameters stay off as a cue: on Victoria Park's first half they changed
+/// nothing (docs/real-logs.md).
+pub fn default_config(log: &Log, method: AssociationMethod) -> PipelineConfig {
+    let vehicle = &log.manifest.vehicle;
+    let motion = match vehicle.motion.as_str() {
+        "ackermann" => {
+            let d = AckermannMotionModel::default();
+            MotionConfig::Ackermann(AckermannMotionModel {
+                wheelbase_m: vehicle.wheelbase_m.unwrap_or(d.wheelbase_m),
+                encoder_offset_m: vehicle.encoder_offset_m.unwrap_or(d.encoder_offset_m),
+                ..d
+            })
+        }
+        _ => MotionConfig::Odometry(OdometryMotionModel::default()),
+    };
+    // Outdoor trees at up to 30 m from a detector's circle fit: decimetres and a degree
+    // and a half.
+    let sensor_defaults = RangeBearingModel {
+        range_sigma_m: 0.3,
+        range_sigma_per_m: 0.0,
+        bearing_sigma_rad: 1.5f64.to_radians(),
+        ..Default::default()
+    };
+    PipelineConfig {
+        method,
+        motion,
+        sensor: log.manifest.observation_model(&sensor_defaults),
+        new_landmark_probability: 0.9999,
+        confirm_observations: 3,
+        confirm_window_s: 5.0,
+        batch_updates: true,
+        ..Default::default()
+    }
+}
+
+/// The replay's settings: [`default_config`], then the log's `pipeline.toml` if it has one,
+/// then `overrides` (a TOML file of `[pipeline]` keys, as in a scenario), each replacing
+/// only the keys it names.
+pub fn resolve_config(
+    log_dir: Option<&Path>,
+    log: &Log,
+    method: Option<AssociationMethod>,
+    overrides: Option<&Path>,
+) -> Result<PipelineConfig, ReplayError> {
+    let base = default_config(log, method.unwrap_or(AssociationMethod::Nn));
+    let mut value = toml::Value::try_from(&base).expect("settings serialise");
+    let mut files = Vec::new();
+    if let Some(dir) = log_dir
+        && dir.join(PIPELINE_FILE).exists()
+    {
+        files.push(dir.join(PIPELINE_FILE));
+    }
+    files.extend(overrides.map(Path::to_path_buf));
+    for file in &files {
+        let text = std::fs::read_to_string(file).map_err(|source| ReplayError::Io { file: file.clone(), source })?;
+        let table: toml::Table = toml::from_str(&text).map_err(|e| ReplayError::Config {
+            file: file.clone(),
+            line: e.span().map_or(1, |s| text[..s.start].matches('\n').count() + 1),
+            problem: e.message().to_string(),
+        })?;
+        // A scenario-style file holds the keys under [pipeline]; a bare file at the top.
+        let table = match table.get("pipeline") {
+            Some(toml::Value::Table(t)) if table.len() == 1 => t.clone(),
+            _ => table,
+        };
+        merge(&mut value, toml::Value::Table(table));
+        let config: PipelineConfig = value.clone().try_into().map_err(|e: toml::de::Error| ReplayError::Config {
+            file: file.clone(),
+            line: 1,
+            problem: e.message().to_string(),
+        })?;
+        config.validate().map_err(|setting| ReplayError::Setting { file: file.clone(), setting })?;
+    }
+    let mut config: PipelineConfig = value.try_into().expect("checked above");
+    if let Some(m) = method {
+        config.method = m;
+    }
+    Ok(config)
+}
+
+/// Replaces the keys of `base` that `over` names, table by table.
+fn merge(base: &mut toml::Value, over: toml::Value) {
+    match (base, over) {
+        (toml::Value::Table(b), toml::Value::Table(o)) => {
+            for (k, v) in o {
+                match b.get_mut(&k) {
+                    Some(existing @ toml::Value::Table(_)) if v.is_table() => merge(existing, v),
+                    _ => {
+                        b.insert(k, v);
+                    }
+                }
+            }
+        }
+        (b, o) => *b = o,
+    }
+}
+
+/// Time per scan (ms).
+#[derive(Debug, Clone, Serialize)]
+pub struct ScanTimes {
+    pub mean: f64,
+    pub p50: f64,
+    pub p95: f64,
+    pub max: f64,
+}
+
+/// The filter's consistency on its own associations: the normalised innovation squared of
+/// each observation paired with a landmark (2 dof: 2 on average when consistent).
+#[derive(Debug, Clone, Serialize)]
+pub struct Nis {
+    pub observations: usize,
+    pub mean: f64,
+    /// Fraction under the chi-square 95% quantile (0.95 when consistent).
+    pub within_95: f64,
+}
+
+/// The estimate against the log's reference.
+#[derive(Debug, Clone, Serialize)]
+pub struct ReferenceScore {
+    pub kind: ReferenceKind,
+    pub point: ReferencePoint,
+    pub samples: usize,
+    /// GPS fixes dropped as spikes (an implied speed over [`GPS_SPIKE_SPEED_MPS`] from both
+    /// neighbours), decided from the GPS alone.
+    pub spikes_removed: usize,
+    /// Samples inside the estimate's time span, scored.
+    pub samples_scored: usize,
+    /// "rigid 2-D" (GPS) or "none" (ground truth in the estimate's frame).
+    pub alignment: String,
+    pub alignment_rotation_rad: f64,
+    pub alignment_translation_m: [f64; 2],
+    pub ate_rmse_m: f64,
+    pub ate_max_m: f64,
+}
+
+/// What `metrics.json` of a replay holds (docs/guide/real-logs.md).
+#[derive(Debug, Clone, Serialize)]
+pub struct ReplayMetrics {
+    pub log: String,
+    pub method: String,
+    pub log_seconds: f64,
+    pub motion_messages: usize,
+    pub scans: usize,
+    pub detections: usize,
+    pub landmarks: usize,
+    pub reference: Option<ReferenceScore>,
+    pub nis: Nis,
+    pub time_per_scan_ms: ScanTimes,
+    pub wall_seconds: f64,
+    pub real_time_factor: f64,
+    /// Peak resident memory of the process (MB; Linux), or null.
+    pub peak_memory_mb: Option<f64>,
+}
+
+/// A replay's estimate and map.
+pub struct Replay {
+    pub metrics: ReplayMetrics,
+    /// The path of the reference point (the sensor's, or the vehicle's): (t, [x, y, yaw]).
+    pub trajectory: Vec<(f64, [f64; 3])>,
+    pub landmarks: Vec<slam::pipeline::Landmark>,
+    pub decisions: Vec<AssociationDecision>,
+    pub config: PipelineConfig,
+}
+
+/// Runs `config`'s pipeline over `log`.
+pub fn replay(log: &Log, config: PipelineConfig) -> Result<Replay, ReplayError> {
+    let started = Instant::now();
+    let start = log.start_time();
+    let mut pipeline = Pipeline::with_appearance(config.clone(), log.manifest.vehicle.start_pose, None)
+        .map_err(|source| ReplayError::Pipeline { t: start, source })?
+        .starting_at(start);
+    let point = log.manifest.reference.as_ref().map_or(ReferencePoint::Vehicle, |r| r.point);
+    let mount = [log.manifest.sensor.x_m, log.manifest.sensor.y_m];
+    let at_point = |p: [f64; 3]| match point {
+        ReferencePoint::Vehicle => p,
+        ReferencePoint::Sensor => {
+            let (s, c) = p[2].sin_cos();
+            [p[0] + c * mount[0] - s * mount[1], p[1] + s * mount[0] + c * mount[1], p[2]]
+        }
+    };
+    let yaw = log.manifest.sensor.yaw_rad;
+    let mut trajectory = Vec::with_capacity(log.motion.len() + log.observations.len());
+    let mut decisions = Vec::new();
+    let mut scan_ms = Vec::with_capacity(log.observations.len());
+    let mut detections = 0;
+    let (mut m, mut o) = (0, 0);
+    let error = |t: f64| move |source| ReplayError::Pipeline { t, source };
+    while m < log.motion.len() || o < log.observations.len() {
+        let motion_next =
+            m < log.motion.len() && (o >= log.observations.len() || log.motion.time(m) <= log.observations.time(o));
+        if motion_next {
+            let t = log.motion.time(m);
+            match &log.motion {
+                Motion::Increments(v) => pipeline.on_odometry(&v[m]).map_err(error(t))?,
+                Motion::Controls(v) => pipeline.on_control(t, v[m].1).map_err(error(t))?,
+            }
+            m += 1;
+        } else {
+            let t = log.observations.time(o);
+            let tick = Instant::now();
+            let report = match &log.observations {
+                Observations::Scans(v) => pipeline.on_scan(&v[o]).map_err(error(t))?,
+                Observations::Detections(v) => {
+                    detections += v[o].detections.len();
+                    // Bearings in the vehicle's frame: the sensor may look sideways.
+                    let turned: Vec<_> = v[o]
+                        .detections
+                        .iter()
+                        .map(|d| slam::messages::Detection { bearing_rad: d.bearing_rad + yaw, ..*d })
+                        .collect();
+                    pipeline.on_detections(t, &turned).map_err(error(t))?
+                }
+            };
+            scan_ms.push(tick.elapsed().as_secs_f64() * 1e3);
+            decisions.extend(report.decisions);
+            o += 1;
+        }
+        let p = pipeline.pose();
+        trajectory.push((p.t, at_point(p.pose)));
+    }
+    let wall_seconds = started.elapsed().as_secs_f64();
+    let log_seconds = log.end_time() - start;
+    let landmarks = pipeline.mapped_landmarks();
+    let reference = score_reference(log, &trajectory);
+    let metrics = ReplayMetrics {
+        log: log.manifest.name.clone(),
+        method: config.method.name().to_string(),
+        log_seconds,
+        motion_messages: log.motion.len(),
+        scans: log.observations.len(),
+        detections,
+        landmarks: landmarks.len(),
+        reference,
+        nis: nis(&decisions),
+        time_per_scan_ms: scan_times(&mut scan_ms),
+        wall_seconds,
+        real_time_factor: log_seconds / wall_seconds.max(1e-9),
+        peak_memory_mb: peak_memory_mb(),
+    };
+    Ok(Replay { metrics, trajectory, landmarks, decisions, config })
+}
+
+fn scan_times(ms: &mut [f64]) -> ScanTimes {
+    if ms.is_empty() {
+        return ScanTimes { mean: 0.0, p50: 0.0, p95: 0.0, max: 0.0 };
+    }
+    let mean = ms.iter().sum::<f64>() / ms.len() as f64;
+    ms.sort_by(f64::total_cmp);
+    let q = |p: f64| ms[((ms.len() - 1) as f64 * p).round() as usize];
+    ScanTimes { mean, p50: q(0.5), p95: q(0.95), max: ms[ms.len() - 1] }
+}
+
+fn nis(decisions: &[AssociationDecision]) -> Nis {
+    let values: Vec<f64> = decisions
+        .iter()
+        .filter_map(|d| match d.choice {
+            Choice::Existing { landmark } => {
+                d.candidates.iter().find(|c| c.landmark == landmark).map(|c| c.mahalanobis2)
+            }
+            _ => None,
+        })
+        .collect();
+    let q95 = slam::association::chi2_quantile(2, 0.95);
+    let n = values.len();
+    Nis {
+        observations: n,
+        mean: if n > 0 { values.iter().sum::<f64>() / n as f64 } else { f64::NAN },
+        within_95: if n > 0 { values.iter().filter(|v| **v <= q95).count() as f64 / n as f64 } else { f64::NAN },
+    }
+}
+
+/// Peak resident memory (VmHWM) of this process, in MB.
+fn peak_memory_mb() -> Option<f64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb / 1024.0)
+}
+
+/// Indices of GPS fixes that are spikes: reached from the previous fix and left to the
+/// next one at more than `max_speed` (m/s) each, while the neighbours agree with each
+/// other. Decided from the GPS alone, never from the estimate being scored.
+pub fn gps_spikes(samples: &[ReferenceSample], max_speed: f64) -> Vec<usize> {
+    let speed = |a: &ReferenceSample, b: &ReferenceSample| (b.x - a.x).hypot(b.y - a.y) / (b.t - a.t).max(1e-3);
+    (1..samples.len().saturating_sub(1))
+        .filter(|&i| {
+            let (a, b, c) = (&samples[i - 1], &samples[i], &samples[i + 1]);
+            speed(a, b) > max_speed && speed(b, c) > max_speed && speed(a, c) <= max_speed
+        })
+        .collect()
+}
+
+/// The rotation and translation that best map `from` onto `to` (least squares, 2-D, no
+/// scale): `to ≈ R(theta) from + t`.
+pub fn rigid_alignment(from: &[[f64; 2]], to: &[[f64; 2]]) -> (f64, [f64; 2]) {
+    let n = from.len().max(1) as f64;
+    let mean = |v: &[[f64; 2]]| {
+        let s = v.iter().fold([0.0, 0.0], |a, p| [a[0] + p[0], a[1] + p[1]]);
+        [s[0] / n, s[1] / n]
+    };
+    let (mf, mt) = (mean(from), mean(to));
+    let (mut sxx, mut sxy) = (0.0, 0.0);
+    for (f, t) in from.iter().zip(to) {
+        let (fx, fy, tx, ty) = (f[0] - mf[0], f[1] - mf[1], t[0] - mt[0], t[1] - mt[1]);
+        sxx += fx * tx + fy * ty;
+        sxy += fx * ty - fy * tx;
+    }
+    let theta = sxy.atan2(sxx);
+    let (s, c) = theta.sin_cos();
+    (theta, [mt[0] - (c * mf[0] - s * mf[1]), mt[1] - (s * mf[0] + c * mf[1])])
+}
+
+/// The estimate's position at `t`, linear between its samples (None outside its span).
+fn position_at(trajectory: &[(f64, [f64; 3])], t: f64) -> Option<[f64; 2]> {
+    let k = trajectory.partition_point(|(s, _)| *s < t);
+    if k == 0 {
+        return (trajectory.first()?.0 == t).then(|| [trajectory[0].1[0], trajectory[0].1[1]]);
+    }
+    let (t1, p1) = trajectory.get(k)?;
+    let (t0, p0) = trajectory[k - 1];
+    let a = if *t1 > t0 { (t - t0) / (t1 - t0) } else { 1.0 };
+    Some([p0[0] + a * (p1[0] - p0[0]), p0[1] + a * (p1[1] - p0[1])])
+}
+
+fn score_reference(log: &Log, trajectory: &[(f64, [f64; 3])]) -> Option<ReferenceScore> {
+    let r = log.manifest.reference.as_ref()?;
+    if log.reference.is_empty() {
+        return None;
+    }
+    let spikes =
+        if r.kind == ReferenceKind::Gps { gps_spikes(&log.reference, GPS_SPIKE_SPEED_MPS) } else { Vec::new() };
+    let mut est = Vec::new();
+    let mut truth = Vec::new();
+    for (k, s) in log.reference.iter().enumerate() {
+        if spikes.binary_search(&k).is_ok() {
+            continue;
+        }
+        if let Some(p) = position_at(trajectory, s.t) {
+            est.push(p);
+            truth.push([s.x, s.y]);
+        }
+    }
+    let (theta, t) = match r.kind {
+        ReferenceKind::Gps => rigid_alignment(&est, &truth),
+        ReferenceKind::GroundTruth => (0.0, [0.0, 0.0]),
+    };
+    let (s, c) = theta.sin_cos();
+    let errors: Vec<f64> = est
+        .iter()
+        .zip(&truth)
+        .map(|(e, g)| (c * e[0] - s * e[1] + t[0] - g[0]).hypot(s * e[0] + c * e[1] + t[1] - g[1]))
+        .collect();
+    let n = errors.len();
+    Some(ReferenceScore {
+        kind: r.kind,
+        point: r.point,
+        samples: log.reference.len(),
+        spikes_removed: spikes.len(),
+        samples_scored: n,
+        alignment: match r.kind {
+            ReferenceKind::Gps => "rigid 2-D".into(),
+            ReferenceKind::GroundTruth => "none".into(),
+        },
+        alignment_rotation_rad: theta,
+        alignment_translation_m: t,
+        ate_rmse_m: if n > 0 { (errors.iter().map(|e| e * e).sum::<f64>() / n as f64).sqrt() } else { f64::NAN },
+        ate_max_m: errors.iter().copied().fold(0.0, f64::max),
+    })
+}
+
+/// Writes a replay's outputs into `out`: `metrics.json`, `metadata.json` (the resolved
+/// settings), `trajectory_est.tum`, `landmarks.json`, `decisions.jsonl` and `map.png`.
+pub fn write_outputs(out: &Path, log: &Log, replay: &Replay) -> Result<(), ReplayError> {
+    std::fs::create_dir_all(out).map_err(|source| ReplayError::Io { file: out.to_path_buf(), source })?;
+    let write = |name: &str, text: String| {
+        let file = out.join(name);
+        std::fs::write(&file, text).map_err(|source| ReplayError::Io { file, source })
+    };
+    write("metrics.json", serde_json::to_string_pretty(&replay.metrics).expect("JSON"))?;
+    write(
+        "metadata.json",
+        serde_json::to_string_pretty(&json!({
+            "tool": "objslam replay",
+            "version": env!("CARGO_PKG_VERSION"),
+            "log": log.manifest,
+            "configuration": replay.config,
+        }))
+        .expect("JSON"),
+    )?;
+    let mut tum = String::from("# timestamp tx ty tz qx qy qz qw\n");
+    for (t, p) in &replay.trajectory {
+        tum.push_str(&crate::record::tum_line(*t, p[0], p[1], p[2]));
+        tum.push('\n');
+    }
+    write("trajectory_est.tum", tum)?;
+    write("landmarks.json", serde_json::to_string_pretty(&replay.landmarks).expect("JSON"))?;
+    write(
+        "decisions.jsonl",
+        replay.decisions.iter().map(|d| serde_json::to_string(d).expect("JSON") + "\n").collect(),
+    )?;
+    // The map in the reference's frame: the estimate moved by the alignment.
+    let (theta, t) = replay
+        .metrics
+        .reference
+        .as_ref()
+        .map_or((0.0, [0.0, 0.0]), |r| (r.alignment_rotation_rad, r.alignment_translation_m));
+    let (s, c) = theta.sin_cos();
+    let moved = |p: [f64; 2]| [c * p[0] - s * p[1] + t[0], s * p[0] + c * p[1] + t[1]];
+    let path: Vec<[f64; 2]> = replay.trajectory.iter().map(|(_, p)| moved([p[0], p[1]])).collect();
+    let marks: Vec<[f64; 2]> = replay.landmarks.iter().map(|l| moved(l.position)).collect();
+    let reference: Vec<[f64; 2]> = log.reference.iter().map(|r| [r.x, r.y]).collect();
+    let title = format!(
+        "{}: {} ({} landmarks{})",
+        if log.manifest.name.is_empty() { "log" } else { &log.manifest.name },
+        replay.metrics.method,
+        marks.len(),
+        replay.metrics.reference.as_ref().map_or(String::new(), |r| format!(", ATE {:.2} m", r.ate_rmse_m))
+    );
+    crate::plot::draw_replay_map(&title, &path, &reference, &marks, &out.join("map.png"))?;
+    Ok(())
+}
+
+/// One line for the terminal.
+pub fn summary(m: &ReplayMetrics) -> String {
+    let reference = m.reference.as_ref().map_or("no reference to score against".to_string(), |r| {
+        format!(
+            "ATE {:.3} m against {} ({} of {} samples, {} spikes removed, alignment {})",
+            r.ate_rmse_m,
+            match r.kind {
+                ReferenceKind::Gps => "GPS",
+                ReferenceKind::GroundTruth => "ground truth",
+            },
+            r.samples_scored,
+            r.samples,
+            r.spikes_removed,
+            r.alignment
+        )
+    });
+    format!(
+        "{} with {}: {} landmarks; {reference}; NIS mean {:.2} ({:.0}% within 95%); {:.2} ms per scan (p95 {:.2}); {:.1} s wall, {:.0}x real time",
+        m.log,
+        m.method,
+        m.landmarks,
+        m.nis.mean,
+        100.0 * m.nis.within_95,
+        m.time_per_scan_ms.mean,
+        m.time_per_scan_ms.p95,
+        m.wall_seconds,
+        m.real_time_factor
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rigid_alignment_recovers_a_rotation_and_translation() {
+        let from: Vec<[f64; 2]> = (0..20).map(|k| [k as f64, (k as f64 * 0.3).sin() * 4.0]).collect();
+        let (s, c) = 0.7f64.sin_cos();
+        let to: Vec<[f64; 2]> = from.iter().map(|p| [c * p[0] - s * p[1] + 5.0, s * p[0] + c * p[1] - 2.0]).collect();
+        let (theta, t) = rigid_alignment(&from, &to);
+        assert!((theta - 0.7).abs() < 1e-12 && (t[0] - 5.0).abs() < 1e-9 && (t[1] + 2.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn gps_spikes_are_found_from_the_gps_alone() {
+        let mut samples: Vec<ReferenceSample> =
+            (0..10).map(|k| ReferenceSample { t: k as f64, x: 3.0 * k as f64, y: 0.0, theta: None }).collect();
+        samples[4].y = 137.0;
+        assert_eq!(gps_spikes(&samples, GPS_SPIKE_SPEED_MPS), vec![4]);
+        // A jump that stays (a re-acquired fix in a new place) is not a spike.
+        for s in &mut samples[7..] {
+            s.x += 100.0;
+        }
+        assert_eq!(gps_spikes(&samples, GPS_SPIKE_SPEED_MPS), vec![4]);
+    }
+
+    #[test]
+    fn positions_are_interpolated_inside_the_estimate_only() {
+        let path = vec![(1.0, [0.0, 0.0, 0.0]), (2.0, [2.0, 4.0, 0.0])];
+        assert_eq!(position_at(&path, 1.5), Some([1.0, 2.0]));
+        assert_eq!(position_at(&path, 1.0), Some([0.0, 0.0]));
+        assert_eq!(position_at(&path, 0.5), None);
+        assert_eq!(position_at(&path, 2.5), None);
+    }
+}
