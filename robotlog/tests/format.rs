@@ -190,3 +190,43 @@ fn victoria_park_files_that_are_not_mat_files_are_errors() {
     assert!(e.contains("VictoriaParkSinSincronizar.mat") && e.contains("not a readable MAT-file"), "{e}");
     std::fs::remove_dir_all(&d).ok();
 }
+
+/// The ACFR originals' form, made here: `aa3_dr.mat` (ms, speed, steering as int32 and
+/// double) and `aa3_lsr2.mat` (ms, N x 361 ranges in cm as uint16, 8191 for no return).
+#[test]
+fn victoria_park_originals_are_read_as_controls_and_raw_scans() {
+    use matrw::{MatFile, MatVariable, NumericArray};
+    let d = dir("vp-originals");
+    std::fs::create_dir_all(&d).unwrap();
+    let numeric =
+        |dim: Vec<usize>, v: matrw::MatlabType| MatVariable::NumericArray(NumericArray::new(dim, v, None).unwrap());
+    let mut dr = MatFile::new();
+    dr.insert("time", numeric(vec![3, 1], vec![1000i32, 1025, 1050].into()));
+    dr.insert("speed", numeric(vec![3, 1], vec![2.0f64, 2.1, 2.2].into()));
+    dr.insert("steering", numeric(vec![3, 1], vec![0.0f64, 0.01, -0.02].into()));
+    matrw::save_matfile_v7(d.join("aa3_dr.mat").to_str().unwrap(), dr, true).unwrap();
+    // Two scans; column-major N x 361: beam b of scan k at b * 2 + k.
+    let mut ranges = vec![0u16; 2 * 361];
+    for b in 0..361 {
+        ranges[b * 2] = 1000 + b as u16;
+        ranges[b * 2 + 1] = if b == 180 { 8191 } else { 2000 };
+    }
+    let mut lsr = MatFile::new();
+    lsr.insert("TLsr", numeric(vec![2, 1], vec![1010u32, 1220].into()));
+    lsr.insert("LASER", numeric(vec![2, 361], ranges.into()));
+    matrw::save_matfile_v7(d.join("aa3_lsr2.mat").to_str().unwrap(), lsr, true).unwrap();
+
+    let log = robotlog::victoria_park::read(&d).unwrap();
+    let Motion::Controls(controls) = &log.motion else { panic!("controls") };
+    assert_eq!(controls[1], (1.025, Control::Ackermann { speed: 2.1, steering: 0.01 }));
+    let Observations::Scans(scans) = &log.observations else { panic!("scans") };
+    assert_eq!(scans.len(), 2);
+    assert_eq!((scans[0].t, scans[1].t), (1.01, 1.22));
+    assert_eq!(scans[0].ranges[5], 10.05);
+    assert!((scans[0].angle(0) + std::f64::consts::FRAC_PI_2).abs() < 1e-12);
+    assert!((scans[0].angle(360) - std::f64::consts::FRAC_PI_2).abs() < 1e-12);
+    assert!(!scans[1].valid(180), "above 8000 cm is no return");
+    assert!(scans[1].valid(179));
+    assert!(log.reference.is_empty() && log.manifest.reference.is_none());
+    std::fs::remove_dir_all(&d).ok();
+}
