@@ -196,6 +196,17 @@ mod tests {
     use crate::association::nn::nearest_neighbour;
     use nalgebra::{Matrix3, Vector3};
 
+    /// A laser at the robot's origin with 2 cm and 0.002 rad of noise.
+    fn precise_model() -> RangeBearingModel {
+        RangeBearingModel {
+            mount_x: 0.0,
+            mount_y: 0.0,
+            range_sigma_m: 0.02,
+            bearing_sigma_rad: 0.002,
+            ..Default::default()
+        }
+    }
+
     #[test]
     fn jcbb_finds_the_jointly_compatible_hypothesis_where_nn_fails() {
         // Three precisely mapped landmarks at bearings 0, 0.20 and 0.28 rad, 5 m away. The
@@ -203,13 +214,7 @@ mod tests {
         // b and c at 0.08 and 0.16. Individually nearest: a and b, implying heading errors
         // of 0.08 and 0.04 at once, impossible with 0.002 rad bearing noise. Jointly, only
         // (b, c) fits one common heading error.
-        let model = RangeBearingModel {
-            mount_x: 0.0,
-            mount_y: 0.0,
-            range_sigma_m: 0.02,
-            range_sigma_per_m: 0.0,
-            bearing_sigma_rad: 0.002,
-        };
+        let model = precise_model();
         let mut ekf =
             Ekf::new(Vector3::new(0.0, 0.0, 0.0), Matrix3::new(1e-6, 0.0, 0.0, 0.0, 1e-6, 0.0, 0.0, 0.0, 0.02));
         for bearing in [0.0f64, 0.20, 0.28] {
@@ -233,13 +238,7 @@ mod tests {
 
     #[test]
     fn jcbb_leaves_spurious_observations_unpaired() {
-        let model = RangeBearingModel {
-            mount_x: 0.0,
-            mount_y: 0.0,
-            range_sigma_m: 0.02,
-            range_sigma_per_m: 0.0,
-            bearing_sigma_rad: 0.01,
-        };
+        let model = RangeBearingModel { bearing_sigma_rad: 0.01, ..precise_model() };
         let mut ekf = Ekf::new(Vector3::zeros(), Matrix3::identity() * 1e-4);
         ekf.add_landmark(&model, &Vector2::new(4.0, 0.5));
         ekf.add_landmark(&model, &Vector2::new(6.0, -0.5));
@@ -251,13 +250,7 @@ mod tests {
     /// fits two ways (a symmetric map, a large heading uncertainty) is not.
     #[test]
     fn an_ambiguous_constellation_is_refused() {
-        let model = RangeBearingModel {
-            mount_x: 0.0,
-            mount_y: 0.0,
-            range_sigma_m: 0.02,
-            range_sigma_per_m: 0.0,
-            bearing_sigma_rad: 0.002,
-        };
+        let model = precise_model();
         // Heading sigma 0.5 rad: both observations gate with every landmark.
         let pose_cov = Matrix3::new(1e-6, 0.0, 0.0, 0.0, 1e-6, 0.0, 0.0, 0.0, 0.25);
         let place = |bearings: &[f64]| {
