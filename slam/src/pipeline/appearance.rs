@@ -1,0 +1,524 @@
+//! The appearance methods: segmentation of the scan's clusters in the camera image,
+//! object models, KL association, joint loop closing.
+
+use super::*;
+
+/// One observation of the appearance methods, planned against the landmarks before the
+/// scan: cluster index, observation, its fitted density, (range, bearing), candidates,
+/// the KL test's choice (id, index) and whether the camera could judge it fully.
+type Plan = (usize, ObjectObservation, Gmm, Vector2<f64>, Vec<Candidate>, Option<(u32, usize)>, bool);
+
+/// What the appearance methods need: the trained model, ready to classify, and the camera.
+#[derive(Clone)]
+pub struct Appearance {
+    pub model: AppearanceModel,
+    classifier: PatchClassifier,
+    /// The classifier's object density (appearance only): prior for object models.
+    general: Gmm,
+    pub camera: CameraGeometry,
+}
+
+impl Appearance {
+    pub fn new(model: AppearanceModel, camera: CameraGeometry) -> Result<Self, crate::gmm::GmmError> {
+        let classifier = PatchClassifier::new(&model)?;
+        let general = StudentTMixture::new(&model.object)?.gaussian_approximation()?;
+        Ok(Appearance { model, classifier, general, camera })
+    }
+}
+
+fn patch_pixels(rgb: &[u8], width: u32, col: u32, row: u32, l: u32) -> Vec<u8> {
+    let (w, l) = (width as usize, l as usize);
+    let (x0, y0) = (col as usize * l, row as usize * l);
+    (y0..y0 + l).flat_map(|y| rgb[(y * w + x0) * 3..(y * w + x0 + l) * 3].iter().copied()).collect()
+}
+
+impl Pipeline {
+    /// Segments the clusters in the stored image and builds object observations, each with
+    /// its cluster's index and whether the segmentation could judge it fully
+    /// ([`SegmentedCluster::fully_judged`](crate::segmentation::SegmentedCluster::fully_judged)).
+    pub(super) fn observe_objects(&mut self, t: f64, clusters: &[Cluster]) -> Vec<(usize, ObjectObservation, bool)> {
+        let (Some(app), Some(img)) = (&self.appearance, &self.image) else { return Vec::new() };
+        if (t - img.t).abs() > self.config.image_max_age_s {
+            return Vec::new();
+        }
+        let Ok(image) = ImageRef::new(img.width, img.height, &img.rgb) else { return Vec::new() };
+        let extractor = &app.model.extractor;
+        let l = extractor.config.patch_size;
+        let mut record = SegmentationRecord { t_image: img.t, patch_size: l, cells: Vec::new(), clusters: Vec::new() };
+        let mut out = Vec::new();
+        // Each cluster's segmentation depends on nothing but the image and the cluster: they
+        // run in parallel and are used in order, so results do not depend on the threads.
+        let seg_config = &self.config.segmentation;
+        // Per cluster: its segmentation, or whether it was skipped for lack of rendered pixels.
+        let segmentations: Vec<Result<Option<SegmentedCluster>, ()>> = clusters
+            .par_iter()
+            .map(|c| {
+                if c.occluded {
+                    return Ok(None);
+                }
+                let Some(located) = locate_cluster(c, &app.camera, image.width, image.height, l, seg_config) else {
+                    return Ok(None);
+                };
+                if let Some(columns) = &img.columns
+                    && !spans_cover(columns, extractor.config.columns_read(&located.rect, image.width))
+                {
+                    return Err(());
+                }
+                Ok(segment_located(c, located, &image, extractor, &app.classifier, &app.camera, seg_config).ok())
+            })
+            .collect();
+        self.unrendered_reads += segmentations.iter().filter(|s| s.is_err()).count();
+        let segmentations = segmentations.into_iter().map(|s| s.ok().flatten());
+        for (ci, (c, seg)) in clusters.iter().zip(segmentations).enumerate() {
+            let Some(seg) = seg else { continue };
+            for (i, &o) in seg.object.iter().enumerate() {
+                let (col, row) = seg.rect.patch(i);
+                if !record.cells.iter().any(|&(a, b, _)| a == col && b == row) {
+                    record.cells.push((col, row, o));
+                }
+            }
+            let hit_rows = (
+                seg.hit_patches.iter().map(|h| h.1).min().unwrap_or(0),
+                seg.hit_patches.iter().map(|h| h.1).max().unwrap_or(0),
+            );
+            let (centre, rot) = self.to_map(c.centre);
+            // Pooling: a frame the camera judged fully adds to its place's evidence; one it
+            // could not judge takes its place's judgement, or its own where no place is yet
+            // (and then only re-observes confirmed landmarks). A place with fewer than
+            // `min_frames` judged frames is undecided: rejected, or judged frame by frame
+            // with `undecided_by_frame` (see EvidenceConfig for the trade-off).
+            let seg_cfg = &self.config.segmentation;
+            let enough_patches = seg.object.iter().filter(|&&o| o).count() >= seg_cfg.min_object_patches;
+            let (place, _) = self.laser_point_in(&self.odometry_pose, c.centre);
+            let pooled = self.config.evidence.pooled.then(|| {
+                if seg.fully_judged() {
+                    Some(self.evidence.add(t, place, c.range_m, seg.hit_fraction, seg.above_fraction))
+                } else {
+                    self.evidence.judge(place)
+                }
+            });
+            let observed = match pooled {
+                Some(Some(j))
+                    if j.frames >= self.config.evidence.min_frames || !self.config.evidence.undecided_by_frame =>
+                {
+                    j.is_object && enough_patches
+                }
+                _ => seg.is_object,
+            };
+            record.clusters.push(ClusterSegmentation {
+                index: ci,
+                is_object: seg.is_object,
+                hit_fraction: seg.hit_fraction,
+                above_fraction: seg.above_fraction,
+                pooled: pooled.flatten(),
+                observed,
+                band_visible: seg.band_visible,
+                at_image_edge: seg.at_image_edge,
+                row_profile: seg.row_profile.clone(),
+                columns: (seg.rect.col0, seg.rect.col1),
+                hit_rows,
+                posteriors: seg.posteriors.iter().map(|&r| r as f32).collect(),
+            });
+            if !observed {
+                continue;
+            }
+            let rows_idx = seg.object_rows();
+            let da = self.config.object_model.appearance_dims.min(seg.features.z.ncols());
+            let pca_dims = extractor.pca.dims();
+            let mut appearance = Vec::with_capacity(rows_idx.len());
+            let mut rows = DMatrix::zeros(rows_idx.len(), da + 3);
+            let mut cells = Vec::with_capacity(rows_idx.len());
+            let mut pixels = Vec::with_capacity(rows_idx.len());
+            let mut n = 0;
+            for &i in &rows_idx {
+                let (col, row) = seg.rect.patch(i);
+                let (u, v) = ((col as f64 + 0.5) * l as f64, (row as f64 + 0.5) * l as f64);
+                let Some(p) = app.camera.point_on_object_plane(u, v, c.centre) else { continue };
+                let d = rot * Vector2::new(p.x - c.centre[0], p.y - c.centre[1]);
+                for j in 0..da {
+                    rows[(n, j)] = seg.features.z[(i, j)];
+                }
+                rows[(n, da)] = d.x;
+                rows[(n, da + 1)] = d.y;
+                rows[(n, da + 2)] = p.z;
+                appearance.push(seg.features.z.row(i).columns(0, pca_dims).iter().copied().collect());
+                cells.push((col, row));
+                pixels.push(patch_pixels(&img.rgb, img.width, col, row, l));
+                n += 1;
+            }
+            if n < 2 {
+                continue;
+            }
+            let rows = rows.rows(0, n).into_owned();
+            // A place the pooled evidence calls an object was judged in earlier frames: a
+            // frame too close to judge on its own may then start and confirm landmarks.
+            let judged = seg.fully_judged() || matches!(pooled, Some(Some(j)) if j.is_object);
+            out.push((
+                ci,
+                ObjectObservation { centre, rows, appearance, cells, pixels, centre_covariance: Matrix2::zeros() },
+                judged,
+            ));
+        }
+        self.evidence.forget_before(t);
+        self.segmentations.push(record);
+        out
+    }
+
+    /// Observations the KL test left without a landmark, paired by joint compatibility
+    /// where that is unambiguous (see [`PipelineConfig::joint_loop_closing`]): per plan, the
+    /// (id, index) of its landmark, `None` where the KL test decides.
+    pub(super) fn close_loop_jointly(&self, plans: &[Plan], cfg: &ObjectModelConfig) -> Vec<Option<(u32, usize)>> {
+        let none = vec![None; plans.len()];
+        let n = self.ekf.landmark_count();
+        // KL-associated observations keep their landmark (or stay out); the others may take
+        // any confirmed, gated candidate that looks alike.
+        let mut orphans = 0;
+        let allowed: Vec<Vec<bool>> = plans
+            .iter()
+            .map(|(_, obs, fitted, _, candidates, best, _)| {
+                let mut row = vec![false; n];
+                if let Some((_, j)) = best {
+                    row[*j] = true;
+                    return row;
+                }
+                for j in self.confirmed_lookalikes(obs, fitted, candidates, cfg) {
+                    row[j] = true;
+                }
+                orphans += row.iter().any(|a| *a) as usize;
+                row
+            })
+            .collect();
+        if orphans == 0 || plans.len() < 2 {
+            return none;
+        }
+        let zs: Vec<Vector2<f64>> = plans.iter().map(|p| p.3).collect();
+        let Some(h) = unambiguous_jcbb(&self.ekf, &self.config.sensor, &zs, &allowed, self.config.jcbb_probability)
+        else {
+            return none;
+        };
+        // Two or more of the unexplained observations must pair: one alone is only
+        // individually gated, and a new tree near an uncertain old one would pass.
+        if h.iter().zip(plans).filter(|(j, p)| j.is_some() && p.5.is_none()).count() < 2 {
+            return none;
+        }
+        h.iter()
+            .zip(plans)
+            .map(|(j, p)| if p.5.is_some() { None } else { j.map(|j| (self.landmarks[j].id, j)) })
+            .collect()
+    }
+
+    /// Indices of the confirmed candidates whose object model looks like the observation
+    /// (appearance KL under the threshold).
+    pub(super) fn confirmed_lookalikes<'a>(
+        &'a self,
+        obs: &'a ObjectObservation,
+        fitted: &'a Gmm,
+        candidates: &'a [Candidate],
+        cfg: &'a ObjectModelConfig,
+    ) -> impl Iterator<Item = usize> + 'a {
+        candidates.iter().filter_map(move |c| {
+            let j = self.landmarks.iter().position(|l| l.id == c.landmark)?;
+            let model = self.objects[j].as_ref().filter(|_| self.landmarks[j].confirmed)?;
+            model
+                .kl_from(fitted, obs.centre, [0.0; 2], &Matrix2::zeros(), cfg, true)
+                .is_ok_and(|kl| kl.is_finite() && kl < cfg.kl_threshold)
+                .then_some(j)
+        })
+    }
+
+    /// Whether a confirmed landmark that looks like the observation lies within its
+    /// new-landmark gate (`candidates` holds those).
+    pub(super) fn near_lookalike(
+        &self,
+        obs: &ObjectObservation,
+        fitted: &Gmm,
+        candidates: &[Candidate],
+        cfg: &ObjectModelConfig,
+    ) -> bool {
+        self.confirmed_lookalikes(obs, fitted, candidates, cfg).next().is_some()
+    }
+
+    /// Covariance (map frame) of the offset between an observation at (range, bearing) and
+    /// landmark `j`: the innovation covariance mapped through the polar-to-Cartesian Jacobian.
+    pub(super) fn offset_covariance(&self, j: usize, z: &Vector2<f64>) -> Matrix2<f64> {
+        let (_, _, _, s) = self.ekf.predict_observation(&self.config.sensor, j);
+        let theta = self.ekf.pose().z;
+        let (r, b) = (z.x, z.y);
+        let (sb, cb) = b.sin_cos();
+        let (st, ct) = theta.sin_cos();
+        let polar = Matrix2::new(cb, -r * sb, sb, r * cb);
+        let jz = Matrix2::new(ct, -st, st, ct) * polar;
+        jz * s * jz.transpose()
+    }
+
+    /// Appearance methods: segmentation, object models and KL association.
+    pub(super) fn on_scan_with_appearance(&mut self, t: f64, clusters: Vec<Cluster>) -> ScanReport {
+        self.t = t;
+        // The state the recorded poses agree with, where a relinearisation starts.
+        let before = self.history.as_ref().map(|_| self.ekf.x.clone());
+        let observations = self.observe_objects(t, &clusters);
+        let mut assigned = vec![None; clusters.len()];
+        let method = self.config.method;
+        let cfg = self.config.object_model.clone();
+        let gate = chi2_quantile(2, self.config.new_landmark_probability);
+        let assoc_gate = chi2_quantile(2, self.config.gate_probability);
+        let n_before = self.ekf.landmark_count();
+        let pca_dims = self.appearance.as_ref().map_or(0, |a| a.model.extractor.pca.dims());
+        // Decide every observation against the landmarks that existed before this scan.
+        let mut plans = Vec::new();
+        let general = self.appearance.as_ref().map(|a| a.general.clone());
+        for (ci, obs, fully_judged) in observations {
+            let Ok(fitted) = fit_observation(&obs, general.as_ref(), &cfg) else { continue };
+            let z = Vector2::new(clusters[ci].range_m, clusters[ci].bearing_rad);
+            let mut candidates = Vec::new();
+            for j in 0..n_before {
+                let m2 = self.ekf.mahalanobis2(&self.config.sensor, j, &z);
+                if method == AssociationMethod::Combined && m2 > gate {
+                    continue;
+                }
+                let Some(model) = &self.objects[j] else { continue };
+                if method == AssociationMethod::Combined
+                    && !self.config.diameter.compatible(
+                        clusters[ci].diameter_m,
+                        z.x,
+                        self.landmarks[j].diameter_m,
+                        self.landmarks[j].observations,
+                    )
+                {
+                    continue;
+                }
+                // A cluster too close for the camera to tell a trunk from a post may only
+                // re-observe a confirmed landmark, never start or confirm one.
+                if !fully_judged && !self.landmarks[j].confirmed {
+                    continue;
+                }
+                let lm = self.ekf.landmark(j);
+                let kl = model
+                    .kl_from(
+                        &fitted,
+                        obs.centre,
+                        [lm.x, lm.y],
+                        &self.offset_covariance(j, &z),
+                        &cfg,
+                        method == AssociationMethod::Appearance,
+                    )
+                    .ok();
+                candidates.push(Candidate { landmark: self.landmarks[j].id, mahalanobis2: m2, kl });
+            }
+            // The combined method's candidates lie within the new-landmark gate (for the
+            // deferral and the joint test); to join one by KL, an observation must also be
+            // within the association gate, as for the position-only methods.
+            let best = candidates
+                .iter()
+                .filter(|c| method != AssociationMethod::Combined || c.mahalanobis2 <= assoc_gate)
+                .filter_map(|c| c.kl.filter(|k| k.is_finite() && *k < cfg.kl_threshold).map(|k| (c.landmark, k)))
+                .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+            let best = best.and_then(|(id, _)| self.landmarks.iter().position(|l| l.id == id).map(|j| (id, j)));
+            plans.push((ci, obs, fitted, z, candidates, best, fully_judged));
+        }
+        let joint = if method == AssociationMethod::Combined && self.config.joint_loop_closing {
+            self.close_loop_jointly(&plans, &cfg)
+        } else {
+            vec![None; plans.len()]
+        };
+        let mut new_ones = Vec::new();
+        let mut closed_jointly = false;
+        for ((ci, obs, fitted, z, candidates, best, fully_judged), joint) in plans.into_iter().zip(joint) {
+            // A loop closed jointly corrects the pose by metres. With latest-estimate
+            // Jacobians the closing update itself is iterated; first-estimate ones stay
+            // where they are, and the smoother relinearises after the scan.
+            let closes_jointly = best.is_none() && joint.is_some();
+            let iterations = if closes_jointly && !self.config.first_estimate_jacobians { 10 } else { 1 };
+            let best = best.or(joint);
+            let choice = match best {
+                Some((id, j)) => {
+                    if self.ekf.update_iterated(&self.config.sensor, j, &z, iterations).is_ok() {
+                        let lm = self.ekf.landmark(j);
+                        if let Some(m) = self.objects[j].as_mut() {
+                            let _ = m.update(&obs, [lm.x, lm.y], pca_dims);
+                        }
+                        self.places[j] = Some(self.laser_point_in(&self.odometry_pose, clusters[ci].centre).0);
+                        let l = &mut self.landmarks[j];
+                        l.diameter_m = (l.diameter_m * l.observations as f64 + clusters[ci].diameter_m)
+                            / (l.observations + 1) as f64;
+                        l.observations += 1;
+                        assigned[ci] = Some(id);
+                        closed_jointly |= closes_jointly;
+                        if let Some(h) = &mut self.history {
+                            h.observe(id, z);
+                        }
+                        Choice::Existing { landmark: id }
+                    } else {
+                        Choice::Rejected
+                    }
+                }
+                None if !fully_judged => Choice::Rejected,
+                None if method == AssociationMethod::Combined
+                    && self.config.defer_near_lookalike
+                    && self.near_lookalike(&obs, &fitted, &candidates, &cfg) =>
+                {
+                    Choice::Deferred
+                }
+                None => {
+                    new_ones.push((ci, self.decisions.len(), obs, fitted, z));
+                    Choice::Rejected // replaced below once the id exists
+                }
+            };
+            self.decisions.push(AssociationDecision { t, observation: ci, candidates, choice, method });
+        }
+        let class = self.appearance.as_ref().map_or("object".to_string(), |a| a.model.object_class.clone());
+        for (ci, decision, obs, fitted, z) in new_ones {
+            let j = self.ekf.add_landmark(&self.config.sensor, &z);
+            let id = self.next_id;
+            self.next_id += 1;
+            debug_assert_eq!(j, self.landmarks.len());
+            let lm = self.ekf.landmark(j);
+            // Re-centre the model's positions on the landmark estimate.
+            let mut model = ObjectModel::new(&obs, fitted, pca_dims);
+            let d = model.gmm.dims();
+            for c in &mut model.gmm.components {
+                c.mean[d - 3] += obs.centre[0] - lm.x;
+                c.mean[d - 2] += obs.centre[1] - lm.y;
+            }
+            self.landmarks.push(Landmark {
+                id,
+                position: [0.0; 2],
+                covariance: [[0.0; 2]; 2],
+                class: class.clone(),
+                observations: 1,
+                diameter_m: clusters[ci].diameter_m,
+                created_t: t,
+                confirmed: self.config.confirm_observations <= 1,
+            });
+            self.objects.push(Some(model));
+            self.places.push(Some(self.laser_point_in(&self.odometry_pose, clusters[ci].centre).0));
+            assigned[ci] = Some(id);
+            self.decisions[decision].choice = Choice::New { landmark: id };
+            if let Some(h) = &mut self.history {
+                h.observe(id, z);
+            }
+        }
+        let due = self.config.relinearise_every_s.is_some_and(|every| t - self.relinearised_at >= every);
+        if (closed_jointly || due)
+            && let Some(before) = &before
+        {
+            self.relinearise(before);
+        }
+        if self.config.evidence.pooled {
+            self.retract_landmarks();
+        }
+        self.note_co_observed(&assigned);
+        self.refresh_landmarks();
+        if let Some(h) = &mut self.history {
+            h.set_estimate(self.ekf.pose());
+        }
+        self.record_pose();
+        self.report(t, clusters, assigned)
+    }
+
+    /// Whether landmarks `i` and `j` may be one object by their appearance: always for the
+    /// position-only methods; for the appearance methods when both have object models whose
+    /// appearance KL is under the association threshold.
+    pub(super) fn look_alike(&self, i: usize, j: usize) -> bool {
+        if !self.config.method.uses_appearance() {
+            return true;
+        }
+        let (Some(a), Some(b)) = (&self.objects[i], &self.objects[j]) else { return false };
+        let cfg = &self.config.object_model;
+        a.kl_from(&b.gmm, [0.0; 2], [0.0; 2], &Matrix2::zeros(), cfg, true)
+            .is_ok_and(|kl| kl.is_finite() && kl < cfg.kl_threshold)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::gmm::Component;
+    use crate::object_model::MosaicView;
+    use nalgebra::DVector;
+
+    /// A one-component density over [4 appearance dims | x, y | h] with appearance mean `a`.
+    fn density(a: f64) -> Gmm {
+        let mut mean = DVector::zeros(7);
+        mean.rows_mut(0, 4).fill(a);
+        mean[6] = 1.0;
+        Gmm { components: vec![Component { weight: 1.0, mean, covariance: DMatrix::identity(7, 7) * 0.04 }] }
+    }
+
+    /// One tree landmark 5 m ahead with an object model of appearance 0.
+    fn one_landmark(confirm_observations: usize) -> Pipeline {
+        let config = PipelineConfig { method: AssociationMethod::Nn, confirm_observations, ..Default::default() };
+        let mut p = Pipeline::new(config, [0.0; 3]);
+        let c = Cluster {
+            first_beam: 0,
+            last_beam: 3,
+            points: vec![],
+            centre: [5.0, 0.0],
+            diameter_m: 0.3,
+            range_m: 5.0,
+            bearing_rad: 0.0,
+            occluded: false,
+        };
+        p.on_scan_with_objects(0.1, vec![c], &[true], "tree").unwrap();
+        p.objects[0] = Some(ObjectModel {
+            gmm: density(0.0),
+            patches: 20.0,
+            observations: 1,
+            mosaic: MosaicView { cells: vec![], appearance: vec![], pixels: vec![] },
+        });
+        p
+    }
+
+    fn observation() -> ObjectObservation {
+        ObjectObservation {
+            centre: [5.2, 0.1],
+            rows: DMatrix::zeros(0, 7),
+            appearance: vec![],
+            cells: vec![],
+            pixels: vec![],
+            centre_covariance: Matrix2::zeros(),
+        }
+    }
+
+    #[test]
+    fn an_observation_beside_a_confirmed_lookalike_is_deferred() {
+        let p = one_landmark(1);
+        let cfg = ObjectModelConfig::default();
+        let candidate = [Candidate { landmark: 0, mahalanobis2: 1.0, kl: Some(500.0) }];
+        assert!(p.near_lookalike(&observation(), &density(0.05), &candidate, &cfg), "same appearance, in the gate");
+        assert!(
+            !p.near_lookalike(&observation(), &density(5.0), &candidate, &cfg),
+            "another kind of object starts its own landmark"
+        );
+        assert!(!p.near_lookalike(&observation(), &density(0.05), &[], &cfg), "nothing in the gate");
+        // A tentative landmark (maybe a person) never holds a new tree back.
+        let q = one_landmark(8);
+        assert!(!q.near_lookalike(&observation(), &density(0.05), &candidate, &cfg));
+    }
+
+    #[test]
+    fn trunk_diameters_tell_apart_trees_of_different_girth() {
+        let check = DiameterCheck::default();
+        // long_loop, seed 1: a 0.64 m trunk 11 m away was paired with a 0.45 m one.
+        assert!(!check.compatible(0.64, 11.0, 0.446, 54));
+        // The spread measured between single clusters and their landmark: 3 sigma in, at
+        // every range, with few or many observations behind the landmark.
+        for (range, spread) in [(4.0, 0.05), (8.0, 0.08), (11.0, 0.12)] {
+            assert!(check.compatible(0.45 + spread, range, 0.45, 50), "{range} m");
+            assert!(check.compatible(0.45 - spread, range, 0.45, 1), "{range} m");
+        }
+        assert!(!check.compatible(0.45 + 0.1, 4.0, 0.45, 50));
+        let off = DiameterCheck { enabled: false, ..Default::default() };
+        assert!(off.compatible(1.0, 5.0, 0.2, 10));
+        assert!(check.validate().is_ok());
+        assert_eq!(DiameterCheck { max_sigmas: 0.0, ..Default::default() }.validate().unwrap_err().0, "max_sigmas");
+        assert_eq!(
+            DiameterCheck { sigma_per_m: f64::NAN, ..Default::default() }.validate().unwrap_err().0,
+            "sigma_per_m"
+        );
+        assert_eq!(
+            DiameterCheck { sigma_m: 0.0, sigma_per_m: 0.0, ..Default::default() }.validate().unwrap_err().0,
+            "sigma_m"
+        );
+    }
+}

@@ -1,0 +1,225 @@
+//! The landmarks' lifecycle: confirmation, deletion of tentative ones, retraction,
+//! fusion of duplicates, relinearisation.
+
+use super::*;
+
+impl Pipeline {
+    /// Takes landmark `j` out of the pipeline's per-landmark lists (not the filter's state).
+    pub(super) fn forget_landmark(&mut self, j: usize) -> Landmark {
+        self.objects.remove(j);
+        self.places.remove(j);
+        self.landmarks.remove(j)
+    }
+
+    /// Retracts the landmarks whose place nearer frames judge not an object: a palm taken
+    /// for a tree from 8-12 m, where the camera cannot tell its trunk from bark.
+    pub(super) fn retract_landmarks(&mut self) {
+        let mut j = 0;
+        while j < self.landmarks.len() {
+            if self.places[j].and_then(|p| self.evidence.judge(p)).is_some_and(|jd| jd.retracts(&self.config.evidence))
+            {
+                self.ekf.remove_landmark(j);
+                let gone = self.forget_landmark(j);
+                self.retractions.push(LandmarkRetraction { t: self.t, landmark: gone.id });
+            } else {
+                j += 1;
+            }
+        }
+    }
+
+    pub(super) fn refresh_landmarks(&mut self) {
+        // Confirm landmarks seen often enough; delete tentative ones that timed out.
+        let (need, window, t) = (self.config.confirm_observations, self.config.confirm_window_s, self.t);
+        for lm in &mut self.landmarks {
+            if !lm.confirmed && lm.observations >= need {
+                lm.confirmed = true;
+            }
+        }
+        let mut j = 0;
+        while j < self.landmarks.len() {
+            let lm = &self.landmarks[j];
+            if !lm.confirmed && t - lm.created_t > window {
+                self.ekf.remove_landmark(j);
+                self.forget_landmark(j);
+            } else {
+                j += 1;
+            }
+        }
+        if self.config.merge.enabled {
+            self.merge_duplicates();
+        }
+        for (i, lm) in self.landmarks.iter_mut().enumerate() {
+            let p = self.ekf.landmark(i);
+            let c = self.ekf.landmark_covariance(i);
+            lm.position = [p.x, p.y];
+            lm.covariance = [[c[(0, 0)], c[(0, 1)]], [c[(1, 0)], c[(1, 1)]]];
+        }
+    }
+
+    pub(super) fn note_co_observed(&mut self, assigned: &[Option<u32>]) {
+        // Only fusion reads it.
+        if !self.config.merge.enabled {
+            return;
+        }
+        let ids: Vec<u32> = assigned.iter().flatten().copied().collect();
+        for (k, &a) in ids.iter().enumerate() {
+            for &b in &ids[k + 1..] {
+                self.co_observed.insert((a.min(b), a.max(b)));
+            }
+        }
+    }
+
+    /// Fuses pairs of confirmed landmarks that are one object (see [`MergeConfig`]), the
+    /// older one staying, until no pair qualifies.
+    pub(super) fn merge_duplicates(&mut self) {
+        let cfg = self.config.merge.clone();
+        let gate = chi2_quantile(2, self.config.gate_probability);
+        // Past the gate and the sigma bound, two positions are at most this far apart.
+        let reach = gate.sqrt() * cfg.max_sigma_m * std::f64::consts::SQRT_2;
+        loop {
+            // Pairs of confirmed landmarks within reach, found by a sweep along x rather
+            // than over all pairs (the map holds hundreds on a real log), then taken in
+            // (i, j) order as a search over all pairs would meet them.
+            let mut order: Vec<(f64, usize)> = (0..self.landmarks.len())
+                .filter(|&i| self.landmarks[i].confirmed)
+                .map(|i| (self.ekf.landmark(i).x, i))
+                .collect();
+            order.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            let mut near = Vec::new();
+            for (k, &(xa, a)) in order.iter().enumerate() {
+                let la = self.ekf.landmark(a);
+                for &(xb, b) in &order[k + 1..] {
+                    if xb - xa > reach {
+                        break;
+                    }
+                    if (self.ekf.landmark(b) - la).norm() <= reach {
+                        near.push((a.min(b), a.max(b)));
+                    }
+                }
+            }
+            near.sort_unstable();
+            let pair = near.into_iter().find(|&(i, j)| {
+                let (a, b) = (self.landmarks[i].id, self.landmarks[j].id);
+                if self.co_observed.contains(&(a.min(b), a.max(b))) {
+                    return false;
+                }
+                let (m2, c) = self.ekf.landmark_difference(i, j);
+                let widest = c.symmetric_eigenvalues().max();
+                m2 <= gate && widest <= cfg.max_sigma_m * cfg.max_sigma_m && self.look_alike(i, j)
+            });
+            let Some((i, j)) = pair else { break };
+            if self.ekf.merge_landmarks(i, j, cfg.noise_sigma_m).is_err() {
+                break;
+            }
+            let gone = self.forget_landmark(j);
+            let kept = &mut self.landmarks[i];
+            kept.diameter_m = (kept.diameter_m * kept.observations as f64 + gone.diameter_m * gone.observations as f64)
+                / (kept.observations + gone.observations).max(1) as f64;
+            kept.observations += gone.observations;
+            // The fused landmark is never fused with what either was seen beside.
+            let partners: Vec<u32> = self
+                .co_observed
+                .iter()
+                .filter_map(|&(a, b)| {
+                    if a == gone.id {
+                        Some(b)
+                    } else if b == gone.id {
+                        Some(a)
+                    } else {
+                        None
+                    }
+                })
+                .collect();
+            let kept_id = kept.id;
+            for p in partners {
+                self.co_observed.insert((kept_id.min(p), kept_id.max(p)));
+            }
+            self.merges.push(LandmarkMerge { t: self.t, kept: kept_id, removed: gone.id });
+            if let Some(h) = &mut self.history {
+                h.relabel(gone.id, kept_id);
+            }
+        }
+    }
+
+    /// Solves the history again and gives the filter the result (see
+    /// [`PipelineConfig::relinearise_loop_closures`]); a failed solve leaves the filter as
+    /// it was.
+    pub(super) fn relinearise(&mut self, before: &DVector<f64>) {
+        let Some(history) = &mut self.history else { return };
+        self.relinearised_at = self.t;
+        let ids: Vec<u32> = self.landmarks.iter().map(|l| l.id).collect();
+        let solved = history.relinearise(&mut self.ekf, before, &self.config.motion, &self.config.sensor, &ids, 10);
+        self.relinearisations.push(solved);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cluster_at(range: f64, bearing: f64) -> Cluster {
+        Cluster {
+            first_beam: 0,
+            last_beam: 3,
+            points: vec![],
+            centre: [range * bearing.cos(), range * bearing.sin()],
+            diameter_m: 0.3,
+            range_m: range,
+            bearing_rad: bearing,
+            occluded: false,
+        }
+    }
+
+    /// Two landmarks, seen in one scan or in two, then landmark 1 moved to 2 cm from
+    /// landmark 0 (as if a loop closure had pulled a duplicate onto its original).
+    fn pair(seen_together: bool, extra_variance: f64, merge: bool) -> Pipeline {
+        let merge = MergeConfig { enabled: merge, ..Default::default() };
+        let config =
+            PipelineConfig { method: AssociationMethod::Nn, confirm_observations: 1, merge, ..Default::default() };
+        let mut p = Pipeline::new(config, [0.0; 3]);
+        let (a, b) = (cluster_at(5.0, 0.0), cluster_at(5.0, 0.5));
+        if seen_together {
+            p.on_scan_with_objects(0.1, vec![a, b], &[true, true], "tree").unwrap();
+        } else {
+            p.on_scan_with_objects(0.1, vec![a], &[true], "tree").unwrap();
+            p.on_scan_with_objects(0.2, vec![b], &[true], "tree").unwrap();
+        }
+        assert_eq!(p.landmarks().len(), 2);
+        let (l0, l1) = (p.ekf.landmark_offset(), p.ekf.landmark_offset() + 2);
+        p.ekf.x[l1] = p.ekf.x[l0] + 0.02;
+        p.ekf.x[l1 + 1] = p.ekf.x[l0 + 1];
+        p.ekf.p[(l1, l1)] += extra_variance;
+        p.ekf.p[(l1 + 1, l1 + 1)] += extra_variance;
+        p.refresh_landmarks();
+        p
+    }
+
+    #[test]
+    fn a_duplicate_is_fused_into_the_older_landmark() {
+        let p = pair(false, 0.0, true);
+        assert_eq!(p.landmarks().len(), 1);
+        assert_eq!(p.landmarks()[0].id, 0);
+        assert_eq!(p.landmarks()[0].observations, 2);
+        assert_eq!(p.merges, [LandmarkMerge { t: 0.2, kept: 0, removed: 1 }]);
+        assert_eq!(p.ekf().landmark_count(), 1);
+        let c = p.ekf().landmark_covariance(0);
+        assert!(c.symmetric_eigenvalues().min() > 0.0);
+    }
+
+    #[test]
+    fn landmarks_seen_in_one_scan_are_never_fused() {
+        let p = pair(true, 0.0, true);
+        assert_eq!(p.landmarks().len(), 2);
+        assert!(p.merges.is_empty());
+    }
+
+    #[test]
+    fn landmarks_too_uncertain_to_tell_apart_are_not_fused() {
+        let p = pair(false, 0.5, true);
+        assert_eq!(p.landmarks().len(), 2);
+        // Disabled, a pair that would qualify stays apart too.
+        let q = pair(false, 0.0, false);
+        assert_eq!(q.landmarks().len(), 2);
+        assert!(q.merges.is_empty());
+    }
+}

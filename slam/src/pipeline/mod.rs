@@ -1,0 +1,290 @@
+//! The online pipeline: odometry predicts, each scan is clustered, clusters become
+//! observations, association decides, the EKF updates and new landmarks are added.
+//!
+//! With a position-only method (`nn`, `jcbb`) every cluster whose size fits a trunk is an
+//! observation: posts and people's legs can become landmarks, which is the failure the
+//! paper argues against. The appearance methods (`combined`, the paper's, and
+//! `appearance`) take their observations from the laser-camera segmentation of the latest
+//! camera image: only clusters segmented as objects are observed, each with an object
+//! model, and association compares models by KL divergence.
+//!
+//! The files, by stage: `config` (settings), `inputs` (odometry, controls, scans,
+//! detections, images), `position` and `appearance` (association and the filter's
+//! update, by method family), `landmarks` (confirmation, retraction, fusion,
+//! relinearisation), `records` (what a scan reports). The per-landmark lists
+//! (`landmarks`, `objects`, `places`) stay index-aligned with the filter's landmarks: every
+//! removal goes through `forget_landmark` beside the filter's own.
+
+mod appearance;
+mod config;
+mod inputs;
+mod landmarks;
+mod position;
+mod records;
+
+pub use appearance::Appearance;
+pub use config::{DiameterCheck, MergeConfig, PipelineConfig};
+pub use records::{
+    ClusterSegmentation, Landmark, LandmarkMerge, LandmarkRetraction, PoseEstimate, ScanReport, SegmentationRecord,
+};
+
+use std::collections::HashSet;
+
+use nalgebra::{DMatrix, DVector, Matrix2, Matrix3, Vector2, Vector3};
+use serde::{Deserialize, Serialize};
+
+use crate::association::{
+    AssociationDecision, AssociationMethod, Candidate, Choice, chi2_quantile, jcbb::jcbb_with, jcbb::unambiguous_jcbb,
+};
+use crate::classifier::{AppearanceModel, PatchClassifier};
+use crate::clustering::{Cluster, ClusteringConfig, cluster};
+use crate::ekf::smoother::{History, Relinearisation, SmootherError};
+use crate::ekf::{Ekf, MotionConfig, MotionModel, RangeBearingModel};
+use crate::evidence::{EvidenceConfig, Judgement, ObjectEvidence};
+use crate::features::ImageRef;
+use crate::gmm::{Gmm, StudentTMixture};
+use crate::messages::{Control, Detection, LaserScan, OdometryIncrement};
+use crate::object_model::{ObjectModel, ObjectModelConfig, ObjectObservation, fit_observation};
+use crate::segmentation::{
+    CameraGeometry, ImageRegion, SegmentationConfig, SegmentedCluster, locate_cluster, segment_located, spans_cover,
+};
+use crate::settings::InvalidSetting;
+use rayon::prelude::*;
+
+/// The latest camera image.
+#[derive(Clone)]
+struct StoredImage {
+    t: f64,
+    width: u32,
+    height: u32,
+    rgb: Vec<u8>,
+    /// The pixel columns that hold the scene (`None`: all of them).
+    columns: Option<Vec<(u32, u32)>>,
+}
+
+/// The online SLAM pipeline. Cloning it forks a run (benchmarks, what-if studies).
+#[derive(Clone)]
+pub struct Pipeline {
+    pub config: PipelineConfig,
+    ekf: Ekf,
+    landmarks: Vec<Landmark>,
+    /// Object model per landmark (appearance methods).
+    objects: Vec<Option<ObjectModel>>,
+    /// Per landmark: the evidence place (odometry frame) of its latest camera observation,
+    /// where later frames may judge it not an object (see [`Pipeline::retractions`]).
+    places: Vec<Option<[f64; 2]>>,
+    /// Made during the current scan, handed over in its [`ScanReport`].
+    retractions: Vec<LandmarkRetraction>,
+    /// Made during the current scan (indexed while it lasts), handed over in its report.
+    decisions: Vec<AssociationDecision>,
+    /// The latest pose estimate.
+    pose: PoseEstimate,
+    t: f64,
+    /// Id of the next landmark (ids are never reused after a tentative one is deleted).
+    next_id: u32,
+    appearance: Option<Appearance>,
+    image: Option<StoredImage>,
+    segmentations: Vec<SegmentationRecord>,
+    /// See [`Pipeline::unrendered_reads`].
+    unrendered_reads: usize,
+    evidence: ObjectEvidence,
+    /// Dead-reckoned pose (x, y, theta): the frame of the evidence's places. Odometry is
+    /// smooth over the seconds a place lives, while the filter's pose jumps when a loop
+    /// closes, which would split one object's place or join a post to a tree's.
+    odometry_pose: [f64; 3],
+    /// Pairs of landmark ids (smaller first) seen in one scan: never fused.
+    co_observed: HashSet<(u32, u32)>,
+    merges: Vec<LandmarkMerge>,
+    /// What the filter was told, when loop closures are relinearised.
+    history: Option<History>,
+    relinearisations: Vec<Result<Relinearisation, SmootherError>>,
+    /// When the latest relinearisation was tried.
+    relinearised_at: f64,
+    /// The latest control and the time it was given: it holds until the next input.
+    control: Option<(f64, Control)>,
+}
+
+/// Errors of the online pipeline.
+#[derive(Debug, thiserror::Error)]
+pub enum PipelineError {
+    #[error("association method `{0}` needs camera images and an appearance model; give the pipeline an `Appearance`")]
+    NeedsAppearance(&'static str),
+    #[error("image is {width}x{height} with {found} bytes; RGB needs {expected}")]
+    Image { width: u32, height: u32, expected: usize, found: usize },
+    #[error("pipeline settings: {0}")]
+    Invalid(#[from] InvalidSetting),
+    #[error("{input} at t = {t} s comes before the previous input at t = {previous} s: inputs must be in time order")]
+    TimeReversed { input: &'static str, t: f64, previous: f64 },
+    #[error("{input} at t = {t} s holds a value that is not finite")]
+    NonFinite { input: &'static str, t: f64 },
+    #[error("the `{model}` motion model cannot use {input}")]
+    MotionInput { model: &'static str, input: &'static str },
+    #[error("association method `{0}` observes objects in camera images: it cannot use point detections")]
+    DetectionsNeedPositionMethod(&'static str),
+    #[error("{given} object flags for {clusters} clusters")]
+    ObjectFlags { given: usize, clusters: usize },
+}
+
+impl Pipeline {
+    /// Starts at `pose` (x, y, theta) in the map frame.
+    pub fn new(config: PipelineConfig, pose: [f64; 3]) -> Self {
+        let s = config.initial_pose_sigma;
+        let mut ekf = Ekf::with_calibration(
+            Vector3::from(pose),
+            Matrix3::from_diagonal(&Vector3::new(s[0] * s[0], s[1] * s[1], s[2] * s[2])),
+            &config.motion.calibration_prior(),
+        );
+        if config.first_estimate_jacobians {
+            ekf.use_first_estimates();
+        }
+        let evidence = ObjectEvidence::new(config.evidence.clone());
+        let history = (config.relinearise_loop_closures && config.method == AssociationMethod::Combined)
+            .then(|| History::new(ekf.pose(), ekf.pose_covariance(), &config.motion.calibration_prior()));
+        let mut p = Pipeline {
+            config,
+            ekf,
+            landmarks: Vec::new(),
+            objects: Vec::new(),
+            places: Vec::new(),
+            retractions: Vec::new(),
+            decisions: Vec::new(),
+            pose: PoseEstimate { t: 0.0, pose, covariance: [[0.0; 3]; 3] },
+            t: 0.0,
+            next_id: 0,
+            appearance: None,
+            image: None,
+            segmentations: Vec::new(),
+            unrendered_reads: 0,
+            evidence,
+            odometry_pose: pose,
+            co_observed: HashSet::new(),
+            merges: Vec::new(),
+            history,
+            relinearisations: Vec::new(),
+            relinearised_at: 0.0,
+            control: None,
+        };
+        p.record_pose();
+        p
+    }
+
+    /// The same pipeline with its clock starting at `t` (a log's first instant), so the
+    /// first pose is stamped `t` rather than 0 and earlier inputs are errors.
+    pub fn starting_at(mut self, t: f64) -> Self {
+        self.t = t;
+        self.relinearised_at = t;
+        self.record_pose();
+        self
+    }
+
+    /// The time of the latest input.
+    pub fn time(&self) -> f64 {
+        self.t
+    }
+
+    /// Refuses an input stamped before the previous one.
+    fn check_time(&self, input: &'static str, t: f64) -> Result<(), PipelineError> {
+        if !t.is_finite() {
+            return Err(PipelineError::NonFinite { input, t });
+        }
+        if t < self.t {
+            return Err(PipelineError::TimeReversed { input, t, previous: self.t });
+        }
+        Ok(())
+    }
+
+    /// A pipeline for any method; the appearance methods need `appearance`.
+    pub fn with_appearance(
+        config: PipelineConfig,
+        pose: [f64; 3],
+        appearance: Option<Appearance>,
+    ) -> Result<Self, PipelineError> {
+        config.validate()?;
+        if config.method.uses_appearance() && appearance.is_none() {
+            return Err(PipelineError::NeedsAppearance(config.method.name()));
+        }
+        // The object models use the leading PCA coordinates: more than the model has would
+        // be silently fewer.
+        if let Some(app) = &appearance
+            && config.object_model.appearance_dims > app.model.extractor.pca.dims()
+        {
+            let problem = format!(
+                "must be at most the appearance model's {} PCA dimensions, got {}",
+                app.model.extractor.pca.dims(),
+                config.object_model.appearance_dims
+            );
+            return Err(InvalidSetting::new("object_model.appearance_dims", problem).into());
+        }
+        let mut p = Pipeline::new(config, pose);
+        p.appearance = appearance;
+        Ok(p)
+    }
+
+    /// The report of the scan at `t`: its observations and what it did, handed over.
+    fn report(&mut self, t: f64, clusters: Vec<Cluster>, assigned: Vec<Option<u32>>) -> ScanReport {
+        ScanReport {
+            t,
+            clusters,
+            assigned,
+            decisions: std::mem::take(&mut self.decisions),
+            merges: std::mem::take(&mut self.merges),
+            retractions: std::mem::take(&mut self.retractions),
+            segmentations: std::mem::take(&mut self.segmentations),
+            relinearisations: std::mem::take(&mut self.relinearisations),
+        }
+    }
+
+    /// Object model of landmark `id`, if it has one.
+    pub fn object_model(&self, id: u32) -> Option<&ObjectModel> {
+        let j = self.landmarks.iter().position(|l| l.id == id)?;
+        self.objects.get(j).and_then(|o| o.as_ref())
+    }
+
+    pub fn appearance(&self) -> Option<&Appearance> {
+        self.appearance.as_ref()
+    }
+
+    /// Map-frame position of a laser-frame point, and the rotation robot -> map.
+    fn to_map(&self, p: [f64; 2]) -> ([f64; 2], Matrix2<f64>) {
+        let pose = self.ekf.pose();
+        self.laser_point_in(&[pose.x, pose.y, pose.z], p)
+    }
+
+    /// Position of a laser-frame point in the frame of `pose` (the robot's pose in it), and
+    /// the rotation robot -> that frame.
+    fn laser_point_in(&self, pose: &[f64; 3], p: [f64; 2]) -> ([f64; 2], Matrix2<f64>) {
+        let (s, c) = pose[2].sin_cos();
+        let (lx, ly) = (self.config.sensor.mount_x + p[0], self.config.sensor.mount_y + p[1]);
+        ([pose[0] + c * lx - s * ly, pose[1] + s * lx + c * ly], Matrix2::new(c, -s, s, c))
+    }
+
+    fn record_pose(&mut self) {
+        let p = self.ekf.pose();
+        let c = self.ekf.pose_covariance();
+        let est = PoseEstimate {
+            t: self.t,
+            pose: [p.x, p.y, p.z],
+            covariance: std::array::from_fn(|r| std::array::from_fn(|k| c[(r, k)])),
+        };
+        self.pose = est;
+    }
+
+    /// The latest pose estimate.
+    pub fn pose(&self) -> PoseEstimate {
+        self.pose
+    }
+
+    /// Every landmark in the filter, tentative ones included.
+    pub fn landmarks(&self) -> &[Landmark] {
+        &self.landmarks
+    }
+
+    /// The map: confirmed landmarks only.
+    pub fn mapped_landmarks(&self) -> Vec<Landmark> {
+        self.landmarks.iter().filter(|l| l.confirmed).cloned().collect()
+    }
+
+    pub fn ekf(&self) -> &Ekf {
+        &self.ekf
+    }
+}

@@ -1,0 +1,199 @@
+//! Position-only association (`nn`, `jcbb`) and the filter's update for a scan.
+
+use super::*;
+
+/// The L x L RGB pixels (row-major) of patch (`col`, `row`) of an image `width` pixels wide.
+/// The index of the smallest distance under `gate` (the first of equals), if any.
+fn nearest_within(distances: &[f64], gate: f64) -> Option<usize> {
+    distances.iter().enumerate().filter(|(_, d)| **d < gate).min_by(|a, b| a.1.total_cmp(b.1)).map(|(i, _)| i)
+}
+
+/// A landmark's mean diameter after one more observation; detections without a diameter
+/// (NaN) leave it as it was.
+fn mean_diameter(mean: f64, observations: usize, diameter: f64) -> f64 {
+    if !diameter.is_finite() {
+        mean
+    } else if !mean.is_finite() {
+        diameter
+    } else {
+        (mean * observations as f64 + diameter) / (observations + 1) as f64
+    }
+}
+
+impl Pipeline {
+    /// Processes clusters of which only those with `is_object[i]` are observations of
+    /// objects of interest (labelled `class`), for the position-only association.
+    pub fn on_scan_with_objects(
+        &mut self,
+        t: f64,
+        clusters: Vec<Cluster>,
+        is_object: &[bool],
+        class: &str,
+    ) -> Result<ScanReport, PipelineError> {
+        if is_object.len() != clusters.len() {
+            return Err(PipelineError::ObjectFlags { given: is_object.len(), clusters: clusters.len() });
+        }
+        self.check_time("scan", t)?;
+        self.advance_to(t);
+        Ok(self.observe_positions(t, clusters, is_object, class))
+    }
+
+    /// Position-only association and the filter's update for one scan's clusters.
+    pub(super) fn observe_positions(
+        &mut self,
+        t: f64,
+        clusters: Vec<Cluster>,
+        is_object: &[bool],
+        class: &str,
+    ) -> ScanReport {
+        self.t = t;
+        let idx: Vec<usize> = (0..clusters.len()).filter(|&i| is_object[i] && !clusters[i].occluded).collect();
+        let zs: Vec<Vector2<f64>> =
+            idx.iter().map(|&i| Vector2::new(clusters[i].range_m, clusters[i].bearing_rad)).collect();
+        let gate = chi2_quantile(2, self.config.gate_probability);
+        let new_gate = chi2_quantile(2, self.config.new_landmark_probability);
+        let n_before = self.ekf.landmark_count();
+        let diameter = &self.config.diameter;
+        let use_diameter = diameter.for_position_methods;
+        // Each landmark's predicted observation and inverse innovation covariance, once a
+        // scan rather than once an observation (the same numbers as Ekf::mahalanobis2).
+        let predicted: Vec<(Vector2<f64>, Option<Matrix2<f64>>)> = if zs.is_empty() {
+            Vec::new()
+        } else {
+            (0..n_before)
+                .map(|j| {
+                    let (zp, _, _, s) = self.ekf.predict_observation(&self.config.sensor, j);
+                    (zp, s.try_inverse())
+                })
+                .collect()
+        };
+        let distances: Vec<Vec<f64>> = zs
+            .iter()
+            .zip(&idx)
+            .map(|(z, &ci)| {
+                predicted
+                    .iter()
+                    .enumerate()
+                    .map(|(j, (zp, s_inv))| {
+                        let lm = &self.landmarks[j];
+                        if use_diameter
+                            && !diameter.compatible(clusters[ci].diameter_m, z.x, lm.diameter_m, lm.observations)
+                        {
+                            return f64::INFINITY;
+                        }
+                        let nu = Vector2::new(z.x - zp.x, crate::messages::wrap_angle(z.y - zp.y));
+                        match s_inv {
+                            Some(si) => (nu.transpose() * si * nu)[(0, 0)],
+                            None => f64::INFINITY,
+                        }
+                    })
+                    .collect()
+            })
+            .collect();
+        let pairing: Vec<Option<usize>> = match self.config.method {
+            AssociationMethod::Jcbb => {
+                let allowed: Vec<Vec<bool>> =
+                    distances.iter().map(|row| row.iter().map(|d| *d < gate).collect()).collect();
+                jcbb_with(&self.ekf, &self.config.sensor, &zs, &allowed, self.config.jcbb_probability)
+            }
+            // Nearest neighbour; appearance methods fall back to it until their
+            // observations carry object models.
+            _ => distances.iter().map(|row| nearest_within(row, gate)).collect(),
+        };
+        let mut assigned = vec![None; clusters.len()];
+        // Updates first (against the landmarks that existed before this scan), then new
+        // landmarks, so the order of observations does not matter.
+        let updated: Vec<bool> = if self.config.batch_updates {
+            let pairs: Vec<(usize, Vector2<f64>)> =
+                pairing.iter().zip(&zs).filter_map(|(j, z)| j.map(|j| (j, *z))).collect();
+            match self.ekf.update_batch(&self.config.sensor, &pairs) {
+                Ok(()) => pairing.iter().map(|j| j.is_some()).collect(),
+                // A stacked innovation covariance that is not positive definite: the
+                // observations one by one, each accepted or refused on its own.
+                Err(_) => pairing
+                    .iter()
+                    .zip(&zs)
+                    .map(|(j, z)| j.is_some_and(|j| self.ekf.update(&self.config.sensor, j, z).is_ok()))
+                    .collect(),
+            }
+        } else {
+            pairing
+                .iter()
+                .zip(&zs)
+                .map(|(j, z)| j.is_some_and(|j| self.ekf.update(&self.config.sensor, j, z).is_ok()))
+                .collect()
+        };
+        let mut new_ones = Vec::new();
+        for (k, &ci) in idx.iter().enumerate() {
+            let candidates: Vec<Candidate> = distances[k]
+                .iter()
+                .enumerate()
+                .filter(|(_, d)| **d < new_gate)
+                .map(|(j, d)| Candidate { landmark: self.landmarks[j].id, mahalanobis2: *d, kl: None })
+                .collect();
+            let choice = match pairing[k] {
+                Some(j) if updated[k] => {
+                    let lm = &mut self.landmarks[j];
+                    lm.diameter_m = mean_diameter(lm.diameter_m, lm.observations, clusters[ci].diameter_m);
+                    lm.observations += 1;
+                    assigned[ci] = Some(lm.id);
+                    if let Some(h) = &mut self.history {
+                        h.observe(lm.id, zs[k]);
+                    }
+                    Choice::Existing { landmark: lm.id }
+                }
+                Some(_) => Choice::Rejected,
+                None if distances[k].iter().all(|d| *d > new_gate) => {
+                    new_ones.push((k, ci));
+                    Choice::Rejected // replaced below once the id exists
+                }
+                None => Choice::Rejected,
+            };
+            self.decisions.push(AssociationDecision {
+                t,
+                observation: ci,
+                candidates,
+                choice,
+                method: self.config.method,
+            });
+        }
+        let first_decision = self.decisions.len() - idx.len();
+        if self.config.batch_updates {
+            let new_zs: Vec<Vector2<f64>> = new_ones.iter().map(|&(k, _)| zs[k]).collect();
+            self.ekf.add_landmarks(&self.config.sensor, &new_zs);
+        } else {
+            for &(k, _) in &new_ones {
+                self.ekf.add_landmark(&self.config.sensor, &zs[k]);
+            }
+        }
+        for (k, ci) in new_ones {
+            let id = self.next_id;
+            self.next_id += 1;
+            self.landmarks.push(Landmark {
+                id,
+                position: [0.0; 2],
+                covariance: [[0.0; 2]; 2],
+                class: class.to_string(),
+                observations: 1,
+                diameter_m: clusters[ci].diameter_m,
+                created_t: t,
+                confirmed: self.config.confirm_observations <= 1,
+            });
+            self.objects.push(None);
+            self.places.push(None);
+            assigned[ci] = Some(id);
+            self.decisions[first_decision + k].choice = Choice::New { landmark: id };
+            if let Some(h) = &mut self.history {
+                h.observe(id, zs[k]);
+            }
+        }
+        debug_assert_eq!(self.ekf.landmark_count(), self.landmarks.len());
+        self.note_co_observed(&assigned);
+        self.refresh_landmarks();
+        if let Some(h) = &mut self.history {
+            h.set_estimate(self.ekf.pose());
+        }
+        self.record_pose();
+        self.report(t, clusters, assigned)
+    }
+}
