@@ -288,7 +288,9 @@ fn read_reference(file: &Path) -> Result<Vec<ReferenceSample>, LogError> {
 }
 
 /// Writes `log` into `dir` (created if missing). Numbers are written in full precision:
-/// reading the files back gives the same log.
+/// reading the files back gives the same log, for a log that keeps the format's rules
+/// (scans with equal beam counts, detection scans with at least one detection and distinct
+/// times, headings on all reference samples or none, finite numbers).
 pub fn write(dir: &Path, log: &Log) -> Result<(), LogError> {
     fs::create_dir_all(dir).map_err(io(dir))?;
     let manifest = toml::to_string(&log.manifest)
@@ -321,6 +323,12 @@ pub fn write(dir: &Path, log: &Log) -> Result<(), LogError> {
     match &log.observations {
         Observations::Scans(scans) => {
             let beams = scans.first().map_or(0, |s| s.ranges.len());
+            if let Some(s) = scans.iter().find(|s| s.ranges.len() != beams) {
+                return Err(LogError::File {
+                    file: dir.join(SCANS),
+                    problem: format!("the scan at t = {} s has {} beams, the first has {beams}", s.t, s.ranges.len()),
+                });
+            }
             let mut text = String::from("t");
             for i in 0..beams {
                 text.push_str(&format!(",r{i}"));

@@ -119,7 +119,21 @@ impl Manifest {
                     }
                 }
             }
-            "ackermann" => {}
+            "ackermann" => {
+                let Some(wheelbase) = self.vehicle.wheelbase_m else {
+                    return Err(("vehicle.wheelbase_m".into(), "is needed with motion = \"ackermann\"".into()));
+                };
+                if !(wheelbase.is_finite() && wheelbase > 0.0) {
+                    return Err(("vehicle.wheelbase_m".into(), format!("must be positive, got {wheelbase}")));
+                }
+                let offset = self.vehicle.encoder_offset_m.unwrap_or(0.0);
+                if !(offset.is_finite() && offset.abs() < wheelbase) {
+                    return Err((
+                        "vehicle.encoder_offset_m".into(),
+                        format!("must be finite and smaller than the wheelbase, got {offset}"),
+                    ));
+                }
+            }
             other => {
                 return Err((
                     "vehicle.motion".into(),
@@ -135,8 +149,22 @@ impl Manifest {
                 return Err((format!("sensor.{name}"), format!("must be finite, got {v}")));
             }
         }
+        for (name, v) in [
+            ("range_sigma_m", self.sensor.range_sigma_m),
+            ("range_sigma_per_m", self.sensor.range_sigma_per_m),
+            ("bearing_sigma_rad", self.sensor.bearing_sigma_rad),
+        ] {
+            if let Some(v) = v
+                && !(v.is_finite() && v >= 0.0)
+            {
+                return Err((format!("sensor.{name}"), format!("must be finite and not negative, got {v}")));
+            }
+        }
         if let Some(l) = &self.laser {
-            if !(l.angle_min_rad.is_finite() && l.angle_increment_rad.is_finite() && l.angle_increment_rad != 0.0) {
+            if !l.angle_min_rad.is_finite() {
+                return Err(("laser.angle_min_rad".into(), format!("must be finite, got {}", l.angle_min_rad)));
+            }
+            if !(l.angle_increment_rad.is_finite() && l.angle_increment_rad != 0.0) {
                 return Err(("laser.angle_increment_rad".into(), "must be finite and not zero".into()));
             }
             if !(l.range_min_m >= 0.0 && l.range_max_m > l.range_min_m && l.range_max_m.is_finite()) {

@@ -136,8 +136,14 @@ fn vector(mat: &MatFile, file: &Path, name: &str) -> Result<Vec<f64>, LogError> 
 }
 
 fn check_times(file: &Path, name: &str, t: &[f64]) -> Result<(), LogError> {
+    if let Some(k) = t.iter().position(|v| !v.is_finite()) {
+        return Err(LogError::File {
+            file: file.to_path_buf(),
+            problem: format!("`{name}` element {} is not finite ({})", k + 1, t[k]),
+        });
+    }
     for (k, w) in t.windows(2).enumerate() {
-        if !(w[0].is_finite() && w[1] >= w[0]) {
+        if w[1] < w[0] {
             return Err(LogError::File {
                 file: file.to_path_buf(),
                 problem: format!("`{name}` element {} ({}) comes before element {} ({})", k + 2, w[1], k + 1, w[0]),
@@ -197,6 +203,12 @@ fn read_detections_form(file: &Path) -> Result<(Motion, Observations), LogError>
                 problem: format!("`zt` has fewer cells than `TLsr` has times ({})", scan_times.len()),
             });
         }
+        let MatVariable::NumericArray(_) = cell else {
+            return Err(LogError::File {
+                file: file.to_path_buf(),
+                problem: format!("`zt` cell {} is not a numeric matrix", k + 1),
+            });
+        };
         let values = numbers(cell).unwrap_or_default();
         let dim = cell.dim();
         if values.is_empty() {

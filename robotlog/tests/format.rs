@@ -159,6 +159,21 @@ fn malformed_files_are_errors_that_name_file_and_line() {
             "format_version = 1\n[vehicle]\nmotion = \"tank\"\n[sensor]\nx_m = 0\ny_m = 0\n",
             "vehicle.motion: must be \"odometry\" or \"ackermann\"",
         ),
+        (
+            "manifest.toml",
+            "format_version = 1\n[vehicle]\nmotion = \"ackermann\"\n[sensor]\nx_m = 0\ny_m = 0\n",
+            "vehicle.wheelbase_m: is needed",
+        ),
+        (
+            "manifest.toml",
+            "format_version = 1\n[vehicle]\nmotion = \"ackermann\"\nwheelbase_m = nan\n[sensor]\nx_m = 0\ny_m = 0\n",
+            "vehicle.wheelbase_m: must be positive",
+        ),
+        (
+            "manifest.toml",
+            "format_version = 1\n[sensor]\nx_m = 0\ny_m = 0\nrange_sigma_m = nan\n",
+            "sensor.range_sigma_m: must be finite",
+        ),
     ];
     for (file, text, expected) in cases {
         let e = error_with(file, text);

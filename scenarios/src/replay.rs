@@ -47,7 +47,7 @@ pub const GPS_SPIKE_SPEED_MPS: f64 = 15.0;
 /// at tens of metres needs (a landmark confirmed by three sightings within five seconds,
 /// new landmarks only far from every known one, one filter update per scan). The
 /// detectors' diameters stay off as a cue: on Victoria Park's first half they changed
-/// nothing (docs/real-logs.md).
+/// nothing (docs/results.md#victoria-park).
 pub fn default_config(log: &Log, method: AssociationMethod) -> PipelineConfig {
     let vehicle = &log.manifest.vehicle;
     let motion = match vehicle.motion.as_str() {
@@ -91,7 +91,11 @@ pub fn resolve_config(
     overrides: Option<&Path>,
 ) -> Result<PipelineConfig, ReplayError> {
     let base = default_config(log, method.unwrap_or(AssociationMethod::Nn));
-    let mut value = toml::Value::try_from(&base).expect("settings serialise");
+    let mut value = toml::Value::try_from(&base).map_err(|e| ReplayError::Config {
+        file: log_dir.map_or_else(|| PathBuf::from("manifest.toml"), |d| d.join("manifest.toml")),
+        line: 1,
+        problem: format!("the settings it gives cannot be written: {e}"),
+    })?;
     let mut files = Vec::new();
     if let Some(dir) = log_dir
         && dir.join(PIPELINE_FILE).exists()
@@ -111,6 +115,13 @@ pub fn resolve_config(
             Some(toml::Value::Table(t)) if table.len() == 1 => t.clone(),
             _ => table,
         };
+        // Another motion model replaces the whole table: the two models' keys differ.
+        let new_model = table.get("motion").and_then(|m| m.get("model")).cloned();
+        if let (Some(new), Some(motion)) = (new_model, value.get_mut("motion"))
+            && motion.get("model") != Some(&new)
+        {
+            *motion = toml::Value::Table(toml::Table::new());
+        }
         merge(&mut value, toml::Value::Table(table));
         let config: PipelineConfig = value.clone().try_into().map_err(|e: toml::de::Error| ReplayError::Config {
             file: file.clone(),
@@ -247,6 +258,11 @@ pub fn replay(log: &Log, config: PipelineConfig) -> Result<Replay, ReplayError> 
             let t = log.observations.time(o);
             let tick = Instant::now();
             let report = match &log.observations {
+                // Beams in the vehicle's frame: the laser may look sideways.
+                Observations::Scans(v) if yaw != 0.0 => {
+                    let turned = slam::messages::LaserScan { angle_min: v[o].angle_min + yaw, ..v[o].clone() };
+                    pipeline.on_scan(&turned).map_err(error(t))?
+                }
                 Observations::Scans(v) => pipeline.on_scan(&v[o]).map_err(error(t))?,
                 Observations::Detections(v) => {
                     detections += v[o].detections.len();

@@ -357,6 +357,9 @@ impl Ekf {
         let s = 0.5 * (&s + s.transpose());
         let chol = s.cholesky().ok_or(EkfError::NotPositiveDefinite)?;
         let nu = DVector::from_iterator(m, rows.iter().flat_map(|r| [r.1.x, r.1.y]));
+        // V = W L⁻ᵀ (S = L Lᵀ) first: nothing changes if it fails.
+        let wt = DMatrix::from_fn(m, n, |r, c| w[r * n + c]);
+        let vt = chol.l().solve_lower_triangular(&wt).ok_or(EkfError::NotPositiveDefinite)?; // m x n
         // x += W S⁻¹ ν.
         let s_inv_nu = chol.solve(&nu);
         for (col, c) in s_inv_nu.iter().enumerate() {
@@ -365,9 +368,7 @@ impl Ekf {
             }
         }
         self.x[2] = wrap_angle(self.x[2]);
-        // P -= W S⁻¹ Wᵀ = V Vᵀ with V = W L⁻ᵀ (S = L Lᵀ).
-        let wt = DMatrix::from_fn(m, n, |r, c| w[r * n + c]);
-        let vt = chol.l().solve_lower_triangular(&wt).ok_or(EkfError::NotPositiveDefinite)?; // m x n
+        // P -= W S⁻¹ Wᵀ = V Vᵀ.
         let vcols: Vec<Vec<f64>> = (0..m).map(|k| vt.row(k).iter().copied().collect()).collect();
         subtract_outer_product(self.p.as_mut_slice(), n, &vcols);
         Ok(())
@@ -380,7 +381,7 @@ impl Ekf {
 
     /// Adds one landmark per observation in `zs`, all seen from the current pose, with one
     /// growth of the covariance (adding them one by one copies it once each); returns their
-    /// indices. The result is the same as adding them one at a time.
+    /// indices. The result is the same as adding them one at a time, to rounding.
     pub fn add_landmarks(&mut self, model: &RangeBearingModel, zs: &[Vector2<f64>]) -> std::ops::Range<usize> {
         let first = self.landmark_count();
         if zs.is_empty() {

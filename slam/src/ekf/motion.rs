@@ -246,7 +246,7 @@ impl Default for AckermannMotionModel {
         // sigma: 0.5 m along and across the track and 8 degrees of heading; wheel slip and
         // a steering sensor that reads off by degrees make a car's dead reckoning poor.
         // Chosen on the first half of Victoria Park, where anything from a tenth to three
-        // times these gave the same accuracy (docs/real-logs.md).
+        // times these gave the same accuracy (docs/results.md#victoria-park).
         AckermannMotionModel {
             wheelbase_m: 2.83,
             encoder_offset_m: 0.0,
@@ -300,12 +300,13 @@ impl MotionModel for AckermannMotionModel {
         let (steer, dt) = (u[1], u[2].max(0.0));
         let d = self.centre_speed(u[0], steer) * dt;
         let turn = d * steer.tan() / self.wheelbase_m;
-        // Along the chord at the mid-step heading: exact for a constant turn rate to second
-        // order, so the step length hardly matters.
+        // Along the chord of the arc, at the mid-step heading: exact for a constant control,
+        // so a long gap between controls is integrated as well as many short ones.
         let mid = pose.z + 0.5 * turn;
+        let chord = if turn.abs() > 1e-9 { d * (0.5 * turn).sin() / (0.5 * turn) } else { d };
         let (s, c) = mid.sin_cos();
-        let next = Vector3::new(pose.x + d * c, pose.y + d * s, wrap_angle(pose.z + turn));
-        let f = Matrix3::new(1.0, 0.0, -d * s, 0.0, 1.0, d * c, 0.0, 0.0, 1.0);
+        let next = Vector3::new(pose.x + chord * c, pose.y + chord * s, wrap_angle(pose.z + turn));
+        let f = Matrix3::new(1.0, 0.0, -chord * s, 0.0, 1.0, chord * c, 0.0, 0.0, 1.0);
         let dist = d.abs();
         let m = Matrix3::new(
             self.distance_var_per_m * dist + 1e-12,
@@ -481,12 +482,16 @@ mod tests {
         // The circle of radius L / tan(steering): after a quarter of it the car faces north.
         let radius = m.wheelbase_m / 0.1f64.tan();
         let quarter = std::f64::consts::FRAC_PI_2 * radius / 3.0;
-        let (end, _) = drive(&m, 3.0, 0.1, quarter, 1000);
-        assert!(
-            (end.x - radius).abs() < 1e-3
-                && (end.y - radius).abs() < 1e-3
-                && (end.z - std::f64::consts::FRAC_PI_2).abs() < 1e-6
-        );
+        for steps in [1, 1000] {
+            // Along the chord: exact in one step as in a thousand.
+            let (end, _) = drive(&m, 3.0, 0.1, quarter, steps);
+            assert!(
+                (end.x - radius).abs() < 1e-9
+                    && (end.y - radius).abs() < 1e-9
+                    && (end.z - std::f64::consts::FRAC_PI_2).abs() < 1e-9,
+                "{steps} steps: {end}"
+            );
+        }
     }
 
     #[test]

@@ -41,6 +41,9 @@ impl Pipeline {
             }
         }
         self.advance_to(t);
+        // The new control holds from t, also when none held before (the vehicle stood).
+        self.t = t;
+        self.record_pose();
         self.control = Some((t, control));
         Ok(())
     }
@@ -215,6 +218,12 @@ mod tests {
         assert!((p.pose().pose[0] - 3.0).abs() < 1e-12 && p.pose().t == 1.5);
         p.on_control(2.0, Control::Ackermann { speed: 0.0, steering: 0.0 }).unwrap();
         assert!((p.pose().pose[0] - 4.0).abs() < 1e-12);
+        // A first control after other inputs holds from its own time, not theirs.
+        let mut late = Pipeline::new(car_config(AssociationMethod::Nn), [0.0; 3]);
+        late.on_detections(4.9, &[]).unwrap();
+        late.on_control(5.0, Control::Ackermann { speed: 2.0, steering: 0.0 }).unwrap();
+        late.on_detections(5.1, &[]).unwrap();
+        assert!((late.pose().pose[0] - 0.2).abs() < 1e-12, "{:?}", late.pose());
         // A differential drive's speeds through the odometry model: a quarter circle.
         let mut robot = Pipeline::new(PipelineConfig { method: AssociationMethod::Nn, ..Default::default() }, [0.0; 3]);
         robot.on_control(0.0, Control::Differential { v: 1.0, omega: std::f64::consts::FRAC_PI_2 }).unwrap();

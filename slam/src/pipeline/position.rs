@@ -2,7 +2,6 @@
 
 use super::*;
 
-/// The L x L RGB pixels (row-major) of patch (`col`, `row`) of an image `width` pixels wide.
 /// The index of the smallest distance under `gate` (the first of equals), if any.
 fn nearest_within(distances: &[f64], gate: f64) -> Option<usize> {
     distances.iter().enumerate().filter(|(_, d)| **d < gate).min_by(|a, b| a.1.total_cmp(b.1)).map(|(i, _)| i)
