@@ -369,8 +369,6 @@ impl Pipeline {
         let class = self.appearance.as_ref().map_or("object".to_string(), |a| a.model.object_class.clone());
         for (ci, decision, obs, fitted, z) in new_ones {
             let j = self.ekf.add_landmark(&self.config.sensor, &z);
-            let id = self.next_id;
-            self.next_id += 1;
             debug_assert_eq!(j, self.landmarks.len());
             let lm = self.ekf.landmark(j);
             // Re-centre the model's positions on the landmark estimate.
@@ -380,18 +378,8 @@ impl Pipeline {
                 c.mean[d - 3] += obs.centre[0] - lm.x;
                 c.mean[d - 2] += obs.centre[1] - lm.y;
             }
-            self.landmarks.push(Landmark {
-                id,
-                position: [0.0; 2],
-                covariance: [[0.0; 2]; 2],
-                class: class.clone(),
-                observations: 1,
-                diameter_m: clusters[ci].diameter_m,
-                created_t: t,
-                confirmed: self.config.confirm_observations <= 1,
-            });
-            self.objects.push(Some(model));
-            self.places.push(Some(self.laser_point_in(&self.odometry_pose, clusters[ci].centre).0));
+            let place = self.laser_point_in(&self.odometry_pose, clusters[ci].centre).0;
+            let id = self.push_landmark(t, &class, clusters[ci].diameter_m, Some(model), Some(place));
             assigned[ci] = Some(id);
             self.decisions[decision].choice = Choice::New { landmark: id };
             if let Some(h) = &mut self.history {

@@ -4,6 +4,33 @@
 use super::*;
 
 impl Pipeline {
+    /// Enters a landmark the filter has just added into the per-landmark lists, under the
+    /// next id; the counterpart of `forget_landmark`.
+    pub(super) fn push_landmark(
+        &mut self,
+        t: f64,
+        class: &str,
+        diameter_m: f64,
+        object: Option<ObjectModel>,
+        place: Option<[f64; 2]>,
+    ) -> u32 {
+        let id = self.next_id;
+        self.next_id += 1;
+        self.landmarks.push(Landmark {
+            id,
+            position: [0.0; 2],
+            covariance: [[0.0; 2]; 2],
+            class: class.to_string(),
+            observations: 1,
+            diameter_m,
+            created_t: t,
+            confirmed: self.config.confirm_observations <= 1,
+        });
+        self.objects.push(object);
+        self.places.push(place);
+        id
+    }
+
     /// Takes landmark `j` out of the pipeline's per-landmark lists (not the filter's state).
     pub(super) fn forget_landmark(&mut self, j: usize) -> Landmark {
         self.objects.remove(j);

@@ -166,20 +166,7 @@ impl Pipeline {
             }
         }
         for (k, ci) in new_ones {
-            let id = self.next_id;
-            self.next_id += 1;
-            self.landmarks.push(Landmark {
-                id,
-                position: [0.0; 2],
-                covariance: [[0.0; 2]; 2],
-                class: class.to_string(),
-                observations: 1,
-                diameter_m: clusters[ci].diameter_m,
-                created_t: t,
-                confirmed: self.config.confirm_observations <= 1,
-            });
-            self.objects.push(None);
-            self.places.push(None);
+            let id = self.push_landmark(t, class, clusters[ci].diameter_m, None, None);
             assigned[ci] = Some(id);
             self.decisions[first_decision + k].choice = Choice::New { landmark: id };
             if let Some(h) = &mut self.history {
