@@ -218,6 +218,22 @@ enum ConfigCommand {
     Defaults { table: Option<String> },
 }
 
+/// `objslam gmm fit --search`.
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+enum SearchArg {
+    Prune,
+    Grow,
+}
+
+impl From<SearchArg> for slam::gmm::Search {
+    fn from(s: SearchArg) -> Self {
+        match s {
+            SearchArg::Prune => slam::gmm::Search::Prune,
+            SearchArg::Grow => slam::gmm::Search::Grow,
+        }
+    }
+}
+
 #[derive(Subcommand)]
 enum GmmCommand {
     /// Fit a VB-GMM (birth-death search over the number of components, or fixed K).
@@ -228,11 +244,20 @@ enum GmmCommand {
         /// Use exactly --max-components components instead of searching.
         #[arg(long)]
         fixed_k: bool,
+        /// How to search for the number of components: `prune` starts from
+        /// --max-components and lets VBEM empty and delete components (fast); `grow` starts
+        /// from one and splits (what `objslam train` uses).
+        #[arg(long, value_enum, default_value_t = SearchArg::Prune)]
+        search: SearchArg,
+        /// Seed of the k-means++ start (`--fixed-k` and `--search prune`).
         #[arg(long, default_value_t = 0)]
         seed: u64,
         #[arg(long)]
         out: PathBuf,
     },
+    /// Print a fitted model's mean held-out log-likelihood per point on a CSV (the
+    /// posterior predictive density), to compare models fitted to the same data.
+    Score { model: PathBuf, data: PathBuf },
 }
 
 #[derive(clap::Args)]
@@ -387,8 +412,16 @@ fn run(cli: Cli) -> Result<()> {
         }
         Some(Command::Segment { model, image, out }) => segment(&model, &image, &out),
         Some(Command::Find { run, image, model, top }) => find(&run, &image, model.as_deref(), top),
-        Some(Command::Gmm(GmmCommand::Fit { data, max_components, fixed_k, seed, out })) => {
-            gmm_fit(&data, max_components, fixed_k, seed, &out)
+        Some(Command::Gmm(GmmCommand::Fit { data, max_components, fixed_k, search, seed, out })) => {
+            let options =
+                slam::gmm::VbOptions { max_components, fixed_k, seed, search: search.into(), ..Default::default() };
+            gmm_fit(&data, &options, &out)
+        }
+        Some(Command::Gmm(GmmCommand::Score { model, data })) => {
+            let (mean, points) = scenarios::train::gmm_score_csv(&model, &data)?;
+            println!("{points} points of {} under {}", data.display(), model.display());
+            println!("mean held-out log-likelihood: {mean:.6} nats per point (posterior predictive, PRML 10.81)");
+            Ok(())
         }
         Some(Command::Config(ConfigCommand::Defaults { table })) => {
             print!("{}", scenarios::scenario::Scenario::defaults_toml(table.as_deref())?);
@@ -963,16 +996,9 @@ fn segment(model: &std::path::Path, image: &std::path::Path, out: &std::path::Pa
     Ok(())
 }
 
-fn gmm_fit(
-    data: &std::path::Path,
-    max_components: usize,
-    fixed_k: bool,
-    seed: u64,
-    out: &std::path::Path,
-) -> Result<()> {
-    let options = slam::gmm::VbOptions { max_components, fixed_k, seed, ..Default::default() };
+fn gmm_fit(data: &std::path::Path, options: &slam::gmm::VbOptions, out: &std::path::Path) -> Result<()> {
     let started = std::time::Instant::now();
-    let model = scenarios::train::gmm_fit_csv(data, &options)?;
+    let model = scenarios::train::gmm_fit_csv(data, options)?;
     let secs = started.elapsed().as_secs_f64();
     std::fs::write(out, serde_json::to_string_pretty(&model)?).with_context(|| format!("writing {}", out.display()))?;
     println!("{} points x {} dimensions, fitted in {secs:.2} s", model.points, model.dims());

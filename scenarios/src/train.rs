@@ -273,3 +273,21 @@ pub fn gmm_fit_csv(path: &Path, options: &VbOptions) -> Result<VbGmm, TrainError
     let data = read_csv(path)?;
     Ok(gmm::fit(&data, None, options)?)
 }
+
+/// Reads a model written by `objslam gmm fit` and a CSV of held-out points; returns the mean
+/// posterior predictive log-likelihood per point ([`VbGmm::mean_log_predictive`]) and the
+/// number of points.
+pub fn gmm_score_csv(model: &Path, path: &Path) -> Result<(f64, usize), TrainError> {
+    let text = std::fs::read_to_string(model).map_err(|e| file_err(model, e))?;
+    let fitted: VbGmm =
+        serde_json::from_str(&text).map_err(|e| file_err(model, format!("not an objslam gmm fit model: {e}")))?;
+    fitted.check().map_err(|e| file_err(model, e))?;
+    let data = read_csv(path)?;
+    if data.ncols() != fitted.dims() {
+        return Err(file_err(
+            path,
+            format!("{} columns, but the model {} has {} dimensions", data.ncols(), model.display(), fitted.dims()),
+        ));
+    }
+    Ok((fitted.mean_log_predictive(&data)?, data.nrows()))
+}

@@ -1,17 +1,26 @@
-//! Compares our VBEM with scikit-learn's BayesianGaussianMixture on the benchmark data.
+//! The VBEM benchmark data and our fits of it, for the comparison with scikit-learn.
 //!
-//! 1. `cargo run --release -p slam --example vbem_compare -- write DIR` writes DIR/data.csv
-//!    and DIR/prior.json (the prior both sides use) and fits ours (fixed K = 10 and the
-//!    birth-death search), printing time, iterations and the full bound.
-//! 2. `python3 slam/benches/sklearn_compare.py DIR` fits scikit-learn with the same prior
-//!    on one thread and writes its responsibilities to DIR/sklearn_resp.csv.
-//! 3. `cargo run --release -p slam --example vbem_compare -- score DIR` scores
-//!    scikit-learn's solution with our full bound, so the two bounds compare.
+//! 1. `cargo run --release -p slam --example vbem_compare -- write DIR` writes DIR/train.csv
+//!    (20,000 x 14) and DIR/heldout.csv (5,000 more points of the same mixture), then fits
+//!    ours (fixed K = 10 and both searches) in process, printing time, iterations, the full
+//!    bound and the held-out predictive log-likelihood per point.
+//! 2. `python3 slam/benches/sklearn_compare.py --train DIR/train.csv --heldout DIR/heldout.csv`
+//!    times `objslam gmm fit` against scikit-learn on those files and scores both.
+//!
+//! `profile DIR [fixed|grow|prune]` runs five fits, for `perf record`.
 use std::io::Write;
 use std::time::Instant;
 
 use nalgebra::DMatrix;
-use slam::gmm::{VbOptions, VbPrior, bench_data, fit, vbem};
+use slam::gmm::{Search, VbOptions, VbPrior, bench_data, fit};
+
+fn write_csv(path: &std::path::Path, data: &DMatrix<f64>) {
+    let mut f = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
+    for i in 0..data.nrows() {
+        let row: Vec<String> = data.row(i).iter().map(|v| format!("{v:e}")).collect();
+        writeln!(f, "{}", row.join(",")).unwrap();
+    }
+}
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
@@ -24,42 +33,38 @@ fn main() {
     match mode {
         "write" => {
             std::fs::create_dir_all(&dir).unwrap();
-            let mut f = std::io::BufWriter::new(std::fs::File::create(dir.join("data.csv")).unwrap());
-            for i in 0..data.nrows() {
-                let row: Vec<String> = data.row(i).iter().map(|v| format!("{v:e}")).collect();
-                writeln!(f, "{}", row.join(",")).unwrap();
-            }
-            std::fs::write(dir.join("prior.json"), serde_json::to_string(&prior).unwrap()).unwrap();
-            for fixed_k in [true, false] {
+            let heldout = bench_data::heldout_5000x14();
+            write_csv(&dir.join("train.csv"), &data);
+            write_csv(&dir.join("heldout.csv"), &heldout);
+            let runs = [
+                ("fixed K = 10", VbOptions { fixed_k: true, ..Default::default() }),
+                ("growing search (K <= 10)", VbOptions { search: Search::Grow, ..Default::default() }),
+                ("pruning search (K <= 10)", VbOptions { search: Search::Prune, ..Default::default() }),
+            ];
+            for (label, options) in runs {
                 let t = Instant::now();
-                let m =
-                    fit(&data, Some(&prior), &VbOptions { max_components: 10, fixed_k, ..Default::default() }).unwrap();
+                let m = fit(&data, Some(&prior), &VbOptions { max_components: 10, ..options }).unwrap();
                 println!(
-                    "objslam {}: {:.3} s, {} VBEM iterations, {} components above 1e-3, full bound {:.3}",
-                    if fixed_k { "fixed K = 10" } else { "birth-death (K <= 10)" },
+                    "objslam {label}: {:.3} s, {} VBEM iterations, {} components above 1e-3, full bound {:.3}, held-out {:.4} nats per point",
                     t.elapsed().as_secs_f64(),
                     m.iterations,
                     m.effective_components(1e-3),
-                    m.lower_bound
+                    m.lower_bound,
+                    m.mean_log_predictive(&heldout).unwrap()
                 );
             }
         }
-        "score" => {
-            let text = std::fs::read_to_string(dir.join("sklearn_resp.csv")).unwrap();
-            let rows: Vec<Vec<f64>> =
-                text.lines().map(|l| l.split(',').map(|v| v.parse().unwrap()).collect()).collect();
-            let r = DMatrix::from_fn(rows.len(), rows[0].len(), |i, j| rows[i][j]);
-            println!(
-                "scikit-learn's solution under the same full bound: {:.3}",
-                vbem::bound_at_responsibilities(&data, &r, &prior).unwrap()
-            );
-        }
         "profile" => {
+            // `profile DIR [fixed|grow|prune]`: five fits, for `perf record`.
+            let options = match args.get(3).map(String::as_str).unwrap_or("fixed") {
+                "grow" => VbOptions { search: Search::Grow, ..Default::default() },
+                "prune" => VbOptions { search: Search::Prune, ..Default::default() },
+                _ => VbOptions { fixed_k: true, ..Default::default() },
+            };
             for _ in 0..5 {
-                fit(&data, Some(&prior), &VbOptions { max_components: 10, fixed_k: true, ..Default::default() })
-                    .unwrap();
+                fit(&data, Some(&prior), &VbOptions { max_components: 10, ..options.clone() }).unwrap();
             }
         }
-        other => eprintln!("unknown mode {other}: use write, score or profile"),
+        other => eprintln!("unknown mode {other}: use write or profile"),
     }
 }

@@ -1,6 +1,7 @@
 //! The fixed data set of the VBEM benchmark (and of the scikit-learn comparison in
 //! `slam/benches/sklearn_compare.py`): 20,000 points in 14 dimensions from 8 overlapping
-//! full-covariance Gaussians with uneven weights, drawn from a seeded generator.
+//! full-covariance Gaussians with uneven weights, drawn from a seeded generator, and 5,000
+//! more points of the same draw held out for scoring.
 
 use nalgebra::{DMatrix, DVector};
 use rand::{RngExt, SeedableRng};
@@ -11,8 +12,20 @@ fn normal(rng: &mut ChaCha8Rng) -> f64 {
     StandardNormal.sample(rng)
 }
 
+/// The 20,000 training points.
 pub fn mixture_20000x14() -> DMatrix<f64> {
-    let (n, d, k) = (20_000, 14, 8);
+    mixture_14d(20_000)
+}
+
+/// 5,000 held-out points from the same mixture (the draw continued past the training points).
+pub fn heldout_5000x14() -> DMatrix<f64> {
+    let all = mixture_14d(25_000);
+    all.rows(20_000, 5_000).into_owned()
+}
+
+/// The first `n` points of the seeded draw.
+fn mixture_14d(n: usize) -> DMatrix<f64> {
+    let (d, k) = (14, 8);
     let mut rng = ChaCha8Rng::seed_from_u64(2006);
     let weights: Vec<f64> = (0..k).map(|i| 1.0 + i as f64).collect();
     let total: f64 = weights.iter().sum();

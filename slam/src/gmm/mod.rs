@@ -12,6 +12,7 @@
 //! ```
 
 pub mod bench_data;
+mod packed;
 pub mod predictive;
 pub mod search;
 pub mod vbem;
@@ -20,7 +21,7 @@ use nalgebra::{Cholesky, DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
 pub use predictive::{StudentT, StudentTMixture};
-pub use search::{VbGmm, VbOptions, fit, fit_with_history};
+pub use search::{Search, VbGmm, VbOptions, fit, fit_with_history};
 pub use vbem::{VbComponent, VbPrior};
 
 /// What can go wrong fitting or evaluating a mixture.

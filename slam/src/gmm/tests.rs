@@ -4,6 +4,7 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
 
+use super::vbem::{Control, Steps};
 use super::*;
 
 /// `counts[k]` points around centre k: centres `spacing` apart along a random direction
@@ -53,16 +54,56 @@ fn lower_bound_never_decreases_on_random_data_sets() {
         });
         let prior = VbPrior::from_data(&data).unwrap();
         let r = random_soft_r(&mut rng, n, k);
-        let run = vbem::run(&data, r, &prior, 200, 0.0).unwrap();
-        for w in run.history.windows(2) {
-            assert!(
-                w[1] >= w[0] - 1e-9 * w[0].abs(),
-                "case {case} (n={n}, d={d}, k={k}): bound fell from {} to {}",
-                w[0],
-                w[1]
-            );
+        for steps in [Steps::Reference, Steps::Packed] {
+            let control = Control { steps, max_iterations: 200, tolerance: 0.0, target: None };
+            let run = vbem::run_with(&data, r.clone(), &prior, &control).unwrap();
+            for w in run.history.windows(2) {
+                assert!(
+                    w[1] >= w[0] - 1e-9 * w[0].abs(),
+                    "case {case} (n={n}, d={d}, k={k}, {steps:?}): bound fell from {} to {}",
+                    w[0],
+                    w[1]
+                );
+            }
+            assert!(run.history.iter().all(|b| b.is_finite()));
         }
-        assert!(run.history.iter().all(|b| b.is_finite()));
+    }
+}
+
+/// The packed steps compute the reference steps' quantities, in another order: on data whose
+/// size leaves partial lanes and blocks, and a dimension that leaves partial tiles, they agree
+/// to rounding.
+#[test]
+fn packed_steps_agree_with_the_reference_steps() {
+    let mut rng = ChaCha8Rng::seed_from_u64(31);
+    for (n, d, k) in [(1003, 6, 3), (7, 1, 2), (300, 14, 5), (129, 5, 1)] {
+        let data = DMatrix::from_fn(n, d, |i, j| {
+            let z: f64 = StandardNormal.sample(&mut rng);
+            100.0 + ((i + j) % 4) as f64 * 3.0 + z
+        });
+        let prior = VbPrior::from_data(&data).unwrap();
+        let r = random_soft_r(&mut rng, n, k);
+        let (ref_comps, ref_stats) = vbem::m_step(&data, &r, &prior);
+        let (comps, stats) = packed::m_step(&data, &r, &prior);
+        let close = |a: f64, b: f64| (a - b).abs() <= 1e-9 * (1.0 + a.abs().max(b.abs()));
+        for kk in 0..k {
+            assert!(close(stats.nk[kk], ref_stats.nk[kk]), "N_k, case {n}x{d}");
+            assert!(close(stats.r_ln_r[kk], ref_stats.r_ln_r[kk]), "r ln r, case {n}x{d}");
+            for (a, b) in stats.xbar[kk].iter().zip(ref_stats.xbar[kk].iter()) {
+                assert!(close(*a, *b), "xbar, case {n}x{d}: {a} vs {b}");
+            }
+            for (a, b) in stats.s[kk].iter().zip(ref_stats.s[kk].iter()) {
+                assert!(close(*a, *b), "S, case {n}x{d}: {a} vs {b}");
+            }
+            assert_eq!(stats.s[kk], stats.s[kk].transpose(), "S exactly symmetric");
+            for (a, b) in comps[kk].w_inv.iter().zip(ref_comps[kk].w_inv.iter()) {
+                assert!(close(*a, *b), "W^-1, case {n}x{d}: {a} vs {b}");
+            }
+        }
+        let (ref_r, packed_r) = (vbem::e_step(&data, &ref_comps).unwrap(), packed::e_step(&data, &ref_comps).unwrap());
+        for (a, b) in packed_r.iter().zip(ref_r.iter()) {
+            assert!((a - b).abs() < 1e-9, "responsibility, case {n}x{d}: {a} vs {b}");
+        }
     }
 }
 
@@ -94,10 +135,63 @@ proptest! {
     }
 }
 
-/// Found by the property test above with a random seed: 93 points of one Gaussian in 1-D
-/// are fitted with two components. A known failure of the model search, kept visible.
+proptest! {
+    #![proptest_config(ProptestConfig {
+        cases: 16,
+        rng_seed: proptest::test_runner::RngSeed::Fixed(20261203),
+        ..ProptestConfig::default()
+    })]
+    #[test]
+    fn the_pruning_search_recovers_the_number_of_well_separated_components(seed in 0u64..1000, k in 1usize..5, d in 1usize..4, n_each in 80usize..200) {
+        let counts: Vec<usize> = (0..k).map(|i| n_each + 13 * i).collect();
+        let data = mixture_data(seed, &counts, d, 15.0);
+        let model = fit(&data, None, &VbOptions { search: Search::Prune, seed, ..VbOptions::default() }).unwrap();
+        prop_assert_eq!(model.effective_components(0.02), k, "bound {}", model.lower_bound);
+    }
+}
+
+/// The pruning search keeps a change only under the growing search's bar, so on data where
+/// both find the truth its bound is the growing search's, to the tolerance; it may be higher.
 #[test]
-#[ignore = "known failure of the model search: it splits this single Gaussian in two"]
+fn the_pruning_search_reaches_the_growing_search_bound() {
+    for (seed, counts, d) in [(21u64, vec![300, 200, 120, 400], 3), (22, vec![500, 60], 2), (23, vec![250; 6], 4)] {
+        let data = mixture_data(seed, &counts, d, 8.0);
+        let grow = fit(&data, None, &VbOptions::default()).unwrap();
+        let prune = fit(&data, None, &VbOptions { search: Search::Prune, ..VbOptions::default() }).unwrap();
+        assert!(
+            prune.lower_bound >= grow.lower_bound - 1e-6 * grow.lower_bound.abs(),
+            "seed {seed}: prune {} (K {}) below grow {} (K {})",
+            prune.lower_bound,
+            prune.effective_components(1e-3),
+            grow.lower_bound,
+            grow.effective_components(1e-3)
+        );
+        for w in fit_with_history(&data, None, &VbOptions { search: Search::Prune, ..VbOptions::default() })
+            .unwrap()
+            .1
+            .windows(2)
+        {
+            assert!(w[1] >= w[0] - 1e-9 * w[0].abs(), "the final run's bound fell");
+        }
+    }
+}
+
+/// On one small Gaussian the growing search keeps a split worth 0.005 nats (below); the
+/// pruning search, which charges each component a nat, ends with one component.
+#[test]
+fn the_pruning_search_fits_a_single_small_gaussian_with_one_component() {
+    let data = mixture_data(889, &[93], 1, 15.0);
+    let model = fit(&data, None, &VbOptions { search: Search::Prune, ..VbOptions::default() }).unwrap();
+    assert_eq!(model.effective_components(0.02), 1, "bound {}", model.lower_bound);
+}
+
+/// Found by the property test above with a random seed: 93 points of one Gaussian in 1-D
+/// are fitted with two components, because the second raises the bound by 0.005 nats, more
+/// than the growing search's relative bar (1e-5 of 117 nats). The pruning search charges each
+/// component a nat and ends with one (above); the growing search is kept as it is so that
+/// trained models do not change, and this known failure stays visible.
+#[test]
+#[ignore = "known failure of the growing search: it splits this single Gaussian in two"]
 fn a_single_small_gaussian_is_one_component() {
     let data = mixture_data(889, &[93], 1, 15.0);
     let model = fit(&data, None, &VbOptions::default()).unwrap();
@@ -284,4 +378,40 @@ fn large_fits_are_identical_on_one_thread_and_on_many() {
     assert_eq!(one.lower_bound.to_bits(), many.lower_bound.to_bits());
     assert_eq!(one.iterations, many.iterations);
     assert_eq!(serde_json::to_string(&one).unwrap(), serde_json::to_string(&many).unwrap());
+}
+
+/// The same for the pruning search, whose packed steps split the work differently.
+#[test]
+fn pruning_search_fits_are_identical_on_one_thread_and_on_many() {
+    let data = mixture_data(6, &[3000, 3000, 2000, 4000], 4, 6.0);
+    let options = VbOptions { search: Search::Prune, max_components: 8, seed: 2, ..Default::default() };
+    let on = |threads: usize| {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap()
+            .install(|| fit(&data, None, &options).unwrap())
+    };
+    let (one, many) = (on(1), on(3));
+    assert_eq!(serde_json::to_string(&one).unwrap(), serde_json::to_string(&many).unwrap());
+    assert_eq!(one.effective_components(0.02), 4);
+}
+
+#[test]
+fn held_out_scores_need_a_sound_model_of_the_data_dimension() {
+    let data = mixture_data(8, &[200, 200], 2, 10.0);
+    let model = fit(&data, None, &VbOptions::default()).unwrap();
+    let heldout = mixture_data(9, &[50, 50], 2, 10.0);
+    let score = model.mean_log_predictive(&heldout).unwrap();
+    // Two unit-ish Gaussians in 2-D: about -ln(2) - ln(2 pi) - 1 per point.
+    assert!((-5.0..-2.0).contains(&score), "{score}");
+    assert!(matches!(
+        model.mean_log_predictive(&DMatrix::zeros(3, 3)),
+        Err(GmmError::Dimension { expected: 2, found: 3 })
+    ));
+    let mut broken = model.clone();
+    broken.components[0].nu = f64::NAN;
+    assert!(matches!(broken.mean_log_predictive(&heldout), Err(GmmError::BadPrior(_))));
+    broken.components.clear();
+    assert!(matches!(broken.mean_log_predictive(&heldout), Err(GmmError::EmptyModel)));
 }

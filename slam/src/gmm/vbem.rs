@@ -135,14 +135,14 @@ pub(crate) fn check_data(data: &DMatrix<f64>) -> Result<(), GmmError> {
 const PARALLEL_MIN_CELLS: usize = 1 << 16;
 
 /// Whether a step over N points and K components is large enough for rayon's threads.
-fn runs_in_parallel(n: usize, k: usize) -> bool {
+pub(crate) fn runs_in_parallel(n: usize, k: usize) -> bool {
     n * k >= PARALLEL_MIN_CELLS
 }
 
 /// Runs `f` for every component, on rayon's threads for large data. Components are
 /// independent and each is computed the same way on any thread, so the results do not
 /// depend on the thread count.
-fn per_component<T: Send>(n: usize, k: usize, f: impl Fn(usize) -> T + Sync + Send) -> Vec<T> {
+pub(crate) fn per_component<T: Send>(n: usize, k: usize, f: impl Fn(usize) -> T + Sync + Send) -> Vec<T> {
     use rayon::prelude::*;
     if runs_in_parallel(n, k) { (0..k).into_par_iter().map(f).collect() } else { (0..k).map(f).collect() }
 }
@@ -199,31 +199,36 @@ fn m_step_component(
     } else {
         (prior.m0.clone(), DMatrix::zeros(d, d))
     };
+    (posterior(prior, nk, &xbar, &s), nk, xbar, s, r_ln_r)
+}
+
+/// A component's posterior (PRML 10.58-10.63) from its statistics N_k, xbar_k and S_k.
+pub(crate) fn posterior(prior: &VbPrior, nk: f64, xbar: &DVector<f64>, s: &DMatrix<f64>) -> VbComponent {
     let beta = prior.beta0 + nk;
-    let dx = &xbar - &prior.m0;
-    let w_inv = &prior.w0_inv + &s * nk + &dx * dx.transpose() * (prior.beta0 * nk / beta);
-    let comp = VbComponent {
+    let dx = xbar - &prior.m0;
+    let w_inv = &prior.w0_inv + s * nk + &dx * dx.transpose() * (prior.beta0 * nk / beta);
+    VbComponent {
         alpha: prior.alpha0 + nk,
         beta,
         nu: prior.nu0 + nk,
-        mean: (&prior.m0 * prior.beta0 + &xbar * nk) / beta,
+        mean: (&prior.m0 * prior.beta0 + xbar * nk) / beta,
         w_inv: (&w_inv + w_inv.transpose()) * 0.5,
-    };
-    (comp, nk, xbar, s, r_ln_r)
+    }
 }
 
 /// Per-component expectations the E-step and the bound share.
-struct Expect {
+pub(crate) struct Expect {
     /// E[ln pi_k]
-    ln_pi: f64,
+    pub ln_pi: f64,
     /// E[ln |Lambda_k|]
-    ln_lambda: f64,
+    pub ln_lambda: f64,
     /// ln |W_k|
-    ln_w: f64,
-    chol: Cholesky<f64, Dyn>,
+    pub ln_w: f64,
+    /// Cholesky factor of W_k^-1.
+    pub chol: Cholesky<f64, Dyn>,
 }
 
-fn expectations(comps: &[VbComponent]) -> Result<Vec<Expect>, GmmError> {
+pub(crate) fn expectations(comps: &[VbComponent]) -> Result<Vec<Expect>, GmmError> {
     let alpha_sum: f64 = comps.iter().map(|c| c.alpha).sum();
     let dig_sum = digamma(alpha_sum);
     comps
@@ -269,11 +274,17 @@ pub(crate) fn e_step(data: &DMatrix<f64>, comps: &[VbComponent]) -> Result<DMatr
         }
         Ok(quad)
     });
+    normalise(n, columns)
+}
+
+/// Responsibilities from per-component columns of ln rho_nk: each row normalised in the
+/// log domain, in column-wise passes over contiguous columns.
+pub(crate) fn normalise(n: usize, columns: Vec<Result<Vec<f64>, GmmError>>) -> Result<DMatrix<f64>, GmmError> {
+    let k = columns.len();
     let mut log_rho = DMatrix::<f64>::zeros(n, k);
     for (kk, col) in columns.into_iter().enumerate() {
         log_rho.column_mut(kk).as_mut_slice().copy_from_slice(&col?);
     }
-    // Normalise each row in the log domain (column-wise passes over contiguous columns).
     let mut r = log_rho;
     let mut mx = vec![f64::NEG_INFINITY; n];
     for col in r.column_iter() {
@@ -387,38 +398,70 @@ pub(crate) struct Run {
     pub history: Vec<f64>,
 }
 
-/// Runs VBEM from responsibilities `r` until the bound's relative gain falls below
-/// `tolerance` or `max_iterations` is reached.
-pub(crate) fn run(
+/// Which implementation of the E- and M-steps a run uses.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Steps {
+    /// [`e_step`] and [`m_step`]: what the growing search and fixed K have always used, kept
+    /// so that trained models stay the same bit for bit.
+    Reference,
+    /// [`super::packed`]: the same quantities, summed in another order, about twice as fast.
+    Packed,
+}
+
+/// When a run stops.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Control {
+    pub steps: Steps,
+    pub max_iterations: usize,
+    /// Stop when the bound's relative gain in one iteration is below this.
+    pub tolerance: f64,
+    /// A search candidate's bar: stop as soon as the bound passes it (the bound only rises,
+    /// so the candidate is kept whatever more iterations would do), or once the bound's
+    /// geometric extrapolation says it will fall clearly short.
+    pub target: Option<f64>,
+}
+
+/// Whether a run whose bounds so far are `history` will stay below `target`: the gains of
+/// its last iterations shrink geometrically (ratio q) and even ten times their remaining sum
+/// g q / (1 - q) would not reach the target. Needs three iterations of shrinking gains.
+fn falls_short(history: &[f64], target: f64) -> bool {
+    let [.., a, b, c] = history else { return false };
+    let (g0, g1) = (b - a, c - b);
+    if !(g0 > 0.0 && g1 >= 0.0 && g1 < 0.5 * g0) {
+        return false;
+    }
+    let q = g1 / g0;
+    c + 10.0 * g1 * q / (1.0 - q) < target
+}
+
+/// Runs VBEM from responsibilities `r` until `control` says stop.
+pub(crate) fn run_with(
     data: &DMatrix<f64>,
     mut r: DMatrix<f64>,
     prior: &VbPrior,
-    max_iterations: usize,
-    tolerance: f64,
+    control: &Control,
 ) -> Result<Run, GmmError> {
-    type LastIteration = (Vec<VbComponent>, Stats, DMatrix<f64>, f64, Vec<f64>);
-    let mut history = Vec::new();
-    // The previous iteration: components, statistics, responsibilities, bound, weights.
-    let mut last: Option<LastIteration> = None;
-    for it in 0..max_iterations.max(1) {
-        let (comps, stats) = m_step(data, &r, prior);
-        let (bound, shares) = lower_bound(prior, &comps, &stats)?;
-        history.push(bound);
-        let converged = match &last {
-            Some((.., prev, _)) => bound - prev <= tolerance * bound.abs(),
-            None => false,
+    let max_iterations = control.max_iterations.max(1);
+    let mut history: Vec<f64> = Vec::new();
+    for it in 0..max_iterations {
+        let (comps, stats) = match control.steps {
+            Steps::Reference => m_step(data, &r, prior),
+            Steps::Packed => super::packed::m_step(data, &r, prior),
         };
-        let next_r = e_step(data, &comps)?;
-        let done = converged || it + 1 == max_iterations.max(1);
-        let current_r = std::mem::replace(&mut r, next_r);
-        last = Some((comps, stats, current_r, bound, shares));
-        if done {
-            break;
+        let (bound, shares) = lower_bound(prior, &comps, &stats)?;
+        let converged = history.last().is_some_and(|prev| bound - prev <= control.tolerance * bound.abs());
+        history.push(bound);
+        let decided = control.target.is_some_and(|t| bound > t || falls_short(&history, t));
+        if converged || decided || it + 1 == max_iterations {
+            let iterations = history.len();
+            return Ok(Run { comps, stats, r, bound, shares, iterations, history });
         }
+        r = match control.steps {
+            Steps::Reference => e_step(data, &comps)?,
+            Steps::Packed => super::packed::e_step(data, &comps)?,
+        };
     }
-    let (comps, stats, r_used, bound, shares) = last.expect("at least one iteration");
-    let iterations = history.len();
-    Ok(Run { comps, stats, r: r_used, bound, shares, iterations, history })
+    unreachable!("the last iteration returns")
 }
 
 /// The full lower bound of the posterior that responsibilities `r` (N x K) imply: one

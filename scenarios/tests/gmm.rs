@@ -1,0 +1,84 @@
+//! `objslam gmm fit` and `objslam gmm score` from the command line: both searches fit the
+//! same mixture, the score is the model's held-out log-likelihood, and bad files are errors
+//! naming the file.
+
+use std::path::Path;
+use std::process::Command;
+
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// `n` points from two Gaussians in 2-D, centres 10 apart, as CSV text.
+fn two_clusters(seed: u64, n: usize) -> String {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut text = String::from("x,y\n");
+    for i in 0..n {
+        let centre = if i % 3 == 0 { (10.0, 0.0) } else { (0.0, 0.0) };
+        // Sums of uniforms: near-Gaussian, and no extra crate.
+        let mut g = || (0..12).map(|_| rng.random_range(0.0..1.0)).sum::<f64>() - 6.0;
+        text.push_str(&format!("{},{}\n", centre.0 + g(), centre.1 + 0.5 * g()));
+    }
+    text
+}
+
+fn objslam(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_objslam")).args(args).output().expect("objslam runs")
+}
+
+fn path(p: &Path) -> &str {
+    p.to_str().expect("a UTF-8 temporary path")
+}
+
+fn score_of(stdout: &[u8]) -> f64 {
+    let text = String::from_utf8_lossy(stdout);
+    let line = text.lines().find(|l| l.starts_with("mean held-out log-likelihood:")).expect("a score line");
+    line.split_whitespace().nth(3).and_then(|v| v.parse().ok()).expect("a number")
+}
+
+#[test]
+fn both_searches_fit_the_same_mixture_and_score_it_on_held_out_points() {
+    let dir = std::env::temp_dir().join(format!("objslam-gmm-cli-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let (train, heldout) = (dir.join("train.csv"), dir.join("heldout.csv"));
+    std::fs::write(&train, two_clusters(1, 900)).unwrap();
+    std::fs::write(&heldout, two_clusters(2, 300)).unwrap();
+    let mut scores = Vec::new();
+    for search in ["prune", "grow"] {
+        let model = dir.join(format!("{search}.json"));
+        let fit = objslam(&["gmm", "fit", path(&train), "--search", search, "--out", path(&model)]);
+        assert!(fit.status.success(), "{search}: {}", String::from_utf8_lossy(&fit.stderr));
+        let fitted: slam::gmm::VbGmm = serde_json::from_str(&std::fs::read_to_string(&model).unwrap()).unwrap();
+        assert_eq!(fitted.effective_components(0.02), 2, "{search}");
+        let score = objslam(&["gmm", "score", path(&model), path(&heldout)]);
+        assert!(score.status.success(), "{search}: {}", String::from_utf8_lossy(&score.stderr));
+        let printed = score_of(&score.stdout);
+        let data = scenarios::train::read_csv(&heldout).unwrap();
+        let direct = fitted.mean_log_predictive(&data).unwrap();
+        assert!((printed - direct).abs() < 1e-5, "{search}: printed {printed}, computed {direct}");
+        scores.push(printed);
+    }
+    // Variances 1 and 0.25: a one-Gaussian fit of the pair scores far lower than this.
+    assert!((-3.5..-2.0).contains(&scores[0]), "{scores:?}");
+    assert!((scores[0] - scores[1]).abs() < 0.01, "{scores:?}");
+
+    // Bad files: each error names the file and the problem.
+    let model = dir.join("prune.json");
+    let wide = dir.join("wide.csv");
+    std::fs::write(&wide, "1,2,3\n4,5,6\n").unwrap();
+    let out = objslam(&["gmm", "score", path(&model), path(&wide)]);
+    let e = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && e.contains("wide.csv") && e.contains("3 columns"), "{e}");
+    let broken = dir.join("broken.json");
+    let mut json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&model).unwrap()).unwrap();
+    json["components"][0]["nu"] = (-1.0).into();
+    std::fs::write(&broken, json.to_string()).unwrap();
+    let out = objslam(&["gmm", "score", path(&broken), path(&heldout)]);
+    let e = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && e.contains("broken.json") && e.contains("nu"), "{e}");
+    std::fs::write(&broken, "{\"not\": \"a model\"}").unwrap();
+    let out = objslam(&["gmm", "score", path(&broken), path(&heldout)]);
+    let e = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && e.contains("broken.json") && e.contains("not an objslam gmm fit model"), "{e}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
