@@ -25,7 +25,7 @@ enum Command {
     /// Run a scenario (default: the paper's experiment) and score it against ground truth.
     Run {
         /// A scenario file or built-in name (paper_park, posts_near_trees, crowd,
-        /// long_loop, laser_only).
+        /// long_loop, laser_only, calibration, city_park).
         scenario: Option<String>,
         #[arg(long)]
         seed: Option<u64>,

@@ -180,6 +180,7 @@ pub const LIBRARY: &[(&str, &str)] = &[
     ("long_loop", include_str!("../long_loop.toml")),
     ("laser_only", include_str!("../laser_only.toml")),
     ("calibration", include_str!("../calibration.toml")),
+    ("city_park", include_str!("../city_park.toml")),
 ];
 
 /// The default scenario of `objslam run`.
@@ -435,6 +436,19 @@ mod tests {
             assert_eq!(&s.name, name);
             s.world(&base, s.seed).unwrap();
         }
+    }
+
+    /// city_park is the size it says: ten times paper_park's ground, with its objects.
+    #[test]
+    fn city_park_is_a_park_ten_times_the_papers() {
+        let (s, base) = Scenario::load("city_park").unwrap();
+        let world = s.world(&base, s.seed).unwrap();
+        let count = |class| world.objects.iter().filter(|o| o.class == class).count();
+        use worlds::ObjectClass::*;
+        assert_eq!((count(Tree), count(Post), count(Palm), count(Wall)), (120, 40, 10, 1));
+        assert_eq!(world.people.len(), 30);
+        let [w, h] = [world.ground.max_m[0] - world.ground.min_m[0], world.ground.max_m[1] - world.ground.min_m[1]];
+        assert!((w * h - 6000.0).abs() < 1.0, "{} m²", w * h);
     }
 
     /// The default scenario parses back to itself, and docs/reference/scenario.md shows
