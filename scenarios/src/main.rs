@@ -326,6 +326,33 @@ enum MontecarloCommand {
         #[arg(long, default_value = "runs/study")]
         out: PathBuf,
     },
+    /// The generalisation benchmark: the paper's claim on park worlds drawn from a wide
+    /// distribution (docs/guide/montecarlo.md), combined with 5 appearance training seeds
+    /// (DIR/combined) and jcbb for reference (DIR/jcbb); writes DIR/summary.json and
+    /// DIR/generalisation.png. Resumable and shardable like any study.
+    Generalisation {
+        /// Which worlds: `tune` to choose settings on, `test` to report (disjoint seeds).
+        #[arg(long, value_enum, default_value_t = SplitArg::Test)]
+        split: SplitArg,
+        /// Worlds to draw (each run with every training seed).
+        #[arg(long, default_value_t = 10)]
+        runs: usize,
+        /// Base seed of the runs' simulations.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Run only slice K of N of each of the two studies (0-based).
+        #[arg(long)]
+        shard: Option<String>,
+        #[arg(long, default_value = "runs/generalisation")]
+        out: PathBuf,
+    },
+}
+
+/// `objslam montecarlo generalisation --split`.
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+enum SplitArg {
+    Tune,
+    Test,
 }
 
 #[derive(Subcommand)]
@@ -606,6 +633,13 @@ fn montecarlo(args: MontecarloArgs) -> Result<()> {
         }
         return Ok(());
     }
+    if let Some(MontecarloCommand::Generalisation { split, runs, seed, shard, out }) = args.command {
+        let split = match split {
+            SplitArg::Tune => mc::generalisation::Split::Tune,
+            SplitArg::Test => mc::generalisation::Split::Test,
+        };
+        return generalisation(split, runs, seed, shard.as_deref(), &out, &workers);
+    }
     let scenario = args.scenario.expect("clap requires a scenario without a subcommand");
     let methods: Vec<String> =
         args.methods.split(',').map(|m| m.trim().to_string()).filter(|m| !m.is_empty()).collect();
@@ -628,6 +662,44 @@ fn montecarlo(args: MontecarloArgs) -> Result<()> {
     plan.check()?;
     let out = args.out.unwrap_or_else(|| PathBuf::from(format!("runs/montecarlo-{}-{}", sc.name, args.seed)));
     run_plan(&plan, shard, &out, &workers)
+}
+
+/// `objslam montecarlo generalisation`: runs (or resumes) its two studies, then writes and
+/// prints the report of what they hold.
+fn generalisation(
+    split: scenarios::montecarlo::generalisation::Split,
+    worlds: usize,
+    seed: u64,
+    shard: Option<&str>,
+    out: &std::path::Path,
+    workers: &scenarios::montecarlo::Workers,
+) -> Result<()> {
+    use scenarios::montecarlo as mc;
+    let shard = match shard {
+        Some(s) => mc::Shard::parse(s)?,
+        None => mc::Shard::from_env(|k| std::env::var(k).ok(), None)?.unwrap_or(mc::Shard::all()),
+    };
+    let plans = mc::generalisation::plans(split, worlds, seed);
+    // Every world must draw and every plan be sound before the first run.
+    for (_, plan) in &plans {
+        plan.check()?;
+    }
+    for i in 0..worlds {
+        mc::generalisation::world_params(split, i)?;
+    }
+    for (name, plan) in &plans {
+        println!("generalisation {name}: {worlds} {} worlds, {} runs", split.name(), mc::jobs(plan).len());
+        run_plan(plan, shard, &out.join(name), workers)?;
+    }
+    let read = |name: &str| mc::read_runs(&out.join(name).join("runs.jsonl"));
+    let (combined, jcbb) = (read("combined")?, read("jcbb")?);
+    let report = mc::generalisation::report(split, worlds, &combined, &jcbb);
+    mc::write_atomically(&out.join("summary.json"), &serde_json::to_string_pretty(&report)?)?;
+    let points = [mc::generalisation::recall_points(split, &combined), mc::generalisation::recall_points(split, &jcbb)];
+    scenarios::plot::generalisation_plot(&report, &points[0], &points[1], &out.join("generalisation.png"))?;
+    print!("{}", mc::generalisation::report_text(&report));
+    println!("report in {} (summary.json, generalisation.png)", out.display());
+    Ok(())
 }
 
 /// Runs (or resumes) one study with a progress bar, then writes and prints its summary.

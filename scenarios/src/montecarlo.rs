@@ -22,6 +22,7 @@ use crate::run::{Metrics, RunOptions};
 use crate::scenario::Scenario;
 use crate::score::wilson_interval;
 
+pub mod generalisation;
 mod workers;
 pub use workers::serve_worker;
 
@@ -237,6 +238,9 @@ pub fn jobs(plan: &StudyPlan) -> Vec<Job> {
 /// Sets a dotted path (`sim.odometry.scale_sigma`) in the scenario to `value`. A 2-element
 /// range (such as `world.params.post_distance_m`) is set to `[value, value]`.
 pub fn apply_param(scenario: &Scenario, path: &str, value: f64) -> Result<Scenario, StudyError> {
+    if let Some(split) = generalisation::Split::of_param(path) {
+        return generalisation::with_world(scenario, split, value);
+    }
     let bad = |message: String| StudyError::Vary { spec: format!("{path}={value}"), message };
     // Spell out the generator's defaults so a parameter the scenario left out has its type.
     let mut scenario = scenario.clone();

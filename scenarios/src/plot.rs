@@ -77,6 +77,10 @@ enum Swatch {
     Landmark(RGBColor),
     /// A thick bar (a wall).
     Bar(RGBColor),
+    /// A plain cross (a run of a method drawn as crosses).
+    Cross(RGBColor),
+    /// An unfilled ring (a run that failed).
+    Ring(RGBColor),
 }
 
 /// Width of the legend panel to the right of the map, pixels.
@@ -304,6 +308,8 @@ fn draw_legend<DB: DrawingBackend>(
                 area.draw(&PathElement::new(ring, c.stroke_width(2)))?;
             }
             Swatch::Bar(c) => area.draw(&Rectangle::new([(a, y - 4), (b, y + 4)], c.filled()))?,
+            Swatch::Cross(c) => area.draw(&Cross::new((mid, y), 5, c.stroke_width(2)))?,
+            Swatch::Ring(c) => area.draw(&Circle::new((mid, y), 5, c.stroke_width(2)))?,
         }
         area.draw(&Text::new(name.clone(), (b + 12, y - 8), font.clone()))?;
     }
@@ -443,6 +449,87 @@ fn draw_failure_rate<DB: DrawingBackend>(
             .draw_series(pts.iter().map(|p| ErrorBar::new_vertical(p.0, p.2, p.1, p.3, colour.stroke_width(1), 8)))
             .map_err(|x| e(&x))?;
     }
+    draw_legend(&legend_area, &legend).map_err(|x| e(&x))?;
+    root.present().map_err(|x| e(&x))?;
+    Ok(())
+}
+
+/// The generalisation benchmark: each run's tree recall by world, `combined` as discs
+/// coloured by training seed (filled where the claim held, a ring where it did not) and
+/// `jcbb` as black crosses; the caption gives the claim's rate.
+pub fn generalisation_plot(
+    report: &crate::montecarlo::generalisation::GeneralisationReport,
+    combined: &[crate::montecarlo::generalisation::RecallPoint],
+    jcbb: &[crate::montecarlo::generalisation::RecallPoint],
+    png: &Path,
+) -> Result<(), PlotError> {
+    register_fonts();
+    draw_generalisation(
+        BitMapBackend::new(png, (STUDY_PLOT_W + LEGEND_W, 600)).into_drawing_area(),
+        report,
+        combined,
+        jcbb,
+    )
+    .map_err(|message| PlotError { file: png.to_path_buf(), message })
+}
+
+fn draw_generalisation<DB: DrawingBackend>(
+    root: DrawingArea<DB, plotters::coord::Shift>,
+    report: &crate::montecarlo::generalisation::GeneralisationReport,
+    combined: &[crate::montecarlo::generalisation::RecallPoint],
+    jcbb: &[crate::montecarlo::generalisation::RecallPoint],
+) -> Result<(), String> {
+    let e = |x: &dyn std::fmt::Display| x.to_string();
+    root.fill(&WHITE).map_err(|x| e(&x))?;
+    let (plot_area, legend_area) = root.split_horizontally(STUDY_PLOT_W);
+    let claim = match report.claim.rate {
+        Some(r) => format!("claim held in {:.0}% of {} runs", 100.0 * r, report.claim.runs),
+        None => "no run scored".into(),
+    };
+    let worlds = report.worlds.max(1) as f64;
+    let mut chart = ChartBuilder::on(&plot_area)
+        .caption(format!("generalisation ({} split): {claim}", report.split.name()), ("sans-serif", 20))
+        .margin(15)
+        .x_label_area_size(45)
+        .y_label_area_size(55)
+        .build_cartesian_2d(-0.5f64..(worlds - 0.5), -0.02f64..1.05f64)
+        .map_err(|x| e(&x))?;
+    chart
+        .configure_mesh()
+        .x_labels(report.worlds.clamp(2, 21))
+        .x_label_formatter(&|x| format!("{x:.0}"))
+        .x_desc("world (index in the split)")
+        .y_desc("tree recall (combined: of trees in view; jcbb: of trees the laser saw)")
+        .label_style(("sans-serif", 14))
+        .draw()
+        .map_err(|x| e(&x))?;
+    let palette = [
+        RGBColor(0, 114, 178),
+        RGBColor(213, 94, 0),
+        RGBColor(0, 158, 115),
+        RGBColor(204, 121, 167),
+        RGBColor(230, 159, 0),
+    ];
+    let seeds = &report.training_seeds;
+    let mut legend: Vec<(String, Swatch)> = Vec::new();
+    for (k, seed) in seeds.iter().enumerate() {
+        let colour = palette[k % palette.len()];
+        // Seeds side by side within a world, so equal recalls stay visible.
+        let dodge = (k as f64 - (seeds.len() as f64 - 1.0) / 2.0) * 0.08;
+        let points: Vec<_> = combined.iter().filter(|p| p.training_seed == Some(*seed)).collect();
+        chart
+            .draw_series(points.iter().map(|p| {
+                let style = if p.claim { colour.filled() } else { colour.stroke_width(2) };
+                Circle::new((p.world as f64 + dodge, p.recall), 5, style)
+            }))
+            .map_err(|x| e(&x))?;
+        legend.push((format!("combined, training seed {seed}"), Swatch::Disc(colour)));
+    }
+    chart
+        .draw_series(jcbb.iter().map(|p| Cross::new((p.world as f64 + 0.3, p.recall), 5, BLACK.stroke_width(2))))
+        .map_err(|x| e(&x))?;
+    legend.push(("jcbb".into(), Swatch::Cross(BLACK)));
+    legend.push(("ring: the claim failed".into(), Swatch::Ring(RGBColor(90, 90, 90))));
     draw_legend(&legend_area, &legend).map_err(|x| e(&x))?;
     root.present().map_err(|x| e(&x))?;
     Ok(())

@@ -290,6 +290,36 @@ fn paper_park_maps_only_trees_each_once_with_no_wrong_association() {
     assert!(m.route_completed);
 }
 
+/// Runs job `index` of the generalisation benchmark's `combined` (0) or `jcbb` (1) study
+/// on the test split, as the benchmark runs it.
+fn generalisation_job(study: usize, index: usize) -> scenarios::run::Metrics {
+    use scenarios::montecarlo::{apply_param, generalisation, jobs};
+    let plans = generalisation::plans(generalisation::Split::Test, 1, 1);
+    let job = &jobs(&plans[study].1)[index];
+    let (mut sc, base) = Scenario::load(generalisation::BASE_SCENARIO).unwrap();
+    for (param, value) in &job.params {
+        sc = apply_param(&sc, param, *value).unwrap();
+    }
+    let method = slam::association::AssociationMethod::from_name(&job.method);
+    run(&sc, &base, &RunOptions { seed: Some(job.seed), method, ..Default::default() }, |_, _| {}).unwrap().metrics
+}
+
+/// Guards the measured level on a world nobody tuned on: world 0 of the generalisation
+/// benchmark's test split (385 s, 21 trees in view), trained model seed 1, recorded
+/// 2026-12-02 with recall 0.76 and no false landmark. The paper's claim (recall 0.95) does
+/// not hold there yet (docs/results.md#generalisation); what holds must keep holding, and
+/// jcbb on the same world must show the failure the paper argues against.
+#[test]
+fn a_test_split_world_keeps_its_measured_level() {
+    let m = generalisation_job(0, 0);
+    assert_eq!((m.associations.wrong, m.duplicate_landmarks, m.false_landmarks), (0, 0, 0), "{:?}", m.map);
+    assert!(m.map.trees_in_view.is_some_and(|n| n >= 15), "{:?}", m.map);
+    assert!(m.map.tree_recall.is_some_and(|r| r >= 0.7), "{:?}", m.map);
+    let jcbb = generalisation_job(1, 0);
+    assert!(jcbb.map.posts + jcbb.map.people >= 1, "{:?}", jcbb.map);
+    assert_eq!(jcbb.map.tree_recall, Some(1.0), "{:?}", jcbb.map);
+}
+
 /// Guards the pooled tree-versus-post evidence: posts half a metre to a metre from trees,
 /// whose laser patches look like bark, stay out of the map while every tree goes in.
 #[test]
