@@ -684,9 +684,16 @@ fn generalisation(
     for (_, plan) in &plans {
         plan.check()?;
     }
+    // Every world must draw before the first run; the draws are written down, so a failure
+    // can be traced to its world.
+    let mut drawn = Vec::new();
     for i in 0..worlds {
-        mc::generalisation::world_params(split, i)?;
+        let params = mc::generalisation::world_params(split, i)?;
+        let seed = mc::generalisation::world_seed(split, i);
+        drawn.push(serde_json::json!({ "index": i, "seed": seed, "params": params }));
     }
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    mc::write_atomically(&out.join("worlds.json"), &serde_json::to_string_pretty(&drawn)?)?;
     for (name, plan) in &plans {
         println!("generalisation {name}: {worlds} {} worlds, {} runs", split.name(), mc::jobs(plan).len());
         run_plan(plan, shard, &out.join(name), workers)?;
@@ -698,7 +705,7 @@ fn generalisation(
     let points = [mc::generalisation::recall_points(split, &combined), mc::generalisation::recall_points(split, &jcbb)];
     scenarios::plot::generalisation_plot(&report, &points[0], &points[1], &out.join("generalisation.png"))?;
     print!("{}", mc::generalisation::report_text(&report));
-    println!("report in {} (summary.json, generalisation.png)", out.display());
+    println!("report in {} (summary.json, generalisation.png; the worlds drawn in worlds.json)", out.display());
     Ok(())
 }
 
