@@ -236,7 +236,8 @@ impl From<SearchArg> for slam::gmm::Search {
 
 #[derive(Subcommand)]
 enum GmmCommand {
-    /// Fit a VB-GMM (birth-death search over the number of components, or fixed K).
+    /// Fit a VB-GMM (searching for the number of components up to --max-components, or
+    /// fixed K).
     Fit {
         data: PathBuf,
         #[arg(long, default_value_t = 10)]
@@ -327,7 +328,7 @@ enum MontecarloCommand {
         out: PathBuf,
     },
     /// The generalisation benchmark: the paper's claim on park worlds drawn from a wide
-    /// distribution (docs/guide/montecarlo.md), combined with 5 appearance training seeds
+    /// distribution (docs/guide/monte-carlo.md), combined with 5 appearance training seeds
     /// (DIR/combined) and jcbb for reference (DIR/jcbb); writes DIR/summary.json and
     /// DIR/generalisation.png. Resumable and shardable like any study.
     Generalisation {
@@ -680,12 +681,14 @@ fn generalisation(
         None => mc::Shard::from_env(|k| std::env::var(k).ok(), None)?.unwrap_or(mc::Shard::all()),
     };
     let plans = mc::generalisation::plans(split, worlds, seed);
-    // Every world must draw and every plan be sound before the first run.
+    if worlds == 0 {
+        anyhow::bail!("--runs must be at least 1 world");
+    }
+    // Every plan must be sound and every world draw before the first run; the draws are
+    // written down, so a failure can be traced to its world.
     for (_, plan) in &plans {
         plan.check()?;
     }
-    // Every world must draw before the first run; the draws are written down, so a failure
-    // can be traced to its world.
     let mut drawn = Vec::new();
     for i in 0..worlds {
         let params = mc::generalisation::world_params(split, i)?;
@@ -697,6 +700,16 @@ fn generalisation(
     for (name, plan) in &plans {
         println!("generalisation {name}: {worlds} {} worlds, {} runs", split.name(), mc::jobs(plan).len());
         run_plan(plan, shard, &out.join(name), workers)?;
+    }
+    if shard != mc::Shard::all() {
+        println!(
+            "shard {}/{} done; the report needs every shard: merge each of {}/combined and {}/jcbb with `objslam montecarlo merge`, then rerun this command on the merged directory",
+            shard.index,
+            shard.count,
+            out.display(),
+            out.display()
+        );
+        return Ok(());
     }
     let read = |name: &str| mc::read_runs(&out.join(name).join("runs.jsonl"));
     let (combined, jcbb) = (read("combined")?, read("jcbb")?);

@@ -236,7 +236,10 @@ pub fn jobs(plan: &StudyPlan) -> Vec<Job> {
 }
 
 /// Sets a dotted path (`sim.odometry.scale_sigma`) in the scenario to `value`. A 2-element
-/// range (such as `world.params.post_distance_m`) is set to `[value, value]`.
+/// range (such as `world.params.post_distance_m`) is set to `[value, value]`. The
+/// generalisation benchmark's world parameters (`generalisation.test_world`, ...) replace the
+/// whole world (preset, seed and parameters) by a drawn one, so a study should not vary
+/// `world.*` beside them.
 pub fn apply_param(scenario: &Scenario, path: &str, value: f64) -> Result<Scenario, StudyError> {
     if let Some(split) = generalisation::Split::of_param(path) {
         return generalisation::with_world(scenario, split, value);
@@ -569,7 +572,7 @@ fn job_needs_appearance(job: &Job, scenario: &Scenario) -> bool {
 }
 
 /// The base scenario with the job's parameters applied.
-fn job_scenario(base: &Scenario, job: &Job) -> Result<Scenario, StudyError> {
+pub fn job_scenario(base: &Scenario, job: &Job) -> Result<Scenario, StudyError> {
     let mut scenario = base.clone();
     for (p, v) in &job.params {
         scenario = apply_param(&scenario, p, *v)?;

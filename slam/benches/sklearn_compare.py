@@ -1,6 +1,6 @@
 """The model search against scikit-learn's BayesianGaussianMixture, end to end, on one CSV.
 
-Fits the same training CSV with `objslam gmm fit` (the birth-death search, all cores) and with
+Fits the same training CSV with `objslam gmm fit --search prune` (all cores) and with
 scikit-learn (n_components = the same upper limit, one BLAS thread, objslam's default prior:
 alpha0 = 1, beta0 = 1, nu0 = D, m0 = the data mean, W0^-1 = the data covariance), then scores
 both on a held-out CSV with one formula: the mean posterior predictive log-density per point,
@@ -8,7 +8,7 @@ the mixture of Student-t of PRML 10.81, computed here in NumPy from each fit's p
 objslam's own `objslam gmm score` figure is printed beside it as a cross-check.
 
     python3 slam/benches/sklearn_compare.py [--objslam target/release/objslam]
-        [--train CSV --heldout CSV] [--out DIR] [--max-components 10] [--repeat 3]
+        [--train CSV --heldout CSV] [--out DIR] [--max-components 10] [--repeat 3] [--search prune|grow]
 
 Without --train it draws its own data set into DIR: 25,000 points in 14 dimensions from 6
 overlapping full-covariance Gaussians with uneven weights (NumPy seed 6), 20,000 to train on
@@ -74,7 +74,10 @@ def main():
     ap.add_argument("--out", default="sklearn_compare")
     ap.add_argument("--max-components", type=int, default=10)
     ap.add_argument("--repeat", type=int, default=3, help="timed fits per side; the fastest counts")
+    ap.add_argument("--search", choices=["prune", "grow"], default="prune", help="objslam's model search")
     args = ap.parse_args()
+    if args.repeat < 1:
+        sys.exit("--repeat must be at least 1")
     os.makedirs(args.out, exist_ok=True)
     if args.train:
         if not args.heldout:
@@ -92,7 +95,8 @@ def main():
     for _ in range(args.repeat):
         t = time.perf_counter()
         fit = subprocess.run(
-            [args.objslam, "gmm", "fit", train, "--max-components", str(args.max_components), "--out", model],
+            [args.objslam, "gmm", "fit", train, "--search", args.search, "--max-components", str(args.max_components),
+             "--out", model],
             check=True, capture_output=True, text=True)
         ours.append(time.perf_counter() - t)
     m = json.load(open(model))

@@ -293,13 +293,11 @@ fn paper_park_maps_only_trees_each_once_with_no_wrong_association() {
 /// Runs job `index` of the generalisation benchmark's `combined` (0) or `jcbb` (1) study
 /// on the test split, as the benchmark runs it.
 fn generalisation_job(study: usize, index: usize) -> scenarios::run::Metrics {
-    use scenarios::montecarlo::{apply_param, generalisation, jobs};
+    use scenarios::montecarlo::{generalisation, job_scenario, jobs};
     let plans = generalisation::plans(generalisation::Split::Test, 1, 1);
     let job = &jobs(&plans[study].1)[index];
-    let (mut sc, base) = Scenario::load(generalisation::BASE_SCENARIO).unwrap();
-    for (param, value) in &job.params {
-        sc = apply_param(&sc, param, *value).unwrap();
-    }
+    let (base_scenario, base) = Scenario::load(generalisation::BASE_SCENARIO).unwrap();
+    let sc = job_scenario(&base_scenario, job).unwrap();
     let method = slam::association::AssociationMethod::from_name(&job.method);
     run(&sc, &base, &RunOptions { seed: Some(job.seed), method, ..Default::default() }, |_, _| {}).unwrap().metrics
 }

@@ -39,6 +39,8 @@ pub enum GmmError {
     BadPrior(String),
     #[error("bad options: {0}")]
     BadOptions(String),
+    #[error("bad model: {0}")]
+    BadModel(String),
     #[error("the mixture has no components")]
     EmptyModel,
     #[error("component {component}: matrix is not positive definite")]

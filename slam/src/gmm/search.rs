@@ -27,14 +27,22 @@ pub struct VbOptions {
     pub min_points: f64,
     /// Seed of the k-means++ start (fixed K and the pruning search; growing needs none).
     pub seed: u64,
-    /// How the number of components is searched for (ignored with `fixed_k`).
+    /// How the number of components is searched for (ignored with `fixed_k`). Left out of
+    /// the serialised form at its default, like `component_cost_nats`, so that settings
+    /// written before it existed (and the model cache keys made from them) stay the same.
+    #[serde(skip_serializing_if = "Search::is_grow")]
     pub search: Search,
     /// What each component costs in the pruning search, in nats of the bound: a change is
     /// kept when the bound minus this cost per component rises by more than `split_gain`.
     /// One nat is a Bayes factor of e, Kass & Raftery's (1995) threshold of positive
     /// evidence; a component that raises the bound by less is noise in the sample (on 93
     /// points of one Gaussian, a second component raised the bound by 0.005 nats).
+    #[serde(skip_serializing_if = "is_one_nat")]
     pub component_cost_nats: f64,
+}
+
+fn is_one_nat(v: &f64) -> bool {
+    *v == 1.0
 }
 
 /// How the number of components is found.
@@ -51,6 +59,12 @@ pub enum Search {
     /// faster than growing on data with many components (docs/performance.md); the same bar
     /// for keeping a change.
     Prune,
+}
+
+impl Search {
+    fn is_grow(&self) -> bool {
+        *self == Search::Grow
+    }
 }
 
 impl Default for VbOptions {
@@ -119,7 +133,7 @@ impl VbGmm {
             }
             let finite = c.alpha.is_finite() && c.beta.is_finite() && c.nu.is_finite();
             if !(finite && c.alpha > 0.0 && c.beta > 0.0 && c.nu > d as f64 - 1.0) {
-                return Err(GmmError::BadPrior(format!(
+                return Err(GmmError::BadModel(format!(
                     "component {k}: alpha = {}, beta = {} and nu = {} must be finite, alpha and beta positive and nu above D - 1 = {}",
                     c.alpha,
                     c.beta,
@@ -128,7 +142,7 @@ impl VbGmm {
                 )));
             }
             if c.mean.iter().chain(c.w_inv.iter()).any(|v| !v.is_finite()) {
-                return Err(GmmError::Numerical(format!("component {k}: mean and W^-1 must be finite")));
+                return Err(GmmError::BadModel(format!("component {k}: mean and W^-1 must be finite")));
             }
         }
         Ok(())
@@ -321,9 +335,11 @@ fn fixed_k(data: &DMatrix<f64>, prior: &VbPrior, options: &VbOptions) -> Result<
 /// the others by one E-step) and splitting one ([`split`]) are tried, smallest component and
 /// worst share of the bound first. A change is kept when the bound minus
 /// `component_cost_nats` per component rises by more than `split_gain` of the bound: a
-/// strict rise of one score, so the search cannot cycle. A candidate stops as soon as it
-/// passes that bar or clearly cannot ([`Control::target`]); the model kept is then run to
-/// the full tolerance.
+/// strict rise of one score between converged models, so the search cannot cycle. A
+/// candidate stops as soon as it passes that bar or clearly cannot ([`Control::target`]);
+/// one that passes is run to the full tolerance before the next bar is set from it. (A
+/// candidate that VBEM empties further is held to the bar of one component less: stricter
+/// than its score needs.)
 fn prune_search(data: &DMatrix<f64>, prior: &VbPrior, options: &VbOptions) -> Result<Run, GmmError> {
     let full = Control {
         steps: Steps::Packed,
@@ -347,7 +363,7 @@ fn prune_search(data: &DMatrix<f64>, prior: &VbPrior, options: &VbOptions) -> Re
             let target = bar(best.bound, -1.0);
             let run = run_pruned_with(data, r, prior, options, &candidate(target), &mut total)?;
             if run.bound > target {
-                best = run;
+                best = run_pruned_with(data, run.r, prior, options, &full, &mut total)?;
                 continue 'deaths;
             }
         }
@@ -361,15 +377,14 @@ fn prune_search(data: &DMatrix<f64>, prior: &VbPrior, options: &VbOptions) -> Re
             let target = bar(best.bound, 1.0);
             let run = run_pruned_with(data, r, prior, options, &candidate(target), &mut total)?;
             if run.bound > target && run.comps.len() > best.comps.len() {
-                best = run;
+                best = run_pruned_with(data, run.r, prior, options, &full, &mut total)?;
                 continue 'births;
             }
         }
         break;
     }
-    let mut done = run_pruned_with(data, best.r, prior, options, &full, &mut total)?;
-    done.iterations = total;
-    Ok(done)
+    best.iterations = total;
+    Ok(best)
 }
 
 /// Hard responsibilities (N x k) from k-means++ seeds (seeded by `seed`) and ten Lloyd

@@ -380,6 +380,17 @@ fn large_fits_are_identical_on_one_thread_and_on_many() {
     assert_eq!(serde_json::to_string(&one).unwrap(), serde_json::to_string(&many).unwrap());
 }
 
+/// Settings written before the search could be chosen serialise as they did then (model
+/// cache keys are made from them), and read back to the defaults.
+#[test]
+fn default_options_serialise_as_before_the_search_was_chosen() {
+    let json = serde_json::to_string(&VbOptions::default()).unwrap();
+    assert!(!json.contains("search") && !json.contains("component_cost"), "{json}");
+    assert_eq!(serde_json::from_str::<VbOptions>(&json).unwrap(), VbOptions::default());
+    let prune = serde_json::to_string(&VbOptions { search: Search::Prune, ..VbOptions::default() }).unwrap();
+    assert!(prune.contains("\"search\":\"prune\""), "{prune}");
+}
+
 /// The same for the pruning search, whose packed steps split the work differently.
 #[test]
 fn pruning_search_fits_are_identical_on_one_thread_and_on_many() {
@@ -411,7 +422,7 @@ fn held_out_scores_need_a_sound_model_of_the_data_dimension() {
     ));
     let mut broken = model.clone();
     broken.components[0].nu = f64::NAN;
-    assert!(matches!(broken.mean_log_predictive(&heldout), Err(GmmError::BadPrior(_))));
+    assert!(matches!(broken.mean_log_predictive(&heldout), Err(GmmError::BadModel(_))));
     broken.components.clear();
     assert!(matches!(broken.mean_log_predictive(&heldout), Err(GmmError::EmptyModel)));
 }

@@ -13,7 +13,7 @@ use statrs::function::gamma::{digamma, ln_gamma};
 
 use super::GmmError;
 
-const LN_2PI: f64 = 1.837_877_066_409_345_5;
+pub(crate) const LN_2PI: f64 = 1.837_877_066_409_345_5;
 const LN_PI: f64 = 1.144_729_885_849_400_2;
 
 /// The conjugate prior of the mixture (paper eq. 3; docs/design.md, paper symbols).
@@ -151,7 +151,15 @@ pub(crate) fn per_component<T: Send>(n: usize, k: usize, f: impl Fn(usize) -> T 
 pub(crate) fn m_step(data: &DMatrix<f64>, r: &DMatrix<f64>, prior: &VbPrior) -> (Vec<VbComponent>, Stats) {
     let (n, _) = data.shape();
     let k = r.ncols();
-    let per = per_component(n, k, |kk| m_step_component(data, r, prior, kk));
+    collect(per_component(n, k, |kk| m_step_component(data, r, prior, kk)))
+}
+
+/// One component's M-step result: its posterior, N_k, xbar_k, S_k and sum r ln r.
+pub(crate) type ComponentStep = (VbComponent, f64, DVector<f64>, DMatrix<f64>, f64);
+
+/// The components' posteriors and the statistics, from the per-component results.
+pub(crate) fn collect(per: Vec<ComponentStep>) -> (Vec<VbComponent>, Stats) {
+    let k = per.len();
     let mut stats = Stats {
         nk: Vec::with_capacity(k),
         xbar: Vec::with_capacity(k),
@@ -170,12 +178,7 @@ pub(crate) fn m_step(data: &DMatrix<f64>, r: &DMatrix<f64>, prior: &VbPrior) -> 
 }
 
 /// One component's statistics (N_k, xbar_k, S_k, sum r ln r) and posterior.
-fn m_step_component(
-    data: &DMatrix<f64>,
-    r: &DMatrix<f64>,
-    prior: &VbPrior,
-    kk: usize,
-) -> (VbComponent, f64, DVector<f64>, DMatrix<f64>, f64) {
+fn m_step_component(data: &DMatrix<f64>, r: &DMatrix<f64>, prior: &VbPrior, kk: usize) -> ComponentStep {
     let (n, d) = data.shape();
     let rk = r.column(kk);
     let nk: f64 = rk.sum();
