@@ -350,6 +350,16 @@ fn axis_range(xs: &[f64]) -> (f64, f64) {
     if lo <= hi && (hi - lo).is_finite() { (lo, hi) } else { (0.0, 0.0) }
 }
 
+/// Colours of a plot's series, told apart by colour-blind readers too (Okabe-Ito).
+const SERIES_PALETTE: [RGBColor; 6] = [
+    RGBColor(0, 114, 178),
+    RGBColor(213, 94, 0),
+    RGBColor(0, 158, 115),
+    RGBColor(204, 121, 167),
+    RGBColor(86, 180, 233),
+    RGBColor(230, 159, 0),
+];
+
 /// Width of a study plot without its legend panel, pixels.
 const STUDY_PLOT_W: u32 = 900;
 
@@ -417,14 +427,7 @@ fn draw_failure_rate<DB: DrawingBackend>(
         .label_style(("sans-serif", 14))
         .draw()
         .map_err(|x| e(&x))?;
-    let palette = [
-        RGBColor(0, 114, 178),
-        RGBColor(213, 94, 0),
-        RGBColor(0, 158, 115),
-        RGBColor(204, 121, 167),
-        RGBColor(86, 180, 233),
-        RGBColor(230, 159, 0),
-    ];
+    let palette = SERIES_PALETTE;
     // Methods with equal rates would hide each other's lines: each series is moved sideways
     // by a small step of its own (the x label says so).
     let step = 0.012 * ((hi - lo).max(1e-9) + 2.0 * pad);
@@ -503,13 +506,7 @@ fn draw_generalisation<DB: DrawingBackend>(
         .label_style(("sans-serif", 14))
         .draw()
         .map_err(|x| e(&x))?;
-    let palette = [
-        RGBColor(0, 114, 178),
-        RGBColor(213, 94, 0),
-        RGBColor(0, 158, 115),
-        RGBColor(204, 121, 167),
-        RGBColor(230, 159, 0),
-    ];
+    let palette = SERIES_PALETTE;
     let seeds = &report.training_seeds;
     let mut legend: Vec<(String, Swatch)> = Vec::new();
     for (k, seed) in seeds.iter().enumerate() {

@@ -15,7 +15,7 @@
 use nalgebra::{DMatrix, DVector};
 
 use super::GmmError;
-use super::vbem::{self, LN_2PI, Stats, VbComponent, VbPrior, per_component};
+use super::vbem::{self, Stats, VbComponent, VbPrior, per_component};
 
 /// Points computed side by side in the E-step.
 const LANES: usize = 8;
@@ -32,13 +32,9 @@ pub(crate) fn e_step(data: &DMatrix<f64>, comps: &[VbComponent]) -> Result<DMatr
     let columns: Vec<&[f64]> = (0..d).map(|j| column(data, j)).collect();
     let out = per_component(n, k, |kk| -> Result<Vec<f64>, GmmError> {
         let (c, e) = (&comps[kk], &ex[kk]);
-        let c_inv = e
-            .chol
-            .l()
-            .solve_lower_triangular(&DMatrix::identity(d, d))
-            .ok_or(GmmError::NotPositiveDefinite { component: kk })?;
+        let c_inv = e.whitening(kk)?;
         let packed: Vec<f64> = (0..d).flat_map(|i| (0..=i).map(move |j| (i, j))).map(|(i, j)| c_inv[(i, j)]).collect();
-        let base = e.ln_pi + 0.5 * e.ln_lambda - 0.5 * d as f64 * LN_2PI - 0.5 * d as f64 / c.beta;
+        let base = e.log_rho_base(c);
         let mut log_rho = vec![0.0; n];
         mahalanobis(&columns, c.mean.as_slice(), &packed, &mut log_rho);
         for v in &mut log_rho {

@@ -361,19 +361,18 @@ fn one_component_bound_equals_the_exact_marginal_likelihood() {
     assert!((m.lower_bound - exact).abs() < 1e-8 * exact.abs(), "bound {} vs exact {exact}", m.lower_bound);
 }
 
+/// A fit on a pool of `threads` threads.
+fn fit_on_threads(data: &DMatrix<f64>, options: &VbOptions, threads: usize) -> VbGmm {
+    rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap().install(|| fit(data, None, options).unwrap())
+}
+
 /// Guards determinism across thread counts: large fits spread components over threads.
 #[test]
 fn large_fits_are_identical_on_one_thread_and_on_many() {
     let data = mixture_data(5, &[3000, 3000, 3000, 3000], 4, 6.0);
     let options = VbOptions { fixed_k: true, max_components: 8, seed: 1, ..Default::default() };
     assert!(data.nrows() * options.max_components >= 1 << 16, "large enough to run in parallel");
-    let on = |threads: usize| {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap()
-            .install(|| fit(&data, None, &options).unwrap())
-    };
+    let on = |threads: usize| fit_on_threads(&data, &options, threads);
     let (one, many) = (on(1), on(3));
     assert_eq!(one.lower_bound.to_bits(), many.lower_bound.to_bits());
     assert_eq!(one.iterations, many.iterations);
@@ -396,13 +395,7 @@ fn default_options_serialise_as_before_the_search_was_chosen() {
 fn pruning_search_fits_are_identical_on_one_thread_and_on_many() {
     let data = mixture_data(6, &[3000, 3000, 2000, 4000], 4, 6.0);
     let options = VbOptions { search: Search::Prune, max_components: 8, seed: 2, ..Default::default() };
-    let on = |threads: usize| {
-        rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap()
-            .install(|| fit(&data, None, &options).unwrap())
-    };
+    let on = |threads: usize| fit_on_threads(&data, &options, threads);
     let (one, many) = (on(1), on(3));
     assert_eq!(serde_json::to_string(&one).unwrap(), serde_json::to_string(&many).unwrap());
     assert_eq!(one.effective_components(0.02), 4);

@@ -231,6 +231,23 @@ pub(crate) struct Expect {
     pub chol: Cholesky<f64, Dyn>,
 }
 
+impl Expect {
+    /// C^-1 with C C^T = W^-1, so that (x - m)^T W (x - m) = |C^-1 (x - m)|^2.
+    pub fn whitening(&self, component: usize) -> Result<DMatrix<f64>, GmmError> {
+        let d = self.chol.l_dirty().nrows();
+        self.chol
+            .l()
+            .solve_lower_triangular(&DMatrix::identity(d, d))
+            .ok_or(GmmError::NotPositiveDefinite { component })
+    }
+
+    /// The terms of ln rho_nk (PRML 10.46) that do not depend on the point.
+    pub fn log_rho_base(&self, c: &VbComponent) -> f64 {
+        let d = c.mean.len();
+        self.ln_pi + 0.5 * self.ln_lambda - 0.5 * d as f64 * LN_2PI - 0.5 * d as f64 / c.beta
+    }
+}
+
 pub(crate) fn expectations(comps: &[VbComponent]) -> Result<Vec<Expect>, GmmError> {
     let alpha_sum: f64 = comps.iter().map(|c| c.alpha).sum();
     let dig_sum = digamma(alpha_sum);
@@ -256,12 +273,8 @@ pub(crate) fn e_step(data: &DMatrix<f64>, comps: &[VbComponent]) -> Result<DMatr
     let ex = expectations(comps)?;
     let columns = per_component(n, k, |kk| -> Result<Vec<f64>, GmmError> {
         let (c, e) = (&comps[kk], &ex[kk]);
-        // (x - m)^T W (x - m) = |C^-1 (x - m)|^2 with C C^T = W^-1: Y = X C^-T - 1 (C^-1 m)^T.
-        let c_inv = e
-            .chol
-            .l()
-            .solve_lower_triangular(&DMatrix::identity(d, d))
-            .ok_or(GmmError::NotPositiveDefinite { component: kk })?;
+        // (x - m)^T W (x - m) = |C^-1 (x - m)|^2: Y = X C^-T - 1 (C^-1 m)^T.
+        let c_inv = e.whitening(kk)?;
         let y = data * c_inv.transpose();
         let shift = &c_inv * &c.mean;
         let mut quad = vec![0.0; n];
@@ -271,7 +284,7 @@ pub(crate) fn e_step(data: &DMatrix<f64>, comps: &[VbComponent]) -> Result<DMatr
                 *q += (v - s) * (v - s);
             }
         }
-        let base = e.ln_pi + 0.5 * e.ln_lambda - 0.5 * d as f64 * LN_2PI - 0.5 * d as f64 / c.beta;
+        let base = e.log_rho_base(c);
         for q in &mut quad {
             *q = base - 0.5 * c.nu * *q;
         }

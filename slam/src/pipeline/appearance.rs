@@ -395,13 +395,7 @@ impl Pipeline {
         if self.config.evidence.pooled {
             self.retract_landmarks();
         }
-        self.note_co_observed(&assigned);
-        self.refresh_landmarks();
-        if let Some(h) = &mut self.history {
-            h.set_estimate(self.ekf.pose());
-        }
-        self.record_pose();
-        self.report(t, clusters, assigned)
+        self.finish_scan(t, clusters, assigned)
     }
 
     /// Whether landmarks `i` and `j` may be one object by their appearance: always for the

@@ -221,6 +221,18 @@ impl Pipeline {
     }
 
     /// The report of the scan at `t`: its observations and what it did, handed over.
+    /// What every scan ends with, whichever association ran: the co-observation counts,
+    /// the landmarks' records, the history's estimate, the pose log, and the report.
+    fn finish_scan(&mut self, t: f64, clusters: Vec<Cluster>, assigned: Vec<Option<u32>>) -> ScanReport {
+        self.note_co_observed(&assigned);
+        self.refresh_landmarks();
+        if let Some(h) = &mut self.history {
+            h.set_estimate(self.ekf.pose());
+        }
+        self.record_pose();
+        self.report(t, clusters, assigned)
+    }
+
     fn report(&mut self, t: f64, clusters: Vec<Cluster>, assigned: Vec<Option<u32>>) -> ScanReport {
         ScanReport {
             t,

@@ -174,12 +174,6 @@ impl Pipeline {
             }
         }
         debug_assert_eq!(self.ekf.landmark_count(), self.landmarks.len());
-        self.note_co_observed(&assigned);
-        self.refresh_landmarks();
-        if let Some(h) = &mut self.history {
-            h.set_estimate(self.ekf.pose());
-        }
-        self.record_pose();
-        self.report(t, clusters, assigned)
+        self.finish_scan(t, clusters, assigned)
     }
 }
