@@ -22,7 +22,7 @@ fn warmed_pipeline(warm_s: f64) -> (Pipeline, (f64, u32, u32, Vec<u8>), slam::me
     let (scenario, base) = Scenario::load("paper_park").expect("built-in scenario");
     let base: &Path = &base;
     let config = scenarios::run::pipeline_config(&scenario, None).expect("pipeline config");
-    let model = resolve_appearance(&scenario, base).expect("appearance model");
+    let model = resolve_appearance(&scenario, base, |_, _, _| {}).expect("appearance model");
     let world = scenario.world(base, scenario.seed).expect("world");
     let calibration = resolve_calibration(&scenario, base, scenario.seed).expect("calibration");
     let mut sim = Simulation::new(&world, &scenario.sim, sim::derive_seed(scenario.seed, "sim")).expect("simulation");

@@ -441,25 +441,35 @@ pub enum Workers {
     Processes { exe: PathBuf, count: usize, run_timeout: Option<std::time::Duration> },
 }
 
+/// What a study tells its caller while it goes.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum StudyProgress<'a> {
+    /// An appearance model the jobs need is being trained (before the first run): a
+    /// stage, and how far it has come.
+    Training { stage: &'a str, done: usize, total: usize },
+    /// Runs of this shard finished (those of earlier starts included), of its total.
+    Runs { done: usize, total: usize },
+}
+
 /// Runs (the remaining jobs of) a study into `out` on this process's threads. See
 /// [`run_study_with`].
 pub fn run_study(
     plan: &StudyPlan,
     shard: Shard,
     out: &Path,
-    progress: impl Fn(usize, usize) + Sync,
+    progress: impl Fn(StudyProgress) + Sync,
 ) -> Result<Vec<RunRecord>, StudyError> {
     run_study_with(plan, shard, out, &Workers::Threads, progress)
 }
 
-/// Runs (the remaining jobs of) a study into `out` on `workers`. `progress(done, total)` is
-/// called as runs finish. Returns every record of this shard's jobs.
+/// Runs (the remaining jobs of) a study into `out` on `workers`. `progress` hears of
+/// trainings and of runs as they finish. Returns every record of this shard's jobs.
 pub fn run_study_with(
     plan: &StudyPlan,
     shard: Shard,
     out: &Path,
     workers: &Workers,
-    progress: impl Fn(usize, usize) + Sync,
+    progress: impl Fn(StudyProgress) + Sync,
 ) -> Result<Vec<RunRecord>, StudyError> {
     plan.check()?;
     std::fs::create_dir_all(out).map_err(|e| StudyError::File { file: out.into(), message: e.to_string() })?;
@@ -512,12 +522,14 @@ pub fn run_study_with(
         crate::run::pipeline_config(&scenario, Some(method))
             .map_err(|e| StudyError::Job { key: job.key(), message: e.to_string() })?;
         if job_needs_appearance(job, &scenario) {
-            models.get(&scenario).map_err(StudyError::Appearance)?;
+            models
+                .resolve(&scenario, |stage, done, total| progress(StudyProgress::Training { stage, done, total }))
+                .map_err(StudyError::Appearance)?;
         }
     }
     let total = mine.len();
     let finished = std::sync::atomic::AtomicUsize::new(total - todo.len());
-    progress(finished.load(std::sync::atomic::Ordering::Relaxed), total);
+    progress(StudyProgress::Runs { done: finished.load(std::sync::atomic::Ordering::Relaxed), total });
     let file = Mutex::new(
         OpenOptions::new()
             .create(true)
@@ -539,7 +551,7 @@ pub fn run_study_with(
             }
         }
         let n = finished.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
-        progress(n, total);
+        progress(StudyProgress::Runs { done: n, total });
     };
     let new: Vec<RunRecord> = match workers {
         Workers::Threads => todo
@@ -595,6 +607,15 @@ impl StudyModels {
 
     /// The model `scenario` asks for.
     pub fn get(&self, scenario: &Scenario) -> Result<std::sync::Arc<slam::classifier::AppearanceModel>, String> {
+        self.resolve(scenario, |_, _, _| {})
+    }
+
+    /// [`StudyModels::get`], with `progress(stage, done, total)` following a training.
+    pub fn resolve(
+        &self,
+        scenario: &Scenario,
+        progress: impl Fn(&str, usize, usize),
+    ) -> Result<std::sync::Arc<slam::classifier::AppearanceModel>, String> {
         let key = match &scenario.appearance.model {
             Some(file) => format!("file {file}"),
             None => scenario.appearance.cache_key(&scenario.sim.camera),
@@ -606,8 +627,9 @@ impl StudyModels {
         if let Some(model) = models.get(&key) {
             return Ok(model.clone());
         }
-        let model =
-            std::sync::Arc::new(crate::run::resolve_appearance(scenario, &self.base_dir).map_err(|e| e.to_string())?);
+        let model = std::sync::Arc::new(
+            crate::run::resolve_appearance(scenario, &self.base_dir, progress).map_err(|e| e.to_string())?,
+        );
         models.insert(key, model.clone());
         Ok(model)
     }
@@ -629,7 +651,7 @@ pub fn run_job(base: &Scenario, base_dir: &Path, job: &Job, models: &StudyModels
             full_frames: false,
             bag: None,
         };
-        crate::run::run(&scenario, base_dir, &options, |_, _| {}).map(|o| o.metrics).map_err(|e| e.to_string())
+        crate::run::run(&scenario, base_dir, &options, |_| {}).map(|o| o.metrics).map_err(|e| e.to_string())
     }));
     let (metrics, error) = match result {
         Ok(Ok(m)) => (Some(m), None),

@@ -36,7 +36,7 @@ pub enum RecordError {
 }
 
 /// What `objslam record` writes.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub enum RecordFormat {
     /// JSON lines, TUM, PNG images and a Foxglove MCAP in one directory.
     #[default]

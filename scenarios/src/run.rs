@@ -254,14 +254,16 @@ enum EventSource {
 }
 
 impl EventSource {
-    fn start(mut sim: Simulation) -> Self {
+    /// Starts the stream; a camera thread that cannot start is reported to `warn`, and the
+    /// camera then renders on the simulator's thread.
+    fn start(mut sim: Simulation, warn: &mut dyn FnMut(String)) -> Self {
         if rayon::current_thread_index().is_some() {
             return EventSource::Inline { sim: Box::new(sim), sim_time: 0.0 };
         }
         // A core is free for the physics while the camera renders (see
         // Simulation::render_camera_on_thread); if the thread cannot start, render inline.
         if let Err(e) = sim.render_camera_on_thread() {
-            eprintln!("warning: {e}; the camera renders on the simulator's thread");
+            warn(format!("{e}; the camera renders on the simulator's thread"));
         }
         let (tx, events) = std::sync::mpsc::sync_channel::<SensorEvent>(64);
         let producer = std::thread::spawn(move || {
@@ -389,31 +391,34 @@ pub fn camera_geometry(
     }
 }
 
-/// The scenario's appearance model (a named file, or trained once and cached), with a
-/// progress bar while training.
-pub fn resolve_appearance(scenario: &Scenario, base_dir: &Path) -> Result<AppearanceModel, RunError> {
-    let bar = indicatif::ProgressBar::new(1);
-    bar.set_style(
-        indicatif::ProgressStyle::with_template("appearance model: {msg:>16} [{bar:30}] {pos}/{len}")
-            .expect("valid template")
-            .progress_chars("=> "),
-    );
-    bar.set_draw_target(indicatif::ProgressDrawTarget::stderr_with_hz(4));
-    let model = scenario.appearance.resolve(base_dir, &scenario.sim.camera, |stage, done, total| {
-        bar.set_message(stage.to_string());
-        bar.set_length(total as u64);
-        bar.set_position(done as u64);
-    });
-    bar.finish_and_clear();
-    Ok(model?)
+/// The scenario's appearance model (a named file, or trained once and cached);
+/// `progress(stage, done, total)` follows a training.
+pub fn resolve_appearance(
+    scenario: &Scenario,
+    base_dir: &Path,
+    progress: impl Fn(&str, usize, usize),
+) -> Result<AppearanceModel, RunError> {
+    Ok(scenario.appearance.resolve(base_dir, &scenario.sim.camera, progress)?)
 }
 
-/// Runs a scenario once.
+/// What a run tells its caller while it goes (see [`run`]).
+#[derive(Debug, Clone, PartialEq)]
+pub enum RunProgress<'a> {
+    /// The appearance model is being trained (first use of a scenario's settings): a
+    /// stage, and how far it has come.
+    Training { stage: &'a str, done: usize, total: usize },
+    /// Simulated seconds so far, of the route's nominal duration.
+    Simulated { t: f64, total: f64 },
+    /// Something the user should know; the run goes on.
+    Warning(String),
+}
+
+/// Runs a scenario once; `progress` hears of a training, the simulated time and warnings.
 pub fn run(
     scenario: &Scenario,
     base_dir: &Path,
     options: &RunOptions,
-    mut progress: impl FnMut(f64, f64),
+    mut progress: impl FnMut(RunProgress),
 ) -> Result<RunOutcome, RunError> {
     let seed = options.seed.unwrap_or(scenario.seed);
     let config = pipeline_config(scenario, options.method)?;
@@ -426,7 +431,13 @@ pub fn run(
     let appearance_model = if config.method.uses_appearance() {
         Some(match &options.appearance {
             Some(m) => m.clone(),
-            None => std::sync::Arc::new(resolve_appearance(scenario, base_dir)?),
+            None => {
+                // Training reports through a shared reference; the run's callback is FnMut.
+                let progress = std::cell::RefCell::new(&mut progress);
+                std::sync::Arc::new(resolve_appearance(scenario, base_dir, |stage, done, total| {
+                    (progress.borrow_mut())(RunProgress::Training { stage, done, total })
+                })?)
+            }
         })
     } else {
         None
@@ -514,7 +525,7 @@ pub fn run(
         Some(dir) => Some(crate::ros2::Ros2Recorder::create(dir, &sim_config)?),
         None => None,
     };
-    let mut events = EventSource::start(sim);
+    let mut events = EventSource::start(sim, &mut |w| progress(RunProgress::Warning(w)));
     while let Some(event) = events.next() {
         if let Some(bag) = &mut bag {
             bag.write(&event)?;
@@ -644,7 +655,7 @@ pub fn run(
         }
         pipe_time += tick.elapsed().as_secs_f64();
         if t - last_progress >= 1.0 {
-            progress(t, nominal);
+            progress(RunProgress::Simulated { t, total: nominal });
             last_progress = t;
         }
     }
@@ -669,7 +680,7 @@ pub fn run(
             count: scorer.unrendered_reads(),
         });
     }
-    progress(sim.time(), nominal);
+    progress(RunProgress::Simulated { t: sim.time(), total: nominal });
     let wall = started.elapsed().as_secs_f64();
 
     let lms = pipeline.mapped_landmarks();

@@ -139,7 +139,7 @@ fn the_runner_resolves_estimated_and_file_calibrations() {
     sc.sim.max_duration_s = Some(5.0);
     let dir = std::env::temp_dir().join(format!("objslam-calib-run-{}", std::process::id()));
     let out = dir.join("run");
-    let m = run(&sc, &base, &RunOptions { out: Some(out.clone()), ..Default::default() }, |_, _| {}).unwrap().metrics;
+    let m = run(&sc, &base, &RunOptions { out: Some(out.clone()), ..Default::default() }, |_| {}).unwrap().metrics;
     let c = m.calibration.as_ref().unwrap();
     assert_eq!(c.mode, "estimated");
     assert!(c.rotation_error_deg < 0.3 && c.translation_error_m < 0.01, "{c:?}");
@@ -165,7 +165,7 @@ fn the_runner_resolves_estimated_and_file_calibrations() {
     let e = resolve_calibration(&from_file, &dir, 1).unwrap_err().to_string();
     assert!(e.contains("bad.json") && e.contains("phi"), "{e}");
     from_file.calibration.mode = "missing.json".into();
-    let e = run(&from_file, &dir, &RunOptions::default(), |_, _| {}).err().unwrap().to_string();
+    let e = run(&from_file, &dir, &RunOptions::default(), |_| {}).err().unwrap().to_string();
     assert!(e.contains("missing.json"), "{e}");
 
     // Perturbed: seeded, and as far off as asked.

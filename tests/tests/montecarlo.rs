@@ -45,7 +45,7 @@ fn sharded_merged_study_equals_the_unsharded_one_and_resumes() {
         methods: vec!["nn".into(), "jcbb".into(), "combined".into()],
         vary: vec![Vary::parse("sim.odometry.scale_sigma=0.0..0.03:2").unwrap()],
     };
-    let whole = mc::run_study(&plan, Shard::all(), &root.join("whole"), |_, _| {}).unwrap();
+    let whole = mc::run_study(&plan, Shard::all(), &root.join("whole"), |_| {}).unwrap();
     assert_eq!(whole.len(), 18);
     assert_eq!(whole.iter().filter(|r| r.error.is_some()).count(), 6, "the combined runs error");
     assert!(whole.iter().filter_map(|r| r.error.as_deref()).all(|e| e.contains("needs the camera")));
@@ -53,14 +53,14 @@ fn sharded_merged_study_equals_the_unsharded_one_and_resumes() {
 
     // Resuming a finished study runs nothing new.
     let lines_before = std::fs::read_to_string(root.join("whole/runs.jsonl")).unwrap().lines().count();
-    let again = mc::run_study(&plan, Shard::all(), &root.join("whole"), |_, _| {}).unwrap();
+    let again = mc::run_study(&plan, Shard::all(), &root.join("whole"), |_| {}).unwrap();
     assert_same(&comparable(&again), &comparable(&whole));
     assert_eq!(std::fs::read_to_string(root.join("whole/runs.jsonl")).unwrap().lines().count(), lines_before);
 
     // Three shards, merged, give the same runs and the same summary.
     let dirs: Vec<PathBuf> = (0..3).map(|k| root.join(format!("shard-{k}"))).collect();
     for (k, d) in dirs.iter().enumerate() {
-        mc::run_study(&plan, Shard { index: k, count: 3 }, d, |_, _| {}).unwrap();
+        mc::run_study(&plan, Shard { index: k, count: 3 }, d, |_| {}).unwrap();
     }
     let (merged_plan, merged) = mc::merge(&dirs, &root.join("merged")).unwrap();
     assert_eq!(merged_plan, plan);
@@ -82,12 +82,12 @@ fn sharded_merged_study_equals_the_unsharded_one_and_resumes() {
     let text = std::fs::read_to_string(root.join("whole/runs.jsonl")).unwrap();
     let keep: String = text.lines().take(7).map(|l| format!("{l}\n")).collect::<String>() + "{\"key\":\"trunc";
     std::fs::write(partial.join("runs.jsonl"), keep).unwrap();
-    let resumed = mc::run_study(&plan, Shard::all(), &partial, |_, _| {}).unwrap();
+    let resumed = mc::run_study(&plan, Shard::all(), &partial, |_| {}).unwrap();
     assert_same(&comparable(&resumed), &comparable(&whole));
 
     // A different plan in the same directory is refused.
     let other = StudyPlan { runs: 4, ..plan.clone() };
-    assert!(mc::run_study(&other, Shard::all(), &root.join("whole"), |_, _| {}).is_err());
+    assert!(mc::run_study(&other, Shard::all(), &root.join("whole"), |_| {}).is_err());
 
     // A job recorded twice, identically, counts once; differently, it is an error naming
     // both lines; a merge of shards that disagree is refused.
@@ -96,12 +96,12 @@ fn sharded_merged_study_equals_the_unsharded_one_and_resumes() {
     std::fs::copy(root.join("whole/study.json"), twice.join("study.json")).unwrap();
     let first = text.lines().next().unwrap();
     std::fs::write(twice.join("runs.jsonl"), format!("{text}{first}\n")).unwrap();
-    assert_same(&comparable(&mc::run_study(&plan, Shard::all(), &twice, |_, _| {}).unwrap()), &comparable(&whole));
+    assert_same(&comparable(&mc::run_study(&plan, Shard::all(), &twice, |_| {}).unwrap()), &comparable(&whole));
     let mut changed: RunRecord = serde_json::from_str(first).unwrap();
     changed.metrics.as_mut().expect("a position-only run").ate_rmse_m += 1.0;
     let conflicting = format!("{text}{}\n", serde_json::to_string(&changed).unwrap());
     std::fs::write(twice.join("runs.jsonl"), &conflicting).unwrap();
-    let e = mc::run_study(&plan, Shard::all(), &twice, |_, _| {}).unwrap_err().to_string();
+    let e = mc::run_study(&plan, Shard::all(), &twice, |_| {}).unwrap_err().to_string();
     assert!(e.contains("runs.jsonl") && e.contains("lines 1 and 19"), "{e}");
     std::fs::write(dirs[0].join("runs.jsonl"), format!("{}\n", serde_json::to_string(&changed).unwrap())).unwrap();
     let e = mc::merge(&[root.join("whole"), dirs[0].clone()], &root.join("merged2")).unwrap_err().to_string();
@@ -112,17 +112,17 @@ fn sharded_merged_study_equals_the_unsharded_one_and_resumes() {
     let torn = root.join("torn");
     std::fs::create_dir_all(&torn).unwrap();
     std::fs::write(torn.join("study.json"), [0xff, 0xfe, 0x00]).unwrap();
-    let e = mc::run_study(&plan, Shard::all(), &torn, |_, _| {}).unwrap_err().to_string();
+    let e = mc::run_study(&plan, Shard::all(), &torn, |_| {}).unwrap_err().to_string();
     assert!(e.contains("study.json") && e.contains("remove"), "{e}");
     assert_eq!(std::fs::read(torn.join("study.json")).unwrap(), [0xff, 0xfe, 0x00]);
 
     // A second study in a directory a running one holds is refused.
     let lock = std::fs::File::create(root.join("whole/study.lock")).unwrap();
     lock.lock().unwrap();
-    let e = mc::run_study(&plan, Shard::all(), &root.join("whole"), |_, _| {}).unwrap_err().to_string();
+    let e = mc::run_study(&plan, Shard::all(), &root.join("whole"), |_| {}).unwrap_err().to_string();
     assert!(e.contains("another study is running"), "{e}");
     drop(lock);
-    assert!(mc::run_study(&plan, Shard::all(), &root.join("whole"), |_, _| {}).is_ok());
+    assert!(mc::run_study(&plan, Shard::all(), &root.join("whole"), |_| {}).is_ok());
     let _ = std::fs::remove_dir_all(&root);
 }
 
@@ -140,14 +140,14 @@ fn bad_jobs_fail_the_study_before_any_run() {
         methods: vec!["nn".into(), "bogus".into()],
         vary: vec![],
     };
-    let e = mc::run_study(&bad_method, Shard::all(), &root.join("a"), |_, _| {}).unwrap_err().to_string();
+    let e = mc::run_study(&bad_method, Shard::all(), &root.join("a"), |_| {}).unwrap_err().to_string();
     assert!(e.contains("bogus"), "{e}");
     let bad_value = StudyPlan {
         vary: vec![Vary::parse("pipeline.gate_probability=0.5..1.5:2").unwrap()],
         methods: vec!["nn".into()],
         ..bad_method
     };
-    let e = mc::run_study(&bad_value, Shard::all(), &root.join("b"), |_, _| {}).unwrap_err().to_string();
+    let e = mc::run_study(&bad_value, Shard::all(), &root.join("b"), |_| {}).unwrap_err().to_string();
     assert!(e.contains("gate_probability"), "{e}");
     for dir in ["a", "b"] {
         assert!(mc::read_runs(&root.join(dir).join("runs.jsonl")).unwrap().is_empty(), "no run was made");

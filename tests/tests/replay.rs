@@ -49,7 +49,7 @@ fn a_recorded_log_replays_to_the_runs_estimate() {
     )
     .unwrap();
     let out = dir.join("run");
-    run(&sc, &base, &RunOptions { seed: Some(seed), out: Some(out.clone()), ..Default::default() }, |_, _| {}).unwrap();
+    run(&sc, &base, &RunOptions { seed: Some(seed), out: Some(out.clone()), ..Default::default() }, |_| {}).unwrap();
 
     let log = robotlog::format::read(&dir.join("log")).unwrap();
     let config = resolve_config(Some(&dir.join("log")), &log, None, None).unwrap();

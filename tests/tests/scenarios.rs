@@ -9,7 +9,7 @@ fn run_named(name: &str, seed: Option<u64>, max_duration: Option<f64>) -> scenar
     if max_duration.is_some() {
         sc.sim.max_duration_s = max_duration;
     }
-    run(&sc, &base, &RunOptions { seed, ..Default::default() }, |_, _| {}).unwrap().metrics
+    run(&sc, &base, &RunOptions { seed, ..Default::default() }, |_| {}).unwrap().metrics
 }
 
 /// Guards the paper's argument: on the paper's world a position-only method maps posts
@@ -43,7 +43,7 @@ fn runs_are_deterministic() {
     let mut outs = Vec::new();
     for k in 0..2 {
         let out = dir.join(format!("run{k}"));
-        let m = run(&sc, &base, &RunOptions { seed: Some(9), out: Some(out.clone()), ..Default::default() }, |_, _| {})
+        let m = run(&sc, &base, &RunOptions { seed: Some(9), out: Some(out.clone()), ..Default::default() }, |_| {})
             .unwrap()
             .metrics;
         outs.push((
@@ -56,7 +56,7 @@ fn runs_are_deterministic() {
     assert_eq!(strip(&outs[0].0), strip(&outs[1].0));
     assert_eq!(outs[0].1, outs[1].1, "estimated trajectories differ");
     assert_eq!(outs[0].2, outs[1].2, "association logs differ");
-    let other = run(&sc, &base, &RunOptions { seed: Some(10), ..Default::default() }, |_, _| {}).unwrap().metrics;
+    let other = run(&sc, &base, &RunOptions { seed: Some(10), ..Default::default() }, |_| {}).unwrap().metrics;
     assert_ne!(strip(&other), strip(&outs[0].0), "the seed must matter");
     let _ = std::fs::remove_dir_all(&dir);
 }
@@ -67,7 +67,7 @@ type RunLogs = (scenarios::run::Metrics, String, String, String);
 
 /// A run into `out`, read back for comparing runs that must agree.
 fn run_and_read(sc: &Scenario, base: &std::path::Path, options: RunOptions, out: &std::path::Path) -> RunLogs {
-    let m = run(sc, base, &RunOptions { out: Some(out.to_path_buf()), ..options }, |_, _| {}).unwrap().metrics;
+    let m = run(sc, base, &RunOptions { out: Some(out.to_path_buf()), ..options }, |_| {}).unwrap().metrics;
     let read = |name: &str| std::fs::read_to_string(out.join(name)).unwrap();
     (m.without_wall_clock(), read("trajectory_est.tum"), read("decisions.jsonl"), read("segmentation.jsonl"))
 }
@@ -132,7 +132,7 @@ fn frames_that_later_scans_may_read_are_rendered_whole() {
     sc.sim.max_duration_s = Some(20.0);
     for age in [0.15, 0.095] {
         sc.pipeline.image_max_age_s = age;
-        let m = run(&sc, &base, &RunOptions::default(), |_, _| {}).unwrap().metrics;
+        let m = run(&sc, &base, &RunOptions::default(), |_| {}).unwrap().metrics;
         assert_eq!(m.timing.rendered_fraction, 1.0, "image_max_age_s {age}");
         assert!(m.associations.total > 20 && m.associations.wrong == 0, "{:?}", m.associations);
     }
@@ -149,7 +149,7 @@ fn run_writes_every_output() {
     std::fs::write(dir.join("objects/models.json"), "[]").unwrap();
     let (mut sc, base) = Scenario::load("laser_only").unwrap();
     sc.sim.max_duration_s = Some(20.0);
-    let m = run(&sc, &base, &RunOptions { seed: Some(3), out: Some(dir.clone()), ..Default::default() }, |_, _| {})
+    let m = run(&sc, &base, &RunOptions { seed: Some(3), out: Some(dir.clone()), ..Default::default() }, |_| {})
         .unwrap()
         .metrics;
     assert!(!dir.join("segmentation.jsonl").exists() && !dir.join("objects").exists(), "stale outputs left");
@@ -211,9 +211,9 @@ fn a_run_writes_its_sensor_stream_as_a_ros2_bag() {
     let _ = std::fs::remove_dir_all(&dir);
     let (mut sc, base) = Scenario::load("paper_park").unwrap();
     sc.sim.max_duration_s = Some(6.0);
-    let plain = run(&sc, &base, &RunOptions::default(), |_, _| {}).unwrap().metrics;
+    let plain = run(&sc, &base, &RunOptions::default(), |_| {}).unwrap().metrics;
     let bagged =
-        run(&sc, &base, &RunOptions { bag: Some(dir.join("bag")), ..Default::default() }, |_, _| {}).unwrap().metrics;
+        run(&sc, &base, &RunOptions { bag: Some(dir.join("bag")), ..Default::default() }, |_| {}).unwrap().metrics;
     assert_eq!(bagged.timing.rendered_fraction, 1.0, "a bag holds whole frames");
     let same =
         |m: &scenarios::run::Metrics| scenarios::run::Metrics { timing: Default::default(), ..m.without_wall_clock() };
@@ -238,7 +238,7 @@ fn combined_method_runs_end_to_end_with_camera_segmentation() {
     let (mut sc, base) = Scenario::load("paper_park").unwrap();
     sc.sim.max_duration_s = Some(40.0);
     let out = std::env::temp_dir().join(format!("objslam-combined-{}", std::process::id()));
-    let m = run(&sc, &base, &RunOptions { out: Some(out.clone()), ..Default::default() }, |_, _| {}).unwrap().metrics;
+    let m = run(&sc, &base, &RunOptions { out: Some(out.clone()), ..Default::default() }, |_| {}).unwrap().metrics;
     assert_eq!(m.method, "combined");
     let (p, r) = (m.segmentation.precision.expect("scored"), m.segmentation.recall.expect("scored"));
     assert!(p > 0.5 && r > 0.7, "segmentation precision {p}, recall {r}");
@@ -299,7 +299,7 @@ fn generalisation_job(study: usize, index: usize) -> scenarios::run::Metrics {
     let (base_scenario, base) = Scenario::load(generalisation::BASE_SCENARIO).unwrap();
     let sc = job_scenario(&base_scenario, job).unwrap();
     let method = slam::association::AssociationMethod::from_name(&job.method);
-    run(&sc, &base, &RunOptions { seed: Some(job.seed), method, ..Default::default() }, |_, _| {}).unwrap().metrics
+    run(&sc, &base, &RunOptions { seed: Some(job.seed), method, ..Default::default() }, |_| {}).unwrap().metrics
 }
 
 /// Guards the measured level on a world nobody tuned on: world 0 of the generalisation
@@ -394,7 +394,7 @@ fn relinearising_every_30_s_happens_on_schedule() {
     sc.sim.max_duration_s = Some(100.0);
     sc.pipeline.relinearise_every_s = Some(30.0);
     let out = std::env::temp_dir().join(format!("objslam-relinearise-{}", std::process::id()));
-    let m = run(&sc, &base, &RunOptions { out: Some(out.clone()), ..Default::default() }, |_, _| {}).unwrap().metrics;
+    let m = run(&sc, &base, &RunOptions { out: Some(out.clone()), ..Default::default() }, |_| {}).unwrap().metrics;
     assert_eq!((m.relinearisations, m.relinearisation_failures), (3, 0), "at 30, 60 and 90 s");
     assert_eq!(m.associations.wrong, 0);
     // Each solve is written out: when, what it solved, and a cost that did not rise.
@@ -442,7 +442,7 @@ fn relinearising_runs_are_identical_whatever_the_thread_count() {
 fn camera_methods_without_a_camera_fail_clearly() {
     let (mut sc, base) = Scenario::load("paper_park").unwrap();
     sc.sim.camera.enabled = false;
-    let err = run(&sc, &base, &RunOptions::default(), |_, _| {}).err().expect("combined needs the camera").to_string();
+    let err = run(&sc, &base, &RunOptions::default(), |_| {}).err().expect("combined needs the camera").to_string();
     assert!(err.contains("combined") && err.contains("camera"), "{err}");
 }
 
@@ -504,7 +504,7 @@ fn object_pictures_show_the_patches_as_seen_beside_their_reconstruction() {
     let _ = std::fs::remove_dir_all(&dir);
     let (mut sc, base) = Scenario::load("paper_park").unwrap();
     sc.sim.max_duration_s = Some(30.0);
-    let m = run(&sc, &base, &RunOptions { seed: Some(2), out: Some(dir.clone()), ..Default::default() }, |_, _| {})
+    let m = run(&sc, &base, &RunOptions { seed: Some(2), out: Some(dir.clone()), ..Default::default() }, |_| {})
         .unwrap()
         .metrics;
     assert!(m.landmarks >= 1, "{:?}", m.map);

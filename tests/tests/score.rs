@@ -28,7 +28,7 @@ fn record_and_run(name: &str, seed: u64, duration: f64, camera: bool, dir: &Path
         |_, _| {},
     )
     .unwrap();
-    run(&sc, &base, &RunOptions { seed: Some(seed), out: Some(out.clone()), ..Default::default() }, |_, _| {}).unwrap();
+    run(&sc, &base, &RunOptions { seed: Some(seed), out: Some(out.clone()), ..Default::default() }, |_| {}).unwrap();
     (log, out)
 }
 

@@ -10,7 +10,7 @@ use scenarios::scenario::Scenario;
 #[test]
 fn laser_only_seed_1_metrics_match_the_pinned_snapshot() {
     let (sc, base) = Scenario::load("laser_only").unwrap();
-    let m = run(&sc, &base, &RunOptions { seed: Some(1), ..Default::default() }, |_, _| {}).unwrap().metrics;
+    let m = run(&sc, &base, &RunOptions { seed: Some(1), ..Default::default() }, |_| {}).unwrap().metrics;
     let comparable = Metrics { timing: Default::default(), ..m.without_wall_clock() };
     let text = serde_json::to_string_pretty(&comparable).unwrap() + "\n";
     let file = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("snapshots/laser_only_seed1_metrics.json");

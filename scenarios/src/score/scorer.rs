@@ -12,7 +12,7 @@ use super::{AssociationCounts, AssociationLedger, MapContent};
 use crate::visibility::{InstanceImage, TreeVisibility};
 
 /// Which trees the recall counts as there to map.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum RecallBasis {
     /// Trees the camera showed where the laser hit them (`map.trees_in_view`): for methods

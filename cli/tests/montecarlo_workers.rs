@@ -45,9 +45,9 @@ fn plan(scenario: String) -> StudyPlan {
 fn worker_processes_give_the_records_threads_give() {
     let root = temp_root("mc-workers");
     let plan = plan(short_scenario(&root));
-    let threads = mc::run_study(&plan, Shard::all(), &root.join("threads"), |_, _| {}).unwrap();
+    let threads = mc::run_study(&plan, Shard::all(), &root.join("threads"), |_| {}).unwrap();
     let workers = Workers::Processes { exe: env!("CARGO_BIN_EXE_objslam").into(), count: 2, run_timeout: None };
-    let processes = mc::run_study_with(&plan, Shard::all(), &root.join("processes"), &workers, |_, _| {}).unwrap();
+    let processes = mc::run_study_with(&plan, Shard::all(), &root.join("processes"), &workers, |_| {}).unwrap();
     assert_eq!(processes.len(), 9);
     assert_eq!(processes.iter().filter(|r| r.metrics.is_some()).count(), 6);
     assert_eq!(comparable(&processes), comparable(&threads));
@@ -83,7 +83,7 @@ fn a_worker_that_dies_costs_only_its_run() {
     let plan = plan(short_scenario(&root));
     let script = first_worker_then_real(&root, "dying", "echo 'simulated crash' >&2; exit 3");
     let workers = Workers::Processes { exe: script, count: 1, run_timeout: None };
-    let records = mc::run_study_with(&plan, Shard::all(), &root.join("study"), &workers, |_, _| {}).unwrap();
+    let records = mc::run_study_with(&plan, Shard::all(), &root.join("study"), &workers, |_| {}).unwrap();
     assert_eq!(records.len(), 9);
     let died: Vec<&RunRecord> =
         records.iter().filter(|r| r.error.as_deref().is_some_and(|e| e.contains("worker process failed"))).collect();
@@ -96,7 +96,7 @@ fn a_worker_that_dies_costs_only_its_run() {
     // the file then holds one record per job, the new one.
     assert!(died[0].retryable);
     let key = died[0].key.clone();
-    let resumed = mc::run_study(&plan, Shard::all(), &root.join("study"), |_, _| {}).unwrap();
+    let resumed = mc::run_study(&plan, Shard::all(), &root.join("study"), |_| {}).unwrap();
     assert_eq!(resumed.len(), 9);
     let again = resumed.iter().find(|r| r.key == key).unwrap();
     assert!(
@@ -119,7 +119,7 @@ fn a_stuck_worker_is_killed_after_the_run_timeout() {
     let script = first_worker_then_real(&root, "stuck", "exec sleep 600");
     let workers = Workers::Processes { exe: script, count: 1, run_timeout: Some(std::time::Duration::from_secs(20)) };
     let started = std::time::Instant::now();
-    let records = mc::run_study_with(&plan, Shard::all(), &root.join("study"), &workers, |_, _| {}).unwrap();
+    let records = mc::run_study_with(&plan, Shard::all(), &root.join("study"), &workers, |_| {}).unwrap();
     assert!(started.elapsed().as_secs() < 300, "the study waited for the stuck worker");
     assert_eq!(records.len(), 9);
     let stuck: Vec<&RunRecord> =
@@ -170,7 +170,7 @@ fn a_study_varying_the_appearance_training_uses_each_settings_model() {
             })
             .collect()
     };
-    let threads = mc::run_study(&plan, Shard::all(), &root.join("threads"), |_, _| {}).unwrap();
+    let threads = mc::run_study(&plan, Shard::all(), &root.join("threads"), |_| {}).unwrap();
     assert_eq!(seeds(&threads), vec![(3.0, 3), (4.0, 4)]);
     let exe = PathBuf::from(env!("CARGO_BIN_EXE_objslam"));
     let processes = mc::run_study_with(
@@ -178,7 +178,7 @@ fn a_study_varying_the_appearance_training_uses_each_settings_model() {
         Shard::all(),
         &root.join("processes"),
         &Workers::Processes { exe, count: 2, run_timeout: None },
-        |_, _| {},
+        |_| {},
     )
     .unwrap();
     assert_eq!(seeds(&processes), vec![(3.0, 3), (4.0, 4)]);

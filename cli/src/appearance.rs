@@ -1,0 +1,137 @@
+//! `objslam train`, `segment`, `find` and `gmm`: the appearance model, its mixtures and
+//! what it finds.
+
+use anyhow::{Context, Result};
+
+use crate::progress;
+
+/// `objslam train`.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn train(
+    dataset: &std::path::Path,
+    out: &std::path::Path,
+    export: Option<&std::path::Path>,
+    pca_dims: usize,
+    max_components: usize,
+    heldout_every: usize,
+    threshold: f64,
+    seed: u64,
+) -> Result<()> {
+    anyhow::ensure!((0.0..=1.0).contains(&threshold), "--threshold must lie in [0, 1], got {threshold}");
+    let options = slam::classifier::TrainingOptions {
+        pca_dims,
+        seed,
+        threshold,
+        vb: slam::gmm::VbOptions { max_components, ..Default::default() },
+        ..Default::default()
+    };
+    let bar = progress::training("train");
+    let started = std::time::Instant::now();
+    let model = scenarios::train::train_from_dataset(dataset, &options, heldout_every, |stage, done, total| {
+        progress::set_training(&bar, stage, done, total)
+    })?;
+    bar.finish_and_clear();
+    model.save(out)?;
+    let t = &model.training;
+    println!("trained on {} images in {:.1} s -> {}", t.images, started.elapsed().as_secs_f64(), out.display());
+    println!(
+        "  PCA: {} -> {} dimensions, {:.1}% of the variance",
+        model.extractor.config.raw_dims(),
+        model.extractor.pca.dims(),
+        100.0 * t.pca_explained_variance
+    );
+    println!(
+        "  object: {} patches ({} fitted), {} components; background: {} patches ({} fitted), {} components; w_obj = {:.3}",
+        t.object_patches,
+        t.fitted_object_patches,
+        model.object.effective_components(1e-3),
+        t.background_patches,
+        t.fitted_background_patches,
+        model.background.effective_components(1e-3),
+        model.object_weight
+    );
+    match &t.heldout {
+        Some(s) => println!(
+            "  held-out patches: precision {:.3}, recall {:.3}, F1 {:.3} ({} object patches of {})",
+            s.precision(),
+            s.recall(),
+            s.f1(),
+            s.true_positives + s.false_negatives,
+            s.true_positives + s.false_negatives + s.false_positives + s.true_negatives
+        ),
+        None => println!("  no held-out images (--heldout-every 0)"),
+    }
+    if heldout_every > 0 {
+        let table = scenarios::train::confusion_by_class(dataset, &model, heldout_every)?;
+        let parts: Vec<String> = table
+            .iter()
+            .map(|(name, (n, obj))| format!("{name} {obj}/{n} ({:.1}%)", 100.0 * *obj as f64 / (*n).max(1) as f64))
+            .collect();
+        println!("  held-out patches called object, by true class: {}", parts.join(", "));
+    }
+    if let Some(csv) = export {
+        let rows = scenarios::train::export_features(dataset, &model, options.label_fraction, csv)?;
+        println!("  {rows} feature rows -> {}", csv.display());
+    }
+    Ok(())
+}
+
+/// `objslam segment`.
+pub(crate) fn segment(model: &std::path::Path, image: &std::path::Path, out: &std::path::Path) -> Result<()> {
+    let model = slam::classifier::AppearanceModel::load(model)?;
+    let (objects, total) = scenarios::train::segment_image(&model, image, out)?;
+    println!("{objects} of {total} patches classified as object -> {}", out.display());
+    Ok(())
+}
+
+/// `objslam gmm fit`.
+pub(crate) fn gmm_fit(data: &std::path::Path, options: &slam::gmm::VbOptions, out: &std::path::Path) -> Result<()> {
+    let started = std::time::Instant::now();
+    let model = scenarios::train::gmm_fit_csv(data, options)?;
+    let secs = started.elapsed().as_secs_f64();
+    std::fs::write(out, serde_json::to_string_pretty(&model)?).with_context(|| format!("writing {}", out.display()))?;
+    println!("{} points x {} dimensions, fitted in {secs:.2} s", model.points, model.dims());
+    println!(
+        "  lower bound: {:.6} nats (full PRML 10.70 bound on ln p(X), all constant terms included; {:.6} per point)",
+        model.lower_bound,
+        model.lower_bound / model.points as f64
+    );
+    println!(
+        "  components: {} with weight above 1e-3 ({} kept)",
+        model.effective_components(1e-3),
+        model.components.len()
+    );
+    println!("  VBEM iterations: {}", model.iterations);
+    println!("  -> {}", out.display());
+    Ok(())
+}
+
+/// `objslam gmm score`.
+pub(crate) fn gmm_score(model: &std::path::Path, data: &std::path::Path) -> Result<()> {
+    let (mean, points) = scenarios::train::gmm_score_csv(model, data)?;
+    println!("{points} points of {} under {}", data.display(), model.display());
+    println!("mean held-out log-likelihood: {mean:.6} nats per point (posterior predictive, PRML 10.81)");
+    Ok(())
+}
+
+/// `objslam find`.
+pub(crate) fn find(
+    run: &std::path::Path,
+    image: &std::path::Path,
+    model: Option<&std::path::Path>,
+    top: usize,
+) -> Result<()> {
+    let model_path =
+        model.map(std::path::Path::to_path_buf).unwrap_or_else(|| run.join("objects").join("appearance_model.json"));
+    let model = slam::classifier::AppearanceModel::load(&model_path)?;
+    let dims = slam::object_model::ObjectModelConfig::default().appearance_dims;
+    let ranked = scenarios::objects::find_similar(run, &model, image, dims)?;
+    println!("mapped objects most like {} (appearance KL, nats):", image.display());
+    for (id, kl) in ranked.iter().take(top) {
+        println!(
+            "  landmark {id:>4}  KL {kl:>10.2}  {}",
+            run.join("objects").join(format!("landmark_{id}.png")).display()
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,481 @@
+//! The command line's arguments, as clap reads them. Value enums here mirror the library's
+//! types, so that the libraries need no clap.
+
+use std::path::PathBuf;
+
+use clap::{Parser, Subcommand};
+use scenarios::record::RecordFormat;
+use scenarios::score::scorer::RecallBasis;
+use slam::association::AssociationMethod;
+use slam::gmm::Search;
+
+#[derive(Parser)]
+#[command(
+    name = "objslam",
+    version,
+    about = "Simulation harness for object-recognition SLAM (Ramos, Nieto & Durrant-Whyte)"
+)]
+pub(crate) struct Cli {
+    #[command(subcommand)]
+    pub(crate) command: Option<Command>,
+}
+
+#[derive(Subcommand)]
+pub(crate) enum Command {
+    /// Generate, check, export and plot worlds.
+    #[command(subcommand)]
+    World(WorldCommand),
+    /// Run a scenario (default: the paper's experiment) and score it against ground truth.
+    Run {
+        /// A scenario file or built-in name (paper_park, posts_near_trees, crowd,
+        /// long_loop, laser_only, calibration, city_park).
+        scenario: Option<String>,
+        #[arg(long)]
+        seed: Option<u64>,
+        /// Association method (default: the scenario's, combined unless it says otherwise).
+        #[arg(long, value_enum)]
+        method: Option<MethodArg>,
+        /// Output directory (default runs/<scenario>-<seed>).
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Render whole camera frames, not only the image columns the pipeline reads (the
+        /// same results, more slowly).
+        #[arg(long)]
+        full_frames: bool,
+        /// Also write the run's sensor stream as a ROS 2 bag in this directory (frames are
+        /// then rendered whole).
+        #[arg(long)]
+        bag: Option<PathBuf>,
+    },
+    /// Monte Carlo association-failure studies (parallel, resumable, shardable).
+    Montecarlo(MontecarloArgs),
+    /// Make training images with exact masks, patch labels, a manifest and COCO annotations.
+    Dataset {
+        /// A world file...
+        #[arg(long, conflicts_with = "preset")]
+        world: Option<PathBuf>,
+        /// ... or a generator preset (its world seed is --seed).
+        #[arg(long)]
+        preset: Option<String>,
+        #[arg(long, default_value_t = 100)]
+        images: usize,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Comma-separated classes labelled positive.
+        #[arg(long, default_value = "tree")]
+        classes: String,
+        /// Patch side L in pixels.
+        #[arg(long, default_value_t = 9)]
+        patch_size: u32,
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Serves Monte Carlo jobs on stdin/stdout for a parent `objslam montecarlo`.
+    #[command(hide = true)]
+    MontecarloWorker,
+    /// Simulate a world and write a sensor log (JSON lines, TUM, MCAP) that other SLAM
+    /// systems can read.
+    Record {
+        /// A world file, or the name of a preset (`park`).
+        #[arg(required_unless_present = "scenario", conflicts_with = "scenario")]
+        input: Option<String>,
+        /// Record a scenario's world and simulator as `objslam run` simulates them for the
+        /// same seed, with its pass criteria for `objslam score` (a file or built-in name).
+        #[arg(long)]
+        scenario: Option<String>,
+        /// World and simulator seed (default: 1, or the scenario's seed).
+        #[arg(long)]
+        seed: Option<u64>,
+        /// Stop after this many simulated seconds (default: when the route is done).
+        #[arg(long)]
+        duration: Option<f64>,
+        /// TOML file of simulator settings (see `sim::SimConfig`).
+        #[arg(long, conflicts_with = "scenario")]
+        sim_config: Option<PathBuf>,
+        /// `jsonl`: JSON lines, TUM, PNGs and a Foxglove MCAP; `ros2`: a ROS 2 bag
+        /// (`ros2 bag play OUT`); `log`: a robot log for `objslam replay`.
+        #[arg(long, value_enum, default_value_t = FormatArg::Jsonl)]
+        format: FormatArg,
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Run the `slam` pipeline on a recorded log: a real robot's (docs/reference/robot-log.md),
+    /// one that `objslam record --format log` wrote, or a published data set
+    /// (`objslam replay victoria-park --data DIR`). Writes what `objslam run` writes, where
+    /// it applies, scored against the log's ground truth or GPS.
+    #[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
+    Replay {
+        /// The log directory.
+        #[arg(required = true)]
+        log: Option<PathBuf>,
+        #[command(flatten)]
+        options: ReplayArgs,
+        #[command(subcommand)]
+        dataset: Option<ReplayDataset>,
+    },
+    /// Laser-camera extrinsic calibration (Zhang & Pless) on a scenario's checkerboard
+    /// session; prints the errors against the simulator's true extrinsics.
+    Calibrate {
+        /// A scenario file or built-in name (default: calibration).
+        scenario: Option<String>,
+        /// Number of board poses (default: the scenario's session).
+        #[arg(long)]
+        poses: Option<usize>,
+        /// Session seed (default: the scenario's seed).
+        #[arg(long)]
+        seed: Option<u64>,
+        #[arg(long, default_value = "calibration.json")]
+        out: PathBuf,
+        /// Write each pose's camera image here, detected corners marked.
+        #[arg(long)]
+        images: Option<PathBuf>,
+    },
+    /// Learn the appearance model (PCA, object and background VB-GMMs) from an
+    /// `objslam dataset` directory; prints held-out patch precision, recall and F1.
+    Train {
+        #[arg(long)]
+        dataset: PathBuf,
+        #[arg(long)]
+        out: PathBuf,
+        /// Also write every patch's feature row and label to this CSV file.
+        #[arg(long)]
+        export_features: Option<PathBuf>,
+        /// PCA dimension d.
+        #[arg(long, default_value_t = 20)]
+        pca_dims: usize,
+        /// Most mixture components per class.
+        #[arg(long, default_value_t = 20)]
+        max_components: usize,
+        /// Hold out every N-th image for scoring (0: none).
+        #[arg(long, default_value_t = 5)]
+        heldout_every: usize,
+        /// A patch is object when R = w_obj p_obj / (w_obj p_obj + w_bg p_bg) exceeds this.
+        #[arg(long, default_value_t = 0.5)]
+        threshold: f64,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
+    /// Classify an image's patches with a model and draw the object patches over it.
+    Segment {
+        #[arg(long)]
+        model: PathBuf,
+        image: PathBuf,
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Find objects that look like this: rank a run's mapped objects by the KL divergence
+    /// of their appearance from an example image's object patches.
+    Find {
+        /// A run directory written by `objslam run` (its objects/ holds the models).
+        #[arg(long)]
+        run: PathBuf,
+        image: PathBuf,
+        /// Appearance model (default: the one the run used, objects/appearance_model.json).
+        #[arg(long)]
+        model: Option<PathBuf>,
+        /// How many to list.
+        #[arg(long, default_value_t = 5)]
+        top: usize,
+    },
+    /// Variational Bayesian Gaussian mixtures on any numeric CSV.
+    #[command(subcommand)]
+    Gmm(GmmCommand),
+    /// Score any SLAM system's trajectory (and map and associations) against a log of
+    /// `objslam record`, by the rules `objslam run` scores its own runs with.
+    Score(ScoreArgs),
+    /// Settings: print every scenario setting at its default.
+    #[command(subcommand)]
+    Config(ConfigCommand),
+}
+
+#[derive(clap::Args)]
+pub(crate) struct ScoreArgs {
+    /// The log directory `objslam record` wrote.
+    #[arg(long)]
+    pub(crate) log: PathBuf,
+    /// The estimated trajectory, TUM format, world frame.
+    #[arg(long)]
+    pub(crate) trajectory: PathBuf,
+    /// The estimated map: a JSON array of {"id", "position": [x, y]}.
+    #[arg(long)]
+    pub(crate) landmarks: Option<PathBuf>,
+    /// What each laser cluster of each scan went to (JSON lines, as `objslam run` writes
+    /// associations.jsonl).
+    #[arg(long)]
+    pub(crate) associations: Option<PathBuf>,
+    /// The system's name in the report.
+    #[arg(long)]
+    pub(crate) method: Option<String>,
+    /// The recall's denominator (default: trees in view when the log has camera frames).
+    #[arg(long, value_enum)]
+    pub(crate) recall_basis: Option<RecallBasisArg>,
+    /// Where to write metrics.json.
+    #[arg(long)]
+    pub(crate) out: PathBuf,
+}
+
+#[derive(Subcommand)]
+pub(crate) enum ConfigCommand {
+    /// Print the complete default scenario as TOML, from the code's defaults (or one
+    /// table of it, e.g. `pipeline.evidence`).
+    Defaults { table: Option<String> },
+}
+
+/// `objslam gmm fit --search`.
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+pub(crate) enum SearchArg {
+    Prune,
+    Grow,
+}
+
+impl From<SearchArg> for Search {
+    fn from(s: SearchArg) -> Self {
+        match s {
+            SearchArg::Prune => Search::Prune,
+            SearchArg::Grow => Search::Grow,
+        }
+    }
+}
+
+#[derive(Subcommand)]
+pub(crate) enum GmmCommand {
+    /// Fit a VB-GMM (searching for the number of components up to --max-components, or
+    /// fixed K).
+    Fit {
+        data: PathBuf,
+        #[arg(long, default_value_t = 10)]
+        max_components: usize,
+        /// Use exactly --max-components components instead of searching.
+        #[arg(long)]
+        fixed_k: bool,
+        /// How to search for the number of components: `prune` starts from
+        /// --max-components and lets VBEM empty and delete components (fast); `grow` starts
+        /// from one and splits (what `objslam train` uses).
+        #[arg(long, value_enum, default_value_t = SearchArg::Prune)]
+        search: SearchArg,
+        /// Seed of the k-means++ start (`--fixed-k` and `--search prune`).
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Print a fitted model's mean held-out log-likelihood per point on a CSV (the
+    /// posterior predictive density), to compare models fitted to the same data.
+    Score { model: PathBuf, data: PathBuf },
+}
+
+#[derive(clap::Args)]
+#[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
+pub(crate) struct MontecarloArgs {
+    #[command(subcommand)]
+    pub(crate) command: Option<MontecarloCommand>,
+    /// Scenario file or built-in name.
+    #[arg(required = true)]
+    pub(crate) scenario: Option<String>,
+    /// Runs per method and parameter value.
+    #[arg(long, default_value_t = 100)]
+    pub(crate) runs: usize,
+    /// Comma-separated association methods.
+    #[arg(long, value_enum, value_delimiter = ',', default_value = "combined,nn,jcbb,appearance")]
+    pub(crate) methods: Vec<MethodArg>,
+    /// PARAM=A..B:STEPS, a dotted path into the scenario (repeatable), e.g.
+    /// sim.odometry.scale_sigma=0.0..0.05:6 or world.params.post_distance_m=0.5..3:6.
+    #[arg(long)]
+    pub(crate) vary: Vec<String>,
+    /// Base seed: run r gets a seed derived from (seed, r).
+    #[arg(long, default_value_t = 1)]
+    pub(crate) seed: u64,
+    /// Run only slice K of N (0-based); defaults to the Slurm array / Kubernetes index
+    /// from the environment when present.
+    #[arg(long)]
+    pub(crate) shard: Option<String>,
+    /// Number of shards when the index comes from JOB_COMPLETION_INDEX.
+    #[arg(long)]
+    pub(crate) shard_count: Option<usize>,
+    #[arg(long)]
+    pub(crate) out: Option<PathBuf>,
+    /// Runs at a time, each in its own worker process (default: one per core).
+    #[arg(long, global = true)]
+    pub(crate) jobs: Option<usize>,
+    /// Run on threads of this process instead of worker processes (slower: runs in one
+    /// process share the software renderer's locks; no --run-timeout).
+    #[arg(long, global = true)]
+    pub(crate) in_process: bool,
+    /// Seconds a worker process may spend on one run before it is killed and the run
+    /// recorded as retryable (resuming the study runs it again); 0: no limit.
+    #[arg(long, global = true, default_value_t = 1800.0, allow_negative_numbers = true)]
+    pub(crate) run_timeout: f64,
+}
+
+#[derive(Subcommand)]
+pub(crate) enum MontecarloCommand {
+    /// Merge shard directories into one study.
+    Merge {
+        dirs: Vec<PathBuf>,
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// The built-in study of the paper's argument on paper_park: failure rate of combined,
+    /// nn and jcbb against odometry heading drift (DIR/odometry) and against post-to-tree
+    /// distance (DIR/post_distance). Resumable and shardable like any study.
+    Study {
+        /// Runs per method and parameter value.
+        #[arg(long, default_value_t = 10)]
+        runs: usize,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Run only slice K of N of each sub-study (0-based).
+        #[arg(long)]
+        shard: Option<String>,
+        #[arg(long, default_value = "runs/study")]
+        out: PathBuf,
+    },
+    /// The generalisation benchmark: the paper's claim on park worlds drawn from a wide
+    /// distribution (docs/guide/monte-carlo.md), combined with 5 appearance training seeds
+    /// (DIR/combined) and jcbb for reference (DIR/jcbb); writes DIR/summary.json and
+    /// DIR/generalisation.png. Resumable and shardable like any study.
+    Generalisation {
+        /// Which worlds: `tune` to choose settings on, `test` to report (disjoint seeds).
+        #[arg(long, value_enum, default_value_t = SplitArg::Test)]
+        split: SplitArg,
+        /// Worlds to draw (each run with every training seed).
+        #[arg(long, default_value_t = 10)]
+        runs: usize,
+        /// Base seed of the runs' simulations.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Run only slice K of N of each of the two studies (0-based).
+        #[arg(long)]
+        shard: Option<String>,
+        #[arg(long, default_value = "runs/generalisation")]
+        out: PathBuf,
+    },
+}
+
+/// `objslam montecarlo generalisation --split`.
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+pub(crate) enum SplitArg {
+    Tune,
+    Test,
+}
+
+#[derive(Subcommand)]
+pub(crate) enum WorldCommand {
+    /// Generate a world from a preset; TOML to stdout unless --out is given.
+    Generate {
+        #[arg(long, default_value = "park")]
+        preset: String,
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// TOML file of generator parameters (see `worlds::generate::ParkParams`).
+        #[arg(long)]
+        params: Option<PathBuf>,
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
+    /// Validate a world file; prints a summary or every problem found.
+    Check { file: PathBuf },
+    /// Export a world as one glTF 2.0 binary (.glb).
+    Export {
+        file: PathBuf,
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Draw a top view of a world, coloured by class, with routes and a scale bar.
+    Plot {
+        file: PathBuf,
+        #[arg(long)]
+        out: PathBuf,
+    },
+}
+
+/// What every replay takes.
+#[derive(clap::Args, Debug)]
+pub(crate) struct ReplayArgs {
+    /// Association method: `nn` or `jcbb` (the camera methods need images; default `nn`).
+    #[arg(long, value_enum)]
+    pub(crate) method: Option<MethodArg>,
+    /// A TOML file of pipeline settings (`[pipeline]` keys, as in a scenario) over the
+    /// replay's defaults and the log's own `pipeline.toml`.
+    #[arg(long)]
+    pub(crate) config: Option<PathBuf>,
+    #[arg(long, required = true)]
+    pub(crate) out: Option<PathBuf>,
+}
+
+/// Published data sets that `objslam replay` reads as they are published.
+#[derive(Subcommand, Debug)]
+pub(crate) enum ReplayDataset {
+    /// Victoria Park (ACFR, University of Sydney: Guivant & Nebot). DIR holds the published
+    /// files: `VictoriaParkSinSincronizar.mat` (tree detections), or `aa3_dr.mat` with
+    /// `aa3_lsr2.mat`; and `aa3_gpsx.mat` for GPS.
+    VictoriaPark {
+        #[arg(long)]
+        data: PathBuf,
+        #[command(flatten)]
+        options: ReplayArgs,
+    },
+}
+
+/// `--method` and `--methods`: the association methods.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub(crate) enum MethodArg {
+    /// The paper's: a position gate selects candidates, appearance (KL divergence) decides.
+    Combined,
+    /// Position-only nearest neighbour with a chi-square gate.
+    Nn,
+    /// Position-only joint compatibility branch and bound.
+    Jcbb,
+    /// Appearance only: the KL divergence between object models decides.
+    Appearance,
+}
+
+impl From<MethodArg> for AssociationMethod {
+    fn from(m: MethodArg) -> Self {
+        match m {
+            MethodArg::Combined => AssociationMethod::Combined,
+            MethodArg::Nn => AssociationMethod::Nn,
+            MethodArg::Jcbb => AssociationMethod::Jcbb,
+            MethodArg::Appearance => AssociationMethod::Appearance,
+        }
+    }
+}
+
+/// `objslam record --format`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub(crate) enum FormatArg {
+    /// JSON lines, TUM, PNG images and a Foxglove MCAP in one directory.
+    Jsonl,
+    /// A ROS 2 bag: `metadata.yaml` and one MCAP of CDR messages.
+    Ros2,
+    /// A robot log (docs/reference/robot-log.md) that `objslam replay` reads.
+    Log,
+}
+
+impl From<FormatArg> for RecordFormat {
+    fn from(f: FormatArg) -> Self {
+        match f {
+            FormatArg::Jsonl => RecordFormat::Jsonl,
+            FormatArg::Ros2 => RecordFormat::Ros2,
+            FormatArg::Log => RecordFormat::Log,
+        }
+    }
+}
+
+/// `objslam score --recall-basis`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub(crate) enum RecallBasisArg {
+    /// Trees the camera showed where the laser hit them (`map.trees_in_view`).
+    InView,
+    /// Trees the laser hit (`map.trees_laser_seen`).
+    LaserSeen,
+}
+
+impl From<RecallBasisArg> for RecallBasis {
+    fn from(b: RecallBasisArg) -> Self {
+        match b {
+            RecallBasisArg::InView => RecallBasis::InView,
+            RecallBasisArg::LaserSeen => RecallBasis::LaserSeen,
+        }
+    }
+}

@@ -1,0 +1,89 @@
+//! `objslam`: the command line. Only argument handling, progress bars and printing live
+//! here; the work is done by the library crates, which return errors and warnings to it.
+
+mod appearance;
+mod args;
+mod progress;
+mod run;
+mod sensors;
+mod study;
+mod world;
+
+use anyhow::Result;
+use clap::Parser;
+
+use crate::args::{Cli, Command, ConfigCommand, GmmCommand};
+
+fn main() {
+    let cli = Cli::parse();
+    if let Err(e) = dispatch(cli) {
+        eprintln!("error: {e:#}");
+        std::process::exit(2);
+    }
+}
+
+fn dispatch(cli: Cli) -> Result<()> {
+    match cli.command {
+        // The main job: the paper's experiment with its method (trains the appearance model
+        // from generated images on first use and caches it).
+        None => {
+            eprintln!("no command given: running the paper's experiment, scenario paper_park (see `objslam --help`)");
+            run::run_scenario(Some("paper_park"), None, None, None, false, None)
+        }
+        Some(Command::World(cmd)) => world::world(cmd),
+        Some(Command::Run { scenario, seed, method, out, full_frames, bag }) => {
+            run::run_scenario(scenario.as_deref(), seed, method, out, full_frames, bag)
+        }
+        Some(Command::Montecarlo(args)) => study::montecarlo(args),
+        Some(Command::MontecarloWorker) => {
+            Ok(scenarios::montecarlo::serve_worker(std::io::stdin().lock(), std::io::stdout().lock())?)
+        }
+        Some(Command::Dataset { world, preset, images, seed, classes, patch_size, out }) => {
+            sensors::dataset(world, preset, images, seed, &classes, patch_size, &out)
+        }
+        Some(Command::Record { input, scenario, seed, duration, sim_config, format, out }) => {
+            let source = match (scenario, input) {
+                (Some(name), _) => sensors::RecordSource::Scenario(name),
+                (None, Some(input)) => sensors::RecordSource::World { input, sim_config },
+                (None, None) => unreachable!("clap requires one of them"),
+            };
+            sensors::record(source, seed, duration, format.into(), &out)
+        }
+        Some(Command::Score(args)) => run::score(args),
+        Some(Command::Replay { log, options, dataset }) => run::replay(log, options, dataset),
+        Some(Command::Calibrate { scenario, poses, seed, out, images }) => {
+            sensors::calibrate(scenario.as_deref().unwrap_or("calibration"), poses, seed, &out, images.as_deref())
+        }
+        Some(Command::Train {
+            dataset,
+            out,
+            export_features,
+            pca_dims,
+            max_components,
+            heldout_every,
+            threshold,
+            seed,
+        }) => appearance::train(
+            &dataset,
+            &out,
+            export_features.as_deref(),
+            pca_dims,
+            max_components,
+            heldout_every,
+            threshold,
+            seed,
+        ),
+        Some(Command::Segment { model, image, out }) => appearance::segment(&model, &image, &out),
+        Some(Command::Find { run, image, model, top }) => appearance::find(&run, &image, model.as_deref(), top),
+        Some(Command::Gmm(GmmCommand::Fit { data, max_components, fixed_k, search, seed, out })) => {
+            let options =
+                slam::gmm::VbOptions { max_components, fixed_k, seed, search: search.into(), ..Default::default() };
+            appearance::gmm_fit(&data, &options, &out)
+        }
+        Some(Command::Gmm(GmmCommand::Score { model, data })) => appearance::gmm_score(&model, &data),
+        Some(Command::Config(ConfigCommand::Defaults { table })) => {
+            print!("{}", scenarios::scenario::Scenario::defaults_toml(table.as_deref())?);
+            Ok(())
+        }
+    }
+}

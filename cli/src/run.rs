@@ -1,0 +1,88 @@
+//! `objslam run`, `replay` and `score`: the commands that score a run and write its
+//! metrics.json.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use slam::association::AssociationMethod;
+
+use crate::args::{MethodArg, ReplayArgs, ReplayDataset, ScoreArgs};
+use crate::progress;
+
+/// `objslam run` (and the main job, with no command).
+pub(crate) fn run_scenario(
+    scenario: Option<&str>,
+    seed: Option<u64>,
+    method: Option<MethodArg>,
+    out: Option<PathBuf>,
+    full_frames: bool,
+    bag: Option<PathBuf>,
+) -> Result<()> {
+    let name = scenario.unwrap_or(scenarios::scenario::DEFAULT_SCENARIO);
+    let (sc, base) = scenarios::scenario::Scenario::load(name)?;
+    let method = method.map(AssociationMethod::from);
+    let seed = seed.unwrap_or(sc.seed);
+    let out = out.unwrap_or_else(|| PathBuf::from(format!("runs/{}-{seed}", sc.name)));
+    let mut bar = progress::RunBar::new(&sc.name);
+    let options = scenarios::run::RunOptions {
+        seed: Some(seed),
+        method,
+        out: Some(out.clone()),
+        appearance: None,
+        full_frames,
+        bag,
+    };
+    let outcome = scenarios::run::run(&sc, &base, &options, |p| bar.show(p));
+    bar.finish();
+    let outcome = outcome?;
+    print!("{}", scenarios::run::summary_table(&outcome.metrics));
+    println!("  outputs in {}", out.display());
+    if !outcome.metrics.passed {
+        std::process::exit(1);
+    }
+    Ok(())
+}
+
+/// `objslam replay`: a robot log, or a published data set.
+pub(crate) fn replay(log: Option<PathBuf>, options: ReplayArgs, dataset: Option<ReplayDataset>) -> Result<()> {
+    let (log_dir, log, options) = match (dataset, log) {
+        (Some(ReplayDataset::VictoriaPark { data, options }), _) => {
+            (None, robotlog::victoria_park::read(&data)?, options)
+        }
+        (None, Some(dir)) => {
+            let log = robotlog::format::read(&dir)?;
+            (Some(dir), log, options)
+        }
+        (None, None) => anyhow::bail!("give a log directory, or a data set: `objslam replay victoria-park --data DIR`"),
+    };
+    let method = options.method.map(AssociationMethod::from);
+    let out = options.out.expect("clap requires --out");
+    let config = scenarios::replay::resolve_config(log_dir.as_deref(), &log, method, options.config.as_deref())?;
+    let result = scenarios::replay::replay(&log, config)?;
+    scenarios::replay::write_outputs(&out, &log, &result)?;
+    println!("{}", scenarios::replay::summary(&result.metrics));
+    println!("  outputs in {}", out.display());
+    Ok(())
+}
+
+/// `objslam score`: another system's estimate against a recorded log.
+pub(crate) fn score(args: ScoreArgs) -> Result<()> {
+    let estimate = scenarios::score::log::Estimate {
+        trajectory: args.trajectory,
+        landmarks: args.landmarks,
+        associations: args.associations,
+        method: args.method,
+        recall_basis: args.recall_basis.map(Into::into),
+    };
+    let m = scenarios::score::log::score_log(&args.log, &estimate)?;
+    std::fs::create_dir_all(&args.out).with_context(|| format!("{}: cannot create", args.out.display()))?;
+    let file = args.out.join("metrics.json");
+    std::fs::write(&file, serde_json::to_string_pretty(&m)? + "\n")
+        .with_context(|| format!("{}: cannot write", file.display()))?;
+    print!("{}", scenarios::score::log::summary_table(&m));
+    println!("  metrics in {}", file.display());
+    if m.passed == Some(false) {
+        std::process::exit(1);
+    }
+    Ok(())
+}

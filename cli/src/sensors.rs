@@ -1,0 +1,158 @@
+//! `objslam record`, `dataset` and `calibrate`: the simulator's sensor data for other
+//! systems, training images, and the laser-camera calibration session.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+
+use crate::progress;
+
+/// What `objslam record` simulates.
+pub(crate) enum RecordSource {
+    World { input: String, sim_config: Option<PathBuf> },
+    Scenario(String),
+}
+
+/// `objslam record`.
+pub(crate) fn record(
+    source: RecordSource,
+    seed: Option<u64>,
+    duration: Option<f64>,
+    format: scenarios::record::RecordFormat,
+    out: &std::path::Path,
+) -> Result<()> {
+    let (world, mut config, sim_seed, scoring, pipeline) = match source {
+        RecordSource::World { input, sim_config } => {
+            let seed = seed.unwrap_or(1);
+            let config = match sim_config {
+                Some(path) => {
+                    let text =
+                        std::fs::read_to_string(&path).with_context(|| format!("{}: cannot read", path.display()))?;
+                    toml::from_str::<sim::SimConfig>(&text)
+                        .with_context(|| format!("{}: bad simulator settings", path.display()))?
+                }
+                None => sim::SimConfig::default(),
+            };
+            (crate::world::load_world(&input, seed)?, config, seed, scenarios::score::log::LogScoring::of_world(), None)
+        }
+        RecordSource::Scenario(name) => {
+            let (sc, base) = scenarios::scenario::Scenario::load(&name)?;
+            let seed = seed.unwrap_or(sc.seed);
+            // The world and simulator seeds a run of this scenario and seed uses.
+            let world = sc.world(&base, seed)?;
+            (
+                world,
+                sc.sim.clone(),
+                sim::derive_seed(seed, "sim"),
+                scenarios::score::log::LogScoring::of_scenario(&sc, seed),
+                Some(scenarios::run::pipeline_config(&sc, None)?),
+            )
+        }
+    };
+    if duration.is_some() {
+        config.max_duration_s = duration;
+    }
+    let bar = progress::simulated("recording");
+    let show = |t: f64, total: f64| progress::set_simulated(&bar, t, total);
+    let summary = match format {
+        // A scenario's log carries its pipeline settings, for `objslam replay`.
+        scenarios::record::RecordFormat::Log => {
+            scenarios::record::record_log(&world, &config, sim_seed, pipeline.as_ref(), out, show)?
+        }
+        _ => scenarios::record::record(&world, &config, sim_seed, &scoring, out, format, show)?,
+    };
+    bar.finish_and_clear();
+    println!(
+        "recorded {:.1} s in {:.2} s ({:.0}x real time): {} scans, {} odometry messages, {} collisions -> {}",
+        summary.sim_seconds,
+        summary.wall_seconds,
+        summary.sim_seconds / summary.wall_seconds.max(1e-9),
+        summary.scans,
+        summary.odometry,
+        summary.collisions,
+        out.display()
+    );
+    Ok(())
+}
+
+/// `objslam dataset`.
+pub(crate) fn dataset(
+    world: Option<PathBuf>,
+    preset: Option<String>,
+    images: usize,
+    seed: u64,
+    classes: &str,
+    patch_size: u32,
+    out: &std::path::Path,
+) -> Result<()> {
+    let (w, name) = match (world, preset) {
+        (Some(path), None) => (worlds::load(&path)?, path.display().to_string()),
+        (None, preset) => {
+            let p = preset.unwrap_or_else(|| "park".into());
+            (worlds::generate::preset(&p, None, seed)?, format!("preset {p}, seed {seed}"))
+        }
+        (Some(_), Some(_)) => anyhow::bail!("give either --world or --preset"),
+    };
+    let classes = classes
+        .split(',')
+        .map(|c| {
+            worlds::ObjectClass::from_name(c.trim()).ok_or_else(|| {
+                anyhow::anyhow!("unknown class {c:?}; classes: tree, palm, post, wall, person, checkerboard")
+            })
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let config = scenarios::dataset::DatasetConfig { images, seed, classes, patch_size, ..Default::default() };
+    let bar = progress::images(images);
+    let started = std::time::Instant::now();
+    let manifest = scenarios::dataset::make_dataset(&w, &name, &config, out, |done, _| bar.set_position(done as u64))?;
+    bar.finish_and_clear();
+    println!(
+        "{} images ({}x{}) in {:.1} s on {} -> {}",
+        manifest.images.len(),
+        manifest.width,
+        manifest.height,
+        started.elapsed().as_secs_f64(),
+        manifest.renderer,
+        out.display()
+    );
+    Ok(())
+}
+
+/// `objslam calibrate`.
+pub(crate) fn calibrate(
+    scenario: &str,
+    poses: Option<usize>,
+    seed: Option<u64>,
+    out: &std::path::Path,
+    images: Option<&std::path::Path>,
+) -> Result<()> {
+    let (sc, base) = scenarios::scenario::Scenario::load(scenario)?;
+    let seed = seed.unwrap_or(sc.seed);
+    let started = std::time::Instant::now();
+    let report = scenarios::calibrate::run_session(&sc, &base, seed, poses, images)?;
+    report.write(out)?;
+    let (rs, ts) = (report.rotation_sigma_deg, report.translation_sigma_m);
+    println!(
+        "calibration of {} (seed {seed}): {} of {} board poses used, {} laser points, {:.1} s on {}",
+        sc.name,
+        report.poses_used,
+        report.poses_requested,
+        report.points_used,
+        started.elapsed().as_secs_f64(),
+        report.renderer
+    );
+    println!("  residuals         RMS {:.4} m, max {:.4} m", report.rms_residual_m, report.max_residual_m);
+    println!(
+        "  1-sigma           rotation ({:.3}, {:.3}, {:.3}) deg, translation ({:.4}, {:.4}, {:.4}) m",
+        rs[0], rs[1], rs[2], ts[0], ts[1], ts[2]
+    );
+    if let (Some(r), Some(t)) = (report.rotation_error_deg, report.translation_error_m) {
+        println!("  rotation error    {r:.3} deg (against the simulator's extrinsics)");
+        println!("  translation error {t:.4} m");
+    }
+    for w in &report.warnings {
+        println!("  warning: {w}");
+    }
+    println!("  written to {}", out.display());
+    Ok(())
+}

@@ -1,0 +1,186 @@
+//! `objslam montecarlo`: studies, the built-in ones, merging shards, and their summaries.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+
+use crate::args::{MontecarloArgs, MontecarloCommand, SplitArg};
+use crate::progress;
+
+/// `objslam montecarlo`: a study of a scenario, or one of the subcommands.
+pub(crate) fn montecarlo(args: MontecarloArgs) -> Result<()> {
+    use scenarios::montecarlo as mc;
+    let workers = if args.in_process {
+        mc::Workers::Threads
+    } else {
+        let count = args.jobs.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
+        anyhow::ensure!(count > 0, "--jobs must be at least 1");
+        anyhow::ensure!(
+            args.run_timeout.is_finite() && args.run_timeout >= 0.0,
+            "--run-timeout must be a number of seconds, 0 or more (0: no limit), not {}",
+            args.run_timeout
+        );
+        mc::Workers::Processes {
+            exe: std::env::current_exe().context("cannot find the objslam executable to start worker processes")?,
+            count,
+            run_timeout: (args.run_timeout > 0.0).then(|| std::time::Duration::from_secs_f64(args.run_timeout)),
+        }
+    };
+    if let Some(MontecarloCommand::Merge { dirs, out }) = args.command {
+        let (plan, runs) = mc::merge(&dirs, &out)?;
+        let rows = mc::summarise(&plan, &runs);
+        mc::write_summary(&plan, &rows, &out)?;
+        print_summary(&rows);
+        println!("merged {} runs from {} directories into {}", runs.len(), dirs.len(), out.display());
+        return Ok(());
+    }
+    if let Some(MontecarloCommand::Study { runs, seed, shard, out }) = args.command {
+        let shard = match &shard {
+            Some(s) => mc::Shard::parse(s)?,
+            None => mc::Shard::from_env(|k| std::env::var(k).ok(), None)?.unwrap_or(mc::Shard::all()),
+        };
+        for (name, plan) in mc::builtin_study(runs, seed) {
+            println!("study {name}: {} = {:?}", plan.vary[0].param, plan.vary[0].values);
+            run_plan(&plan, shard, &out.join(name), &workers)?;
+        }
+        return Ok(());
+    }
+    if let Some(MontecarloCommand::Generalisation { split, runs, seed, shard, out }) = args.command {
+        let split = match split {
+            SplitArg::Tune => mc::generalisation::Split::Tune,
+            SplitArg::Test => mc::generalisation::Split::Test,
+        };
+        return generalisation(split, runs, seed, shard.as_deref(), &out, &workers);
+    }
+    let scenario = args.scenario.expect("clap requires a scenario without a subcommand");
+    let methods: Vec<String> =
+        args.methods.iter().map(|&m| slam::association::AssociationMethod::from(m).name().to_string()).collect();
+    let vary = args.vary.iter().map(|v| mc::Vary::parse(v)).collect::<Result<Vec<_>, _>>()?;
+    // Check the scenario and every parameter value before starting hundreds of runs.
+    let (sc, _) = scenarios::scenario::Scenario::load(&scenario)?;
+    for v in &vary {
+        for x in &v.values {
+            mc::apply_param(&sc, &v.param, *x)?;
+        }
+    }
+    let shard = match &args.shard {
+        Some(s) => mc::Shard::parse(s)?,
+        None => mc::Shard::from_env(|k| std::env::var(k).ok(), args.shard_count)?.unwrap_or(mc::Shard::all()),
+    };
+    let plan = mc::StudyPlan { scenario: scenario.clone(), base_seed: args.seed, runs: args.runs, methods, vary };
+    plan.check()?;
+    let out = args.out.unwrap_or_else(|| PathBuf::from(format!("runs/montecarlo-{}-{}", sc.name, args.seed)));
+    run_plan(&plan, shard, &out, &workers)
+}
+
+/// `objslam montecarlo generalisation`: runs (or resumes) its two studies, then writes and
+/// prints the report of what they hold.
+fn generalisation(
+    split: scenarios::montecarlo::generalisation::Split,
+    worlds: usize,
+    seed: u64,
+    shard: Option<&str>,
+    out: &std::path::Path,
+    workers: &scenarios::montecarlo::Workers,
+) -> Result<()> {
+    use scenarios::montecarlo as mc;
+    let shard = match shard {
+        Some(s) => mc::Shard::parse(s)?,
+        None => mc::Shard::from_env(|k| std::env::var(k).ok(), None)?.unwrap_or(mc::Shard::all()),
+    };
+    let plans = mc::generalisation::plans(split, worlds, seed);
+    if worlds == 0 {
+        anyhow::bail!("--runs must be at least 1 world");
+    }
+    // Every plan must be sound and every world draw before the first run; the draws are
+    // written down, so a failure can be traced to its world.
+    for (_, plan) in &plans {
+        plan.check()?;
+    }
+    let mut drawn = Vec::new();
+    for i in 0..worlds {
+        let params = mc::generalisation::world_params(split, i)?;
+        let seed = mc::generalisation::world_seed(split, i);
+        drawn.push(serde_json::json!({ "index": i, "seed": seed, "params": params }));
+    }
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    mc::write_atomically(&out.join("worlds.json"), &serde_json::to_string_pretty(&drawn)?)?;
+    for (name, plan) in &plans {
+        println!("generalisation {name}: {worlds} {} worlds, {} runs", split.name(), mc::jobs(plan).len());
+        run_plan(plan, shard, &out.join(name), workers)?;
+    }
+    if shard != mc::Shard::all() {
+        println!(
+            "shard {}/{} done; the report needs every shard: merge each of {}/combined and {}/jcbb with `objslam montecarlo merge`, then rerun this command on the merged directory",
+            shard.index,
+            shard.count,
+            out.display(),
+            out.display()
+        );
+        return Ok(());
+    }
+    let read = |name: &str| mc::read_runs(&out.join(name).join("runs.jsonl"));
+    let (combined, jcbb) = (read("combined")?, read("jcbb")?);
+    let report = mc::generalisation::report(split, worlds, &combined, &jcbb);
+    mc::write_atomically(&out.join("summary.json"), &serde_json::to_string_pretty(&report)?)?;
+    let points = [mc::generalisation::recall_points(split, &combined), mc::generalisation::recall_points(split, &jcbb)];
+    scenarios::plot::generalisation_plot(&report, &points[0], &points[1], &out.join("generalisation.png"))?;
+    print!("{}", mc::generalisation::report_text(&report));
+    println!("report in {} (summary.json, generalisation.png; the worlds drawn in worlds.json)", out.display());
+    Ok(())
+}
+
+/// Runs (or resumes) one study with a progress bar, then writes and prints its summary.
+fn run_plan(
+    plan: &scenarios::montecarlo::StudyPlan,
+    shard: scenarios::montecarlo::Shard,
+    out: &std::path::Path,
+    workers: &scenarios::montecarlo::Workers,
+) -> Result<()> {
+    use scenarios::montecarlo as mc;
+    let bar = progress::StudyBar::new();
+    let records = mc::run_study_with(plan, shard, out, workers, |p| bar.show(p))?;
+    bar.finish();
+    let rows = mc::summarise(plan, &records);
+    mc::write_summary(plan, &rows, out)?;
+    print_summary(&rows);
+    let errors = records.iter().filter(|r| r.error.is_some()).count();
+    println!(
+        "{} runs ({} with errors) in {:.1} s; shard {}/{}; results in {}",
+        records.len(),
+        errors,
+        bar.elapsed_s(),
+        shard.index,
+        shard.count,
+        out.display()
+    );
+    if let Some(e) = records.iter().find_map(|r| r.error.as_ref()) {
+        println!("first error: {e}");
+    }
+    Ok(())
+}
+
+fn print_summary(rows: &[scenarios::montecarlo::SummaryRow]) {
+    println!(
+        "{:<12} {:<32} {:>5} {:>8} {:>16} {:>8} {:>8} {:>8} {:>12}",
+        "method", "parameters", "runs", "fail", "95% CI", "wrong", "false", "ATE m", "recall (min)"
+    );
+    for r in rows {
+        let params: Vec<String> =
+            r.params.iter().map(|(p, v)| format!("{}={v:.3}", p.rsplit('.').next().unwrap_or(p))).collect();
+        println!(
+            "{:<12} {:<32} {:>5} {:>7.1}% {:>7.1}-{:<7.1}% {:>8.2} {:>8.2} {:>8.3} {:>5.2} ({:.2})",
+            r.method,
+            params.join(" "),
+            r.runs,
+            100.0 * r.failure_rate,
+            100.0 * r.failure_rate_ci95.0,
+            100.0 * r.failure_rate_ci95.1,
+            r.mean_wrong_associations,
+            r.mean_false_landmarks,
+            r.mean_ate_rmse_m,
+            r.mean_tree_recall,
+            r.min_tree_recall
+        );
+    }
+}
