@@ -29,8 +29,7 @@ fn warmed_pipeline(warm_s: f64) -> (Pipeline, (f64, u32, u32, Vec<u8>), slam::me
     let appearance =
         Appearance::new(model, camera_geometry(&scenario.sim, &calibration.extrinsics)).expect("appearance");
     let start = world.robot.start;
-    let mut pipeline =
-        Pipeline::with_appearance(config, [start.x, start.y, start.yaw_rad()], Some(appearance)).expect("pipeline");
+    let mut pipeline = Pipeline::new(config, [start.x, start.y, start.yaw_rad()], Some(appearance)).expect("pipeline");
     let mut image = None;
     while let Some(event) = sim.next_event() {
         match event {

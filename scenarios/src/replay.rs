@@ -225,7 +225,7 @@ pub struct Replay {
 pub fn replay(log: &Log, config: PipelineConfig) -> Result<Replay, ReplayError> {
     let started = Instant::now();
     let start = log.start_time();
-    let mut pipeline = Pipeline::with_appearance(config.clone(), log.manifest.vehicle.start_pose, None)
+    let mut pipeline = Pipeline::new(config.clone(), log.manifest.vehicle.start_pose, None)
         .map_err(|source| ReplayError::Pipeline { t: start, source })?
         .starting_at(start);
     let point = log.manifest.reference.as_ref().map_or(ReferencePoint::Vehicle, |r| r.point);

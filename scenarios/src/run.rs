@@ -467,7 +467,7 @@ pub fn run(
         Some(m) => Some(Appearance::new((**m).clone(), camera_geometry(&scenario.sim, &calibration.extrinsics))?),
         None => None,
     };
-    let mut pipeline = Pipeline::with_appearance(config.clone(), [start.x, start.y, start.yaw_rad()], appearance)?;
+    let mut pipeline = Pipeline::new(config.clone(), [start.x, start.y, start.yaw_rad()], appearance)?;
     // The camera renders only the columns segmentation will read, chosen from the scan of
     // the frame's instant as the pipeline will cluster it: most of each frame is never read.
     // Only where no other scan can use the frame (one within image_max_age_s of it): sensors

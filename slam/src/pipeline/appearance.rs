@@ -3,10 +3,22 @@
 
 use super::*;
 
-/// One observation of the appearance methods, planned against the landmarks before the
-/// scan: cluster index, observation, its fitted density, (range, bearing), candidates,
-/// the KL test's choice (id, index) and whether the camera could judge it fully.
-type Plan = (usize, ObjectObservation, Gmm, Vector2<f64>, Vec<Candidate>, Option<(u32, usize)>, bool);
+/// One observation of the appearance methods, planned against the landmarks that existed
+/// before the scan.
+pub(super) struct Plan {
+    /// The index of its cluster in the scan.
+    cluster: usize,
+    observation: ObjectObservation,
+    /// Its fitted appearance density.
+    fitted: Gmm,
+    /// (range, bearing).
+    z: Vector2<f64>,
+    candidates: Vec<Candidate>,
+    /// The KL test's choice: the landmark's (id, index).
+    best: Option<(u32, usize)>,
+    /// Whether the camera could judge it fully (see `observe_objects`).
+    fully_judged: bool,
+}
 
 /// What the appearance methods need: the trained model, ready to classify, and the camera.
 #[derive(Clone)]
@@ -175,13 +187,13 @@ impl Pipeline {
         let mut orphans = 0;
         let allowed: Vec<Vec<bool>> = plans
             .iter()
-            .map(|(_, obs, fitted, _, candidates, best, _)| {
+            .map(|p| {
                 let mut row = vec![false; n];
-                if let Some((_, j)) = best {
-                    row[*j] = true;
+                if let Some((_, j)) = p.best {
+                    row[j] = true;
                     return row;
                 }
-                for j in self.confirmed_lookalikes(obs, fitted, candidates, cfg) {
+                for j in self.confirmed_lookalikes(&p.observation, &p.fitted, &p.candidates, cfg) {
                     row[j] = true;
                 }
                 orphans += row.iter().any(|a| *a) as usize;
@@ -191,19 +203,19 @@ impl Pipeline {
         if orphans == 0 || plans.len() < 2 {
             return none;
         }
-        let zs: Vec<Vector2<f64>> = plans.iter().map(|p| p.3).collect();
+        let zs: Vec<Vector2<f64>> = plans.iter().map(|p| p.z).collect();
         let Some(h) = unambiguous_jcbb(&self.ekf, &self.config.sensor, &zs, &allowed, self.config.jcbb_probability)
         else {
             return none;
         };
         // Two or more of the unexplained observations must pair: one alone is only
         // individually gated, and a new tree near an uncertain old one would pass.
-        if h.iter().zip(plans).filter(|(j, p)| j.is_some() && p.5.is_none()).count() < 2 {
+        if h.iter().zip(plans).filter(|(j, p)| j.is_some() && p.best.is_none()).count() < 2 {
             return none;
         }
         h.iter()
             .zip(plans)
-            .map(|(j, p)| if p.5.is_some() { None } else { j.map(|j| (self.landmarks[j].id, j)) })
+            .map(|(j, p)| if p.best.is_some() { None } else { j.map(|j| (self.table.get(j).id, j)) })
             .collect()
     }
 
@@ -217,8 +229,8 @@ impl Pipeline {
         cfg: &'a ObjectModelConfig,
     ) -> impl Iterator<Item = usize> + 'a {
         candidates.iter().filter_map(move |c| {
-            let j = self.landmarks.iter().position(|l| l.id == c.landmark)?;
-            let model = self.objects[j].as_ref().filter(|_| self.landmarks[j].confirmed)?;
+            let j = self.table.index_of(c.landmark)?;
+            let model = self.table.object(j).filter(|_| self.table.get(j).confirmed)?;
             model
                 .kl_from(fitted, obs.centre, [0.0; 2], &Matrix2::zeros(), cfg, true)
                 .is_ok_and(|kl| kl.is_finite() && kl < cfg.kl_threshold)
@@ -276,20 +288,21 @@ impl Pipeline {
                 if method == AssociationMethod::Combined && m2 > gate {
                     continue;
                 }
-                let Some(model) = &self.objects[j] else { continue };
+                let Some(model) = self.table.object(j) else { continue };
+                let known = self.table.get(j);
                 if method == AssociationMethod::Combined
                     && !self.config.diameter.compatible(
                         clusters[ci].diameter_m,
                         z.x,
-                        self.landmarks[j].diameter_m,
-                        self.landmarks[j].observations,
+                        known.diameter_m,
+                        known.observations,
                     )
                 {
                     continue;
                 }
                 // A cluster too close for the camera to tell a trunk from a post may only
                 // re-observe a confirmed landmark, never start or confirm one.
-                if !fully_judged && !self.landmarks[j].confirmed {
+                if !fully_judged && !known.confirmed {
                     continue;
                 }
                 let lm = self.ekf.landmark(j);
@@ -303,7 +316,7 @@ impl Pipeline {
                         method == AssociationMethod::Appearance,
                     )
                     .ok();
-                candidates.push(Candidate { landmark: self.landmarks[j].id, mahalanobis2: m2, kl });
+                candidates.push(Candidate { landmark: known.id, mahalanobis2: m2, kl });
             }
             // The combined method's candidates lie within the new-landmark gate (for the
             // deferral and the joint test); to join one by KL, an observation must also be
@@ -313,8 +326,8 @@ impl Pipeline {
                 .filter(|c| method != AssociationMethod::Combined || c.mahalanobis2 <= assoc_gate)
                 .filter_map(|c| c.kl.filter(|k| k.is_finite() && *k < cfg.kl_threshold).map(|k| (c.landmark, k)))
                 .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
-            let best = best.and_then(|(id, _)| self.landmarks.iter().position(|l| l.id == id).map(|j| (id, j)));
-            plans.push((ci, obs, fitted, z, candidates, best, fully_judged));
+            let best = best.and_then(|(id, _)| self.table.index_of(id).map(|j| (id, j)));
+            plans.push(Plan { cluster: ci, observation: obs, fitted, z, candidates, best, fully_judged });
         }
         let joint = if method == AssociationMethod::Combined && self.config.joint_loop_closing {
             self.close_loop_jointly(&plans, &cfg)
@@ -323,7 +336,8 @@ impl Pipeline {
         };
         let mut new_ones = Vec::new();
         let mut closed_jointly = false;
-        for ((ci, obs, fitted, z, candidates, best, fully_judged), joint) in plans.into_iter().zip(joint) {
+        for (plan, joint) in plans.into_iter().zip(joint) {
+            let Plan { cluster: ci, observation: obs, fitted, z, candidates, best, fully_judged } = plan;
             // A loop closed jointly corrects the pose by metres. With latest-estimate
             // Jacobians the closing update itself is iterated; first-estimate ones stay
             // where they are, and the smoother relinearises after the scan.
@@ -334,11 +348,12 @@ impl Pipeline {
                 Some((id, j)) => {
                     if self.ekf.update_iterated(&self.config.sensor, j, &z, iterations).is_ok() {
                         let lm = self.ekf.landmark(j);
-                        if let Some(m) = self.objects[j].as_mut() {
+                        if let Some(m) = self.table.object_mut(j) {
                             let _ = m.update(&obs, [lm.x, lm.y], pca_dims);
                         }
-                        self.places[j] = Some(self.laser_point_in(&self.odometry_pose, clusters[ci].centre).0);
-                        let l = &mut self.landmarks[j];
+                        let place = self.laser_point_in(&self.odometry_pose, clusters[ci].centre).0;
+                        self.table.set_place(j, place);
+                        let l = self.table.get_mut(j);
                         l.diameter_m = (l.diameter_m * l.observations as f64 + clusters[ci].diameter_m)
                             / (l.observations + 1) as f64;
                         l.observations += 1;
@@ -368,8 +383,11 @@ impl Pipeline {
         }
         let class = self.appearance.as_ref().map_or("object".to_string(), |a| a.model.object_class.clone());
         for (ci, decision, obs, fitted, z) in new_ones {
-            let j = self.ekf.add_landmark(&self.config.sensor, &z);
-            debug_assert_eq!(j, self.landmarks.len());
+            let place = self.laser_point_in(&self.odometry_pose, clusters[ci].centre).0;
+            let new = NewLandmark { z, class: &class, diameter_m: clusters[ci].diameter_m, place: Some(place) };
+            let (id, j) =
+                self.table.add(&mut self.ekf, &self.config.sensor, t, &[new], false, self.config.confirm_observations)
+                    [0];
             let lm = self.ekf.landmark(j);
             // Re-centre the model's positions on the landmark estimate.
             let mut model = ObjectModel::new(&obs, fitted, pca_dims);
@@ -378,8 +396,7 @@ impl Pipeline {
                 c.mean[d - 3] += obs.centre[0] - lm.x;
                 c.mean[d - 2] += obs.centre[1] - lm.y;
             }
-            let place = self.laser_point_in(&self.odometry_pose, clusters[ci].centre).0;
-            let id = self.push_landmark(t, &class, clusters[ci].diameter_m, Some(model), Some(place));
+            self.table.set_object(j, model);
             assigned[ci] = Some(id);
             self.decisions[decision].choice = Choice::New { landmark: id };
             if let Some(h) = &mut self.history {
@@ -405,7 +422,7 @@ impl Pipeline {
         if !self.config.method.uses_appearance() {
             return true;
         }
-        let (Some(a), Some(b)) = (&self.objects[i], &self.objects[j]) else { return false };
+        let (Some(a), Some(b)) = (self.table.object(i), self.table.object(j)) else { return false };
         let cfg = &self.config.object_model;
         a.kl_from(&b.gmm, [0.0; 2], [0.0; 2], &Matrix2::zeros(), cfg, true)
             .is_ok_and(|kl| kl.is_finite() && kl < cfg.kl_threshold)
@@ -430,7 +447,7 @@ mod tests {
     /// One tree landmark 5 m ahead with an object model of appearance 0.
     fn one_landmark(confirm_observations: usize) -> Pipeline {
         let config = PipelineConfig { method: AssociationMethod::Nn, confirm_observations, ..Default::default() };
-        let mut p = Pipeline::new(config, [0.0; 3]);
+        let mut p = Pipeline::new(config, [0.0; 3], None).unwrap();
         let c = Cluster {
             first_beam: 0,
             last_beam: 3,
@@ -442,12 +459,15 @@ mod tests {
             occluded: false,
         };
         p.on_scan_with_objects(0.1, vec![c], &[true], "tree").unwrap();
-        p.objects[0] = Some(ObjectModel {
-            gmm: density(0.0),
-            patches: 20.0,
-            observations: 1,
-            mosaic: MosaicView { cells: vec![], appearance: vec![], pixels: vec![] },
-        });
+        p.table.set_object(
+            0,
+            ObjectModel {
+                gmm: density(0.0),
+                patches: 20.0,
+                observations: 1,
+                mosaic: MosaicView { cells: vec![], appearance: vec![], pixels: vec![] },
+            },
+        );
         p
     }
 

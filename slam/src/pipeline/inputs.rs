@@ -181,8 +181,10 @@ mod tests {
 
     #[test]
     fn inputs_out_of_time_order_are_errors() {
-        let mut p = Pipeline::new(PipelineConfig { method: AssociationMethod::Nn, ..Default::default() }, [0.0; 3])
-            .starting_at(100.0);
+        let mut p =
+            Pipeline::new(PipelineConfig { method: AssociationMethod::Nn, ..Default::default() }, [0.0; 3], None)
+                .unwrap()
+                .starting_at(100.0);
         assert_eq!(p.pose().t, 100.0, "the first pose is stamped at the log's start");
         let early = OdometryIncrement { t: 99.0, dx: 0.1, dy: 0.0, dtheta: 0.0 };
         assert!(matches!(p.on_odometry(&early), Err(PipelineError::TimeReversed { t: 99.0, previous: 100.0, .. })));
@@ -200,18 +202,24 @@ mod tests {
             p.on_control(104.0, Control::Ackermann { speed: 1.0, steering: 0.0 }),
             Err(PipelineError::MotionInput { model: "odometry", .. })
         ));
-        let mut car = Pipeline::new(car_config(AssociationMethod::Nn), [0.0; 3]);
+        let mut car = Pipeline::new(car_config(AssociationMethod::Nn), [0.0; 3], None).unwrap();
         assert!(matches!(
             car.on_odometry(&OdometryIncrement { t: 1.0, ..early }),
             Err(PipelineError::MotionInput { .. })
         ));
-        let mut combined = Pipeline::new(PipelineConfig::default(), [0.0; 3]);
+        // The camera methods need an appearance model; without one's checks, they still
+        // refuse point detections.
+        assert!(matches!(
+            Pipeline::new(PipelineConfig::default(), [0.0; 3], None),
+            Err(PipelineError::NeedsAppearance("combined"))
+        ));
+        let mut combined = Pipeline::unchecked(PipelineConfig::default(), [0.0; 3]);
         assert!(matches!(combined.on_detections(1.0, &[]), Err(PipelineError::DetectionsNeedPositionMethod(_))));
     }
 
     #[test]
     fn a_held_control_moves_the_car_up_to_each_detection() {
-        let mut p = Pipeline::new(car_config(AssociationMethod::Nn), [0.0; 3]);
+        let mut p = Pipeline::new(car_config(AssociationMethod::Nn), [0.0; 3], None).unwrap();
         p.on_control(0.0, Control::Ackermann { speed: 2.0, steering: 0.0 }).unwrap();
         // No further control: the detections at 1.5 s find the car 3 m on.
         p.on_detections(1.5, &[]).unwrap();
@@ -219,13 +227,15 @@ mod tests {
         p.on_control(2.0, Control::Ackermann { speed: 0.0, steering: 0.0 }).unwrap();
         assert!((p.pose().pose[0] - 4.0).abs() < 1e-12);
         // A first control after other inputs holds from its own time, not theirs.
-        let mut late = Pipeline::new(car_config(AssociationMethod::Nn), [0.0; 3]);
+        let mut late = Pipeline::new(car_config(AssociationMethod::Nn), [0.0; 3], None).unwrap();
         late.on_detections(4.9, &[]).unwrap();
         late.on_control(5.0, Control::Ackermann { speed: 2.0, steering: 0.0 }).unwrap();
         late.on_detections(5.1, &[]).unwrap();
         assert!((late.pose().pose[0] - 0.2).abs() < 1e-12, "{:?}", late.pose());
         // A differential drive's speeds through the odometry model: a quarter circle.
-        let mut robot = Pipeline::new(PipelineConfig { method: AssociationMethod::Nn, ..Default::default() }, [0.0; 3]);
+        let mut robot =
+            Pipeline::new(PipelineConfig { method: AssociationMethod::Nn, ..Default::default() }, [0.0; 3], None)
+                .unwrap();
         robot.on_control(0.0, Control::Differential { v: 1.0, omega: std::f64::consts::FRAC_PI_2 }).unwrap();
         robot.on_detections(1.0, &[]).unwrap();
         let r = 2.0 / std::f64::consts::PI;
@@ -243,7 +253,7 @@ mod tests {
                 sensor: RangeBearingModel { range_sigma_m: 0.3, bearing_sigma_rad: 0.05, ..Default::default() },
                 ..car_config(AssociationMethod::Nn)
             };
-            let mut p = Pipeline::new(config, [0.0; 3]);
+            let mut p = Pipeline::new(config, [0.0; 3], None).unwrap();
             p.on_detections(0.1, &[detection(10.0, 0.0, 0.8)]).unwrap();
             let report = p.on_detections(0.2, &[detection(10.0, 0.04, 0.2)]).unwrap();
             report.decisions[0].choice
@@ -261,7 +271,9 @@ mod tests {
         // and sequential filters associate identically and end within centimetres.
         let trees: Vec<[f64; 2]> = (0..12).map(|k| [4.0 * k as f64, if k % 2 == 0 { 6.0 } else { -5.0 }]).collect();
         let run = |batch_updates: bool| {
-            let mut p = Pipeline::new(PipelineConfig { batch_updates, ..car_config(AssociationMethod::Nn) }, [0.0; 3]);
+            let mut p =
+                Pipeline::new(PipelineConfig { batch_updates, ..car_config(AssociationMethod::Nn) }, [0.0; 3], None)
+                    .unwrap();
             let mut choices = Vec::new();
             for step in 0..100 {
                 let t = step as f64 * 0.25;

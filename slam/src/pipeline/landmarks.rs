@@ -4,83 +4,25 @@
 use super::*;
 
 impl Pipeline {
-    /// Enters a landmark the filter has just added into the per-landmark lists, under the
-    /// next id; the counterpart of `forget_landmark`.
-    pub(super) fn push_landmark(
-        &mut self,
-        t: f64,
-        class: &str,
-        diameter_m: f64,
-        object: Option<ObjectModel>,
-        place: Option<[f64; 2]>,
-    ) -> u32 {
-        let id = self.next_id;
-        self.next_id += 1;
-        self.landmarks.push(Landmark {
-            id,
-            position: [0.0; 2],
-            covariance: [[0.0; 2]; 2],
-            class: class.to_string(),
-            observations: 1,
-            diameter_m,
-            created_t: t,
-            confirmed: self.config.confirm_observations <= 1,
-        });
-        self.objects.push(object);
-        self.places.push(place);
-        id
-    }
-
-    /// Takes landmark `j` out of the pipeline's per-landmark lists (not the filter's state).
-    pub(super) fn forget_landmark(&mut self, j: usize) -> Landmark {
-        self.objects.remove(j);
-        self.places.remove(j);
-        self.landmarks.remove(j)
-    }
-
     /// Retracts the landmarks whose place nearer frames judge not an object: a palm taken
     /// for a tree from 8-12 m, where the camera cannot tell its trunk from bark.
     pub(super) fn retract_landmarks(&mut self) {
-        let mut j = 0;
-        while j < self.landmarks.len() {
-            if self.places[j].and_then(|p| self.evidence.judge(p)).is_some_and(|jd| jd.retracts(&self.config.evidence))
-            {
-                self.ekf.remove_landmark(j);
-                let gone = self.forget_landmark(j);
-                self.retractions.push(LandmarkRetraction { t: self.t, landmark: gone.id });
-            } else {
-                j += 1;
-            }
-        }
+        let (evidence, config) = (&self.evidence, &self.config.evidence);
+        let gone = self.table.remove_where(&mut self.ekf, |_, place| {
+            place.and_then(|p| evidence.judge(p)).is_some_and(|jd| jd.retracts(config))
+        });
+        let t = self.t;
+        self.retractions.extend(gone.into_iter().map(|l| LandmarkRetraction { t, landmark: l.id }));
     }
 
     pub(super) fn refresh_landmarks(&mut self) {
         // Confirm landmarks seen often enough; delete tentative ones that timed out.
         let (need, window, t) = (self.config.confirm_observations, self.config.confirm_window_s, self.t);
-        for lm in &mut self.landmarks {
-            if !lm.confirmed && lm.observations >= need {
-                lm.confirmed = true;
-            }
-        }
-        let mut j = 0;
-        while j < self.landmarks.len() {
-            let lm = &self.landmarks[j];
-            if !lm.confirmed && t - lm.created_t > window {
-                self.ekf.remove_landmark(j);
-                self.forget_landmark(j);
-            } else {
-                j += 1;
-            }
-        }
+        self.table.confirm_and_expire(&mut self.ekf, need, window, t);
         if self.config.merge.enabled {
             self.merge_duplicates();
         }
-        for (i, lm) in self.landmarks.iter_mut().enumerate() {
-            let p = self.ekf.landmark(i);
-            let c = self.ekf.landmark_covariance(i);
-            lm.position = [p.x, p.y];
-            lm.covariance = [[c[(0, 0)], c[(0, 1)]], [c[(1, 0)], c[(1, 1)]]];
-        }
+        self.table.refresh(&self.ekf);
     }
 
     pub(super) fn note_co_observed(&mut self, assigned: &[Option<u32>]) {
@@ -107,8 +49,8 @@ impl Pipeline {
             // Pairs of confirmed landmarks within reach, found by a sweep along x rather
             // than over all pairs (the map holds hundreds on a real log), then taken in
             // (i, j) order as a search over all pairs would meet them.
-            let mut order: Vec<(f64, usize)> = (0..self.landmarks.len())
-                .filter(|&i| self.landmarks[i].confirmed)
+            let mut order: Vec<(f64, usize)> = (0..self.table.len())
+                .filter(|&i| self.table.get(i).confirmed)
                 .map(|i| (self.ekf.landmark(i).x, i))
                 .collect();
             order.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
@@ -126,7 +68,7 @@ impl Pipeline {
             }
             near.sort_unstable();
             let pair = near.into_iter().find(|&(i, j)| {
-                let (a, b) = (self.landmarks[i].id, self.landmarks[j].id);
+                let (a, b) = (self.table.get(i).id, self.table.get(j).id);
                 if self.co_observed.contains(&(a.min(b), a.max(b))) {
                     return false;
                 }
@@ -135,11 +77,8 @@ impl Pipeline {
                 m2 <= gate && widest <= cfg.max_sigma_m * cfg.max_sigma_m && self.look_alike(i, j)
             });
             let Some((i, j)) = pair else { break };
-            if self.ekf.merge_landmarks(i, j, cfg.noise_sigma_m).is_err() {
-                break;
-            }
-            let gone = self.forget_landmark(j);
-            let kept = &mut self.landmarks[i];
+            let Ok(gone) = self.table.merge(&mut self.ekf, i, j, cfg.noise_sigma_m) else { break };
+            let kept = self.table.get_mut(i);
             kept.diameter_m = (kept.diameter_m * kept.observations as f64 + gone.diameter_m * gone.observations as f64)
                 / (kept.observations + gone.observations).max(1) as f64;
             kept.observations += gone.observations;
@@ -174,7 +113,7 @@ impl Pipeline {
     pub(super) fn relinearise(&mut self, before: &DVector<f64>) {
         let Some(history) = &mut self.history else { return };
         self.relinearised_at = self.t;
-        let ids: Vec<u32> = self.landmarks.iter().map(|l| l.id).collect();
+        let ids: Vec<u32> = self.table.meta().iter().map(|l| l.id).collect();
         let solved = history.relinearise(&mut self.ekf, before, &self.config.motion, &self.config.sensor, &ids, 10);
         self.relinearisations.push(solved);
     }
@@ -203,7 +142,7 @@ mod tests {
         let merge = MergeConfig { enabled: merge, ..Default::default() };
         let config =
             PipelineConfig { method: AssociationMethod::Nn, confirm_observations: 1, merge, ..Default::default() };
-        let mut p = Pipeline::new(config, [0.0; 3]);
+        let mut p = Pipeline::new(config, [0.0; 3], None).unwrap();
         let (a, b) = (cluster_at(5.0, 0.0), cluster_at(5.0, 0.5));
         if seen_together {
             p.on_scan_with_objects(0.1, vec![a, b], &[true, true], "tree").unwrap();

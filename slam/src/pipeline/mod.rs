@@ -11,9 +11,9 @@
 //! The files, by stage: `config` (settings), `inputs` (odometry, controls, scans,
 //! detections, images), `position` and `appearance` (association and the filter's
 //! update, by method family), `landmarks` (confirmation, retraction, fusion,
-//! relinearisation), `records` (what a scan reports). The per-landmark lists
-//! (`landmarks`, `objects`, `places`) stay index-aligned with the filter's landmarks: every
-//! removal goes through `forget_landmark` beside the filter's own.
+//! relinearisation), `records` (what a scan reports), `table` (the per-landmark records,
+//! which every landmark enters and leaves the filter through, so they stay index-aligned
+//! with it).
 
 mod appearance;
 mod config;
@@ -21,6 +21,7 @@ mod inputs;
 mod landmarks;
 mod position;
 mod records;
+mod table;
 
 pub use appearance::Appearance;
 pub use config::{DiameterCheck, MergeConfig, PipelineConfig};
@@ -50,6 +51,7 @@ use crate::segmentation::{
 };
 use crate::settings::InvalidSetting;
 use rayon::prelude::*;
+use table::{LandmarkTable, NewLandmark};
 
 /// The latest camera image.
 #[derive(Clone)]
@@ -65,14 +67,13 @@ struct StoredImage {
 /// The online SLAM pipeline. Cloning it forks a run (benchmarks, what-if studies).
 #[derive(Clone)]
 pub struct Pipeline {
-    pub config: PipelineConfig,
+    /// Checked when the pipeline is made, and fixed from then on.
+    config: PipelineConfig,
     ekf: Ekf,
-    landmarks: Vec<Landmark>,
-    /// Object model per landmark (appearance methods).
-    objects: Vec<Option<ObjectModel>>,
-    /// Per landmark: the evidence place (odometry frame) of its latest camera observation,
-    /// where later frames may judge it not an object (see [`Pipeline::retractions`]).
-    places: Vec<Option<[f64; 2]>>,
+    /// Per landmark of the filter: its record, object model (appearance methods) and the
+    /// evidence place (odometry frame) of its latest camera observation, where later frames
+    /// may judge it not an object.
+    table: LandmarkTable,
     /// Made during the current scan, handed over in its [`ScanReport`].
     retractions: Vec<LandmarkRetraction>,
     /// Made during the current scan (indexed while it lasts), handed over in its report.
@@ -80,8 +81,6 @@ pub struct Pipeline {
     /// The latest pose estimate.
     pose: PoseEstimate,
     t: f64,
-    /// Id of the next landmark (ids are never reused after a tentative one is deleted).
-    next_id: u32,
     appearance: Option<Appearance>,
     image: Option<StoredImage>,
     segmentations: Vec<SegmentationRecord>,
@@ -126,8 +125,32 @@ pub enum PipelineError {
 }
 
 impl Pipeline {
-    /// Starts at `pose` (x, y, theta) in the map frame.
-    pub fn new(config: PipelineConfig, pose: [f64; 3]) -> Self {
+    /// A pipeline at `pose` (x, y, theta) in the map frame, for any method: the settings
+    /// are checked, and the appearance methods need `appearance`.
+    pub fn new(config: PipelineConfig, pose: [f64; 3], appearance: Option<Appearance>) -> Result<Self, PipelineError> {
+        config.validate()?;
+        if config.method.uses_appearance() && appearance.is_none() {
+            return Err(PipelineError::NeedsAppearance(config.method.name()));
+        }
+        // The object models use the leading PCA coordinates: more than the model has would
+        // be silently fewer.
+        if let Some(app) = &appearance
+            && config.object_model.appearance_dims > app.model.extractor.pca.dims()
+        {
+            let problem = format!(
+                "must be at most the appearance model's {} PCA dimensions, got {}",
+                app.model.extractor.pca.dims(),
+                config.object_model.appearance_dims
+            );
+            return Err(InvalidSetting::new("object_model.appearance_dims", problem).into());
+        }
+        let mut p = Pipeline::unchecked(config, pose);
+        p.appearance = appearance;
+        Ok(p)
+    }
+
+    /// [`Pipeline::new`] without its checks.
+    fn unchecked(config: PipelineConfig, pose: [f64; 3]) -> Self {
         let s = config.initial_pose_sigma;
         let mut ekf = Ekf::with_calibration(
             Vector3::from(pose),
@@ -143,14 +166,11 @@ impl Pipeline {
         let mut p = Pipeline {
             config,
             ekf,
-            landmarks: Vec::new(),
-            objects: Vec::new(),
-            places: Vec::new(),
+            table: LandmarkTable::default(),
             retractions: Vec::new(),
             decisions: Vec::new(),
             pose: PoseEstimate { t: 0.0, pose, covariance: [[0.0; 3]; 3] },
             t: 0.0,
-            next_id: 0,
             appearance: None,
             image: None,
             segmentations: Vec::new(),
@@ -193,33 +213,6 @@ impl Pipeline {
         Ok(())
     }
 
-    /// A pipeline for any method; the appearance methods need `appearance`.
-    pub fn with_appearance(
-        config: PipelineConfig,
-        pose: [f64; 3],
-        appearance: Option<Appearance>,
-    ) -> Result<Self, PipelineError> {
-        config.validate()?;
-        if config.method.uses_appearance() && appearance.is_none() {
-            return Err(PipelineError::NeedsAppearance(config.method.name()));
-        }
-        // The object models use the leading PCA coordinates: more than the model has would
-        // be silently fewer.
-        if let Some(app) = &appearance
-            && config.object_model.appearance_dims > app.model.extractor.pca.dims()
-        {
-            let problem = format!(
-                "must be at most the appearance model's {} PCA dimensions, got {}",
-                app.model.extractor.pca.dims(),
-                config.object_model.appearance_dims
-            );
-            return Err(InvalidSetting::new("object_model.appearance_dims", problem).into());
-        }
-        let mut p = Pipeline::new(config, pose);
-        p.appearance = appearance;
-        Ok(p)
-    }
-
     /// The report of the scan at `t`: its observations and what it did, handed over.
     /// What every scan ends with, whichever association ran: the co-observation counts,
     /// the landmarks' records, the history's estimate, the pose log, and the report.
@@ -248,8 +241,7 @@ impl Pipeline {
 
     /// Object model of landmark `id`, if it has one.
     pub fn object_model(&self, id: u32) -> Option<&ObjectModel> {
-        let j = self.landmarks.iter().position(|l| l.id == id)?;
-        self.objects.get(j).and_then(|o| o.as_ref())
+        self.table.object(self.table.index_of(id)?)
     }
 
     pub fn appearance(&self) -> Option<&Appearance> {
@@ -288,12 +280,17 @@ impl Pipeline {
 
     /// Every landmark in the filter, tentative ones included.
     pub fn landmarks(&self) -> &[Landmark] {
-        &self.landmarks
+        self.table.meta()
     }
 
     /// The map: confirmed landmarks only.
     pub fn mapped_landmarks(&self) -> Vec<Landmark> {
-        self.landmarks.iter().filter(|l| l.confirmed).cloned().collect()
+        self.table.meta().iter().filter(|l| l.confirmed).cloned().collect()
+    }
+
+    /// The settings it runs with.
+    pub fn config(&self) -> &PipelineConfig {
+        &self.config
     }
 
     pub fn ekf(&self) -> &Ekf {

@@ -74,7 +74,7 @@ impl Pipeline {
                     .iter()
                     .enumerate()
                     .map(|(j, (zp, s_inv))| {
-                        let lm = &self.landmarks[j];
+                        let lm = self.table.get(j);
                         if use_diameter
                             && !diameter.compatible(clusters[ci].diameter_m, z.x, lm.diameter_m, lm.observations)
                         {
@@ -128,11 +128,11 @@ impl Pipeline {
                 .iter()
                 .enumerate()
                 .filter(|(_, d)| **d < new_gate)
-                .map(|(j, d)| Candidate { landmark: self.landmarks[j].id, mahalanobis2: *d, kl: None })
+                .map(|(j, d)| Candidate { landmark: self.table.get(j).id, mahalanobis2: *d, kl: None })
                 .collect();
             let choice = match pairing[k] {
                 Some(j) if updated[k] => {
-                    let lm = &mut self.landmarks[j];
+                    let lm = self.table.get_mut(j);
                     lm.diameter_m = mean_diameter(lm.diameter_m, lm.observations, clusters[ci].diameter_m);
                     lm.observations += 1;
                     assigned[ci] = Some(lm.id);
@@ -157,23 +157,25 @@ impl Pipeline {
             });
         }
         let first_decision = self.decisions.len() - idx.len();
-        if self.config.batch_updates {
-            let new_zs: Vec<Vector2<f64>> = new_ones.iter().map(|&(k, _)| zs[k]).collect();
-            self.ekf.add_landmarks(&self.config.sensor, &new_zs);
-        } else {
-            for &(k, _) in &new_ones {
-                self.ekf.add_landmark(&self.config.sensor, &zs[k]);
-            }
-        }
-        for (k, ci) in new_ones {
-            let id = self.push_landmark(t, class, clusters[ci].diameter_m, None, None);
+        let new: Vec<NewLandmark> = new_ones
+            .iter()
+            .map(|&(k, ci)| NewLandmark { z: zs[k], class, diameter_m: clusters[ci].diameter_m, place: None })
+            .collect();
+        let added = self.table.add(
+            &mut self.ekf,
+            &self.config.sensor,
+            t,
+            &new,
+            self.config.batch_updates,
+            self.config.confirm_observations,
+        );
+        for ((k, ci), (id, _)) in new_ones.into_iter().zip(added) {
             assigned[ci] = Some(id);
             self.decisions[first_decision + k].choice = Choice::New { landmark: id };
             if let Some(h) = &mut self.history {
                 h.observe(id, zs[k]);
             }
         }
-        debug_assert_eq!(self.ekf.landmark_count(), self.landmarks.len());
         self.finish_scan(t, clusters, assigned)
     }
 }
