@@ -216,8 +216,9 @@ pub(crate) struct ScoreArgs {
 
 #[derive(Subcommand)]
 pub(crate) enum ConfigCommand {
-    /// Print the complete default scenario as TOML, from the code's defaults (or one
-    /// table of it, e.g. `pipeline.evidence`).
+    /// Print the complete default scenario as TOML, from the code's defaults, each key after
+    /// a comment saying what it means (or one table of it and those below it, e.g.
+    /// `pipeline.evidence`).
     Defaults { table: Option<String> },
 }
 

@@ -6,6 +6,8 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
+mod keys;
+
 /// Errors from loading or checking a scenario.
 #[derive(Debug, thiserror::Error)]
 pub enum ScenarioError {
@@ -373,32 +375,12 @@ impl Scenario {
         }
     }
 
-    /// [`Scenario::with_defaults`] as TOML (what `objslam config defaults` prints), or only
-    /// the table at the dotted path `table` (`pipeline.evidence`).
+    /// [`Scenario::with_defaults`] as TOML (what `objslam config defaults` prints), each
+    /// table and key after a comment saying what it means, and the keys that have no
+    /// default (the pass criteria among them) commented out with an example value; or only
+    /// the table at the dotted path `table` (`pipeline.evidence`) and the tables below it.
     pub fn defaults_toml(table: Option<&str>) -> Result<String, ScenarioError> {
-        let file = PathBuf::from("<defaults>");
-        let err = |message: String| ScenarioError::Parse { file: file.clone(), message };
-        let mut value =
-            toml::Value::try_from(Scenario::with_defaults("my_scenario")).map_err(|e| err(e.to_string()))?;
-        if let Some(path) = table {
-            for key in path.split('.') {
-                value = match value {
-                    toml::Value::Table(mut t) => {
-                        t.remove(key).ok_or_else(|| err(format!("no table {path:?} in a scenario")))?
-                    }
-                    _ => return Err(err(format!("{path:?} is a value, not a table"))),
-                };
-            }
-            if !value.is_table() {
-                return Err(err(format!("{path:?} is a value, not a table")));
-            }
-        }
-        let body = toml::to_string_pretty(&value).map_err(|e| err(e.to_string()))?;
-        let heading = match table {
-            Some(t) => format!("# [{t}] of a scenario, every setting at its default.\n"),
-            None => "# A scenario with every setting at its default (objslam config defaults).\n# Pass criteria ([pass]) have none: a criterion left out is not checked.\n".into(),
-        };
-        Ok(heading + &body)
+        keys::commented(table).map_err(|message| ScenarioError::Parse { file: PathBuf::from("<defaults>"), message })
     }
 }
 
@@ -459,12 +441,15 @@ mod tests {
         let text = Scenario::defaults_toml(None).unwrap();
         let parsed = Scenario::parse(&text, Path::new("defaults.toml")).unwrap();
         assert_eq!(parsed, Scenario::with_defaults("my_scenario"));
+        // The pass criteria, all commented out, come last.
+        let pass = text.split_once("\n[pass]\n").map(|(_, rest)| rest).unwrap_or_default();
+        assert!(pass.contains("# min_tree_recall = ") && !pass.contains("\n[") && !pass.contains("\n# ["), "{text}");
         let evidence = Scenario::defaults_toml(Some("pipeline.evidence")).unwrap();
         assert!(evidence.contains("radius_m = 0.3"), "{evidence}");
         assert!(Scenario::defaults_toml(Some("pipeline.nothing")).is_err());
         assert!(Scenario::defaults_toml(Some("seed")).is_err());
         let page = format!(
-            "# Scenario reference\n\nEvery setting of a scenario file at its default, as `objslam config defaults` prints it\n(generated from the code; a test checks this page agrees). What each setting means:\n[scenarios](../guide/scenarios.md), [runs and metrics](../guide/runs-and-metrics.md) and the\ndoc comments of `slam::pipeline::PipelineConfig` and `sim::SimConfig`.\n\n```toml\n{text}```\n"
+            "# Scenario reference\n\nEvery setting of a scenario file at its default, as `objslam config defaults` prints it,\neach after a comment saying what it means, in what unit and, where it is checked, its valid\nrange. Settings without a default (the pass criteria, optional files, seeds and tables, the\ncar-like motion model) are commented out with an example value. Generated from the code\n(`scenarios/src/scenario/keys.rs`); a test checks this page agrees. How scenarios are\nwritten and run: [scenarios](../guide/scenarios.md) and [runs and metrics](../guide/runs-and-metrics.md).\n\n```toml\n{text}```\n"
         );
         let file = Path::new(env!("CARGO_MANIFEST_DIR")).join("../docs/reference/scenario.md");
         if std::env::var_os("OBJSLAM_WRITE_REFERENCE").is_some() {
