@@ -8,7 +8,7 @@ use serde::{Deserialize, Serialize};
 use serde_json::json;
 use sim::{SensorEvent, Simulation};
 use slam::association::AssociationMethod;
-use slam::classifier::{AppearanceModel, PatchScores};
+use slam::classifier::AppearanceModel;
 use slam::pipeline::{Appearance, Pipeline, PipelineConfig};
 use slam::segmentation::CameraGeometry;
 use worlds::ObjectClass;
@@ -17,6 +17,7 @@ use crate::scenario::{Scenario, ScenarioError};
 use crate::score::scorer::{
     Fusion, MapLandmark, RecallBasis, RunScorer, ScoredObservation, VisibilitySettings, as_written_to_tum, true_object,
 };
+use crate::score::segmentation::ClassImage;
 use crate::score::{AssociationCounts, MapContent};
 use crate::visibility::InstanceImage;
 use slam::segmentation::merge_spans;
@@ -346,6 +347,25 @@ struct TruthImages {
     columns: Option<Vec<(u32, u32)>>,
 }
 
+/// One line of segmentation.jsonl: how a cluster of the scan at `t_scan` was judged in the
+/// image of `t_image`, with the object it truly was.
+fn segmentation_line(
+    t_scan: f64,
+    t_image: f64,
+    judged: &slam::pipeline::ClusterSegmentation,
+    cluster: &slam::clustering::Cluster,
+    object: u16,
+    world: &worlds::World,
+) -> String {
+    let mut line = serde_json::to_value(judged).expect("JSON");
+    line["t_scan"] = json!(t_scan);
+    line["t_image"] = json!(t_image);
+    line["range_m"] = json!(cluster.range_m);
+    line["true_object"] = json!(object);
+    line["true_class"] = json!(world.class_of(object).map(|c| c.name()).unwrap_or("nothing"));
+    serde_json::to_string(&line).expect("JSON") + "\n"
+}
+
 /// The pipeline settings of a scenario, with a method override and the laser's mounting.
 /// Scenarios read from files were checked when parsed; this checks again for ones built or
 /// changed in code.
@@ -481,6 +501,9 @@ pub fn run(
     let camera_method = config.method.uses_appearance();
     let basis = if camera_method { RecallBasis::InView } else { RecallBasis::LaserSeen };
     let mut scorer = RunScorer::new(&world, true_camera, VisibilitySettings::of(&config), basis);
+    if camera_method {
+        scorer = scorer.scoring_segmentation();
+    }
     let tree_ids = scorer.tree_ids().clone();
     // A bag holds whole images.
     let whole_frames = options.full_frames || options.bag.is_some();
@@ -497,7 +520,6 @@ pub fn run(
     let (mut pixels_rendered, mut pixels_framed) = (0u64, 0u64);
     // The latest frame's ground-truth images, for scoring the segmentation and the recall.
     let mut last_frame: Option<TruthImages> = None;
-    let mut seg_scores = PatchScores::default();
     // Each association decision with its observation's true object (runs that write
     // outputs), the smoother's solves, retracted landmarks and the count of fusions: what
     // the scan reports say, kept here (the pipeline keeps no history).
@@ -505,16 +527,11 @@ pub fn run(
     let mut solves: Vec<Solve> = Vec::new();
     let mut retractions: Vec<slam::pipeline::LandmarkRetraction> = Vec::new();
     let mut merged = 0usize;
-    let tree_class = ObjectClass::Tree.id();
 
     let mut est_path: Vec<(f64, [f64; 3])> = Vec::new();
     let mut gt_path: Vec<(f64, [f64; 3])> = Vec::new();
     // What the pipeline did with each scan, as `objslam score` reads it (associations.jsonl).
     let mut association_log = String::new();
-    // Camera methods: trees whose cluster the method's own segmentation judged in enough
-    // frames to be confirmed (a count that depends on the method, kept to explain misses).
-    let mut trees_judged: std::collections::BTreeSet<u16> = Default::default();
-    let mut judged_frames: BTreeMap<u16, usize> = BTreeMap::new();
     // One line per segmented cluster (camera methods): why it was or was not an object.
     let mut segmentation_log = String::new();
     let mut people_tracks: BTreeMap<u16, Vec<[f64; 2]>> = BTreeMap::new();
@@ -569,42 +586,13 @@ pub fn run(
                 retractions.append(&mut result.retractions);
                 merged += result.merges.len();
                 for rec in &result.segmentations {
-                    // Camera methods can only map trees the camera saw where the laser did.
-                    for cs in &rec.clusters {
-                        let c = &result.clusters[cs.index];
-                        let obj = true_object(&beams.hit_ids, c.first_beam, c.last_beam);
-                        // Only runs that write outputs keep the log (not Monte Carlo runs).
-                        if options.out.is_some() {
-                            let mut line = serde_json::to_value(cs).expect("JSON");
-                            line["t_scan"] = json!(s.t);
-                            line["t_image"] = json!(rec.t_image);
-                            line["range_m"] = json!(c.range_m);
-                            line["true_object"] = json!(obj);
-                            line["true_class"] = json!(world.class_of(obj).map(|c| c.name()).unwrap_or("nothing"));
-                            segmentation_log.push_str(&(serde_json::to_string(&line).expect("JSON") + "\n"));
-                        }
-                        // ...and only in frames where it could judge the cluster (its band
-                        // in the image, not cut by the image's edge).
-                        if tree_ids.contains(&obj) && cs.band_visible && !cs.at_image_edge {
-                            let n = judged_frames.entry(obj).or_insert(0usize);
-                            *n += 1;
-                            if *n >= config.confirm_observations {
-                                trees_judged.insert(obj);
-                            }
-                        }
-                    }
-                    if let Some(TruthImages { t: ft, width: w, class, .. }) = &last_frame
-                        && *ft == rec.t_image
-                    {
-                        let l = rec.patch_size;
-                        for &(col, row, predicted) in &rec.cells {
-                            let mut n = 0u32;
-                            for y in row * l..(row + 1) * l {
-                                for x in col * l..(col + 1) * l {
-                                    n += (class[(y * w + x) as usize] == tree_class) as u32;
-                                }
-                            }
-                            seg_scores.add(predicted, n * 2 >= l * l);
+                    let frame = last_frame.as_ref().map(|f| ClassImage { t: f.t, width: f.width, class: &f.class });
+                    let objects = scorer.on_segmentation(rec, &result.clusters, &beams, frame.as_ref());
+                    // Only runs that write outputs keep the log (not Monte Carlo runs).
+                    if options.out.is_some() {
+                        for (cs, obj) in rec.clusters.iter().zip(objects) {
+                            let c = &result.clusters[cs.index];
+                            segmentation_log.push_str(&segmentation_line(s.t, rec.t_image, cs, c, obj, &world));
                         }
                     }
                 }
@@ -687,8 +675,7 @@ pub fn run(
     let map_landmarks: Vec<MapLandmark> = lms.iter().map(|l| MapLandmark { id: l.id, position: l.position }).collect();
     let scored = scorer.finish(&map_landmarks);
     let landmark_object = scored.landmark_objects;
-    let mut map = scored.map;
-    map.trees_judged = camera_method.then_some(trees_judged.len());
+    let map = scored.map;
 
     let mut metrics = Metrics {
         scenario: scenario.name.clone(),
@@ -715,11 +702,10 @@ pub fn run(
                 .count(),
         },
         false_landmarks: scored.false_landmarks,
-        segmentation: if config.method.uses_appearance() {
-            SegmentationScore { precision: Some(seg_scores.precision()), recall: Some(seg_scores.recall()) }
-        } else {
-            SegmentationScore::default()
-        },
+        segmentation: scored
+            .patches
+            .map(|p| SegmentationScore { precision: Some(p.precision()), recall: Some(p.recall()) })
+            .unwrap_or_default(),
         calibration: Some(CalibrationScore {
             mode: calibration.mode.clone(),
             rotation_error_deg: calibration.rotation_error_deg,

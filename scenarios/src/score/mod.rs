@@ -3,6 +3,7 @@
 
 pub mod log;
 pub mod scorer;
+pub mod segmentation;
 
 use serde::{Deserialize, Serialize};
 

@@ -5,9 +5,12 @@
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 
 use serde::{Deserialize, Serialize};
+use slam::clustering::Cluster;
+use slam::pipeline::SegmentationRecord;
 use slam::segmentation::CameraGeometry;
 use worlds::{ObjectClass, World};
 
+use super::segmentation::{ClassImage, SegmentationScorer};
 use super::{AssociationCounts, AssociationLedger, MapContent};
 use crate::visibility::{InstanceImage, TreeVisibility};
 
@@ -84,6 +87,8 @@ pub struct GroundTruthScore {
     pub anees: f64,
     /// The object each landmark stands on (0: none), from its observations.
     pub landmark_objects: HashMap<u32, u16>,
+    /// Patch decisions against the masks (when scoring segmentation).
+    pub patches: Option<slam::classifier::PatchScores>,
 }
 
 /// The interval of the relative pose error, s.
@@ -153,6 +158,9 @@ pub struct RunScorer<'w> {
     truth: Vec<[f64; 3]>,
     nees_sum: f64,
     nees_n: usize,
+    /// Camera methods: their segmentation against the masks (see [`RunScorer::scoring_segmentation`]).
+    segmentation: Option<SegmentationScorer>,
+    frames_needed: usize,
 }
 
 impl<'w> RunScorer<'w> {
@@ -183,6 +191,35 @@ impl<'w> RunScorer<'w> {
             truth: Vec::new(),
             nees_sum: 0.0,
             nees_n: 0,
+            segmentation: None,
+            frames_needed: settings.frames_needed,
+        }
+    }
+
+    /// The same scorer, scoring a camera method's segmentation records too
+    /// ([`RunScorer::on_segmentation`]): patch precision and recall, and `map.trees_judged`.
+    pub fn scoring_segmentation(mut self) -> Self {
+        let tree = ObjectClass::Tree.id();
+        self.segmentation = Some(SegmentationScorer::new(self.tree_ids.clone(), tree, self.frames_needed));
+        self
+    }
+
+    /// One segmented image of a scan (see [`SegmentationScorer::on_record`]); returns each
+    /// segmented cluster's true object.
+    pub fn on_segmentation(
+        &mut self,
+        record: &SegmentationRecord,
+        clusters: &[Cluster],
+        beams: &sim::LaserTruth,
+        frame: Option<&ClassImage>,
+    ) -> Vec<u16> {
+        match &mut self.segmentation {
+            Some(s) => s.on_record(record, clusters, &beams.hit_ids, frame),
+            None => record
+                .clusters
+                .iter()
+                .map(|cs| true_object(&beams.hit_ids, clusters[cs.index].first_beam, clusters[cs.index].last_beam))
+                .collect(),
         }
     }
 
@@ -244,6 +281,7 @@ impl<'w> RunScorer<'w> {
         let mut map = MapContent {
             trees_in_view: self.visibility.trees_in_view().map(|t| t.len()),
             trees_laser_seen: self.visibility.trees_laser_seen().len(),
+            trees_judged: self.segmentation.as_ref().map(|s| s.trees_judged()),
             ..Default::default()
         };
         let mut per_object: BTreeMap<u16, usize> = BTreeMap::new();
@@ -281,6 +319,7 @@ impl<'w> RunScorer<'w> {
             false_landmarks,
             anees: if self.nees_n > 0 { self.nees_sum / self.nees_n as f64 } else { f64::NAN },
             landmark_objects,
+            patches: self.segmentation.as_ref().map(|s| s.patches()),
         }
     }
 }
