@@ -141,7 +141,10 @@ impl LaserConfig {
 /// Per run, systematic errors are drawn once (as Stage does): a distance scale error
 /// `N(0, scale_sigma)`, a turn scale error `N(0, turn_scale_sigma)` and a heading drift per
 /// metre `N(0, bias_sigma_rad_per_m)`. Per step, Gaussian noise grows with the step's
-/// distance d and turn a: sigma_d^2 = k_dd d^2 + k_da a^2, sigma_a^2 = k_ad d^2 + k_aa a^2.
+/// distance d and turn a: sigma_d^2 = a_dd d^2 + a_da a^2, sigma_a^2 = a_ad d^2 + a_aa a^2,
+/// spelled as the filter's odometry model spells them (`[pipeline.motion]`), so one
+/// scenario can state the truth and the filter's belief side by side. Files written with
+/// the former spelling (`k_dd`, ...) still read.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct OdometryConfig {
@@ -150,10 +153,14 @@ pub struct OdometryConfig {
     pub turn_scale_sigma: f64,
     pub bias_sigma_rad_per_m: f64,
     /// Per-step noise coefficients (variance per squared metre / radian).
-    pub k_dd: f64,
-    pub k_da: f64,
-    pub k_ad: f64,
-    pub k_aa: f64,
+    #[serde(alias = "k_dd")]
+    pub a_dd: f64,
+    #[serde(alias = "k_da")]
+    pub a_da: f64,
+    #[serde(alias = "k_ad")]
+    pub a_ad: f64,
+    #[serde(alias = "k_aa")]
+    pub a_aa: f64,
 }
 
 impl Default for OdometryConfig {
@@ -163,10 +170,10 @@ impl Default for OdometryConfig {
             scale_sigma: 0.01,
             turn_scale_sigma: 0.02,
             bias_sigma_rad_per_m: 0.002,
-            k_dd: 0.0025,
-            k_da: 0.0001,
-            k_ad: 0.0005,
-            k_aa: 0.0025,
+            a_dd: 0.0025,
+            a_da: 0.0001,
+            a_ad: 0.0005,
+            a_aa: 0.0025,
         }
     }
 }
@@ -178,10 +185,10 @@ impl OdometryConfig {
             scale_sigma: 0.0,
             turn_scale_sigma: 0.0,
             bias_sigma_rad_per_m: 0.0,
-            k_dd: 0.0,
-            k_da: 0.0,
-            k_ad: 0.0,
-            k_aa: 0.0,
+            a_dd: 0.0,
+            a_da: 0.0,
+            a_ad: 0.0,
+            a_aa: 0.0,
             ..Default::default()
         }
     }
@@ -220,10 +227,10 @@ impl SimConfig {
             ("odometry.scale_sigma", self.odometry.scale_sigma),
             ("odometry.turn_scale_sigma", self.odometry.turn_scale_sigma),
             ("odometry.bias_sigma_rad_per_m", self.odometry.bias_sigma_rad_per_m),
-            ("odometry.k_dd", self.odometry.k_dd),
-            ("odometry.k_da", self.odometry.k_da),
-            ("odometry.k_ad", self.odometry.k_ad),
-            ("odometry.k_aa", self.odometry.k_aa),
+            ("odometry.a_dd", self.odometry.a_dd),
+            ("odometry.a_da", self.odometry.a_da),
+            ("odometry.a_ad", self.odometry.a_ad),
+            ("odometry.a_aa", self.odometry.a_aa),
         ];
         for (field, v) in non_negative {
             if !(v.is_finite() && v >= 0.0) {
@@ -274,5 +281,21 @@ impl SimConfig {
             return bad("max_duration_s", format!("must be positive, got {d}"));
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The per-step coefficients read under the filter's spelling and the former one, not
+    /// under both at once.
+    #[test]
+    fn odometry_coefficients_read_under_either_spelling() {
+        let new: OdometryConfig = toml::from_str("a_dd = 0.1\na_aa = 0.2\n").unwrap();
+        let old: OdometryConfig = toml::from_str("k_dd = 0.1\nk_aa = 0.2\n").unwrap();
+        assert_eq!(new, old);
+        assert_eq!((new.a_dd, new.a_aa, new.a_da), (0.1, 0.2, OdometryConfig::default().a_da));
+        assert!(toml::from_str::<OdometryConfig>("a_dd = 0.1\nk_dd = 0.1\n").is_err());
     }
 }

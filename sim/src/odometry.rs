@@ -48,8 +48,8 @@ impl OdometryModel {
         let (dx, dy, dth) = prev.between(&truth);
         let d = (dx * dx + dy * dy).sqrt();
         let c = &self.config;
-        let sigma_d = (c.k_dd * d * d + c.k_da * dth * dth).sqrt();
-        let sigma_a = (c.k_ad * d * d + c.k_aa * dth * dth).sqrt();
+        let sigma_d = (c.a_dd * d * d + c.a_da * dth * dth).sqrt();
+        let sigma_a = (c.a_ad * d * d + c.a_aa * dth * dth).sqrt();
         let nd = gaussian(&mut self.rng, sigma_d);
         let na = gaussian(&mut self.rng, sigma_a);
         let scale = 1.0 + self.scale_error;
