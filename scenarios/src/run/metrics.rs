@@ -1,0 +1,272 @@
+//! What a run measured (`metrics.json`), the scenario's pass criteria checked against it,
+//! and its summary for the terminal.
+
+use serde::{Deserialize, Serialize};
+
+use crate::score::{AssociationCounts, MapContent};
+
+/// Segmentation quality against the rendered masks (absent without a camera).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct SegmentationScore {
+    pub precision: Option<f64>,
+    pub recall: Option<f64>,
+}
+
+/// Everything `metrics.json` holds. Field meanings: docs/guide/runs-and-metrics.md.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Metrics {
+    pub scenario: String,
+    pub seed: u64,
+    pub method: String,
+    pub sim_seconds: f64,
+    pub wall_seconds: f64,
+    #[serde(with = "crate::score::nan_as_null")]
+    pub realtime_factor: f64,
+    #[serde(with = "crate::score::nan_as_null")]
+    pub ate_rmse_m: f64,
+    /// Translational relative pose error over 1 s (`score::scorer::rpe_rmse`); null when
+    /// the run is shorter, and in records written before it was measured.
+    #[serde(default = "crate::score::nan", with = "crate::score::nan_as_null")]
+    pub rpe_rmse_m: f64,
+    pub landmark_rmse_m: Option<f64>,
+    pub map: MapContent,
+    pub landmarks: usize,
+    pub associations: AssociationCounts,
+    pub duplicate_landmarks: usize,
+    /// Pairs of landmarks the pipeline fused into one (see `pipeline.merge`).
+    #[serde(default)]
+    pub merged_landmarks: usize,
+    /// Times the filter was relinearised after a loop closure (see
+    /// `pipeline.relinearise_loop_closures`).
+    #[serde(default)]
+    pub relinearisations: usize,
+    /// Relinearisations that failed and left the filter as it was.
+    #[serde(default)]
+    pub relinearisation_failures: usize,
+    /// Landmarks taken off the map when nearer frames judged their place not an object
+    /// (see `pipeline.evidence.retract`), and how many of them were on trees (those
+    /// retractions were mistakes).
+    #[serde(default)]
+    pub retracted_landmarks: RetractionCounts,
+    /// Landmarks on posts, palms, people, walls or nothing.
+    pub false_landmarks: usize,
+    pub segmentation: SegmentationScore,
+    /// The extrinsics the pipeline was given, against the simulator's (absent in runs
+    /// recorded before calibration was scored).
+    #[serde(default)]
+    pub calibration: Option<CalibrationScore>,
+    /// The odometry calibration the filter estimated, against the simulator's (absent when
+    /// the filter does not estimate it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub odometry_calibration: Option<OdometryCalibrationScore>,
+    /// Average NEES of the robot pose over the run (3 dof: consistent near 3).
+    #[serde(with = "crate::score::nan_as_null")]
+    pub anees: f64,
+    pub collisions: usize,
+    pub route_completed: bool,
+    pub passed: bool,
+    /// Which pass criteria failed, in words.
+    pub failures: Vec<String>,
+    /// Where the wall-clock time went.
+    #[serde(default)]
+    pub timing: Timing,
+    /// The graphics adapter that rendered the camera's images (absent without a camera):
+    /// renderers differ in their last bits, and so can results (docs/results.md, "On a GPU").
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub renderer: Option<String>,
+    /// The appearance model the camera methods classified with (absent otherwise): a
+    /// model's training draws its borderline, so results depend on it too.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub appearance_model: Option<ModelProvenance>,
+}
+
+/// Where an appearance model came from.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ModelProvenance {
+    pub training_seed: u64,
+    pub training_images: usize,
+    /// The graphics adapter that rendered its training images (absent for models trained
+    /// before that was recorded).
+    pub training_renderer: Option<String>,
+}
+
+impl Metrics {
+    /// The metrics with every wall-clock figure zeroed: what must be identical between two
+    /// runs of the same scenario and seed.
+    pub fn without_wall_clock(&self) -> Metrics {
+        Metrics {
+            wall_seconds: 0.0,
+            realtime_factor: 0.0,
+            timing: Timing { simulator_s: 0.0, pipeline_s: 0.0, mean_scan_ms: 0.0, ..self.timing.clone() },
+            ..self.clone()
+        }
+    }
+}
+
+/// The odometry's systematic errors, each as (distance scale, turn scale, heading bias in
+/// rad per metre): the filter's final estimate, its standard deviation, and the truth.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct OdometryCalibrationScore {
+    pub estimated: [f64; 3],
+    pub sigma: [f64; 3],
+    pub truth: [f64; 3],
+}
+
+/// How far the run's laser <- camera extrinsics are from the simulator's.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CalibrationScore {
+    pub mode: String,
+    pub rotation_error_deg: f64,
+    pub translation_error_m: f64,
+}
+
+/// Wall-clock split of a run: the simulator (physics, laser, rendering) against the online
+/// pipeline (clustering, segmentation, object models, association, EKF).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct Timing {
+    pub simulator_s: f64,
+    pub pipeline_s: f64,
+    pub scans: usize,
+    /// Mean pipeline time per scan (with its image, for the camera methods), ms.
+    pub mean_scan_ms: f64,
+    /// Fraction of the camera frames' pixels rendered: below 1 when only the columns the
+    /// pipeline reads are (the default for camera methods), 0 without a camera (and in
+    /// records written before it was measured).
+    #[serde(default)]
+    pub rendered_fraction: f64,
+}
+
+/// Retracted landmarks (see [`Metrics::retracted_landmarks`]).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct RetractionCounts {
+    pub total: usize,
+    pub trees: usize,
+}
+
+pub(super) fn odometry_calibration_score(ekf: &slam::ekf::Ekf, truth: [f64; 3]) -> Option<OdometryCalibrationScore> {
+    let (estimated, sigma) = (ekf.calibration(), ekf.calibration_sigma());
+    (estimated.len() == 3).then(|| OdometryCalibrationScore {
+        estimated: [estimated[0], estimated[1], estimated[2]],
+        sigma: [sigma[0], sigma[1], sigma[2]],
+        truth,
+    })
+}
+
+/// Checks the scenario's pass criteria; returns the failures in words.
+pub fn check_pass(p: &crate::scenario::PassCriteria, m: &Metrics) -> Vec<String> {
+    let mut f = Vec::new();
+    if let Some(max) = p.max_wrong_associations
+        && m.associations.wrong > max
+    {
+        f.push(format!("{} wrong associations (max {max})", m.associations.wrong));
+    }
+    if let Some(max) = p.max_false_landmarks
+        && m.false_landmarks > max
+    {
+        f.push(format!("{} false landmarks (max {max})", m.false_landmarks));
+    }
+    if let Some(min) = p.min_false_landmarks
+        && m.false_landmarks < min
+    {
+        f.push(format!("{} false landmarks (expected at least {min})", m.false_landmarks));
+    }
+    if let Some(max) = p.max_duplicate_landmarks
+        && m.duplicate_landmarks > max
+    {
+        f.push(format!("{} duplicate landmarks (max {max})", m.duplicate_landmarks));
+    }
+    if let Some(min) = p.min_tree_recall {
+        match m.map.tree_recall {
+            Some(recall) if recall >= min => {}
+            Some(recall) => f.push(format!("tree recall {recall:.2} ({}; min {min})", m.map.recall_in_words())),
+            None => f.push(format!("tree recall undefined: {} (min {min})", m.map.recall_in_words())),
+        }
+    }
+    if let Some(max) = p.max_ate_rmse_m
+        && !(m.ate_rmse_m <= max)
+    {
+        f.push(format!("ATE RMSE {:.3} m (max {max})", m.ate_rmse_m));
+    }
+    if let Some(max) = p.max_landmark_rmse_m
+        && m.landmark_rmse_m.is_some_and(|r| r > max)
+    {
+        f.push(format!("landmark RMSE {:.3} m (max {max})", m.landmark_rmse_m.unwrap_or(f64::NAN)));
+    }
+    if let Some(max) = p.max_collisions
+        && m.collisions > max
+    {
+        f.push(format!("{} collisions (max {max})", m.collisions));
+    }
+    if let Some(c) = &m.calibration {
+        if let Some(max) = p.max_calibration_rotation_error_deg
+            && (c.rotation_error_deg.is_nan() || c.rotation_error_deg > max)
+        {
+            f.push(format!("calibration rotation error {:.3} deg (max {max})", c.rotation_error_deg));
+        }
+        if let Some(max) = p.max_calibration_translation_error_m
+            && (c.translation_error_m.is_nan() || c.translation_error_m > max)
+        {
+            f.push(format!("calibration translation error {:.4} m (max {max})", c.translation_error_m));
+        }
+    }
+    if !m.route_completed {
+        f.push("the robot did not complete its route".into());
+    }
+    f
+}
+
+/// Short summary table for the terminal.
+pub fn summary_table(m: &Metrics) -> String {
+    let mut s = String::new();
+    s.push_str(&format!("scenario {}  method {}  seed {}\n", m.scenario, m.method, m.seed));
+    s.push_str(&format!(
+        "  simulated {:.1} s in {:.2} s ({:.0}x real time; simulator {:.1} s, pipeline {:.1} s, {:.2} ms per scan)\n",
+        m.sim_seconds,
+        m.wall_seconds,
+        m.realtime_factor,
+        m.timing.simulator_s,
+        m.timing.pipeline_s,
+        m.timing.mean_scan_ms
+    ));
+    if let Some(renderer) = &m.renderer {
+        s.push_str(&format!("  rendered by       {renderer}\n"));
+    }
+    let recall = m.map.tree_recall.map_or("undefined".to_string(), |r| format!("{:.0}%", 100.0 * r));
+    s.push_str(&format!("  tree recall       {recall:>4} ({})\n", m.map.recall_in_words()));
+    if let Some(judged) = m.map.trees_judged {
+        s.push_str(&format!("  trees judged      {judged:>4} (by the method's own segmentation, in enough frames)\n"));
+    }
+    s.push_str(&format!("  false landmarks   {:>4} (posts {}, palms {}, people {}, walls {}, nothing {}; {} retracted, {} of them trees)\n", m.false_landmarks, m.map.posts, m.map.palms, m.map.people, m.map.walls, m.map.nothing, m.retracted_landmarks.total, m.retracted_landmarks.trees));
+    s.push_str(&format!("  duplicates        {:>4} ({} fused)\n", m.duplicate_landmarks, m.merged_landmarks));
+    if m.relinearisations + m.relinearisation_failures > 0 {
+        s.push_str(&format!(
+            "  relinearised      {:>4} times after loop closures ({} failed)\n",
+            m.relinearisations, m.relinearisation_failures
+        ));
+    }
+    s.push_str(&format!("  associations      {:>4} ({} wrong)\n", m.associations.total, m.associations.wrong));
+    s.push_str(&format!("  ATE RMSE          {:>8.3} m\n", m.ate_rmse_m));
+    s.push_str(&format!("  RPE RMSE          {:>8.3} m over 1 s\n", m.rpe_rmse_m));
+    if let Some(r) = m.landmark_rmse_m {
+        s.push_str(&format!("  landmark RMSE     {r:>8.3} m\n"));
+    }
+    s.push_str(&format!("  ANEES             {:>8.2}\n", m.anees));
+    if let Some(c) = m.calibration.as_ref().filter(|c| c.mode != "true") {
+        s.push_str(&format!(
+            "  calibration       {} extrinsics off by {:.3} deg, {:.4} m\n",
+            c.mode, c.rotation_error_deg, c.translation_error_m
+        ));
+    }
+    if let Some(c) = &m.odometry_calibration {
+        s.push_str(&format!(
+            "  odometry errors   scale {:+.4} ({:+.4}), turn scale {:+.4} ({:+.4}), bias {:+.5} ({:+.5}) rad/m: estimate (truth)\n",
+            c.estimated[0], c.truth[0], c.estimated[1], c.truth[1], c.estimated[2], c.truth[2]
+        ));
+    }
+    s.push_str(&format!("  collisions        {:>4}\n", m.collisions));
+    s.push_str(&format!(
+        "  {}\n",
+        if m.passed { "PASSED".to_string() } else { format!("FAILED: {}", m.failures.join("; ")) }
+    ));
+    s
+}

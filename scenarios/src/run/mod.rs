@@ -1,0 +1,460 @@
+//! The runner: feeds the simulator's stream into the online pipeline, scores the result
+//! against ground truth and writes the run's outputs.
+
+//!
+//! The files, by stage: `events` (the simulator's stream), `online` (each event to the
+//! pipeline, its reports to the scorer and the logs), `metrics` (what `metrics.json` holds,
+//! the pass criteria), `outputs` (the files a run writes). `run` itself is setup, loop,
+//! finish and write.
+
+mod events;
+mod metrics;
+mod online;
+mod outputs;
+
+pub use metrics::*;
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+use serde_json::json;
+use sim::Simulation;
+use slam::association::AssociationMethod;
+use slam::classifier::AppearanceModel;
+use slam::pipeline::{Appearance, Pipeline, PipelineConfig};
+use slam::segmentation::{CameraGeometry, merge_spans};
+use worlds::ObjectClass;
+
+use crate::scenario::{Scenario, ScenarioError};
+use crate::score::scorer::{MapLandmark, RecallBasis, RunScorer, VisibilitySettings};
+use events::EventSource;
+use online::RunLoop;
+use outputs::{clear_stale_outputs, write_outputs};
+
+/// Errors of a run.
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    #[error(transparent)]
+    Scenario(#[from] ScenarioError),
+    #[error(transparent)]
+    Sim(#[from] sim::SimError),
+    #[error("scenario {scenario}: pipeline.{setting}")]
+    Pipeline { scenario: String, setting: slam::settings::InvalidSetting },
+    #[error("method {method}: {message}")]
+    Method { method: String, message: String },
+    #[error("{}: {source}", file.display())]
+    Io { file: PathBuf, source: std::io::Error },
+    #[error(transparent)]
+    Plot(#[from] crate::plot::PlotError),
+    #[error(transparent)]
+    Mcap(#[from] crate::foxglove::McapError),
+    #[error("appearance model: {0}")]
+    Appearance(#[from] crate::appearance::AppearanceError),
+    #[error("pipeline: {0}")]
+    Filter(#[from] slam::pipeline::PipelineError),
+    #[error("appearance model: {0}")]
+    Mixture(#[from] slam::gmm::GmmError),
+    #[error("the camera stopped during the run: {0}")]
+    CameraStopped(String),
+    #[error("{count} {what} in image columns the camera did not render (a bug; `--full-frames` renders whole frames)")]
+    Unrendered { what: &'static str, count: usize },
+    #[error(transparent)]
+    Objects(#[from] crate::objects::ObjectsError),
+    #[error(transparent)]
+    Calibration(#[from] crate::calibrate::CalibrateError),
+    #[error(transparent)]
+    Ros2(#[from] crate::ros2::Ros2Error),
+}
+
+/// The laser <- camera extrinsics a run gives its pipeline, and where they came from.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ResolvedCalibration {
+    /// `true`, `perturbed`, `estimated` or `file`.
+    pub mode: String,
+    /// The calibration file read (mode `file`), resolved against the scenario's directory.
+    pub file: Option<PathBuf>,
+    /// What the pipeline uses: `P_laser = phi P_camera + delta`.
+    pub extrinsics: slam::calibration::Extrinsics,
+    /// The simulator's exact extrinsics.
+    pub truth: slam::calibration::Extrinsics,
+    pub rotation_error_deg: f64,
+    pub translation_error_m: f64,
+    /// The calibration session's report (mode `estimated`).
+    pub report: Option<Box<crate::calibrate::CalibrationReport>>,
+}
+
+/// Resolves the scenario's `[calibration]` for a run seed: the simulator's extrinsics
+/// (`true`), those with seeded errors (`perturbed`), a calibration session run with the
+/// same seed (`estimated`, as `objslam calibrate SCENARIO --seed SEED` runs it), or a
+/// calibration file relative to the scenario's directory.
+pub fn resolve_calibration(scenario: &Scenario, base_dir: &Path, seed: u64) -> Result<ResolvedCalibration, RunError> {
+    let c = &scenario.calibration;
+    let truth = crate::calibrate::true_extrinsics(&scenario.sim);
+    let (mode, file, extrinsics, report) = match c.mode.as_str() {
+        "true" => ("true", None, truth, None),
+        "perturbed" => (
+            "perturbed",
+            None,
+            crate::calibrate::perturb(&truth, c.rotation_sigma_deg, c.translation_sigma_m, seed),
+            None,
+        ),
+        "estimated" => {
+            let report = crate::calibrate::run_session(scenario, base_dir, seed, None, None)?;
+            ("estimated", None, report.extrinsics(), Some(Box::new(report)))
+        }
+        path => {
+            let file = base_dir.join(path);
+            let e = crate::calibrate::load_extrinsics(&file)?;
+            ("file", Some(file), e, None)
+        }
+    };
+    let (rotation_error_deg, translation_error_m) = extrinsics.error_to(&truth);
+    Ok(ResolvedCalibration {
+        mode: mode.into(),
+        file,
+        extrinsics,
+        truth,
+        rotation_error_deg,
+        translation_error_m,
+        report,
+    })
+}
+
+/// Options of one run.
+#[derive(Debug, Clone, Default)]
+pub struct RunOptions {
+    pub seed: Option<u64>,
+    pub method: Option<AssociationMethod>,
+    /// Where to write outputs; `None` writes nothing (Monte Carlo runs).
+    pub out: Option<PathBuf>,
+    /// An appearance model already loaded (Monte Carlo studies resolve it once); `None`
+    /// resolves the scenario's `[appearance]` source when the method needs it.
+    pub appearance: Option<std::sync::Arc<AppearanceModel>>,
+    /// Render whole camera frames, not only the pixel columns the pipeline reads: the same
+    /// results, more slowly (for checking exactly that).
+    pub full_frames: bool,
+    /// Also write the run's sensor stream as a ROS 2 bag in this directory (see
+    /// [`crate::ros2`]); its frames are then rendered whole.
+    pub bag: Option<PathBuf>,
+}
+
+/// Result of a run, with what the reports need.
+pub struct RunOutcome {
+    pub metrics: Metrics,
+    pub resolved: serde_json::Value,
+}
+
+/// The pipeline settings of a scenario, with a method override and the laser's mounting.
+/// Scenarios read from files were checked when parsed; this checks again for ones built or
+/// changed in code.
+pub fn pipeline_config(scenario: &Scenario, method: Option<AssociationMethod>) -> Result<PipelineConfig, RunError> {
+    let mut config = scenario.pipeline.clone();
+    config.validate().map_err(|setting| RunError::Pipeline { scenario: scenario.name.clone(), setting })?;
+    if let Some(m) = method {
+        config.method = m;
+    }
+    // The laser's mounting is known to the robot: the observation model uses it.
+    config.sensor.mount_x = scenario.sim.laser.mount_xyz_m[0];
+    config.sensor.mount_y = scenario.sim.laser.mount_xyz_m[1];
+    Ok(config)
+}
+
+/// The simulator's scan as the pipeline's plain message (the one place the two meet).
+pub fn slam_scan(scan: &sim::LaserScan) -> slam::messages::LaserScan {
+    slam::messages::LaserScan {
+        t: scan.t,
+        angle_min: scan.angle_min,
+        angle_increment: scan.angle_increment,
+        range_min: scan.range_min,
+        range_max: scan.range_max,
+        ranges: scan.ranges.clone(),
+    }
+}
+
+/// The camera as the pipeline is told it: K and the laser <- camera extrinsics (the
+/// run's resolved calibration, see [`resolve_calibration`]).
+pub fn camera_geometry(
+    sim_config: &sim::SimConfig,
+    laser_from_camera: &slam::calibration::Extrinsics,
+) -> CameraGeometry {
+    let k = sim_config.camera.intrinsics();
+    CameraGeometry {
+        fx: k.fx,
+        fy: k.fy,
+        cx: k.cx,
+        cy: k.cy,
+        width: k.width,
+        height: k.height,
+        laser_from_camera: *laser_from_camera,
+    }
+}
+
+/// The scenario's appearance model (a named file, or trained once and cached);
+/// `progress(stage, done, total)` follows a training.
+pub fn resolve_appearance(
+    scenario: &Scenario,
+    base_dir: &Path,
+    progress: impl Fn(&str, usize, usize),
+) -> Result<AppearanceModel, RunError> {
+    Ok(scenario.appearance.resolve(base_dir, &scenario.sim.camera, progress)?)
+}
+
+/// What a run tells its caller while it goes (see [`run`]).
+#[derive(Debug, Clone, PartialEq)]
+pub enum RunProgress<'a> {
+    /// The appearance model is being trained (first use of a scenario's settings): a
+    /// stage, and how far it has come.
+    Training { stage: &'a str, done: usize, total: usize },
+    /// Simulated seconds so far, of the route's nominal duration.
+    Simulated { t: f64, total: f64 },
+    /// Something the user should know; the run goes on.
+    Warning(String),
+}
+
+/// Runs a scenario once; `progress` hears of a training, the simulated time and warnings.
+pub fn run(
+    scenario: &Scenario,
+    base_dir: &Path,
+    options: &RunOptions,
+    mut progress: impl FnMut(RunProgress),
+) -> Result<RunOutcome, RunError> {
+    // Setup: the method and its model, the world, the calibration, the simulator.
+    let seed = options.seed.unwrap_or(scenario.seed);
+    let config = pipeline_config(scenario, options.method)?;
+    let camera_method = config.method.uses_appearance();
+    let appearance_model = appearance_for(scenario, base_dir, options, &config, &mut progress)?;
+    let world = scenario.world(base_dir, seed)?;
+    let calibration = resolve_calibration(scenario, base_dir, seed)?;
+    let started = std::time::Instant::now();
+    let sim_config = simulated_for(scenario, &config);
+    let mut sim = Simulation::new(&world, &sim_config, sim::derive_seed(seed, "sim"))?;
+    // Where the images came from: results depend on the renderer (metrics.renderer, and
+    // the model's training renderer in metadata.json).
+    let renderer = sim.camera_adapter().map(|a| a.to_string());
+    let nominal = scenario.sim.max_duration_s.unwrap_or_else(|| sim.nominal_duration_s());
+    let start = world.robot.start;
+    let appearance = match &appearance_model {
+        Some(m) => Some(Appearance::new((**m).clone(), camera_geometry(&scenario.sim, &calibration.extrinsics))?),
+        None => None,
+    };
+    let pipeline = Pipeline::new(config.clone(), [start.x, start.y, start.yaw_rad()], appearance)?;
+    // Every ground-truth figure; the recall's denominators come from the camera's true
+    // extrinsics, whatever the run's calibration.
+    let true_camera = sim_config.camera.enabled.then(|| camera_geometry(&scenario.sim, &calibration.truth));
+    let basis = if camera_method { RecallBasis::InView } else { RecallBasis::LaserSeen };
+    let mut scorer = RunScorer::new(&world, true_camera, VisibilitySettings::of(&config), basis);
+    if camera_method {
+        scorer = scorer.scoring_segmentation();
+    }
+    // A bag holds whole images.
+    let whole_frames = options.full_frames || options.bag.is_some();
+    if !whole_frames {
+        render_only_read_columns(&mut sim, &pipeline, &scorer, &config, &sim_config);
+    }
+    let mut bag = match &options.bag {
+        Some(dir) => Some(crate::ros2::Ros2Recorder::create(dir, &sim_config)?),
+        None => None,
+    };
+
+    // The loop.
+    let mut online = RunLoop::new(pipeline, scorer, &world, options.out.is_some(), sim_config.physics_rate_hz);
+    let mut last_progress = -1.0;
+    let mut events = EventSource::start(sim, &mut |w| progress(RunProgress::Warning(w)));
+    while let Some(event) = events.next() {
+        if let Some(bag) = &mut bag {
+            bag.write(&event)?;
+        }
+        let t = event.time();
+        online.on_event(event)?;
+        if t - last_progress >= 1.0 {
+            progress(RunProgress::Simulated { t, total: nominal });
+            last_progress = t;
+        }
+    }
+    let (sim, sim_time) = events.finish();
+    if let Some(bag) = bag {
+        bag.finish()?;
+    }
+    check_complete(&sim, &online, camera_method)?;
+    progress(RunProgress::Simulated { t: sim.time(), total: nominal });
+    let wall = started.elapsed().as_secs_f64();
+
+    // Finish: the scores.
+    let RunLoop { pipeline, scorer, log, .. } = online;
+    let map_landmarks: Vec<MapLandmark> =
+        pipeline.mapped_landmarks().iter().map(|l| MapLandmark { id: l.id, position: l.position }).collect();
+    let scored = scorer.finish(&map_landmarks);
+    let model_provenance = appearance_model.as_ref().map(|m| ModelProvenance {
+        training_seed: m.training.seed,
+        training_images: m.training.images,
+        training_renderer: m.training.renderer.clone(),
+    });
+    let mut metrics = Metrics {
+        scenario: scenario.name.clone(),
+        seed,
+        method: config.method.name().into(),
+        sim_seconds: sim.time(),
+        wall_seconds: wall,
+        realtime_factor: sim.time() / wall.max(1e-9),
+        ate_rmse_m: scored.ate_rmse_m,
+        rpe_rmse_m: scored.rpe_rmse_m,
+        landmark_rmse_m: scored.landmark_rmse_m,
+        map: scored.map,
+        landmarks: scored.landmarks,
+        associations: scored.associations,
+        duplicate_landmarks: scored.duplicate_landmarks,
+        merged_landmarks: log.merged,
+        relinearisations: log.solves.iter().filter(|(_, r)| r.is_ok()).count(),
+        relinearisation_failures: log.solves.iter().filter(|(_, r)| r.is_err()).count(),
+        retracted_landmarks: RetractionCounts {
+            total: log.retractions.len(),
+            trees: log
+                .retractions
+                .iter()
+                .filter(|r| {
+                    scored
+                        .landmark_objects
+                        .get(&r.landmark)
+                        .is_some_and(|o| world.class_of(*o) == Some(ObjectClass::Tree))
+                })
+                .count(),
+        },
+        false_landmarks: scored.false_landmarks,
+        segmentation: scored
+            .patches
+            .map(|p| SegmentationScore { precision: Some(p.precision()), recall: Some(p.recall()) })
+            .unwrap_or_default(),
+        calibration: Some(CalibrationScore {
+            mode: calibration.mode.clone(),
+            rotation_error_deg: calibration.rotation_error_deg,
+            translation_error_m: calibration.translation_error_m,
+        }),
+        odometry_calibration: odometry_calibration_score(pipeline.ekf(), sim.odometry_errors()),
+        anees: scored.anees,
+        collisions: sim.collisions().len(),
+        route_completed: sim.route_progress() > 0.99,
+        passed: false,
+        failures: vec![],
+        timing: Timing {
+            simulator_s: sim_time,
+            pipeline_s: log.event_s,
+            scans: log.scans,
+            mean_scan_ms: if log.scans > 0 { 1000.0 * log.scan_s / log.scans as f64 } else { 0.0 },
+            rendered_fraction: if log.pixels_framed > 0 {
+                log.pixels_rendered as f64 / log.pixels_framed as f64
+            } else {
+                0.0
+            },
+        },
+        renderer,
+        appearance_model: model_provenance,
+    };
+    metrics.failures = check_pass(&scenario.pass, &metrics);
+    metrics.passed = metrics.failures.is_empty();
+    let resolved = json!({
+        "scenario": scenario,
+        "seed": seed,
+        "sim_seed": sim::derive_seed(seed, "sim"),
+        "world": world,
+        // The simulator as it ran: the scenario's, with the camera off for position-only
+        // methods and without the depth image nobody reads.
+        "sim": sim_config,
+        "pipeline": config,
+        "calibration": calibration,
+    });
+
+    // Write.
+    if let Some(out) = &options.out {
+        clear_stale_outputs(out)?;
+        if let Some(report) = &calibration.report {
+            report.write(&out.join("calibration.json"))?;
+        }
+        write_outputs(out, &world, &pipeline, &metrics, &resolved, &log, &scored.landmark_objects)?;
+    }
+    Ok(RunOutcome { metrics, resolved })
+}
+
+/// The appearance model a camera method needs: the one given, or the scenario's (trained on
+/// first use, reported to `progress`); `None` for the position-only methods.
+fn appearance_for(
+    scenario: &Scenario,
+    base_dir: &Path,
+    options: &RunOptions,
+    config: &PipelineConfig,
+    progress: &mut impl FnMut(RunProgress),
+) -> Result<Option<std::sync::Arc<AppearanceModel>>, RunError> {
+    if !config.method.uses_appearance() {
+        return Ok(None);
+    }
+    if !scenario.sim.camera.enabled {
+        return Err(RunError::Method {
+            method: config.method.name().into(),
+            message: "needs the camera, which the scenario disables (sim.camera.enabled = false)".into(),
+        });
+    }
+    if let Some(m) = &options.appearance {
+        return Ok(Some(m.clone()));
+    }
+    // Training reports through a shared reference; the run's callback is FnMut.
+    let progress = std::cell::RefCell::new(progress);
+    let model = resolve_appearance(scenario, base_dir, |stage, done, total| {
+        (progress.borrow_mut())(RunProgress::Training { stage, done, total })
+    })?;
+    Ok(Some(std::sync::Arc::new(model)))
+}
+
+/// The simulator as a run of `config`'s method uses it: position-only methods never look at
+/// images, so none are rendered; no method reads depth, so it is not rendered either.
+fn simulated_for(scenario: &Scenario, config: &PipelineConfig) -> sim::SimConfig {
+    let mut sim_config = scenario.sim.clone();
+    if !config.method.uses_appearance() {
+        sim_config.camera.enabled = false;
+    }
+    sim_config.camera.depth_image = false;
+    sim_config
+}
+
+/// Has the camera render only the columns segmentation will read, chosen from the scan of
+/// the frame's instant as the pipeline will cluster it (most of each frame is never read),
+/// and the columns the ground-truth tree count reads, so that the count does not depend on
+/// what the method asked for. Only where no other scan can use the frame (one within
+/// `image_max_age_s` of it): sensors fire on the first physics step at or after their
+/// time, so two scans can be up to a step closer than the laser's period.
+fn render_only_read_columns(
+    sim: &mut Simulation,
+    pipeline: &Pipeline,
+    scorer: &RunScorer,
+    config: &PipelineConfig,
+    sim_config: &sim::SimConfig,
+) {
+    let frame_read_by_one_scan =
+        config.image_max_age_s < 1.0 / sim_config.laser.rate_hz - 1.0 / sim_config.physics_rate_hz;
+    if let Some(region) = pipeline.image_region().filter(|_| frame_read_by_one_scan) {
+        let truth_columns = scorer.visibility().clone();
+        sim.render_camera_columns(Box::new(move |scan, beams| {
+            merge_spans([region.columns(&slam_scan(scan)), truth_columns.columns(scan, beams)].concat())
+        }));
+    }
+}
+
+/// Refuses a run whose scores would not be the method's: a camera that stopped (a lost GPU
+/// device) left a camera method blind for the rest of the run, or pixels were read where
+/// none were rendered.
+fn check_complete(sim: &Simulation, online: &RunLoop, camera_method: bool) -> Result<(), RunError> {
+    if let Some(e) = sim.camera_error().filter(|_| camera_method) {
+        return Err(RunError::CameraStopped(e.to_string()));
+    }
+    if online.pipeline.unrendered_reads() > 0 {
+        return Err(RunError::Unrendered {
+            what: "clusters were not segmented: they read pixels",
+            count: online.pipeline.unrendered_reads(),
+        });
+    }
+    if online.scorer.unrendered_reads() > 0 {
+        return Err(RunError::Unrendered {
+            what: "pixels read by the tree-recall count lie",
+            count: online.scorer.unrendered_reads(),
+        });
+    }
+    Ok(())
+}
