@@ -41,8 +41,9 @@ pub enum StudyError {
     Scenario(#[from] crate::scenario::ScenarioError),
     #[error(transparent)]
     Plot(#[from] crate::plot::PlotError),
-    #[error("{0}")]
-    Appearance(String),
+    /// An appearance model the jobs need could not be loaded or trained.
+    #[error(transparent)]
+    Appearance(Box<crate::run::RunError>),
     #[error("{0}")]
     Worker(String),
     #[error("{}: another study is running in this directory (it holds the lock); wait for it, or use another --out", file.display())]
@@ -524,7 +525,7 @@ pub fn run_study_with(
         if job_needs_appearance(job, &scenario) {
             models
                 .resolve(&scenario, |stage, done, total| progress(StudyProgress::Training { stage, done, total }))
-                .map_err(StudyError::Appearance)?;
+                .map_err(|e| StudyError::Appearance(Box::new(e)))?;
         }
     }
     let total = mine.len();
@@ -606,7 +607,10 @@ impl StudyModels {
     }
 
     /// The model `scenario` asks for.
-    pub fn get(&self, scenario: &Scenario) -> Result<std::sync::Arc<slam::classifier::AppearanceModel>, String> {
+    pub fn get(
+        &self,
+        scenario: &Scenario,
+    ) -> Result<std::sync::Arc<slam::classifier::AppearanceModel>, crate::run::RunError> {
         self.resolve(scenario, |_, _, _| {})
     }
 
@@ -615,7 +619,7 @@ impl StudyModels {
         &self,
         scenario: &Scenario,
         progress: impl Fn(&str, usize, usize),
-    ) -> Result<std::sync::Arc<slam::classifier::AppearanceModel>, String> {
+    ) -> Result<std::sync::Arc<slam::classifier::AppearanceModel>, crate::run::RunError> {
         let key = match &scenario.appearance.model {
             Some(file) => format!("file {file}"),
             None => scenario.appearance.cache_key(&scenario.sim.camera),
@@ -627,9 +631,7 @@ impl StudyModels {
         if let Some(model) = models.get(&key) {
             return Ok(model.clone());
         }
-        let model = std::sync::Arc::new(
-            crate::run::resolve_appearance(scenario, &self.base_dir, progress).map_err(|e| e.to_string())?,
-        );
+        let model = std::sync::Arc::new(crate::run::resolve_appearance(scenario, &self.base_dir, progress)?);
         models.insert(key, model.clone());
         Ok(model)
     }
@@ -642,7 +644,11 @@ pub fn run_job(base: &Scenario, base_dir: &Path, job: &Job, models: &StudyModels
         let scenario = job_scenario(base, job).map_err(|e| e.to_string())?;
         let method =
             AssociationMethod::from_name(&job.method).ok_or_else(|| format!("unknown method {:?}", job.method))?;
-        let appearance = if job_needs_appearance(job, &scenario) { Some(models.get(&scenario)?) } else { None };
+        let appearance = if job_needs_appearance(job, &scenario) {
+            Some(models.get(&scenario).map_err(|e| e.to_string())?)
+        } else {
+            None
+        };
         let options = RunOptions {
             seed: Some(job.seed),
             method: Some(method),

@@ -149,7 +149,22 @@ fn bad_jobs_fail_the_study_before_any_run() {
     };
     let e = mc::run_study(&bad_value, Shard::all(), &root.join("b"), |_| {}).unwrap_err().to_string();
     assert!(e.contains("gate_probability"), "{e}");
-    for dir in ["a", "b"] {
+    // An appearance model that cannot be had fails the study as that, with the run's
+    // error (naming the file) inside it.
+    let (mut sc, _) = scenarios::scenario::Scenario::load("paper_park").unwrap();
+    sc.name = "no_model".into();
+    sc.appearance.model = Some("no_such_model.json".into());
+    std::fs::write(root.join("no_model.toml"), toml::to_string(&sc).unwrap()).unwrap();
+    let no_model = StudyPlan {
+        scenario: root.join("no_model.toml").to_string_lossy().into_owned(),
+        methods: vec!["combined".into()],
+        vary: vec![],
+        ..bad_value
+    };
+    let e = mc::run_study(&no_model, Shard::all(), &root.join("c"), |_| {}).unwrap_err();
+    assert!(matches!(e, mc::StudyError::Appearance(_)), "{e:?}");
+    assert!(e.to_string().contains("no_such_model.json"), "{e}");
+    for dir in ["a", "b", "c"] {
         assert!(mc::read_runs(&root.join(dir).join("runs.jsonl")).unwrap().is_empty(), "no run was made");
     }
     let _ = std::fs::remove_dir_all(&root);

@@ -39,6 +39,8 @@ pub enum FeatureError {
     PcaMismatch { expected: usize, found: usize },
     #[error("training: {0}")]
     Training(String),
+    #[error("feature settings: {0}")]
+    Settings(#[from] crate::settings::InvalidSetting),
 }
 
 /// A borrowed 8-bit RGB image, row-major.
@@ -298,7 +300,7 @@ pub fn feature_names(d: usize) -> Vec<String> {
 
 impl FeatureExtractor {
     pub fn new(config: FeatureConfig, pca: Pca) -> Result<Self, FeatureError> {
-        config.validate().map_err(|e| FeatureError::Training(e.to_string()))?;
+        config.validate()?;
         if !config.channel_gain.is_empty() && config.channel_gain.len() != 3 + config.bank.len() {
             return Err(FeatureError::Training(format!(
                 "{} channel gains for {} channels",
