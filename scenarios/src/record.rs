@@ -182,21 +182,33 @@ pub fn write_png(
     Ok(png)
 }
 
-/// Writes a camera frame's images: colour, 16-bit instance ids, 8-bit classes and 16-bit
-/// depth in millimetres (0 = nothing). Returns the file names relative to `dir`'s parent
-/// and the colour PNG's bytes (for the MCAP).
+/// The images of one camera frame as written: names relative to the camera directory's
+/// parent.
+pub struct FrameFiles {
+    pub image: String,
+    pub instance: String,
+    pub class: String,
+    /// `None` when the camera renders no depth.
+    pub depth: Option<String>,
+    /// The colour PNG's bytes (for the MCAP).
+    pub colour_png: Vec<u8>,
+}
+
+/// Writes a camera frame's images: colour, 16-bit instance ids, 8-bit classes and, when the
+/// camera renders depth (`sim.camera.depth_image`), 16-bit depth in millimetres (0 =
+/// nothing). Returns the files written.
 pub fn write_camera_frame(
     dir: &Path,
     index: usize,
     frame: &sim::camera::CameraFrame,
-) -> Result<([String; 4], Vec<u8>), RecordError> {
+) -> Result<FrameFiles, RecordError> {
     let img = &frame.image;
     let names = [
         format!("camera/{index:06}.png"),
         format!("camera/{index:06}_instance.png"),
         format!("camera/{index:06}_class.png"),
-        format!("camera/{index:06}_depth.png"),
     ];
+    let depth_name = (!img.depth_m.is_empty()).then(|| format!("camera/{index:06}_depth.png"));
     let root = dir.parent().unwrap_or(dir);
     // The image crate takes 16-bit samples in native byte order (it writes PNG's big-endian).
     let inst: Vec<u8> = img.instance.iter().flat_map(|v| v.to_ne_bytes()).collect();
@@ -206,18 +218,22 @@ pub fn write_camera_frame(
         .flat_map(|d| (if d.is_finite() { (d * 1000.0).round().clamp(1.0, 65535.0) as u16 } else { 0 }).to_ne_bytes())
         .collect();
     // Encoding dominates recording time: the four images in parallel.
-    let jobs: [(&String, image::ExtendedColorType, &[u8]); 4] = [
+    let mut jobs: Vec<(&String, image::ExtendedColorType, &[u8])> = vec![
         (&names[0], image::ExtendedColorType::Rgb8, &img.rgb),
         (&names[1], image::ExtendedColorType::L16, &inst),
         (&names[2], image::ExtendedColorType::L8, &img.class),
-        (&names[3], image::ExtendedColorType::L16, &depth),
     ];
+    if let Some(name) = &depth_name {
+        jobs.push((name, image::ExtendedColorType::L16, &depth));
+    }
     use rayon::prelude::*;
     let mut pngs = jobs
         .par_iter()
         .map(|(name, color, bytes)| write_png(&root.join(name), img.width, img.height, *color, bytes))
         .collect::<Result<Vec<Vec<u8>>, RecordError>>()?;
-    Ok((names, pngs.swap_remove(0)))
+    let colour_png = pngs.swap_remove(0);
+    let [image, instance, class] = names;
+    Ok(FrameFiles { image, instance, class, depth: depth_name, colour_png })
 }
 
 /// Records a run of `world` into `out` in `format`, the simulator seeded with `seed`.
@@ -495,18 +511,18 @@ fn record_jsonl(
                 )?;
             }
             SensorEvent::Camera { frame, .. } => {
-                let (names, png) = write_camera_frame(&camera_dir, frames, frame)?;
+                let files = write_camera_frame(&camera_dir, frames, frame)?;
                 let k = frame.intrinsics;
                 let pose = frame.world_from_camera;
                 camera_log.line(
                     &serde_json::to_string(&json!({
-                        "t": frame.t, "image": names[0], "instance": names[1], "class": names[2], "depth_mm": names[3],
+                        "t": frame.t, "image": files.image, "instance": files.instance, "class": files.class, "depth_mm": files.depth,
                         "K": k.k(), "width": k.width, "height": k.height,
                         "world_from_camera": {"rotation": pose.r, "translation_m": pose.t}
                     }))
                     .expect("JSON"),
                 )?;
-                mcap.write("/camera/image", "foxglove.CompressedImage", frame.t, &json!({"timestamp": timestamp(frame.t), "frame_id": "camera_optical", "format": "png", "data": base64(&png)}))?;
+                mcap.write("/camera/image", "foxglove.CompressedImage", frame.t, &json!({"timestamp": timestamp(frame.t), "frame_id": "camera_optical", "format": "png", "data": base64(&files.colour_png)}))?;
                 mcap.write(
                     "/camera/calibration",
                     "foxglove.CameraCalibration",

@@ -267,3 +267,40 @@ fn a_ros2_bag_holds_what_the_json_lines_hold_in_standard_messages() {
     );
     let _ = std::fs::remove_dir_all(&root);
 }
+
+/// A camera that renders no depth records its frames without a depth image (it panicked
+/// on the empty depth buffer).
+#[test]
+fn a_camera_without_depth_records_frames_without_a_depth_image() {
+    let dir = std::env::temp_dir().join(format!("objslam-record-nodepth-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let world = worlds::generate::park(&Default::default(), 2).unwrap();
+    let mut config = sim::SimConfig { max_duration_s: Some(0.5), ..Default::default() };
+    config.camera.depth_image = false;
+    scenarios::record::record(
+        &world,
+        &config,
+        4,
+        &scenarios::score::log::LogScoring::of_world(),
+        &dir,
+        scenarios::record::RecordFormat::Jsonl,
+        |_, _| {},
+    )
+    .unwrap();
+    let frames: Vec<serde_json::Value> = std::fs::read_to_string(dir.join("camera.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert!(!frames.is_empty());
+    for f in &frames {
+        assert!(f["depth_mm"].is_null(), "{f}");
+        assert!(dir.join(f["image"].as_str().unwrap()).exists() && dir.join(f["class"].as_str().unwrap()).exists());
+    }
+    let depth_pngs = std::fs::read_dir(dir.join("camera"))
+        .unwrap()
+        .filter(|e| e.as_ref().unwrap().file_name().to_string_lossy().ends_with("_depth.png"))
+        .count();
+    assert_eq!(depth_pngs, 0);
+    let _ = std::fs::remove_dir_all(&dir);
+}
