@@ -70,6 +70,26 @@ pub fn cache_dir() -> PathBuf {
 }
 
 impl AppearanceSource {
+    /// The training settings' ranges, checked when a scenario is read rather than when a
+    /// model is first trained: (field, problem).
+    pub fn check(&self) -> Result<(), (&'static str, String)> {
+        if !worlds::generate::PRESETS.contains(&self.training_preset.as_str()) {
+            let known = worlds::generate::PRESETS.join(", ");
+            return Err(("training_preset", format!("unknown preset {:?}; available: {known}", self.training_preset)));
+        }
+        for (field, value, max) in [
+            ("training_images", self.training_images, 100_000),
+            ("max_patches_per_class", self.max_patches_per_class, 10_000_000),
+            ("max_components", self.max_components, 100),
+            ("pca_dims", self.pca_dims, 1000),
+        ] {
+            if !(1..=max).contains(&value) {
+                return Err((field, format!("must be 1 to {max}, got {value}")));
+            }
+        }
+        Ok(())
+    }
+
     fn training_options(&self) -> TrainingOptions {
         TrainingOptions {
             pca_dims: self.pca_dims,

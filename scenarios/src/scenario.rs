@@ -302,6 +302,27 @@ impl Scenario {
         if let Err(e) = self.pipeline.validate() {
             return bad(&format!("pipeline.{}", e.path), e.problem);
         }
+        // A run sets the filter's laser mounting from the simulator's (see
+        // run::pipeline_config): another value here would be silently replaced.
+        let sensor = &self.pipeline.sensor;
+        let default = slam::ekf::RangeBearingModel::default();
+        let [mx, my, _] = self.sim.laser.mount_xyz_m;
+        for (field, given, sim, fallback) in [
+            ("pipeline.sensor.mount_x", sensor.mount_x, mx, default.mount_x),
+            ("pipeline.sensor.mount_y", sensor.mount_y, my, default.mount_y),
+        ] {
+            if given != sim && given != fallback {
+                return bad(
+                    field,
+                    format!(
+                        "a run takes the laser's mounting from sim.laser.mount_xyz_m ({sim} m here); leave it out, not {given}"
+                    ),
+                );
+            }
+        }
+        if let Err((field, message)) = self.appearance.check() {
+            return bad(&format!("appearance.{field}"), message);
+        }
         if let Some(r) = self.pass.min_tree_recall
             && !(0.0..=1.0).contains(&r)
         {
@@ -492,6 +513,26 @@ mod tests {
                 Scenario::parse(&format!("name = {name:?}\n[world]\npreset = \"park\"\n"), f).unwrap_err().to_string();
             assert!(e.contains("line 1: name"), "{name}: {e}");
         }
+        // Settings that a run would replace or reject later are refused when read.
+        let base = "name = \"x\"\n[world]\npreset = \"park\"\n";
+        for (table, expect) in [
+            ("[appearance]\ntraining_images = 0\n", "line 5: appearance.training_images"),
+            ("[appearance]\ntraining_preset = \"jungle\"\n", "line 5: appearance.training_preset"),
+            ("[appearance]\nmax_patches_per_class = 0\n", "line 5: appearance.max_patches_per_class"),
+            ("[pipeline.sensor]\nmount_x = 1.0\n", "line 5: pipeline.sensor.mount_x"),
+        ] {
+            let e = Scenario::parse(&format!("{base}{table}"), f).unwrap_err().to_string();
+            assert!(e.contains(expect), "{table}: {e}");
+        }
+        // The filter's mounting may repeat the laser's.
+        Scenario::parse(
+            &format!("{base}[sim.laser]\nmount_xyz_m = [0.3, 0.0, 0.4]\n[pipeline.sensor]\nmount_x = 0.3\n"),
+            f,
+        )
+        .unwrap();
+        let yawed = Scenario::parse(&format!("{base}[sim.laser]\nmount_yaw_deg = 10.0\n"), f).unwrap();
+        let e = crate::run::pipeline_config(&yawed, None).unwrap_err().to_string();
+        assert!(e.contains("sim.laser.mount_yaw_deg = 10"), "{e}");
         let e = Scenario::load("no_such_scenario").unwrap_err().to_string();
         assert!(e.contains("paper_park"), "{e}");
     }

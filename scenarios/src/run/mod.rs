@@ -153,7 +153,17 @@ pub fn pipeline_config(scenario: &Scenario, method: Option<AssociationMethod>) -
     if let Some(m) = method {
         config.method = m;
     }
-    // The laser's mounting is known to the robot: the observation model uses it.
+    // The laser's mounting is known to the robot: the observation model uses it. It has
+    // no yaw term, so a laser turned on its mount would be read wrongly.
+    if scenario.sim.laser.mount_yaw_deg != 0.0 {
+        return Err(RunError::Method {
+            method: config.method.name().into(),
+            message: format!(
+                "sim.laser.mount_yaw_deg = {}: the pipeline's range-bearing model has no mounting yaw, so runs need a forward-facing laser (0)",
+                scenario.sim.laser.mount_yaw_deg
+            ),
+        });
+    }
     config.sensor.mount_x = scenario.sim.laser.mount_xyz_m[0];
     config.sensor.mount_y = scenario.sim.laser.mount_xyz_m[1];
     Ok(config)

@@ -149,7 +149,7 @@ pub(super) const KEYS: &[(&str, &str)] = &[
     (
         "sim.laser.mount_yaw_deg",
         "Yaw of the laser on the robot (deg, positive to the left). The pipeline's observation model has no yaw \
-         term: it assumes 0.",
+         term: `objslam run` refuses any other value than 0.",
     ),
     // [sim.odometry]
     ("sim.odometry.rate_hz", "Odometry messages per second (Hz); positive, at most physics_rate_hz."),
@@ -429,12 +429,12 @@ pub(super) const KEYS: &[(&str, &str)] = &[
     (
         "pipeline.sensor.mount_x",
         "Sensor position ahead of the robot's origin (m); finite. A scenario's runs take it from \
-         sim.laser.mount_xyz_m instead.",
+         sim.laser.mount_xyz_m: leave it out (another value is an error).",
     ),
     (
         "pipeline.sensor.mount_y",
         "Sensor position left of the robot's origin (m); finite. A scenario's runs take it from \
-         sim.laser.mount_xyz_m instead.",
+         sim.laser.mount_xyz_m: leave it out (another value is an error).",
     ),
     ("pipeline.sensor.range_sigma_m", "Standard deviation of an observation's range (m); positive."),
     ("pipeline.sensor.range_sigma_per_m", "Added to range_sigma_m per metre of range (m/m); 0 or more."),
@@ -573,19 +573,20 @@ pub(super) const KEYS: &[(&str, &str)] = &[
         "A model file from objslam train, relative to the scenario file. Absent: a model is trained from \
          generated images as the keys below say, and cached.",
     ),
-    ("appearance.training_preset", "World generator preset of the training images."),
+    ("appearance.training_preset", "World generator preset of the training images: \"park\"."),
     ("appearance.training_world_seed", "World seed of the training images."),
-    ("appearance.training_images", "Number of training images rendered."),
+    ("appearance.training_images", "Number of training images rendered; 1 to 100000."),
     ("appearance.training_seed", "Seed of the training images' views and of the training's patch sampling."),
     (
         "appearance.max_patches_per_class",
-        "Patches per class (object, background) given to the mixture fit: a seeded random subsample.",
+        "Patches per class (object, background) given to the mixture fit: a seeded random subsample; 1 to \
+         10000000.",
     ),
     (
         "appearance.max_components",
-        "Most mixture components of each class's appearance density (the search grows up to it).",
+        "Most mixture components of each class's appearance density (the search grows up to it); 1 to 100.",
     ),
-    ("appearance.pca_dims", "PCA dimension d of the patch features."),
+    ("appearance.pca_dims", "PCA dimension d of the patch features; 1 to 1000."),
     // [pass]
     ("pass.max_wrong_associations", "Most observations associated with a landmark of another true object."),
     ("pass.max_false_landmarks", "Most landmarks on posts, palms, people, walls or nothing."),
