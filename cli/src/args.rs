@@ -30,7 +30,7 @@ pub(crate) enum Command {
         /// A scenario file or built-in name (paper_park, posts_near_trees, crowd,
         /// long_loop, laser_only, calibration, city_park).
         scenario: Option<String>,
-        #[arg(long)]
+        #[arg(long, allow_negative_numbers = true)]
         seed: Option<u64>,
         /// Association method (default: the scenario's, combined unless it says otherwise).
         #[arg(long, value_enum)]
@@ -57,15 +57,15 @@ pub(crate) enum Command {
         /// ... or a generator preset (its world seed is --seed).
         #[arg(long)]
         preset: Option<String>,
-        #[arg(long, default_value_t = 100)]
+        #[arg(long, default_value_t = 100, allow_negative_numbers = true)]
         images: usize,
-        #[arg(long, default_value_t = 1)]
+        #[arg(long, default_value_t = 1, allow_negative_numbers = true)]
         seed: u64,
         /// Comma-separated classes labelled positive.
         #[arg(long, default_value = "tree")]
         classes: String,
         /// Patch side L in pixels.
-        #[arg(long, default_value_t = 9)]
+        #[arg(long, default_value_t = 9, allow_negative_numbers = true)]
         patch_size: u32,
         #[arg(long)]
         out: PathBuf,
@@ -84,10 +84,10 @@ pub(crate) enum Command {
         #[arg(long)]
         scenario: Option<String>,
         /// World and simulator seed (default: 1, or the scenario's seed).
-        #[arg(long)]
+        #[arg(long, allow_negative_numbers = true)]
         seed: Option<u64>,
         /// Stop after this many simulated seconds (default: when the route is done).
-        #[arg(long)]
+        #[arg(long, allow_negative_numbers = true)]
         duration: Option<f64>,
         /// TOML file of simulator settings (see `sim::SimConfig`).
         #[arg(long, conflicts_with = "scenario")]
@@ -119,10 +119,10 @@ pub(crate) enum Command {
         /// A scenario file or built-in name (default: calibration).
         scenario: Option<String>,
         /// Number of board poses (default: the scenario's session).
-        #[arg(long)]
+        #[arg(long, allow_negative_numbers = true)]
         poses: Option<usize>,
         /// Session seed (default: the scenario's seed).
-        #[arg(long)]
+        #[arg(long, allow_negative_numbers = true)]
         seed: Option<u64>,
         #[arg(long, default_value = "calibration.json")]
         out: PathBuf,
@@ -141,18 +141,18 @@ pub(crate) enum Command {
         #[arg(long)]
         export_features: Option<PathBuf>,
         /// PCA dimension d.
-        #[arg(long, default_value_t = 20)]
+        #[arg(long, default_value_t = 20, allow_negative_numbers = true)]
         pca_dims: usize,
         /// Most mixture components per class.
-        #[arg(long, default_value_t = 20)]
+        #[arg(long, default_value_t = 20, allow_negative_numbers = true)]
         max_components: usize,
         /// Hold out every N-th image for scoring (0: none).
-        #[arg(long, default_value_t = 5)]
+        #[arg(long, default_value_t = 5, allow_negative_numbers = true)]
         heldout_every: usize,
         /// A patch is object when R = w_obj p_obj / (w_obj p_obj + w_bg p_bg) exceeds this.
-        #[arg(long, default_value_t = 0.5)]
+        #[arg(long, default_value_t = 0.5, allow_negative_numbers = true)]
         threshold: f64,
-        #[arg(long, default_value_t = 1)]
+        #[arg(long, default_value_t = 1, allow_negative_numbers = true)]
         seed: u64,
     },
     /// Classify an image's patches with a model and draw the object patches over it.
@@ -174,7 +174,7 @@ pub(crate) enum Command {
         #[arg(long)]
         model: Option<PathBuf>,
         /// How many to list.
-        #[arg(long, default_value_t = 5)]
+        #[arg(long, default_value_t = 5, allow_negative_numbers = true)]
         top: usize,
     },
     /// Variational Bayesian Gaussian mixtures on any numeric CSV.
@@ -244,7 +244,7 @@ pub(crate) enum GmmCommand {
     /// fixed K).
     Fit {
         data: PathBuf,
-        #[arg(long, default_value_t = 10)]
+        #[arg(long, default_value_t = 10, allow_negative_numbers = true)]
         max_components: usize,
         /// Use exactly --max-components components instead of searching.
         #[arg(long)]
@@ -255,7 +255,7 @@ pub(crate) enum GmmCommand {
         #[arg(long, value_enum, default_value_t = SearchArg::Prune)]
         search: SearchArg,
         /// Seed of the k-means++ start (`--fixed-k` and `--search prune`).
-        #[arg(long, default_value_t = 0)]
+        #[arg(long, default_value_t = 0, allow_negative_numbers = true)]
         seed: u64,
         #[arg(long)]
         out: PathBuf,
@@ -274,7 +274,7 @@ pub(crate) struct MontecarloArgs {
     #[arg(required = true)]
     pub(crate) scenario: Option<String>,
     /// Runs per method and parameter value.
-    #[arg(long, default_value_t = 100)]
+    #[arg(long, default_value_t = 100, allow_negative_numbers = true)]
     pub(crate) runs: usize,
     /// Comma-separated association methods.
     #[arg(long, value_enum, value_delimiter = ',', default_value = "combined,nn,jcbb,appearance")]
@@ -284,19 +284,19 @@ pub(crate) struct MontecarloArgs {
     #[arg(long)]
     pub(crate) vary: Vec<String>,
     /// Base seed: run r gets a seed derived from (seed, r).
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, allow_negative_numbers = true)]
     pub(crate) seed: u64,
     /// Run only slice K of N (0-based); defaults to the Slurm array / Kubernetes index
     /// from the environment when present.
     #[arg(long)]
     pub(crate) shard: Option<String>,
     /// Number of shards when the index comes from JOB_COMPLETION_INDEX.
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     pub(crate) shard_count: Option<usize>,
     #[arg(long)]
     pub(crate) out: Option<PathBuf>,
     /// Runs at a time, each in its own worker process (default: one per core).
-    #[arg(long, global = true)]
+    #[arg(long, global = true, allow_negative_numbers = true)]
     pub(crate) jobs: Option<usize>,
     /// Run on threads of this process instead of worker processes (slower: runs in one
     /// process share the software renderer's locks; no --run-timeout).
@@ -321,9 +321,9 @@ pub(crate) enum MontecarloCommand {
     /// distance (DIR/post_distance). Resumable and shardable like any study.
     Study {
         /// Runs per method and parameter value.
-        #[arg(long, default_value_t = 10)]
+        #[arg(long, default_value_t = 10, allow_negative_numbers = true)]
         runs: usize,
-        #[arg(long, default_value_t = 1)]
+        #[arg(long, default_value_t = 1, allow_negative_numbers = true)]
         seed: u64,
         /// Run only slice K of N of each sub-study (0-based).
         #[arg(long)]
@@ -340,10 +340,10 @@ pub(crate) enum MontecarloCommand {
         #[arg(long, value_enum, default_value_t = SplitArg::Test)]
         split: SplitArg,
         /// Worlds to draw (each run with every training seed).
-        #[arg(long, default_value_t = 10)]
+        #[arg(long, default_value_t = 10, allow_negative_numbers = true)]
         runs: usize,
         /// Base seed of the runs' simulations.
-        #[arg(long, default_value_t = 1)]
+        #[arg(long, default_value_t = 1, allow_negative_numbers = true)]
         seed: u64,
         /// Run only slice K of N of each of the two studies (0-based).
         #[arg(long)]
@@ -366,7 +366,7 @@ pub(crate) enum WorldCommand {
     Generate {
         #[arg(long, default_value = "park")]
         preset: String,
-        #[arg(long, default_value_t = 1)]
+        #[arg(long, default_value_t = 1, allow_negative_numbers = true)]
         seed: u64,
         /// TOML file of generator parameters (see `worlds::generate::ParkParams`).
         #[arg(long)]

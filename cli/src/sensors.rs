@@ -49,8 +49,9 @@ pub(crate) fn record(
             )
         }
     };
-    if duration.is_some() {
-        config.max_duration_s = duration;
+    if let Some(d) = duration {
+        anyhow::ensure!(d > 0.0 && d.is_finite(), "--duration must be a positive number of seconds, not {d}");
+        config.max_duration_s = Some(d);
     }
     let bar = progress::simulated("recording");
     let show = |t: f64, total: f64| progress::set_simulated(&bar, t, total);
