@@ -382,6 +382,27 @@ pub(crate) enum WorldCommand {
         #[arg(long)]
         out: PathBuf,
     },
+    /// Add a glTF/.glb mesh to a world as an object: the camera renders the mesh, and a
+    /// shape fitted to it (trunk or post as wide as its lowest metre, as tall as the mesh)
+    /// is the collider the laser sees. The mesh stands on its origin, z up, in metres.
+    Import {
+        mesh: PathBuf,
+        /// The world file to add it to.
+        #[arg(long)]
+        world: PathBuf,
+        /// tree, palm, post or wall.
+        #[arg(long, default_value = "tree")]
+        class: String,
+        /// Where it stands: X,Y in metres.
+        #[arg(long, allow_negative_numbers = true)]
+        at: String,
+        /// Its heading (deg, counter-clockwise).
+        #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+        yaw_deg: f64,
+        /// The new world file (may be --world itself).
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// Draw a top view of a world, coloured by class, with routes and a scale bar.
     Plot {
         file: PathBuf,

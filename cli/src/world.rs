@@ -52,6 +52,9 @@ pub(crate) fn world(cmd: WorldCommand) -> Result<()> {
             worlds::gltf_io::export_glb_file(&w, &out)?;
             eprintln!("wrote {}", out.display());
         }
+        WorldCommand::Import { mesh, world, class, at, yaw_deg, out } => {
+            import(&mesh, &world, &class, &at, yaw_deg, &out)?;
+        }
         WorldCommand::Plot { file, out } => {
             let w = worlds::load(&file)?;
             let title = format!("{} (seed {}): {:.0} m²", w.name, w.seed, w.ground.area_m2());
@@ -73,4 +76,40 @@ pub(crate) fn load_world(input: &str, seed: u64) -> Result<worlds::World> {
         return Ok(worlds::generate::preset(input, None, seed)?);
     }
     Ok(worlds::load(path)?)
+}
+
+/// `objslam world import`: the world with the mesh added, checked as any world file is
+/// before it is written.
+fn import(
+    mesh: &std::path::Path,
+    world_file: &std::path::Path,
+    class: &str,
+    at: &str,
+    yaw_deg: f64,
+    out: &std::path::Path,
+) -> Result<()> {
+    let class = worlds::ObjectClass::from_name(class)
+        .ok_or_else(|| anyhow::anyhow!("unknown class {class:?}; use tree, palm, post or wall"))?;
+    let xy: Vec<f64> = at.split(',').filter_map(|v| v.trim().parse::<f64>().ok()).collect();
+    let &[x, y] = xy.as_slice() else {
+        anyhow::bail!("--at takes X,Y in metres, got {at:?}");
+    };
+    anyhow::ensure!(x.is_finite() && y.is_finite() && yaw_deg.is_finite(), "--at and --yaw-deg must be finite numbers");
+    let mut w = worlds::load(world_file)?;
+    let triangles = worlds::gltf_io::import_mesh(mesh)
+        .map_err(|e| anyhow::anyhow!("{}: not a readable glTF/.glb mesh: {e}", mesh.display()))?;
+    // The world file names the mesh relative to itself where it can.
+    let out_dir = std::fs::canonicalize(out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(".".as_ref()))
+        .with_context(|| format!("{}: its directory does not exist", out.display()))?;
+    let mesh_abs = std::fs::canonicalize(mesh).with_context(|| format!("{}: cannot read", mesh.display()))?;
+    let named = mesh_abs.strip_prefix(&out_dir).unwrap_or(&mesh_abs).to_string_lossy().into_owned();
+    let pose = worlds::Pose2 { x, y, yaw_deg };
+    let id = worlds::import::add_object(&mut w, triangles, &named, class, pose)
+        .map_err(|e| anyhow::anyhow!("{}: {e}", mesh.display()))?;
+    let text = w.to_toml();
+    worlds::parse(&text, out).context("the world with the mesh added is not valid; nothing was written")?;
+    std::fs::write(out, text).with_context(|| format!("{}: cannot write", out.display()))?;
+    let added = w.objects.last().expect("just added");
+    eprintln!("added {} {id} at ({x}, {y}) with {:?} -> {}", class.name(), added.shape, out.display());
+    Ok(())
 }

@@ -333,6 +333,7 @@ pub fn plan_stations(config: &SessionConfig, sim: &SimConfig, seed: u64) -> Vec<
                         texture_seed: k as u64,
                     },
                     mesh: None,
+                    mesh_data: Default::default(),
                 }
             });
             Station { index: k, robot, board, distractor, tilt_deg: tilt, turn_deg: turn }

@@ -284,3 +284,82 @@ fn a_column_selector_renders_each_frame_where_the_scan_of_its_instant_says() {
     }
     assert!(events > 40 && s.camera_error().is_some_and(|e| e.contains("600..700")), "{:?}", s.camera_error());
 }
+
+/// A world's `mesh` file is what the camera renders for its object, in the object's class;
+/// the shape stays the collider, so the laser sees the same.
+#[test]
+fn an_objects_mesh_file_is_what_the_camera_renders_and_its_shape_what_the_laser_sees() {
+    use worlds::*;
+    let dir = std::env::temp_dir().join(format!("objslam-mesh-world-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let look = |material| Appearance { material, colour: [0.4, 0.3, 0.2], texture_seed: 1 };
+    let tree = StaticObject {
+        id: 7,
+        class: ObjectClass::Tree,
+        pose: Pose2 { x: 4.0, y: 0.0, yaw_deg: 0.0 },
+        shape: Shape::Trunk { radius_m: 0.2, height_m: 2.5, canopy_radius_m: 1.5, canopy_height_m: 2.0 },
+        appearance: look(Material::Bark),
+        mesh: None,
+        mesh_data: Default::default(),
+    };
+    let world = World {
+        format_version: WORLD_FORMAT_VERSION,
+        name: "mesh".into(),
+        seed: 0,
+        ground: Ground { min_m: [-20.0, -20.0], max_m: [20.0, 20.0], appearance: look(Material::Grass) },
+        objects: vec![tree.clone()],
+        people: vec![],
+        robot: RobotSpec {
+            start: Pose2 { x: 0.0, y: 0.0, yaw_deg: 0.0 },
+            route: Route { waypoints: vec![[0.0, 0.0], [0.0, 3.0]], looping: false },
+            laps: 1,
+        },
+    };
+    // The user's mesh: a 1.6 m wide, 1 m high box in the object's frame.
+    let block = StaticObject {
+        shape: Shape::Wall { length_m: 1.6, thickness_m: 1.6, height_m: 1.0 },
+        pose: Pose2 { x: 0.0, y: 0.0, yaw_deg: 0.0 },
+        ..tree.clone()
+    };
+    std::fs::write(dir.join("block.glb"), gltf_io::parts_to_glb(&mesh::object_parts(&block))).unwrap();
+    let mut with_mesh = world.clone();
+    with_mesh.objects[0].mesh = Some("block.glb".into());
+    save(&with_mesh, &dir.join("world.toml")).unwrap();
+    let with_mesh = load(&dir.join("world.toml")).unwrap();
+    assert_eq!(with_mesh.objects[0].mesh.as_deref(), Some("block.glb"));
+
+    let mut config = SimConfig { max_duration_s: Some(0.3), ..Default::default() };
+    config.camera.width = 320;
+    config.camera.height = 240;
+    // The first frame's pixels of the tree, by class, and the first scan's nearest return.
+    let observe = |w: &World| {
+        let mut s = Simulation::new(w, &config, 3).unwrap();
+        let (mut classes, mut nearest) = (std::collections::BTreeMap::new(), None);
+        while let Some(e) = s.next_event() {
+            match e {
+                SensorEvent::Camera { frame, .. } if classes.is_empty() => {
+                    for (i, &id) in frame.image.instance.iter().enumerate() {
+                        if id == 7 {
+                            *classes.entry(frame.image.class[i]).or_insert(0usize) += 1;
+                        }
+                    }
+                }
+                SensorEvent::Laser { beams, .. } if nearest.is_none() => {
+                    nearest = beams.true_ranges.iter().copied().filter(|r| r.is_finite()).reduce(f64::min);
+                }
+                _ => {}
+            }
+        }
+        (classes, nearest.unwrap())
+    };
+    let (procedural, laser) = observe(&world);
+    let (user, laser_with_mesh) = observe(&with_mesh);
+    let (tree_class, foliage) = (ObjectClass::Tree.id(), ObjectClass::Foliage.id());
+    assert!(procedural.get(&foliage).is_some_and(|n| *n > 0), "{procedural:?}");
+    assert_eq!(user.keys().copied().collect::<Vec<_>>(), [tree_class], "{user:?}");
+    let (a, b) = (procedural.values().sum::<usize>() as f64, user[&tree_class] as f64);
+    assert!((a - b).abs() > 0.2 * a.max(b), "the mesh changed the tree's pixels: {a} and {b}");
+    assert_eq!(laser, laser_with_mesh, "the collider is the shape either way");
+    let _ = std::fs::remove_dir_all(&dir);
+}

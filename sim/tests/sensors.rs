@@ -39,6 +39,7 @@ fn tree(id: u16, x: f64, y: f64, r: f64) -> StaticObject {
         shape: Shape::Trunk { radius_m: r, height_m: 5.0, canopy_radius_m: 1.0, canopy_height_m: 1.4 },
         appearance: appearance(Material::Bark),
         mesh: None,
+        mesh_data: Default::default(),
     }
 }
 

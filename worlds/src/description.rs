@@ -134,10 +134,36 @@ pub struct StaticObject {
     pub pose: Pose2,
     pub shape: Shape,
     pub appearance: Appearance,
-    /// Optional user glTF/.glb mesh replacing the procedural one for rendering; the
-    /// shape still gives the collider. Relative paths are relative to the world file.
+    /// Optional user glTF/.glb mesh replacing the procedural one for rendering, in the
+    /// object's frame (z up, origin on the ground at the pose), all of it in the object's
+    /// class; the shape still gives the collider, so the laser sees the shape. Relative
+    /// paths are relative to the world file.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub mesh: Option<String>,
+    /// The `mesh` file's triangles, read when the world is loaded ([`crate::parse`]): what
+    /// the camera renders for this object.
+    #[serde(skip)]
+    pub mesh_data: LoadedMesh,
+}
+
+/// A user mesh as read from a world's `mesh` file. Worlds compare and print by their
+/// description: two objects naming the same file are equal whatever was read.
+#[derive(Clone, Default)]
+pub struct LoadedMesh(pub Option<std::sync::Arc<crate::mesh::TriMesh>>);
+
+impl PartialEq for LoadedMesh {
+    fn eq(&self, _: &Self) -> bool {
+        true
+    }
+}
+
+impl std::fmt::Debug for LoadedMesh {
+    fn fmt(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        match &self.0 {
+            Some(m) => write!(f, "LoadedMesh({} triangles)", m.indices.len() / 3),
+            None => write!(f, "LoadedMesh(none)"),
+        }
+    }
 }
 
 impl StaticObject {
@@ -151,6 +177,7 @@ impl StaticObject {
             shape,
             appearance: Appearance { material: Material::Checker, colour: [0.95, 0.95, 0.95], texture_seed: 0 },
             mesh: None,
+            mesh_data: Default::default(),
         }
     }
 }

@@ -234,6 +234,7 @@ pub fn park(params: &ParkParams, seed: u64) -> Result<World, WorldError> {
                 texture_seed: rng.random_range(0..u32::MAX as u64),
             },
             mesh: None,
+            mesh_data: Default::default(),
         });
         next_id += 1;
     }
@@ -287,7 +288,15 @@ pub fn park(params: &ParkParams, seed: u64) -> Result<World, WorldError> {
             {
                 continue;
             }
-            objects.push(StaticObject { id: next_id, class, pose, shape, appearance, mesh: None });
+            objects.push(StaticObject {
+                id: next_id,
+                class,
+                pose,
+                shape,
+                appearance,
+                mesh: None,
+                mesh_data: Default::default(),
+            });
             next_id += 1;
             return Ok(());
         }
@@ -348,7 +357,15 @@ pub fn park(params: &ParkParams, seed: u64) -> Result<World, WorldError> {
                 colour: colour(&mut rng, [0.16, 0.13, 0.10], [0.34, 0.28, 0.22]),
                 texture_seed: rng.random_range(0..u32::MAX as u64),
             };
-            objects.push(StaticObject { id: next_id, class: ObjectClass::Post, pose, shape, appearance, mesh: None });
+            objects.push(StaticObject {
+                id: next_id,
+                class: ObjectClass::Post,
+                pose,
+                shape,
+                appearance,
+                mesh: None,
+                mesh_data: Default::default(),
+            });
             next_id += 1;
             placed = true;
             break;

@@ -17,6 +17,7 @@ pub mod description;
 pub mod error;
 pub mod generate;
 pub mod gltf_io;
+pub mod import;
 pub mod mesh;
 pub mod texture;
 pub mod validate;
@@ -26,14 +27,20 @@ use std::path::Path;
 pub use description::*;
 pub use error::{Problem, WorldError};
 
-/// Parses and validates world TOML text; `file` names the source in errors and resolves
-/// relative mesh paths.
+/// Parses and validates world TOML text, and reads the objects' `mesh` files; `file` names
+/// the source in errors and resolves relative mesh paths.
 pub fn parse(text: &str, file: &Path) -> Result<World, WorldError> {
-    let world: World = toml::from_str(text)
+    let mut world: World = toml::from_str(text)
         .map_err(|e| WorldError::Parse { file: file.to_path_buf(), message: e.to_string().trim_end().to_string() })?;
     let base = file.parent().unwrap_or(Path::new("."));
     let mut problems = validate::validate(&world, base);
     if problems.is_empty() {
+        for o in &mut world.objects {
+            if let Some(mesh) = &o.mesh {
+                let triangles = gltf_io::import_object_mesh(file, mesh)?;
+                o.mesh_data = LoadedMesh(Some(std::sync::Arc::new(triangles)));
+            }
+        }
         Ok(world)
     } else {
         for p in &mut problems {

@@ -195,6 +195,17 @@ const TRUNK_SEGMENTS: usize = 48;
 
 /// The procedural mesh parts of a static object, in its model frame.
 pub fn object_parts(o: &StaticObject) -> Vec<MeshPart> {
+    // A user mesh replaces the procedural parts whole, in the object's class (a tree's
+    // leaves are then labelled tree too).
+    if let Some(m) = &o.mesh_data.0 {
+        return vec![MeshPart {
+            name: format!("{}_{}_mesh", o.class.name(), o.id),
+            mesh: (**m).clone(),
+            appearance: o.appearance.clone(),
+            class: o.class,
+            instance_id: o.id,
+        }];
+    }
     // Canopies and crowns keep their object's instance id but take the foliage class, so
     // class images label the trunk the laser sees (the paper's object) apart from leaves.
     let part = |name: &str, mesh: TriMesh, appearance: Appearance| MeshPart {
@@ -441,6 +452,7 @@ mod tests {
             },
             appearance: Appearance { material: Material::Checker, colour: [0.9; 3], texture_seed: 0 },
             mesh: None,
+            mesh_data: Default::default(),
         }
     }
 

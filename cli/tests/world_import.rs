@@ -1,0 +1,75 @@
+//! `objslam world import`: a user's mesh joins a world as an object the camera renders,
+//! with a collider fitted to it; bad meshes and places are errors naming them.
+
+use std::process::Command;
+
+fn objslam(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_objslam")).args(args).output().expect("objslam runs")
+}
+
+#[test]
+fn a_mesh_joins_a_world_with_a_collider_fitted_to_it() {
+    let dir = std::env::temp_dir().join(format!("objslam-world-import-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = |name: &str| dir.join(name).to_string_lossy().into_owned();
+    // The park of seed 3, and a post 0.3 m wide and 2 m tall as the user's mesh.
+    let world = worlds::generate::preset("park", None, 3).unwrap();
+    worlds::save(&world, &dir.join("park.toml")).unwrap();
+    let post = worlds::StaticObject {
+        id: 1,
+        class: worlds::ObjectClass::Post,
+        pose: worlds::Pose2 { x: 0.0, y: 0.0, yaw_deg: 0.0 },
+        shape: worlds::Shape::Post { radius_m: 0.3, height_m: 2.0 },
+        appearance: worlds::import::default_appearance(worlds::ObjectClass::Post),
+        mesh: None,
+        mesh_data: Default::default(),
+    };
+    std::fs::write(dir.join("post.glb"), worlds::gltf_io::parts_to_glb(&worlds::mesh::object_parts(&post))).unwrap();
+    // A place clear of the park's objects: its robot's start, moved 3 m to the side.
+    let s = world.robot.start;
+    let (x, y) = (s.x - 3.0 * s.yaw_rad().sin(), s.y + 3.0 * s.yaw_rad().cos());
+    let at = format!("{x},{y}");
+    let out = objslam(&[
+        "world",
+        "import",
+        &path("post.glb"),
+        "--world",
+        &path("park.toml"),
+        "--class",
+        "post",
+        "--at",
+        &at,
+        "--out",
+        &path("with_post.toml"),
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let imported = worlds::load(&dir.join("with_post.toml")).unwrap();
+    assert_eq!(imported.objects.len(), world.objects.len() + 1);
+    let added = imported.objects.last().unwrap();
+    assert_eq!(added.mesh.as_deref(), Some("post.glb"), "named relative to the world file");
+    assert!(added.mesh_data.0.is_some(), "loading reads the mesh");
+    let worlds::Shape::Post { radius_m, height_m } = added.shape else { panic!("{:?}", added.shape) };
+    assert!((radius_m - 0.3).abs() < 0.01 && (height_m - 2.0).abs() < 1e-6, "{:?}", added.shape);
+    assert!(imported.objects[..world.objects.len()].iter().zip(&world.objects).all(|(a, b)| a == b));
+
+    // Refusals name the problem, and write nothing.
+    for (args, expect) in [
+        (["--class", "person", "--at", "0,0"].map(String::from), "cannot import a mesh as a person"),
+        (["--class", "post", "--at", "3"].map(String::from), "--at takes X,Y"),
+        (
+            ["--class", "post", "--at", &format!("{},{}", s.x, s.y)].map(String::from),
+            "robot starts inside or touching object",
+        ),
+    ] {
+        let (mesh, base, refused) = (path("post.glb"), path("park.toml"), path("refused.toml"));
+        let mut call = vec!["world", "import", &mesh, "--world", &base];
+        call.extend(args.iter().map(String::as_str));
+        call.extend(["--out", &refused]);
+        let out = objslam(&call);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && err.contains(expect), "{args:?}: {err}");
+        assert!(!dir.join("refused.toml").exists());
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
