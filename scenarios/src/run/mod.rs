@@ -23,7 +23,6 @@ use slam::association::AssociationMethod;
 use slam::classifier::AppearanceModel;
 use slam::pipeline::{Appearance, Pipeline, PipelineConfig};
 use slam::segmentation::{CameraGeometry, merge_spans};
-use worlds::ObjectClass;
 
 use crate::scenario::{Scenario, ScenarioError};
 use crate::score::scorer::{MapLandmark, RecallBasis, RunScorer, VisibilitySettings};
@@ -316,19 +315,7 @@ pub fn run(
         merged_landmarks: log.merged,
         relinearisations: log.solves.iter().filter(|(_, r)| r.is_ok()).count(),
         relinearisation_failures: log.solves.iter().filter(|(_, r)| r.is_err()).count(),
-        retracted_landmarks: RetractionCounts {
-            total: log.retractions.len(),
-            trees: log
-                .retractions
-                .iter()
-                .filter(|r| {
-                    scored
-                        .landmark_objects
-                        .get(&r.landmark)
-                        .is_some_and(|o| world.class_of(*o) == Some(ObjectClass::Tree))
-                })
-                .count(),
-        },
+        retracted_landmarks: RetractionCounts { total: scored.retracted, trees: scored.retracted_trees },
         false_landmarks: scored.false_landmarks,
         segmentation: scored
             .patches

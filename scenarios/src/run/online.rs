@@ -7,7 +7,7 @@ use std::collections::BTreeMap;
 use sim::SensorEvent;
 use slam::association::AssociationDecision;
 use slam::ekf::smoother::{Relinearisation, SmootherError};
-use slam::pipeline::{LandmarkRetraction, Pipeline};
+use slam::pipeline::Pipeline;
 
 use super::outputs::{association_line, segmentation_line};
 use super::{RunError, slam_scan};
@@ -36,7 +36,6 @@ pub(super) struct RunLog {
     /// Each association decision with its observation's true object (outputs only).
     pub decisions: Vec<(AssociationDecision, u16)>,
     pub solves: Vec<Solve>,
-    pub retractions: Vec<LandmarkRetraction>,
     /// Landmarks fused into others.
     pub merged: usize,
     /// Estimated and true paths (t, x, y, theta) at each odometry message.
@@ -135,7 +134,9 @@ impl<'w> RunLoop<'w> {
             }
         }
         self.log.solves.extend(report.relinearisations.drain(..).map(|r| (s.t, r)));
-        self.log.retractions.append(&mut report.retractions);
+        for r in &report.retractions {
+            self.scorer.on_retraction(r.landmark);
+        }
         self.log.merged += report.merges.len();
         for rec in &report.segmentations {
             let frame = self.last_frame.as_ref().map(|f| ClassImage { t: f.t, width: f.width, class: &f.class });

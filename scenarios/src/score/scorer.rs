@@ -87,6 +87,9 @@ pub struct GroundTruthScore {
     pub anees: f64,
     /// The object each landmark stands on (0: none), from its observations.
     pub landmark_objects: HashMap<u32, u16>,
+    /// Landmarks retracted, and how many of them were trees.
+    pub retracted: usize,
+    pub retracted_trees: usize,
     /// Patch decisions against the masks (when scoring segmentation).
     pub patches: Option<slam::classifier::PatchScores>,
 }
@@ -161,6 +164,8 @@ pub struct RunScorer<'w> {
     /// Camera methods: their segmentation against the masks (see [`RunScorer::scoring_segmentation`]).
     segmentation: Option<SegmentationScorer>,
     frames_needed: usize,
+    /// Landmarks the system took off its map (see [`RunScorer::on_retraction`]).
+    retracted: Vec<u32>,
 }
 
 impl<'w> RunScorer<'w> {
@@ -193,6 +198,7 @@ impl<'w> RunScorer<'w> {
             nees_n: 0,
             segmentation: None,
             frames_needed: settings.frames_needed,
+            retracted: Vec::new(),
         }
     }
 
@@ -270,6 +276,12 @@ impl<'w> RunScorer<'w> {
         self.visibility.on_scan(scan, beams, frame);
     }
 
+    /// A landmark the system took off its map (a retraction): scored by what its
+    /// observations truly were, so retracting a tree shows as `retracted_trees`.
+    pub fn on_retraction(&mut self, landmark: u32) {
+        self.retracted.push(landmark);
+    }
+
     /// Pixels the tree count read in image columns the camera did not render (must be 0).
     pub fn unrendered_reads(&self) -> usize {
         self.visibility.unrendered_reads()
@@ -318,6 +330,12 @@ impl<'w> RunScorer<'w> {
             duplicate_landmarks,
             false_landmarks,
             anees: if self.nees_n > 0 { self.nees_sum / self.nees_n as f64 } else { f64::NAN },
+            retracted: self.retracted.len(),
+            retracted_trees: self
+                .retracted
+                .iter()
+                .filter(|id| landmark_objects.get(id).is_some_and(|o| self.tree_ids.contains(o)))
+                .count(),
             landmark_objects,
             patches: self.segmentation.as_ref().map(|s| s.patches()),
         }
@@ -362,6 +380,56 @@ mod tests {
         let stretched: Vec<[f64; 3]> = truth.iter().map(|p| [1.1 * p[0], 0.0, 0.0]).collect();
         assert!((rpe_rmse(&times, &stretched, &truth, 1.0) - 0.1).abs() < 1e-9);
         assert!(rpe_rmse(&times[..5], &stretched[..5], &truth[..5], 1.0).is_nan(), "no pair 1 s apart");
+    }
+
+    /// A park of two trees and a post; the system sees them in one scan, maps a tree twice
+    /// and the post once, then retracts the post and one of the tree's landmarks.
+    #[test]
+    fn a_run_is_scored_from_its_poses_observations_map_and_retractions() {
+        let mut world = worlds::generate::preset("park", None, 3).unwrap();
+        world.objects.retain(|o| o.class != ObjectClass::Wall);
+        world.people.clear();
+        let ids = |class| world.objects.iter().filter(|o| o.class == class).map(|o| o.id).collect::<Vec<_>>();
+        let (trees, posts) = (ids(ObjectClass::Tree), ids(ObjectClass::Post));
+        let (a, b, post) = (trees[0], trees[1], posts[0]);
+        let settings = VisibilitySettings { min_beams: 3, max_range_m: 20.0, frames_needed: 1 };
+        let mut scorer = RunScorer::new(&world, None, settings, RecallBasis::LaserSeen);
+        // Poses 0.1 m off in x: ATE 0.1 m.
+        for k in 0..10 {
+            let t = k as f64;
+            scorer.on_pose(t, [t + 0.1, 0.0, 0.0], None, [t, 0.0, 0.0]);
+        }
+        // Beams 0-3 on tree a, 4-7 on tree b, 8-11 on the post, all 5 m away.
+        let hit_ids: Vec<u16> = [a; 4].into_iter().chain([b; 4]).chain([post; 4]).collect();
+        let scan = sim::LaserScan {
+            t: 1.0,
+            angle_min: -0.1,
+            angle_increment: 0.01,
+            time_increment: 0.0,
+            scan_time: 0.1,
+            range_min: 0.1,
+            range_max: 30.0,
+            ranges: vec![5.0; 12],
+        };
+        let beams = sim::LaserTruth { hit_ids, true_ranges: vec![5.0; 12] };
+        // Landmark 1 and 2 on tree a (a duplicate), 3 on tree b, 4 on the post.
+        let obs = |first_beam, landmark| ScoredObservation {
+            first_beam,
+            last_beam: first_beam + 1,
+            landmark: Some(landmark),
+        };
+        scorer.on_scan(&scan, &beams, None, &[obs(0, 1), obs(2, 2), obs(4, 3), obs(8, 4)], &[]);
+        scorer.on_retraction(4);
+        scorer.on_retraction(2);
+        let map: Vec<MapLandmark> = [1, 3].map(|id| MapLandmark { id, position: [0.0; 2] }).to_vec();
+        let score = scorer.finish(&map);
+        assert!((score.ate_rmse_m - 0.1).abs() < 1e-12, "{}", score.ate_rmse_m);
+        assert_eq!(score.map.trees_laser_seen, 2);
+        assert_eq!((score.map.trees_mapped, score.map.tree_recall), (2, Some(1.0)));
+        assert_eq!((score.false_landmarks, score.duplicate_landmarks), (0, 0));
+        assert_eq!((score.retracted, score.retracted_trees), (2, 1));
+        assert_eq!(score.associations.wrong, 0);
+        assert!(score.anees.is_nan(), "no covariance given");
     }
 
     #[test]
