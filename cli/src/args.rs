@@ -276,9 +276,9 @@ pub(crate) struct MontecarloArgs {
     /// Runs per method and parameter value.
     #[arg(long, default_value_t = 100, allow_negative_numbers = true)]
     pub(crate) runs: usize,
-    /// Comma-separated association methods.
-    #[arg(long, value_enum, value_delimiter = ',', default_value = "combined,nn,jcbb,appearance")]
-    pub(crate) methods: Vec<MethodArg>,
+    /// Comma-separated association methods (combined, nn, jcbb, appearance).
+    #[arg(long, default_value = "combined,nn,jcbb,appearance")]
+    pub(crate) methods: String,
     /// PARAM=A..B:STEPS, a dotted path into the scenario (repeatable), e.g.
     /// sim.odometry.scale_sigma=0.0..0.05:6 or world.params.post_distance_m=0.5..3:6.
     #[arg(long)]
@@ -394,7 +394,7 @@ pub(crate) enum WorldCommand {
         #[arg(long, default_value = "tree")]
         class: String,
         /// Where it stands: X,Y in metres.
-        #[arg(long, allow_negative_numbers = true)]
+        #[arg(long, allow_hyphen_values = true)]
         at: String,
         /// Its heading (deg, counter-clockwise).
         #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]

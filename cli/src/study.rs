@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 
-use crate::args::{MontecarloArgs, MontecarloCommand, SplitArg};
+use crate::args::{MethodArg, MontecarloArgs, MontecarloCommand, SplitArg};
 use crate::progress;
 
 /// `objslam montecarlo`: a study of a scenario, or one of the subcommands.
@@ -53,8 +53,19 @@ pub(crate) fn montecarlo(args: MontecarloArgs) -> Result<()> {
         return generalisation(split, runs, seed, shard.as_deref(), &out, &workers);
     }
     let scenario = args.scenario.expect("clap requires a scenario without a subcommand");
-    let methods: Vec<String> =
-        args.methods.iter().map(|&m| slam::association::AssociationMethod::from(m).name().to_string()).collect();
+    // Spaces around the names and empty items are allowed ("nn, jcbb,"); an unknown name is
+    // refused with the list, and a plan with no method by the plan's own check.
+    let methods = args
+        .methods
+        .split(',')
+        .map(str::trim)
+        .filter(|m| !m.is_empty())
+        .map(|m| {
+            <MethodArg as clap::ValueEnum>::from_str(m, false)
+                .map(|a| slam::association::AssociationMethod::from(a).name().to_string())
+                .map_err(|_| anyhow::anyhow!("--methods: unknown method {m:?}; use combined, nn, jcbb or appearance"))
+        })
+        .collect::<Result<Vec<String>>>()?;
     let vary = args.vary.iter().map(|v| mc::Vary::parse(v)).collect::<Result<Vec<_>, _>>()?;
     // Check the scenario and every parameter value before starting hundreds of runs.
     let (sc, _) = scenarios::scenario::Scenario::load(&scenario)?;

@@ -90,10 +90,10 @@ fn import(
 ) -> Result<()> {
     let class = worlds::ObjectClass::from_name(class)
         .ok_or_else(|| anyhow::anyhow!("unknown class {class:?}; use tree, palm, post or wall"))?;
-    let xy: Vec<f64> = at.split(',').filter_map(|v| v.trim().parse::<f64>().ok()).collect();
-    let &[x, y] = xy.as_slice() else {
-        anyhow::bail!("--at takes X,Y in metres, got {at:?}");
-    };
+    let bad_at = || anyhow::anyhow!("--at takes X,Y in metres, got {at:?}");
+    let xy: Vec<f64> =
+        at.split(',').map(|v| v.trim().parse::<f64>()).collect::<Result<_, _>>().map_err(|_| bad_at())?;
+    let &[x, y] = xy.as_slice() else { return Err(bad_at()) };
     anyhow::ensure!(x.is_finite() && y.is_finite() && yaw_deg.is_finite(), "--at and --yaw-deg must be finite numbers");
     let mut w = worlds::load(world_file)?;
     let triangles = worlds::gltf_io::import_mesh(mesh)
@@ -102,7 +102,20 @@ fn import(
     let out_dir = std::fs::canonicalize(out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(".".as_ref()))
         .with_context(|| format!("{}: its directory does not exist", out.display()))?;
     let mesh_abs = std::fs::canonicalize(mesh).with_context(|| format!("{}: cannot read", mesh.display()))?;
-    let named = mesh_abs.strip_prefix(&out_dir).unwrap_or(&mesh_abs).to_string_lossy().into_owned();
+    let relative_to_out = |p: &std::path::Path| p.strip_prefix(&out_dir).unwrap_or(p).to_string_lossy().into_owned();
+    let named = relative_to_out(&mesh_abs);
+    // The meshes the world already names, relative to its own file, as the new file
+    // must name them.
+    let world_dir =
+        std::fs::canonicalize(world_file.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(".".as_ref()))
+            .with_context(|| format!("{}: its directory does not exist", world_file.display()))?;
+    for o in &mut w.objects {
+        if let Some(m) = &o.mesh
+            && std::path::Path::new(m).is_relative()
+        {
+            o.mesh = Some(relative_to_out(&world_dir.join(m)));
+        }
+    }
     let pose = worlds::Pose2 { x, y, yaw_deg };
     let id = worlds::import::add_object(&mut w, triangles, &named, class, pose)
         .map_err(|e| anyhow::anyhow!("{}: {e}", mesh.display()))?;

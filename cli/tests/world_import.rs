@@ -26,9 +26,26 @@ fn a_mesh_joins_a_world_with_a_collider_fitted_to_it() {
         mesh_data: Default::default(),
     };
     std::fs::write(dir.join("post.glb"), worlds::gltf_io::parts_to_glb(&worlds::mesh::object_parts(&post))).unwrap();
-    // A place clear of the park's objects: its robot's start, moved 3 m to the side.
+    // A place with a negative x, 3 m clear of the park's objects, its route and its robot.
     let s = world.robot.start;
-    let (x, y) = (s.x - 3.0 * s.yaw_rad().sin(), s.y + 3.0 * s.yaw_rad().cos());
+    let clear = |x: f64, y: f64| {
+        let d = |a: [f64; 2], b: [f64; 2]| (a[0] - b[0]).hypot(a[1] - b[1]);
+        let to_segment = |a: [f64; 2], b: [f64; 2]| {
+            let (ab, ap) = ([b[0] - a[0], b[1] - a[1]], [x - a[0], y - a[1]]);
+            let t = ((ab[0] * ap[0] + ab[1] * ap[1]) / (ab[0] * ab[0] + ab[1] * ab[1]).max(1e-12)).clamp(0.0, 1.0);
+            d([x, y], [a[0] + t * ab[0], a[1] + t * ab[1]])
+        };
+        world.objects.iter().all(|o| d([x, y], [o.pose.x, o.pose.y]) > 3.0)
+            && world.robot.route.waypoints.windows(2).all(|w| to_segment(w[0], w[1]) > 3.0)
+            && d([x, y], [s.x, s.y]) > 3.0
+            && world.ground.min_m[0] + 1.0 < x
+            && world.ground.min_m[1] + 1.0 < y
+            && y < world.ground.max_m[1] - 1.0
+    };
+    let (x, y) = (1..20)
+        .flat_map(|i| (-20..20).map(move |j| (-0.5 * i as f64, 0.5 * j as f64)))
+        .find(|&(x, y)| clear(x, y))
+        .expect("a clear place");
     let at = format!("{x},{y}");
     let out = objslam(&[
         "world",
@@ -57,6 +74,7 @@ fn a_mesh_joins_a_world_with_a_collider_fitted_to_it() {
     for (args, expect) in [
         (["--class", "person", "--at", "0,0"].map(String::from), "cannot import a mesh as a person"),
         (["--class", "post", "--at", "3"].map(String::from), "--at takes X,Y"),
+        (["--class", "post", "--at", "-1,x"].map(String::from), "--at takes X,Y"),
         (
             ["--class", "post", "--at", &format!("{},{}", s.x, s.y)].map(String::from),
             "robot starts inside or touching object",
@@ -71,5 +89,29 @@ fn a_mesh_joins_a_world_with_a_collider_fitted_to_it() {
         assert!(!out.status.success() && err.contains(expect), "{args:?}: {err}");
         assert!(!dir.join("refused.toml").exists());
     }
+    // Written elsewhere, the world still finds the meshes it names.
+    std::fs::create_dir_all(dir.join("elsewhere")).unwrap();
+    let (x2, y2) = (1..20)
+        .flat_map(|i| (-20..20).map(move |j| (-0.5 * i as f64, 0.5 * j as f64)))
+        .find(|&(u, v)| clear(u, v) && (u - x).hypot(v - y) > 3.0)
+        .expect("a second clear place");
+    let out = objslam(&[
+        "world",
+        "import",
+        &path("post.glb"),
+        "--world",
+        &path("with_post.toml"),
+        "--class",
+        "post",
+        "--at",
+        &format!("{x2},{y2}"),
+        "--out",
+        &path("elsewhere/two.toml"),
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let two = worlds::load(&dir.join("elsewhere/two.toml")).unwrap();
+    let meshes: Vec<_> = two.objects.iter().filter(|o| o.mesh.is_some()).collect();
+    assert_eq!(meshes.len(), 2);
+    assert!(meshes.iter().all(|o| o.mesh_data.0.is_some()), "both meshes found from the new file");
     let _ = std::fs::remove_dir_all(&dir);
 }

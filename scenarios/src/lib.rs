@@ -1,8 +1,9 @@
-//! # scenarios — scenario runner, scoring, reports and the `objslam` CLI
+//! # scenarios — scenario runner, scoring, reports, Monte Carlo and datasets
 //!
 //! Joins the crates: worlds are simulated by `sim`, the stream feeds `slam`, and the
-//! results are scored against ground truth. The `objslam` binary is a thin layer over
-//! this library.
+//! results are scored against ground truth. The `objslam` binary (the `cli` crate) is a
+//! thin layer over this library, which prints nothing: progress and warnings come back to
+//! its caller.
 //!
 //! ```no_run
 //! let world = worlds::generate::park(&Default::default(), 7).unwrap();

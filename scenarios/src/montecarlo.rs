@@ -252,6 +252,12 @@ pub fn apply_param(scenario: &Scenario, path: &str, value: f64) -> Result<Scenar
         scenario.world.params = Some(Default::default());
     }
     let mut root = toml::Value::try_from(&scenario).map_err(|e| bad(e.to_string()))?;
+    // A key read under a former spelling is written under today's (studies planned with
+    // the former resume).
+    let path = match path.strip_prefix("sim.odometry.k_") {
+        Some(rest @ ("dd" | "da" | "ad" | "aa")) => format!("sim.odometry.a_{rest}"),
+        _ => path.to_string(),
+    };
     let parts: Vec<&str> = path.split('.').collect();
     set_path(&mut root, &parts, value).map_err(&bad)?;
     let text = toml::to_string(&root).map_err(|e| bad(e.to_string()))?;
@@ -520,7 +526,7 @@ pub fn run_study_with(
         let scenario = job_scenario(&base_scenario, job)?;
         let method = AssociationMethod::from_name(&job.method)
             .ok_or_else(|| StudyError::Job { key: job.key(), message: format!("unknown method {:?}", job.method) })?;
-        crate::run::pipeline_config(&scenario, Some(method))
+        crate::run::run_config(&scenario, Some(method))
             .map_err(|e| StudyError::Job { key: job.key(), message: e.to_string() })?;
         if job_needs_appearance(job, &scenario) {
             models
@@ -911,6 +917,10 @@ mod tests {
         assert_eq!(s3.world.params.unwrap().post_distance_m, [1.25, 1.25]);
         assert!(apply_param(&s, "sim.laser.rate_hz", -1.0).is_err());
         assert!(apply_param(&s, "name.x", 1.0).is_err());
+        // A coefficient varied under its former spelling sets today's.
+        let s4 = apply_param(&s, "sim.odometry.k_dd", 0.3).unwrap();
+        assert_eq!(s4.sim.odometry.a_dd, 0.3);
+        assert_eq!(apply_param(&s, "sim.odometry.a_dd", 0.3).unwrap(), s4);
     }
 
     #[test]

@@ -531,7 +531,8 @@ mod tests {
         )
         .unwrap();
         let yawed = Scenario::parse(&format!("{base}[sim.laser]\nmount_yaw_deg = 10.0\n"), f).unwrap();
-        let e = crate::run::pipeline_config(&yawed, None).unwrap_err().to_string();
+        crate::run::pipeline_config(&yawed, None).expect("recording a yawed laser is fine");
+        let e = crate::run::run_config(&yawed, None).unwrap_err().to_string();
         assert!(e.contains("sim.laser.mount_yaw_deg = 10"), "{e}");
         let e = Scenario::load("no_such_scenario").unwrap_err().to_string();
         assert!(e.contains("paper_park"), "{e}");

@@ -41,6 +41,10 @@ pub enum RunError {
     Pipeline { scenario: String, setting: slam::settings::InvalidSetting },
     #[error("method {method}: {message}")]
     Method { method: String, message: String },
+    #[error(
+        "sim.laser.mount_yaw_deg = {0}: the pipeline's range-bearing model has no mounting yaw, so runs need a forward-facing laser (0)"
+    )]
+    YawedLaser(f64),
     #[error("{}: {source}", file.display())]
     Io { file: PathBuf, source: std::io::Error },
     #[error(transparent)]
@@ -152,20 +156,20 @@ pub fn pipeline_config(scenario: &Scenario, method: Option<AssociationMethod>) -
     if let Some(m) = method {
         config.method = m;
     }
-    // The laser's mounting is known to the robot: the observation model uses it. It has
-    // no yaw term, so a laser turned on its mount would be read wrongly.
-    if scenario.sim.laser.mount_yaw_deg != 0.0 {
-        return Err(RunError::Method {
-            method: config.method.name().into(),
-            message: format!(
-                "sim.laser.mount_yaw_deg = {}: the pipeline's range-bearing model has no mounting yaw, so runs need a forward-facing laser (0)",
-                scenario.sim.laser.mount_yaw_deg
-            ),
-        });
-    }
+    // The laser's mounting is known to the robot: the observation model uses it.
     config.sensor.mount_x = scenario.sim.laser.mount_xyz_m[0];
     config.sensor.mount_y = scenario.sim.laser.mount_xyz_m[1];
     Ok(config)
+}
+
+/// [`pipeline_config`] for a run, which also needs a laser the pipeline can read: its
+/// observation model has no yaw term, so a laser turned on its mount would be misread
+/// (recording such a laser is fine).
+pub fn run_config(scenario: &Scenario, method: Option<AssociationMethod>) -> Result<PipelineConfig, RunError> {
+    if scenario.sim.laser.mount_yaw_deg != 0.0 {
+        return Err(RunError::YawedLaser(scenario.sim.laser.mount_yaw_deg));
+    }
+    pipeline_config(scenario, method)
 }
 
 /// The simulator's scan as the pipeline's plain message (the one place the two meet).
@@ -229,7 +233,7 @@ pub fn run(
 ) -> Result<RunOutcome, RunError> {
     // Setup: the method and its model, the world, the calibration, the simulator.
     let seed = options.seed.unwrap_or(scenario.seed);
-    let config = pipeline_config(scenario, options.method)?;
+    let config = run_config(scenario, options.method)?;
     let camera_method = config.method.uses_appearance();
     let appearance_model = appearance_for(scenario, base_dir, options, &config, &mut progress)?;
     let world = scenario.world(base_dir, seed)?;

@@ -393,12 +393,6 @@ mod tests {
         let (trees, posts) = (ids(ObjectClass::Tree), ids(ObjectClass::Post));
         let (a, b, post) = (trees[0], trees[1], posts[0]);
         let settings = VisibilitySettings { min_beams: 3, max_range_m: 20.0, frames_needed: 1 };
-        let mut scorer = RunScorer::new(&world, None, settings, RecallBasis::LaserSeen);
-        // Poses 0.1 m off in x: ATE 0.1 m.
-        for k in 0..10 {
-            let t = k as f64;
-            scorer.on_pose(t, [t + 0.1, 0.0, 0.0], None, [t, 0.0, 0.0]);
-        }
         // Beams 0-3 on tree a, 4-7 on tree b, 8-11 on the post, all 5 m away.
         let hit_ids: Vec<u16> = [a; 4].into_iter().chain([b; 4]).chain([post; 4]).collect();
         let scan = sim::LaserScan {
@@ -412,17 +406,30 @@ mod tests {
             ranges: vec![5.0; 12],
         };
         let beams = sim::LaserTruth { hit_ids, true_ranges: vec![5.0; 12] };
-        // Landmark 1 and 2 on tree a (a duplicate), 3 on tree b, 4 on the post.
-        let obs = |first_beam, landmark| ScoredObservation {
-            first_beam,
-            last_beam: first_beam + 1,
-            landmark: Some(landmark),
+        // The run scored against the final map `mapped`.
+        let scored = |mapped: &[u32]| {
+            let mut scorer = RunScorer::new(&world, None, settings, RecallBasis::LaserSeen);
+            // Poses 0.1 m off in x: ATE 0.1 m.
+            for k in 0..10 {
+                let t = k as f64;
+                scorer.on_pose(t, [t + 0.1, 0.0, 0.0], None, [t, 0.0, 0.0]);
+            }
+            // Landmarks 1 and 2 on tree a (a duplicate), 3 on tree b, 4 on the post.
+            let obs = |first_beam, landmark| ScoredObservation {
+                first_beam,
+                last_beam: first_beam + 1,
+                landmark: Some(landmark),
+            };
+            scorer.on_scan(&scan, &beams, None, &[obs(0, 1), obs(2, 2), obs(4, 3), obs(8, 4)], &[]);
+            scorer.on_retraction(4);
+            scorer.on_retraction(2);
+            let map: Vec<MapLandmark> = mapped.iter().map(|&id| MapLandmark { id, position: [0.0; 2] }).collect();
+            scorer.finish(&map)
         };
-        scorer.on_scan(&scan, &beams, None, &[obs(0, 1), obs(2, 2), obs(4, 3), obs(8, 4)], &[]);
-        scorer.on_retraction(4);
-        scorer.on_retraction(2);
-        let map: Vec<MapLandmark> = [1, 3].map(|id| MapLandmark { id, position: [0.0; 2] }).to_vec();
-        let score = scorer.finish(&map);
+        // Had the system kept them all: one duplicate, one false landmark.
+        let kept = scored(&[1, 2, 3, 4]);
+        assert_eq!((kept.duplicate_landmarks, kept.false_landmarks, kept.map.posts), (1, 1, 1));
+        let score = scored(&[1, 3]);
         assert!((score.ate_rmse_m - 0.1).abs() < 1e-12, "{}", score.ate_rmse_m);
         assert_eq!(score.map.trees_laser_seen, 2);
         assert_eq!((score.map.trees_mapped, score.map.tree_recall), (2, Some(1.0)));

@@ -224,4 +224,26 @@ mod tests {
         assert!(table.merge(&mut ekf, 0, 0, 0.05).is_err());
         assert_eq!(table.len(), 1);
     }
+
+    /// Landmarks added together or one by one give the same filter and the same table; a
+    /// removal by place (a retraction) takes the right one out of both.
+    #[test]
+    fn adding_together_or_one_by_one_agrees_and_removal_by_place_keeps_alignment() {
+        let new = [at(5.0, 0.0), at(6.0, 1.0), at(7.0, -1.0)];
+        let (mut together, sensor) = filter();
+        let mut a = LandmarkTable::default();
+        a.add(&mut together, &sensor, 0.0, &new, true, 1);
+        let (mut singly, _) = filter();
+        let mut b = LandmarkTable::default();
+        b.add(&mut singly, &sensor, 0.0, &new, false, 1);
+        assert_eq!(a.meta(), b.meta());
+        assert!((&together.x - &singly.x).amax() < 1e-12 && (&together.p - &singly.p).amax() < 1e-12);
+        assert!(a.meta().iter().all(|l| l.confirmed), "one observation confirms");
+        let seven = together.landmark(2);
+        let gone = a.remove_where(&mut together, |_, place| place == Some([6.0, 0.0]));
+        assert_eq!(gone.iter().map(|l| l.id).collect::<Vec<_>>(), [1]);
+        assert_eq!((a.len(), together.landmark_count()), (2, 2));
+        assert_eq!((a.index_of(2), together.landmark(1)), (Some(1), seven));
+        assert_eq!(a.places[1], Some([7.0, 0.0]));
+    }
 }
