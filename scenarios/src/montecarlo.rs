@@ -254,10 +254,10 @@ pub fn apply_param(scenario: &Scenario, path: &str, value: f64) -> Result<Scenar
     let mut root = toml::Value::try_from(&scenario).map_err(|e| bad(e.to_string()))?;
     // A key read under a former spelling is written under today's (studies planned with
     // the former resume).
-    let path = match path.strip_prefix("sim.odometry.k_") {
-        Some(rest @ ("dd" | "da" | "ad" | "aa")) => format!("sim.odometry.a_{rest}"),
-        _ => path.to_string(),
-    };
+    let former = path
+        .strip_prefix("sim.odometry.")
+        .and_then(|key| sim::OdometryConfig::FORMER_SPELLINGS.iter().find(|(old, _)| *old == key).map(|(_, new)| *new));
+    let path = former.map_or_else(|| path.to_string(), |new| format!("sim.odometry.{new}"));
     let parts: Vec<&str> = path.split('.').collect();
     set_path(&mut root, &parts, value).map_err(&bad)?;
     let text = toml::to_string(&root).map_err(|e| bad(e.to_string()))?;

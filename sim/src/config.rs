@@ -179,6 +179,10 @@ impl Default for OdometryConfig {
 }
 
 impl OdometryConfig {
+    /// The per-step coefficients' former names (serde aliases) and today's.
+    pub const FORMER_SPELLINGS: [(&'static str, &'static str); 4] =
+        [("k_dd", "a_dd"), ("k_da", "a_da"), ("k_ad", "a_ad"), ("k_aa", "a_aa")];
+
     /// No error at all: integrates to the ground-truth path.
     pub fn noiseless() -> Self {
         OdometryConfig {
