@@ -99,16 +99,13 @@ fn import(
     let triangles = worlds::gltf_io::import_mesh(mesh)
         .map_err(|e| anyhow::anyhow!("{}: not a readable glTF/.glb mesh: {e}", mesh.display()))?;
     // The world file names the mesh relative to itself where it can.
-    let out_dir = std::fs::canonicalize(out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(".".as_ref()))
-        .with_context(|| format!("{}: its directory does not exist", out.display()))?;
+    let out_dir = directory_of(out)?;
     let mesh_abs = std::fs::canonicalize(mesh).with_context(|| format!("{}: cannot read", mesh.display()))?;
     let relative_to_out = |p: &std::path::Path| p.strip_prefix(&out_dir).unwrap_or(p).to_string_lossy().into_owned();
     let named = relative_to_out(&mesh_abs);
     // The meshes the world already names, relative to its own file, as the new file
     // must name them.
-    let world_dir =
-        std::fs::canonicalize(world_file.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(".".as_ref()))
-            .with_context(|| format!("{}: its directory does not exist", world_file.display()))?;
+    let world_dir = directory_of(world_file)?;
     for o in &mut w.objects {
         if let Some(m) = &o.mesh
             && std::path::Path::new(m).is_relative()
@@ -125,4 +122,10 @@ fn import(
     let added = w.objects.last().expect("just added");
     eprintln!("added {} {id} at ({x}, {y}) with {:?} -> {}", class.name(), added.shape, out.display());
     Ok(())
+}
+
+/// The absolute directory that holds `file` (the working directory for a bare name).
+fn directory_of(file: &std::path::Path) -> Result<std::path::PathBuf> {
+    let dir = file.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(".".as_ref());
+    std::fs::canonicalize(dir).with_context(|| format!("{}: its directory does not exist", file.display()))
 }

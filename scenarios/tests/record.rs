@@ -2,22 +2,21 @@
 
 use std::collections::BTreeMap;
 
+/// The park of seed 2 recorded as JSON lines into `dir` (simulator seed 4).
+fn record_park(config: &sim::SimConfig, dir: &std::path::Path) -> scenarios::record::RecordSummary {
+    let world = worlds::generate::park(&Default::default(), 2).unwrap();
+    let scoring = scenarios::score::log::LogScoring::of_world();
+    scenarios::record::record(&world, config, 4, &scoring, dir, scenarios::record::RecordFormat::Jsonl, |_, _| {})
+        .unwrap()
+}
+
 #[test]
 fn record_writes_a_readable_consistent_log() {
     let dir = std::env::temp_dir().join(format!("objslam-record-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
-    let world = worlds::generate::park(&Default::default(), 2).unwrap();
     let config = sim::SimConfig { max_duration_s: Some(10.0), ..Default::default() };
-    let summary = scenarios::record::record(
-        &world,
-        &config,
-        4,
-        &scenarios::score::log::LogScoring::of_world(),
-        &dir,
-        scenarios::record::RecordFormat::Jsonl,
-        |_, _| {},
-    )
-    .unwrap();
+    let summary = record_park(&config, &dir);
+    let world = worlds::generate::park(&Default::default(), 2).unwrap();
     assert!((summary.sim_seconds - 10.0).abs() < 0.02);
 
     let laser = std::fs::read_to_string(dir.join("laser.jsonl")).unwrap();
@@ -274,19 +273,9 @@ fn a_ros2_bag_holds_what_the_json_lines_hold_in_standard_messages() {
 fn a_camera_without_depth_records_frames_without_a_depth_image() {
     let dir = std::env::temp_dir().join(format!("objslam-record-nodepth-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
-    let world = worlds::generate::park(&Default::default(), 2).unwrap();
     let mut config = sim::SimConfig { max_duration_s: Some(0.5), ..Default::default() };
     config.camera.depth_image = false;
-    scenarios::record::record(
-        &world,
-        &config,
-        4,
-        &scenarios::score::log::LogScoring::of_world(),
-        &dir,
-        scenarios::record::RecordFormat::Jsonl,
-        |_, _| {},
-    )
-    .unwrap();
+    record_park(&config, &dir);
     let frames: Vec<serde_json::Value> = std::fs::read_to_string(dir.join("camera.jsonl"))
         .unwrap()
         .lines()
