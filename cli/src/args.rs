@@ -183,7 +183,7 @@ pub(crate) enum Command {
     /// Score any SLAM system's trajectory (and map and associations) against a log of
     /// `objslam record`, by the rules `objslam run` scores its own runs with.
     Score(ScoreArgs),
-    /// Settings: print every scenario setting at its default.
+    /// Settings: print every scenario setting at its default, or check a scenario.
     #[command(subcommand)]
     Config(ConfigCommand),
 }
@@ -220,6 +220,20 @@ pub(crate) enum ConfigCommand {
     /// a comment saying what it means (or one table of it and those below it, e.g.
     /// `pipeline.evidence`).
     Defaults { table: Option<String> },
+    /// Check a scenario without running it: every setting, the method's needs, the world, a
+    /// calibration file, an appearance model file and the pipeline built from them, as a
+    /// run checks them before its first step. Exits with an error naming the file, line and
+    /// field of the first problem.
+    Check {
+        /// A scenario file or built-in name.
+        scenario: String,
+        /// Association method (default: the scenario's).
+        #[arg(long, value_enum)]
+        method: Option<MethodArg>,
+        /// Run seed (default: the scenario's); it picks the world when the scenario's does not.
+        #[arg(long)]
+        seed: Option<u64>,
+    },
 }
 
 /// `objslam gmm fit --search`.

@@ -17,9 +17,24 @@ use crate::args::{Cli, Command, ConfigCommand, GmmCommand};
 fn main() {
     let cli = Cli::parse();
     if let Err(e) = dispatch(cli) {
-        eprintln!("error: {e:#}");
+        eprintln!("error: {}", report(&e));
         std::process::exit(2);
     }
+}
+
+/// The error and its causes on one line, each cause once: the library's errors often say
+/// their cause in their own message already (so that a message stored in a study record is
+/// complete), and the chain would repeat it.
+fn report(e: &anyhow::Error) -> String {
+    let mut text = e.to_string();
+    for cause in e.chain().skip(1) {
+        let cause = cause.to_string();
+        if !text.contains(&cause) {
+            text.push_str(": ");
+            text.push_str(&cause);
+        }
+    }
+    text
 }
 
 fn dispatch(cli: Cli) -> Result<()> {
@@ -84,6 +99,9 @@ fn dispatch(cli: Cli) -> Result<()> {
         Some(Command::Config(ConfigCommand::Defaults { table })) => {
             print!("{}", scenarios::scenario::Scenario::defaults_toml(table.as_deref())?);
             Ok(())
+        }
+        Some(Command::Config(ConfigCommand::Check { scenario, method, seed })) => {
+            run::check(&scenario, method.map(Into::into), seed)
         }
     }
 }

@@ -86,3 +86,22 @@ pub(crate) fn score(args: ScoreArgs) -> Result<()> {
     }
     Ok(())
 }
+
+/// `objslam config check`: what a run checks before its first step.
+pub(crate) fn check(name: &str, method: Option<AssociationMethod>, seed: Option<u64>) -> Result<()> {
+    let (sc, base) = scenarios::scenario::Scenario::load(name)?;
+    let found = scenarios::run::preflight(&sc, &base, method, seed)?;
+    println!("{name}: ok");
+    println!("  method       {}", found.method.name());
+    println!(
+        "  world        {} objects, {} people (run seed {})",
+        found.objects,
+        found.people,
+        seed.unwrap_or(sc.seed)
+    );
+    println!("  calibration  {}", found.calibration);
+    if let Some(a) = &found.appearance {
+        println!("  appearance   {a}");
+    }
+    Ok(())
+}

@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 
 use crate::progress;
 
@@ -25,12 +25,7 @@ pub(crate) fn record(
         RecordSource::World { input, sim_config } => {
             let seed = seed.unwrap_or(1);
             let config = match sim_config {
-                Some(path) => {
-                    let text =
-                        std::fs::read_to_string(&path).with_context(|| format!("{}: cannot read", path.display()))?;
-                    toml::from_str::<sim::SimConfig>(&text)
-                        .with_context(|| format!("{}: bad simulator settings", path.display()))?
-                }
+                Some(path) => scenarios::scenario::read_sim_config(&path)?,
                 None => sim::SimConfig::default(),
             };
             (crate::world::load_world(&input, seed)?, config, seed, scenarios::score::log::LogScoring::of_world(), None)

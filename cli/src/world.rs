@@ -8,17 +8,7 @@ use crate::args::WorldCommand;
 pub(crate) fn world(cmd: WorldCommand) -> Result<()> {
     match cmd {
         WorldCommand::Generate { preset, seed, params, out } => {
-            let params = match params {
-                Some(path) => {
-                    let text =
-                        std::fs::read_to_string(&path).with_context(|| format!("{}: cannot read", path.display()))?;
-                    Some(
-                        toml::from_str::<worlds::generate::ParkParams>(&text)
-                            .with_context(|| format!("{}: bad generator parameters", path.display()))?,
-                    )
-                }
-                None => None,
-            };
+            let params = params.map(|path| scenarios::scenario::read_park_params(&path)).transpose()?;
             let world = worlds::generate::preset(&preset, params.as_ref(), seed)?;
             match out {
                 Some(path) => {

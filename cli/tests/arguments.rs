@@ -30,3 +30,25 @@ fn negative_numbers_are_values_checked_like_any_other() {
     }
     assert!(!std::path::Path::new(out).exists(), "nothing was written");
 }
+
+#[test]
+fn settings_files_given_on_the_command_line_are_checked_naming_file_line_and_field() {
+    let dir = std::env::temp_dir().join(format!("objslam-settings-files-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let sim = dir.join("sim.toml");
+    std::fs::write(&sim, "physics_rate_hz = 100.0\n[laser]\nrate_hz = -3.0\n").unwrap();
+    let params = dir.join("params.toml");
+    std::fs::write(&params, "trees = 3\n\ntree_radius_m = [0.5, 0.1]\n").unwrap();
+    let out = dir.join("out");
+    let (sim_s, params_s, out_s) = (sim.to_str().unwrap(), params.to_str().unwrap(), out.to_str().unwrap());
+    for (args, expect) in [
+        (vec!["record", "park", "--sim-config", sim_s, "--out", out_s], format!("{sim_s}: line 3: laser.rate_hz")),
+        (vec!["world", "generate", "--params", params_s], format!("{params_s}: line 3: tree_radius_m")),
+    ] {
+        let (ok, err) = stderr_of(&args);
+        assert!(!ok, "{args:?} succeeded");
+        assert!(err.contains(&expect), "{args:?}: {err}");
+    }
+    assert!(!out.exists(), "nothing was recorded");
+    let _ = std::fs::remove_dir_all(&dir);
+}

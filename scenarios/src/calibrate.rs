@@ -211,13 +211,9 @@ impl SessionConfig {
             );
         }
         if let Some(s) = &self.segmentation
-            && !(s.inlier_m > 0.0
-                && s.jump_m > 0.0
-                && s.length_m[0] <= s.length_m[1]
-                && s.range_m[0] <= s.range_m[1]
-                && s.bearing_rad[0] <= s.bearing_rad[1])
+            && let Err((field, message)) = s.validate()
         {
-            return bad("segmentation", "needs positive inlier_m and jump_m and [low, high] ranges".into());
+            return bad(&format!("segmentation.{field}"), message);
         }
         Ok(())
     }

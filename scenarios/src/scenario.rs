@@ -19,8 +19,9 @@ pub enum ScenarioError {
     Invalid { file: PathBuf, line: Option<usize>, field: String, message: String },
     #[error("unknown scenario {name:?}: not a file and not one of the built-in scenarios ({})", available.join(", "))]
     Unknown { name: String, available: Vec<String> },
-    #[error("{}: world: {source}", file.display())]
-    World { file: PathBuf, source: worlds::WorldError },
+    /// The world could not be made: a world file's own error names that file.
+    #[error("scenario {scenario}: world: {source}")]
+    World { scenario: String, source: worlds::WorldError },
 }
 
 /// Where the world comes from.
@@ -174,6 +175,10 @@ fn default_seed() -> u64 {
     1
 }
 
+/// Most false landmarks `pass.min_false_landmarks` may ask for: more than any run maps (a
+/// park ten times the paper's maps a few hundred).
+const MAX_LANDMARKS_CRITERION: usize = 10_000;
+
 /// The built-in scenario library, embedded at compile time.
 pub const LIBRARY: &[(&str, &str)] = &[
     ("paper_park", include_str!("../paper_park.toml")),
@@ -251,43 +256,36 @@ impl Scenario {
             }
             _ => {}
         }
-        if let Some(p) = &self.world.params
-            && let Err(e) = p.check()
-        {
-            return bad("world.params", e.to_string());
+        if let Some(p) = &self.world.params {
+            match p.check() {
+                Ok(()) => {}
+                Err(worlds::WorldError::Parameter { field, message }) => {
+                    return bad(&format!("world.params.{field}"), message);
+                }
+                Err(e) => return bad("world.params", e.to_string()),
+            }
         }
-        if let Err(e) = self.sim.check() {
-            return bad("sim", e.to_string());
+        match self.sim.check() {
+            Ok(()) => {}
+            Err(sim::SimError::Config { field, message }) => return bad(&format!("sim.{field}"), message),
+            Err(e) => return bad("sim", e.to_string()),
         }
         let c = &self.calibration;
-        match c.mode.as_str() {
-            "true" | "estimated" => {}
-            "perturbed" => {
-                for (field, v) in [
-                    ("calibration.rotation_sigma_deg", c.rotation_sigma_deg),
-                    ("calibration.translation_sigma_m", c.translation_sigma_m),
-                ] {
-                    if !(v.is_finite() && v >= 0.0) {
-                        return bad(field, format!("perturbation sigmas must be zero or positive, got {v}"));
-                    }
-                }
+        for (field, v) in [
+            ("calibration.rotation_sigma_deg", c.rotation_sigma_deg),
+            ("calibration.translation_sigma_m", c.translation_sigma_m),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return bad(field, format!("perturbation sigmas must be zero or positive, got {v}"));
             }
-            "" => {
-                return bad(
-                    "calibration.mode",
-                    "must be \"true\", \"perturbed\", \"estimated\" or a calibration.json path".into(),
-                );
+            if v != 0.0 && c.mode != "perturbed" {
+                return bad(field, format!("only applies to mode \"perturbed\", not {:?}", c.mode));
             }
-            // A calibration file: read when the scenario runs (relative to the scenario).
-            _ => {}
         }
-        if c.mode != "perturbed" && (c.rotation_sigma_deg != 0.0 || c.translation_sigma_m != 0.0) {
+        if c.mode.is_empty() {
             return bad(
-                "calibration",
-                format!(
-                    "rotation_sigma_deg and translation_sigma_m only apply to mode \"perturbed\", not {:?}",
-                    c.mode
-                ),
+                "calibration.mode",
+                "must be \"true\", \"perturbed\", \"estimated\" or a calibration.json path".into(),
             );
         }
         if let Err(e) = c.session.check(file, &self.sim) {
@@ -323,6 +321,17 @@ impl Scenario {
         if let Err((field, message)) = self.appearance.check() {
             return bad(&format!("appearance.{field}"), message);
         }
+        // A model given as a file is checked against this when it is loaded.
+        let dims = self.pipeline.object_model.appearance_dims;
+        if self.appearance.model.is_none() && dims > self.appearance.pca_dims {
+            return bad(
+                "pipeline.object_model.appearance_dims",
+                format!(
+                    "{dims} is more than the trained appearance model's appearance.pca_dims = {}",
+                    self.appearance.pca_dims
+                ),
+            );
+        }
         if let Some(r) = self.pass.min_tree_recall
             && !(0.0..=1.0).contains(&r)
         {
@@ -330,6 +339,14 @@ impl Scenario {
         }
         // Criteria that no run could pass.
         let p = &self.pass;
+        if let Some(min) = p.min_false_landmarks
+            && min > MAX_LANDMARKS_CRITERION
+        {
+            return bad(
+                "pass.min_false_landmarks",
+                format!("must be at most {MAX_LANDMARKS_CRITERION}, got {min}: no run maps that many landmarks"),
+            );
+        }
         if let (Some(min), Some(max)) = (p.min_false_landmarks, p.max_false_landmarks)
             && min > max
         {
@@ -362,13 +379,13 @@ impl Scenario {
 
     /// Builds the world for a run seed.
     pub fn world(&self, base_dir: &Path, run_seed: u64) -> Result<worlds::World, ScenarioError> {
-        let file = base_dir.join(format!("{}.toml", self.name));
+        let scenario = self.name.clone();
         if let Some(preset) = &self.world.preset {
             worlds::generate::preset(preset, self.world.params.as_ref(), self.world.seed.unwrap_or(run_seed))
-                .map_err(|source| ScenarioError::World { file, source })
+                .map_err(|source| ScenarioError::World { scenario, source })
         } else {
             let path = base_dir.join(self.world.file.as_deref().unwrap_or_default());
-            worlds::load(&path).map_err(|source| ScenarioError::World { file, source })
+            worlds::load(&path).map_err(|source| ScenarioError::World { scenario, source })
         }
     }
 }
@@ -403,6 +420,48 @@ impl Scenario {
     pub fn defaults_toml(table: Option<&str>) -> Result<String, ScenarioError> {
         keys::commented(table).map_err(|message| ScenarioError::Parse { file: PathBuf::from("<defaults>"), message })
     }
+}
+
+/// Reads a TOML file of settings of one kind (a `--sim-config`, a `--params`): parsed, then
+/// checked by `check`, which names the first bad field as `(field, problem)`; errors name
+/// the file, the line and the field.
+fn read_settings<T: serde::de::DeserializeOwned>(
+    file: &Path,
+    check: impl Fn(&T) -> Result<(), (String, String)>,
+) -> Result<T, ScenarioError> {
+    let text =
+        std::fs::read_to_string(file).map_err(|source| ScenarioError::Read { file: file.to_path_buf(), source })?;
+    let settings: T = toml::from_str(&text).map_err(|e| ScenarioError::Parse {
+        file: file.to_path_buf(),
+        message: e.to_string().trim_end().to_string(),
+    })?;
+    check(&settings).map_err(|(field, message)| ScenarioError::Invalid {
+        file: file.to_path_buf(),
+        line: line_of(&text, &field),
+        field,
+        message,
+    })?;
+    Ok(settings)
+}
+
+/// Reads simulator settings (a scenario's `[sim]` table on its own, `objslam record
+/// --sim-config`), checked.
+pub fn read_sim_config(file: &Path) -> Result<sim::SimConfig, ScenarioError> {
+    read_settings(file, |c: &sim::SimConfig| match c.check() {
+        Ok(()) => Ok(()),
+        Err(sim::SimError::Config { field, message }) => Err((field, message)),
+        Err(e) => Err((String::new(), e.to_string())),
+    })
+}
+
+/// Reads park generator parameters (a scenario's `[world.params]` on its own, `objslam
+/// world generate --params`), checked.
+pub fn read_park_params(file: &Path) -> Result<worlds::generate::ParkParams, ScenarioError> {
+    read_settings(file, |p: &worlds::generate::ParkParams| match p.check() {
+        Ok(()) => Ok(()),
+        Err(worlds::WorldError::Parameter { field, message }) => Err((field, message)),
+        Err(e) => Err((String::new(), e.to_string())),
+    })
 }
 
 /// The line (1-based) of the dotted key `path` in TOML `text`, where it is written as

@@ -90,7 +90,7 @@ fn transform(t: [f64; 3], yaw: f64, pitch: f64) -> [[f32; 4]; 4] {
 impl CameraSensor {
     /// Uploads the world's meshes and textures. `seed` drives image noise and exposure.
     pub fn new(world: &World, config: &CameraConfig, seed: u64) -> Result<Self, CameraError> {
-        config.check().map_err(CameraError::Config)?;
+        config.check().map_err(|(field, message)| CameraError::Config(format!("camera.{field}: {message}")))?;
         let mut renderer =
             Renderer::new(&RendererConfig { width: config.width, height: config.height, depth: config.depth_image })?;
         for part in static_world_parts(world) {

@@ -160,18 +160,36 @@ impl CameraConfig {
         base_from_laser.inverse().compose(&self.base_from_camera())
     }
 
-    pub fn check(&self) -> Result<(), String> {
-        if self.width == 0 || self.height == 0 || self.width > 8192 || self.height > 8192 {
-            return Err(format!("camera size {}x{} must be 1..8192 each way", self.width, self.height));
+    /// Checks the settings; the error names the field (within `camera`).
+    pub fn check(&self) -> Result<(), (&'static str, String)> {
+        if self.width == 0 || self.width > 8192 {
+            return Err(("width", format!("must be 1..8192 pixels, got {}", self.width)));
+        }
+        if self.height == 0 || self.height > 8192 {
+            return Err(("height", format!("must be 1..8192 pixels, got {}", self.height)));
         }
         if !(self.hfov_deg > 1.0 && self.hfov_deg < 170.0) {
-            return Err(format!("camera.hfov_deg must be in (1, 170), got {}", self.hfov_deg));
+            return Err(("hfov_deg", format!("must be in (1, 170), got {}", self.hfov_deg)));
         }
         if !(self.rate_hz.is_finite() && self.rate_hz > 0.0) {
-            return Err(format!("camera.rate_hz must be positive, got {}", self.rate_hz));
+            return Err(("rate_hz", format!("must be positive, got {}", self.rate_hz)));
         }
-        if !(self.noise_sigma >= 0.0 && self.exposure_sigma >= 0.0) {
-            return Err("camera noise sigmas must be zero or positive".into());
+        for (field, v) in [("noise_sigma", self.noise_sigma), ("exposure_sigma", self.exposure_sigma)] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err((field, format!("must be zero or positive, got {v}")));
+            }
+        }
+        if !self.mount_xyz_m.iter().all(|v| v.is_finite()) || self.mount_xyz_m[2] <= 0.0 {
+            return Err((
+                "mount_xyz_m",
+                format!("must be finite, with z above the ground, got {:?}", self.mount_xyz_m),
+            ));
+        }
+        if !(self.mount_pitch_deg.abs() < 90.0) {
+            return Err(("mount_pitch_deg", format!("must be within +-90 deg, got {}", self.mount_pitch_deg)));
+        }
+        if !(self.mount_yaw_deg.abs() <= 180.0) {
+            return Err(("mount_yaw_deg", format!("must be within +-180 deg, got {}", self.mount_yaw_deg)));
         }
         Ok(())
     }

@@ -273,8 +273,18 @@ impl SimConfig {
         if self.robot.cruise_speed_mps > self.robot.max_speed_mps {
             return bad("robot.cruise_speed_mps", format!("exceeds max_speed_mps {}", self.robot.max_speed_mps));
         }
-        if let Err(message) = self.camera.check() {
-            return bad("camera", message);
+        if let Err((field, message)) = self.camera.check() {
+            return bad(&format!("camera.{field}"), message);
+        }
+        let laser = &self.laser;
+        if !laser.mount_xyz_m.iter().all(|v| v.is_finite()) || laser.mount_xyz_m[2] <= 0.0 {
+            return bad(
+                "laser.mount_xyz_m",
+                format!("must be finite, with z above the ground, got {:?}", laser.mount_xyz_m),
+            );
+        }
+        if !(laser.mount_yaw_deg.abs() <= 180.0) {
+            return bad("laser.mount_yaw_deg", format!("must be within +-180 deg, got {}", laser.mount_yaw_deg));
         }
         if self.camera.rate_hz > self.physics_rate_hz {
             return bad("camera.rate_hz", format!("{} Hz is faster than physics", self.camera.rate_hz));

@@ -428,6 +428,47 @@ impl Default for BoardSegmentation {
     }
 }
 
+impl BoardSegmentation {
+    /// Checks the settings (see [`crate::settings`]): ordered, finite ranges, positive
+    /// widths and tolerances.
+    pub fn validate(&self) -> Result<(), (&'static str, String)> {
+        for (field, r, min) in [
+            ("bearing_rad", self.bearing_rad, -std::f64::consts::PI),
+            ("range_m", self.range_m, 0.0),
+            ("length_m", self.length_m, 0.0),
+        ] {
+            if !(r[0].is_finite() && r[1].is_finite() && min <= r[0] && r[0] <= r[1]) {
+                return Err((
+                    field,
+                    format!("must be a finite range [low, high] with {min:.4} <= low <= high, got {r:?}"),
+                ));
+            }
+        }
+        if self.bearing_rad[1] > std::f64::consts::PI {
+            return Err(("bearing_rad", format!("must lie within +-pi, got {:?}", self.bearing_rad)));
+        }
+        for (field, v) in [("jump_m", self.jump_m), ("inlier_m", self.inlier_m)] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err((field, format!("must be positive, got {v}")));
+            }
+        }
+        if !(self.camera_range_tolerance_m.is_finite() && self.camera_range_tolerance_m >= 0.0) {
+            return Err((
+                "camera_range_tolerance_m",
+                format!("must be zero or positive, got {}", self.camera_range_tolerance_m),
+            ));
+        }
+        // A board's cut holds a few dozen points; trimming more leaves none.
+        if self.trim > MAX_TRIM {
+            return Err(("trim", format!("must be at most {MAX_TRIM}, got {}", self.trim)));
+        }
+        Ok(())
+    }
+}
+
+/// Most points [`BoardSegmentation::trim`] may drop at each end.
+pub const MAX_TRIM: usize = 50;
+
 /// Why no board was found in a scan.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum SegmentationError {

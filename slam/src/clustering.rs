@@ -51,10 +51,14 @@ impl ClusteringConfig {
             return Err(("range_sigma_m", format!("must be finite and not negative, got {}", self.range_sigma_m)));
         }
         // A circle needs three points to be fitted.
-        if self.min_points < 3 {
+        if !(3..=crate::settings::MAX_COUNT).contains(&self.min_points) {
             return Err((
                 "min_points",
-                format!("must be at least 3 (a circle fit needs three points), got {}", self.min_points),
+                format!(
+                    "must be 3 (a circle fit needs three points) to {}, got {}",
+                    crate::settings::MAX_COUNT,
+                    self.min_points
+                ),
             ));
         }
         if !(self.min_diameter_m.is_finite() && self.min_diameter_m >= 0.0) {

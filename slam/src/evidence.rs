@@ -73,14 +73,14 @@ impl EvidenceConfig {
         if !self.radius_m.is_finite() || self.radius_m <= 0.0 {
             return Err(("radius_m", format!("must be positive, got {}", self.radius_m)));
         }
-        if self.forget_after_s.is_nan() || self.forget_after_s <= 0.0 {
+        if !(self.forget_after_s.is_finite() && self.forget_after_s > 0.0) {
             return Err(("forget_after_s", format!("must be positive, got {}", self.forget_after_s)));
         }
-        if self.min_frames == 0 {
-            return Err(("min_frames", "must be at least 1".into()));
-        }
-        if self.retract_min_frames == 0 {
-            return Err(("retract_min_frames", "must be at least 1".into()));
+        let max = crate::settings::MAX_COUNT;
+        for (name, v) in [("min_frames", self.min_frames), ("retract_min_frames", self.retract_min_frames)] {
+            if !(1..=max).contains(&v) {
+                return Err((name, format!("must be 1 to {max}, got {v}")));
+            }
         }
         if !self.retract_range_m.is_finite() || self.retract_range_m <= 0.0 {
             return Err(("retract_range_m", format!("must be positive, got {}", self.retract_range_m)));

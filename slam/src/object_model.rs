@@ -28,8 +28,6 @@ pub struct ObjectModelConfig {
     pub position_floor_m: f64,
     /// An observation joins the candidate with the smallest KL below this (nats).
     pub kl_threshold: f64,
-    /// Keep at most this many patches per object for its appearance mosaic.
-    pub mosaic_patches: usize,
     /// Leading appearance dimensions (PCA coordinates) the model uses; a few strong
     /// directions estimate far better from one view's patches than all of them.
     pub appearance_dims: usize,
@@ -37,15 +35,13 @@ pub struct ObjectModelConfig {
 
 impl Default for ObjectModelConfig {
     fn default() -> Self {
-        ObjectModelConfig {
-            components: 1,
-            position_floor_m: 0.3,
-            kl_threshold: 80.0,
-            mosaic_patches: 400,
-            appearance_dims: 4,
-        }
+        ObjectModelConfig { components: 1, position_floor_m: 0.3, kl_threshold: 80.0, appearance_dims: 4 }
     }
 }
+
+/// Most appearance dimensions an object model may use (the most PCA dimensions a trained
+/// appearance model may have).
+pub const MAX_APPEARANCE_DIMS: usize = 1000;
 
 /// Most mixture components an object model may have: a model of one view's few hundred
 /// patches cannot support more.
@@ -69,8 +65,14 @@ impl ObjectModelConfig {
         if !(self.kl_threshold.is_finite() && self.kl_threshold > 0.0) {
             return Err(("kl_threshold", format!("must be a positive number of nats, got {}", self.kl_threshold)));
         }
-        if self.appearance_dims == 0 {
-            return Err(("appearance_dims", "must be at least 1".into()));
+        if !(1..=MAX_APPEARANCE_DIMS).contains(&self.appearance_dims) {
+            return Err((
+                "appearance_dims",
+                format!(
+                    "must be 1 to {MAX_APPEARANCE_DIMS} (and at most the appearance model's), got {}",
+                    self.appearance_dims
+                ),
+            ));
         }
         Ok(())
     }

@@ -114,8 +114,10 @@ impl SegmentationConfig {
                 return Err((name, format!("must be in [0, 1], got {v}")));
             }
         }
-        if !self.above_band_from_m.is_finite() {
-            return Err(("above_band_from_m", format!("must be finite, got {}", self.above_band_from_m)));
+        // The band tests what stands above the cluster's trunk, so it starts at the laser's
+        // plane or higher.
+        if !(self.above_band_from_m.is_finite() && self.above_band_from_m >= 0.0) {
+            return Err(("above_band_from_m", format!("must be zero or positive, got {}", self.above_band_from_m)));
         }
         if !(self.above_band_m.is_finite() && self.above_band_m > self.above_band_from_m) {
             return Err((
@@ -126,10 +128,21 @@ impl SegmentationConfig {
                 ),
             ));
         }
-        if self.min_band_rows == 0 {
+        let max = crate::settings::MAX_COUNT;
+        if !(1..=max).contains(&self.min_band_rows) {
             return Err((
                 "min_band_rows",
-                "must be at least 1 (a band with no row in the image judges nothing)".into(),
+                format!(
+                    "must be 1 (a band with no row in the image judges nothing) to {max}, got {}",
+                    self.min_band_rows
+                ),
+            ));
+        }
+        // An image holds at most (8192 / 8)^2 patches, but no cluster covers a tenth of them.
+        if self.min_object_patches > 10 * max {
+            return Err((
+                "min_object_patches",
+                format!("must be at most {}, got {}", 10 * max, self.min_object_patches),
             ));
         }
         // The image is at most a few thousand pixels wide: a wider margin is a typo.

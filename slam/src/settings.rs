@@ -3,6 +3,10 @@
 //! others prefixes their fields with its own, so [`InvalidSetting::path`] is the dotted
 //! path from the top (`clustering.max_range_m`). Loaders add the file and the line.
 
+/// Largest count of scans, frames or beams a setting may ask for: far beyond any use (a
+/// thousand scans are 100 s of the SICK's 10 Hz), small enough that a typo is caught.
+pub const MAX_COUNT: usize = 1000;
+
 /// A setting that makes no sense.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[error("{path}: {problem}")]

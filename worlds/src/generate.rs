@@ -163,8 +163,17 @@ impl ParkParams {
         if self.laps == 0 {
             return bad("laps", "must be at least 1".into());
         }
-        if self.trees + self.posts + self.palms + self.people > 2000 {
-            return bad("trees", "more than 2000 objects and people in total".into());
+        let counts = [("trees", self.trees), ("posts", self.posts), ("palms", self.palms), ("people", self.people)];
+        let total = counts.iter().fold(0usize, |sum, (_, n)| sum.saturating_add(*n));
+        if total > MAX_OBJECTS {
+            // Named by the largest count, the likeliest typo.
+            let (field, n) = counts.iter().max_by_key(|(_, n)| *n).unwrap();
+            return bad(
+                field,
+                format!(
+                    "{n} makes {total} objects and people in all: trees, posts, palms and people together at most {MAX_OBJECTS}"
+                ),
+            );
         }
         if self.posts > 0 && self.trees == 0 {
             return bad("posts", "posts are placed near trees: needs at least one tree".into());
@@ -174,6 +183,9 @@ impl ParkParams {
 }
 
 const ATTEMPTS: usize = 20_000;
+
+/// Most objects and people a generated park may hold.
+pub const MAX_OBJECTS: usize = 2000;
 
 fn r3(v: f64) -> f64 {
     (v * 1000.0).round() / 1000.0

@@ -212,6 +212,77 @@ pub fn resolve_appearance(
     Ok(scenario.appearance.resolve(base_dir, &scenario.sim.camera, progress)?)
 }
 
+/// What [`preflight`] found: a scenario a run would start on.
+#[derive(Debug, Clone)]
+pub struct Preflight {
+    pub method: AssociationMethod,
+    pub objects: usize,
+    pub people: usize,
+    pub calibration: String,
+    /// Where the appearance model comes from, for camera methods: a file (loaded and
+    /// checked), or training (not done here).
+    pub appearance: Option<String>,
+}
+
+/// Everything a run of `scenario` checks before its first step, without running it: the
+/// settings, the method's needs, the world, a calibration file, an appearance model file
+/// and the pipeline built from them. A model the run would train is not trained, and an
+/// `estimated` calibration's session is not run: their settings were checked when the
+/// scenario was read.
+pub fn preflight(
+    scenario: &Scenario,
+    base_dir: &Path,
+    method: Option<AssociationMethod>,
+    seed: Option<u64>,
+) -> Result<Preflight, RunError> {
+    let seed = seed.unwrap_or(scenario.seed);
+    let config = run_config(scenario, method)?;
+    let camera_method = config.method.uses_appearance();
+    if camera_method && !scenario.sim.camera.enabled {
+        return Err(RunError::Method {
+            method: config.method.name().into(),
+            message: "needs the camera, which the scenario disables (sim.camera.enabled = false)".into(),
+        });
+    }
+    let world = scenario.world(base_dir, seed)?;
+    let calibration = match scenario.calibration.mode.as_str() {
+        "estimated" => None,
+        _ => Some(resolve_calibration(scenario, base_dir, seed)?),
+    };
+    let mut appearance = None;
+    let mut model = None;
+    if camera_method {
+        match &scenario.appearance.model {
+            Some(file) => {
+                let path = base_dir.join(file);
+                let loaded = AppearanceModel::load(&path).map_err(crate::appearance::AppearanceError::from)?;
+                appearance = Some(format!("file {}", path.display()));
+                model = Some(loaded);
+            }
+            None => appearance = Some("trained from generated images (or the cache)".into()),
+        }
+    }
+    let extrinsics =
+        calibration.as_ref().map(|c| c.extrinsics).unwrap_or_else(|| crate::calibrate::true_extrinsics(&scenario.sim));
+    // A camera method's pipeline needs its model: without the file, only the settings were
+    // checked (by run_config).
+    if !camera_method || model.is_some() {
+        let appearance = match model {
+            Some(m) => Some(Appearance::new(m, camera_geometry(&scenario.sim, &extrinsics))?),
+            None => None,
+        };
+        let start = world.robot.start;
+        Pipeline::new(config.clone(), [start.x, start.y, start.yaw_rad()], appearance)?;
+    }
+    Ok(Preflight {
+        method: config.method,
+        objects: world.objects.len(),
+        people: world.people.len(),
+        calibration: scenario.calibration.mode.clone(),
+        appearance,
+    })
+}
+
 /// What a run tells its caller while it goes (see [`run`]).
 #[derive(Debug, Clone, PartialEq)]
 pub enum RunProgress<'a> {

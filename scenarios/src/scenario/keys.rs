@@ -145,11 +145,11 @@ pub(super) const KEYS: &[(&str, &str)] = &[
     ("sim.laser.min_range_m", "Shorter returns are dropped (m); 0 or more, below max_range_m."),
     ("sim.laser.range_noise_sigma_m", "Standard deviation of the Gaussian range noise (m); 0 or more."),
     ("sim.laser.rate_hz", "Scans per second (Hz); positive, at most physics_rate_hz."),
-    ("sim.laser.mount_xyz_m", "Laser position on the robot base (m): forward, left, up."),
+    ("sim.laser.mount_xyz_m", "Laser position on the robot base (m): forward, left, up; finite, up above 0."),
     (
         "sim.laser.mount_yaw_deg",
-        "Yaw of the laser on the robot (deg, positive to the left). The pipeline's observation model has no yaw \
-         term: `objslam run` refuses any other value than 0.",
+        "Yaw of the laser on the robot (deg, positive to the left), within +-180. The pipeline's observation \
+         model has no yaw term: `objslam run` refuses any other value than 0.",
     ),
     // [sim.odometry]
     ("sim.odometry.rate_hz", "Odometry messages per second (Hz); positive, at most physics_rate_hz."),
@@ -195,9 +195,9 @@ pub(super) const KEYS: &[(&str, &str)] = &[
          centre.",
     ),
     ("sim.camera.rate_hz", "Frames per second (Hz); positive, at most physics_rate_hz."),
-    ("sim.camera.mount_xyz_m", "Camera position on the robot base (m): forward, left, up."),
-    ("sim.camera.mount_pitch_deg", "Downward tilt of the optical axis (deg)."),
-    ("sim.camera.mount_yaw_deg", "Yaw of the camera on the robot (deg, positive to the left)."),
+    ("sim.camera.mount_xyz_m", "Camera position on the robot base (m): forward, left, up; finite, up above 0."),
+    ("sim.camera.mount_pitch_deg", "Downward tilt of the optical axis (deg); within +-90 (exclusive)."),
+    ("sim.camera.mount_yaw_deg", "Yaw of the camera on the robot (deg, positive to the left); within +-180."),
     ("sim.camera.noise_sigma", "Gaussian pixel noise (grey levels on a 0-255 scale); 0 (off) or more."),
     (
         "sim.camera.exposure_sigma",
@@ -265,12 +265,12 @@ pub(super) const KEYS: &[(&str, &str)] = &[
     // [calibration.session.segmentation]
     (
         "calibration.session.segmentation.bearing_rad",
-        "Bearings where the board can be (rad, laser frame), [low, high].",
+        "Bearings where the board can be (rad, laser frame), [low, high] within +-pi.",
     ),
-    ("calibration.session.segmentation.range_m", "Ranges where the board can be (m), [low, high]."),
+    ("calibration.session.segmentation.range_m", "Ranges where the board can be (m), [low, high], 0 <= low."),
     (
         "calibration.session.segmentation.length_m",
-        "Length range of the board's cut by the scan plane, first to last point (m), [low, high].",
+        "Length range of the board's cut by the scan plane, first to last point (m), [low, high], 0 <= low.",
     ),
     (
         "calibration.session.segmentation.jump_m",
@@ -283,11 +283,12 @@ pub(super) const KEYS: &[(&str, &str)] = &[
     ),
     (
         "calibration.session.segmentation.trim",
-        "Points dropped at each end of the board's cut (mixed returns at edges).",
+        "Points dropped at each end of the board's cut (mixed returns at edges); at most 50.",
     ),
     (
         "calibration.session.segmentation.camera_range_tolerance_m",
-        "Largest difference between the cut's mean range and the board's distance the camera sees (m).",
+        "Largest difference between the cut's mean range and the board's distance the camera sees (m); 0 or \
+         more.",
     ),
     // [pipeline]
     (
@@ -309,7 +310,7 @@ pub(super) const KEYS: &[(&str, &str)] = &[
     ),
     (
         "pipeline.confirm_observations",
-        "A new landmark stays tentative until observed this many times (1: at once); at least 1.",
+        "A new landmark stays tentative until observed this many times (1: at once); 1 to 1000.",
     ),
     (
         "pipeline.confirm_window_s",
@@ -352,7 +353,7 @@ pub(super) const KEYS: &[(&str, &str)] = &[
          further apart than r sin(dphi) / sin(lambda - dphi) + 3 range_sigma_m split a cluster.",
     ),
     ("pipeline.clustering.range_sigma_m", "Range noise in that breakpoint threshold (m); 0 or more."),
-    ("pipeline.clustering.min_points", "Fewest beams in a cluster; at least 3 (a circle fit needs three points)."),
+    ("pipeline.clustering.min_points", "Fewest beams in a cluster; 3 (a circle fit needs three points) to 1000."),
     ("pipeline.clustering.min_diameter_m", "Smallest fitted diameter of a cluster kept (m); 0 or more."),
     ("pipeline.clustering.max_diameter_m", "Largest fitted diameter of a cluster kept (m); above min_diameter_m."),
     (
@@ -447,7 +448,8 @@ pub(super) const KEYS: &[(&str, &str)] = &[
     ),
     (
         "pipeline.segmentation.min_object_patches",
-        "...and at least this many object patches lie in its columns (checked with pooled evidence too)...",
+        "...and at least this many object patches lie in its columns (checked with pooled evidence too); at \
+         most 10000...",
     ),
     (
         "pipeline.segmentation.min_above_fraction",
@@ -456,13 +458,13 @@ pub(super) const KEYS: &[(&str, &str)] = &[
     ),
     (
         "pipeline.segmentation.above_band_from_m",
-        "Bottom of that band (m above the laser plane, at the cluster's range); finite.",
+        "Bottom of that band (m above the laser plane, at the cluster's range); 0 or more.",
     ),
     ("pipeline.segmentation.above_band_m", "Top of that band (m above the laser plane); above above_band_from_m."),
     (
         "pipeline.segmentation.min_band_rows",
         "Fewest patch rows of the band in the image for the band to be judged; a cluster whose band is not \
-         judged only updates landmarks already confirmed; at least 1.",
+         judged only updates landmarks already confirmed; 1 to 1000.",
     ),
     (
         "pipeline.segmentation.column_margin",
@@ -485,7 +487,7 @@ pub(super) const KEYS: &[(&str, &str)] = &[
          place (m); positive. Keep it under the distance between a post and the tree beside it.",
     ),
     ("pipeline.evidence.forget_after_s", "A place not judged for this long is forgotten (s); positive."),
-    ("pipeline.evidence.min_frames", "Fewest judged frames before a place's means decide; at least 1."),
+    ("pipeline.evidence.min_frames", "Fewest judged frames before a place's means decide; 1 to 1000."),
     (
         "pipeline.evidence.undecided_by_frame",
         "Until then: false, the place is not observed; true, each frame's own judgement decides (as in the paper).",
@@ -507,7 +509,7 @@ pub(super) const KEYS: &[(&str, &str)] = &[
         "pipeline.evidence.retract_range_m",
         "Only frames judged from nearer than this count for retraction (m); positive.",
     ),
-    ("pipeline.evidence.retract_min_frames", "Fewest such near frames before a landmark can be retracted; at least 1."),
+    ("pipeline.evidence.retract_min_frames", "Fewest such near frames before a landmark can be retracted; 1 to 1000."),
     (
         "pipeline.evidence.retract_max_hit_fraction",
         "A landmark is retracted when its near frames' mean hit fraction is under this; in [0, 1].",
@@ -528,13 +530,9 @@ pub(super) const KEYS: &[(&str, &str)] = &[
         "An observation joins the candidate with the smallest KL divergence below this (nats); positive.",
     ),
     (
-        "pipeline.object_model.mosaic_patches",
-        "Meant to cap the patches kept per object for its appearance mosaic; not read at present (the mosaic \
-         keeps its largest view whole).",
-    ),
-    (
         "pipeline.object_model.appearance_dims",
-        "Leading appearance (PCA) dimensions the object models use; at least 1, at most the appearance model's.",
+        "Leading appearance (PCA) dimensions the object models use; at least 1, at most the appearance model's \
+         (appearance.pca_dims when it is trained).",
     ),
     // [pipeline.diameter]
     (
@@ -593,7 +591,7 @@ pub(super) const KEYS: &[(&str, &str)] = &[
     (
         "pass.min_false_landmarks",
         "Least false landmarks, for baseline scenarios that must reproduce a failure; not above \
-         max_false_landmarks.",
+         max_false_landmarks, at most 10000.",
     ),
     ("pass.max_duplicate_landmarks", "Most duplicate landmarks: those beyond the first on each object."),
     (

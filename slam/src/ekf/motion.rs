@@ -396,19 +396,40 @@ impl serde::Serialize for MotionConfig {
     }
 }
 
+/// A value of `[pipeline.motion]` as read: the model's name, or a number kept exactly as
+/// written (NaN and infinities included, which JSON cannot hold), so that `validate` names it.
+#[derive(serde::Deserialize)]
+#[serde(untagged)]
+enum MotionValue {
+    Name(String),
+    Number(f64),
+    Other(serde::de::IgnoredAny),
+}
+
 impl<'de> serde::Deserialize<'de> for MotionConfig {
     fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
         use serde::de::Error;
-        let mut map = serde_json::Map::<String, serde_json::Value>::deserialize(deserializer)?;
+        let mut map = std::collections::BTreeMap::<String, MotionValue>::deserialize(deserializer)?;
         let model = match map.remove("model") {
             None => "odometry".to_string(),
-            Some(serde_json::Value::String(s)) => s,
-            Some(other) => return Err(D::Error::custom(format!("`model` must be a string, got {other}"))),
+            Some(MotionValue::Name(s)) => s,
+            Some(_) => return Err(D::Error::custom("`model` must be a string: \"odometry\" or \"ackermann\"")),
         };
-        let fields = serde_json::Value::Object(map);
+        let mut numbers = Vec::with_capacity(map.len());
+        for (key, value) in map {
+            match value {
+                MotionValue::Number(v) => numbers.push((key, v)),
+                _ => return Err(D::Error::custom(format!("`{key}` must be a number"))),
+            }
+        }
+        let fields = serde::de::value::MapDeserializer::<_, serde::de::value::Error>::new(numbers.into_iter());
         match model.as_str() {
-            "odometry" => serde_json::from_value(fields).map(MotionConfig::Odometry).map_err(D::Error::custom),
-            "ackermann" => serde_json::from_value(fields).map(MotionConfig::Ackermann).map_err(D::Error::custom),
+            "odometry" => {
+                OdometryMotionModel::deserialize(fields).map(MotionConfig::Odometry).map_err(D::Error::custom)
+            }
+            "ackermann" => {
+                AckermannMotionModel::deserialize(fields).map(MotionConfig::Ackermann).map_err(D::Error::custom)
+            }
             other => {
                 Err(D::Error::custom(format!("unknown motion model `{other}`, expected `odometry` or `ackermann`")))
             }

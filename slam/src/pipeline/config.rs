@@ -232,10 +232,14 @@ impl PipelineConfig {
                 format!("must be zero or a positive number of seconds, got {}", self.image_max_age_s),
             ));
         }
-        if self.confirm_observations == 0 {
+        if !(1..=crate::settings::MAX_COUNT).contains(&self.confirm_observations) {
             return Err(InvalidSetting::new(
                 "confirm_observations",
-                "must be at least 1 (1 confirms a landmark at its first observation)",
+                format!(
+                    "must be 1 to {} (1 confirms a landmark at its first observation), got {}",
+                    crate::settings::MAX_COUNT,
+                    self.confirm_observations
+                ),
             ));
         }
         if !(self.confirm_window_s.is_finite() && self.confirm_window_s > 0.0) {
