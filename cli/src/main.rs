@@ -22,6 +22,17 @@ fn main() {
     }
 }
 
+/// Most mixture components `--max-components` may ask for: far more than any search here
+/// can fit in reasonable time, few enough that a typo is caught.
+const MAX_COMPONENTS: usize = 1000;
+
+fn check_components(max_components: usize) -> Result<()> {
+    if !(1..=MAX_COMPONENTS).contains(&max_components) {
+        anyhow::bail!("--max-components must be 1 to {MAX_COMPONENTS}, got {max_components}");
+    }
+    Ok(())
+}
+
 /// The error and its causes on one line, each cause once: the library's errors often say
 /// their cause in their own message already (so that a message stored in a study record is
 /// complete), and the chain would repeat it.
@@ -78,19 +89,26 @@ fn dispatch(cli: Cli) -> Result<()> {
             heldout_every,
             threshold,
             seed,
-        }) => appearance::train(
-            &dataset,
-            &out,
-            export_features.as_deref(),
-            pca_dims,
-            max_components,
-            heldout_every,
-            threshold,
-            seed,
-        ),
+        }) => {
+            check_components(max_components)?;
+            if pca_dims == 0 {
+                anyhow::bail!("--pca-dims must be at least 1");
+            }
+            appearance::train(
+                &dataset,
+                &out,
+                export_features.as_deref(),
+                pca_dims,
+                max_components,
+                heldout_every,
+                threshold,
+                seed,
+            )
+        }
         Some(Command::Segment { model, image, out }) => appearance::segment(&model, &image, &out),
         Some(Command::Find { run, image, model, top }) => appearance::find(&run, &image, model.as_deref(), top),
         Some(Command::Gmm(GmmCommand::Fit { data, max_components, fixed_k, search, seed, out })) => {
+            check_components(max_components)?;
             let options =
                 slam::gmm::VbOptions { max_components, fixed_k, seed, search: search.into(), ..Default::default() };
             appearance::gmm_fit(&data, &options, &out)

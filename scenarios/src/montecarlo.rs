@@ -35,7 +35,7 @@ pub enum StudyError {
     Shard { spec: String, message: String },
     #[error("{}: {message}", file.display())]
     File { file: PathBuf, message: String },
-    #[error("{}: this directory holds a different study ({message}); use a new --out directory", dir.display())]
+    #[error("{}: this directory's study.json holds a different study ({message}); use a new --out directory", dir.display())]
     Mismatch { dir: PathBuf, message: String },
     #[error(transparent)]
     Scenario(#[from] crate::scenario::ScenarioError),

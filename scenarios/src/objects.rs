@@ -131,7 +131,7 @@ pub fn find_similar(
     let file = run_dir.join("objects").join("models.json");
     let text = std::fs::read_to_string(&file).map_err(|e| file_err(&file, e))?;
     let models: ObjectModels =
-        serde_json::from_str(&text).map_err(|e| file_err(&file, format!("not an objects/models.json: {e}")))?;
+        slam::settings::from_json(&text).map_err(|e| file_err(&file, format!("not an objects/models.json: {e}")))?;
     let rgb = image::open(example).map_err(|e| file_err(example, e))?.to_rgb8();
     let (w, h) = rgb.dimensions();
     let image = ImageRef::new(w, h, rgb.as_raw()).map_err(ModelError::from)?;

@@ -144,10 +144,25 @@ pub struct PassCriteria {
     pub max_calibration_translation_error_m: Option<f64>,
 }
 
+/// Where a scenario was read from (`<built-in>/<name>.toml` for the library's; empty for
+/// one built in code): named in errors found after reading, and not part of what the
+/// scenario says, so two scenarios with the same settings are equal wherever they came from.
+#[derive(Debug, Clone, Default)]
+pub struct SourceFile(pub PathBuf);
+
+impl PartialEq for SourceFile {
+    fn eq(&self, _: &Self) -> bool {
+        true
+    }
+}
+
 /// A scenario file.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Scenario {
+    /// The file the scenario was read from, for errors found after reading.
+    #[serde(skip)]
+    pub source: SourceFile,
     pub name: String,
     #[serde(default)]
     pub description: String,
@@ -196,10 +211,11 @@ pub const DEFAULT_SCENARIO: &str = "paper_park";
 impl Scenario {
     /// Parses and checks scenario text; `file` names it in errors.
     pub fn parse(text: &str, file: &Path) -> Result<Scenario, ScenarioError> {
-        let s: Scenario = toml::from_str(text).map_err(|e| ScenarioError::Parse {
+        let mut s: Scenario = toml::from_str(text).map_err(|e| ScenarioError::Parse {
             file: file.to_path_buf(),
             message: e.to_string().trim_end().to_string(),
         })?;
+        s.source = SourceFile(file.to_path_buf());
         s.check(file).map_err(|e| match e {
             ScenarioError::Invalid { file, line: None, field, message } => {
                 ScenarioError::Invalid { line: line_of(text, &field), file, field, message }
@@ -282,10 +298,16 @@ impl Scenario {
                 return bad(field, format!("only applies to mode \"perturbed\", not {:?}", c.mode));
             }
         }
-        if c.mode.is_empty() {
+        // A file is named by its extension, so that a misspelt mode ("ture") is not taken
+        // for a file that does not exist.
+        let keyword = matches!(c.mode.as_str(), "true" | "perturbed" | "estimated");
+        if !keyword && !c.mode.ends_with(".json") {
             return bad(
                 "calibration.mode",
-                "must be \"true\", \"perturbed\", \"estimated\" or a calibration.json path".into(),
+                format!(
+                    "unknown mode {:?}: \"true\", \"perturbed\", \"estimated\", or a calibration file (.json)",
+                    c.mode
+                ),
             );
         }
         if let Err(e) = c.session.check(file, &self.sim) {
@@ -396,6 +418,7 @@ impl Scenario {
     /// pass criterion.
     pub fn with_defaults(name: &str) -> Scenario {
         Scenario {
+            source: SourceFile::default(),
             name: name.into(),
             description: String::new(),
             seed: default_seed(),

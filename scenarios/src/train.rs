@@ -32,7 +32,7 @@ fn file_err(file: &Path, message: impl ToString) -> TrainError {
 pub fn read_manifest(dir: &Path) -> Result<Manifest, TrainError> {
     let path = dir.join("dataset.json");
     let text = std::fs::read_to_string(&path).map_err(|e| file_err(&path, e))?;
-    serde_json::from_str(&text).map_err(|e| file_err(&path, format!("not an objslam dataset manifest: {e}")))
+    slam::settings::from_json(&text).map_err(|e| file_err(&path, format!("not an objslam dataset manifest: {e}")))
 }
 
 /// Loads image `i` of a dataset with its patch labels.
@@ -42,7 +42,7 @@ pub fn load_image(dir: &Path, manifest: &Manifest, i: usize) -> Result<LabelledI
     let rgb = image::open(&img_path).map_err(|e| file_err(&img_path, e))?.to_rgb8();
     let labels_path = dir.join(&entry.patches);
     let text = std::fs::read_to_string(&labels_path).map_err(|e| file_err(&labels_path, e))?;
-    let labels: PatchLabels = serde_json::from_str(&text).map_err(|e| file_err(&labels_path, e))?;
+    let labels: PatchLabels = slam::settings::from_json(&text).map_err(|e| file_err(&labels_path, e))?;
     let (w, h) = rgb.dimensions();
     if labels.patch_size == 0 {
         return Err(file_err(&labels_path, "patch_size: must be at least 1 pixel"));
@@ -193,7 +193,7 @@ pub fn segment_image(model: &AppearanceModel, image_path: &Path, out: &Path) -> 
     let classifier = PatchClassifier::new(model).map_err(ModelError::from)?;
     let f = {
         let image = ImageRef::new(w, h, rgb.as_raw()).map_err(ModelError::from)?;
-        model.extractor.features(&image, None).map_err(ModelError::from)?
+        model.extractor.features(&image, None).map_err(|e| file_err(image_path, e))?
     };
     let l = model.extractor.config.patch_size;
     let decisions = classifier.classify(&f);
@@ -280,7 +280,7 @@ pub fn gmm_fit_csv(path: &Path, options: &VbOptions) -> Result<VbGmm, TrainError
 pub fn gmm_score_csv(model: &Path, path: &Path) -> Result<(f64, usize), TrainError> {
     let text = std::fs::read_to_string(model).map_err(|e| file_err(model, e))?;
     let fitted: VbGmm =
-        serde_json::from_str(&text).map_err(|e| file_err(model, format!("not an objslam gmm fit model: {e}")))?;
+        slam::settings::from_json(&text).map_err(|e| file_err(model, format!("not an objslam gmm fit model: {e}")))?;
     fitted.check().map_err(|e| file_err(model, e))?;
     let data = read_csv(path)?;
     if data.ncols() != fitted.dims() {

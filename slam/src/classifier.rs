@@ -137,9 +137,17 @@ impl AppearanceModel {
             }
         }
         let model: AppearanceModel =
-            serde_json::from_str(text).map_err(|e| ModelError::Parse { file: file.into(), message: e.to_string() })?;
+            crate::settings::from_json(text).map_err(|message| ModelError::Parse { file: file.into(), message })?;
         let inconsistent = |message: String| ModelError::Inconsistent { file: file.into(), message };
         model.extractor.config.validate().map_err(|e| inconsistent(format!("extractor.config.{e}")))?;
+        model
+            .extractor
+            .pca
+            .check()
+            .map_err(|(field, problem)| inconsistent(format!("extractor.pca.{field}: {problem}")))?;
+        for (name, class) in [("object", &model.object), ("background", &model.background)] {
+            class.check().map_err(|e| inconsistent(format!("{name}: {e}")))?;
+        }
         let d = model.extractor.dims();
         if model.extractor.pca.input_dims() != model.extractor.config.raw_dims() {
             return Err(inconsistent("the PCA does not match the patch size and filter bank".into()));
@@ -522,6 +530,23 @@ mod tests {
         assert!(err.starts_with("cut.json"), "{err}");
         let err = AppearanceModel::from_json("{\"format_version\":1}", "empty.json").unwrap_err().to_string();
         assert!(err.contains("empty.json") && err.contains("missing field"), "{err}");
+        // Values that parse but make no model: each named.
+        let json: serde_json::Value = serde_json::from_str(&text).unwrap();
+        let edit = |f: &dyn Fn(&mut serde_json::Value)| {
+            let mut v = json.clone();
+            f(&mut v);
+            AppearanceModel::from_json(&v.to_string(), "m.json").unwrap_err().to_string()
+        };
+        let err = edit(&|v| v["object"]["prior"]["nu0"] = (-1.0).into());
+        assert!(err.contains("object") && err.contains("nu0"), "{err}");
+        let err = edit(&|v| v["background"]["prior"]["beta0"] = 0.0.into());
+        assert!(err.contains("background") && err.contains("beta0"), "{err}");
+        let err = edit(&|v| {
+            v["extractor"]["pca"]["variances"].as_array_mut().unwrap().pop();
+        });
+        assert!(err.contains("extractor.pca.variances"), "{err}");
+        let err = edit(&|v| v["extractor"]["pca"]["variances"][0] = "x".into());
+        assert!(err.contains("extractor.pca.variances[0]: invalid type"), "{err}");
     }
 
     #[test]

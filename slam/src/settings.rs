@@ -7,6 +7,21 @@
 /// thousand scans are 100 s of the SICK's 10 Hz), small enough that a typo is caught.
 pub const MAX_COUNT: usize = 1000;
 
+/// Parses JSON into `T`; an error says where, as the JSON path of the value
+/// (`extractor.pca.variances[3]`) beside the line and column, and what is wrong with it.
+pub fn from_json<T: serde::de::DeserializeOwned>(text: &str) -> Result<T, String> {
+    let mut de = serde_json::Deserializer::from_str(text);
+    let value = serde_path_to_error::deserialize(&mut de).map_err(|e| describe_json_error(&e))?;
+    // Trailing characters after the value are an error too.
+    de.end().map_err(|e| e.to_string())?;
+    Ok(value)
+}
+
+fn describe_json_error(e: &serde_path_to_error::Error<serde_json::Error>) -> String {
+    let path = e.path().to_string();
+    if path.is_empty() || path == "." { e.inner().to_string() } else { format!("{path}: {}", e.inner()) }
+}
+
 /// A setting that makes no sense.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[error("{path}: {problem}")]
@@ -30,5 +45,27 @@ impl InvalidSetting {
     /// The same problem, one table further down (`prefix.path`).
     pub fn under(self, prefix: &str) -> Self {
         InvalidSetting { path: format!("{prefix}.{}", self.path), problem: self.problem }
+    }
+}
+
+#[cfg(test)]
+mod json_tests {
+    #[derive(Debug, serde::Deserialize)]
+    #[allow(dead_code)]
+    struct Outer {
+        inner: Inner,
+    }
+    #[derive(Debug, serde::Deserialize)]
+    #[allow(dead_code)]
+    struct Inner {
+        values: Vec<f64>,
+    }
+
+    #[test]
+    fn json_errors_give_the_path_of_the_bad_value() {
+        let e = super::from_json::<Outer>(r#"{"inner": {"values": [1.0, "x"]}}"#).unwrap_err();
+        assert!(e.starts_with("inner.values[1]: invalid type: string"), "{e}");
+        assert!(super::from_json::<Outer>(r#"{"inner": {"values": []}} trailing"#).is_err());
+        assert_eq!(super::from_json::<Outer>(r#"{"inner": {"values": [2.5]}}"#).unwrap().inner.values, vec![2.5]);
     }
 }

@@ -42,9 +42,10 @@ pub enum RunError {
     #[error("method {method}: {message}")]
     Method { method: String, message: String },
     #[error(
-        "sim.laser.mount_yaw_deg = {0}: the pipeline's range-bearing model has no mounting yaw, so runs need a forward-facing laser (0)"
+        "{}: sim.laser.mount_yaw_deg = {yaw}: the pipeline's range-bearing model has no mounting yaw, so runs need a forward-facing laser (0)",
+        file.display()
     )]
-    YawedLaser(f64),
+    YawedLaser { file: PathBuf, yaw: f64 },
     #[error("{}: {source}", file.display())]
     Io { file: PathBuf, source: std::io::Error },
     #[error(transparent)]
@@ -167,7 +168,7 @@ pub fn pipeline_config(scenario: &Scenario, method: Option<AssociationMethod>) -
 /// (recording such a laser is fine).
 pub fn run_config(scenario: &Scenario, method: Option<AssociationMethod>) -> Result<PipelineConfig, RunError> {
     if scenario.sim.laser.mount_yaw_deg != 0.0 {
-        return Err(RunError::YawedLaser(scenario.sim.laser.mount_yaw_deg));
+        return Err(RunError::YawedLaser { file: scenario.source.0.clone(), yaw: scenario.sim.laser.mount_yaw_deg });
     }
     pipeline_config(scenario, method)
 }

@@ -211,8 +211,8 @@ pub(super) const KEYS: &[(&str, &str)] = &[
     (
         "calibration.mode",
         "\"true\": the simulator's exact extrinsics; \"perturbed\": those with seeded errors of the sigmas below; \
-         \"estimated\": run the calibration session first; anything else: a calibration.json path, relative to \
-         the scenario file.",
+         \"estimated\": run the calibration session first; or a calibration file's path ending in .json, \
+         relative to the scenario file.",
     ),
     (
         "calibration.rotation_sigma_deg",

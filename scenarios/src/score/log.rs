@@ -241,8 +241,7 @@ fn read_associations(file: &Path) -> Result<Vec<(usize, AssociationLine)>, Score
 
 fn read_landmarks(file: &Path) -> Result<Vec<MapLandmark>, ScoreError> {
     let text = read_text(file)?;
-    let landmarks: Vec<MapLandmark> =
-        serde_json::from_str(&text).map_err(|e| invalid(file, Some(e.line()), e.to_string()))?;
+    let landmarks: Vec<MapLandmark> = slam::settings::from_json(&text).map_err(|e| invalid(file, None, e))?;
     let mut seen = std::collections::HashSet::new();
     for l in &landmarks {
         if !l.position.iter().all(|v| v.is_finite()) {

@@ -61,6 +61,23 @@ impl Pca {
         self.basis.ncols()
     }
 
+    /// Checks a PCA read from a file: shapes that agree and finite numbers; (field, problem).
+    pub fn check(&self) -> Result<(), (&'static str, String)> {
+        if self.basis.nrows() != self.mean.len() {
+            return Err(("basis", format!("has {} rows for a {}-long mean", self.basis.nrows(), self.mean.len())));
+        }
+        if self.variances.len() != self.dims() {
+            return Err(("variances", format!("has {} entries for {} directions", self.variances.len(), self.dims())));
+        }
+        if self.mean.iter().chain(self.basis.iter()).any(|v| !v.is_finite()) {
+            return Err(("basis", "mean and basis must be finite".into()));
+        }
+        if self.variances.iter().any(|v| !(v.is_finite() && *v >= 0.0)) {
+            return Err(("variances", "must be finite and not negative".into()));
+        }
+        Ok(())
+    }
+
     /// Projects rows of `data` (N x D) to N x d.
     pub fn project(&self, data: &DMatrix<f64>) -> DMatrix<f64> {
         let mut out = data * &self.basis;
