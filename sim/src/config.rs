@@ -42,6 +42,7 @@ pub struct RobotConfig {
     pub width_m: f64,
     pub body_height_m: f64,
     pub max_speed_mps: f64,
+    /// Turn rate limit of the path follower (deg/s); the default is 1.5 rad/s exactly.
     pub max_turn_rate_dps: f64,
     pub cruise_speed_mps: f64,
     /// Pure-pursuit look-ahead distance.
@@ -57,7 +58,7 @@ impl Default for RobotConfig {
             width_m: 0.505,
             body_height_m: 0.28,
             max_speed_mps: 1.2,
-            max_turn_rate_dps: 300.0,
+            max_turn_rate_dps: 85.94366926962348,
             cruise_speed_mps: 0.5,
             lookahead_m: 0.8,
             safety_stop_m: 0.7,

@@ -14,10 +14,13 @@ pub struct PathFollower {
     /// Progress along the path (m), only ever increases.
     progress: f64,
     config: RobotConfig,
+    /// How far ahead of the base's centre the laser sits (m): the safety stop's distances
+    /// are the laser's.
+    laser_forward_m: f64,
 }
 
 impl PathFollower {
-    pub fn new(spec: &RobotSpec, config: &RobotConfig) -> Self {
+    pub fn new(spec: &RobotSpec, config: &RobotConfig, laser_forward_m: f64) -> Self {
         let mut path = vec![[spec.start.x, spec.start.y]];
         for _ in 0..spec.laps {
             for (_, b) in spec.route.segments() {
@@ -32,7 +35,7 @@ impl PathFollower {
             let d = ((w[1][0] - w[0][0]).powi(2) + (w[1][1] - w[0][1]).powi(2)).sqrt();
             arc.push(arc.last().unwrap() + d);
         }
-        PathFollower { path, arc, progress: 0.0, config: config.clone() }
+        PathFollower { path, arc, progress: 0.0, config: config.clone(), laser_forward_m }
     }
 
     pub fn total_length(&self) -> f64 {
@@ -85,7 +88,7 @@ impl PathFollower {
         let (lx, ly) = (c * dx + s * dy, -s * dx + c * dy);
         let alpha = ly.atan2(lx);
         let ld = (lx * lx + ly * ly).sqrt().max(1e-6);
-        let max_turn = self.config.max_turn_rate_dps.to_radians().min(1.5);
+        let max_turn = self.config.max_turn_rate_dps.to_radians();
         // Slow down for sharp turns; turn on the spot if the target is behind.
         let mut v = self.config.cruise_speed_mps * alpha.cos().max(0.0).powi(2);
         let remaining = self.total_length() - self.progress;
@@ -96,7 +99,7 @@ impl PathFollower {
             (2.0 * v.max(0.15) * alpha.sin() / ld).clamp(-max_turn, max_turn)
         };
         if let Some(scan) = scan
-            && blocked(scan, self.config.safety_stop_m + self.config.length_m / 2.0 - 0.16)
+            && blocked(scan, self.config.safety_stop_m + self.config.length_m / 2.0 - self.laser_forward_m)
         {
             return (0.0, 0.0);
         }

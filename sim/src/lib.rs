@@ -146,7 +146,7 @@ impl Simulation {
         config.check()?;
         let dt = 1.0 / config.physics_rate_hz;
         let scene = PhysicsScene::build(world, &config.robot, dt);
-        let follower = PathFollower::new(&world.robot, &config.robot);
+        let follower = PathFollower::new(&world.robot, &config.robot, config.laser.mount_xyz_m[0]);
         // Without a limit, allow three times the nominal driving time (people may block).
         let max_duration_s =
             config.max_duration_s.unwrap_or(3.0 * follower.total_length() / config.robot.cruise_speed_mps + 30.0);

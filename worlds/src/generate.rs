@@ -62,7 +62,8 @@ pub struct ParkParams {
     pub post_tree_gap_m: f64,
     /// Minimum gap between an object and the robot's route.
     pub route_gap_m: f64,
-    /// Maximum distance of trees, posts and palms from the route, so they are seen.
+    /// Maximum distance of trees and palms from the route, so they are seen (posts stand
+    /// near their tree).
     pub max_route_distance_m: f64,
 }
 

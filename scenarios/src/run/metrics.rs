@@ -187,10 +187,13 @@ pub fn check_pass(p: &crate::scenario::PassCriteria, m: &Metrics) -> Vec<String>
     {
         f.push(format!("ATE RMSE {:.3} m (max {max})", m.ate_rmse_m));
     }
-    if let Some(max) = p.max_landmark_rmse_m
-        && m.landmark_rmse_m.is_some_and(|r| r > max)
-    {
-        f.push(format!("landmark RMSE {:.3} m (max {max})", m.landmark_rmse_m.unwrap_or(f64::NAN)));
+    // Like the recall, an RMSE over no landmark is undefined, and fails its bound.
+    if let Some(max) = p.max_landmark_rmse_m {
+        match m.landmark_rmse_m {
+            Some(r) if r <= max => {}
+            Some(r) => f.push(format!("landmark RMSE {r:.3} m (max {max})")),
+            None => f.push(format!("landmark RMSE undefined: no mapped landmark within 2 m of an object (max {max})")),
+        }
     }
     if let Some(max) = p.max_collisions
         && m.collisions > max
@@ -269,4 +272,23 @@ pub fn summary_table(m: &Metrics) -> String {
         if m.passed { "PASSED".to_string() } else { format!("FAILED: {}", m.failures.join("; ")) }
     ));
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// An RMSE over no landmark is undefined and fails its bound, as a recall over no tree
+    /// does.
+    #[test]
+    fn undefined_landmark_rmse_fails_its_bound() {
+        let mut m: Metrics = serde_json::from_str(include_str!("../../tests/data/metrics_sample.json")).unwrap();
+        let pass = crate::scenario::PassCriteria { max_landmark_rmse_m: Some(0.2), ..Default::default() };
+        m.landmark_rmse_m = Some(0.1);
+        assert!(check_pass(&pass, &m).iter().all(|f| !f.contains("landmark RMSE")));
+        m.landmark_rmse_m = Some(0.3);
+        assert!(check_pass(&pass, &m).iter().any(|f| f.contains("landmark RMSE 0.300 m")));
+        m.landmark_rmse_m = None;
+        assert!(check_pass(&pass, &m).iter().any(|f| f.contains("landmark RMSE undefined")));
+    }
 }

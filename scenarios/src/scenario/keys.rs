@@ -122,8 +122,8 @@ pub(super) const KEYS: &[(&str, &str)] = &[
     ("sim.robot.max_speed_mps", "Speed limit of the path follower (m/s); positive, at least cruise_speed_mps."),
     (
         "sim.robot.max_turn_rate_dps",
-        "Turn rate limit of the path follower (deg/s); positive. The follower never commands more than 86 deg/s \
-         (1.5 rad/s), whatever this says.",
+        "Turn rate limit of the path follower (deg/s); positive. The default is 1.5 rad/s; a Pioneer 2-AT turns \
+         at up to 300 deg/s.",
     ),
     (
         "sim.robot.cruise_speed_mps",
@@ -607,7 +607,7 @@ pub(super) const KEYS: &[(&str, &str)] = &[
     (
         "pass.max_landmark_rmse_m",
         "Largest RMS landmark error after optimal assignment to trees, posts and palms, pairs over 2 m apart left \
-         out (m); positive. A run with no such pair passes it.",
+         out (m); positive. A run with no such pair fails it (its RMSE is undefined).",
     ),
     ("pass.max_collisions", "Most contacts between the robot and anything."),
     (
