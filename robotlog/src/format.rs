@@ -256,7 +256,7 @@ fn read_detections(file: &Path) -> Result<Vec<DetectionScan>, LogError> {
     for ((line, row), t) in table.rows.iter().zip(times) {
         let range_m = table.finite(*line, row, 1, "range_m")?;
         if range_m <= 0.0 {
-            return Err(table.problem(*line, format!("`range_m` must be positive, got {range_m}")));
+            return Err(table.problem(*line, format!("`range_m` must be finite and positive, got {range_m}")));
         }
         let bearing_rad = table.finite(*line, row, 2, "bearing_rad")?;
         let diameter_m = match row[3] {

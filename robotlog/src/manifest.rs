@@ -124,7 +124,10 @@ impl Manifest {
                     return Err(("vehicle.wheelbase_m".into(), "is needed with motion = \"ackermann\"".into()));
                 };
                 if !(wheelbase.is_finite() && wheelbase > 0.0) {
-                    return Err(("vehicle.wheelbase_m".into(), format!("must be positive, got {wheelbase}")));
+                    return Err((
+                        "vehicle.wheelbase_m".into(),
+                        format!("must be finite and positive, got {wheelbase}"),
+                    ));
                 }
                 let offset = self.vehicle.encoder_offset_m.unwrap_or(0.0);
                 if !(offset.is_finite() && offset.abs() < wheelbase) {
@@ -167,7 +170,13 @@ impl Manifest {
             if !(l.angle_increment_rad.is_finite() && l.angle_increment_rad != 0.0) {
                 return Err(("laser.angle_increment_rad".into(), "must be finite and not zero".into()));
             }
-            if !(l.range_min_m >= 0.0 && l.range_max_m > l.range_min_m && l.range_max_m.is_finite()) {
+            if !(l.range_min_m.is_finite() && l.range_min_m >= 0.0) {
+                return Err((
+                    "laser.range_min_m".into(),
+                    format!("must be finite and not negative, got {}", l.range_min_m),
+                ));
+            }
+            if !(l.range_max_m > l.range_min_m && l.range_max_m.is_finite()) {
                 return Err((
                     "laser.range_max_m".into(),
                     format!("must be finite and above range_min_m ({}), got {}", l.range_min_m, l.range_max_m),

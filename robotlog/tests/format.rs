@@ -167,7 +167,7 @@ fn malformed_files_are_errors_that_name_file_and_line() {
         (
             "manifest.toml",
             "format_version = 1\n[vehicle]\nmotion = \"ackermann\"\nwheelbase_m = nan\n[sensor]\nx_m = 0\ny_m = 0\n",
-            "vehicle.wheelbase_m: must be positive",
+            "vehicle.wheelbase_m: must be finite and positive",
         ),
         (
             "manifest.toml",

@@ -60,8 +60,8 @@ pub enum AppearanceError {
     Dataset(#[from] crate::dataset::DatasetError),
     #[error(transparent)]
     World(#[from] worlds::WorldError),
-    #[error("{}: {message}", file.display())]
-    Io { file: PathBuf, message: String },
+    #[error("{}: {source}", file.display())]
+    Io { file: PathBuf, source: std::io::Error },
 }
 
 /// The cache directory: `$OBJSLAM_CACHE`, else `runs/cache` under the working directory.
@@ -159,8 +159,7 @@ impl AppearanceSource {
         if path.exists() {
             return Ok(AppearanceModel::load(&path)?);
         }
-        std::fs::create_dir_all(dir)
-            .map_err(|e| AppearanceError::Io { file: dir.to_path_buf(), message: e.to_string() })?;
+        std::fs::create_dir_all(dir).map_err(|e| AppearanceError::Io { file: dir.to_path_buf(), source: e })?;
         remove_stale_scratch(dir);
         let scratch = dir.join(format!("training-{}-{}", std::process::id(), self.training_world_seed));
         let world = worlds::generate::preset(&self.training_preset, None, self.training_world_seed)?;
@@ -178,7 +177,7 @@ impl AppearanceSource {
         // Write then rename, so parallel runs never read a half-written model.
         let tmp = dir.join(format!(".{}.{}", std::process::id(), self.cache_key(camera)));
         model.save(&tmp)?;
-        std::fs::rename(&tmp, &path).map_err(|e| AppearanceError::Io { file: path.clone(), message: e.to_string() })?;
+        std::fs::rename(&tmp, &path).map_err(|e| AppearanceError::Io { file: path.clone(), source: e })?;
         Ok(model)
     }
 }

@@ -137,8 +137,11 @@ impl SessionConfig {
             ("station_spacing_m", self.station_spacing_m),
         ] {
             if !(v.is_finite() && v > 0.0) {
-                return bad(field, format!("must be positive, got {v}"));
+                return bad(field, format!("must be finite and positive, got {v}"));
             }
+        }
+        if self.squares.iter().any(|&n| n > 100) {
+            return bad("squares", format!("at most 100 squares each way, got {:?}", self.squares));
         }
         if self.squares[0] < 3 || self.squares[1] < 3 {
             return bad(

@@ -28,8 +28,8 @@ pub enum DatasetError {
     Camera(#[from] sim::camera::CameraError),
     #[error(transparent)]
     Write(#[from] RecordError),
-    #[error("{}: {message}", file.display())]
-    Io { file: PathBuf, message: String },
+    #[error("{}: {source}", file.display())]
+    Io { file: PathBuf, source: std::io::Error },
 }
 
 /// Dataset settings.
@@ -216,8 +216,7 @@ pub fn make_dataset(
         )));
     }
     for dir in ["images", "masks", "labels"] {
-        std::fs::create_dir_all(out.join(dir))
-            .map_err(|e| DatasetError::Io { file: out.join(dir), message: e.to_string() })?;
+        std::fs::create_dir_all(out.join(dir)).map_err(|e| DatasetError::Io { file: out.join(dir), source: e })?;
     }
     let mut cam = CameraSensor::new(world, &config.camera, sim::derive_seed(config.seed, "dataset-camera"))?;
     let base_lighting = cam.lighting;
@@ -326,7 +325,7 @@ pub fn make_dataset(
         write_png(&out.join(&names[2]), w, h, image::ExtendedColorType::L8, &img.class)?;
         let labels = patch_labels(&img.class, w, h, config.patch_size, &wanted);
         std::fs::write(out.join(&names[3]), serde_json::to_string(&labels).expect("JSON"))
-            .map_err(|e| DatasetError::Io { file: out.join(&names[3]), message: e.to_string() })?;
+            .map_err(|e| DatasetError::Io { file: out.join(&names[3]), source: e })?;
 
         // COCO: one annotation per visible part of an object instance, by the class image:
         // a tree's trunk is a `tree` annotation and its canopy a `foliage` one with the
@@ -397,7 +396,7 @@ pub fn make_dataset(
     };
     let write = |name: &str, v: &serde_json::Value| {
         std::fs::write(out.join(name), serde_json::to_string_pretty(v).expect("JSON"))
-            .map_err(|e| DatasetError::Io { file: out.join(name), message: e.to_string() })
+            .map_err(|e| DatasetError::Io { file: out.join(name), source: e })
     };
     write("dataset.json", &serde_json::to_value(&manifest).expect("JSON"))?;
     let categories: Vec<_> = ObjectClass::ALL
@@ -410,7 +409,7 @@ pub fn make_dataset(
         &json!({"info": {"description": format!("objslam dataset of {world_name}"), "version": "1.0"}, "images": coco_images, "annotations": coco_annotations, "categories": categories}),
     )?;
     std::fs::write(out.join("world.toml"), world.to_toml())
-        .map_err(|e| DatasetError::Io { file: out.join("world.toml"), message: e.to_string() })?;
+        .map_err(|e| DatasetError::Io { file: out.join("world.toml"), source: e })?;
     Ok(manifest)
 }
 

@@ -35,6 +35,8 @@ pub enum StudyError {
     Shard { spec: String, message: String },
     #[error("{}: {message}", file.display())]
     File { file: PathBuf, message: String },
+    #[error("{}: {source}", file.display())]
+    Io { file: PathBuf, source: std::io::Error },
     #[error("{}: this directory's study.json holds a different study ({message}); use a new --out directory", dir.display())]
     Mismatch { dir: PathBuf, message: String },
     #[error(transparent)]
@@ -382,18 +384,16 @@ fn read_run_lines(path: &Path) -> Result<Vec<(usize, RunRecord)>, StudyError> {
     let text = match std::fs::read_to_string(path) {
         Ok(t) => t,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(vec![]),
-        Err(e) => return Err(StudyError::File { file: path.into(), message: e.to_string() }),
+        Err(e) => return Err(StudyError::Io { file: path.into(), source: e }),
     };
     let complete = match text.rfind('\n') {
         Some(i) => &text[..=i],
         None => "",
     };
     if complete.len() != text.len() {
-        let f = OpenOptions::new()
-            .write(true)
-            .open(path)
-            .map_err(|e| StudyError::File { file: path.into(), message: e.to_string() })?;
-        f.set_len(complete.len() as u64).map_err(|e| StudyError::File { file: path.into(), message: e.to_string() })?;
+        let f =
+            OpenOptions::new().write(true).open(path).map_err(|e| StudyError::Io { file: path.into(), source: e })?;
+        f.set_len(complete.len() as u64).map_err(|e| StudyError::Io { file: path.into(), source: e })?;
     }
     complete
         .lines()
@@ -412,7 +412,7 @@ fn read_run_lines(path: &Path) -> Result<Vec<(usize, RunRecord)>, StudyError> {
 /// never leaves a partial file behind.
 pub fn write_atomically(file: &Path, text: &str) -> Result<(), StudyError> {
     let tmp = file.with_extension("tmp");
-    let io = |e: std::io::Error| StudyError::File { file: file.into(), message: e.to_string() };
+    let io = |e: std::io::Error| StudyError::Io { file: file.into(), source: e };
     let mut f = std::fs::File::create(&tmp).map_err(io)?;
     f.write_all(text.as_bytes()).and_then(|_| f.sync_all()).map_err(|e| {
         let _ = std::fs::remove_file(&tmp);
@@ -479,11 +479,10 @@ pub fn run_study_with(
     progress: impl Fn(StudyProgress) + Sync,
 ) -> Result<Vec<RunRecord>, StudyError> {
     plan.check()?;
-    std::fs::create_dir_all(out).map_err(|e| StudyError::File { file: out.into(), message: e.to_string() })?;
+    std::fs::create_dir_all(out).map_err(|e| StudyError::Io { file: out.into(), source: e })?;
     // One study at a time per directory: the lock goes with the process, however it ends.
     let lock_file = out.join("study.lock");
-    let lock = std::fs::File::create(&lock_file)
-        .map_err(|e| StudyError::File { file: lock_file.clone(), message: e.to_string() })?;
+    let lock = std::fs::File::create(&lock_file).map_err(|e| StudyError::Io { file: lock_file.clone(), source: e })?;
     lock.try_lock().map_err(|_| StudyError::Locked { file: lock_file.clone() })?;
     let plan_file = out.join("study.json");
     match std::fs::read(&plan_file) {
@@ -542,7 +541,7 @@ pub fn run_study_with(
             .create(true)
             .append(true)
             .open(&runs_file)
-            .map_err(|e| StudyError::File { file: runs_file.clone(), message: e.to_string() })?,
+            .map_err(|e| StudyError::Io { file: runs_file.clone(), source: e })?,
     );
     // Appends a finished run at once, in one synced write of the whole line: a kill leaves
     // at most one partial line, which the next start drops; a failed write is cut back and
@@ -686,8 +685,7 @@ pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<(StudyPlan, Vec<RunRecord>)
     let mut by_key: BTreeMap<String, RunRecord> = BTreeMap::new();
     for d in dirs {
         let f = d.join("study.json");
-        let text =
-            std::fs::read_to_string(&f).map_err(|e| StudyError::File { file: f.clone(), message: e.to_string() })?;
+        let text = std::fs::read_to_string(&f).map_err(|e| StudyError::Io { file: f.clone(), source: e })?;
         let p: StudyPlan =
             serde_json::from_str(&text).map_err(|e| StudyError::File { file: f.clone(), message: e.to_string() })?;
         match &plan {
@@ -724,7 +722,7 @@ pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<(StudyPlan, Vec<RunRecord>)
         plan.ok_or_else(|| StudyError::File { file: out.into(), message: "no shard directories given".into() })?;
     let mut runs: Vec<RunRecord> = by_key.into_values().collect();
     runs.sort_by_key(|r| r.job.index);
-    std::fs::create_dir_all(out).map_err(|e| StudyError::File { file: out.into(), message: e.to_string() })?;
+    std::fs::create_dir_all(out).map_err(|e| StudyError::Io { file: out.into(), source: e })?;
     write_atomically(&out.join("study.json"), &serde_json::to_string_pretty(&plan).expect("JSON"))?;
     let lines: String = runs.iter().map(|r| serde_json::to_string(r).expect("JSON") + "\n").collect();
     write_atomically(&out.join("runs.jsonl"), &lines)?;
@@ -798,7 +796,7 @@ pub fn summarise(plan: &StudyPlan, runs: &[RunRecord]) -> Vec<SummaryRow> {
 
 /// Writes `summary.csv`, `summary.json` and the failure-rate plots (PNG and SVG).
 pub fn write_summary(plan: &StudyPlan, rows: &[SummaryRow], out: &Path) -> Result<(), StudyError> {
-    let io = |f: PathBuf, e: std::io::Error| StudyError::File { file: f, message: e.to_string() };
+    let io = |f: PathBuf, e: std::io::Error| StudyError::Io { file: f, source: e };
     let mut csv = String::from("method");
     for v in &plan.vary {
         csv.push(',');

@@ -20,7 +20,7 @@ pub enum ScenarioError {
     #[error("unknown scenario {name:?}: not a file and not one of the built-in scenarios ({})", available.join(", "))]
     Unknown { name: String, available: Vec<String> },
     /// The world could not be made: a world file's own error names that file.
-    #[error("scenario {scenario}: world: {source}")]
+    #[error("{scenario}: world: {source}")]
     World { scenario: String, source: worlds::WorldError },
 }
 
@@ -287,21 +287,10 @@ impl Scenario {
             Err(e) => return bad("sim", e.to_string()),
         }
         let c = &self.calibration;
-        for (field, v) in [
-            ("calibration.rotation_sigma_deg", c.rotation_sigma_deg),
-            ("calibration.translation_sigma_m", c.translation_sigma_m),
-        ] {
-            if !(v.is_finite() && v >= 0.0) {
-                return bad(field, format!("perturbation sigmas must be zero or positive, got {v}"));
-            }
-            if v != 0.0 && c.mode != "perturbed" {
-                return bad(field, format!("only applies to mode \"perturbed\", not {:?}", c.mode));
-            }
-        }
         // A file is named by its extension, so that a misspelt mode ("ture") is not taken
         // for a file that does not exist.
         let keyword = matches!(c.mode.as_str(), "true" | "perturbed" | "estimated");
-        if !keyword && !c.mode.ends_with(".json") {
+        if !keyword && !c.mode.to_ascii_lowercase().ends_with(".json") {
             return bad(
                 "calibration.mode",
                 format!(
@@ -309,6 +298,17 @@ impl Scenario {
                     c.mode
                 ),
             );
+        }
+        for (field, v) in [
+            ("calibration.rotation_sigma_deg", c.rotation_sigma_deg),
+            ("calibration.translation_sigma_m", c.translation_sigma_m),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return bad(field, format!("perturbation sigmas must be finite and not negative, got {v}"));
+            }
+            if v != 0.0 && c.mode != "perturbed" {
+                return bad(field, format!("only applies to mode \"perturbed\", not {:?}", c.mode));
+            }
         }
         if let Err(e) = c.session.check(file, &self.sim) {
             let message = match e {
@@ -345,7 +345,8 @@ impl Scenario {
         }
         // A model given as a file is checked against this when it is loaded.
         let dims = self.pipeline.object_model.appearance_dims;
-        if self.appearance.model.is_none() && dims > self.appearance.pca_dims {
+        if self.pipeline.method.uses_appearance() && self.appearance.model.is_none() && dims > self.appearance.pca_dims
+        {
             return bad(
                 "pipeline.object_model.appearance_dims",
                 format!(
@@ -399,9 +400,18 @@ impl Scenario {
         Ok(())
     }
 
+    /// The scenario as errors name it: its file, or `scenario <name>` when built in code.
+    pub fn describe(&self) -> String {
+        if self.source.0.as_os_str().is_empty() {
+            format!("scenario {}", self.name)
+        } else {
+            self.source.0.display().to_string()
+        }
+    }
+
     /// Builds the world for a run seed.
     pub fn world(&self, base_dir: &Path, run_seed: u64) -> Result<worlds::World, ScenarioError> {
-        let scenario = self.name.clone();
+        let scenario = self.describe();
         if let Some(preset) = &self.world.preset {
             worlds::generate::preset(preset, self.world.params.as_ref(), self.world.seed.unwrap_or(run_seed))
                 .map_err(|source| ScenarioError::World { scenario, source })
@@ -458,11 +468,9 @@ fn read_settings<T: serde::de::DeserializeOwned>(
         file: file.to_path_buf(),
         message: e.to_string().trim_end().to_string(),
     })?;
-    check(&settings).map_err(|(field, message)| ScenarioError::Invalid {
-        file: file.to_path_buf(),
-        line: line_of(&text, &field),
-        field,
-        message,
+    check(&settings).map_err(|(field, message)| match field.is_empty() {
+        true => ScenarioError::Parse { file: file.to_path_buf(), message },
+        false => ScenarioError::Invalid { file: file.to_path_buf(), line: line_of(&text, &field), field, message },
     })?;
     Ok(settings)
 }
@@ -602,6 +610,9 @@ mod tests {
             ("[appearance]\ntraining_preset = \"jungle\"\n", "line 5: appearance.training_preset"),
             ("[appearance]\nmax_patches_per_class = 0\n", "line 5: appearance.max_patches_per_class"),
             ("[pipeline.sensor]\nmount_x = 1.0\n", "line 5: pipeline.sensor.mount_x"),
+            ("[pipeline.object_model]\nmosaic_patches = 400\n", "line 5: pipeline.object_model.mosaic_patches"),
+            ("[pipeline.motion]\nmodl = \"ackermann\"\n", "unknown field `modl`"),
+            ("[calibration]\nmode = \"ture\"\n", "line 5: calibration.mode: unknown mode \"ture\""),
         ] {
             let e = Scenario::parse(&format!("{base}{table}"), f).unwrap_err().to_string();
             assert!(e.contains(expect), "{table}: {e}");
@@ -615,7 +626,7 @@ mod tests {
         let yawed = Scenario::parse(&format!("{base}[sim.laser]\nmount_yaw_deg = 10.0\n"), f).unwrap();
         crate::run::pipeline_config(&yawed, None).expect("recording a yawed laser is fine");
         let e = crate::run::run_config(&yawed, None).unwrap_err().to_string();
-        assert!(e.contains("sim.laser.mount_yaw_deg = 10"), "{e}");
+        assert!(e.contains(&format!("{}: sim.laser.mount_yaw_deg = 10", f.display())), "{e}");
         let e = Scenario::load("no_such_scenario").unwrap_err().to_string();
         assert!(e.contains("paper_park"), "{e}");
     }

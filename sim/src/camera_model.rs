@@ -172,11 +172,11 @@ impl CameraConfig {
             return Err(("hfov_deg", format!("must be in (1, 170), got {}", self.hfov_deg)));
         }
         if !(self.rate_hz.is_finite() && self.rate_hz > 0.0) {
-            return Err(("rate_hz", format!("must be positive, got {}", self.rate_hz)));
+            return Err(("rate_hz", format!("must be finite and positive, got {}", self.rate_hz)));
         }
         for (field, v) in [("noise_sigma", self.noise_sigma), ("exposure_sigma", self.exposure_sigma)] {
             if !(v.is_finite() && v >= 0.0) {
-                return Err((field, format!("must be zero or positive, got {v}")));
+                return Err((field, format!("must be finite and not negative, got {v}")));
             }
         }
         if !self.mount_xyz_m.iter().all(|v| v.is_finite()) || self.mount_xyz_m[2] <= 0.0 {

@@ -222,7 +222,7 @@ impl SimConfig {
         ];
         for (field, v) in positive {
             if !(v.is_finite() && v > 0.0) {
-                return bad(field, format!("must be positive, got {v}"));
+                return bad(field, format!("must be finite and positive, got {v}"));
             }
         }
         let non_negative = [
@@ -239,7 +239,7 @@ impl SimConfig {
         ];
         for (field, v) in non_negative {
             if !(v.is_finite() && v >= 0.0) {
-                return bad(field, format!("must be zero or positive, got {v}"));
+                return bad(field, format!("must be finite and not negative, got {v}"));
             }
         }
         // Rapier's contacts are stable from about 60 Hz; past a few kHz a run only burns time
@@ -271,6 +271,14 @@ impl SimConfig {
         if self.laser.min_range_m >= self.laser.max_range_m {
             return bad("laser.min_range_m", "must be below max_range_m".into());
         }
+        // A Pioneer 2-AT turns at up to 300 deg/s: more is a typo, and makes the follower
+        // turn on the spot in bang-bang fashion.
+        if self.robot.max_turn_rate_dps > 360.0 {
+            return bad(
+                "robot.max_turn_rate_dps",
+                format!("must be at most 360 deg/s, got {}", self.robot.max_turn_rate_dps),
+            );
+        }
         if self.robot.cruise_speed_mps > self.robot.max_speed_mps {
             return bad("robot.cruise_speed_mps", format!("exceeds max_speed_mps {}", self.robot.max_speed_mps));
         }
@@ -293,7 +301,7 @@ impl SimConfig {
         if let Some(d) = self.max_duration_s
             && !(d.is_finite() && d > 0.0)
         {
-            return bad("max_duration_s", format!("must be positive, got {d}"));
+            return bad("max_duration_s", format!("must be finite and positive, got {d}"));
         }
         Ok(())
     }

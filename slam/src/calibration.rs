@@ -449,13 +449,13 @@ impl BoardSegmentation {
         }
         for (field, v) in [("jump_m", self.jump_m), ("inlier_m", self.inlier_m)] {
             if !(v.is_finite() && v > 0.0) {
-                return Err((field, format!("must be positive, got {v}")));
+                return Err((field, format!("must be finite and positive, got {v}")));
             }
         }
         if !(self.camera_range_tolerance_m.is_finite() && self.camera_range_tolerance_m >= 0.0) {
             return Err((
                 "camera_range_tolerance_m",
-                format!("must be zero or positive, got {}", self.camera_range_tolerance_m),
+                format!("must be finite and not negative, got {}", self.camera_range_tolerance_m),
             ));
         }
         // A board's cut holds a few dozen points; trimming more leaves none.

@@ -24,8 +24,8 @@ pub const MODEL_FORMAT_VERSION: u32 = 1;
 
 #[derive(Debug, thiserror::Error)]
 pub enum ModelError {
-    #[error("{file}: {message}")]
-    Io { file: String, message: String },
+    #[error("{file}: {source}")]
+    Io { file: String, source: std::io::Error },
     #[error("{file}: not an appearance model: {message}")]
     Parse { file: String, message: String },
     #[error("{file}: model format_version {found}, this objslam reads version {expected}; retrain the model")]
@@ -114,8 +114,7 @@ impl AppearanceModel {
     /// Reads a model file; a missing, corrupt or other-version file is a clear error.
     pub fn load(path: &Path) -> Result<Self, ModelError> {
         let file = path.display().to_string();
-        let text =
-            std::fs::read_to_string(path).map_err(|e| ModelError::Io { file: file.clone(), message: e.to_string() })?;
+        let text = std::fs::read_to_string(path).map_err(|e| ModelError::Io { file: file.clone(), source: e })?;
         Self::from_json(&text, &file)
     }
 
@@ -169,9 +168,8 @@ impl AppearanceModel {
     /// Writes the model as JSON.
     pub fn save(&self, path: &Path) -> Result<(), ModelError> {
         let text = serde_json::to_string(self)
-            .map_err(|e| ModelError::Io { file: path.display().to_string(), message: e.to_string() })?;
-        std::fs::write(path, text)
-            .map_err(|e| ModelError::Io { file: path.display().to_string(), message: e.to_string() })
+            .map_err(|e| ModelError::Io { file: path.display().to_string(), source: std::io::Error::other(e) })?;
+        std::fs::write(path, text).map_err(|e| ModelError::Io { file: path.display().to_string(), source: e })
     }
 }
 
@@ -530,6 +528,10 @@ mod tests {
         assert!(err.starts_with("cut.json"), "{err}");
         let err = AppearanceModel::from_json("{\"format_version\":1}", "empty.json").unwrap_err().to_string();
         assert!(err.contains("empty.json") && err.contains("missing field"), "{err}");
+        // A file that cannot be read keeps the I/O error as its source.
+        let err = AppearanceModel::load(Path::new("/nonexistent/model.json")).unwrap_err();
+        let source = std::error::Error::source(&err).and_then(|s| s.downcast_ref::<std::io::Error>());
+        assert_eq!(source.map(|e| e.kind()), Some(std::io::ErrorKind::NotFound), "{err}");
         // Values that parse but make no model: each named.
         let json: serde_json::Value = serde_json::from_str(&text).unwrap();
         let edit = |f: &dyn Fn(&mut serde_json::Value)| {

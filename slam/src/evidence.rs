@@ -71,10 +71,10 @@ impl EvidenceConfig {
     /// The first setting that makes no sense, as (field, problem).
     pub fn validate(&self) -> Result<(), (&'static str, String)> {
         if !self.radius_m.is_finite() || self.radius_m <= 0.0 {
-            return Err(("radius_m", format!("must be positive, got {}", self.radius_m)));
+            return Err(("radius_m", format!("must be finite and positive, got {}", self.radius_m)));
         }
         if !(self.forget_after_s.is_finite() && self.forget_after_s > 0.0) {
-            return Err(("forget_after_s", format!("must be positive, got {}", self.forget_after_s)));
+            return Err(("forget_after_s", format!("must be finite and positive, got {}", self.forget_after_s)));
         }
         let max = crate::settings::MAX_COUNT;
         for (name, v) in [("min_frames", self.min_frames), ("retract_min_frames", self.retract_min_frames)] {
@@ -83,7 +83,7 @@ impl EvidenceConfig {
             }
         }
         if !self.retract_range_m.is_finite() || self.retract_range_m <= 0.0 {
-            return Err(("retract_range_m", format!("must be positive, got {}", self.retract_range_m)));
+            return Err(("retract_range_m", format!("must be finite and positive, got {}", self.retract_range_m)));
         }
         for (name, v) in [
             ("min_hit_fraction", self.min_hit_fraction),

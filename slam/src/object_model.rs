@@ -31,11 +31,21 @@ pub struct ObjectModelConfig {
     /// Leading appearance dimensions (PCA coordinates) the model uses; a few strong
     /// directions estimate far better from one view's patches than all of them.
     pub appearance_dims: usize,
+    /// A former key that nothing read: read only to be refused with what to do (files
+    /// written from older `objslam config defaults` output, or older logs, hold it).
+    #[serde(skip_serializing)]
+    pub mosaic_patches: Option<usize>,
 }
 
 impl Default for ObjectModelConfig {
     fn default() -> Self {
-        ObjectModelConfig { components: 1, position_floor_m: 0.3, kl_threshold: 80.0, appearance_dims: 4 }
+        ObjectModelConfig {
+            components: 1,
+            position_floor_m: 0.3,
+            kl_threshold: 80.0,
+            appearance_dims: 4,
+            mosaic_patches: None,
+        }
     }
 }
 
@@ -50,6 +60,14 @@ pub const MAX_OBJECT_COMPONENTS: usize = 32;
 impl ObjectModelConfig {
     /// The first setting that makes no sense, as (field, problem).
     pub fn validate(&self) -> Result<(), (&'static str, String)> {
+        if self.mosaic_patches.is_some() {
+            return Err((
+                "mosaic_patches",
+                "is no longer a setting (nothing ever read it: a mosaic keeps its object's largest view whole); \
+                 delete this line"
+                    .into(),
+            ));
+        }
         if self.components > MAX_OBJECT_COMPONENTS {
             return Err((
                 "components",

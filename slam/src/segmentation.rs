@@ -117,7 +117,10 @@ impl SegmentationConfig {
         // The band tests what stands above the cluster's trunk, so it starts at the laser's
         // plane or higher.
         if !(self.above_band_from_m.is_finite() && self.above_band_from_m >= 0.0) {
-            return Err(("above_band_from_m", format!("must be zero or positive, got {}", self.above_band_from_m)));
+            return Err((
+                "above_band_from_m",
+                format!("must be finite and not negative, got {}", self.above_band_from_m),
+            ));
         }
         if !(self.above_band_m.is_finite() && self.above_band_m > self.above_band_from_m) {
             return Err((

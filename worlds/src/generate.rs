@@ -151,7 +151,7 @@ impl ParkParams {
             ("max_route_distance_m", self.max_route_distance_m),
         ] {
             if !(v.is_finite() && v > 0.0) {
-                return bad(field, format!("must be positive, got {v}"));
+                return bad(field, format!("must be finite and positive, got {v}"));
             }
         }
         if self.route_gap_m < ROBOT_ROUTE_CLEARANCE_M {
@@ -161,8 +161,8 @@ impl ParkParams {
         if 2.0 * self.route_margin_m + 2.0 * self.route_corner_radius_m >= w.min(d) {
             return bad("route_margin_m", format!("the loop does not fit a {w:.1} x {d:.1} m ground"));
         }
-        if self.laps == 0 {
-            return bad("laps", "must be at least 1".into());
+        if !(1..=crate::MAX_LAPS).contains(&self.laps) {
+            return bad("laps", format!("must be 1 to {}, got {}", crate::MAX_LAPS, self.laps));
         }
         let counts = [("trees", self.trees), ("posts", self.posts), ("palms", self.palms), ("people", self.people)];
         let total = counts.iter().fold(0usize, |sum, (_, n)| sum.saturating_add(*n));

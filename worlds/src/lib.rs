@@ -27,6 +27,10 @@ use std::path::Path;
 pub use description::*;
 pub use error::{Problem, WorldError};
 
+/// Most laps a robot may drive its route: the path follower holds every lap's waypoints,
+/// and a thousand laps of the paper's park are 14 simulated hours.
+pub const MAX_LAPS: u32 = 1000;
+
 /// Parses and validates world TOML text, and reads the objects' `mesh` files; `file` names
 /// the source in errors and resolves relative mesh paths.
 pub fn parse(text: &str, file: &Path) -> Result<World, WorldError> {

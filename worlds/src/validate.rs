@@ -54,7 +54,7 @@ pub fn validate(world: &World, base_dir: &Path) -> Vec<Problem> {
         }
         for (name, v) in shape_sizes(&o.shape) {
             if !(v.is_finite() && v > 0.0) {
-                push(format!("{f}.shape.{name}"), format!("must be positive, got {v}"));
+                push(format!("{f}.shape.{name}"), format!("must be finite and positive, got {v}"));
             }
         }
         if let Shape::Board { bottom_m, squares, tilt_deg, roll_deg, .. } = o.shape {
@@ -149,7 +149,7 @@ pub fn validate(world: &World, base_dir: &Path) -> Vec<Problem> {
             ("stride_m", p.stride_m),
         ] {
             if !(v.is_finite() && v > 0.0) {
-                push(format!("{f}.{name}"), format!("must be positive, got {v}"));
+                push(format!("{f}.{name}"), format!("must be finite and positive, got {v}"));
             }
         }
         if !(p.start_time_s.is_finite() && p.start_time_s >= 0.0) {
@@ -167,8 +167,8 @@ pub fn validate(world: &World, base_dir: &Path) -> Vec<Problem> {
     if !all_finite(&[r.start.x, r.start.y, r.start.yaw_deg]) {
         push("robot.start".into(), "pose must be finite".into());
     }
-    if r.laps == 0 {
-        push("robot.laps".into(), "must be at least 1".into());
+    if !(1..=crate::MAX_LAPS).contains(&r.laps) {
+        push("robot.laps".into(), format!("must be 1 to {}, got {}", crate::MAX_LAPS, r.laps));
     }
     check_route(&mut push, "robot.route", &r.route, &world.objects, &footprints, ROBOT_ROUTE_CLEARANCE_M);
     for (i, fp) in footprints.iter().enumerate() {

@@ -192,7 +192,9 @@ pub fn check_pass(p: &crate::scenario::PassCriteria, m: &Metrics) -> Vec<String>
         match m.landmark_rmse_m {
             Some(r) if r <= max => {}
             Some(r) => f.push(format!("landmark RMSE {r:.3} m (max {max})")),
-            None => f.push(format!("landmark RMSE undefined: no mapped landmark within 2 m of an object (max {max})")),
+            None => f.push(format!(
+                "landmark RMSE undefined: no mapped landmark within 2 m of a tree, post or palm (max {max})"
+            )),
         }
     }
     if let Some(max) = p.max_collisions

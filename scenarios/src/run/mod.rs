@@ -37,15 +37,16 @@ pub enum RunError {
     Scenario(#[from] ScenarioError),
     #[error(transparent)]
     Sim(#[from] sim::SimError),
-    #[error("scenario {scenario}: pipeline.{setting}")]
+    /// A pipeline setting of a scenario changed after it was read (read from a file, it was
+    /// checked then): named by its file, or its name when built in code.
+    #[error("{scenario}: pipeline.{setting}")]
     Pipeline { scenario: String, setting: slam::settings::InvalidSetting },
     #[error("method {method}: {message}")]
     Method { method: String, message: String },
     #[error(
-        "{}: sim.laser.mount_yaw_deg = {yaw}: the pipeline's range-bearing model has no mounting yaw, so runs need a forward-facing laser (0)",
-        file.display()
+        "{scenario}: sim.laser.mount_yaw_deg = {yaw}: the pipeline's range-bearing model has no mounting yaw, so runs need a forward-facing laser (0)"
     )]
-    YawedLaser { file: PathBuf, yaw: f64 },
+    YawedLaser { scenario: String, yaw: f64 },
     #[error("{}: {source}", file.display())]
     Io { file: PathBuf, source: std::io::Error },
     #[error(transparent)]
@@ -153,7 +154,7 @@ pub struct RunOutcome {
 /// changed in code.
 pub fn pipeline_config(scenario: &Scenario, method: Option<AssociationMethod>) -> Result<PipelineConfig, RunError> {
     let mut config = scenario.pipeline.clone();
-    config.validate().map_err(|setting| RunError::Pipeline { scenario: scenario.name.clone(), setting })?;
+    config.validate().map_err(|setting| RunError::Pipeline { scenario: scenario.describe(), setting })?;
     if let Some(m) = method {
         config.method = m;
     }
@@ -168,7 +169,7 @@ pub fn pipeline_config(scenario: &Scenario, method: Option<AssociationMethod>) -
 /// (recording such a laser is fine).
 pub fn run_config(scenario: &Scenario, method: Option<AssociationMethod>) -> Result<PipelineConfig, RunError> {
     if scenario.sim.laser.mount_yaw_deg != 0.0 {
-        return Err(RunError::YawedLaser { file: scenario.source.0.clone(), yaw: scenario.sim.laser.mount_yaw_deg });
+        return Err(RunError::YawedLaser { scenario: scenario.describe(), yaw: scenario.sim.laser.mount_yaw_deg });
     }
     pipeline_config(scenario, method)
 }

@@ -92,7 +92,7 @@ pub(super) const KEYS: &[(&str, &str)] = &[
         "Inset of the robot's loop from the ground's edges (m); positive, and the loop must fit the ground.",
     ),
     ("world.params.route_corner_radius_m", "Radius of the loop's rounded corners (m); positive."),
-    ("world.params.laps", "Times the robot drives the loop; at least 1."),
+    ("world.params.laps", "Times the robot drives the loop; 1 to 1000."),
     ("world.params.object_gap_m", "Minimum gap between static objects, posts to their tree excepted (m); positive."),
     ("world.params.post_tree_gap_m", "Minimum gap between a post and the tree it imitates (m); positive."),
     (
@@ -122,8 +122,8 @@ pub(super) const KEYS: &[(&str, &str)] = &[
     ("sim.robot.max_speed_mps", "Speed limit of the path follower (m/s); positive, at least cruise_speed_mps."),
     (
         "sim.robot.max_turn_rate_dps",
-        "Turn rate limit of the path follower (deg/s); positive. The default is 1.5 rad/s; a Pioneer 2-AT turns \
-         at up to 300 deg/s.",
+        "Turn rate limit of the path follower (deg/s); positive, at most 360. The default is 1.5 rad/s; a \
+         Pioneer 2-AT turns at up to 300 deg/s.",
     ),
     (
         "sim.robot.cruise_speed_mps",
@@ -230,7 +230,7 @@ pub(super) const KEYS: &[(&str, &str)] = &[
     ("calibration.session.board_height_m", "Board height (m); positive."),
     (
         "calibration.session.squares",
-        "Checker squares across and down; at least 3 each way, and the squares must come out square.",
+        "Checker squares across and down; 3 to 100 each way, and the squares must come out square.",
     ),
     ("calibration.session.distance_m", "Range of the distance from the laser to the board centre (m); above 0.3."),
     ("calibration.session.bearing_deg", "Range of the bearing of the board centre from the laser's x axis (deg)."),
@@ -895,8 +895,11 @@ mod tests {
 
     /// Keys read under an earlier name (serde aliases), described under their own.
     fn is_former_spelling(key: &str) -> bool {
-        key.strip_prefix("sim.odometry.")
-            .is_some_and(|k| sim::OdometryConfig::FORMER_SPELLINGS.iter().any(|(old, _)| *old == k))
+        // A removed key, read only to be refused with what to do.
+        key == "pipeline.object_model.mosaic_patches"
+            || key
+                .strip_prefix("sim.odometry.")
+                .is_some_and(|k| sim::OdometryConfig::FORMER_SPELLINGS.iter().any(|(old, _)| *old == k))
     }
 
     /// The fields a scenario table accepts, from the error for an unknown one (every table

@@ -262,7 +262,7 @@ impl AckermannMotionModel {
     /// The first setting that makes no sense, as (field, problem).
     pub fn validate(&self) -> Result<(), (&'static str, String)> {
         if !(self.wheelbase_m.is_finite() && self.wheelbase_m > 0.0) {
-            return Err(("wheelbase_m", format!("must be positive, got {}", self.wheelbase_m)));
+            return Err(("wheelbase_m", format!("must be finite and positive, got {}", self.wheelbase_m)));
         }
         if !(self.encoder_offset_m.is_finite() && self.encoder_offset_m.abs() < self.wheelbase_m) {
             return Err((
@@ -406,6 +406,32 @@ enum MotionValue {
     Other(serde::de::IgnoredAny),
 }
 
+/// Hands a read value on to the model's own derived deserialiser, so that it reports an
+/// unknown key (with the keys it expects) before a value of the wrong type.
+impl<'de> serde::de::IntoDeserializer<'de, serde::de::value::Error> for MotionValue {
+    type Deserializer = Self;
+    fn into_deserializer(self) -> Self {
+        self
+    }
+}
+
+impl<'de> serde::Deserializer<'de> for MotionValue {
+    type Error = serde::de::value::Error;
+
+    fn deserialize_any<V: serde::de::Visitor<'de>>(self, visitor: V) -> Result<V::Value, Self::Error> {
+        match self {
+            MotionValue::Name(s) => visitor.visit_string(s),
+            MotionValue::Number(v) => visitor.visit_f64(v),
+            MotionValue::Other(_) => visitor.visit_unit(),
+        }
+    }
+
+    serde::forward_to_deserialize_any! {
+        bool i8 i16 i32 i64 i128 u8 u16 u32 u64 u128 f32 f64 char str string bytes byte_buf option unit
+        unit_struct newtype_struct seq tuple tuple_struct map struct enum identifier ignored_any
+    }
+}
+
 impl<'de> serde::Deserialize<'de> for MotionConfig {
     fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
         use serde::de::Error;
@@ -415,14 +441,7 @@ impl<'de> serde::Deserialize<'de> for MotionConfig {
             Some(MotionValue::Name(s)) => s,
             Some(_) => return Err(D::Error::custom("`model` must be a string: \"odometry\" or \"ackermann\"")),
         };
-        let mut numbers = Vec::with_capacity(map.len());
-        for (key, value) in map {
-            match value {
-                MotionValue::Number(v) => numbers.push((key, v)),
-                _ => return Err(D::Error::custom(format!("`{key}` must be a number"))),
-            }
-        }
-        let fields = serde::de::value::MapDeserializer::<_, serde::de::value::Error>::new(numbers.into_iter());
+        let fields = serde::de::value::MapDeserializer::<_, serde::de::value::Error>::new(map.into_iter());
         match model.as_str() {
             "odometry" => {
                 OdometryMotionModel::deserialize(fields).map(MotionConfig::Odometry).map_err(D::Error::custom)
@@ -539,6 +558,12 @@ mod tests {
         assert!(wrong.to_string().contains("unknown field `a_dd`"), "{wrong}");
         let unknown = serde_json::from_str::<MotionConfig>(r#"{"model": "bicycle"}"#).unwrap_err();
         assert!(unknown.to_string().contains("unknown motion model `bicycle`"), "{unknown}");
+        // A misspelt key is an unknown key, whatever its value; a text where a number
+        // belongs says so.
+        let typo = serde_json::from_str::<MotionConfig>(r#"{"modl": "ackermann"}"#).unwrap_err();
+        assert!(typo.to_string().contains("unknown field `modl`, expected one of"), "{typo}");
+        let text = serde_json::from_str::<MotionConfig>(r#"{"a_dd": "0.01"}"#).unwrap_err();
+        assert!(text.to_string().contains("invalid type: string"), "{text}");
         assert_eq!(
             AckermannMotionModel { encoder_offset_m: 3.0, ..Default::default() }.validate().unwrap_err().0,
             "encoder_offset_m"

@@ -44,7 +44,7 @@ impl RangeBearingModel {
         }
         for (name, v) in [("range_sigma_m", self.range_sigma_m), ("bearing_sigma_rad", self.bearing_sigma_rad)] {
             if !(v.is_finite() && v > 0.0) {
-                return Err((name, format!("must be positive, got {v}")));
+                return Err((name, format!("must be finite and positive, got {v}")));
             }
         }
         if !(self.range_sigma_per_m.is_finite() && self.range_sigma_per_m >= 0.0) {

@@ -171,7 +171,7 @@ impl FeatureConfig {
             ));
         }
         if let Some(g) = self.channel_gain.iter().find(|g| !(g.is_finite() && **g > 0.0)) {
-            return Err(InvalidSetting::new("channel_gain", format!("gains must be positive, got {g}")));
+            return Err(InvalidSetting::new("channel_gain", format!("gains must be finite and positive, got {g}")));
         }
         Ok(())
     }

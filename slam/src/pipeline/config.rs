@@ -158,7 +158,7 @@ impl MergeConfig {
     pub fn validate(&self) -> Result<(), (&'static str, String)> {
         for (name, v) in [("max_sigma_m", self.max_sigma_m), ("noise_sigma_m", self.noise_sigma_m)] {
             if !(v.is_finite() && v > 0.0) {
-                return Err((name, format!("must be positive, got {v}")));
+                return Err((name, format!("must be finite and positive, got {v}")));
             }
         }
         Ok(())
