@@ -21,6 +21,7 @@ pub mod record;
 pub mod replay;
 pub mod ros2;
 pub mod run;
+pub mod scaling;
 pub mod scenario;
 pub mod score;
 pub mod train;

@@ -363,6 +363,59 @@ const SERIES_PALETTE: [RGBColor; 6] = [
 /// Width of a study plot without its legend panel, pixels.
 const STUDY_PLOT_W: u32 = 900;
 
+/// Costs against a size, one line per named series, on a logarithmic cost axis (the
+/// stages differ by orders of magnitude), with the legend in a panel of its own.
+pub fn cost_plot(
+    title: &str,
+    x_desc: &str,
+    y_desc: &str,
+    series: &[(String, Vec<(f64, f64)>)],
+    png: &Path,
+) -> Result<(), PlotError> {
+    register_fonts();
+    let root = BitMapBackend::new(png, (STUDY_PLOT_W + LEGEND_W, 600)).into_drawing_area();
+    draw_costs(root, title, x_desc, y_desc, series).map_err(|message| PlotError { file: png.to_path_buf(), message })
+}
+
+fn draw_costs<DB: DrawingBackend>(
+    root: DrawingArea<DB, plotters::coord::Shift>,
+    title: &str,
+    x_desc: &str,
+    y_desc: &str,
+    series: &[(String, Vec<(f64, f64)>)],
+) -> Result<(), String> {
+    let e = |x: &dyn std::fmt::Display| x.to_string();
+    root.fill(&WHITE).map_err(|x| e(&x))?;
+    let (plot_area, legend_area) = root.split_horizontally(STUDY_PLOT_W);
+    let points = || series.iter().flat_map(|(_, p)| p.iter());
+    let xs: Vec<f64> = points().map(|p| p.0).collect();
+    // A log axis needs positive bounds: costs at or below zero are left out.
+    let ys: Vec<f64> = points().map(|p| p.1).filter(|y| *y > 0.0).collect();
+    let (x_lo, x_hi) = axis_range(&xs);
+    let (y_lo, y_hi) = axis_range(&ys);
+    let (y_lo, y_hi) = if y_lo > 0.0 { (y_lo / 1.5, y_hi * 1.5) } else { (0.1, 10.0) };
+    let pad = if x_hi > x_lo { 0.04 * (x_hi - x_lo) } else { 1.0 };
+    let mut chart = ChartBuilder::on(&plot_area)
+        .caption(title, ("sans-serif", 20))
+        .margin(15)
+        .x_label_area_size(45)
+        .y_label_area_size(65)
+        .build_cartesian_2d((x_lo - pad)..(x_hi + pad), (y_lo..y_hi).log_scale())
+        .map_err(|x| e(&x))?;
+    chart.configure_mesh().x_desc(x_desc).y_desc(y_desc).label_style(("sans-serif", 14)).draw().map_err(|x| e(&x))?;
+    let mut legend = Vec::new();
+    for (k, (name, pts)) in series.iter().enumerate() {
+        let colour = SERIES_PALETTE[k % SERIES_PALETTE.len()];
+        let pts: Vec<(f64, f64)> = pts.iter().copied().filter(|p| p.1 > 0.0).collect();
+        chart.draw_series(LineSeries::new(pts.clone(), colour.stroke_width(3))).map_err(|x| e(&x))?;
+        chart.draw_series(pts.iter().map(|p| Circle::new(*p, 4, colour.filled()))).map_err(|x| e(&x))?;
+        legend.push((name.clone(), Swatch::Line(colour, 3)));
+    }
+    draw_legend(&legend_area, &legend).map_err(|x| e(&x))?;
+    root.present().map_err(|x| e(&x))?;
+    Ok(())
+}
+
 /// Failure rate against the first varied parameter, one line per method, with 95%
 /// intervals; written as PNG and SVG.
 pub fn failure_rate_plot(

@@ -1,0 +1,42 @@
+//! Cost against world size (see `scenarios::scaling`): runs `paper_park`'s park at 1, 2,
+//! 4, 7 and 10 times its size with `jcbb` and `combined`, and writes `scaling.csv` and
+//! `scaling.png` into the directory given (default `runs/scaling`). Some factors only:
+//! `-- DIR 1 2`.
+//!
+//! cargo run --release -p scenarios --example world_scaling -- runs/scaling
+
+fn main() {
+    let mut args = std::env::args().skip(1);
+    let dir = std::path::PathBuf::from(args.next().unwrap_or_else(|| "runs/scaling".into()));
+    let factors: Vec<u32> = args.map(|a| a.parse().expect("factors are whole numbers")).collect();
+    let factors = if factors.is_empty() { scenarios::scaling::FACTORS.to_vec() } else { factors };
+    let started = std::time::Instant::now();
+    let rows = scenarios::scaling::measure(&factors, std::path::Path::new("."), |factor, method| {
+        eprintln!("[{:6.1} s] park x{factor}, {method}", started.elapsed().as_secs_f64());
+    })
+    .unwrap_or_else(|e| {
+        eprintln!("error: {e}");
+        std::process::exit(2)
+    });
+    if let Err(e) = scenarios::scaling::write(&rows, &dir) {
+        eprintln!("error: {e}");
+        std::process::exit(2);
+    }
+    for r in &rows {
+        println!(
+            "x{:<3} {:>4} trees {:>4} objects {:>3} people {:<9} sim {:7.1} s  wall {:6.1} s  simulator {:6.1} s  pipeline {:6.1} s  {:5.2} ms/scan  {:>4} landmarks",
+            r.factor,
+            r.trees,
+            r.objects,
+            r.people,
+            r.method,
+            r.sim_seconds,
+            r.wall_seconds,
+            r.simulator_s,
+            r.pipeline_s,
+            r.mean_scan_ms,
+            r.landmarks
+        );
+    }
+    eprintln!("wrote {}/scaling.csv and scaling.png", dir.display());
+}
