@@ -592,11 +592,12 @@ pub fn draw_replay_map(
     title: &str,
     path: &[[f64; 2]],
     reference: &[[f64; 2]],
+    dropped: &[[f64; 2]],
     landmarks: &[[f64; 2]],
     file: &Path,
 ) -> Result<(), PlotError> {
     register_fonts();
-    let all: Vec<&[f64; 2]> = path.iter().chain(reference).chain(landmarks).collect();
+    let all: Vec<&[f64; 2]> = path.iter().chain(reference).chain(dropped).chain(landmarks).collect();
     let (xs, ys): (Vec<f64>, Vec<f64>) = all.iter().map(|p| (p[0], p[1])).unzip();
     let (x0, x1) = axis_range(&xs);
     let (y0, y1) = axis_range(&ys);
@@ -637,6 +638,14 @@ pub fn draw_replay_map(
             .map_err(|x| e(&x))?
             .label("landmarks")
             .legend(|(x, y)| Circle::new((x + 10, y), 3, BLACK.filled()));
+        if !dropped.is_empty() {
+            let red = RGBColor(200, 0, 0);
+            chart
+                .draw_series(dropped.iter().map(|p| Cross::new((p[0], p[1]), 6, red.stroke_width(2))))
+                .map_err(|x| e(&x))?
+                .label("GPS fix dropped as a spike")
+                .legend(move |(x, y)| Cross::new((x + 10, y), 5, red.stroke_width(2)));
+        }
         chart
             .configure_series_labels()
             .background_style(WHITE.mix(0.9))

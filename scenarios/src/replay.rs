@@ -341,17 +341,53 @@ fn peak_memory_mb() -> Option<f64> {
     Some(kb / 1024.0)
 }
 
-/// Indices of GPS fixes that are spikes: reached from the previous fix and left to the
-/// next one at more than `max_speed` (m/s) each, while the neighbours agree with each
-/// other. Decided from the GPS alone, never from the estimate being scored.
+/// Most consecutive GPS fixes one spike may hold.
+pub const GPS_SPIKE_MAX_FIXES: usize = 3;
+
+/// Indices of GPS fixes that are spikes, decided from the GPS alone, never from the
+/// estimate being scored. A spike is a run of 1 to [`GPS_SPIKE_MAX_FIXES`] fixes, each
+/// reached from the fix before the run and left to the fix after it at more than
+/// `max_speed` (m/s), while those two neighbours agree with each other. At either end of
+/// the log, where one neighbour is missing, a single fix is a spike when the two fixes on
+/// its one side agree (more fixes there may as well be where the GPS went on to).
 pub fn gps_spikes(samples: &[ReferenceSample], max_speed: f64) -> Vec<usize> {
-    let speed = |a: &ReferenceSample, b: &ReferenceSample| (b.x - a.x).hypot(b.y - a.y) / (b.t - a.t).max(1e-3);
-    (1..samples.len().saturating_sub(1))
-        .filter(|&i| {
-            let (a, b, c) = (&samples[i - 1], &samples[i], &samples[i + 1]);
-            speed(a, b) > max_speed && speed(b, c) > max_speed && speed(a, c) <= max_speed
-        })
-        .collect()
+    let speed = |a: usize, b: usize| {
+        let (a, b) = (&samples[a], &samples[b]);
+        (b.x - a.x).hypot(b.y - a.y) / (b.t - a.t).abs().max(1e-3)
+    };
+    let n = samples.len();
+    let mut spikes = Vec::new();
+    let mut i = 0;
+    while i < n {
+        let mut found = None;
+        for len in 1..=GPS_SPIKE_MAX_FIXES {
+            let j = i + len - 1;
+            if j >= n {
+                break;
+            }
+            // The run's neighbours that vouch for each other: before and after it, or, at
+            // an end, the two fixes on its one side.
+            let (p, q) = match (i.checked_sub(1), (j + 1 < n).then_some(j + 1)) {
+                (Some(before), Some(after)) => (before, after),
+                (None, Some(after)) if len == 1 && after + 1 < n => (after, after + 1),
+                (Some(before), None) if len == 1 && before >= 1 => (before - 1, before),
+                _ => continue,
+            };
+            let off = (i..=j).all(|k| speed(k, p) > max_speed && speed(k, q) > max_speed);
+            if off && speed(p, q) <= max_speed {
+                found = Some(j);
+                break;
+            }
+        }
+        match found {
+            Some(j) => {
+                spikes.extend(i..=j);
+                i = j + 1;
+            }
+            None => i += 1,
+        }
+    }
+    spikes
 }
 
 /// The rotation and translation that best map `from` onto `to` (least squares, 2-D, no
@@ -472,7 +508,15 @@ pub fn write_outputs(out: &Path, log: &Log, replay: &Replay) -> Result<(), Repla
     let moved = |p: [f64; 2]| [c * p[0] - s * p[1] + t[0], s * p[0] + c * p[1] + t[1]];
     let path: Vec<[f64; 2]> = replay.trajectory.iter().map(|(_, p)| moved([p[0], p[1]])).collect();
     let marks: Vec<[f64; 2]> = replay.landmarks.iter().map(|l| moved(l.position)).collect();
-    let reference: Vec<[f64; 2]> = log.reference.iter().map(|r| [r.x, r.y]).collect();
+    // The fixes scoring dropped as spikes are drawn as such, the others as the reference.
+    let spikes = match &log.manifest.reference {
+        Some(r) if r.kind == ReferenceKind::Gps => gps_spikes(&log.reference, GPS_SPIKE_SPEED_MPS),
+        _ => Vec::new(),
+    };
+    let (mut reference, mut dropped) = (Vec::new(), Vec::new());
+    for (k, r) in log.reference.iter().enumerate() {
+        if spikes.binary_search(&k).is_ok() { &mut dropped } else { &mut reference }.push([r.x, r.y]);
+    }
     let title = format!(
         "{}: {} ({} landmarks{})",
         if log.manifest.name.is_empty() { "log" } else { &log.manifest.name },
@@ -480,7 +524,7 @@ pub fn write_outputs(out: &Path, log: &Log, replay: &Replay) -> Result<(), Repla
         marks.len(),
         replay.metrics.reference.as_ref().map_or(String::new(), |r| format!(", ATE {:.2} m", r.ate_rmse_m))
     );
-    crate::plot::draw_replay_map(&title, &path, &reference, &marks, &out.join("map.png"))?;
+    crate::plot::draw_replay_map(&title, &path, &reference, &dropped, &marks, &out.join("map.png"))?;
     Ok(())
 }
 
@@ -538,6 +582,22 @@ mod tests {
             s.x += 100.0;
         }
         assert_eq!(gps_spikes(&samples, GPS_SPIKE_SPEED_MPS), vec![4]);
+        // Two and three fixes in a row, and one at either end.
+        let mut samples: Vec<ReferenceSample> =
+            (0..30).map(|k| ReferenceSample { t: k as f64, x: 3.0 * k as f64, y: 0.0, theta: None }).collect();
+        for k in [0, 8, 9, 20, 21, 22, 29] {
+            samples[k].y = 90.0 + k as f64;
+        }
+        assert_eq!(gps_spikes(&samples, GPS_SPIKE_SPEED_MPS), vec![0, 8, 9, 20, 21, 22, 29]);
+        // Two at an end may be where the GPS went on to: not dropped.
+        samples[28].y = 118.0;
+        assert_eq!(gps_spikes(&samples, GPS_SPIKE_SPEED_MPS), vec![0, 8, 9, 20, 21, 22]);
+        samples[28].y = 0.0;
+        // Four in a row is not a spike but a place the GPS stayed.
+        for s in &mut samples[12..16] {
+            s.y = 50.0;
+        }
+        assert!(!gps_spikes(&samples, GPS_SPIKE_SPEED_MPS).contains(&12));
     }
 
     #[test]
