@@ -388,9 +388,9 @@ fn draw_costs<DB: DrawingBackend>(
     root.fill(&WHITE).map_err(|x| e(&x))?;
     let (plot_area, legend_area) = root.split_horizontally(STUDY_PLOT_W);
     let points = || series.iter().flat_map(|(_, p)| p.iter());
-    let xs: Vec<f64> = points().map(|p| p.0).collect();
+    let xs: Vec<f64> = points().map(|p| p.0).filter(|x| x.is_finite()).collect();
     // A log axis needs positive bounds: costs at or below zero are left out.
-    let ys: Vec<f64> = points().map(|p| p.1).filter(|y| *y > 0.0).collect();
+    let ys: Vec<f64> = points().map(|p| p.1).filter(|y| *y > 0.0 && y.is_finite()).collect();
     let (x_lo, x_hi) = axis_range(&xs);
     let (y_lo, y_hi) = axis_range(&ys);
     let (y_lo, y_hi) = if y_lo > 0.0 { (y_lo / 1.5, y_hi * 1.5) } else { (0.1, 10.0) };
@@ -402,11 +402,20 @@ fn draw_costs<DB: DrawingBackend>(
         .y_label_area_size(65)
         .build_cartesian_2d((x_lo - pad)..(x_hi + pad), (y_lo..y_hi).log_scale())
         .map_err(|x| e(&x))?;
-    chart.configure_mesh().x_desc(x_desc).y_desc(y_desc).label_style(("sans-serif", 14)).draw().map_err(|x| e(&x))?;
+    // The fine grid of a log axis crowds into a grey band near each decade.
+    chart
+        .configure_mesh()
+        .x_desc(x_desc)
+        .y_desc(y_desc)
+        .label_style(("sans-serif", 14))
+        .light_line_style(WHITE)
+        .draw()
+        .map_err(|x| e(&x))?;
     let mut legend = Vec::new();
     for (k, (name, pts)) in series.iter().enumerate() {
         let colour = SERIES_PALETTE[k % SERIES_PALETTE.len()];
-        let pts: Vec<(f64, f64)> = pts.iter().copied().filter(|p| p.1 > 0.0).collect();
+        let pts: Vec<(f64, f64)> =
+            pts.iter().copied().filter(|p| p.0.is_finite() && p.1.is_finite() && p.1 > 0.0).collect();
         chart.draw_series(LineSeries::new(pts.clone(), colour.stroke_width(3))).map_err(|x| e(&x))?;
         chart.draw_series(pts.iter().map(|p| Circle::new(*p, 4, colour.filled()))).map_err(|x| e(&x))?;
         legend.push((name.clone(), Swatch::Line(colour, 3)));
@@ -597,7 +606,9 @@ pub fn draw_replay_map(
     file: &Path,
 ) -> Result<(), PlotError> {
     register_fonts();
-    let all: Vec<&[f64; 2]> = path.iter().chain(reference).chain(dropped).chain(landmarks).collect();
+    // Bounds without the dropped fixes (a spike can be kilometres away): those beyond the
+    // map are drawn at its edge.
+    let all: Vec<&[f64; 2]> = path.iter().chain(reference).chain(landmarks).collect();
     let (xs, ys): (Vec<f64>, Vec<f64>) = all.iter().map(|p| (p[0], p[1])).unzip();
     let (x0, x1) = axis_range(&xs);
     let (y0, y1) = axis_range(&ys);
@@ -641,7 +652,11 @@ pub fn draw_replay_map(
         if !dropped.is_empty() {
             let red = RGBColor(200, 0, 0);
             chart
-                .draw_series(dropped.iter().map(|p| Cross::new((p[0], p[1]), 6, red.stroke_width(2))))
+                .draw_series(dropped.iter().map(|p| {
+                    let (x, y) =
+                        (p[0].clamp(cx - span / 2.0, cx + span / 2.0), p[1].clamp(cy - span / 2.0, cy + span / 2.0));
+                    Cross::new((x, y), 6, red.stroke_width(2))
+                }))
                 .map_err(|x| e(&x))?
                 .label("GPS fix dropped as a spike")
                 .legend(move |(x, y)| Cross::new((x + 10, y), 5, red.stroke_width(2)));

@@ -179,8 +179,7 @@ pub struct ReferenceScore {
     pub kind: ReferenceKind,
     pub point: ReferencePoint,
     pub samples: usize,
-    /// GPS fixes dropped as spikes (an implied speed over [`GPS_SPIKE_SPEED_MPS`] from both
-    /// neighbours), decided from the GPS alone.
+    /// GPS fixes dropped as spikes (see [`gps_spikes`]), decided from the GPS alone.
     pub spikes_removed: usize,
     /// Samples inside the estimate's time span, scored.
     pub samples_scored: usize,
@@ -345,49 +344,55 @@ fn peak_memory_mb() -> Option<f64> {
 pub const GPS_SPIKE_MAX_FIXES: usize = 3;
 
 /// Indices of GPS fixes that are spikes, decided from the GPS alone, never from the
-/// estimate being scored. A spike is a run of 1 to [`GPS_SPIKE_MAX_FIXES`] fixes, each
-/// reached from the fix before the run and left to the fix after it at more than
-/// `max_speed` (m/s), while those two neighbours agree with each other. At either end of
-/// the log, where one neighbour is missing, a single fix is a spike when the two fixes on
-/// its one side agree (more fixes there may as well be where the GPS went on to).
+/// estimate being scored, for a vehicle that stays under `max_speed` (m/s). A spike is a
+/// run of 1 to [`GPS_SPIKE_MAX_FIXES`] fixes, each reached from the last fix kept before
+/// the run and left to the fix after it at more than `max_speed`, while those two agree
+/// with each other. Then, at either end of the log, where one neighbour is missing, a
+/// single fix is a spike when the two kept fixes on its one side agree (more fixes there
+/// may as well be where the GPS went on to).
 pub fn gps_spikes(samples: &[ReferenceSample], max_speed: f64) -> Vec<usize> {
     let speed = |a: usize, b: usize| {
         let (a, b) = (&samples[a], &samples[b]);
         (b.x - a.x).hypot(b.y - a.y) / (b.t - a.t).abs().max(1e-3)
     };
     let n = samples.len();
-    let mut spikes = Vec::new();
-    let mut i = 0;
-    while i < n {
-        let mut found = None;
-        for len in 1..=GPS_SPIKE_MAX_FIXES {
-            let j = i + len - 1;
-            if j >= n {
-                break;
-            }
-            // The run's neighbours that vouch for each other: before and after it, or, at
-            // an end, the two fixes on its one side.
-            let (p, q) = match (i.checked_sub(1), (j + 1 < n).then_some(j + 1)) {
-                (Some(before), Some(after)) => (before, after),
-                (None, Some(after)) if len == 1 && after + 1 < n => (after, after + 1),
-                (Some(before), None) if len == 1 && before >= 1 => (before - 1, before),
-                _ => continue,
-            };
-            let off = (i..=j).all(|k| speed(k, p) > max_speed && speed(k, q) > max_speed);
-            if off && speed(p, q) <= max_speed {
-                found = Some(j);
-                break;
-            }
-        }
+    let mut spike = vec![false; n];
+    // Inside the log: the fix before a run is the last one kept, never a dropped spike.
+    let mut before = 0;
+    let mut i = 1;
+    while i + 1 < n {
+        let found = (1..=GPS_SPIKE_MAX_FIXES).map(|len| i + len - 1).take_while(|&j| j + 1 < n).find(|&j| {
+            let after = j + 1;
+            (i..=j).all(|k| speed(k, before) > max_speed && speed(k, after) > max_speed)
+                && speed(before, after) <= max_speed
+        });
         match found {
             Some(j) => {
-                spikes.extend(i..=j);
+                spike[i..=j].iter_mut().for_each(|s| *s = true);
                 i = j + 1;
             }
-            None => i += 1,
+            None => {
+                before = i;
+                i += 1;
+            }
         }
     }
-    spikes
+    // The ends, against the two nearest kept fixes on their one side.
+    let kept: Vec<usize> = (0..n).filter(|&k| !spike[k]).collect();
+    if kept.len() >= 3 {
+        for (end, a, b) in
+            [(kept[0], kept[1], kept[2]), (kept[kept.len() - 1], kept[kept.len() - 2], kept[kept.len() - 3])]
+        {
+            if (end == 0 || end == n - 1)
+                && speed(end, a) > max_speed
+                && speed(end, b) > max_speed
+                && speed(a, b) <= max_speed
+            {
+                spike[end] = true;
+            }
+        }
+    }
+    (0..n).filter(|&k| spike[k]).collect()
 }
 
 /// The rotation and translation that best map `from` onto `to` (least squares, 2-D, no
@@ -593,11 +598,22 @@ mod tests {
         samples[28].y = 118.0;
         assert_eq!(gps_spikes(&samples, GPS_SPIKE_SPEED_MPS), vec![0, 8, 9, 20, 21, 22]);
         samples[28].y = 0.0;
-        // Four in a row is not a spike but a place the GPS stayed.
+        // Four in a row, off from both neighbours, are not a spike but a place the GPS
+        // stayed; three there would be.
         for s in &mut samples[12..16] {
-            s.y = 50.0;
+            s.y = 150.0;
         }
-        assert!(!gps_spikes(&samples, GPS_SPIKE_SPEED_MPS).contains(&12));
+        assert_eq!(gps_spikes(&samples, GPS_SPIKE_SPEED_MPS), vec![0, 8, 9, 20, 21, 22, 29]);
+        samples[15].y = 0.0;
+        assert_eq!(gps_spikes(&samples, GPS_SPIKE_SPEED_MPS), vec![0, 8, 9, 12, 13, 14, 20, 21, 22, 29]);
+        // A spike next to the start, and real fixes between two spikes at one false place,
+        // are judged against kept fixes: the real ones stay.
+        let mut samples: Vec<ReferenceSample> =
+            (0..12).map(|k| ReferenceSample { t: k as f64, x: 3.0 * k as f64, y: 0.0, theta: None }).collect();
+        for k in [1, 2, 6, 8] {
+            samples[k].y = 200.0;
+        }
+        assert_eq!(gps_spikes(&samples, GPS_SPIKE_SPEED_MPS), vec![1, 2, 6, 8]);
     }
 
     #[test]

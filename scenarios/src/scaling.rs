@@ -1,10 +1,12 @@
-//! Cost against world size: `paper_park`'s park scaled from its own size up to ten times
-//! its ground, trees, posts, palms and people (ten times is `city_park`), each size run with
+//! Cost against world size: a park of `paper_park`'s ground and trees (with 4 posts, 1
+//! palm and 3 people per 600 m², world seed 6000) scaled up to ten times (ten times is
+//! `city_park`), each size run with
 //! `jcbb` (no camera: physics and laser only) and `combined` (with the camera). Each stage's
 //! cost is the wall-clock time spent in it per simulated second, in milliseconds, so 1,000
 //! is real time (the stages run on threads of their own, so they overlap):
 //! - physics and laser: the simulator thread of the `jcbb` run;
-//! - rendering: the simulator thread of the `combined` run less that of the `jcbb` run;
+//! - the camera: the simulator thread of the `combined` run less that of the `jcbb` run,
+//!   which is the rendering time the camera's own thread did not hide;
 //! - each method's pipeline (clustering, segmentation, association, the filter).
 //!
 //! `cargo run --release -p scenarios --example world_scaling -- OUT_DIR` runs it and
@@ -41,8 +43,9 @@ pub struct ScalingRow {
     pub rendered_fraction: f64,
 }
 
-/// `paper_park` scaled `factor` times: ground, trees (12 per 600 m²), posts (4), palms
-/// (1) and people (3), whose walks start over a time that grows with the route.
+/// `paper_park`'s park scaled `factor` times: ground and trees (12 per 600 m²) as
+/// `paper_park`'s, posts (4), palms (1) and people (3) per 600 m², whose walks start over a
+/// time that grows with the route.
 pub fn scaled_park(factor: u32) -> Result<Scenario, RunError> {
     let (mut sc, _) = Scenario::load("paper_park")?;
     let k = factor as usize;
@@ -103,21 +106,57 @@ pub fn stage_costs(rows: &[ScalingRow]) -> Vec<(String, Vec<(f64, f64)>)> {
     let mut rendering = vec![];
     let mut jcbb = vec![];
     let mut combined = vec![];
-    for r in rows.iter().filter(|r| r.method == "jcbb") {
+    let mut jcbb_runs: Vec<&ScalingRow> = rows.iter().filter(|r| r.method == AssociationMethod::Jcbb.name()).collect();
+    jcbb_runs.sort_by_key(|r| r.trees);
+    for r in jcbb_runs {
         let x = r.trees as f64;
         physics.push((x, per_s(r.simulator_s, r)));
         jcbb.push((x, per_s(r.pipeline_s, r)));
-        if let Some(c) = rows.iter().find(|c| c.factor == r.factor && c.method == "combined") {
+        if let Some(c) = rows.iter().find(|c| c.factor == r.factor && c.method == AssociationMethod::Combined.name()) {
             rendering.push((x, per_s(c.simulator_s, c) - per_s(r.simulator_s, r)));
             combined.push((x, per_s(c.pipeline_s, c)));
         }
     }
     vec![
         ("physics and laser".into(), physics),
-        ("rendering (combined less jcbb)".into(), rendering),
+        ("camera (combined less jcbb)".into(), rendering),
         ("pipeline, jcbb".into(), jcbb),
         ("pipeline, combined".into(), combined),
     ]
+}
+
+/// Reads the rows back from a `scaling.csv` that [`write`] wrote (to draw its plot again);
+/// a line that does not fit is an error naming it.
+pub fn read_csv(file: &Path) -> Result<Vec<ScalingRow>, crate::plot::PlotError> {
+    let bad = |message: String| crate::plot::PlotError { file: file.to_path_buf(), message };
+    let text = std::fs::read_to_string(file).map_err(|e| bad(e.to_string()))?;
+    let mut rows = Vec::new();
+    for (i, line) in text.lines().enumerate().skip(1).filter(|(_, l)| !l.trim().is_empty()) {
+        let c: Vec<&str> = line.split(',').collect();
+        let problem = || bad(format!("line {}: not a row of 14 values as written by this benchmark", i + 1));
+        if c.len() != 14 {
+            return Err(problem());
+        }
+        let f = |k: usize| c[k].parse::<f64>().map_err(|_| problem());
+        let u = |k: usize| c[k].parse::<usize>().map_err(|_| problem());
+        rows.push(ScalingRow {
+            factor: c[0].parse().map_err(|_| problem())?,
+            area_m2: f(1)?,
+            trees: u(2)?,
+            objects: u(3)?,
+            people: u(4)?,
+            method: c[5].to_string(),
+            sim_seconds: f(6)?,
+            wall_seconds: f(7)?,
+            simulator_s: f(8)?,
+            pipeline_s: f(9)?,
+            scans: u(10)?,
+            mean_scan_ms: f(11)?,
+            landmarks: u(12)?,
+            rendered_fraction: f(13)?,
+        });
+    }
+    Ok(rows)
 }
 
 /// Writes `scaling.csv` (one row per run) and `scaling.png` (each stage's cost against the
@@ -149,7 +188,7 @@ pub fn write(rows: &[ScalingRow], dir: &Path) -> Result<(), crate::plot::PlotErr
     }
     std::fs::write(dir.join("scaling.csv"), csv).map_err(io)?;
     crate::plot::cost_plot(
-        "Cost against world size (paper_park scaled 1x to 10x)",
+        "Cost against world size (a park of paper_park's density, 1x to 10x)",
         "trees in the world",
         "ms spent per simulated second (1,000: real time)",
         &stage_costs(rows),
@@ -184,11 +223,20 @@ mod tests {
             landmarks: 0,
             rendered_fraction: 0.0,
         };
-        let rows = [row(1, "jcbb", 1.0, 2.0), row(1, "combined", 5.0, 3.0), row(2, "jcbb", 2.0, 4.0)];
+        // Paired by size, not by position; drawn in order of size.
+        let rows = [row(2, "jcbb", 2.0, 4.0), row(1, "jcbb", 1.0, 2.0), row(1, "combined", 5.0, 3.0)];
         let costs = stage_costs(&rows);
         assert_eq!(costs[0].1, vec![(12.0, 10.0), (24.0, 20.0)]);
+        assert_eq!(costs[2].1, vec![(12.0, 20.0), (24.0, 40.0)]);
         // Rendering and the combined pipeline only where both methods ran.
         assert_eq!(costs[1].1, vec![(12.0, 40.0)]);
         assert_eq!(costs[3].1, vec![(12.0, 30.0)]);
+        // What is written reads back.
+        let dir = std::env::temp_dir().join(format!("objslam-scaling-{}", std::process::id()));
+        write(&rows, &dir).unwrap();
+        let back = read_csv(&dir.join("scaling.csv")).unwrap();
+        assert_eq!(stage_costs(&back), costs);
+        assert!(dir.join("scaling.png").exists());
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }
