@@ -39,21 +39,10 @@ fn main() {
         eprintln!("error: {e}");
         std::process::exit(2);
     }
-    for r in &rows {
-        println!(
-            "x{:<3} {:>4} trees {:>4} objects {:>3} people {:<9} sim {:7.1} s  wall {:6.1} s  simulator {:6.1} s  pipeline {:6.1} s  {:5.2} ms/scan  {:>4} landmarks",
-            r.factor,
-            r.trees,
-            r.objects,
-            r.people,
-            r.method,
-            r.sim_seconds,
-            r.wall_seconds,
-            r.simulator_s,
-            r.pipeline_s,
-            r.mean_scan_ms,
-            r.landmarks
-        );
+    // The table is the CSV just written.
+    match std::fs::read_to_string(dir.join("scaling.csv")) {
+        Ok(table) => print!("{table}"),
+        Err(e) => eprintln!("error: {}: {e}", dir.join("scaling.csv").display()),
     }
     eprintln!("wrote {}/scaling.csv and scaling.png", dir.display());
 }

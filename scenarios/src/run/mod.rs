@@ -174,6 +174,18 @@ pub fn run_config(scenario: &Scenario, method: Option<AssociationMethod>) -> Res
     pipeline_config(scenario, method)
 }
 
+/// A camera method needs the camera. Checked per run, not with the settings: a study's
+/// other methods still run when the scenario has no camera.
+fn check_camera(scenario: &Scenario, config: &PipelineConfig) -> Result<(), RunError> {
+    if config.method.uses_appearance() && !scenario.sim.camera.enabled {
+        return Err(RunError::Method {
+            method: config.method.name().into(),
+            message: "needs the camera, which the scenario disables (sim.camera.enabled = false)".into(),
+        });
+    }
+    Ok(())
+}
+
 /// The simulator's scan as the pipeline's plain message (the one place the two meet).
 pub fn slam_scan(scan: &sim::LaserScan) -> slam::messages::LaserScan {
     slam::messages::LaserScan {
@@ -240,12 +252,7 @@ pub fn preflight(
     let seed = seed.unwrap_or(scenario.seed);
     let config = run_config(scenario, method)?;
     let camera_method = config.method.uses_appearance();
-    if camera_method && !scenario.sim.camera.enabled {
-        return Err(RunError::Method {
-            method: config.method.name().into(),
-            message: "needs the camera, which the scenario disables (sim.camera.enabled = false)".into(),
-        });
-    }
+    check_camera(scenario, &config)?;
     let world = scenario.world(base_dir, seed)?;
     let calibration = match scenario.calibration.mode.as_str() {
         "estimated" => None,
@@ -460,12 +467,7 @@ fn appearance_for(
     if !config.method.uses_appearance() {
         return Ok(None);
     }
-    if !scenario.sim.camera.enabled {
-        return Err(RunError::Method {
-            method: config.method.name().into(),
-            message: "needs the camera, which the scenario disables (sim.camera.enabled = false)".into(),
-        });
-    }
+    check_camera(scenario, config)?;
     if let Some(m) = &options.appearance {
         return Ok(Some(m.clone()));
     }
