@@ -1,5 +1,6 @@
-//! MCAP output with Foxglove's JSON schemas (LaserScan, FrameTransform, PosesInFrame), so
-//! recordings open in Foxglove and in the Rerun viewer without extra tooling.
+//! MCAP output with Foxglove's JSON schemas (PointCloud, FrameTransform, PosesInFrame,
+//! CompressedImage, CameraCalibration), so recordings open in Foxglove without extra
+//! tooling.
 
 use std::collections::BTreeMap;
 use std::fs::File;
@@ -39,19 +40,41 @@ pub fn pose_json(x: f64, y: f64, z: f64, q: [f64; 4]) -> Value {
     json!({"position": {"x": x, "y": y, "z": z}, "orientation": {"x": q[0], "y": q[1], "z": q[2], "w": q[3]}})
 }
 
+/// A laser scan's returns as a Foxglove `PointCloud` in the laser frame: x, y, z and range,
+/// each a little-endian f32. Beams without a return are left out: Foxglove's `LaserScan`
+/// draws every range it is given (its JSON cannot carry the +inf of "no return"), so a
+/// cloud of the returns is what it draws right.
+pub fn laser_points_json(scan: &sim::LaserScan) -> Value {
+    const FLOAT32: u32 = 7;
+    let mut data = Vec::with_capacity(16 * scan.ranges.len());
+    for (i, r) in scan.ranges.iter().enumerate().filter(|(_, r)| r.is_finite()) {
+        let a = scan.angle_min + i as f64 * scan.angle_increment;
+        for v in [r * a.cos(), r * a.sin(), 0.0, *r] {
+            data.extend_from_slice(&(v as f32).to_le_bytes());
+        }
+    }
+    let field = |name: &str, offset: u32| json!({"name": name, "offset": offset, "type": FLOAT32});
+    json!({
+        "timestamp": timestamp(scan.t), "frame_id": "laser", "pose": pose_json(0.0, 0.0, 0.0, [0.0, 0.0, 0.0, 1.0]),
+        "point_stride": 16, "fields": [field("x", 0), field("y", 4), field("z", 8), field("range", 12)],
+        "data": crate::record::base64(&data)
+    })
+}
+
 fn schema(name: &str) -> Value {
     let time = json!({"type": "object", "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}}});
     let vec3 = json!({"type": "object", "properties": {"x": {"type": "number"}, "y": {"type": "number"}, "z": {"type": "number"}}});
     let quat = json!({"type": "object", "properties": {"x": {"type": "number"}, "y": {"type": "number"}, "z": {"type": "number"}, "w": {"type": "number"}}});
     let pose = json!({"type": "object", "properties": {"position": vec3, "orientation": quat}});
     match name {
-        "foxglove.LaserScan" => json!({
+        "foxglove.PointCloud" => json!({
             "title": name, "type": "object",
             "properties": {
                 "timestamp": time, "frame_id": {"type": "string"}, "pose": pose,
-                "start_angle": {"type": "number"}, "end_angle": {"type": "number"},
-                "ranges": {"type": "array", "items": {"type": "number"}},
-                "intensities": {"type": "array", "items": {"type": "number"}}
+                "point_stride": {"type": "integer"},
+                "fields": {"type": "array", "items": {"type": "object", "properties": {
+                    "name": {"type": "string"}, "offset": {"type": "integer"}, "type": {"type": "integer"}}}},
+                "data": {"type": "string", "contentEncoding": "base64"}
             }
         }),
         "foxglove.FrameTransform" => json!({

@@ -5,9 +5,12 @@
 //! - `ground_truth.tum`: the robot base pose in TUM format at the odometry rate;
 //! - `laser_truth.jsonl`: per scan, the instance id each beam hit and its noise-free range
 //!   (scoring only);
+//! - `observations.jsonl`: per scan, the laser clusters as the scenario's pipeline makes
+//!   them, whose ids a system may use to report its associations to `objslam score`;
 //! - `sensors.json`: sensor mountings and rates; `world.toml`: the world;
 //! - `collisions.jsonl`: robot contacts; `metadata.json`: seed, configuration, versions;
-//! - `run.mcap`: the same with Foxglove schemas (LaserScan, FrameTransform, PosesInFrame):
+//! - `run.mcap`: the same with Foxglove schemas (PointCloud of the laser's returns,
+//!   FrameTransform, PosesInFrame, images):
 //!   `/tf` is odom -> base_link from the noisy odometry, `/odom` its poses, `/tf_static`
 //!   base_link -> laser and camera_optical; the truth is on `/ground_truth/*` only.
 
@@ -109,6 +112,33 @@ pub fn rotation_quaternion(r: &[[f64; 3]; 3]) -> [f64; 4] {
 pub fn tum_line(t: f64, x: f64, y: f64, yaw: f64) -> String {
     let q = yaw_quaternion(yaw);
     format!("{t} {x} {y} 0 {} {} {} {}", q[0], q[1], q[2], q[3])
+}
+
+/// A scan's line of `laser.jsonl`.
+pub fn laser_line(scan: &sim::LaserScan) -> String {
+    serde_json::to_string(scan).expect("JSON")
+}
+
+/// A scan's line of `laser_truth.jsonl`: the instance id each beam hit and its noise-free
+/// range, with the scan's time.
+pub fn laser_truth_line(t: f64, beams: &sim::LaserTruth) -> String {
+    let mut line = serde_json::to_value(beams).expect("JSON");
+    line["t"] = json!(t);
+    serde_json::to_string(&line).expect("JSON")
+}
+
+/// A scan's line of `observations.jsonl`: the laser clusters the pipeline's clustering makes
+/// of it, in order. An observation's index in the list is its id within the scan, the id
+/// that `decisions.jsonl` and `objslam score --associations` refer to.
+pub fn observations_line(t: f64, clusters: &[slam::clustering::Cluster]) -> String {
+    let observations: Vec<_> = clusters
+        .iter()
+        .map(|c| {
+            json!({"first_beam": c.first_beam, "last_beam": c.last_beam, "range_m": c.range_m,
+                   "bearing_rad": c.bearing_rad, "diameter_m": c.diameter_m, "occluded": c.occluded})
+        })
+        .collect();
+    serde_json::to_string(&json!({"t": t, "observations": observations})).expect("JSON")
 }
 
 /// The sensor mountings as written to `sensors.json`.
@@ -416,6 +446,7 @@ fn record_jsonl(
 
     let mut laser = Out::create(out, "laser.jsonl")?;
     let mut laser_truth = Out::create(out, "laser_truth.jsonl")?;
+    let mut observations = Out::create(out, "observations.jsonl")?;
     let mut odometry = Out::create(out, "odometry.jsonl")?;
     let mut tum = Out::create(out, "ground_truth.tum")?;
     tum.line("# objslam ground truth: robot base pose in the world frame; timestamp tx ty tz qx qy qz qw")?;
@@ -468,20 +499,11 @@ fn record_jsonl(
             }
             SensorEvent::Laser { scan, beams, truth } => {
                 scans += 1;
-                laser.line(&serde_json::to_string(scan).expect("JSON"))?;
-                let mut line = serde_json::to_value(beams).expect("JSON");
-                line["t"] = json!(scan.t);
-                laser_truth.line(&serde_json::to_string(&line).expect("JSON"))?;
-                let end = scan.angle_min + scan.angle_increment * (scan.ranges.len() as f64 - 1.0);
-                // Foxglove draws non-finite ranges as no return.
-                let ranges: Vec<f64> = scan.ranges.iter().map(|r| if r.is_finite() { *r } else { -1.0 }).collect();
-                mcap.write(
-                    "/laser",
-                    "foxglove.LaserScan",
-                    scan.t,
-                    &json!({"timestamp": timestamp(scan.t), "frame_id": "laser", "pose": pose_json(0.0, 0.0, 0.0, [0.0, 0.0, 0.0, 1.0]),
-                            "start_angle": scan.angle_min, "end_angle": end, "ranges": ranges, "intensities": []}),
-                )?;
+                laser.line(&laser_line(scan))?;
+                laser_truth.line(&laser_truth_line(scan.t, beams))?;
+                let clusters = slam::clustering::cluster(&crate::run::slam_scan(scan), &scoring.clustering);
+                observations.line(&observations_line(scan.t, &clusters))?;
+                mcap.write("/laser/points", "foxglove.PointCloud", scan.t, &crate::foxglove::laser_points_json(scan))?;
                 if scans == 1 {
                     mcap.write(
                         "/tf_static",
@@ -546,7 +568,7 @@ fn record_jsonl(
         collisions.line(&serde_json::to_string(c).expect("JSON"))?;
     }
     collisions.finish()?;
-    for f in [laser, laser_truth, odometry, tum, camera_log] {
+    for f in [laser, laser_truth, observations, odometry, tum, camera_log] {
         f.finish()?;
     }
     mcap.finish()?;

@@ -67,14 +67,14 @@ impl TreeVisibility {
         }
     }
 
-    /// The beams of `scan` that truly hit a tree within range, with the tree's id and the
-    /// point they hit in the laser frame.
+    /// The beams of `scan` that truly hit a tree within range: the beam's index, the
+    /// tree's id and the point the beam hit in the laser frame.
     fn tree_beams<'a>(
         &'a self,
         angle_min: f64,
         angle_increment: f64,
         truth: &'a sim::LaserTruth,
-    ) -> impl Iterator<Item = (u16, Vector3<f64>)> + 'a {
+    ) -> impl Iterator<Item = (usize, u16, Vector3<f64>)> + 'a {
         truth
             .hit_ids
             .iter()
@@ -83,7 +83,7 @@ impl TreeVisibility {
             .filter(|(_, (id, r))| self.tree_ids.contains(id) && **r <= self.max_range_m)
             .map(move |(i, (id, r))| {
                 let a = angle_min + i as f64 * angle_increment;
-                (*id, Vector3::new(r * a.cos(), r * a.sin(), 0.0))
+                (i, *id, Vector3::new(r * a.cos(), r * a.sin(), 0.0))
             })
     }
 
@@ -100,7 +100,7 @@ impl TreeVisibility {
         let Some(camera) = &self.camera else { return vec![] };
         merge_spans(
             self.tree_beams(scan.angle_min, scan.angle_increment, truth)
-                .filter_map(|(_, p)| Self::pixel(camera, &p))
+                .filter_map(|(_, _, p)| Self::pixel(camera, &p))
                 .map(|(u, _)| (u, u + 1))
                 .collect(),
         )
@@ -108,27 +108,54 @@ impl TreeVisibility {
 
     /// Counts one scan; `frame` is the camera frame of the same instant, if there is one.
     pub fn on_scan(&mut self, scan: &sim::LaserScan, truth: &sim::LaserTruth, frame: Option<&InstanceImage>) {
-        let mut beams: BTreeMap<u16, usize> = BTreeMap::new();
-        let mut shown: BTreeMap<u16, usize> = BTreeMap::new();
-        let tree_beams: Vec<(u16, Vector3<f64>)> =
-            self.tree_beams(scan.angle_min, scan.angle_increment, truth).collect();
-        for (id, p) in tree_beams {
-            *beams.entry(id).or_default() += 1;
-            let (Some(camera), Some(frame)) = (&self.camera, frame) else { continue };
-            if let Some((u, v)) = Self::pixel(camera, &p) {
-                if !frame.columns.is_none_or(|c| c.iter().any(|s| s.0 <= u && u < s.1)) {
-                    self.unrendered_reads += 1;
-                } else if frame.instance[(v * frame.width + u) as usize] == id {
-                    *shown.entry(id).or_default() += 1;
-                }
+        let shown = frame.map(|f| self.beams_shown(scan, truth, f));
+        self.on_scan_shown(scan, truth, shown.as_deref());
+    }
+
+    /// The beams of `scan` that hit a tree within range and whose pixel in `frame` (the
+    /// camera frame of the scan's instant) shows that same tree, in increasing order: the
+    /// camera's part of the count, which a run writes to `trees_shown.jsonl` so that its
+    /// output directory can be scored without its images. Empty without a camera.
+    pub fn beams_shown(&mut self, scan: &sim::LaserScan, truth: &sim::LaserTruth, frame: &InstanceImage) -> Vec<usize> {
+        let Some(camera) = &self.camera else { return vec![] };
+        let mut shown = Vec::new();
+        let mut unrendered = 0;
+        for (i, id, p) in self.tree_beams(scan.angle_min, scan.angle_increment, truth) {
+            let Some((u, v)) = Self::pixel(camera, &p) else { continue };
+            if !frame.columns.is_none_or(|c| c.iter().any(|s| s.0 <= u && u < s.1)) {
+                unrendered += 1;
+            } else if frame.instance[(v * frame.width + u) as usize] == id {
+                shown.push(i);
             }
+        }
+        self.unrendered_reads += unrendered;
+        shown
+    }
+
+    /// Counts one scan given the beams [`TreeVisibility::beams_shown`] found in the frame
+    /// of its instant (`None`: no frame then).
+    pub fn on_scan_shown(&mut self, scan: &sim::LaserScan, truth: &sim::LaserTruth, shown: Option<&[usize]>) {
+        let mut beams: BTreeMap<u16, usize> = BTreeMap::new();
+        for (_, id, _) in self.tree_beams(scan.angle_min, scan.angle_increment, truth) {
+            *beams.entry(id).or_default() += 1;
         }
         for (id, n) in beams {
             if n >= self.min_beams {
                 self.laser_seen.insert(id);
             }
         }
-        for (id, n) in shown {
+        if self.camera.is_none() {
+            return;
+        }
+        let mut in_view: BTreeMap<u16, usize> = BTreeMap::new();
+        // Only beams that count at all: on a tree, within range.
+        for &i in shown.unwrap_or_default() {
+            let (Some(id), Some(r)) = (truth.hit_ids.get(i), truth.true_ranges.get(i)) else { continue };
+            if self.tree_ids.contains(id) && *r <= self.max_range_m {
+                *in_view.entry(*id).or_default() += 1;
+            }
+        }
+        for (id, n) in in_view {
             if n >= self.min_beams {
                 *self.in_view_scans.entry(id).or_default() += 1;
             }

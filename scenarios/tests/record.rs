@@ -75,14 +75,44 @@ fn record_writes_a_readable_consistent_log() {
     // The MCAP file reads back with Foxglove schemas on the expected topics.
     let bytes = std::fs::read(dir.join("run.mcap")).unwrap();
     let mut per_topic: BTreeMap<String, (String, usize)> = BTreeMap::new();
+    let mut clouds = Vec::new();
     for m in mcap::MessageStream::new(&bytes).unwrap() {
         let m = m.unwrap();
         let schema = m.channel.schema.as_ref().unwrap().name.clone();
         let e = per_topic.entry(m.channel.topic.clone()).or_insert((schema, 0));
         e.1 += 1;
-        let _: serde_json::Value = serde_json::from_slice(&m.data).unwrap();
+        let v: serde_json::Value = serde_json::from_slice(&m.data).unwrap();
+        if m.channel.topic == "/laser/points" {
+            clouds.push(v);
+        }
     }
-    assert_eq!(per_topic["/laser"], ("foxglove.LaserScan".to_string(), 101));
+    // The laser's returns only, as points in its frame: Foxglove draws nothing for a beam
+    // without a return.
+    assert_eq!(per_topic["/laser/points"], ("foxglove.PointCloud".to_string(), 101));
+    let scans: Vec<sim::LaserScan> = std::fs::read_to_string(dir.join("laser.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    for (cloud, scan) in clouds.iter().zip(&scans) {
+        use base64::Engine;
+        let data = base64::engine::general_purpose::STANDARD.decode(cloud["data"].as_str().unwrap()).unwrap();
+        let returns: Vec<(usize, f64)> =
+            scan.ranges.iter().copied().enumerate().filter(|(_, r)| r.is_finite()).collect();
+        assert_eq!(cloud["point_stride"], 16);
+        assert_eq!(
+            data.len(),
+            16 * returns.len(),
+            "one point per return, none for the {} beams without",
+            scan.ranges.len() - returns.len()
+        );
+        for (point, (i, r)) in data.chunks(16).zip(returns) {
+            let f = |k: usize| f32::from_le_bytes(point[4 * k..4 * k + 4].try_into().unwrap()) as f64;
+            let a = scan.angle_min + i as f64 * scan.angle_increment;
+            assert!((f(0) - r * a.cos()).abs() < 1e-4 && (f(1) - r * a.sin()).abs() < 1e-4 && (f(3) - r).abs() < 1e-4);
+        }
+    }
+    assert!(scans.iter().any(|s| s.ranges.iter().any(|r| !r.is_finite())), "no scan without returns to leave out");
     assert_eq!(per_topic["/tf"], ("foxglove.FrameTransform".to_string(), 201));
     assert_eq!(per_topic["/odom"], ("foxglove.PosesInFrame".to_string(), 201));
     assert_eq!(per_topic["/tf_static"].1, 2, "base_link -> laser and -> camera_optical");

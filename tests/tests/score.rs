@@ -1,6 +1,8 @@
 //! `objslam score` reproduces `objslam run`'s metrics from a log of `objslam record` and
 //! the files a run writes (trajectory, landmarks, associations), bit for bit, for a
-//! position-only run and for a camera run; and it refuses inputs that do not fit the log.
+//! position-only run and for a camera run; a run's output directory is itself a log, scored
+//! with its decisions.jsonl; the CSV forms score as the JSON ones; and it refuses inputs
+//! that do not fit the log.
 
 use std::path::{Path, PathBuf};
 
@@ -71,6 +73,80 @@ fn assert_reproduced(run_dir: &Path, scored: &scenarios::score::log::ScoredMetri
     run
 }
 
+/// The run's own output directory as the log, its decisions as the associations, and no
+/// method name or recall basis given: the run's metrics again.
+fn assert_run_directory_reproduces_itself(run_dir: &Path) -> scenarios::score::log::ScoredMetrics {
+    let own = Estimate {
+        trajectory: run_dir.join("trajectory_est.tum"),
+        landmarks: Some(run_dir.join("landmarks.json")),
+        associations: Some(run_dir.join("decisions.jsonl")),
+        method: None,
+        recall_basis: None,
+    };
+    let scored = score_log(run_dir, &own).unwrap();
+    assert_reproduced(run_dir, &scored);
+    scored
+}
+
+/// `rows` as CSV under `header` (null: an empty cell).
+fn csv_of(header: &str, rows: impl Iterator<Item = Vec<serde_json::Value>>) -> String {
+    let cell = |v: &serde_json::Value| if v.is_null() { String::new() } else { v.to_string() };
+    let mut out = format!("{header}\n");
+    for row in rows {
+        out.push_str(&row.iter().map(cell).collect::<Vec<_>>().join(","));
+        out.push('\n');
+    }
+    out
+}
+
+/// The CSV forms of a run's map and decisions score as their JSON forms (fusions, which CSV
+/// cannot hold, left out of both).
+fn assert_csv_forms_score_alike(run_dir: &Path) {
+    let dir = run_dir.join("csv");
+    std::fs::create_dir_all(&dir).unwrap();
+    let landmarks: Vec<serde_json::Value> =
+        serde_json::from_str(&std::fs::read_to_string(run_dir.join("landmarks.json")).unwrap()).unwrap();
+    let rows = landmarks.iter().map(|l| vec![l["id"].clone(), l["position"][0].clone(), l["position"][1].clone()]);
+    std::fs::write(dir.join("landmarks.csv"), csv_of("id,x,y", rows)).unwrap();
+    let lines: Vec<serde_json::Value> = std::fs::read_to_string(run_dir.join("decisions.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .filter(|v: &serde_json::Value| v.get("fusion").is_none())
+        .collect();
+    let json_lines: String = lines.iter().map(|v| v.to_string() + "\n").collect();
+    std::fs::write(dir.join("decisions.jsonl"), json_lines).unwrap();
+    let rows = lines.iter().map(|v| vec![v["t"].clone(), v["observation"].clone(), v["choice"]["landmark"].clone()]);
+    std::fs::write(dir.join("decisions.csv"), csv_of("t,observation,landmark", rows)).unwrap();
+    let by_beams: Vec<serde_json::Value> = std::fs::read_to_string(run_dir.join("associations.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let rows = by_beams.iter().flat_map(|v| {
+        v["observations"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|o| vec![v["t"].clone(), o["first_beam"].clone(), o["last_beam"].clone(), o["landmark"].clone()])
+    });
+    std::fs::write(dir.join("associations.csv"), csv_of("t,first_beam,last_beam,landmark", rows)).unwrap();
+    let score = |landmarks: &str, associations: &str| {
+        let e = Estimate {
+            trajectory: run_dir.join("trajectory_est.tum"),
+            landmarks: Some(dir.join(landmarks)),
+            associations: Some(dir.join(associations)),
+            method: None,
+            recall_basis: None,
+        };
+        serde_json::to_value(score_log(run_dir, &e).unwrap()).unwrap()
+    };
+    let json = score("../landmarks.json", "decisions.jsonl");
+    assert!(json["associations"]["total"].as_u64().unwrap() > 0, "{json}");
+    assert_eq!(score("landmarks.csv", "decisions.csv"), json);
+    assert_eq!(score("landmarks.csv", "associations.csv"), json);
+}
+
 #[test]
 fn score_reproduces_a_position_only_run_bit_for_bit() {
     let dir = std::env::temp_dir().join(format!("objslam-score-jcbb-{}", std::process::id()));
@@ -88,6 +164,10 @@ fn score_reproduces_a_position_only_run_bit_for_bit() {
     assert_eq!(scored_alone.ate_rmse_m.to_bits(), scored.ate_rmse_m.to_bits());
     assert!(scored_alone.map.is_none() && scored_alone.associations.is_none());
     assert!(scored_alone.passed.is_none() && !scored_alone.unchecked.is_empty());
+
+    let own = assert_run_directory_reproduces_itself(&out);
+    assert_eq!(own.method, "jcbb", "a run's own trajectory is scored under its method's name");
+    assert_csv_forms_score_alike(&out);
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -101,6 +181,10 @@ fn score_reproduces_a_camera_run_with_its_trees_in_view() {
     let map = scored.map.unwrap();
     assert!(map.trees_in_view.is_some_and(|n| n >= 1), "{map:?}");
     assert!(map.trees_laser_seen > map.trees_in_view.unwrap(), "{map:?}");
+    // Without its images: the beams its frames showed on their trees (trees_shown.jsonl).
+    assert!(!out.join("camera.jsonl").exists());
+    let own = assert_run_directory_reproduces_itself(&out);
+    assert_eq!(own.map.unwrap().trees_in_view, map.trees_in_view);
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -140,8 +224,35 @@ fn inputs_that_do_not_fit_the_log_are_errors_naming_file_and_line() {
 
     // A typo in a key.
     std::fs::write(&assoc, r#"{"t": 0.0, "observatons": []}"#).unwrap();
-    let e = error(Estimate { associations: Some(assoc), ..estimate(&out, "x") });
+    let e = error(Estimate { associations: Some(assoc.clone()), ..estimate(&out, "x") });
     assert!(e.contains("assoc.jsonl:1") && e.contains("observatons"), "{e}");
+
+    // By id: an observation the log's scan does not have, and a landmark that contradicts
+    // the choice.
+    std::fs::write(
+        &assoc,
+        "{\"t\": 0.0, \"observation\": 0, \"landmark\": 3}\n{\"t\": 0.0, \"observation\": 99, \"landmark\": 1}\n",
+    )
+    .unwrap();
+    let e = error(Estimate { associations: Some(assoc.clone()), ..estimate(&out, "x") });
+    assert!(e.contains("assoc.jsonl:2") && e.contains("observation 99") && e.contains("observations.jsonl"), "{e}");
+    std::fs::write(&assoc, r#"{"t": 0.0, "observation": 0, "landmark": 3, "choice": {"kind": "new", "landmark": 4}}"#)
+        .unwrap();
+    let e = error(Estimate { associations: Some(assoc.clone()), ..estimate(&out, "x") });
+    assert!(e.contains("assoc.jsonl:1") && e.contains("disagree"), "{e}");
+
+    // CSV: a header of neither form, and a cell that is not a number.
+    let csv = bad.join("assoc.csv");
+    std::fs::write(&csv, "t,obs,landmark\n0.0,0,1\n").unwrap();
+    let e = error(Estimate { associations: Some(csv.clone()), ..estimate(&out, "x") });
+    assert!(e.contains("assoc.csv:1") && e.contains("t,observation,landmark"), "{e}");
+    std::fs::write(&csv, "t,observation,landmark\n0.0,0,1\n0.1,zero,1\n").unwrap();
+    let e = error(Estimate { associations: Some(csv), ..estimate(&out, "x") });
+    assert!(e.contains("assoc.csv:3") && e.contains("observation") && e.contains("zero"), "{e}");
+    let lm_csv = bad.join("lm.csv");
+    std::fs::write(&lm_csv, "id,x,y\n1,2.0\n").unwrap();
+    let e = error(Estimate { landmarks: Some(lm_csv), ..estimate(&out, "x") });
+    assert!(e.contains("lm.csv:2"), "{e}");
 
     // The same landmark twice.
     let lm = bad.join("lm.json");

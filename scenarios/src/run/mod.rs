@@ -28,7 +28,7 @@ use crate::scenario::{Scenario, ScenarioError};
 use crate::score::scorer::{MapLandmark, RecallBasis, RunScorer, VisibilitySettings};
 use events::EventSource;
 use online::RunLoop;
-use outputs::{clear_stale_outputs, write_outputs};
+use outputs::{FinishedRun, clear_stale_outputs, write_outputs};
 
 /// Errors of a run.
 #[derive(Debug, thiserror::Error)]
@@ -373,7 +373,8 @@ pub fn run(
     let wall = started.elapsed().as_secs_f64();
 
     // Finish: the scores.
-    let RunLoop { pipeline, scorer, log, .. } = online;
+    let RunLoop { pipeline, scorer, mut log, .. } = online;
+    log.collisions = sim.collisions().iter().map(|c| serde_json::to_string(c).expect("JSON") + "\n").collect();
     let map_landmarks: Vec<MapLandmark> =
         pipeline.mapped_landmarks().iter().map(|l| MapLandmark { id: l.id, position: l.position }).collect();
     let scored = scorer.finish(&map_landmarks);
@@ -450,7 +451,18 @@ pub fn run(
         if let Some(report) = &calibration.report {
             report.write(&out.join("calibration.json"))?;
         }
-        write_outputs(out, &world, &pipeline, &metrics, &resolved, &log, &scored.landmark_objects)?;
+        let scoring = crate::score::log::LogScoring::of_run(scenario, seed, &config);
+        let finished = FinishedRun {
+            world: &world,
+            pipeline: &pipeline,
+            metrics: &metrics,
+            resolved: &resolved,
+            log: &log,
+            landmark_objects: &scored.landmark_objects,
+            sim_config: &sim_config,
+            scoring: &scoring,
+        };
+        write_outputs(out, &finished)?;
     }
     Ok(RunOutcome { metrics, resolved })
 }

@@ -9,7 +9,7 @@ use slam::association::AssociationDecision;
 use slam::ekf::smoother::{Relinearisation, SmootherError};
 use slam::pipeline::Pipeline;
 
-use super::outputs::{association_line, segmentation_line};
+use super::outputs::{association_line, segmentation_line, trees_shown_line};
 use super::{RunError, slam_scan};
 use crate::score::scorer::{Fusion, RunScorer, ScoredObservation, as_written_to_tum, true_object};
 use crate::score::segmentation::ClassImage;
@@ -41,8 +41,22 @@ pub(super) struct RunLog {
     /// Estimated and true paths (t, x, y, theta) at each odometry message.
     pub estimate: Vec<(f64, [f64; 3])>,
     pub truth: Vec<(f64, [f64; 3])>,
+    /// Fusions of landmarks at each scan's time (outputs only: decisions.jsonl).
+    pub fusions: Vec<(f64, Fusion)>,
     /// What the pipeline did with each scan, as `objslam score` reads it (associations.jsonl).
     pub associations: String,
+    /// The sensor log and its truth, as `objslam record` writes them, so that the run's
+    /// output directory is a log `objslam score` reads (outputs only): laser.jsonl,
+    /// laser_truth.jsonl, odometry.jsonl, observations.jsonl (the clusters, whose indices
+    /// decisions.jsonl names) and trees_shown.jsonl (per scan with a camera frame of its
+    /// instant, the beams whose pixels show the tree they hit).
+    pub laser: String,
+    pub laser_truth: String,
+    pub odometry: String,
+    pub observations: String,
+    pub trees_shown: String,
+    /// The robot's contacts, one JSON line each (collisions.jsonl).
+    pub collisions: String,
     /// One line per segmented cluster (camera methods): why it was or was not an object.
     pub segmentation: String,
     pub people_tracks: BTreeMap<u16, Vec<[f64; 2]>>,
@@ -107,6 +121,9 @@ impl<'w> RunLoop<'w> {
             dy: odometry.dy,
             dtheta: odometry.dtheta,
         })?;
+        if self.keep_logs {
+            self.log.odometry.push_str(&(serde_json::to_string(odometry).expect("JSON") + "\n"));
+        }
         let est = self.pipeline.pose();
         let truth = [robot.x, robot.y, robot.theta];
         self.log.estimate.push((odometry.t, est.pose));
@@ -167,9 +184,23 @@ impl<'w> RunLoop<'w> {
                 instance: &f.instance,
                 columns: f.columns.as_deref(),
             });
-        self.scorer.on_scan(scan, beams, frame.as_ref(), &observations, &fusions);
+        let shown = frame.map(|f| self.scorer.beams_shown(scan, beams, &f));
+        self.scorer.on_scan(scan, beams, shown.as_deref(), &observations, &fusions);
         if self.keep_logs {
-            self.log.associations.push_str(&association_line(scan.t, &observations, &fusions));
+            let log = &mut self.log;
+            log.associations.push_str(&association_line(scan.t, &observations, &fusions));
+            log.fusions.extend(fusions.iter().map(|f| (scan.t, *f)));
+            for (file, line) in [
+                (&mut log.laser, crate::record::laser_line(scan)),
+                (&mut log.laser_truth, crate::record::laser_truth_line(scan.t, beams)),
+                (&mut log.observations, crate::record::observations_line(scan.t, &report.clusters)),
+            ] {
+                file.push_str(&line);
+                file.push('\n');
+            }
+            if let Some(shown) = shown.filter(|s| !s.is_empty()) {
+                log.trees_shown.push_str(&trees_shown_line(scan.t, &shown));
+            }
         }
         for p in &truth.people {
             self.log.people_tracks.entry(p.id).or_default().push([p.x, p.y]);

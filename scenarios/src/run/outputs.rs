@@ -9,6 +9,7 @@ use worlds::ObjectClass;
 
 use super::online::RunLog;
 use super::{Metrics, RunError};
+use crate::score::log::LogScoring;
 use crate::score::scorer::{Fusion, ScoredObservation};
 
 /// One line of segmentation.jsonl: how a cluster of the scan at `t_scan` was judged in the
@@ -36,10 +37,16 @@ pub(super) fn association_line(t: f64, observations: &[ScoredObservation], fusio
     serde_json::to_string(&json!({"t": t, "observations": observations, "fusions": fusions})).expect("JSON") + "\n"
 }
 
+/// One line of `trees_shown.jsonl`: a scan's time and the beams whose pixels, in the camera
+/// frame of its instant, show the tree they hit (what `map.trees_in_view` counts).
+pub(super) fn trees_shown_line(t: f64, beams: &[usize]) -> String {
+    serde_json::to_string(&json!({"t": t, "beams": beams})).expect("JSON") + "\n"
+}
+
 /// Outputs that only some runs write (camera methods, estimated calibrations): removed from
 /// a reused output directory first, so none is left from an earlier run to be taken for
 /// this one's. The other outputs every run rewrites.
-const CONDITIONAL_OUTPUTS: [&str; 3] = ["calibration.json", "segmentation.jsonl", "objects"];
+const CONDITIONAL_OUTPUTS: [&str; 4] = ["calibration.json", "segmentation.jsonl", "objects", "trees_shown.jsonl"];
 
 pub(super) fn clear_stale_outputs(out: &Path) -> Result<(), RunError> {
     for name in CONDITIONAL_OUTPUTS {
@@ -53,35 +60,57 @@ pub(super) fn clear_stale_outputs(out: &Path) -> Result<(), RunError> {
     Ok(())
 }
 
-pub(super) fn write_outputs(
-    out: &Path,
-    world: &worlds::World,
-    pipeline: &Pipeline,
-    metrics: &Metrics,
-    resolved: &serde_json::Value,
-    log: &RunLog,
-    landmark_object: &HashMap<u32, u16>,
-) -> Result<(), RunError> {
+/// What a finished run writes out.
+pub(super) struct FinishedRun<'a> {
+    pub world: &'a worlds::World,
+    pub pipeline: &'a Pipeline,
+    pub metrics: &'a Metrics,
+    /// The resolved configuration (metadata.json's `configuration`).
+    pub resolved: &'a serde_json::Value,
+    pub log: &'a RunLog,
+    pub landmark_objects: &'a HashMap<u32, u16>,
+    /// The simulator as it ran, and how `objslam score` is to score the directory as a log.
+    pub sim_config: &'a sim::SimConfig,
+    pub scoring: &'a LogScoring,
+}
+
+pub(super) fn write_outputs(out: &Path, run: &FinishedRun) -> Result<(), RunError> {
+    let FinishedRun { world, pipeline, metrics, resolved, log, landmark_objects, sim_config, scoring } = *run;
     let (est, gt, people_tracks) = (&log.estimate, &log.truth, &log.people_tracks);
-    let (decisions, solves) = (&log.decisions, &log.solves);
+    let solves = &log.solves;
     std::fs::create_dir_all(out).map_err(|source| RunError::Io { file: out.to_path_buf(), source })?;
-    let write = |name: &str, text: String| {
+    let write = |name: &str, text: &str| {
         let file = out.join(name);
         std::fs::write(&file, text).map_err(|source| RunError::Io { file, source })
     };
-    write("associations.jsonl", log.associations.clone())?;
+    write("associations.jsonl", &log.associations)?;
     if pipeline.config().method.uses_appearance() {
-        write("segmentation.jsonl", log.segmentation.clone())?;
+        write("segmentation.jsonl", &log.segmentation)?;
     }
-    write("metrics.json", serde_json::to_string_pretty(metrics).expect("JSON"))?;
+    write("metrics.json", &serde_json::to_string_pretty(metrics).expect("JSON"))?;
+    // The directory is also a sensor log with its truth, which `objslam score --log` reads
+    // (the same files as `objslam record` writes, camera images aside).
+    write("world.toml", &world.to_toml())?;
+    write("sensors.json", &serde_json::to_string_pretty(&crate::record::sensors_json(sim_config)).expect("JSON"))?;
+    write("laser.jsonl", &log.laser)?;
+    write("laser_truth.jsonl", &log.laser_truth)?;
+    write("odometry.jsonl", &log.odometry)?;
+    write("observations.jsonl", &log.observations)?;
+    write("collisions.jsonl", &log.collisions)?;
+    if sim_config.camera.enabled {
+        write("trees_shown.jsonl", &log.trees_shown)?;
+    }
     write(
         "metadata.json",
-        serde_json::to_string_pretty(&json!({
+        &serde_json::to_string_pretty(&json!({
             "tool": "objslam run",
             "version": env!("CARGO_PKG_VERSION"),
             "seed": metrics.seed,
             "renderer": metrics.renderer,
             "appearance_model": metrics.appearance_model,
+            "sim_config": sim_config,
+            "summary": {"method": metrics.method, "sim_seconds": metrics.sim_seconds, "route_completed": metrics.route_completed},
+            "scoring": scoring,
             "configuration": resolved,
         }))
         .expect("JSON"),
@@ -94,30 +123,38 @@ pub(super) fn write_outputs(
         }
         s
     };
-    write("trajectory_est.tum", tum(est))?;
-    write("trajectory_gt.tum", tum(gt))?;
+    write("trajectory_est.tum", &tum(est))?;
+    write("trajectory_gt.tum", &tum(gt))?;
     // Each decision with the ground truth beside it: the observation's true object and the
-    // true object of every candidate landmark.
-    let decisions: String = decisions
-        .iter()
-        .map(|(d, truth)| {
-            let mut v = serde_json::to_value(d).expect("JSON");
-            v["true_object"] = json!(truth);
-            if let Some(cands) = v["candidates"].as_array_mut() {
-                for c in cands {
-                    let id = c["landmark"].as_u64().unwrap_or(u64::MAX) as u32;
-                    c["true_object"] = json!(landmark_object.get(&id).copied().unwrap_or(0));
-                }
+    // true object of every candidate landmark. After a scan's decisions, the fusions made
+    // after that scan: `{"t": .., "fusion": {"kept": .., "removed": ..}}`.
+    let mut decisions = String::new();
+    let mut fusions = log.fusions.iter().peekable();
+    let fusion_line =
+        |(t, f): &(f64, Fusion)| serde_json::to_string(&json!({"t": t, "fusion": f})).expect("JSON") + "\n";
+    for (d, truth) in &log.decisions {
+        while let Some(f) = fusions.next_if(|(t, _)| *t < d.t) {
+            decisions.push_str(&fusion_line(f));
+        }
+        let mut v = serde_json::to_value(d).expect("JSON");
+        v["true_object"] = json!(truth);
+        if let Some(cands) = v["candidates"].as_array_mut() {
+            for c in cands {
+                let id = c["landmark"].as_u64().unwrap_or(u64::MAX) as u32;
+                c["true_object"] = json!(landmark_objects.get(&id).copied().unwrap_or(0));
             }
-            serde_json::to_string(&v).expect("JSON") + "\n"
-        })
-        .collect();
-    write("decisions.jsonl", decisions)?;
+        }
+        decisions.push_str(&(serde_json::to_string(&v).expect("JSON") + "\n"));
+    }
+    for f in fusions {
+        decisions.push_str(&fusion_line(f));
+    }
+    write("decisions.jsonl", &decisions)?;
     // Each solve of the smoother (combined method): what it solved and how far the cost
     // fell, or why it failed (the filter then carried on as it was).
     write(
         "relinearisations.jsonl",
-        solves
+        &solves
             .iter()
             .map(|(t, solve)| {
                 let mut v = match solve {
@@ -133,14 +170,14 @@ pub(super) fn write_outputs(
         .mapped_landmarks()
         .iter()
         .map(|l| {
-            let obj = landmark_object.get(&l.id).copied().unwrap_or(0);
+            let obj = landmark_objects.get(&l.id).copied().unwrap_or(0);
             let mut v = serde_json::to_value(l).expect("JSON");
             v["true_object"] = json!(obj);
             v["true_class"] = json!(world.class_of(obj).map(|c| c.name()).unwrap_or("nothing"));
             v
         })
         .collect();
-    write("landmarks.json", serde_json::to_string_pretty(&landmarks).expect("JSON"))?;
+    write("landmarks.json", &serde_json::to_string_pretty(&landmarks).expect("JSON"))?;
     crate::objects::write_objects(out, pipeline)?;
 
     // The map picture: ground truth by class, landmarks with 2-sigma ellipses (red when
@@ -149,7 +186,7 @@ pub(super) fn write_outputs(
         .mapped_landmarks()
         .iter()
         .map(|l| {
-            let obj = landmark_object.get(&l.id).copied().unwrap_or(0);
+            let obj = landmark_objects.get(&l.id).copied().unwrap_or(0);
             let flagged = world.class_of(obj) != Some(ObjectClass::Tree);
             crate::plot::LandmarkMark {
                 position: l.position,

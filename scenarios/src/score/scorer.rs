@@ -97,6 +97,13 @@ pub struct GroundTruthScore {
 /// The interval of the relative pose error, s.
 pub const RPE_DELTA_S: f64 = 1.0;
 
+/// A pose counts as [`RPE_DELTA_S`] after another when it is at most this much short of
+/// it: poses at a fixed rate fall exactly on the interval, and whether an exact 1.0 s
+/// comes out a hair under or over must not depend on how the timestamps were written (ROS
+/// nanoseconds, six decimals, the last bit of a sum), or the same trajectory would pair
+/// other poses. A millisecond is far below any odometry period.
+pub const RPE_TIME_TOLERANCE_S: f64 = 1e-3;
+
 /// A pose as a TUM file holds it: the heading through its quaternion. Scoring poses this
 /// way gives a run and the trajectory it wrote the same figures, to the last bit.
 pub fn as_written_to_tum(pose: [f64; 3]) -> [f64; 3] {
@@ -112,7 +119,8 @@ pub fn yaw_of_quaternion(q: [f64; 4]) -> f64 {
 /// Root-mean-square translational relative pose error: for each pose i and the first pose
 /// j at least `delta_s` later, the length of the difference between the estimated and the
 /// true motion from i to j, each expressed in its own frame at i (the TUM RGB-D benchmark's
-/// translational RPE, without alignment). NaN when no pair is that far apart.
+/// translational RPE, without alignment; "at least" within [`RPE_TIME_TOLERANCE_S`]). NaN
+/// when no pair is that far apart.
 pub fn rpe_rmse(times: &[f64], estimate: &[[f64; 3]], truth: &[[f64; 3]], delta_s: f64) -> f64 {
     let motion = |a: &[f64; 3], b: &[f64; 3]| {
         let (s, c) = a[2].sin_cos();
@@ -123,7 +131,7 @@ pub fn rpe_rmse(times: &[f64], estimate: &[[f64; 3]], truth: &[[f64; 3]], delta_
     let mut j = 0;
     for i in 0..times.len() {
         j = j.max(i);
-        while j < times.len() && times[j] < times[i] + delta_s {
+        while j < times.len() && times[j] < times[i] + delta_s - RPE_TIME_TOLERANCE_S {
             j += 1;
         }
         if j == times.len() {
@@ -253,13 +261,21 @@ impl<'w> RunScorer<'w> {
         }
     }
 
-    /// A scan, its beams' truth, the camera frame of the same instant (if any), the
+    /// The beams of `scan` whose pixels in `frame`, the camera frame of its instant, show
+    /// the tree they hit (see [`TreeVisibility::beams_shown`]): what [`RunScorer::on_scan`]
+    /// takes of the frame.
+    pub fn beams_shown(&mut self, scan: &sim::LaserScan, beams: &sim::LaserTruth, frame: &InstanceImage) -> Vec<usize> {
+        self.visibility.beams_shown(scan, beams, frame)
+    }
+
+    /// A scan, its beams' truth, the beams a camera frame of the same instant showed on
+    /// their trees (`None`: no frame then; see [`RunScorer::beams_shown`]), the
     /// observations the system made of it and the fusions it made after it.
     pub fn on_scan(
         &mut self,
         scan: &sim::LaserScan,
         beams: &sim::LaserTruth,
-        frame: Option<&InstanceImage>,
+        shown: Option<&[usize]>,
         observations: &[ScoredObservation],
         fusions: &[Fusion],
     ) {
@@ -273,7 +289,7 @@ impl<'w> RunScorer<'w> {
         for f in fusions {
             self.ledger.fuse(f.kept, f.removed);
         }
-        self.visibility.on_scan(scan, beams, frame);
+        self.visibility.on_scan_shown(scan, beams, shown);
     }
 
     /// A landmark the system took off its map (a retraction): scored by what its
@@ -380,6 +396,26 @@ mod tests {
         let stretched: Vec<[f64; 3]> = truth.iter().map(|p| [1.1 * p[0], 0.0, 0.0]).collect();
         assert!((rpe_rmse(&times, &stretched, &truth, 1.0) - 0.1).abs() < 1e-9);
         assert!(rpe_rmse(&times[..5], &stretched[..5], &truth[..5], 1.0).is_nan(), "no pair 1 s apart");
+    }
+
+    #[test]
+    fn relative_pose_error_pairs_the_same_poses_whatever_digits_the_times_were_written_with() {
+        // 20 Hz by summation (times a hair off the decimal), and the same written with six
+        // decimals and as ROS nanoseconds: poses exactly 1 s apart pair in all three.
+        let mut summed = vec![0.0f64];
+        for _ in 0..200 {
+            summed.push(summed.last().unwrap() + 0.05);
+        }
+        let six: Vec<f64> = summed.iter().map(|t| format!("{t:.6}").parse().unwrap()).collect();
+        let nanos: Vec<f64> = summed.iter().map(|t| (t * 1e9).round() / 1e9).collect();
+        assert!(summed.iter().zip(&six).any(|(a, b)| a != b), "the test needs times that differ in their last bits");
+        // A wobbling estimate, so that which poses pair changes the figure.
+        let truth: Vec<[f64; 3]> = summed.iter().map(|t| [*t, 0.0, 0.0]).collect();
+        let estimate: Vec<[f64; 3]> =
+            summed.iter().enumerate().map(|(i, t)| [t * 1.05 + 0.01 * (i % 3) as f64, 0.0, 0.0]).collect();
+        let rpe = |times: &[f64]| rpe_rmse(times, &estimate, &truth, RPE_DELTA_S);
+        assert_eq!(rpe(&six).to_bits(), rpe(&summed).to_bits());
+        assert_eq!(rpe(&nanos).to_bits(), rpe(&summed).to_bits());
     }
 
     /// A park of two trees and a post; the system sees them in one scan, maps a tree twice
