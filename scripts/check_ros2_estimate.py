@@ -40,17 +40,23 @@ def pose(x, y, z, qx, qy, qz, qw):
 work = Path(tempfile.mkdtemp(prefix="objslam-ros2-estimate-"))
 bag = work / "estimate"
 poses = [list(map(float, l.split())) for l in open(run / "trajectory_est.tum") if not l.startswith("#")]
+# The run's pose covariances (x, y, heading) into the 6x6 of each Odometry message.
+covariance_rows = [list(map(float, l.split(","))) for l in list(open(run / "trajectory_est_covariance.csv"))[1:]]
+assert len(covariance_rows) == len(poses)
 with Writer(bag, version=8) as w:
     odom_c = w.add_connection("/slam/odom", "nav_msgs/msg/Odometry", typestore=ts)
     lm_c = w.add_connection("/slam/landmarks", "visualization_msgs/msg/MarkerArray", typestore=ts)
     as_c = w.add_connection("/slam/associations", "std_msgs/msg/String", typestore=ts)
     zero6 = np.zeros(36)
-    for t, x, y, z, qx, qy, qz, qw in poses:
+    for (t, x, y, z, qx, qy, qz, qw), (_, xx, xy, xt, yy, yt, tt) in zip(poses, covariance_rows):
         t_ns = round(t * 1e9)
+        c = np.zeros(36)
+        for (i, j), v in {(0, 0): xx, (0, 1): xy, (0, 5): xt, (1, 1): yy, (1, 5): yt, (5, 5): tt}.items():
+            c[6 * i + j] = c[6 * j + i] = v
         m = T["nav_msgs/msg/Odometry"](
             header=header(t_ns),
             child_frame_id="base_link",
-            pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=pose(x, y, z, qx, qy, qz, qw), covariance=zero6),
+            pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=pose(x, y, z, qx, qy, qz, qw), covariance=c),
             twist=T["geometry_msgs/msg/TwistWithCovariance"](
                 twist=T["geometry_msgs/msg/Twist"](linear=Vector3(x=0.0, y=0.0, z=0.0), angular=Vector3(x=0.0, y=0.0, z=0.0)),
                 covariance=zero6,
@@ -83,7 +89,8 @@ subprocess.run([sys.executable, here / "ros2_estimate.py", bag, "--trajectory-to
                 "--landmarks-topic", "/slam/landmarks", "--associations-topic", "/slam/associations",
                 "--out", work / "files"], check=True)
 f = work / "files"
-subprocess.run([objslam, "score", "--log", run, "--trajectory", f / "trajectory.tum", "--landmarks", f / "landmarks.csv",
+subprocess.run([objslam, "score", "--log", run, "--trajectory", f / "trajectory.tum",
+                "--covariances", f / "trajectory_covariance.csv", "--landmarks", f / "landmarks.csv",
                 "--associations", f / "associations.jsonl", "--method", json.load(open(run / "metrics.json"))["method"],
                 "--out", work / "score"], stdout=subprocess.DEVNULL)
 scored = json.load(open(work / "score" / "metrics.json"))

@@ -190,17 +190,23 @@ pub(crate) enum Command {
 
 #[derive(clap::Args)]
 pub(crate) struct ScoreArgs {
-    /// The log directory `objslam record` wrote.
+    /// The log: a directory `objslam record` wrote, or an `objslam run` output directory.
     #[arg(long)]
     pub(crate) log: PathBuf,
     /// The estimated trajectory, TUM format, world frame.
     #[arg(long)]
     pub(crate) trajectory: PathBuf,
-    /// The estimated map: a JSON array of {"id", "position": [x, y]}.
+    /// The pose covariance at the trajectory's times, for ANEES: CSV
+    /// `t,xx,xy,xtheta,yy,ytheta,thetatheta` (a run's trajectory_est_covariance.csv, which is
+    /// read without this flag when the trajectory is the run's own).
+    #[arg(long)]
+    pub(crate) covariances: Option<PathBuf>,
+    /// The estimated map: a JSON array of {"id", "position": [x, y]}, or CSV `id,x,y`.
     #[arg(long)]
     pub(crate) landmarks: Option<PathBuf>,
-    /// What each laser cluster of each scan went to (JSON lines, as `objslam run` writes
-    /// associations.jsonl).
+    /// What each observation of each scan went to: JSON lines by observation id (as
+    /// `objslam run` writes decisions.jsonl) or by beams (associations.jsonl), or CSV
+    /// `t,observation,landmark` or `t,first_beam,last_beam,landmark`.
     #[arg(long)]
     pub(crate) associations: Option<PathBuf>,
     /// The system's name in the report.

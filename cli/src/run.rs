@@ -65,10 +65,11 @@ pub(crate) fn replay(log: Option<PathBuf>, options: ReplayArgs, dataset: Option<
     Ok(())
 }
 
-/// `objslam score`: another system's estimate against a recorded log.
+/// `objslam score`: a system's estimate against a recorded log or a run's outputs.
 pub(crate) fn score(args: ScoreArgs) -> Result<()> {
     let estimate = scenarios::score::log::Estimate {
         trajectory: args.trajectory,
+        covariances: args.covariances,
         landmarks: args.landmarks,
         associations: args.associations,
         method: args.method,

@@ -114,6 +114,16 @@ pub fn tum_line(t: f64, x: f64, y: f64, yaw: f64) -> String {
     format!("{t} {x} {y} 0 {} {} {} {}", q[0], q[1], q[2], q[3])
 }
 
+/// An odometry message's line of `odometry.jsonl`.
+pub fn odometry_line(o: &sim::Odometry) -> String {
+    serde_json::to_string(o).expect("JSON")
+}
+
+/// A contact's line of `collisions.jsonl`.
+pub fn collision_line(c: &sim::Collision) -> String {
+    serde_json::to_string(c).expect("JSON")
+}
+
 /// A scan's line of `laser.jsonl`.
 pub fn laser_line(scan: &sim::LaserScan) -> String {
     serde_json::to_string(scan).expect("JSON")
@@ -471,7 +481,7 @@ fn record_jsonl(
         match &event {
             SensorEvent::Odometry { odometry: o, truth } => {
                 odos += 1;
-                odometry.line(&serde_json::to_string(o).expect("JSON"))?;
+                odometry.line(&odometry_line(o))?;
                 let r = truth.robot;
                 tum.line(&tum_line(o.t, r.x, r.y, r.theta))?;
                 odom = integrate_odometry(odom, o);
@@ -565,7 +575,7 @@ fn record_jsonl(
     progress(sim.time(), nominal);
     let mut collisions = Out::create(out, "collisions.jsonl")?;
     for c in sim.collisions() {
-        collisions.line(&serde_json::to_string(c).expect("JSON"))?;
+        collisions.line(&collision_line(c))?;
     }
     collisions.finish()?;
     for f in [laser, laser_truth, observations, odometry, tum, camera_log] {

@@ -237,7 +237,7 @@ fn csv_files() {
 #[test]
 fn tum_trajectories() {
     let base = b"# t x y z qx qy qz qw\n0 0 0 0 0 0 0 1\n0.1 0.5 0.01 0 0 0 0.0499792 0.9987503\n0.2 1.0 0.02 0 0 0 0.0998334 0.9950042\n";
-    fuzz("tum", base, 5 * SECOND, |b| scenarios::score::log::read_tum(&file("est.tum", b)).is_ok());
+    fuzz("tum", base, 5 * SECOND, |b| scenarios::score::estimate::read_tum(&file("est.tum", b)).is_ok());
 }
 
 /// A tiny appearance model, trained in a moment (its JSON is the seed of the model fuzzing).

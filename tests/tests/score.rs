@@ -37,6 +37,7 @@ fn record_and_run(name: &str, seed: u64, duration: f64, camera: bool, dir: &Path
 fn estimate(run: &Path, method: &str) -> Estimate {
     Estimate {
         trajectory: run.join("trajectory_est.tum"),
+        covariances: Some(run.join("trajectory_est_covariance.csv")),
         landmarks: Some(run.join("landmarks.json")),
         associations: Some(run.join("associations.jsonl")),
         method: Some(method.into()),
@@ -56,7 +57,7 @@ fn assert_reproduced(run_dir: &Path, scored: &scenarios::score::log::ScoredMetri
         scored["map"].as_object_mut().unwrap().remove(key);
     }
     let compared: Vec<&String> = scored.as_object().unwrap().keys().collect();
-    assert_eq!(compared.len(), 17, "the keys compared: {compared:?}");
+    assert_eq!(compared.len(), 18, "the keys compared: {compared:?}");
     for (key, value) in scored.as_object().unwrap() {
         let expected = if key == "map" {
             let mut m = run["map"].clone();
@@ -78,6 +79,7 @@ fn assert_reproduced(run_dir: &Path, scored: &scenarios::score::log::ScoredMetri
 fn assert_run_directory_reproduces_itself(run_dir: &Path) -> scenarios::score::log::ScoredMetrics {
     let own = Estimate {
         trajectory: run_dir.join("trajectory_est.tum"),
+        covariances: None,
         landmarks: Some(run_dir.join("landmarks.json")),
         associations: Some(run_dir.join("decisions.jsonl")),
         method: None,
@@ -134,6 +136,7 @@ fn assert_csv_forms_score_alike(run_dir: &Path) {
     let score = |landmarks: &str, associations: &str| {
         let e = Estimate {
             trajectory: run_dir.join("trajectory_est.tum"),
+            covariances: None,
             landmarks: Some(dir.join(landmarks)),
             associations: Some(dir.join(associations)),
             method: None,
@@ -159,11 +162,12 @@ fn score_reproduces_a_position_only_run_bit_for_bit() {
     assert_eq!(scored.map.as_ref().unwrap().trees_in_view, None);
 
     // A trajectory alone: the trajectory's figures, and no verdict on the map's criteria.
-    let alone = Estimate { landmarks: None, associations: None, ..estimate(&out, "jcbb") };
+    let alone = Estimate { landmarks: None, associations: None, covariances: None, ..estimate(&out, "jcbb") };
     let scored_alone = score_log(&log, &alone).unwrap();
     assert_eq!(scored_alone.ate_rmse_m.to_bits(), scored.ate_rmse_m.to_bits());
     assert!(scored_alone.map.is_none() && scored_alone.associations.is_none());
     assert!(scored_alone.passed.is_none() && !scored_alone.unchecked.is_empty());
+    assert!(scored_alone.anees.is_nan(), "no covariances given: no ANEES");
 
     let own = assert_run_directory_reproduces_itself(&out);
     assert_eq!(own.method, "jcbb", "a run's own trajectory is scored under its method's name");
@@ -185,6 +189,11 @@ fn score_reproduces_a_camera_run_with_its_trees_in_view() {
     assert!(!out.join("camera.jsonl").exists());
     let own = assert_run_directory_reproduces_itself(&out);
     assert_eq!(own.map.unwrap().trees_in_view, map.trees_in_view);
+    // Without that file the run's camera evidence is missing: an error, not another recall.
+    std::fs::rename(out.join("trees_shown.jsonl"), dir.join("moved.jsonl")).unwrap();
+    let own = Estimate { method: None, recall_basis: None, ..estimate(&out, "combined") };
+    let e = score_log(&out, &own).expect_err("no trees_shown.jsonl").to_string();
+    assert!(e.contains("trees_shown.jsonl"), "{e}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -253,6 +262,23 @@ fn inputs_that_do_not_fit_the_log_are_errors_naming_file_and_line() {
     std::fs::write(&lm_csv, "id,x,y\n1,2.0\n").unwrap();
     let e = error(Estimate { landmarks: Some(lm_csv), ..estimate(&out, "x") });
     assert!(e.contains("lm.csv:2"), "{e}");
+
+    // An observation of the log's that lies outside its scan.
+    let observations = std::fs::read_to_string(log.join("observations.jsonl")).unwrap();
+    let mut first: serde_json::Value = serde_json::from_str(observations.lines().next().unwrap()).unwrap();
+    first["observations"] = serde_json::json!([{"first_beam": 5, "last_beam": 900}]);
+    let edited = first.to_string() + "\n" + &observations.lines().skip(1).collect::<Vec<_>>().join("\n");
+    std::fs::write(log.join("observations.jsonl"), edited).unwrap();
+    std::fs::write(&assoc, "{\"t\": 0.0, \"observation\": 0, \"landmark\": 3}\n").unwrap();
+    let e = error(Estimate { associations: Some(assoc.clone()), ..estimate(&out, "x") });
+    assert!(e.contains("observations.jsonl:1") && e.contains("5..=900"), "{e}");
+    std::fs::write(log.join("observations.jsonl"), observations).unwrap();
+
+    // A covariance at a time the trajectory has no pose at.
+    let cov = bad.join("cov.csv");
+    std::fs::write(&cov, "t,xx,xy,xtheta,yy,ytheta,thetatheta\n0.0123,1,0,0,1,0,1\n").unwrap();
+    let e = error(Estimate { covariances: Some(cov), ..estimate(&out, "x") });
+    assert!(e.contains("cov.csv:2") && e.contains("no pose"), "{e}");
 
     // The same landmark twice.
     let lm = bad.join("lm.json");

@@ -28,7 +28,7 @@ use crate::scenario::{Scenario, ScenarioError};
 use crate::score::scorer::{MapLandmark, RecallBasis, RunScorer, VisibilitySettings};
 use events::EventSource;
 use online::RunLoop;
-use outputs::{FinishedRun, clear_stale_outputs, write_outputs};
+use outputs::{FinishedRun, StreamedOutputs, clear_stale_outputs, write_outputs};
 
 /// Errors of a run.
 #[derive(Debug, thiserror::Error)]
@@ -350,7 +350,11 @@ pub fn run(
     };
 
     // The loop.
-    let mut online = RunLoop::new(pipeline, scorer, &world, options.out.is_some(), sim_config.physics_rate_hz);
+    let streams = match &options.out {
+        Some(out) => Some(StreamedOutputs::create(out, sim_config.camera.enabled, camera_method)?),
+        None => None,
+    };
+    let mut online = RunLoop::new(pipeline, scorer, &world, streams, sim_config.physics_rate_hz);
     let mut last_progress = -1.0;
     let mut events = EventSource::start(sim, &mut |w| progress(RunProgress::Warning(w)));
     while let Some(event) = events.next() {
@@ -373,8 +377,8 @@ pub fn run(
     let wall = started.elapsed().as_secs_f64();
 
     // Finish: the scores.
-    let RunLoop { pipeline, scorer, mut log, .. } = online;
-    log.collisions = sim.collisions().iter().map(|c| serde_json::to_string(c).expect("JSON") + "\n").collect();
+    let RunLoop { pipeline, scorer, mut log, streams, .. } = online;
+    log.collisions = sim.collisions().iter().map(|c| crate::record::collision_line(c) + "\n").collect();
     let map_landmarks: Vec<MapLandmark> =
         pipeline.mapped_landmarks().iter().map(|l| MapLandmark { id: l.id, position: l.position }).collect();
     let scored = scorer.finish(&map_landmarks);
@@ -462,7 +466,7 @@ pub fn run(
             sim_config: &sim_config,
             scoring: &scoring,
         };
-        write_outputs(out, &finished)?;
+        write_outputs(out, &finished, streams.expect("a run with outputs streams them"))?;
     }
     Ok(RunOutcome { metrics, resolved })
 }

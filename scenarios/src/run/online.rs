@@ -9,7 +9,7 @@ use slam::association::AssociationDecision;
 use slam::ekf::smoother::{Relinearisation, SmootherError};
 use slam::pipeline::Pipeline;
 
-use super::outputs::{association_line, segmentation_line, trees_shown_line};
+use super::outputs::{Stream, StreamedOutputs, association_line, segmentation_line, trees_shown_line};
 use super::{RunError, slam_scan};
 use crate::score::scorer::{Fusion, RunScorer, ScoredObservation, as_written_to_tum, true_object};
 use crate::score::segmentation::ClassImage;
@@ -41,24 +41,12 @@ pub(super) struct RunLog {
     /// Estimated and true paths (t, x, y, theta) at each odometry message.
     pub estimate: Vec<(f64, [f64; 3])>,
     pub truth: Vec<(f64, [f64; 3])>,
+    /// The estimated pose's covariance at each odometry message (outputs only).
+    pub covariances: Vec<[[f64; 3]; 3]>,
     /// Fusions of landmarks at each scan's time (outputs only: decisions.jsonl).
     pub fusions: Vec<(f64, Fusion)>,
-    /// What the pipeline did with each scan, as `objslam score` reads it (associations.jsonl).
-    pub associations: String,
-    /// The sensor log and its truth, as `objslam record` writes them, so that the run's
-    /// output directory is a log `objslam score` reads (outputs only): laser.jsonl,
-    /// laser_truth.jsonl, odometry.jsonl, observations.jsonl (the clusters, whose indices
-    /// decisions.jsonl names) and trees_shown.jsonl (per scan with a camera frame of its
-    /// instant, the beams whose pixels show the tree they hit).
-    pub laser: String,
-    pub laser_truth: String,
-    pub odometry: String,
-    pub observations: String,
-    pub trees_shown: String,
     /// The robot's contacts, one JSON line each (collisions.jsonl).
     pub collisions: String,
-    /// One line per segmented cluster (camera methods): why it was or was not an object.
-    pub segmentation: String,
     pub people_tracks: BTreeMap<u16, Vec<[f64; 2]>>,
     /// Seconds spent on events (pipeline and scoring), and on the pipeline's scans alone.
     pub event_s: f64,
@@ -77,6 +65,8 @@ pub(super) struct RunLoop<'w> {
     world: &'w worlds::World,
     /// Whether the decisions and the logs are kept (runs that write outputs).
     keep_logs: bool,
+    /// The outputs written as the run goes (runs that write outputs).
+    pub streams: Option<StreamedOutputs>,
     /// A scan and the frame of its instant fire within this many seconds (the same physics
     /// step).
     same_instant_s: f64,
@@ -89,14 +79,15 @@ impl<'w> RunLoop<'w> {
         pipeline: Pipeline,
         scorer: RunScorer<'w>,
         world: &'w worlds::World,
-        keep_logs: bool,
+        streams: Option<StreamedOutputs>,
         physics_rate_hz: f64,
     ) -> Self {
         RunLoop {
             pipeline,
             scorer,
             world,
-            keep_logs,
+            keep_logs: streams.is_some(),
+            streams,
             same_instant_s: 0.5 / physics_rate_hz,
             last_frame: None,
             log: RunLog::default(),
@@ -121,10 +112,11 @@ impl<'w> RunLoop<'w> {
             dy: odometry.dy,
             dtheta: odometry.dtheta,
         })?;
-        if self.keep_logs {
-            self.log.odometry.push_str(&(serde_json::to_string(odometry).expect("JSON") + "\n"));
-        }
         let est = self.pipeline.pose();
+        if let Some(streams) = &mut self.streams {
+            streams.write(Stream::Odometry, &(crate::record::odometry_line(odometry) + "\n"))?;
+            self.log.covariances.push(est.covariance);
+        }
         let truth = [robot.x, robot.y, robot.theta];
         self.log.estimate.push((odometry.t, est.pose));
         self.log.truth.push((odometry.t, truth));
@@ -158,10 +150,11 @@ impl<'w> RunLoop<'w> {
         for rec in &report.segmentations {
             let frame = self.last_frame.as_ref().map(|f| ClassImage { t: f.t, width: f.width, class: &f.class });
             let objects = self.scorer.on_segmentation(rec, &report.clusters, beams, frame.as_ref());
-            if self.keep_logs {
+            if let Some(streams) = &mut self.streams {
                 for (cs, object) in rec.clusters.iter().zip(objects) {
                     let c = &report.clusters[cs.index];
-                    self.log.segmentation.push_str(&segmentation_line(s.t, rec.t_image, cs, c, object, self.world));
+                    streams
+                        .write(Stream::Segmentation, &segmentation_line(s.t, rec.t_image, cs, c, object, self.world))?;
                 }
             }
         }
@@ -186,20 +179,18 @@ impl<'w> RunLoop<'w> {
             });
         let shown = frame.map(|f| self.scorer.beams_shown(scan, beams, &f));
         self.scorer.on_scan(scan, beams, shown.as_deref(), &observations, &fusions);
-        if self.keep_logs {
-            let log = &mut self.log;
-            log.associations.push_str(&association_line(scan.t, &observations, &fusions));
-            log.fusions.extend(fusions.iter().map(|f| (scan.t, *f)));
-            for (file, line) in [
-                (&mut log.laser, crate::record::laser_line(scan)),
-                (&mut log.laser_truth, crate::record::laser_truth_line(scan.t, beams)),
-                (&mut log.observations, crate::record::observations_line(scan.t, &report.clusters)),
+        if let Some(streams) = &mut self.streams {
+            self.log.fusions.extend(fusions.iter().map(|f| (scan.t, *f)));
+            streams.write(Stream::Associations, &association_line(scan.t, &observations, &fusions))?;
+            for (stream, line) in [
+                (Stream::Laser, crate::record::laser_line(scan)),
+                (Stream::LaserTruth, crate::record::laser_truth_line(scan.t, beams)),
+                (Stream::Observations, crate::record::observations_line(scan.t, &report.clusters)),
             ] {
-                file.push_str(&line);
-                file.push('\n');
+                streams.write(stream, &(line + "\n"))?;
             }
             if let Some(shown) = shown.filter(|s| !s.is_empty()) {
-                log.trees_shown.push_str(&trees_shown_line(scan.t, &shown));
+                streams.write(Stream::TreesShown, &trees_shown_line(scan.t, &shown))?;
             }
         }
         for p in &truth.people {

@@ -1,7 +1,7 @@
 //! The files a run writes: metrics, trajectories, the map, decisions, logs and plots.
 
 use std::collections::HashMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use serde_json::json;
 use slam::pipeline::Pipeline;
@@ -43,6 +43,103 @@ pub(super) fn trees_shown_line(t: f64, beams: &[usize]) -> String {
     serde_json::to_string(&json!({"t": t, "beams": beams})).expect("JSON") + "\n"
 }
 
+/// The outputs a run writes line by line as it goes, so that their size costs no memory.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Stream {
+    Laser,
+    LaserTruth,
+    Odometry,
+    Observations,
+    Associations,
+    /// Runs with a camera.
+    TreesShown,
+    /// Camera methods.
+    Segmentation,
+}
+
+impl Stream {
+    const ALL: [Stream; 7] = [
+        Stream::Laser,
+        Stream::LaserTruth,
+        Stream::Odometry,
+        Stream::Observations,
+        Stream::Associations,
+        Stream::TreesShown,
+        Stream::Segmentation,
+    ];
+
+    fn file_name(self) -> &'static str {
+        match self {
+            Stream::Laser => "laser.jsonl",
+            Stream::LaserTruth => "laser_truth.jsonl",
+            Stream::Odometry => "odometry.jsonl",
+            Stream::Observations => "observations.jsonl",
+            Stream::Associations => "associations.jsonl",
+            Stream::TreesShown => "trees_shown.jsonl",
+            Stream::Segmentation => "segmentation.jsonl",
+        }
+    }
+}
+
+/// The streamed outputs of a run, written under a `.partial` name and renamed into place
+/// with the rest of the outputs, so that a run that fails leaves the directory's earlier
+/// outputs whole (its partial files are removed).
+pub(super) struct StreamedOutputs {
+    files: Vec<(Stream, PathBuf, std::io::BufWriter<std::fs::File>)>,
+    finished: bool,
+}
+
+impl StreamedOutputs {
+    /// Opens the streams of a run with or without a camera and a camera method.
+    pub fn create(out: &Path, camera: bool, camera_method: bool) -> Result<Self, RunError> {
+        std::fs::create_dir_all(out).map_err(|source| RunError::Io { file: out.to_path_buf(), source })?;
+        let mut streams = StreamedOutputs { files: Vec::new(), finished: false };
+        for stream in Stream::ALL {
+            if (stream == Stream::TreesShown && !camera) || (stream == Stream::Segmentation && !camera_method) {
+                continue;
+            }
+            let file = out.join(format!("{}.partial", stream.file_name()));
+            let f = std::fs::File::create(&file).map_err(|source| RunError::Io { file: file.clone(), source })?;
+            streams.files.push((stream, file, std::io::BufWriter::new(f)));
+        }
+        Ok(streams)
+    }
+
+    /// Appends `text` (whole lines) to `stream`; a stream the run does not write ignores it.
+    pub fn write(&mut self, stream: Stream, text: &str) -> Result<(), RunError> {
+        use std::io::Write;
+        match self.files.iter_mut().find(|(s, _, _)| *s == stream) {
+            Some((_, file, w)) => {
+                w.write_all(text.as_bytes()).map_err(|source| RunError::Io { file: file.clone(), source })
+            }
+            None => Ok(()),
+        }
+    }
+
+    /// Flushes every stream and gives it its final name.
+    fn finish(mut self) -> Result<(), RunError> {
+        self.finished = true;
+        for (stream, file, w) in std::mem::take(&mut self.files) {
+            let f = w.into_inner().map_err(|e| RunError::Io { file: file.clone(), source: e.into_error() })?;
+            f.sync_all().map_err(|source| RunError::Io { file: file.clone(), source })?;
+            drop(f);
+            let done = file.with_file_name(stream.file_name());
+            std::fs::rename(&file, &done).map_err(|source| RunError::Io { file: done, source })?;
+        }
+        Ok(())
+    }
+}
+
+impl Drop for StreamedOutputs {
+    fn drop(&mut self) {
+        if !self.finished {
+            for (_, file, _) in &self.files {
+                let _ = std::fs::remove_file(file);
+            }
+        }
+    }
+}
+
 /// Outputs that only some runs write (camera methods, estimated calibrations): removed from
 /// a reused output directory first, so none is left from an earlier run to be taken for
 /// this one's. The other outputs every run rewrites.
@@ -74,8 +171,10 @@ pub(super) struct FinishedRun<'a> {
     pub scoring: &'a LogScoring,
 }
 
-pub(super) fn write_outputs(out: &Path, run: &FinishedRun) -> Result<(), RunError> {
+/// Writes a finished run's outputs into `out`, the streamed ones given their final names.
+pub(super) fn write_outputs(out: &Path, run: &FinishedRun, streams: StreamedOutputs) -> Result<(), RunError> {
     let FinishedRun { world, pipeline, metrics, resolved, log, landmark_objects, sim_config, scoring } = *run;
+    streams.finish()?;
     let (est, gt, people_tracks) = (&log.estimate, &log.truth, &log.people_tracks);
     let solves = &log.solves;
     std::fs::create_dir_all(out).map_err(|source| RunError::Io { file: out.to_path_buf(), source })?;
@@ -83,23 +182,12 @@ pub(super) fn write_outputs(out: &Path, run: &FinishedRun) -> Result<(), RunErro
         let file = out.join(name);
         std::fs::write(&file, text).map_err(|source| RunError::Io { file, source })
     };
-    write("associations.jsonl", &log.associations)?;
-    if pipeline.config().method.uses_appearance() {
-        write("segmentation.jsonl", &log.segmentation)?;
-    }
     write("metrics.json", &serde_json::to_string_pretty(metrics).expect("JSON"))?;
     // The directory is also a sensor log with its truth, which `objslam score --log` reads
     // (the same files as `objslam record` writes, camera images aside).
     write("world.toml", &world.to_toml())?;
     write("sensors.json", &serde_json::to_string_pretty(&crate::record::sensors_json(sim_config)).expect("JSON"))?;
-    write("laser.jsonl", &log.laser)?;
-    write("laser_truth.jsonl", &log.laser_truth)?;
-    write("odometry.jsonl", &log.odometry)?;
-    write("observations.jsonl", &log.observations)?;
     write("collisions.jsonl", &log.collisions)?;
-    if sim_config.camera.enabled {
-        write("trees_shown.jsonl", &log.trees_shown)?;
-    }
     write(
         "metadata.json",
         &serde_json::to_string_pretty(&json!({
@@ -124,6 +212,12 @@ pub(super) fn write_outputs(out: &Path, run: &FinishedRun) -> Result<(), RunErro
         s
     };
     write("trajectory_est.tum", &tum(est))?;
+    let mut covariances = crate::score::estimate::covariance_header() + "\n";
+    for ((t, _), p) in est.iter().zip(&log.covariances) {
+        covariances.push_str(&crate::score::estimate::covariance_line(*t, p));
+        covariances.push('\n');
+    }
+    write("trajectory_est_covariance.csv", &covariances)?;
     write("trajectory_gt.tum", &tum(gt))?;
     // Each decision with the ground truth beside it: the observation's true object and the
     // true object of every candidate landmark. After a scan's decisions, the fusions made
@@ -241,4 +335,35 @@ pub(super) fn write_outputs(out: &Path, run: &FinishedRun) -> Result<(), RunErro
     )?;
     mcap.finish()?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn streamed_outputs_take_their_names_when_finished_and_vanish_when_the_run_fails() {
+        let dir = std::env::temp_dir().join(format!("objslam-streams-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        // An earlier run's output stays whole while a new run streams, and after it fails.
+        std::fs::write(dir.join("laser.jsonl"), "earlier\n").unwrap();
+        let mut failed = StreamedOutputs::create(&dir, false, false).unwrap();
+        failed.write(Stream::Laser, "new\n").unwrap();
+        assert!(dir.join("laser.jsonl.partial").exists());
+        drop(failed);
+        assert!(!dir.join("laser.jsonl.partial").exists(), "a failed run's partial files are removed");
+        assert_eq!(std::fs::read_to_string(dir.join("laser.jsonl")).unwrap(), "earlier\n");
+
+        let mut done = StreamedOutputs::create(&dir, true, false).unwrap();
+        done.write(Stream::Laser, "new\n").unwrap();
+        done.write(Stream::Segmentation, "not written without a camera method\n").unwrap();
+        done.finish().unwrap();
+        assert_eq!(std::fs::read_to_string(dir.join("laser.jsonl")).unwrap(), "new\n");
+        assert!(dir.join("trees_shown.jsonl").exists() && !dir.join("segmentation.jsonl").exists());
+        assert!(
+            std::fs::read_dir(&dir).unwrap().all(|e| !e.unwrap().file_name().to_string_lossy().ends_with(".partial"))
+        );
+        std::fs::remove_dir_all(&dir).ok();
+    }
 }

@@ -1,6 +1,7 @@
 //! Scoring against ground truth: trajectory error, landmark error after optimal
 //! assignment, map content per class, wrong associations, duplicates, NEES.
 
+pub mod estimate;
 pub mod log;
 pub mod scorer;
 pub mod segmentation;

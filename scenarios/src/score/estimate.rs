@@ -1,0 +1,500 @@
+//! The files a system under test gives `objslam score`, and how they are read: its
+//! trajectory (TUM), pose covariances (CSV), map (JSON or CSV) and associations (JSON lines
+//! or CSV, by observation id or by beams). Formats: docs/guide/scoring.md#inputs.
+
+use std::path::Path;
+
+use serde::Deserialize;
+
+use super::log::{ScoreError, invalid, read_text};
+use super::scorer::{Fusion, MapLandmark, ScoredObservation};
+
+/// A TUM trajectory: (t, x, y, yaw) per pose, in file order.
+pub fn read_tum(file: &Path) -> Result<Vec<(f64, [f64; 3])>, ScoreError> {
+    let mut poses: Vec<(f64, [f64; 3])> = Vec::new();
+    for (i, line) in read_text(file)?.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let values: Vec<f64> = line
+            .split_whitespace()
+            .map(|w| w.parse::<f64>())
+            .collect::<Result<_, _>>()
+            .map_err(|e| invalid(file, Some(i + 1), format!("not a number: {e}")))?;
+        let [t, x, y, _z, qx, qy, qz, qw] = values[..] else {
+            return Err(invalid(
+                file,
+                Some(i + 1),
+                format!("{} values where TUM has 8 (timestamp tx ty tz qx qy qz qw)", values.len()),
+            ));
+        };
+        if values.iter().any(|v| !v.is_finite()) {
+            return Err(invalid(file, Some(i + 1), "a value is not finite"));
+        }
+        if let Some((last, _)) = poses.last()
+            && t <= *last
+        {
+            return Err(invalid(file, Some(i + 1), format!("timestamp {t} does not follow {last}")));
+        }
+        poses.push((t, [x, y, super::scorer::yaw_of_quaternion([qx, qy, qz, qw])]));
+    }
+    if poses.is_empty() {
+        return Err(invalid(file, None, "no pose"));
+    }
+    Ok(poses)
+}
+
+/// The columns of a covariance file: the pose covariance's lower triangle (x, y, heading;
+/// the heading in radians), named as its upper one, which a symmetric matrix shares.
+const COVARIANCE_COLUMNS: &[&str] = &["t", "xx", "xy", "xtheta", "yy", "ytheta", "thetatheta"];
+
+/// A row of a covariance file: its line, time and covariance.
+pub(super) type CovarianceRow = (usize, f64, [[f64; 3]; 3]);
+
+/// A pose covariance per time, in time order.
+pub(super) fn read_covariances(file: &Path) -> Result<Vec<CovarianceRow>, ScoreError> {
+    let (_, rows) = read_csv_numbers(file, &[COVARIANCE_COLUMNS])?;
+    let mut out: Vec<CovarianceRow> = Vec::new();
+    for (line, row) in rows {
+        let Some(v) = row.iter().copied().collect::<Option<Vec<f64>>>() else {
+            return Err(invalid(file, Some(line), "an empty cell"));
+        };
+        if let Some((_, last, _)) = out.last()
+            && v[0] <= *last
+        {
+            return Err(invalid(file, Some(line), format!("timestamp {} does not follow {last}", v[0])));
+        }
+        let p = [[v[1], v[2], v[3]], [v[2], v[4], v[5]], [v[3], v[5], v[6]]];
+        out.push((line, v[0], p));
+    }
+    Ok(out)
+}
+
+/// A covariance row of a pose: `t,xx,xy,xtheta,yy,ytheta,thetatheta` from the lower
+/// triangle, each number with the digits that read back the same `f64`.
+pub fn covariance_line(t: f64, p: &[[f64; 3]; 3]) -> String {
+    format!("{t},{},{},{},{},{},{}", p[0][0], p[1][0], p[2][0], p[1][1], p[2][1], p[2][2])
+}
+
+/// The header of a covariance file.
+pub fn covariance_header() -> String {
+    COVARIANCE_COLUMNS.join(",")
+}
+
+/// What a system did with one scan: its observations of it, each with the landmark it
+/// went to, and the fusions it made after it.
+#[derive(Debug)]
+pub(super) struct ScanAssociations {
+    /// The file's line where the scan's entries start.
+    pub line: usize,
+    pub t: f64,
+    pub observations: Observations,
+    pub fusions: Vec<Fusion>,
+}
+
+/// A scan's observations, given by their beams or by their ids in the log's
+/// `observations.jsonl` (the index in the scan's list).
+#[derive(Debug)]
+pub(super) enum Observations {
+    Beams(Vec<ScoredObservation>),
+    /// (line, observation id, landmark).
+    Ids(Vec<(usize, usize, Option<u32>)>),
+}
+
+/// A line of the beams form: a scan's observations by their beams, and its fusions.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct BeamsLine {
+    t: f64,
+    observations: Vec<ScoredObservation>,
+    #[serde(default)]
+    fusions: Vec<Fusion>,
+}
+
+/// A line of the decision form (as `decisions.jsonl` writes it): one observation, by its id
+/// within the scan, and the landmark it went to.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct DecisionLine {
+    t: f64,
+    observation: usize,
+    #[serde(default)]
+    landmark: Option<u32>,
+    /// The landmark as `decisions.jsonl` gives it: `new` or `existing` name one.
+    #[serde(default)]
+    choice: Option<slam::association::Choice>,
+    // What decisions.jsonl writes beside them, which scoring does not read.
+    #[serde(default, rename = "candidates")]
+    _candidates: serde::de::IgnoredAny,
+    #[serde(default, rename = "method")]
+    _method: serde::de::IgnoredAny,
+    #[serde(default, rename = "true_object")]
+    _true_object: serde::de::IgnoredAny,
+}
+
+impl DecisionLine {
+    fn landmark(&self) -> Result<Option<u32>, String> {
+        use slam::association::Choice;
+        let chosen = match self.choice {
+            Some(Choice::New { landmark } | Choice::Existing { landmark }) => Some(landmark),
+            _ => None,
+        };
+        match (self.landmark, self.choice) {
+            (Some(a), Some(_)) if chosen != Some(a) => {
+                Err(format!("`landmark` {a} and `choice` {:?} disagree", self.choice.unwrap()))
+            }
+            (Some(a), _) => Ok(Some(a)),
+            (None, _) => Ok(chosen),
+        }
+    }
+}
+
+/// A fusion line of the decision form: after the scan at `t`, `removed` was fused into `kept`.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct FusionLine {
+    t: f64,
+    fusion: Fusion,
+}
+
+/// One entry of an associations file, before entries are grouped by scan.
+enum AssociationEntry {
+    Beams(Vec<ScoredObservation>, Vec<Fusion>),
+    Decision(usize, Option<u32>),
+    Fusion(Fusion),
+}
+
+/// The scans of an associations file (JSON lines, or CSV when its name ends in `.csv`), in
+/// time order; entries of one scan share its time (to 1 us).
+pub(super) fn read_associations(file: &Path) -> Result<Vec<ScanAssociations>, ScoreError> {
+    let entries = if file.extension().is_some_and(|e| e.eq_ignore_ascii_case("csv")) {
+        read_association_csv(file)?
+    } else {
+        read_association_lines(file)?
+    };
+    if entries.is_empty() {
+        return Err(invalid(file, None, "no entry (to score without associations, leave --associations out)"));
+    }
+    let mut scans: Vec<ScanAssociations> = Vec::new();
+    for (line, t, entry) in entries {
+        if !t.is_finite() {
+            return Err(invalid(file, Some(line), "the time is not finite"));
+        }
+        let fusions = match &entry {
+            AssociationEntry::Beams(_, f) => &f[..],
+            AssociationEntry::Fusion(f) => std::slice::from_ref(f),
+            AssociationEntry::Decision(..) => &[],
+        };
+        if let Some(f) = fusions.iter().find(|f| f.kept == f.removed) {
+            return Err(invalid(file, Some(line), format!("landmark {} fused into itself", f.kept)));
+        }
+        let same_scan = scans.last().is_some_and(|s| (t - s.t).abs() < 1e-6);
+        if let Some(last) = scans.last()
+            && !same_scan
+            && t < last.t
+        {
+            return Err(invalid(file, Some(line), format!("scan time {t} does not follow {}", last.t)));
+        }
+        if !same_scan {
+            let (observations, fusions) = match entry {
+                AssociationEntry::Beams(o, f) => (Observations::Beams(o), f),
+                AssociationEntry::Decision(id, landmark) => (Observations::Ids(vec![(line, id, landmark)]), vec![]),
+                AssociationEntry::Fusion(f) => (Observations::Ids(vec![]), vec![f]),
+            };
+            scans.push(ScanAssociations { line, t, observations, fusions });
+            continue;
+        }
+        let scan = scans.last_mut().expect("same scan");
+        match (entry, &mut scan.observations) {
+            (AssociationEntry::Beams(..), _) => {
+                return Err(invalid(
+                    file,
+                    Some(line),
+                    format!("a second entry for the scan at t = {t} s (a line by beams holds the whole scan)"),
+                ));
+            }
+            (AssociationEntry::Decision(..), Observations::Beams(_)) => {
+                return Err(invalid(file, Some(line), "observations by id and by beams for one scan"));
+            }
+            (AssociationEntry::Decision(..), Observations::Ids(_)) if !scan.fusions.is_empty() => {
+                return Err(invalid(file, Some(line), "an observation after its scan's fusions"));
+            }
+            (AssociationEntry::Decision(id, landmark), Observations::Ids(all)) => all.push((line, id, landmark)),
+            (AssociationEntry::Fusion(f), _) => scan.fusions.push(f),
+        }
+    }
+    Ok(scans)
+}
+
+/// JSON lines: `{"t", "observations": [...], "fusions": [...]}` (beams), or one decision
+/// `{"t", "observation", "landmark" | "choice"}` or fusion `{"t", "fusion"}` per line.
+fn read_association_lines(file: &Path) -> Result<Vec<(usize, f64, AssociationEntry)>, ScoreError> {
+    let mut entries = Vec::new();
+    for (i, line) in read_text(file)?.lines().enumerate() {
+        if line.trim().is_empty() {
+            continue;
+        }
+        let bad = |e: serde_json::Error| invalid(file, Some(i + 1), e.to_string());
+        let v: serde_json::Value = serde_json::from_str(line).map_err(bad)?;
+        let entry = if v.get("observations").is_some() {
+            let b: BeamsLine = serde_json::from_value(v).map_err(bad)?;
+            (b.t, AssociationEntry::Beams(b.observations, b.fusions))
+        } else if v.get("observation").is_some() {
+            let d: DecisionLine = serde_json::from_value(v).map_err(bad)?;
+            let landmark = d.landmark().map_err(|m| invalid(file, Some(i + 1), m))?;
+            (d.t, AssociationEntry::Decision(d.observation, landmark))
+        } else if v.get("fusion").is_some() {
+            let f: FusionLine = serde_json::from_value(v).map_err(bad)?;
+            (f.t, AssociationEntry::Fusion(f.fusion))
+        } else {
+            let keys: Vec<String> = v.as_object().map_or(vec![], |o| o.keys().map(|k| format!("`{k}`")).collect());
+            return Err(invalid(
+                file,
+                Some(i + 1),
+                format!(
+                    "keys {}: a line needs `observations` (by beams), `observation` (by id) or `fusion`",
+                    keys.join(", ")
+                ),
+            ));
+        };
+        entries.push((i + 1, entry.0, entry.1));
+    }
+    Ok(entries)
+}
+
+fn csv_invalid(file: &Path, e: csv::Error) -> ScoreError {
+    let line = e.position().map(|p| p.line() as usize);
+    match e.into_kind() {
+        csv::ErrorKind::Io(error) => ScoreError::Io { file: file.to_path_buf(), error },
+        kind => invalid(file, line, format!("{kind:?}")),
+    }
+}
+
+/// A CSV row: its line and its numbers (an empty cell is `None`).
+type CsvRow = (usize, Vec<Option<f64>>);
+
+/// A CSV file's rows, and which of `headers` it has.
+fn read_csv_numbers(file: &Path, headers: &[&[&str]]) -> Result<(usize, Vec<CsvRow>), ScoreError> {
+    let mut reader = csv::ReaderBuilder::new()
+        .has_headers(true)
+        .trim(csv::Trim::All)
+        .from_path(file)
+        .map_err(|e| csv_invalid(file, e))?;
+    let found: Vec<String> = reader.headers().map_err(|e| csv_invalid(file, e))?.iter().map(str::to_string).collect();
+    let which = headers.iter().position(|h| h.iter().eq(found.iter())).ok_or_else(|| {
+        let expected: Vec<String> = headers.iter().map(|h| format!("`{}`", h.join(","))).collect();
+        invalid(file, Some(1), format!("header `{}`; expected {}", found.join(","), expected.join(" or ")))
+    })?;
+    let mut rows = Vec::new();
+    for record in reader.records() {
+        let record = record.map_err(|e| csv_invalid(file, e))?;
+        let line = record.position().map_or(0, |p| p.line() as usize);
+        let values = record
+            .iter()
+            .zip(headers[which])
+            .map(|(cell, name)| match cell {
+                "" => Ok(None),
+                _ => cell
+                    .parse::<f64>()
+                    .ok()
+                    .filter(|v| v.is_finite())
+                    .map(Some)
+                    .ok_or_else(|| invalid(file, Some(line), format!("`{name}`: `{cell}` is not a finite number"))),
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        rows.push((line, values));
+    }
+    Ok((which, rows))
+}
+
+/// A whole non-negative number from a CSV cell.
+fn csv_count(file: &Path, line: usize, name: &str, v: Option<f64>) -> Result<usize, ScoreError> {
+    v.filter(|v| *v >= 0.0 && v.fract() == 0.0 && *v <= u32::MAX as f64)
+        .map(|v| v as usize)
+        .ok_or_else(|| invalid(file, Some(line), format!("`{name}` must be a whole number, 0 or more")))
+}
+
+const CSV_BY_BEAMS: &[&str] = &["t", "first_beam", "last_beam", "landmark"];
+const CSV_BY_ID: &[&str] = &["t", "observation", "landmark"];
+
+/// CSV: `t,first_beam,last_beam,landmark` or `t,observation,landmark`, a row per
+/// observation (an empty `landmark`: none). Fusions need the JSON-lines form.
+fn read_association_csv(file: &Path) -> Result<Vec<(usize, f64, AssociationEntry)>, ScoreError> {
+    let (form, rows) = read_csv_numbers(file, &[CSV_BY_BEAMS, CSV_BY_ID])?;
+    let mut entries: Vec<(usize, f64, AssociationEntry)> = Vec::new();
+    for (line, row) in rows {
+        let t = row[0].ok_or_else(|| invalid(file, Some(line), "`t` is empty"))?;
+        let landmark = match row[row.len() - 1] {
+            None => None,
+            v => Some(csv_count(file, line, "landmark", v)? as u32),
+        };
+        if form == 0 {
+            let o = ScoredObservation {
+                first_beam: csv_count(file, line, "first_beam", row[1])?,
+                last_beam: csv_count(file, line, "last_beam", row[2])?,
+                landmark,
+            };
+            // Rows of one scan make its one entry.
+            match entries.last_mut() {
+                Some((_, last_t, AssociationEntry::Beams(all, _))) if (*last_t - t).abs() < 1e-6 => all.push(o),
+                _ => entries.push((line, t, AssociationEntry::Beams(vec![o], vec![]))),
+            }
+        } else {
+            entries.push((
+                line,
+                t,
+                AssociationEntry::Decision(csv_count(file, line, "observation", row[1])?, landmark),
+            ));
+        }
+    }
+    Ok(entries)
+}
+
+/// A map: JSON (`[{"id", "position": [x, y]}]`, other keys ignored) or CSV (`id,x,y`).
+pub(super) fn read_landmarks(file: &Path) -> Result<Vec<MapLandmark>, ScoreError> {
+    let landmarks: Vec<MapLandmark> = if file.extension().is_some_and(|e| e.eq_ignore_ascii_case("csv")) {
+        let (_, rows) = read_csv_numbers(file, &[&["id", "x", "y"]])?;
+        rows.into_iter()
+            .map(|(line, row)| {
+                let id = csv_count(file, line, "id", row[0])? as u32;
+                let (Some(x), Some(y)) = (row[1], row[2]) else {
+                    return Err(invalid(file, Some(line), "`x` and `y` are needed"));
+                };
+                Ok(MapLandmark { id, position: [x, y] })
+            })
+            .collect::<Result<_, _>>()?
+    } else {
+        slam::settings::from_json(&read_text(file)?).map_err(|e| invalid(file, None, e))?
+    };
+    let mut seen = std::collections::HashSet::new();
+    for l in &landmarks {
+        if !l.position.iter().all(|v| v.is_finite()) {
+            return Err(invalid(file, None, format!("landmark {}: position is not finite", l.id)));
+        }
+        if !seen.insert(l.id) {
+            return Err(invalid(file, None, format!("landmark id {} appears twice", l.id)));
+        }
+    }
+    Ok(landmarks)
+}
+
+/// A scan's observations as the scorer takes them: given by beams, checked against the
+/// scan; given by id, looked up in the log's observations of the scan.
+pub(super) fn scan_observations(
+    file: &Path,
+    a: &ScanAssociations,
+    scan: &sim::LaserScan,
+    log_observations: &[(usize, usize)],
+    observations_file: &Path,
+) -> Result<Vec<ScoredObservation>, ScoreError> {
+    match &a.observations {
+        Observations::Beams(all) => {
+            if let Some(o) = all.iter().find(|o| o.first_beam > o.last_beam || o.last_beam >= scan.ranges.len()) {
+                return Err(invalid(
+                    file,
+                    Some(a.line),
+                    format!(
+                        "beams {}..={} are not within the scan's {} beams",
+                        o.first_beam,
+                        o.last_beam,
+                        scan.ranges.len()
+                    ),
+                ));
+            }
+            Ok(all.clone())
+        }
+        Observations::Ids(ids) => {
+            let mut sorted = ids.clone();
+            sorted.sort_by_key(|(_, id, _)| *id);
+            if let Some(w) = sorted.windows(2).find(|w| w[0].1 == w[1].1) {
+                return Err(invalid(file, Some(w[1].0), format!("observation {} of this scan a second time", w[1].1)));
+            }
+            sorted
+                .into_iter()
+                .map(|(line, id, landmark)| match log_observations.get(id) {
+                    Some(&(first_beam, last_beam)) => Ok(ScoredObservation { first_beam, last_beam, landmark }),
+                    None => Err(invalid(
+                        file,
+                        Some(line),
+                        format!(
+                            "observation {id}: the scan at t = {} s has {} ({})",
+                            scan.t,
+                            log_observations.len(),
+                            observations_file.display()
+                        ),
+                    )),
+                })
+                .collect()
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn decisions_and_fusions_group_by_scan_and_out_of_order_entries_are_errors() {
+        let dir = std::env::temp_dir().join(format!("objslam-assoc-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("decisions.jsonl");
+        let read = |text: &str| {
+            std::fs::write(&file, text).unwrap();
+            read_associations(&file).map_err(|e| e.to_string())
+        };
+        let scans = read(concat!(
+            r#"{"t": 0.1, "observation": 1, "choice": {"kind": "new", "landmark": 5}, "candidates": [], "method": "nn", "true_object": 3}"#,
+            "\n",
+            r#"{"t": 0.1, "observation": 0, "landmark": 2}"#,
+            "\n",
+            r#"{"t": 0.1, "fusion": {"kept": 2, "removed": 5}}"#,
+            "\n",
+            r#"{"t": 0.2, "observation": 0, "choice": {"kind": "rejected"}}"#,
+            "\n"
+        ))
+        .unwrap();
+        assert_eq!(scans.len(), 2);
+        let Observations::Ids(first) = &scans[0].observations else { panic!("by id") };
+        assert_eq!(first, &[(1, 1, Some(5)), (2, 0, Some(2))]);
+        assert_eq!(scans[0].fusions, [Fusion { kept: 2, removed: 5 }]);
+        let Observations::Ids(second) = &scans[1].observations else { panic!("by id") };
+        assert_eq!(second, &[(4, 0, None)]);
+
+        let e = read(
+            "{\"t\": 0.1, \"fusion\": {\"kept\": 2, \"removed\": 5}}\n{\"t\": 0.1, \"observation\": 0, \"landmark\": 2}\n",
+        );
+        assert!(e.as_ref().is_err_and(|e| e.contains(":2") && e.contains("after its scan's fusions")), "{e:?}");
+        let e = read(
+            "{\"t\": 0.2, \"observation\": 0, \"landmark\": 2}\n{\"t\": 0.1, \"observation\": 0, \"landmark\": 2}\n",
+        );
+        assert!(e.as_ref().is_err_and(|e| e.contains(":2") && e.contains("does not follow")), "{e:?}");
+        let e = read("{\"t\": 0.1, \"observations\": []}\n{\"t\": 0.1, \"observations\": []}\n");
+        assert!(e.as_ref().is_err_and(|e| e.contains(":2") && e.contains("second entry")), "{e:?}");
+        let e = read("{\"t\": 0.1, \"fusion\": {\"kept\": 4, \"removed\": 4}}\n");
+        assert!(e.as_ref().is_err_and(|e| e.contains(":1") && e.contains("into itself")), "{e:?}");
+        let e = read("\n");
+        assert!(e.as_ref().is_err_and(|e| e.contains("no entry")), "{e:?}");
+        let e = read("{\"t\": 0.1, \"observation\": 0, \"landmark\": 2, \"weight\": 1}\n");
+        assert!(e.as_ref().is_err_and(|e| e.contains(":1") && e.contains("weight")), "{e:?}");
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn a_tum_file_with_a_bad_line_is_an_error_naming_the_line() {
+        let dir = std::env::temp_dir().join(format!("objslam-tum-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("bad.tum");
+        std::fs::write(&file, "# t x y z qx qy qz qw\n0 0 0 0 0 0 0 1\n1 2 3\n").unwrap();
+        let e = read_tum(&file).unwrap_err().to_string();
+        assert!(e.contains("bad.tum:3") && e.contains("3 values"), "{e}");
+        std::fs::write(&file, "1 0 0 0 0 0 0 1\n0.5 0 0 0 0 0 0 1\n").unwrap();
+        let e = read_tum(&file).unwrap_err().to_string();
+        assert!(e.contains("bad.tum:2") && e.contains("does not follow"), "{e}");
+        std::fs::write(&file, "0 1.5 -2 0 0 0 0.7071067811865476 0.7071067811865476\n").unwrap();
+        let poses = read_tum(&file).unwrap();
+        assert_eq!(poses[0].1[0..2], [1.5, -2.0]);
+        assert!((poses[0].1[2] - std::f64::consts::FRAC_PI_2).abs() < 1e-12);
+        std::fs::remove_dir_all(&dir).ok();
+    }
+}
