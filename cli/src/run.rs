@@ -58,8 +58,7 @@ pub(crate) fn replay(log: Option<PathBuf>, options: ReplayArgs, dataset: Option<
     let method = options.method.map(AssociationMethod::from);
     let out = options.out.expect("clap requires --out");
     let config = scenarios::replay::resolve_config(log_dir.as_deref(), &log, method, options.config.as_deref())?;
-    let result = scenarios::replay::replay(&log, config)?;
-    scenarios::replay::write_outputs(&out, &log, &result)?;
+    let result = scenarios::replay::replay(&log, config, Some(&out))?;
     println!("{}", scenarios::replay::summary(&result.metrics));
     println!("  outputs in {}", out.display());
     Ok(())

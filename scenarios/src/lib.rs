@@ -16,6 +16,7 @@ pub mod dataset;
 pub mod foxglove;
 pub mod montecarlo;
 pub mod objects;
+pub mod partial_files;
 pub mod plot;
 pub mod record;
 pub mod replay;

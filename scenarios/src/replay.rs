@@ -16,6 +16,8 @@ use slam::association::{AssociationDecision, AssociationMethod, Choice};
 use slam::ekf::{AckermannMotionModel, MotionConfig, OdometryMotionModel, RangeBearingModel};
 use slam::pipeline::{Pipeline, PipelineConfig};
 
+use crate::partial_files::PartialFiles;
+
 /// Errors of a replay.
 #[derive(Debug, thiserror::Error)]
 pub enum ReplayError {
@@ -31,6 +33,12 @@ pub enum ReplayError {
     Io { file: PathBuf, source: std::io::Error },
     #[error(transparent)]
     Plot(#[from] crate::plot::PlotError),
+}
+
+impl From<crate::partial_files::PartialFileError> for ReplayError {
+    fn from(e: crate::partial_files::PartialFileError) -> Self {
+        ReplayError::Io { file: e.file, source: e.source }
+    }
 }
 
 /// The pipeline settings a log's producer recommends, beside its data (optional; `objslam
@@ -210,23 +218,43 @@ pub struct ReplayMetrics {
     pub peak_memory_mb: Option<f64>,
 }
 
-/// A replay's estimate and map.
+/// A replay's figures and map. Its trajectory and decisions are not kept: with an output
+/// directory they go to `trajectory_est.tum` and `decisions.jsonl` as the replay goes, so
+/// that its memory does not grow with the log's length.
 pub struct Replay {
     pub metrics: ReplayMetrics,
-    /// The path of the reference point (the sensor's, or the vehicle's): (t, [x, y, yaw]).
-    pub trajectory: Vec<(f64, [f64; 3])>,
     pub landmarks: Vec<slam::pipeline::Landmark>,
-    pub decisions: Vec<AssociationDecision>,
     pub config: PipelineConfig,
+    /// The path of the reference point, thinned for the map picture (see [`ThinnedPath`]).
+    pub path: Vec<[f64; 2]>,
 }
 
-/// Runs `config`'s pipeline over `log`.
-pub fn replay(log: &Log, config: PipelineConfig) -> Result<Replay, ReplayError> {
+/// The outputs a replay writes as it goes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Stream {
+    Trajectory,
+    Decisions,
+}
+
+/// Runs `config`'s pipeline over `log`; with `out`, writes the replay's outputs there
+/// (`metrics.json`, `metadata.json`, `trajectory_est.tum`, `landmarks.json`,
+/// `decisions.jsonl`, `map.png`).
+pub fn replay(log: &Log, config: PipelineConfig, out: Option<&Path>) -> Result<Replay, ReplayError> {
     let started = Instant::now();
     let start = log.start_time();
     let mut pipeline = Pipeline::new(config.clone(), log.manifest.vehicle.start_pose, None)
         .map_err(|source| ReplayError::Pipeline { t: start, source })?
         .starting_at(start);
+    let mut streams = match out {
+        Some(dir) => Some(PartialFiles::create(
+            dir,
+            &[(Stream::Trajectory, "trajectory_est.tum"), (Stream::Decisions, "decisions.jsonl")],
+        )?),
+        None => None,
+    };
+    if let Some(s) = &mut streams {
+        s.write(Stream::Trajectory, "# timestamp tx ty tz qx qy qz qw\n")?;
+    }
     let point = log.manifest.reference.as_ref().map_or(ReferencePoint::Vehicle, |r| r.point);
     let mount = [log.manifest.sensor.x_m, log.manifest.sensor.y_m];
     let at_point = |p: [f64; 3]| match point {
@@ -236,10 +264,13 @@ pub fn replay(log: &Log, config: PipelineConfig) -> Result<Replay, ReplayError> 
             [p[0] + c * mount[0] - s * mount[1], p[1] + s * mount[0] + c * mount[1], p[2]]
         }
     };
+    let spikes = reference_spikes(log);
+    let scored: &[ReferenceSample] = if log.manifest.reference.is_some() { &log.reference } else { &[] };
+    let mut reference = ReferencePairs::new(scored, &spikes);
+    let mut path = ThinnedPath::default();
+    let mut nis = NisSums::default();
+    let mut scan_ms = ScanTimeHistogram::default();
     let yaw = log.manifest.sensor.yaw_rad;
-    let mut trajectory = Vec::with_capacity(log.motion.len() + log.observations.len());
-    let mut decisions = Vec::new();
-    let mut scan_ms = Vec::with_capacity(log.observations.len());
     let mut detections = 0;
     let (mut m, mut o) = (0, 0);
     let error = |t: f64| move |source| ReplayError::Pipeline { t, source };
@@ -274,17 +305,26 @@ pub fn replay(log: &Log, config: PipelineConfig) -> Result<Replay, ReplayError> 
                     pipeline.on_detections(t, &turned).map_err(error(t))?
                 }
             };
-            scan_ms.push(tick.elapsed().as_secs_f64() * 1e3);
-            decisions.extend(report.decisions);
+            scan_ms.add(tick.elapsed().as_secs_f64() * 1e3);
+            nis.add(&report.decisions);
+            if let Some(s) = &mut streams {
+                for d in &report.decisions {
+                    s.write(Stream::Decisions, &(serde_json::to_string(d).expect("JSON") + "\n"))?;
+                }
+            }
             o += 1;
         }
         let p = pipeline.pose();
-        trajectory.push((p.t, at_point(p.pose)));
+        let pose = at_point(p.pose);
+        reference.on_pose(p.t, [pose[0], pose[1]]);
+        path.push([pose[0], pose[1]]);
+        if let Some(s) = &mut streams {
+            s.write(Stream::Trajectory, &(crate::record::tum_line(p.t, pose[0], pose[1], pose[2]) + "\n"))?;
+        }
     }
     let wall_seconds = started.elapsed().as_secs_f64();
     let log_seconds = log.end_time() - start;
     let landmarks = pipeline.mapped_landmarks();
-    let reference = score_reference(log, &trajectory);
     let metrics = ReplayMetrics {
         log: log.manifest.name.clone(),
         method: config.method.name().to_string(),
@@ -293,42 +333,189 @@ pub fn replay(log: &Log, config: PipelineConfig) -> Result<Replay, ReplayError> 
         scans: log.observations.len(),
         detections,
         landmarks: landmarks.len(),
-        reference,
-        nis: nis(&decisions),
-        time_per_scan_ms: scan_times(&mut scan_ms),
+        reference: score_reference(log, &reference.pairs, spikes.len()),
+        nis: nis.finish(),
+        time_per_scan_ms: scan_ms.finish(),
         wall_seconds,
         real_time_factor: log_seconds / wall_seconds.max(1e-9),
         peak_memory_mb: peak_memory_mb(),
     };
-    Ok(Replay { metrics, trajectory, landmarks, decisions, config })
-}
-
-fn scan_times(ms: &mut [f64]) -> ScanTimes {
-    if ms.is_empty() {
-        return ScanTimes { mean: 0.0, p50: 0.0, p95: 0.0, max: 0.0 };
+    let result = Replay { metrics, landmarks, config, path: path.points() };
+    if let (Some(dir), Some(streams)) = (out, streams) {
+        streams.finish()?;
+        write_outputs(dir, log, &result, &spikes)?;
     }
-    let mean = ms.iter().sum::<f64>() / ms.len() as f64;
-    ms.sort_by(f64::total_cmp);
-    let q = |p: f64| ms[((ms.len() - 1) as f64 * p).round() as usize];
-    ScanTimes { mean, p50: q(0.5), p95: q(0.95), max: ms[ms.len() - 1] }
+    Ok(result)
 }
 
-fn nis(decisions: &[AssociationDecision]) -> Nis {
-    let values: Vec<f64> = decisions
-        .iter()
-        .filter_map(|d| match d.choice {
-            Choice::Existing { landmark } => {
-                d.candidates.iter().find(|c| c.landmark == landmark).map(|c| c.mahalanobis2)
+/// Most points of the path kept for the map picture.
+const MAP_PATH_POINTS: usize = 20_000;
+
+/// A path thinned as it comes, so that a log of any length keeps at most
+/// [`MAP_PATH_POINTS`]: a point is kept when it lies `step` from the last kept, and when
+/// too many are kept, every other one goes and `step` doubles. Starting at 1 cm, a path of
+/// 200 m keeps every centimetre; Victoria Park's 4 km, every 20 cm or so, far below a
+/// picture's pixel.
+struct ThinnedPath {
+    kept: Vec<[f64; 2]>,
+    step: f64,
+    last: Option<[f64; 2]>,
+}
+
+impl Default for ThinnedPath {
+    fn default() -> Self {
+        ThinnedPath { kept: Vec::new(), step: 0.01, last: None }
+    }
+}
+
+impl ThinnedPath {
+    fn push(&mut self, p: [f64; 2]) {
+        self.last = Some(p);
+        if let Some(k) = self.kept.last()
+            && (p[0] - k[0]).hypot(p[1] - k[1]) < self.step
+        {
+            return;
+        }
+        self.kept.push(p);
+        if self.kept.len() > MAP_PATH_POINTS {
+            let mut i = 0;
+            self.kept.retain(|_| {
+                i += 1;
+                i % 2 == 1
+            });
+            self.step *= 2.0;
+        }
+    }
+
+    /// The kept points and the path's last point.
+    fn points(mut self) -> Vec<[f64; 2]> {
+        if let Some(p) = self.last
+            && self.kept.last() != Some(&p)
+        {
+            self.kept.push(p);
+        }
+        self.kept
+    }
+}
+
+/// The reference samples scored (spikes left out) paired, as the poses come, with the
+/// estimate at their times: linear between the last pose before and the first at or after.
+struct ReferencePairs<'a> {
+    samples: Vec<&'a ReferenceSample>,
+    next: usize,
+    last_pose: Option<(f64, [f64; 2])>,
+    /// (estimate, reference) per sample scored.
+    pairs: Vec<([f64; 2], [f64; 2])>,
+}
+
+impl<'a> ReferencePairs<'a> {
+    fn new(samples: &'a [ReferenceSample], spikes: &[usize]) -> Self {
+        let samples =
+            samples.iter().enumerate().filter(|(k, _)| spikes.binary_search(k).is_err()).map(|(_, s)| s).collect();
+        ReferencePairs { samples, next: 0, last_pose: None, pairs: Vec::new() }
+    }
+
+    fn on_pose(&mut self, t: f64, p: [f64; 2]) {
+        while let Some(s) = self.samples.get(self.next).filter(|s| s.t <= t) {
+            match self.last_pose {
+                // Before the first pose, only a sample at its very time is scored.
+                None => {
+                    if s.t == t {
+                        self.pairs.push((p, [s.x, s.y]));
+                    }
+                }
+                Some((t0, p0)) => {
+                    let a = if t > t0 { (s.t - t0) / (t - t0) } else { 1.0 };
+                    self.pairs.push(([p0[0] + a * (p[0] - p0[0]), p0[1] + a * (p[1] - p0[1])], [s.x, s.y]));
+                }
             }
-            _ => None,
-        })
-        .collect();
-    let q95 = slam::association::chi2_quantile(2, 0.95);
-    let n = values.len();
-    Nis {
-        observations: n,
-        mean: if n > 0 { values.iter().sum::<f64>() / n as f64 } else { f64::NAN },
-        within_95: if n > 0 { values.iter().filter(|v| **v <= q95).count() as f64 / n as f64 } else { f64::NAN },
+            self.next += 1;
+        }
+        self.last_pose = Some((t, p));
+    }
+}
+
+/// The running NIS of the filter's own associations.
+#[derive(Default)]
+struct NisSums {
+    n: usize,
+    sum: f64,
+    within_95: usize,
+}
+
+impl NisSums {
+    fn add(&mut self, decisions: &[AssociationDecision]) {
+        let q95 = slam::association::chi2_quantile(2, 0.95);
+        for d in decisions {
+            if let Choice::Existing { landmark } = d.choice
+                && let Some(c) = d.candidates.iter().find(|c| c.landmark == landmark)
+            {
+                self.n += 1;
+                self.sum += c.mahalanobis2;
+                self.within_95 += (c.mahalanobis2 <= q95) as usize;
+            }
+        }
+    }
+
+    fn finish(&self) -> Nis {
+        let n = self.n;
+        Nis {
+            observations: n,
+            mean: if n > 0 { self.sum / n as f64 } else { f64::NAN },
+            within_95: if n > 0 { self.within_95 as f64 / n as f64 } else { f64::NAN },
+        }
+    }
+}
+
+/// Times per scan in bins 2% wide from 1 us up, so that a log of any length takes the same
+/// memory: the mean and the maximum are exact, the quantiles to 2%.
+struct ScanTimeHistogram {
+    bins: Vec<u64>,
+    n: u64,
+    sum: f64,
+    max: f64,
+}
+
+/// The histogram's first bin starts here (ms); each is this factor wider than the last.
+const SCAN_TIME_FLOOR_MS: f64 = 1e-3;
+const SCAN_TIME_BIN_RATIO: f64 = 1.02;
+
+impl Default for ScanTimeHistogram {
+    fn default() -> Self {
+        // Up to 1e8 times the floor: 100 s.
+        let bins = (1e8f64.ln() / SCAN_TIME_BIN_RATIO.ln()).ceil() as usize + 1;
+        ScanTimeHistogram { bins: vec![0; bins], n: 0, sum: 0.0, max: 0.0 }
+    }
+}
+
+impl ScanTimeHistogram {
+    fn add(&mut self, ms: f64) {
+        let bin = ((ms.max(SCAN_TIME_FLOOR_MS) / SCAN_TIME_FLOOR_MS).ln() / SCAN_TIME_BIN_RATIO.ln()) as usize;
+        let last = self.bins.len() - 1;
+        self.bins[bin.min(last)] += 1;
+        self.n += 1;
+        self.sum += ms;
+        self.max = self.max.max(ms);
+    }
+
+    /// The `p` quantile: the geometric middle of its bin, at most the maximum.
+    fn quantile(&self, p: f64) -> f64 {
+        let rank = ((self.n - 1) as f64 * p).round() as u64;
+        let mut seen = 0;
+        for (i, count) in self.bins.iter().enumerate() {
+            seen += count;
+            if seen > rank {
+                return (SCAN_TIME_FLOOR_MS * SCAN_TIME_BIN_RATIO.powf(i as f64 + 0.5)).min(self.max);
+            }
+        }
+        self.max
+    }
+
+    fn finish(&self) -> ScanTimes {
+        if self.n == 0 {
+            return ScanTimes { mean: 0.0, p50: 0.0, p95: 0.0, max: 0.0 };
+        }
+        ScanTimes { mean: self.sum / self.n as f64, p50: self.quantile(0.5), p95: self.quantile(0.95), max: self.max }
     }
 }
 
@@ -416,35 +603,22 @@ pub fn rigid_alignment(from: &[[f64; 2]], to: &[[f64; 2]]) -> (f64, [f64; 2]) {
 }
 
 /// The estimate's position at `t`, linear between its samples (None outside its span).
-fn position_at(trajectory: &[(f64, [f64; 3])], t: f64) -> Option<[f64; 2]> {
-    let k = trajectory.partition_point(|(s, _)| *s < t);
-    if k == 0 {
-        return (trajectory.first()?.0 == t).then(|| [trajectory[0].1[0], trajectory[0].1[1]]);
+/// The GPS fixes scoring leaves out (none for ground truth or without a reference).
+fn reference_spikes(log: &Log) -> Vec<usize> {
+    match &log.manifest.reference {
+        Some(r) if r.kind == ReferenceKind::Gps => gps_spikes(&log.reference, GPS_SPIKE_SPEED_MPS),
+        _ => Vec::new(),
     }
-    let (t1, p1) = trajectory.get(k)?;
-    let (t0, p0) = trajectory[k - 1];
-    let a = if *t1 > t0 { (t - t0) / (t1 - t0) } else { 1.0 };
-    Some([p0[0] + a * (p1[0] - p0[0]), p0[1] + a * (p1[1] - p0[1])])
 }
 
-fn score_reference(log: &Log, trajectory: &[(f64, [f64; 3])]) -> Option<ReferenceScore> {
+/// The estimate against the reference, from the (estimate, reference) pairs of the samples
+/// scored: aligned by a rigid 2-D fit for GPS, as it is for ground truth.
+fn score_reference(log: &Log, pairs: &[([f64; 2], [f64; 2])], spikes: usize) -> Option<ReferenceScore> {
     let r = log.manifest.reference.as_ref()?;
     if log.reference.is_empty() {
         return None;
     }
-    let spikes =
-        if r.kind == ReferenceKind::Gps { gps_spikes(&log.reference, GPS_SPIKE_SPEED_MPS) } else { Vec::new() };
-    let mut est = Vec::new();
-    let mut truth = Vec::new();
-    for (k, s) in log.reference.iter().enumerate() {
-        if spikes.binary_search(&k).is_ok() {
-            continue;
-        }
-        if let Some(p) = position_at(trajectory, s.t) {
-            est.push(p);
-            truth.push([s.x, s.y]);
-        }
-    }
+    let (est, truth): (Vec<[f64; 2]>, Vec<[f64; 2]>) = pairs.iter().copied().unzip();
     let (theta, t) = match r.kind {
         ReferenceKind::Gps => rigid_alignment(&est, &truth),
         ReferenceKind::GroundTruth => (0.0, [0.0, 0.0]),
@@ -460,7 +634,7 @@ fn score_reference(log: &Log, trajectory: &[(f64, [f64; 3])]) -> Option<Referenc
         kind: r.kind,
         point: r.point,
         samples: log.reference.len(),
-        spikes_removed: spikes.len(),
+        spikes_removed: spikes,
         samples_scored: n,
         alignment: match r.kind {
             ReferenceKind::Gps => "rigid 2-D".into(),
@@ -473,10 +647,9 @@ fn score_reference(log: &Log, trajectory: &[(f64, [f64; 3])]) -> Option<Referenc
     })
 }
 
-/// Writes a replay's outputs into `out`: `metrics.json`, `metadata.json` (the resolved
-/// settings), `trajectory_est.tum`, `landmarks.json`, `decisions.jsonl` and `map.png`.
-pub fn write_outputs(out: &Path, log: &Log, replay: &Replay) -> Result<(), ReplayError> {
-    std::fs::create_dir_all(out).map_err(|source| ReplayError::Io { file: out.to_path_buf(), source })?;
+/// Writes a replay's outputs into `out` beside the streamed ones: `metrics.json`,
+/// `metadata.json` (the resolved settings), `landmarks.json` and `map.png`.
+fn write_outputs(out: &Path, log: &Log, replay: &Replay, spikes: &[usize]) -> Result<(), ReplayError> {
     let write = |name: &str, text: String| {
         let file = out.join(name);
         std::fs::write(&file, text).map_err(|source| ReplayError::Io { file, source })
@@ -492,17 +665,7 @@ pub fn write_outputs(out: &Path, log: &Log, replay: &Replay) -> Result<(), Repla
         }))
         .expect("JSON"),
     )?;
-    let mut tum = String::from("# timestamp tx ty tz qx qy qz qw\n");
-    for (t, p) in &replay.trajectory {
-        tum.push_str(&crate::record::tum_line(*t, p[0], p[1], p[2]));
-        tum.push('\n');
-    }
-    write("trajectory_est.tum", tum)?;
     write("landmarks.json", serde_json::to_string_pretty(&replay.landmarks).expect("JSON"))?;
-    write(
-        "decisions.jsonl",
-        replay.decisions.iter().map(|d| serde_json::to_string(d).expect("JSON") + "\n").collect(),
-    )?;
     // The map in the reference's frame: the estimate moved by the alignment.
     let (theta, t) = replay
         .metrics
@@ -511,13 +674,9 @@ pub fn write_outputs(out: &Path, log: &Log, replay: &Replay) -> Result<(), Repla
         .map_or((0.0, [0.0, 0.0]), |r| (r.alignment_rotation_rad, r.alignment_translation_m));
     let (s, c) = theta.sin_cos();
     let moved = |p: [f64; 2]| [c * p[0] - s * p[1] + t[0], s * p[0] + c * p[1] + t[1]];
-    let path: Vec<[f64; 2]> = replay.trajectory.iter().map(|(_, p)| moved([p[0], p[1]])).collect();
+    let path: Vec<[f64; 2]> = replay.path.iter().map(|p| moved(*p)).collect();
     let marks: Vec<[f64; 2]> = replay.landmarks.iter().map(|l| moved(l.position)).collect();
     // The fixes scoring dropped as spikes are drawn as such, the others as the reference.
-    let spikes = match &log.manifest.reference {
-        Some(r) if r.kind == ReferenceKind::Gps => gps_spikes(&log.reference, GPS_SPIKE_SPEED_MPS),
-        _ => Vec::new(),
-    };
     let (mut reference, mut dropped) = (Vec::new(), Vec::new());
     for (k, r) in log.reference.iter().enumerate() {
         if spikes.binary_search(&k).is_ok() { &mut dropped } else { &mut reference }.push([r.x, r.y]);
@@ -616,12 +775,50 @@ mod tests {
         assert_eq!(gps_spikes(&samples, GPS_SPIKE_SPEED_MPS), vec![1, 2, 6, 8]);
     }
 
+    /// The estimate paired with each reference sample as the poses come: interpolated
+    /// between the poses around it, at the first pose only at its very time, never after
+    /// the last pose.
     #[test]
-    fn positions_are_interpolated_inside_the_estimate_only() {
-        let path = vec![(1.0, [0.0, 0.0, 0.0]), (2.0, [2.0, 4.0, 0.0])];
-        assert_eq!(position_at(&path, 1.5), Some([1.0, 2.0]));
-        assert_eq!(position_at(&path, 1.0), Some([0.0, 0.0]));
-        assert_eq!(position_at(&path, 0.5), None);
-        assert_eq!(position_at(&path, 2.5), None);
+    fn reference_samples_pair_with_the_estimate_interpolated_inside_it_only() {
+        let samples: Vec<ReferenceSample> =
+            [0.5, 1.0, 1.5, 2.5].iter().map(|&t| ReferenceSample { t, x: 10.0 * t, y: 0.0, theta: None }).collect();
+        let mut pairs = ReferencePairs::new(&samples, &[]);
+        pairs.on_pose(1.0, [0.0, 0.0]);
+        pairs.on_pose(2.0, [2.0, 4.0]);
+        assert_eq!(pairs.pairs, vec![([0.0, 0.0], [10.0, 0.0]), ([1.0, 2.0], [15.0, 0.0])]);
+        let mut skipping = ReferencePairs::new(&samples, &[1]);
+        skipping.on_pose(1.0, [0.0, 0.0]);
+        skipping.on_pose(2.0, [2.0, 4.0]);
+        assert_eq!(skipping.pairs, vec![([1.0, 2.0], [15.0, 0.0])], "a spike is not scored");
+    }
+
+    #[test]
+    fn the_map_path_stays_bounded_and_keeps_its_ends() {
+        let mut path = ThinnedPath::default();
+        let n = 10 * MAP_PATH_POINTS;
+        for i in 0..n {
+            path.push([0.003 * i as f64, 0.0]);
+        }
+        let kept = path.points();
+        assert!(kept.len() <= MAP_PATH_POINTS + 1, "{}", kept.len());
+        assert!(kept.len() > MAP_PATH_POINTS / 4, "{}", kept.len());
+        assert_eq!(kept[0], [0.0, 0.0]);
+        assert_eq!(*kept.last().unwrap(), [0.003 * (n - 1) as f64, 0.0]);
+        let widest = kept.windows(2).map(|w| w[1][0] - w[0][0]).fold(0.0, f64::max);
+        assert!(widest < 3.0 * 0.003 * n as f64 / MAP_PATH_POINTS as f64, "gaps stay even: {widest}");
+    }
+
+    #[test]
+    fn scan_time_quantiles_are_within_two_percent_and_mean_and_max_exact() {
+        let mut h = ScanTimeHistogram::default();
+        let times: Vec<f64> = (1..=1000).map(|i| 0.01 * i as f64).collect();
+        for t in &times {
+            h.add(*t);
+        }
+        let s = h.finish();
+        assert!((s.mean - times.iter().sum::<f64>() / 1000.0).abs() < 1e-12);
+        assert_eq!(s.max, 10.0);
+        assert!((s.p50 / 5.0 - 1.0).abs() < 0.02, "{}", s.p50);
+        assert!((s.p95 / 9.5 - 1.0).abs() < 0.02, "{}", s.p95);
     }
 }

@@ -28,7 +28,7 @@ use crate::scenario::{Scenario, ScenarioError};
 use crate::score::scorer::{MapLandmark, RecallBasis, RunScorer, VisibilitySettings};
 use events::EventSource;
 use online::RunLoop;
-use outputs::{FinishedRun, StreamedOutputs, clear_stale_outputs, write_outputs};
+use outputs::{FinishedRun, clear_stale_outputs, write_outputs};
 
 /// Errors of a run.
 #[derive(Debug, thiserror::Error)]
@@ -69,6 +69,12 @@ pub enum RunError {
     Calibration(#[from] crate::calibrate::CalibrateError),
     #[error(transparent)]
     Ros2(#[from] crate::ros2::Ros2Error),
+}
+
+impl From<crate::partial_files::PartialFileError> for RunError {
+    fn from(e: crate::partial_files::PartialFileError) -> Self {
+        RunError::Io { file: e.file, source: e.source }
+    }
 }
 
 /// The laser <- camera extrinsics a run gives its pipeline, and where they came from.
@@ -351,7 +357,7 @@ pub fn run(
 
     // The loop.
     let streams = match &options.out {
-        Some(out) => Some(StreamedOutputs::create(out, sim_config.camera.enabled, camera_method)?),
+        Some(out) => Some(outputs::stream_outputs(out, sim_config.camera.enabled, camera_method)?),
         None => None,
     };
     let mut online = RunLoop::new(pipeline, scorer, &world, streams, sim_config.physics_rate_hz);

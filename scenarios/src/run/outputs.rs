@@ -1,7 +1,7 @@
 //! The files a run writes: metrics, trajectories, the map, decisions, logs and plots.
 
 use std::collections::HashMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use serde_json::json;
 use slam::pipeline::Pipeline;
@@ -9,6 +9,7 @@ use worlds::ObjectClass;
 
 use super::online::RunLog;
 use super::{Metrics, RunError};
+use crate::partial_files::PartialFiles;
 use crate::score::log::LogScoring;
 use crate::score::scorer::{Fusion, ScoredObservation};
 
@@ -43,7 +44,7 @@ pub(super) fn trees_shown_line(t: f64, beams: &[usize]) -> String {
     serde_json::to_string(&json!({"t": t, "beams": beams})).expect("JSON") + "\n"
 }
 
-/// The outputs a run writes line by line as it goes, so that their size costs no memory.
+/// The outputs a run writes line by line as it goes (see [`PartialFiles`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(super) enum Stream {
     Laser,
@@ -57,87 +58,25 @@ pub(super) enum Stream {
     Segmentation,
 }
 
-impl Stream {
-    const ALL: [Stream; 7] = [
-        Stream::Laser,
-        Stream::LaserTruth,
-        Stream::Odometry,
-        Stream::Observations,
-        Stream::Associations,
-        Stream::TreesShown,
-        Stream::Segmentation,
+/// A run's streamed outputs.
+pub(super) type StreamedOutputs = PartialFiles<Stream>;
+
+/// Opens the streams of a run with or without a camera and a camera method.
+pub(super) fn stream_outputs(out: &Path, camera: bool, camera_method: bool) -> Result<StreamedOutputs, RunError> {
+    let mut streams = vec![
+        (Stream::Laser, "laser.jsonl"),
+        (Stream::LaserTruth, "laser_truth.jsonl"),
+        (Stream::Odometry, "odometry.jsonl"),
+        (Stream::Observations, "observations.jsonl"),
+        (Stream::Associations, "associations.jsonl"),
     ];
-
-    fn file_name(self) -> &'static str {
-        match self {
-            Stream::Laser => "laser.jsonl",
-            Stream::LaserTruth => "laser_truth.jsonl",
-            Stream::Odometry => "odometry.jsonl",
-            Stream::Observations => "observations.jsonl",
-            Stream::Associations => "associations.jsonl",
-            Stream::TreesShown => "trees_shown.jsonl",
-            Stream::Segmentation => "segmentation.jsonl",
-        }
+    if camera {
+        streams.push((Stream::TreesShown, "trees_shown.jsonl"));
     }
-}
-
-/// The streamed outputs of a run, written under a `.partial` name and renamed into place
-/// with the rest of the outputs, so that a run that fails leaves the directory's earlier
-/// outputs whole (its partial files are removed).
-pub(super) struct StreamedOutputs {
-    files: Vec<(Stream, PathBuf, std::io::BufWriter<std::fs::File>)>,
-    finished: bool,
-}
-
-impl StreamedOutputs {
-    /// Opens the streams of a run with or without a camera and a camera method.
-    pub fn create(out: &Path, camera: bool, camera_method: bool) -> Result<Self, RunError> {
-        std::fs::create_dir_all(out).map_err(|source| RunError::Io { file: out.to_path_buf(), source })?;
-        let mut streams = StreamedOutputs { files: Vec::new(), finished: false };
-        for stream in Stream::ALL {
-            if (stream == Stream::TreesShown && !camera) || (stream == Stream::Segmentation && !camera_method) {
-                continue;
-            }
-            let file = out.join(format!("{}.partial", stream.file_name()));
-            let f = std::fs::File::create(&file).map_err(|source| RunError::Io { file: file.clone(), source })?;
-            streams.files.push((stream, file, std::io::BufWriter::new(f)));
-        }
-        Ok(streams)
+    if camera_method {
+        streams.push((Stream::Segmentation, "segmentation.jsonl"));
     }
-
-    /// Appends `text` (whole lines) to `stream`; a stream the run does not write ignores it.
-    pub fn write(&mut self, stream: Stream, text: &str) -> Result<(), RunError> {
-        use std::io::Write;
-        match self.files.iter_mut().find(|(s, _, _)| *s == stream) {
-            Some((_, file, w)) => {
-                w.write_all(text.as_bytes()).map_err(|source| RunError::Io { file: file.clone(), source })
-            }
-            None => Ok(()),
-        }
-    }
-
-    /// Flushes every stream and gives it its final name.
-    fn finish(mut self) -> Result<(), RunError> {
-        self.finished = true;
-        for (stream, file, w) in std::mem::take(&mut self.files) {
-            let f = w.into_inner().map_err(|e| RunError::Io { file: file.clone(), source: e.into_error() })?;
-            f.sync_all().map_err(|source| RunError::Io { file: file.clone(), source })?;
-            drop(f);
-            let done = file.with_file_name(stream.file_name());
-            std::fs::rename(&file, &done).map_err(|source| RunError::Io { file: done, source })?;
-        }
-        Ok(())
-    }
-}
-
-impl Drop for StreamedOutputs {
-    fn drop(&mut self) {
-        if !self.finished {
-            for (_, file, _) in &self.files {
-                let _ = std::fs::remove_file(file);
-            }
-        }
-    }
+    Ok(PartialFiles::create(out, &streams)?)
 }
 
 /// Outputs that only some runs write (camera methods, estimated calibrations): removed from
@@ -335,35 +274,4 @@ pub(super) fn write_outputs(out: &Path, run: &FinishedRun, streams: StreamedOutp
     )?;
     mcap.finish()?;
     Ok(())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn streamed_outputs_take_their_names_when_finished_and_vanish_when_the_run_fails() {
-        let dir = std::env::temp_dir().join(format!("objslam-streams-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
-        std::fs::create_dir_all(&dir).unwrap();
-        // An earlier run's output stays whole while a new run streams, and after it fails.
-        std::fs::write(dir.join("laser.jsonl"), "earlier\n").unwrap();
-        let mut failed = StreamedOutputs::create(&dir, false, false).unwrap();
-        failed.write(Stream::Laser, "new\n").unwrap();
-        assert!(dir.join("laser.jsonl.partial").exists());
-        drop(failed);
-        assert!(!dir.join("laser.jsonl.partial").exists(), "a failed run's partial files are removed");
-        assert_eq!(std::fs::read_to_string(dir.join("laser.jsonl")).unwrap(), "earlier\n");
-
-        let mut done = StreamedOutputs::create(&dir, true, false).unwrap();
-        done.write(Stream::Laser, "new\n").unwrap();
-        done.write(Stream::Segmentation, "not written without a camera method\n").unwrap();
-        done.finish().unwrap();
-        assert_eq!(std::fs::read_to_string(dir.join("laser.jsonl")).unwrap(), "new\n");
-        assert!(dir.join("trees_shown.jsonl").exists() && !dir.join("segmentation.jsonl").exists());
-        assert!(
-            std::fs::read_dir(&dir).unwrap().all(|e| !e.unwrap().file_name().to_string_lossy().ends_with(".partial"))
-        );
-        std::fs::remove_dir_all(&dir).ok();
-    }
 }

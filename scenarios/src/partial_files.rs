@@ -1,0 +1,104 @@
+//! Output files written line by line as a run or a replay goes, so that their size costs
+//! no memory. Each is written under a `.partial` name and renamed into place once the whole
+//! output is written, so that a run that fails leaves the directory's earlier outputs whole
+//! (its partial files are removed).
+
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+
+/// An I/O error on one of the files.
+#[derive(Debug, thiserror::Error)]
+#[error("{}: {source}", file.display())]
+pub struct PartialFileError {
+    pub file: PathBuf,
+    #[source]
+    pub source: std::io::Error,
+}
+
+/// Streamed output files, each known by a key `K` (an enum of the output's streams).
+pub struct PartialFiles<K> {
+    files: Vec<(K, PathBuf, BufWriter<File>)>,
+    finished: bool,
+}
+
+fn error(file: &Path) -> impl FnOnce(std::io::Error) -> PartialFileError + '_ {
+    move |source| PartialFileError { file: file.to_path_buf(), source }
+}
+
+impl<K: Copy + PartialEq> PartialFiles<K> {
+    /// Opens `streams` (key, final file name) in `dir`, which is made if need be.
+    pub fn create(dir: &Path, streams: &[(K, &str)]) -> Result<Self, PartialFileError> {
+        std::fs::create_dir_all(dir).map_err(error(dir))?;
+        let mut files = PartialFiles { files: Vec::new(), finished: false };
+        for (key, name) in streams {
+            let file = dir.join(format!("{name}.partial"));
+            let f = File::create(&file).map_err(error(&file))?;
+            files.files.push((*key, file, BufWriter::new(f)));
+        }
+        Ok(files)
+    }
+
+    /// Appends `text` (whole lines) to the stream `key`; a stream that was not opened (one
+    /// this output does not have) takes nothing.
+    pub fn write(&mut self, key: K, text: &str) -> Result<(), PartialFileError> {
+        match self.files.iter_mut().find(|(k, _, _)| *k == key) {
+            Some((_, file, w)) => w.write_all(text.as_bytes()).map_err(error(file)),
+            None => Ok(()),
+        }
+    }
+
+    /// Flushes every stream and gives it its final name.
+    pub fn finish(mut self) -> Result<(), PartialFileError> {
+        self.finished = true;
+        for (_, file, w) in std::mem::take(&mut self.files) {
+            let f = w.into_inner().map_err(|e| PartialFileError { file: file.clone(), source: e.into_error() })?;
+            f.sync_all().map_err(error(&file))?;
+            drop(f);
+            let done = file.with_extension("");
+            std::fs::rename(&file, &done).map_err(error(&done))?;
+        }
+        Ok(())
+    }
+}
+
+impl<K> Drop for PartialFiles<K> {
+    fn drop(&mut self) {
+        if !self.finished {
+            for (_, file, _) in &self.files {
+                let _ = std::fs::remove_file(file);
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn partial_files_take_their_names_when_finished_and_vanish_when_the_output_fails() {
+        let dir = std::env::temp_dir().join(format!("objslam-partial-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        // An earlier output stays whole while a new one streams, and after it fails.
+        std::fs::write(dir.join("laser.jsonl"), "earlier\n").unwrap();
+        let mut failed = PartialFiles::create(&dir, &[(1, "laser.jsonl")]).unwrap();
+        failed.write(1, "new\n").unwrap();
+        assert!(dir.join("laser.jsonl.partial").exists());
+        drop(failed);
+        assert!(!dir.join("laser.jsonl.partial").exists(), "a failed output's partial files are removed");
+        assert_eq!(std::fs::read_to_string(dir.join("laser.jsonl")).unwrap(), "earlier\n");
+
+        let mut done = PartialFiles::create(&dir, &[(1, "laser.jsonl"), (2, "trees_shown.jsonl")]).unwrap();
+        done.write(1, "new\n").unwrap();
+        done.write(3, "a stream not opened takes nothing\n").unwrap();
+        done.finish().unwrap();
+        assert_eq!(std::fs::read_to_string(dir.join("laser.jsonl")).unwrap(), "new\n");
+        assert!(dir.join("trees_shown.jsonl").exists());
+        let names: Vec<String> =
+            std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+        assert!(names.iter().all(|n| !n.ends_with(".partial")), "{names:?}");
+        std::fs::remove_dir_all(&dir).ok();
+    }
+}
