@@ -10,8 +10,9 @@
   DIR/trajectory.tum, and the x, y and yaw covariance of the types that carry one (unless
   all zero) to DIR/trajectory_covariance.csv, for `--covariances`;
 - landmarks: visualization_msgs/msg/MarkerArray, one marker per landmark (`id`,
-  `pose.position`); the map that the messages leave, in order (ADD or MODIFY sets a
-  marker, DELETE removes it, DELETEALL clears its namespace), to DIR/landmarks.csv;
+  `pose.position`); the map that the messages leave, in order (ADD/MODIFY sets a marker,
+  DELETE removes it, DELETEALL clears its namespace, or all of them with an empty one), to
+  DIR/landmarks.csv;
 - associations: std_msgs/msg/String, each `data` one JSON line of objslam's association
   forms; every message in order, to DIR/associations.jsonl.
 
@@ -32,7 +33,8 @@ POSE_TYPES = {
     "geometry_msgs/msg/PoseStamped",
     "geometry_msgs/msg/PoseWithCovarianceStamped",
 }
-ADD, MODIFY, DELETE, DELETEALL = 0, 1, 2, 3
+# visualization_msgs/msg/Marker actions: ADD and MODIFY are both 0.
+ADD_OR_MODIFY, DELETE, DELETEALL = 0, 2, 3
 
 
 def fail(message):
@@ -94,9 +96,11 @@ def main():
             f.write("# timestamp tx ty tz qx qy qz qw\n")
             for t, rest in poses:
                 f.write(f"{t!r} {rest}\n")
+        covariance_file = a.out / "trajectory_covariance.csv"
+        covariance_file.unlink(missing_ok=True)  # none from an earlier conversion
         if any(any(v != 0.0 for v in c) for _, c in covariances):
             covariances.sort(key=lambda c: c[0])
-            with open(a.out / "trajectory_covariance.csv", "w") as f:
+            with open(covariance_file, "w") as f:
                 f.write("t,xx,xy,xtheta,yy,ytheta,thetatheta\n")
                 for t, c in covariances:
                     f.write(",".join(repr(v) for v in [t, *c]) + "\n")
@@ -108,10 +112,11 @@ def main():
                 for marker in m.markers:
                     key = (marker.ns, marker.id)
                     if marker.action == DELETEALL:
-                        markers = {k: v for k, v in markers.items() if k[0] != marker.ns}
+                        # As rviz2 does: an empty namespace clears them all.
+                        markers = {k: v for k, v in markers.items() if marker.ns and k[0] != marker.ns}
                     elif marker.action == DELETE:
                         markers.pop(key, None)
-                    elif marker.action in (ADD, MODIFY):
+                    elif marker.action == ADD_OR_MODIFY:
                         check_frame(a.landmarks_topic, marker.header.frame_id, frames)
                         markers[key] = (marker.pose.position.x, marker.pose.position.y)
             if not seen:

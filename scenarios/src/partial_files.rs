@@ -1,7 +1,8 @@
 //! Output files written line by line as a run or a replay goes, so that their size costs
-//! no memory. Each is written under a `.partial` name and renamed into place once the whole
-//! output is written, so that a run that fails leaves the directory's earlier outputs whole
-//! (its partial files are removed).
+//! no memory. Each is written under a `.partial` name and renamed into place when the run
+//! has finished, so that a run that fails on the way leaves the directory's earlier
+//! outputs whole (its partial files are removed). A failure while the final outputs are
+//! written can still leave new files beside old ones.
 
 use std::fs::File;
 use std::io::{BufWriter, Write};
@@ -18,8 +19,8 @@ pub struct PartialFileError {
 
 /// Streamed output files, each known by a key `K` (an enum of the output's streams).
 pub struct PartialFiles<K> {
-    files: Vec<(K, PathBuf, BufWriter<File>)>,
-    finished: bool,
+    /// Key, final file, the `.partial` file written, and its writer.
+    files: Vec<(K, PathBuf, PathBuf, BufWriter<File>)>,
 }
 
 fn error(file: &Path) -> impl FnOnce(std::io::Error) -> PartialFileError + '_ {
@@ -30,11 +31,11 @@ impl<K: Copy + PartialEq> PartialFiles<K> {
     /// Opens `streams` (key, final file name) in `dir`, which is made if need be.
     pub fn create(dir: &Path, streams: &[(K, &str)]) -> Result<Self, PartialFileError> {
         std::fs::create_dir_all(dir).map_err(error(dir))?;
-        let mut files = PartialFiles { files: Vec::new(), finished: false };
+        let mut files = PartialFiles { files: Vec::new() };
         for (key, name) in streams {
-            let file = dir.join(format!("{name}.partial"));
-            let f = File::create(&file).map_err(error(&file))?;
-            files.files.push((*key, file, BufWriter::new(f)));
+            let partial = dir.join(format!("{name}.partial"));
+            let f = File::create(&partial).map_err(error(&partial))?;
+            files.files.push((*key, dir.join(name), partial, BufWriter::new(f)));
         }
         Ok(files)
     }
@@ -42,32 +43,35 @@ impl<K: Copy + PartialEq> PartialFiles<K> {
     /// Appends `text` (whole lines) to the stream `key`; a stream that was not opened (one
     /// this output does not have) takes nothing.
     pub fn write(&mut self, key: K, text: &str) -> Result<(), PartialFileError> {
-        match self.files.iter_mut().find(|(k, _, _)| *k == key) {
-            Some((_, file, w)) => w.write_all(text.as_bytes()).map_err(error(file)),
+        match self.files.iter_mut().find(|(k, _, _, _)| *k == key) {
+            Some((_, _, partial, w)) => w.write_all(text.as_bytes()).map_err(error(partial)),
             None => Ok(()),
         }
     }
 
-    /// Flushes every stream and gives it its final name.
+    /// Flushes every stream to disk, then gives each its final name. Should a flush fail,
+    /// no stream is renamed and the partial files are removed.
     pub fn finish(mut self) -> Result<(), PartialFileError> {
-        self.finished = true;
-        for (_, file, w) in std::mem::take(&mut self.files) {
-            let f = w.into_inner().map_err(|e| PartialFileError { file: file.clone(), source: e.into_error() })?;
-            f.sync_all().map_err(error(&file))?;
-            drop(f);
-            let done = file.with_extension("");
-            std::fs::rename(&file, &done).map_err(error(&done))?;
+        for (_, _, partial, w) in &mut self.files {
+            w.flush().map_err(error(partial))?;
+            w.get_ref().sync_all().map_err(error(partial))?;
+        }
+        while let Some((_, done, partial, w)) = self.files.pop() {
+            drop(w);
+            if let Err(source) = std::fs::rename(&partial, &done) {
+                let _ = std::fs::remove_file(&partial);
+                return Err(PartialFileError { file: done, source });
+            }
         }
         Ok(())
     }
 }
 
 impl<K> Drop for PartialFiles<K> {
+    /// The streams not renamed (a run that failed): removed.
     fn drop(&mut self) {
-        if !self.finished {
-            for (_, file, _) in &self.files {
-                let _ = std::fs::remove_file(file);
-            }
+        for (_, _, partial, _) in &self.files {
+            let _ = std::fs::remove_file(partial);
         }
     }
 }

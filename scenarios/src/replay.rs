@@ -410,6 +410,7 @@ struct ReferencePairs<'a> {
 
 impl<'a> ReferencePairs<'a> {
     fn new(samples: &'a [ReferenceSample], spikes: &[usize]) -> Self {
+        debug_assert!(samples.windows(2).all(|w| w[0].t <= w[1].t), "readers sort the reference by time");
         let samples =
             samples.iter().enumerate().filter(|(k, _)| spikes.binary_search(k).is_err()).map(|(_, s)| s).collect();
         ReferencePairs { samples, next: 0, last_pose: None, pairs: Vec::new() }
@@ -602,7 +603,6 @@ pub fn rigid_alignment(from: &[[f64; 2]], to: &[[f64; 2]]) -> (f64, [f64; 2]) {
     (theta, [mt[0] - (c * mf[0] - s * mf[1]), mt[1] - (s * mf[0] + c * mf[1])])
 }
 
-/// The estimate's position at `t`, linear between its samples (None outside its span).
 /// The GPS fixes scoring leaves out (none for ground truth or without a reference).
 fn reference_spikes(log: &Log) -> Vec<usize> {
     match &log.manifest.reference {
@@ -786,6 +786,13 @@ mod tests {
         pairs.on_pose(1.0, [0.0, 0.0]);
         pairs.on_pose(2.0, [2.0, 4.0]);
         assert_eq!(pairs.pairs, vec![([0.0, 0.0], [10.0, 0.0]), ([1.0, 2.0], [15.0, 0.0])]);
+        // Two poses at one time: the first of them ends the interval; a sample before the
+        // first pose is dropped.
+        let mut twice = ReferencePairs::new(&samples, &[]);
+        twice.on_pose(1.0, [0.0, 0.0]);
+        twice.on_pose(1.5, [1.0, 0.0]);
+        twice.on_pose(1.5, [9.0, 9.0]);
+        assert_eq!(twice.pairs, vec![([0.0, 0.0], [10.0, 0.0]), ([1.0, 0.0], [15.0, 0.0])]);
         let mut skipping = ReferencePairs::new(&samples, &[1]);
         skipping.on_pose(1.0, [0.0, 0.0]);
         skipping.on_pose(2.0, [2.0, 4.0]);
