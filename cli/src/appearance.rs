@@ -6,23 +6,15 @@ use anyhow::{Context, Result};
 use crate::progress;
 
 /// `objslam train`.
-#[allow(clippy::too_many_arguments)]
-pub(crate) fn train(
-    dataset: &std::path::Path,
-    out: &std::path::Path,
-    export: Option<&std::path::Path>,
-    pca_dims: usize,
-    max_components: usize,
-    heldout_every: usize,
-    threshold: f64,
-    seed: u64,
-) -> Result<()> {
-    anyhow::ensure!((0.0..=1.0).contains(&threshold), "--threshold must lie in [0, 1], got {threshold}");
+pub(crate) fn train(args: &crate::args::TrainArgs) -> Result<()> {
+    let crate::args::TrainArgs { dataset, out, pca_dims, max_components, heldout_every, threshold, seed, .. } = args;
+    let (dataset, out, heldout_every) = (dataset.as_path(), out.as_path(), *heldout_every);
+    anyhow::ensure!((0.0..=1.0).contains(threshold), "--threshold must lie in [0, 1], got {threshold}");
     let options = slam::classifier::TrainingOptions {
-        pca_dims,
-        seed,
-        threshold,
-        vb: slam::gmm::VbOptions { max_components, ..Default::default() },
+        pca_dims: *pca_dims,
+        seed: *seed,
+        threshold: *threshold,
+        vb: slam::gmm::VbOptions { max_components: *max_components, ..Default::default() },
         ..Default::default()
     };
     let bar = progress::training("train");
@@ -63,17 +55,41 @@ pub(crate) fn train(
     }
     if heldout_every > 0 {
         let table = scenarios::train::confusion_by_class(dataset, &model, heldout_every)?;
-        let parts: Vec<String> = table
-            .iter()
-            .map(|(name, (n, obj))| format!("{name} {obj}/{n} ({:.1}%)", 100.0 * *obj as f64 / (*n).max(1) as f64))
-            .collect();
-        println!("  held-out patches called object, by true class: {}", parts.join(", "));
+        println!("  held-out patches called object, by true class: {}", class_shares(&table));
     }
-    if let Some(csv) = export {
+    let mut worlds = Vec::new();
+    for other in &args.heldout_dataset {
+        let w = scenarios::train::score_on_dataset(other, &model, options.label_fraction)?;
+        println!(
+            "  held-out world {} ({} images, {}): precision {:.3}, recall {:.3}, F1 {:.3}; called object: {}",
+            w.world,
+            w.images,
+            other.display(),
+            w.precision,
+            w.recall,
+            w.f1,
+            class_shares(&w.by_class)
+        );
+        worlds.push(w);
+    }
+    if let Some(file) = &args.heldout_report {
+        std::fs::write(file, serde_json::to_string_pretty(&worlds)? + "\n")
+            .with_context(|| format!("{}: cannot write", file.display()))?;
+    }
+    if let Some(csv) = &args.export_features {
         let rows = scenarios::train::export_features(dataset, &model, options.label_fraction, csv)?;
         println!("  {rows} feature rows -> {}", csv.display());
     }
     Ok(())
+}
+
+/// "tree 80/100 (80.0%), post 3/50 (6.0%)": per true class, the patches called object.
+fn class_shares(by_class: &std::collections::BTreeMap<String, (usize, usize)>) -> String {
+    let parts: Vec<String> = by_class
+        .iter()
+        .map(|(name, (n, obj))| format!("{name} {obj}/{n} ({:.1}%)", 100.0 * *obj as f64 / (*n).max(1) as f64))
+        .collect();
+    parts.join(", ")
 }
 
 /// `objslam segment`.

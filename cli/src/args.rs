@@ -132,29 +132,7 @@ pub(crate) enum Command {
     },
     /// Learn the appearance model (PCA, object and background VB-GMMs) from an
     /// `objslam dataset` directory; prints held-out patch precision, recall and F1.
-    Train {
-        #[arg(long)]
-        dataset: PathBuf,
-        #[arg(long)]
-        out: PathBuf,
-        /// Also write every patch's feature row and label to this CSV file.
-        #[arg(long)]
-        export_features: Option<PathBuf>,
-        /// PCA dimension d.
-        #[arg(long, default_value_t = 20, allow_negative_numbers = true)]
-        pca_dims: usize,
-        /// Most mixture components per class.
-        #[arg(long, default_value_t = 20, allow_negative_numbers = true)]
-        max_components: usize,
-        /// Hold out every N-th image for scoring (0: none).
-        #[arg(long, default_value_t = 5, allow_negative_numbers = true)]
-        heldout_every: usize,
-        /// A patch is object when R = w_obj p_obj / (w_obj p_obj + w_bg p_bg) exceeds this.
-        #[arg(long, default_value_t = 0.5, allow_negative_numbers = true)]
-        threshold: f64,
-        #[arg(long, default_value_t = 1, allow_negative_numbers = true)]
-        seed: u64,
-    },
+    Train(TrainArgs),
     /// Classify an image's patches with a model and draw the object patches over it.
     Segment {
         #[arg(long)]
@@ -218,6 +196,39 @@ pub(crate) struct ScoreArgs {
     /// Where to write metrics.json.
     #[arg(long)]
     pub(crate) out: PathBuf,
+}
+
+/// `objslam train`'s arguments.
+#[derive(clap::Args)]
+pub(crate) struct TrainArgs {
+    #[arg(long)]
+    pub(crate) dataset: PathBuf,
+    #[arg(long)]
+    pub(crate) out: PathBuf,
+    /// Also write every patch's feature row and label to this CSV file.
+    #[arg(long)]
+    pub(crate) export_features: Option<PathBuf>,
+    /// PCA dimension d.
+    #[arg(long, default_value_t = 20, allow_negative_numbers = true)]
+    pub(crate) pca_dims: usize,
+    /// Most mixture components per class.
+    #[arg(long, default_value_t = 20, allow_negative_numbers = true)]
+    pub(crate) max_components: usize,
+    /// Hold out every N-th image for scoring (0: none).
+    #[arg(long, default_value_t = 5, allow_negative_numbers = true)]
+    pub(crate) heldout_every: usize,
+    /// Also score the model on every image of this dataset, of another world (repeat for
+    /// more): patch precision and recall, and per true class the patches called object.
+    #[arg(long)]
+    pub(crate) heldout_dataset: Vec<PathBuf>,
+    /// Write the scores on the --heldout-dataset worlds to this JSON file.
+    #[arg(long)]
+    pub(crate) heldout_report: Option<PathBuf>,
+    /// A patch is object when R = w_obj p_obj / (w_obj p_obj + w_bg p_bg) exceeds this.
+    #[arg(long, default_value_t = 0.5, allow_negative_numbers = true)]
+    pub(crate) threshold: f64,
+    #[arg(long, default_value_t = 1, allow_negative_numbers = true)]
+    pub(crate) seed: u64,
 }
 
 #[derive(Subcommand)]

@@ -80,30 +80,12 @@ fn dispatch(cli: Cli) -> Result<()> {
         Some(Command::Calibrate { scenario, poses, seed, out, images }) => {
             sensors::calibrate(scenario.as_deref().unwrap_or("calibration"), poses, seed, &out, images.as_deref())
         }
-        Some(Command::Train {
-            dataset,
-            out,
-            export_features,
-            pca_dims,
-            max_components,
-            heldout_every,
-            threshold,
-            seed,
-        }) => {
-            check_components(max_components)?;
-            if pca_dims == 0 {
+        Some(Command::Train(args)) => {
+            check_components(args.max_components)?;
+            if args.pca_dims == 0 {
                 anyhow::bail!("--pca-dims must be at least 1");
             }
-            appearance::train(
-                &dataset,
-                &out,
-                export_features.as_deref(),
-                pca_dims,
-                max_components,
-                heldout_every,
-                threshold,
-                seed,
-            )
+            appearance::train(&args)
         }
         Some(Command::Segment { model, image, out }) => appearance::segment(&model, &image, &out),
         Some(Command::Find { run, image, model, top }) => appearance::find(&run, &image, model.as_deref(), top),

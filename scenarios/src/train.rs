@@ -107,11 +107,63 @@ pub fn confusion_by_class(
     heldout_every: usize,
 ) -> Result<std::collections::BTreeMap<String, (usize, usize)>, TrainError> {
     let manifest = read_manifest(dir)?;
+    let ids: Vec<usize> =
+        (0..manifest.images.len()).filter(|i| heldout_every > 0 && i % heldout_every == heldout_every - 1).collect();
+    confusion_of_images(dir, &manifest, model, &ids)
+}
+
+/// A model scored on every image of a dataset it was not trained on: patch precision and
+/// recall for the object class, and per true class the patches called object.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct HeldoutWorld {
+    pub dataset: PathBuf,
+    /// The world the dataset's images show (its manifest's `world`).
+    pub world: String,
+    pub images: usize,
+    pub precision: f64,
+    pub recall: f64,
+    pub f1: f64,
+    /// True class -> (patches, patches called object).
+    pub by_class: std::collections::BTreeMap<String, (usize, usize)>,
+}
+
+/// Scores `model` on every image of the dataset in `dir` (another world's, for how the
+/// model generalises), with the training's rule for which patches are object.
+pub fn score_on_dataset(dir: &Path, model: &AppearanceModel, label_fraction: f64) -> Result<HeldoutWorld, TrainError> {
+    let manifest = read_manifest(dir)?;
+    if manifest.patch_size != model.extractor.config.patch_size {
+        return Err(file_err(
+            &dir.join("dataset.json"),
+            format!("patch_size is {}, the model uses {}", manifest.patch_size, model.extractor.config.patch_size),
+        ));
+    }
+    let n = manifest.images.len();
+    let scores =
+        classifier::evaluate(model, n, |k| load_image(dir, &manifest, k).map_err(model_error), label_fraction)?;
+    let ids: Vec<usize> = (0..n).collect();
+    Ok(HeldoutWorld {
+        dataset: dir.to_path_buf(),
+        world: manifest.world.clone(),
+        images: n,
+        precision: scores.precision(),
+        recall: scores.recall(),
+        f1: scores.f1(),
+        by_class: confusion_of_images(dir, &manifest, model, &ids)?,
+    })
+}
+
+/// [`confusion_by_class`] over the images `ids` of a dataset.
+fn confusion_of_images(
+    dir: &Path,
+    manifest: &Manifest,
+    model: &AppearanceModel,
+    ids: &[usize],
+) -> Result<std::collections::BTreeMap<String, (usize, usize)>, TrainError> {
     let classifier = PatchClassifier::new(model).map_err(ModelError::from)?;
     let l = model.extractor.config.patch_size;
     let mut out: std::collections::BTreeMap<String, (usize, usize)> = Default::default();
-    for i in (0..manifest.images.len()).filter(|i| heldout_every > 0 && i % heldout_every == heldout_every - 1) {
-        let img = load_image(dir, &manifest, i)?;
+    for &i in ids {
+        let img = load_image(dir, manifest, i)?;
         let class_path = dir.join(&manifest.images[i].class);
         let class = image::open(&class_path).map_err(|e| file_err(&class_path, e))?.to_luma8();
         if class.dimensions() != (img.width, img.height) {
