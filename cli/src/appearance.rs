@@ -10,6 +10,10 @@ pub(crate) fn train(args: &crate::args::TrainArgs) -> Result<()> {
     let crate::args::TrainArgs { dataset, out, pca_dims, max_components, heldout_every, threshold, seed, .. } = args;
     let (dataset, out, heldout_every) = (dataset.as_path(), out.as_path(), *heldout_every);
     anyhow::ensure!((0.0..=1.0).contains(threshold), "--threshold must lie in [0, 1], got {threshold}");
+    // The other worlds' datasets are read before the training, not after it.
+    for other in &args.heldout_dataset {
+        scenarios::train::read_manifest(other)?;
+    }
     let options = slam::classifier::TrainingOptions {
         pca_dims: *pca_dims,
         seed: *seed,
