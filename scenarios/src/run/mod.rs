@@ -441,7 +441,7 @@ pub fn run(
         renderer,
         appearance_model: model_provenance,
     };
-    metrics.failures = check_pass(&scenario.pass, &metrics);
+    metrics.failures = check_pass(&scenario.pass, &metrics.pass_figures());
     metrics.passed = metrics.failures.is_empty();
     let resolved = json!({
         "scenario": scenario,

@@ -636,38 +636,18 @@ fn check(pass: &PassCriteria, m: &mut ScoredMetrics, map: &MapContent) {
         m.unchecked = unchecked;
         return;
     };
-    let as_run = crate::run::Metrics {
-        scenario: m.scenario.clone().unwrap_or_default(),
-        seed: m.seed,
-        method: m.method.clone(),
-        sim_seconds: m.sim_seconds,
-        wall_seconds: 0.0,
-        realtime_factor: 0.0,
-        ate_rmse_m: m.ate_rmse_m,
-        rpe_rmse_m: m.rpe_rmse_m,
-        landmark_rmse_m: m.landmark_rmse_m,
-        map: map.clone(),
-        landmarks: m.landmarks.unwrap_or(0),
-        associations: associations.clone(),
-        duplicate_landmarks: duplicates,
-        merged_landmarks: m.merged_landmarks.unwrap_or(0),
-        relinearisations: 0,
-        relinearisation_failures: 0,
-        retracted_landmarks: Default::default(),
+    let figures = crate::run::PassFigures {
+        wrong_associations: associations.wrong,
         false_landmarks,
-        segmentation: Default::default(),
-        calibration: None,
-        odometry_calibration: None,
-        anees: m.anees,
+        duplicate_landmarks: duplicates,
+        map,
+        ate_rmse_m: m.ate_rmse_m,
+        landmark_rmse_m: m.landmark_rmse_m,
         collisions: m.collisions,
+        calibration: None,
         route_completed: m.route_completed,
-        passed: false,
-        failures: vec![],
-        timing: Default::default(),
-        renderer: None,
-        appearance_model: None,
     };
-    m.failures = crate::run::check_pass(pass, &as_run);
+    m.failures = crate::run::check_pass(pass, &figures);
     m.passed = unchecked.is_empty().then_some(m.failures.is_empty());
     if !m.failures.is_empty() {
         m.passed = Some(false);
