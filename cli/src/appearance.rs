@@ -88,7 +88,7 @@ pub(crate) fn train(args: &crate::args::TrainArgs) -> Result<()> {
 }
 
 /// "tree 80/100 (80.0%), post 3/50 (6.0%)": per true class, the patches called object.
-fn class_shares(by_class: &std::collections::BTreeMap<String, (usize, usize)>) -> String {
+fn class_shares(by_class: &scenarios::train::ClassTable) -> String {
     let parts: Vec<String> = by_class
         .iter()
         .map(|(name, (n, obj))| format!("{name} {obj}/{n} ({:.1}%)", 100.0 * *obj as f64 / (*n).max(1) as f64))

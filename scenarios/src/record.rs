@@ -106,6 +106,9 @@ pub fn rotation_quaternion(r: &[[f64; 3]; 3]) -> [f64; 4] {
     [q.i, q.j, q.k, q.w]
 }
 
+/// The header line of a TUM trajectory file, with its newline.
+pub const TUM_HEADER: &str = "# timestamp tx ty tz qx qy qz qw\n";
+
 /// A TUM trajectory line: `timestamp tx ty tz qx qy qz qw`, each number written with as
 /// many digits as it takes to read back the same `f64` (so that `objslam score` sees
 /// exactly what `objslam run` scored).

@@ -253,7 +253,7 @@ pub fn replay(log: &Log, config: PipelineConfig, out: Option<&Path>) -> Result<R
         None => None,
     };
     if let Some(s) = &mut streams {
-        s.write(Stream::Trajectory, "# timestamp tx ty tz qx qy qz qw\n")?;
+        s.write(Stream::Trajectory, crate::record::TUM_HEADER)?;
     }
     let point = log.manifest.reference.as_ref().map_or(ReferencePoint::Vehicle, |r| r.point);
     let mount = [log.manifest.sensor.x_m, log.manifest.sensor.y_m];

@@ -99,17 +99,17 @@ pub fn train_from_dataset(
 /// Largest image `objslam segment` classifies: 16 megapixels, under 1 GB of features.
 pub const MAX_SEGMENT_PIXELS: u64 = 16_000_000;
 
+/// True class -> (patches, patches called object).
+pub type ClassTable = std::collections::BTreeMap<String, (usize, usize)>;
+
 /// Per ground-truth class (the majority class of each patch's pixels), how many patches
 /// there were and how many the model called object. Shows which distractors it confuses.
-pub fn confusion_by_class(
-    dir: &Path,
-    model: &AppearanceModel,
-    heldout_every: usize,
-) -> Result<std::collections::BTreeMap<String, (usize, usize)>, TrainError> {
+pub fn confusion_by_class(dir: &Path, model: &AppearanceModel, heldout_every: usize) -> Result<ClassTable, TrainError> {
     let manifest = read_manifest(dir)?;
     let ids: Vec<usize> =
         (0..manifest.images.len()).filter(|i| heldout_every > 0 && i % heldout_every == heldout_every - 1).collect();
-    confusion_of_images(dir, &manifest, model, &ids)
+    // The training's own label rule; only the class table is asked for here.
+    Ok(score_images(dir, &manifest, model, &ids, TrainingOptions::default().label_fraction)?.1)
 }
 
 /// A model scored on every image of a dataset it was not trained on: patch precision and
@@ -124,7 +124,7 @@ pub struct HeldoutWorld {
     pub recall: f64,
     pub f1: f64,
     /// True class -> (patches, patches called object).
-    pub by_class: std::collections::BTreeMap<String, (usize, usize)>,
+    pub by_class: ClassTable,
 }
 
 /// Scores `model` on every image of the dataset in `dir` (another world's, for how the
@@ -138,9 +138,8 @@ pub fn score_on_dataset(dir: &Path, model: &AppearanceModel, label_fraction: f64
         ));
     }
     let n = manifest.images.len();
-    let scores =
-        classifier::evaluate(model, n, |k| load_image(dir, &manifest, k).map_err(model_error), label_fraction)?;
     let ids: Vec<usize> = (0..n).collect();
+    let (scores, by_class) = score_images(dir, &manifest, model, &ids, label_fraction)?;
     Ok(HeldoutWorld {
         dataset: dir.to_path_buf(),
         world: manifest.world.clone(),
@@ -148,20 +147,24 @@ pub fn score_on_dataset(dir: &Path, model: &AppearanceModel, label_fraction: f64
         precision: scores.precision(),
         recall: scores.recall(),
         f1: scores.f1(),
-        by_class: confusion_of_images(dir, &manifest, model, &ids)?,
+        by_class,
     })
 }
 
-/// [`confusion_by_class`] over the images `ids` of a dataset.
-fn confusion_of_images(
+/// The images `ids` of a dataset, each classified once: patch scores against the labels
+/// (object when at least `label_fraction` of a patch is, as in training), and per true
+/// class (each patch's majority class) the patches and those called object.
+fn score_images(
     dir: &Path,
     manifest: &Manifest,
     model: &AppearanceModel,
     ids: &[usize],
-) -> Result<std::collections::BTreeMap<String, (usize, usize)>, TrainError> {
+    label_fraction: f64,
+) -> Result<(classifier::PatchScores, ClassTable), TrainError> {
     let classifier = PatchClassifier::new(model).map_err(ModelError::from)?;
     let l = model.extractor.config.patch_size;
-    let mut out: std::collections::BTreeMap<String, (usize, usize)> = Default::default();
+    let mut scores = classifier::PatchScores::default();
+    let mut out = ClassTable::default();
     for &i in ids {
         let img = load_image(dir, manifest, i)?;
         let class_path = dir.join(&manifest.images[i].class);
@@ -175,8 +178,10 @@ fn confusion_of_images(
         }
         let image = ImageRef::new(img.width, img.height, &img.rgb).map_err(ModelError::from)?;
         let f = model.extractor.features(&image, None).map_err(ModelError::from)?;
+        let (cols, _) = image.grid(l);
         for (k, predicted) in classifier.classify(&f).into_iter().enumerate() {
             let (c, r) = f.rect.patch(k);
+            scores.add(predicted, img.fractions[(r * cols + c) as usize] as f64 >= label_fraction);
             let mut counts = [0usize; 256];
             for y in r * l..(r + 1) * l {
                 for x in c * l..(c + 1) * l {
@@ -193,7 +198,7 @@ fn confusion_of_images(
             e.1 += predicted as usize;
         }
     }
-    Ok(out)
+    Ok((scores, out))
 }
 
 /// Writes every patch's feature row with its label fraction and label to a CSV file.

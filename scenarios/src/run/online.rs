@@ -63,8 +63,6 @@ pub(super) struct RunLoop<'w> {
     pub pipeline: Pipeline,
     pub scorer: RunScorer<'w>,
     world: &'w worlds::World,
-    /// Whether the decisions and the logs are kept (runs that write outputs).
-    keep_logs: bool,
     /// The outputs written as the run goes (runs that write outputs).
     pub streams: Option<StreamedOutputs>,
     /// A scan and the frame of its instant fire within this many seconds (the same physics
@@ -86,7 +84,6 @@ impl<'w> RunLoop<'w> {
             pipeline,
             scorer,
             world,
-            keep_logs: streams.is_some(),
             streams,
             same_instant_s: 0.5 / physics_rate_hz,
             last_frame: None,
@@ -135,7 +132,7 @@ impl<'w> RunLoop<'w> {
         let mut report = self.pipeline.on_scan(&s)?;
         self.log.scan_s += tick.elapsed().as_secs_f64();
         self.log.scans += 1;
-        if self.keep_logs {
+        if self.streams.is_some() {
             for d in std::mem::take(&mut report.decisions) {
                 let c = &report.clusters[d.observation];
                 let object = true_object(&beams.hit_ids, c.first_beam, c.last_beam);

@@ -116,7 +116,6 @@ pub(super) fn write_outputs(out: &Path, run: &FinishedRun, streams: StreamedOutp
     streams.finish()?;
     let (est, gt, people_tracks) = (&log.estimate, &log.truth, &log.people_tracks);
     let solves = &log.solves;
-    std::fs::create_dir_all(out).map_err(|source| RunError::Io { file: out.to_path_buf(), source })?;
     let write = |name: &str, text: &str| {
         let file = out.join(name);
         std::fs::write(&file, text).map_err(|source| RunError::Io { file, source })
@@ -143,7 +142,7 @@ pub(super) fn write_outputs(out: &Path, run: &FinishedRun, streams: StreamedOutp
         .expect("JSON"),
     )?;
     let tum = |path: &[(f64, [f64; 3])]| {
-        let mut s = String::from("# timestamp tx ty tz qx qy qz qw\n");
+        let mut s = String::from(crate::record::TUM_HEADER);
         for (t, p) in path {
             s.push_str(&crate::record::tum_line(*t, p[0], p[1], p[2]));
             s.push('\n');

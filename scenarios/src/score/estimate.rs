@@ -6,7 +6,7 @@ use std::path::Path;
 
 use serde::Deserialize;
 
-use super::log::{ScoreError, invalid, read_text};
+use super::log::{ScoreError, invalid, numbered_lines, read_text};
 use super::scorer::{Fusion, MapLandmark, ScoredObservation};
 
 /// A TUM trajectory: (t, x, y, yaw) per pose, in file order.
@@ -231,18 +231,15 @@ pub(super) fn read_associations(file: &Path) -> Result<Vec<ScanAssociations>, Sc
 /// `{"t", "observation", "landmark" | "choice"}` or fusion `{"t", "fusion"}` per line.
 fn read_association_lines(file: &Path) -> Result<Vec<(usize, f64, AssociationEntry)>, ScoreError> {
     let mut entries = Vec::new();
-    for (i, line) in read_text(file)?.lines().enumerate() {
-        if line.trim().is_empty() {
-            continue;
-        }
-        let bad = |e: serde_json::Error| invalid(file, Some(i + 1), e.to_string());
+    for (n, line) in numbered_lines(&read_text(file)?) {
+        let bad = |e: serde_json::Error| invalid(file, Some(n), e.to_string());
         let v: serde_json::Value = serde_json::from_str(line).map_err(bad)?;
         let entry = if v.get("observations").is_some() {
             let b: BeamsLine = serde_json::from_value(v).map_err(bad)?;
             (b.t, AssociationEntry::Beams(b.observations, b.fusions))
         } else if v.get("observation").is_some() {
             let d: DecisionLine = serde_json::from_value(v).map_err(bad)?;
-            let landmark = d.landmark().map_err(|m| invalid(file, Some(i + 1), m))?;
+            let landmark = d.landmark().map_err(|m| invalid(file, Some(n), m))?;
             (d.t, AssociationEntry::Decision(d.observation, landmark))
         } else if v.get("fusion").is_some() {
             let f: FusionLine = serde_json::from_value(v).map_err(bad)?;
@@ -251,14 +248,14 @@ fn read_association_lines(file: &Path) -> Result<Vec<(usize, f64, AssociationEnt
             let keys: Vec<String> = v.as_object().map_or(vec![], |o| o.keys().map(|k| format!("`{k}`")).collect());
             return Err(invalid(
                 file,
-                Some(i + 1),
+                Some(n),
                 format!(
                     "keys {}: a line needs `observations` (by beams), `observation` (by id) or `fusion`",
                     keys.join(", ")
                 ),
             ));
         };
-        entries.push((i + 1, entry.0, entry.1));
+        entries.push((n, entry.0, entry.1));
     }
     Ok(entries)
 }
@@ -379,6 +376,12 @@ pub(super) fn read_landmarks(file: &Path) -> Result<Vec<MapLandmark>, ScoreError
     Ok(landmarks)
 }
 
+/// Why beams `first..=last` are no observation of `scan`, if they are not.
+pub(super) fn beams_outside(first: usize, last: usize, scan: &sim::LaserScan) -> Option<String> {
+    (first > last || last >= scan.ranges.len())
+        .then(|| format!("beams {first}..={last} are not within the scan's {} beams", scan.ranges.len()))
+}
+
 /// A scan's observations as the scorer takes them: given by beams, checked against the
 /// scan; given by id, looked up in the log's observations of the scan.
 pub(super) fn scan_observations(
@@ -390,17 +393,8 @@ pub(super) fn scan_observations(
 ) -> Result<Vec<ScoredObservation>, ScoreError> {
     match &a.observations {
         Observations::Beams(all) => {
-            if let Some(o) = all.iter().find(|o| o.first_beam > o.last_beam || o.last_beam >= scan.ranges.len()) {
-                return Err(invalid(
-                    file,
-                    Some(a.line),
-                    format!(
-                        "beams {}..={} are not within the scan's {} beams",
-                        o.first_beam,
-                        o.last_beam,
-                        scan.ranges.len()
-                    ),
-                ));
+            if let Some(problem) = all.iter().find_map(|o| beams_outside(o.first_beam, o.last_beam, scan)) {
+                return Err(invalid(file, Some(a.line), problem));
             }
             Ok(all.clone())
         }

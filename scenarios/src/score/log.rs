@@ -14,7 +14,8 @@ use serde::{Deserialize, Serialize};
 
 pub use super::estimate::read_tum;
 use super::estimate::{
-    Observations, ScanAssociations, read_associations, read_covariances, read_landmarks, scan_observations,
+    Observations, ScanAssociations, beams_outside, read_associations, read_covariances, read_landmarks,
+    scan_observations,
 };
 use super::scorer::{Fusion, RecallBasis, RunScorer, ScoredObservation, VisibilitySettings};
 use super::{AssociationCounts, MapContent};
@@ -231,14 +232,10 @@ fn read_frames(log: &Path) -> Result<Vec<LogFrame>, ScoreError> {
         return Ok(vec![]);
     }
     let mut frames = Vec::new();
-    for (i, line) in read_text(&file)?.lines().enumerate() {
-        if line.trim().is_empty() {
-            continue;
-        }
-        let v: serde_json::Value =
-            serde_json::from_str(line).map_err(|e| invalid(&file, Some(i + 1), e.to_string()))?;
+    for (n, line) in numbered_lines(&read_text(&file)?) {
+        let v: serde_json::Value = serde_json::from_str(line).map_err(|e| invalid(&file, Some(n), e.to_string()))?;
         let (Some(t), Some(instance)) = (v["t"].as_f64(), v["instance"].as_str()) else {
-            return Err(invalid(&file, Some(i + 1), "a frame needs `t` and `instance`"));
+            return Err(invalid(&file, Some(n), "a frame needs `t` and `instance`"));
         };
         frames.push(LogFrame { t, instance: log.join(instance) });
     }
@@ -318,18 +315,15 @@ fn observation_beams(
         return Err(invalid(file, Some(line), format!("t = {} s where the scan of this line has {} s", o.t, scan.t)));
     }
     let beams: Vec<(usize, usize)> = o.observations.iter().map(|o| (o.first_beam, o.last_beam)).collect();
-    if let Some((k, (a, b))) = beams.iter().enumerate().find(|(_, (a, b))| a > b || *b >= scan.ranges.len()) {
-        return Err(invalid(
-            file,
-            Some(line),
-            format!("observation {k}: beams {a}..={b} are not within the scan's {} beams", scan.ranges.len()),
-        ));
+    if let Some((k, problem)) = beams.iter().enumerate().find_map(|(k, (a, b))| Some((k, beams_outside(*a, *b, scan)?)))
+    {
+        return Err(invalid(file, Some(line), format!("observation {k}: {problem}")));
     }
     Ok(beams)
 }
 
 /// The file's only non-empty lines, numbered from 1.
-fn numbered_lines(text: &str) -> impl Iterator<Item = (usize, &str)> {
+pub(super) fn numbered_lines(text: &str) -> impl Iterator<Item = (usize, &str)> {
     text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty()).map(|(i, l)| (i + 1, l))
 }
 
