@@ -173,7 +173,7 @@ impl AppearanceSource {
         )?;
         let trained = crate::train::train_from_dataset(&scratch, &self.training_options(), 0, &progress);
         let _ = std::fs::remove_dir_all(&scratch);
-        let model = trained?;
+        let (model, _) = trained?;
         // Write then rename, so parallel runs never read a half-written model.
         let tmp = dir.join(format!(".{}.{}", std::process::id(), self.cache_key(camera)));
         model.save(&tmp)?;

@@ -69,13 +69,16 @@ fn model_error(e: TrainError) -> ModelError {
     }
 }
 
-/// Trains on a dataset, holding out every `heldout_every`-th image (0: none) for scoring.
+/// Trains on a dataset, holding out every `heldout_every`-th image (0: none) for scoring:
+/// the model, its `training.heldout` scores set, and per true class (each patch's majority
+/// class) the held-out patches and those called object, which shows the distractors it
+/// confuses (empty with nothing held out).
 pub fn train_from_dataset(
     dir: &Path,
     options: &TrainingOptions,
     heldout_every: usize,
     progress: impl Fn(&str, usize, usize),
-) -> Result<AppearanceModel, TrainError> {
+) -> Result<(AppearanceModel, ClassTable), TrainError> {
     let manifest = read_manifest(dir)?;
     if manifest.patch_size != options.features.patch_size {
         return Err(file_err(
@@ -85,15 +88,17 @@ pub fn train_from_dataset(
     }
     let (train_ids, test_ids): (Vec<usize>, Vec<usize>) =
         (0..manifest.images.len()).partition(|i| heldout_every == 0 || i % heldout_every != heldout_every - 1);
-    let load = |ids: &Vec<usize>, k: usize| load_image(dir, &manifest, ids[k]).map_err(model_error);
-    let mut model = classifier::train(train_ids.len(), |k| load(&train_ids, k), options, &progress)?;
+    let load = |k: usize| load_image(dir, &manifest, train_ids[k]).map_err(model_error);
+    let mut model = classifier::train(train_ids.len(), load, options, &progress)?;
     model.training.renderer = Some(manifest.renderer.clone());
+    let mut classes = ClassTable::default();
     if !test_ids.is_empty() {
         progress("held-out scoring", 0, 1);
-        let scores = classifier::evaluate(&model, test_ids.len(), |k| load(&test_ids, k), options.label_fraction)?;
+        let (scores, table) = score_images(dir, &manifest, &model, &test_ids, options.label_fraction)?;
         model.training.heldout = Some(scores);
+        classes = table;
     }
-    Ok(model)
+    Ok((model, classes))
 }
 
 /// Largest image `objslam segment` classifies: 16 megapixels, under 1 GB of features.
@@ -101,16 +106,6 @@ pub const MAX_SEGMENT_PIXELS: u64 = 16_000_000;
 
 /// True class -> (patches, patches called object).
 pub type ClassTable = std::collections::BTreeMap<String, (usize, usize)>;
-
-/// Per ground-truth class (the majority class of each patch's pixels), how many patches
-/// there were and how many the model called object. Shows which distractors it confuses.
-pub fn confusion_by_class(dir: &Path, model: &AppearanceModel, heldout_every: usize) -> Result<ClassTable, TrainError> {
-    let manifest = read_manifest(dir)?;
-    let ids: Vec<usize> =
-        (0..manifest.images.len()).filter(|i| heldout_every > 0 && i % heldout_every == heldout_every - 1).collect();
-    // The training's own label rule; only the class table is asked for here.
-    Ok(score_images(dir, &manifest, model, &ids, TrainingOptions::default().label_fraction)?.1)
-}
 
 /// A model scored on every image of a dataset it was not trained on: patch precision and
 /// recall for the object class, and per true class the patches called object.

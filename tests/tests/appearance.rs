@@ -16,7 +16,8 @@ fn tree_patches_are_found_on_held_out_rendered_images() {
     make_dataset(&world, "park 1001", &DatasetConfig { images: 40, seed: 4, ..Default::default() }, &dir, |_, _| {})
         .unwrap();
     let options = TrainingOptions { max_patches_per_class: 6000, ..Default::default() };
-    let model = scenarios::train::train_from_dataset(&dir, &options, 4, |_, _, _| {}).unwrap();
+    let (model, classes) = scenarios::train::train_from_dataset(&dir, &options, 4, |_, _, _| {}).unwrap();
+    assert!(classes["tree"].0 > 0, "held-out tree patches counted by class: {classes:?}");
     // The model says which renderer made its training images (the dataset's).
     assert_eq!(model.training.renderer, Some(scenarios::train::read_manifest(&dir).unwrap().renderer));
     let s = model.training.heldout.expect("held-out images");
