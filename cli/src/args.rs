@@ -158,8 +158,9 @@ pub(crate) enum Command {
     /// Variational Bayesian Gaussian mixtures on any numeric CSV.
     #[command(subcommand)]
     Gmm(GmmCommand),
-    /// Score any SLAM system's trajectory (and map and associations) against a log of
-    /// `objslam record`, by the rules `objslam run` scores its own runs with.
+    /// Score any SLAM system's trajectory (and covariances, map and associations) against a
+    /// log of `objslam record` or an `objslam run` output directory, by the rules `objslam
+    /// run` scores its own runs with.
     Score(ScoreArgs),
     /// Settings: print every scenario setting at its default, or check a scenario.
     #[command(subcommand)]
