@@ -96,6 +96,10 @@ pub(crate) enum Command {
         /// (`ros2 bag play OUT`); `log`: a robot log for `objslam replay`.
         #[arg(long, value_enum, default_value_t = FormatArg::Jsonl)]
         format: FormatArg,
+        /// Record no camera frames, even where the simulator's camera is enabled (rendering
+        /// them is most of a recording's time).
+        #[arg(long)]
+        no_camera: bool,
         #[arg(long)]
         out: PathBuf,
     },
@@ -446,9 +450,13 @@ pub(crate) enum WorldCommand {
 /// What every replay takes.
 #[derive(clap::Args, Debug)]
 pub(crate) struct ReplayArgs {
-    /// Association method: `nn` or `jcbb` (the camera methods need images; default `nn`).
+    /// Association method (default `nn`). The camera methods (`combined`, `appearance`)
+    /// need a log with camera frames and `--appearance-model`.
     #[arg(long, value_enum)]
     pub(crate) method: Option<MethodArg>,
+    /// The appearance model of the camera methods: a JSON file `objslam train` wrote.
+    #[arg(long)]
+    pub(crate) appearance_model: Option<PathBuf>,
     /// A TOML file of pipeline settings (`[pipeline]` keys, as in a scenario) over the
     /// replay's defaults and the log's own `pipeline.toml`.
     #[arg(long)]

@@ -67,13 +67,13 @@ fn dispatch(cli: Cli) -> Result<()> {
         Some(Command::Dataset { world, preset, images, seed, classes, patch_size, out }) => {
             sensors::dataset(world, preset, images, seed, &classes, patch_size, &out)
         }
-        Some(Command::Record { input, scenario, seed, duration, sim_config, format, out }) => {
+        Some(Command::Record { input, scenario, seed, duration, sim_config, format, no_camera, out }) => {
             let source = match (scenario, input) {
                 (Some(name), _) => sensors::RecordSource::Scenario(name),
                 (None, Some(input)) => sensors::RecordSource::World { input, sim_config },
                 (None, None) => unreachable!("clap requires one of them"),
             };
-            sensors::record(source, seed, duration, format.into(), &out)
+            sensors::record(source, seed, duration, format.into(), no_camera, &out)
         }
         Some(Command::Score(args)) => run::score(args),
         Some(Command::Replay { log, options, dataset }) => run::replay(log, options, dataset),

@@ -58,7 +58,11 @@ pub(crate) fn replay(log: Option<PathBuf>, options: ReplayArgs, dataset: Option<
     let method = options.method.map(AssociationMethod::from);
     let out = options.out.expect("clap requires --out");
     let config = scenarios::replay::resolve_config(log_dir.as_deref(), &log, method, options.config.as_deref())?;
-    let result = scenarios::replay::replay(&log, config, Some(&out))?;
+    let appearance = match &options.appearance_model {
+        Some(file) => Some(slam::classifier::AppearanceModel::load(file)?),
+        None => None,
+    };
+    let result = scenarios::replay::replay(&log, config, appearance, Some(&out))?;
     println!("{}", scenarios::replay::summary(&result.metrics));
     println!("  outputs in {}", out.display());
     Ok(())

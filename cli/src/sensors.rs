@@ -19,28 +19,41 @@ pub(crate) fn record(
     seed: Option<u64>,
     duration: Option<f64>,
     format: scenarios::record::RecordFormat,
+    no_camera: bool,
     out: &std::path::Path,
 ) -> Result<()> {
-    let (world, mut config, sim_seed, scoring, pipeline) = match source {
+    let (world, mut config, sim_seed, scoring, pipeline, calibration) = match source {
         RecordSource::World { input, sim_config } => {
             let seed = seed.unwrap_or(1);
             let config = match sim_config {
                 Some(path) => scenarios::scenario::read_sim_config(&path)?,
                 None => sim::SimConfig::default(),
             };
-            (crate::world::load_world(&input, seed)?, config, seed, scenarios::score::log::LogScoring::of_world(), None)
+            let world = crate::world::load_world(&input, seed)?;
+            (world, config, seed, scenarios::score::log::LogScoring::of_world(), None, None)
         }
         RecordSource::Scenario(name) => {
             let (sc, base) = scenarios::scenario::Scenario::load(&name)?;
             let seed = seed.unwrap_or(sc.seed);
             // The world and simulator seeds a run of this scenario and seed uses.
             let world = sc.world(&base, seed)?;
+            let pipeline = scenarios::run::pipeline_config(&sc, None)?;
+            // A log's camera (its method's) comes with the calibration a run is given.
+            let logs_camera = format == scenarios::record::RecordFormat::Log
+                && sc.sim.camera.enabled
+                && !no_camera
+                && pipeline.method.uses_appearance();
+            let calibration = logs_camera
+                .then(|| scenarios::run::resolve_calibration(&sc, &base, seed))
+                .transpose()?
+                .map(|c| c.extrinsics);
             (
                 world,
                 sc.sim.clone(),
                 sim::derive_seed(seed, "sim"),
                 scenarios::score::log::LogScoring::of_scenario(&sc, seed),
-                Some(scenarios::run::pipeline_config(&sc, None)?),
+                Some(pipeline),
+                calibration,
             )
         }
     };
@@ -48,13 +61,22 @@ pub(crate) fn record(
         anyhow::ensure!(d > 0.0 && d.is_finite(), "--duration must be a positive number of seconds, not {d}");
         config.max_duration_s = Some(d);
     }
+    if no_camera {
+        config.camera.enabled = false;
+    }
     let bar = progress::simulated("recording");
     let show = |t: f64, total: f64| progress::set_simulated(&bar, t, total);
     let summary = match format {
         // A scenario's log carries its pipeline settings, for `objslam replay`.
-        scenarios::record::RecordFormat::Log => {
-            scenarios::record::record_log(&world, &config, sim_seed, pipeline.as_ref(), out, show)?
-        }
+        scenarios::record::RecordFormat::Log => scenarios::record::record_log(
+            &world,
+            &config,
+            sim_seed,
+            pipeline.as_ref(),
+            calibration.as_ref(),
+            out,
+            show,
+        )?,
         _ => scenarios::record::record(&world, &config, sim_seed, &scoring, out, format, show)?,
     };
     bar.finish_and_clear();

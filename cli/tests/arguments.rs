@@ -52,3 +52,31 @@ fn settings_files_given_on_the_command_line_are_checked_naming_file_line_and_fie
     assert!(!out.exists(), "nothing was recorded");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn a_scenarios_log_carries_its_camera_unless_told_not_to_and_camera_replays_need_a_model() {
+    let dir = std::env::temp_dir().join(format!("objslam-camera-log-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let (with, without) = (dir.join("with"), dir.join("without"));
+    let record = |out: &std::path::Path, extra: &[&str]| {
+        let out = out.to_str().expect("a UTF-8 temporary path");
+        let mut args = vec!["record", "--scenario", "paper_park", "--format", "log", "--duration", "1", "--out", out];
+        args.extend(extra);
+        let (ok, err) = stderr_of(&args);
+        assert!(ok, "{args:?}: {err}");
+    };
+    record(&with, &[]);
+    record(&without, &["--no-camera"]);
+    assert!(with.join("camera.csv").is_file() && with.join("camera/000000.png").is_file());
+    assert!(!without.join("camera.csv").exists() && !without.join("camera").exists());
+    // paper_park's method is combined: its log replays with it, which needs a model.
+    let replay_out = dir.join("replay");
+    let (ok, err) = stderr_of(&["replay", with.to_str().unwrap(), "--out", replay_out.to_str().unwrap()]);
+    assert!(!ok && err.contains("--appearance-model FILE"), "{err}");
+    let (ok, err) = stderr_of(&["replay", without.to_str().unwrap(), "--out", replay_out.to_str().unwrap()]);
+    assert!(!ok && err.contains("the log has no camera"), "{err}");
+    let (ok, err) =
+        stderr_of(&["replay", with.to_str().unwrap(), "--method", "nn", "--out", replay_out.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -1,5 +1,6 @@
 //! The log directory: `manifest.toml`, `odometry.csv`, one of `scans.csv` and
-//! `detections.csv`, and optionally `reference.csv`. Plain CSV with a header row, SI units,
+//! `detections.csv`, and optionally `camera.csv` (with the images it lists) and
+//! `reference.csv`. Plain CSV with a header row, SI units,
 //! times in seconds on one clock; docs/reference/robot-log.md describes every column.
 //!
 //! Reading checks everything the pipeline would otherwise take on trust: the header, the
@@ -12,13 +13,14 @@ use std::path::{Path, PathBuf};
 
 use slam::messages::{Control, Detection, LaserScan, OdometryIncrement};
 
-use crate::{DetectionScan, Log, LogError, Manifest, Motion, Observations, ReferenceSample};
+use crate::{CameraFrameFile, DetectionScan, Log, LogError, Manifest, Motion, Observations, ReferenceSample, RgbImage};
 
 pub const MANIFEST: &str = "manifest.toml";
 pub const ODOMETRY: &str = "odometry.csv";
 pub const SCANS: &str = "scans.csv";
 pub const DETECTIONS: &str = "detections.csv";
 pub const REFERENCE: &str = "reference.csv";
+pub const CAMERA: &str = "camera.csv";
 
 /// Reads the log in `dir`.
 pub fn read(dir: &Path) -> Result<Log, LogError> {
@@ -62,7 +64,24 @@ pub fn read(dir: &Path) -> Result<Log, LogError> {
     } else {
         Vec::new()
     };
-    Ok(Log { manifest, motion, observations, reference })
+    let camera_file = dir.join(CAMERA);
+    let camera = match (camera_file.exists(), &manifest.camera) {
+        (true, Some(_)) => read_camera(&camera_file, dir)?,
+        (true, None) => {
+            return Err(LogError::File {
+                file: dir.join(MANIFEST),
+                problem: "camera.csv is there but no [camera] table gives the camera's intrinsics and mounting".into(),
+            });
+        }
+        (false, Some(_)) => {
+            return Err(LogError::File {
+                file: dir.join(MANIFEST),
+                problem: "a [camera] table, but no camera.csv lists its frames".into(),
+            });
+        }
+        (false, None) => Vec::new(),
+    };
+    Ok(Log { manifest, motion, observations, reference, camera })
 }
 
 fn io(file: &Path) -> impl Fn(std::io::Error) -> LogError + '_ {
@@ -274,6 +293,78 @@ fn read_detections(file: &Path) -> Result<Vec<DetectionScan>, LogError> {
     Ok(scans)
 }
 
+const CAMERA_COLUMNS: &[&str] = &["t", "file"];
+
+/// `camera.csv`: `t,file` rows, the file relative to the log's directory (or absolute),
+/// each checked to exist; the images themselves are read when needed ([`read_frame`]).
+fn read_camera(file: &Path, dir: &Path) -> Result<Vec<CameraFrameFile>, LogError> {
+    let line_error = |line: u64, problem: String| LogError::Line { file: file.to_path_buf(), line, problem };
+    let mut reader = csv::ReaderBuilder::new()
+        .has_headers(true)
+        .trim(csv::Trim::All)
+        .from_path(file)
+        .map_err(|e| csv_error(file, e))?;
+    let found: Vec<String> = reader.headers().map_err(|e| csv_error(file, e))?.iter().map(str::to_string).collect();
+    if found != CAMERA_COLUMNS {
+        return Err(line_error(1, format!("header `{}`; expected `{}`", found.join(","), CAMERA_COLUMNS.join(","))));
+    }
+    let mut frames: Vec<CameraFrameFile> = Vec::new();
+    for record in reader.records() {
+        let record = record.map_err(|e| csv_error(file, e))?;
+        let line = record.position().map_or(0, |p| p.line());
+        let t = record[0]
+            .parse::<f64>()
+            .map_err(|_| line_error(line, format!("column `t`: `{}` is not a number", &record[0])))?;
+        if !t.is_finite() {
+            return Err(line_error(line, format!("`t` must be finite, got {t}")));
+        }
+        if let Some(previous) = frames.last().map(|f| f.t).filter(|&p| t < p) {
+            return Err(line_error(line, format!("t = {t} s comes before the previous row's {previous} s")));
+        }
+        if record[1].is_empty() {
+            return Err(line_error(line, "`file` is empty".into()));
+        }
+        let image = dir.join(&record[1]);
+        if !image.is_file() {
+            return Err(line_error(line, format!("no image file {}", image.display())));
+        }
+        frames.push(CameraFrameFile { t, file: image });
+    }
+    Ok(frames)
+}
+
+/// Reads one camera frame as 8-bit RGB (PNG or JPEG; grey and alpha are converted),
+/// checked to have the manifest camera's size.
+pub fn read_frame(frame: &CameraFrameFile, camera: &crate::manifest::Camera) -> Result<RgbImage, LogError> {
+    let file = &frame.file;
+    let image = image::open(file).map_err(|e| LogError::File { file: file.clone(), problem: e.to_string() })?;
+    if (image.width(), image.height()) != (camera.width, camera.height) {
+        return Err(LogError::File {
+            file: file.clone(),
+            problem: format!(
+                "the image is {}x{}, the manifest's camera {}x{}",
+                image.width(),
+                image.height(),
+                camera.width,
+                camera.height
+            ),
+        });
+    }
+    let rgb = image.into_rgb8();
+    Ok(RgbImage { width: rgb.width(), height: rgb.height(), rgb: rgb.into_raw() })
+}
+
+/// Writes frame `index` of a log in `dir` as `camera/NNNNNN.png` (lossless, so a replay
+/// sees the pixels the camera gave) and returns its `camera.csv` entry.
+pub fn write_frame(dir: &Path, index: usize, t: f64, image: &RgbImage) -> Result<CameraFrameFile, LogError> {
+    let relative = PathBuf::from(format!("camera/{index:06}.png"));
+    let file = dir.join(&relative);
+    fs::create_dir_all(dir.join("camera")).map_err(io(&dir.join("camera")))?;
+    image::save_buffer(&file, &image.rgb, image.width, image.height, image::ExtendedColorType::Rgb8)
+        .map_err(|e| LogError::File { file: file.clone(), problem: e.to_string() })?;
+    Ok(CameraFrameFile { t, file: relative })
+}
+
 fn read_reference(file: &Path) -> Result<Vec<ReferenceSample>, LogError> {
     let table = Table::read(file, &[&["t", "x", "y"], &["t", "x", "y", "theta"]])?;
     let times = table.times()?;
@@ -365,6 +456,20 @@ pub fn write(dir: &Path, log: &Log) -> Result<(), LogError> {
             }
         }
         write_file(&dir.join(REFERENCE), &text)?;
+    }
+    if !log.camera.is_empty() {
+        let mut text = format!("{}\n", CAMERA_COLUMNS.join(","));
+        for f in &log.camera {
+            let name = f.file.strip_prefix(dir).unwrap_or(&f.file).to_string_lossy().into_owned();
+            if name.contains([',', '"', '\n']) {
+                return Err(LogError::File {
+                    file: dir.join(CAMERA),
+                    problem: format!("the image path `{name}` holds a comma, quote or line break"),
+                });
+            }
+            text.push_str(&format!("{},{name}\n", f.t));
+        }
+        write_file(&dir.join(CAMERA), &text)?;
     }
     Ok(())
 }

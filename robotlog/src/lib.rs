@@ -3,8 +3,8 @@
 //!
 //! A [`Log`] holds what a run of a real robot delivers, all on one clock: the vehicle's
 //! motion (odometry increments or controls), what its range sensor saw (whole laser scans
-//! or point detections), and optionally a reference path (ground truth or GPS), with the
-//! sensor's mounting and noise in a [`Manifest`]. The format's reference is
+//! or point detections), optionally a camera's frames, and optionally a reference path
+//! (ground truth or GPS), with the sensors' mounting and noise in a [`Manifest`]. The format's reference is
 //! docs/reference/robot-log.md.
 
 pub mod format;
@@ -91,7 +91,25 @@ pub struct ReferenceSample {
     pub theta: Option<f64>,
 }
 
-/// A whole log in memory.
+/// A camera frame as `camera.csv` lists it: its time and its image file. The images stay
+/// on disk until a replay reaches them ([`format::read_frame`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct CameraFrameFile {
+    pub t: f64,
+    /// As read: the log's directory joined with the listed path. As written: relative
+    /// paths are written as they are, taken to be relative to the log's directory.
+    pub file: PathBuf,
+}
+
+/// A camera image in memory: 8-bit RGB, row-major.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RgbImage {
+    pub width: u32,
+    pub height: u32,
+    pub rgb: Vec<u8>,
+}
+
+/// A whole log in memory (the camera's images apart).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Log {
     pub manifest: Manifest,
@@ -99,6 +117,8 @@ pub struct Log {
     pub observations: Observations,
     /// Ground truth or GPS (`reference.csv`), in its own frame (see [`Manifest::reference`]).
     pub reference: Vec<ReferenceSample>,
+    /// The camera's frames (`camera.csv`), in time order; empty without a camera.
+    pub camera: Vec<CameraFrameFile>,
 }
 
 impl Log {

@@ -23,6 +23,9 @@ pub struct Manifest {
     pub laser: Option<LaserGeometry>,
     #[serde(default)]
     pub reference: Option<Reference>,
+    /// Only for `camera.csv`: the camera's intrinsics and its pose on the range sensor.
+    #[serde(default)]
+    pub camera: Option<Camera>,
 }
 
 /// The vehicle's kinematics, as the motion model needs them.
@@ -73,6 +76,26 @@ pub struct LaserGeometry {
     pub range_max_m: f64,
 }
 
+/// A pinhole camera whose frames `camera.csv` lists, and where it sits on the range
+/// sensor: the camera methods project laser returns into its images.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Camera {
+    /// Image size (pixels); every frame must have it.
+    pub width: u32,
+    pub height: u32,
+    /// Focal lengths and principal point (pixels), for undistorted images.
+    pub fx: f64,
+    pub fy: f64,
+    pub cx: f64,
+    pub cy: f64,
+    /// Rows of the rotation that takes a direction in the camera's optical frame (z
+    /// forward, x right, y down) into the range sensor's frame (x forward, y left, z up).
+    pub rotation: [[f64; 3]; 3],
+    /// The camera's optical centre in the range sensor's frame (m).
+    pub translation_m: [f64; 3],
+}
+
 /// What `reference.csv` holds.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -98,6 +121,53 @@ pub enum ReferencePoint {
     Vehicle,
     /// The range sensor (Victoria Park's GPS is compared with the laser's path).
     Sensor,
+}
+
+impl Camera {
+    fn validate(&self) -> Result<(), (String, String)> {
+        if self.width == 0 || self.height == 0 {
+            return Err((
+                "camera.width".into(),
+                format!("the image must not be empty, got {}x{}", self.width, self.height),
+            ));
+        }
+        for (name, v) in [("fx", self.fx), ("fy", self.fy)] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err((format!("camera.{name}"), format!("must be finite and positive, got {v}")));
+            }
+        }
+        for (name, v) in [("cx", self.cx), ("cy", self.cy)] {
+            if !v.is_finite() {
+                return Err((format!("camera.{name}"), format!("must be finite, got {v}")));
+            }
+        }
+        if let Some(v) = self.translation_m.iter().find(|v| !v.is_finite()) {
+            return Err(("camera.translation_m".into(), format!("must be finite, got {v}")));
+        }
+        let r = &self.rotation;
+        if let Some(v) = r.iter().flatten().find(|v| !v.is_finite()) {
+            return Err(("camera.rotation".into(), format!("must be finite, got {v}")));
+        }
+        // Orthonormal with determinant +1, to a tolerance that printed matrices meet.
+        let mut worst: f64 = 0.0;
+        for a in 0..3 {
+            for b in 0..3 {
+                let dot: f64 = (0..3).map(|k| r[a][k] * r[b][k]).sum();
+                worst = worst.max((dot - if a == b { 1.0 } else { 0.0 }).abs());
+            }
+        }
+        let det = r[0][0] * (r[1][1] * r[2][2] - r[1][2] * r[2][1]) - r[0][1] * (r[1][0] * r[2][2] - r[1][2] * r[2][0])
+            + r[0][2] * (r[1][0] * r[2][1] - r[1][1] * r[2][0]);
+        if !(worst < 1e-6 && det > 0.0) {
+            return Err((
+                "camera.rotation".into(),
+                format!(
+                    "must be a rotation (orthonormal rows, determinant +1); rows' dot products are off by {worst:.2e}, the determinant is {det:.6}"
+                ),
+            ));
+        }
+        Ok(())
+    }
 }
 
 impl Manifest {
@@ -183,7 +253,31 @@ impl Manifest {
                 ));
             }
         }
+        if let Some(c) = &self.camera {
+            c.validate()?;
+        }
         Ok(())
+    }
+
+    /// The camera as the pipeline's segmentation sees it. The pipeline takes laser returns
+    /// in the vehicle's heading (a replay turns them by the sensor's yaw), so the camera's
+    /// pose is turned with them.
+    pub fn camera_geometry(&self) -> Option<slam::segmentation::CameraGeometry> {
+        let c = self.camera.as_ref()?;
+        let (s, co) = self.sensor.yaw_rad.sin_cos();
+        let yaw = [[co, -s, 0.0], [s, co, 0.0], [0.0, 0.0, 1.0]];
+        let turn = |v: [f64; 3]| -> [f64; 3] { std::array::from_fn(|r| (0..3).map(|k| yaw[r][k] * v[k]).sum()) };
+        let phi: [[f64; 3]; 3] =
+            std::array::from_fn(|r| std::array::from_fn(|col| (0..3).map(|k| yaw[r][k] * c.rotation[k][col]).sum()));
+        Some(slam::segmentation::CameraGeometry {
+            fx: c.fx,
+            fy: c.fy,
+            cx: c.cx,
+            cy: c.cy,
+            width: c.width,
+            height: c.height,
+            laser_from_camera: slam::calibration::Extrinsics { phi, delta: turn(c.translation_m) },
+        })
     }
 
     /// The sensor as the filter's observation model: mounting from here, noise from here

@@ -81,8 +81,9 @@ pub fn read(dir: &Path) -> Result<Log, LogError> {
         laser,
         reference: (!reference.is_empty())
             .then_some(Reference { kind: ReferenceKind::Gps, point: ReferencePoint::Sensor }),
+        camera: None,
     };
-    Ok(Log { manifest, motion, observations, reference })
+    Ok(Log { manifest, motion, observations, reference, camera: Vec::new() })
 }
 
 /// Loads a MAT-file. A corrupt file must be an error, not a crash: the parser is a

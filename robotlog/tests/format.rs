@@ -4,9 +4,10 @@
 use std::path::{Path, PathBuf};
 
 use proptest::prelude::*;
-use robotlog::manifest::{LaserGeometry, Reference, Sensor, Vehicle};
+use robotlog::manifest::{Camera, LaserGeometry, Reference, Sensor, Vehicle};
 use robotlog::{
     DetectionScan, Log, LogError, Manifest, Motion, Observations, ReferenceKind, ReferencePoint, ReferenceSample,
+    RgbImage,
 };
 use slam::messages::{Control, Detection, LaserScan, OdometryIncrement};
 
@@ -37,6 +38,7 @@ fn manifest(motion: &str, laser: bool) -> Manifest {
             range_max_m: 30.0,
         }),
         reference: Some(Reference { kind: ReferenceKind::GroundTruth, point: ReferencePoint::Vehicle }),
+        camera: None,
     }
 }
 
@@ -65,6 +67,7 @@ fn scan_log(ranges: Vec<Vec<f64>>, odometry: Vec<[f64; 3]>) -> Log {
                 .collect(),
         ),
         reference: vec![ReferenceSample { t: 0.0, x: 1.0, y: 2.0, theta: Some(0.3) }],
+        camera: Vec::new(),
     }
 }
 
@@ -113,6 +116,7 @@ fn controls_and_detections_read_back_as_written() {
             DetectionScan { t: 0.3, detections: vec![Detection { range_m: 7.0, bearing_rad: 0.0, diameter_m: None }] },
         ]),
         reference: vec![ReferenceSample { t: 0.1, x: 5.0, y: 6.0, theta: None }],
+        camera: Vec::new(),
     };
     robotlog::format::write(&d, &log).unwrap();
     assert_eq!(robotlog::format::read(&d).unwrap(), log);
@@ -180,6 +184,118 @@ fn malformed_files_are_errors_that_name_file_and_line() {
         assert!(e.contains(expected), "{file} with {text:?}: {e}");
         assert!(e.contains(file), "{e} names the file");
     }
+}
+
+/// A 4x3 camera looking forward from 0.1 m above the sensor: optical z along the sensor's
+/// x, optical x along its -y, optical y along its -z.
+fn camera() -> Camera {
+    Camera {
+        width: 4,
+        height: 3,
+        fx: 2.0,
+        fy: 2.0,
+        cx: 2.0,
+        cy: 1.5,
+        rotation: [[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]],
+        translation_m: [0.0, 0.0, 0.1],
+    }
+}
+
+/// A scan log with a camera and `frames` frames written as the recorder writes them.
+fn camera_log(d: &Path, frames: usize) -> Log {
+    let mut log = scan_log(vec![vec![1.0; 7], vec![2.0; 7]], vec![[0.1, 0.0, 0.0]; 3]);
+    log.manifest.camera = Some(camera());
+    log.camera = (0..frames)
+        .map(|k| {
+            let rgb = (0..36).map(|v| (v * 7 + k) as u8).collect();
+            robotlog::format::write_frame(d, k, 0.1 * k as f64, &RgbImage { width: 4, height: 3, rgb }).unwrap()
+        })
+        .collect();
+    robotlog::format::write(d, &log).unwrap();
+    log
+}
+
+#[test]
+fn camera_frames_read_back_pixel_for_pixel() {
+    let d = dir("camera");
+    let written = camera_log(&d, 3);
+    let read = robotlog::format::read(&d).unwrap();
+    assert_eq!(read.manifest, written.manifest);
+    assert_eq!(read.camera.len(), 3);
+    for (k, f) in read.camera.iter().enumerate() {
+        assert_eq!(f.t, 0.1 * k as f64);
+        assert_eq!(f.file, d.join(format!("camera/{k:06}.png")));
+        let image = robotlog::format::read_frame(f, &camera()).unwrap();
+        assert_eq!((image.width, image.height), (4, 3));
+        assert_eq!(image.rgb, (0..36).map(|v| (v * 7 + k) as u8).collect::<Vec<u8>>());
+    }
+    // A frame of another size than the manifest's is refused, naming the image.
+    let small = Camera { width: 5, ..camera() };
+    let e = robotlog::format::read_frame(&read.camera[0], &small).unwrap_err().to_string();
+    assert!(e.contains("000000.png") && e.contains("4x3") && e.contains("5x3"), "{e}");
+    std::fs::remove_dir_all(&d).ok();
+}
+
+#[test]
+fn camera_files_and_tables_that_do_not_agree_are_errors() {
+    let d = dir("camera-bad");
+    camera_log(&d, 2);
+    let read_error = || robotlog::format::read(&d).unwrap_err().to_string();
+    let csv = std::fs::read_to_string(d.join("camera.csv")).unwrap();
+    for (text, expected) in [
+        ("t,image\n0,camera/000000.png\n", "camera.csv:1: header `t,image`; expected `t,file`"),
+        ("t,file\n0.1,camera/000001.png\n0,camera/000000.png\n", "camera.csv:3: t = 0 s comes before"),
+        ("t,file\nabc,camera/000000.png\n", "camera.csv:2: column `t`: `abc` is not a number"),
+        ("t,file\ninf,camera/000000.png\n", "camera.csv:2: `t` must be finite"),
+        ("t,file\n0,camera/missing.png\n", "camera.csv:2: no image file"),
+        ("t,file\n0,\n", "camera.csv:2: `file` is empty"),
+    ] {
+        std::fs::write(d.join("camera.csv"), text).unwrap();
+        let e = read_error();
+        assert!(e.contains(expected), "{text:?}: {e}");
+    }
+    std::fs::write(d.join("camera.csv"), &csv).unwrap();
+    let manifest = std::fs::read_to_string(d.join("manifest.toml")).unwrap();
+    // The table without the frames, and the frames without the table.
+    std::fs::remove_file(d.join("camera.csv")).unwrap();
+    assert!(read_error().contains("no camera.csv lists its frames"));
+    std::fs::write(d.join("camera.csv"), &csv).unwrap();
+    let without_table = manifest.split("[camera]").next().unwrap().to_string();
+    std::fs::write(d.join("manifest.toml"), without_table).unwrap();
+    assert!(read_error().contains("no [camera] table"));
+    // A rotation that is not one, and an empty image size.
+    for (from, to, expected) in [
+        ("rotation = [[0.0, 0.0, 1.0]", "rotation = [[0.0, 0.0, 2.0]", "camera.rotation: must be a rotation"),
+        ("rotation = [[0.0, 0.0, 1.0]", "rotation = [[0.0, 0.0, nan]", "camera.rotation: must be finite"),
+        ("width = 4", "width = 0", "camera.width: the image must not be empty"),
+        ("fx = 2.0", "fx = -2.0", "camera.fx: must be finite and positive"),
+    ] {
+        assert!(manifest.contains(from), "{manifest}");
+        std::fs::write(d.join("manifest.toml"), manifest.replace(from, to)).unwrap();
+        let e = read_error();
+        assert!(e.contains(expected) && e.contains("manifest.toml"), "{to}: {e}");
+    }
+    // A mirror (determinant -1) is no rotation either.
+    let mirrored = manifest.replace("[-1.0, 0.0, 0.0]", "[1.0, 0.0, 0.0]");
+    assert_ne!(mirrored, manifest);
+    std::fs::write(d.join("manifest.toml"), mirrored).unwrap();
+    assert!(read_error().contains("determinant"));
+    std::fs::remove_dir_all(&d).ok();
+}
+
+#[test]
+fn a_turned_sensor_turns_the_camera_with_its_returns() {
+    // The pipeline takes returns in the vehicle's heading; a point straight ahead of a
+    // sensor yawed 90 degrees is to the vehicle's left, and still on the camera's axis.
+    let mut m = manifest("odometry", true);
+    m.camera = Some(camera());
+    m.sensor.yaw_rad = std::f64::consts::FRAC_PI_2;
+    let g = m.camera_geometry().unwrap();
+    let pixel = g.project(&nalgebra::Vector3::new(0.0, 5.0, 0.1)).unwrap();
+    assert!((pixel[0] - 2.0).abs() < 1e-9 && (pixel[1] - 1.5).abs() < 1e-9, "{pixel:?}");
+    m.sensor.yaw_rad = 0.0;
+    let pixel = m.camera_geometry().unwrap().project(&nalgebra::Vector3::new(5.0, 0.0, 0.1)).unwrap();
+    assert!((pixel[0] - 2.0).abs() < 1e-9 && (pixel[1] - 1.5).abs() < 1e-9, "{pixel:?}");
 }
 
 #[test]

@@ -294,32 +294,36 @@ pub fn record(
     match format {
         RecordFormat::Jsonl => record_jsonl(world, config, seed, scoring, out, progress),
         RecordFormat::Ros2 => record_ros2(world, config, seed, out, progress),
-        RecordFormat::Log => record_log(world, config, seed, None, out, progress),
+        RecordFormat::Log => record_log(world, config, seed, None, None, out, progress),
     }
 }
 
 /// The simulation's stream as a robot log in `out` (see [`robotlog::format`]): the noisy
-/// odometry, the raw laser scans and the robot's true pose as the reference. With
-/// `pipeline` (a scenario's settings), `pipeline.toml` beside it holds them, so that
-/// `objslam replay` estimates what `objslam run` does.
+/// odometry, the raw laser scans, the camera's frames where the camera is enabled (for a
+/// scenario, where its method also reads them, as a run renders them), and the robot's
+/// true pose as the reference. The manifest gives the camera the laser <- camera
+/// extrinsics `calibration` (the true ones if `None`): what a run of the scenario gives its
+/// pipeline. With `pipeline` (a scenario's settings), `pipeline.toml` beside it holds them,
+/// so that `objslam replay` estimates what `objslam run` does.
 pub fn record_log(
     world: &worlds::World,
     config: &SimConfig,
     seed: u64,
     pipeline: Option<&slam::pipeline::PipelineConfig>,
+    calibration: Option<&slam::calibration::Extrinsics>,
     out: &Path,
     mut progress: impl FnMut(f64, f64),
 ) -> Result<RecordSummary, RecordError> {
     let started = std::time::Instant::now();
-    // The log holds no images: rendering them would only cost (the camera's noise is a
-    // stream of its own, so the other sensors' messages are the same without it).
-    let mut without_camera = config.clone();
-    without_camera.camera.enabled = false;
-    let config = &without_camera;
+    // A robot's camera gives colour: no depth is rendered. (The camera's noise is a stream
+    // of its own: the other sensors' messages are the same with or without it.)
+    let mut as_logged = config.clone();
+    as_logged.camera.depth_image = false;
+    as_logged.camera.enabled &= pipeline.is_none_or(|p| p.method.uses_appearance());
+    let config = &as_logged;
     let mut sim = Simulation::new(world, config, seed)?;
     let nominal = config.max_duration_s.unwrap_or_else(|| sim.nominal_duration_s());
-    let (mut increments, mut scans, mut reference) = (Vec::new(), Vec::new(), Vec::new());
-    let mut camera_frames = 0;
+    let (mut increments, mut scans, mut reference, mut frames) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     let mut last_progress = -1.0;
     while let Some(event) = sim.next_event() {
         let t = event.time();
@@ -330,7 +334,11 @@ pub fn record_log(
                 reference.push(robotlog::ReferenceSample { t: o.t, x: r.x, y: r.y, theta: Some(r.theta) });
             }
             SensorEvent::Laser { scan, .. } => scans.push(crate::run::slam_scan(&scan)),
-            SensorEvent::Camera { .. } => camera_frames += 1,
+            SensorEvent::Camera { frame, .. } => {
+                let image =
+                    robotlog::RgbImage { width: frame.image.width, height: frame.image.height, rgb: frame.image.rgb };
+                frames.push(robotlog::format::write_frame(out, frames.len(), frame.t, &image)?);
+            }
         }
         if t - last_progress >= 1.0 {
             progress(t, nominal);
@@ -370,10 +378,25 @@ pub fn record_log(
                 kind: robotlog::ReferenceKind::GroundTruth,
                 point: robotlog::ReferencePoint::Vehicle,
             }),
+            camera: (!frames.is_empty()).then(|| {
+                let k = config.camera.intrinsics();
+                let e = calibration.copied().unwrap_or_else(|| crate::calibrate::true_extrinsics(config));
+                robotlog::manifest::Camera {
+                    width: k.width,
+                    height: k.height,
+                    fx: k.fx,
+                    fy: k.fy,
+                    cx: k.cx,
+                    cy: k.cy,
+                    rotation: e.phi,
+                    translation_m: e.delta,
+                }
+            }),
         },
         motion: robotlog::Motion::Increments(increments),
         observations: robotlog::Observations::Scans(scans),
         reference,
+        camera: frames,
     };
     robotlog::format::write(out, &log)?;
     if let Some(p) = pipeline {
@@ -389,7 +412,7 @@ pub fn record_log(
         wall_seconds: started.elapsed().as_secs_f64(),
         scans: log.observations.len(),
         odometry: log.motion.len(),
-        camera_frames,
+        camera_frames: log.camera.len(),
         renderer: sim.camera_adapter().map(|a| a.to_string()),
         collisions: sim.collisions().len(),
         route_completed: sim.route_progress() > 0.99,

@@ -1,8 +1,9 @@
 //! `objslam replay`: the `slam` pipeline on a recorded log (a real robot's, or one that
 //! `objslam record --format log` wrote), scored against the log's reference path.
 //!
-//! Inputs are fed in time order, motion first at equal times (as the simulator emits
-//! them). Against ground truth the estimate is scored as it is; against GPS, which has its
+//! Inputs are fed in time order; at equal times motion comes first, then the camera's
+//! frame, then the scan (as the simulator emits them). Camera frames are read from disk
+//! one at a time, and only by the camera methods. Against ground truth the estimate is scored as it is; against GPS, which has its
 //! own frame, after the rigid 2-D motion (rotation and translation, no scale) that best
 //! fits the estimate to it, once GPS spikes are removed (see [`gps_spikes`]).
 
@@ -13,8 +14,9 @@ use robotlog::{Log, Motion, Observations, ReferenceKind, ReferencePoint, Referen
 use serde::Serialize;
 use serde_json::json;
 use slam::association::{AssociationDecision, AssociationMethod, Choice};
+use slam::classifier::AppearanceModel;
 use slam::ekf::{AckermannMotionModel, MotionConfig, OdometryMotionModel, RangeBearingModel};
-use slam::pipeline::{Pipeline, PipelineConfig};
+use slam::pipeline::{Appearance, Pipeline, PipelineConfig};
 
 use crate::partial_files::PartialFiles;
 
@@ -33,6 +35,14 @@ pub enum ReplayError {
     Io { file: PathBuf, source: std::io::Error },
     #[error(transparent)]
     Plot(#[from] crate::plot::PlotError),
+    #[error("method {method} segments camera images: the log has no camera (a [camera] table and camera.csv)")]
+    NoCamera { method: &'static str },
+    #[error(
+        "method {method} needs an appearance model (`objslam replay --appearance-model FILE`, from `objslam train`); `--method nn` or `jcbb` needs none"
+    )]
+    NoAppearanceModel { method: &'static str },
+    #[error("the appearance model: {0}")]
+    Appearance(#[from] slam::gmm::GmmError),
 }
 
 impl From<crate::partial_files::PartialFileError> for ReplayError {
@@ -208,6 +218,8 @@ pub struct ReplayMetrics {
     pub motion_messages: usize,
     pub scans: usize,
     pub detections: usize,
+    /// Camera frames given to the pipeline (the camera methods'; 0 for the others).
+    pub camera_frames: usize,
     pub landmarks: usize,
     pub reference: Option<ReferenceScore>,
     pub nis: Nis,
@@ -238,11 +250,31 @@ enum Stream {
 
 /// Runs `config`'s pipeline over `log`; with `out`, writes the replay's outputs there
 /// (`metrics.json`, `metadata.json`, `trajectory_est.tum`, `landmarks.json`,
-/// `decisions.jsonl`, `map.png`).
-pub fn replay(log: &Log, config: PipelineConfig, out: Option<&Path>) -> Result<Replay, ReplayError> {
+/// `decisions.jsonl`, `map.png`). The camera methods need the log's camera and an
+/// `appearance` model; the others ignore both.
+pub fn replay(
+    log: &Log,
+    config: PipelineConfig,
+    appearance: Option<AppearanceModel>,
+    out: Option<&Path>,
+) -> Result<Replay, ReplayError> {
     let started = Instant::now();
     let start = log.start_time();
-    let mut pipeline = Pipeline::new(config.clone(), log.manifest.vehicle.start_pose, None)
+    let camera = match config.method.uses_appearance() {
+        true => {
+            let method = config.method.name();
+            let (Some(geometry), Some(camera)) = (log.manifest.camera_geometry(), log.manifest.camera.as_ref()) else {
+                return Err(ReplayError::NoCamera { method });
+            };
+            let model = appearance.ok_or(ReplayError::NoAppearanceModel { method })?;
+            Some((Appearance::new(model, geometry)?, camera))
+        }
+        false => None,
+    };
+    let (appearance, camera) = camera.unzip();
+    // Frames only reach the methods that read them.
+    let frames: &[robotlog::CameraFrameFile] = if camera.is_some() { &log.camera } else { &[] };
+    let mut pipeline = Pipeline::new(config.clone(), log.manifest.vehicle.start_pose, appearance)
         .map_err(|source| ReplayError::Pipeline { t: start, source })?
         .starting_at(start);
     let mut streams = match out {
@@ -272,18 +304,27 @@ pub fn replay(log: &Log, config: PipelineConfig, out: Option<&Path>) -> Result<R
     let mut scan_ms = ScanTimeHistogram::default();
     let yaw = log.manifest.sensor.yaw_rad;
     let mut detections = 0;
-    let (mut m, mut o) = (0, 0);
+    let (mut m, mut f, mut o) = (0, 0, 0);
     let error = |t: f64| move |source| ReplayError::Pipeline { t, source };
-    while m < log.motion.len() || o < log.observations.len() {
-        let motion_next =
-            m < log.motion.len() && (o >= log.observations.len() || log.motion.time(m) <= log.observations.time(o));
-        if motion_next {
+    while m < log.motion.len() || f < frames.len() || o < log.observations.len() {
+        // At equal times: motion, then the frame, then the scan.
+        let tm = if m < log.motion.len() { log.motion.time(m) } else { f64::INFINITY };
+        let tf = frames.get(f).map_or(f64::INFINITY, |frame| frame.t);
+        let to = if o < log.observations.len() { log.observations.time(o) } else { f64::INFINITY };
+        if m < log.motion.len() && tm <= tf && tm <= to {
             let t = log.motion.time(m);
             match &log.motion {
                 Motion::Increments(v) => pipeline.on_odometry(&v[m]).map_err(error(t))?,
                 Motion::Controls(v) => pipeline.on_control(t, v[m].1).map_err(error(t))?,
             }
             m += 1;
+        } else if f < frames.len() && tf <= to {
+            let camera = camera.expect("frames only with a camera");
+            let image = robotlog::format::read_frame(&frames[f], camera)?;
+            pipeline.on_image(tf, image.width, image.height, image.rgb).map_err(error(tf))?;
+            f += 1;
+            // A frame moves no pose: nothing to write.
+            continue;
         } else {
             let t = log.observations.time(o);
             let tick = Instant::now();
@@ -332,6 +373,7 @@ pub fn replay(log: &Log, config: PipelineConfig, out: Option<&Path>) -> Result<R
         motion_messages: log.motion.len(),
         scans: log.observations.len(),
         detections,
+        camera_frames: frames.len(),
         landmarks: landmarks.len(),
         reference: score_reference(log, &reference.pairs, spikes.len()),
         nis: nis.finish(),

@@ -44,6 +44,7 @@ fn a_recorded_log_replays_to_the_runs_estimate() {
         &sc.sim,
         sim::derive_seed(seed, "sim"),
         Some(&pipeline),
+        None,
         &dir.join("log"),
         |_, _| {},
     )
@@ -54,12 +55,26 @@ fn a_recorded_log_replays_to_the_runs_estimate() {
     let log = robotlog::format::read(&dir.join("log")).unwrap();
     let config = resolve_config(Some(&dir.join("log")), &log, None, None).unwrap();
     assert_eq!(config, pipeline, "the log's pipeline.toml is the scenario's settings");
-    let replayed = replay(&log, config, Some(&dir.join("replay"))).unwrap();
+    let replayed = replay(&log, config, None, Some(&dir.join("replay"))).unwrap();
+    assert_same_estimate(&out, &dir.join("replay"), &replayed);
+    // Scored against the log's ground truth, no alignment: the run's own ATE.
+    let metrics: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("metrics.json")).unwrap()).unwrap();
+    let reference = replayed.metrics.reference.as_ref().unwrap();
+    assert_eq!(reference.alignment, "none");
+    let run_ate = metrics["ate_rmse_m"].as_f64().unwrap();
+    assert!((reference.ate_rmse_m - run_ate).abs() < 0.02 * run_ate + 1e-3, "{} vs {run_ate}", reference.ate_rmse_m);
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+/// The replay in `replay_dir` estimated what the run in `run_dir` did: the same pose at
+/// each of the run's instants, and the same landmarks.
+fn assert_same_estimate(run_dir: &Path, replay_dir: &Path, replayed: &scenarios::replay::Replay) {
     // The run writes a pose per odometry message; the replay one per input, the odometry
     // first at equal times. Each of the run's poses is the replay's first at its instant.
-    let run_path = read_tum(&out.join("trajectory_est.tum"));
-    let replay_path = read_tum(&dir.join("replay/trajectory_est.tum"));
-    assert!(run_path.len() > 200);
+    let run_path = read_tum(&run_dir.join("trajectory_est.tum"));
+    let replay_path = read_tum(&replay_dir.join("trajectory_est.tum"));
+    assert!(run_path.len() > 100);
     let mut k = 0;
     for p in &run_path {
         while replay_path[k][0] < p[0] {
@@ -70,19 +85,61 @@ fn a_recorded_log_replays_to_the_runs_estimate() {
         assert_eq!([q[1], q[2]], [p[1], p[2]], "at t = {}", q[0]);
     }
     let run_landmarks: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("landmarks.json")).unwrap()).unwrap();
+        serde_json::from_str(&std::fs::read_to_string(run_dir.join("landmarks.json")).unwrap()).unwrap();
     assert_eq!(run_landmarks.as_array().unwrap().len(), replayed.landmarks.len());
     for (a, b) in run_landmarks.as_array().unwrap().iter().zip(&replayed.landmarks) {
         assert_eq!(a["position"][0].as_f64().unwrap(), b.position[0]);
         assert_eq!(a["position"][1].as_f64().unwrap(), b.position[1]);
     }
-    // Scored against the log's ground truth, no alignment: the run's own ATE.
-    let metrics: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("metrics.json")).unwrap()).unwrap();
-    let reference = replayed.metrics.reference.as_ref().unwrap();
-    assert_eq!(reference.alignment, "none");
-    let run_ate = metrics["ate_rmse_m"].as_f64().unwrap();
-    assert!((reference.ate_rmse_m - run_ate).abs() < 0.02 * run_ate + 1e-3, "{} vs {run_ate}", reference.ate_rmse_m);
+}
+
+#[test]
+fn a_recorded_log_with_camera_frames_replays_to_the_combined_runs_estimate() {
+    // The paper's method on a log of paper_park's first 15 s: the frames come from the
+    // log's PNGs, the camera model from its manifest.
+    let dir = temp_dir("camera");
+    let (mut sc, base) = Scenario::load("paper_park").unwrap();
+    sc.sim.max_duration_s = Some(15.0);
+    let seed = 2;
+    let world = sc.world(&base, seed).unwrap();
+    let pipeline = scenarios::run::pipeline_config(&sc, None).unwrap();
+    assert_eq!(pipeline.method, AssociationMethod::Combined);
+    let calibration = scenarios::run::resolve_calibration(&sc, &base, seed).unwrap().extrinsics;
+    scenarios::record::record_log(
+        &world,
+        &sc.sim,
+        sim::derive_seed(seed, "sim"),
+        Some(&pipeline),
+        Some(&calibration),
+        &dir.join("log"),
+        |_, _| {},
+    )
+    .unwrap();
+    let model = scenarios::run::resolve_appearance(&sc, &base, |_, _, _| {}).unwrap();
+    let out = dir.join("run");
+    let options = RunOptions {
+        seed: Some(seed),
+        out: Some(out.clone()),
+        appearance: Some(std::sync::Arc::new(model.clone())),
+        ..Default::default()
+    };
+    let run_metrics = run(&sc, &base, &options, |_| {}).unwrap().metrics;
+    assert!(run_metrics.associations.total > 10, "{:?}", run_metrics.associations);
+
+    let log = robotlog::format::read(&dir.join("log")).unwrap();
+    assert!(log.camera.len() > 20, "{} frames", log.camera.len());
+    let config = resolve_config(Some(&dir.join("log")), &log, None, None).unwrap();
+    assert_eq!(config, pipeline);
+    // Without a model the camera method is refused, naming what it needs.
+    let e = replay(&log, config.clone(), None, None).err().expect("refused without a model").to_string();
+    assert!(e.contains("--appearance-model"), "{e}");
+    let replayed = replay(&log, config, Some(model), Some(&dir.join("replay"))).unwrap();
+    assert_eq!(replayed.metrics.camera_frames, log.camera.len());
+    assert!(!replayed.landmarks.is_empty());
+    assert_same_estimate(&out, &dir.join("replay"), &replayed);
+    // A position method reads no frame of the same log.
+    let jcbb = resolve_config(Some(&dir.join("log")), &log, Some(AssociationMethod::Jcbb), None).unwrap();
+    assert_eq!(replay(&log, jcbb, None, None).unwrap().metrics.camera_frames, 0);
     std::fs::remove_dir_all(&dir).ok();
 }
 
@@ -176,10 +233,12 @@ fn synthetic_park() -> Log {
             },
             laser: None,
             reference: None,
+            camera: None,
         },
         motion: Motion::Controls(controls),
         observations: Observations::Detections(scans),
         reference: gps,
+        camera: Vec::new(),
     };
     log.manifest.vehicle.motion = "ackermann".into();
     log
@@ -205,7 +264,7 @@ fn victoria_park_form_is_read_and_mapped_with_the_car_model() {
     assert_eq!(log.reference.len(), made.reference.len());
 
     let config = resolve_config(None, &log, Some(AssociationMethod::Nn), None).unwrap();
-    let result = replay(&log, config, Some(&dir.join("replay"))).unwrap();
+    let result = replay(&log, config, None, Some(&dir.join("replay"))).unwrap();
     let m = &result.metrics;
     let reference = m.reference.as_ref().unwrap();
     assert_eq!(reference.spikes_removed, 2, "the two GPS spikes, found from the GPS alone");
