@@ -96,8 +96,9 @@ pub(crate) enum Command {
         /// (`ros2 bag play OUT`); `log`: a robot log for `objslam replay`.
         #[arg(long, value_enum, default_value_t = FormatArg::Jsonl)]
         format: FormatArg,
-        /// Record no camera frames, even where the simulator's camera is enabled (rendering
-        /// them is most of a recording's time).
+        /// Record no camera frames. By default they are recorded where the simulator's
+        /// camera is enabled (its default), and for `--format log` of a scenario where its
+        /// method reads them; rendering them is most of a recording's time.
         #[arg(long)]
         no_camera: bool,
         #[arg(long)]
@@ -450,8 +451,9 @@ pub(crate) enum WorldCommand {
 /// What every replay takes.
 #[derive(clap::Args, Debug)]
 pub(crate) struct ReplayArgs {
-    /// Association method (default `nn`). The camera methods (`combined`, `appearance`)
-    /// need a log with camera frames and `--appearance-model`.
+    /// Association method (default: the log's `pipeline.toml`, else `nn`). The camera
+    /// methods (`combined`, `appearance`) need a log with camera frames and
+    /// `--appearance-model`.
     #[arg(long, value_enum)]
     pub(crate) method: Option<MethodArg>,
     /// The appearance model of the camera methods: a JSON file `objslam train` wrote.

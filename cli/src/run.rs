@@ -45,24 +45,25 @@ pub(crate) fn run_scenario(
 
 /// `objslam replay`: a robot log, or a published data set.
 pub(crate) fn replay(log: Option<PathBuf>, options: ReplayArgs, dataset: Option<ReplayDataset>) -> Result<()> {
-    let (log_dir, log, options) = match (dataset, log) {
+    let (log_dir, log, options): (_, robotlog::stream::LogStream, _) = match (dataset, log) {
         (Some(ReplayDataset::VictoriaPark { data, options }), _) => {
-            (None, robotlog::victoria_park::read(&data)?, options)
+            (None, robotlog::victoria_park::read(&data)?.into(), options)
         }
         (None, Some(dir)) => {
-            let log = robotlog::format::read(&dir)?;
+            let log = robotlog::format::open(&dir)?;
             (Some(dir), log, options)
         }
         (None, None) => anyhow::bail!("give a log directory, or a data set: `objslam replay victoria-park --data DIR`"),
     };
     let method = options.method.map(AssociationMethod::from);
     let out = options.out.expect("clap requires --out");
-    let config = scenarios::replay::resolve_config(log_dir.as_deref(), &log, method, options.config.as_deref())?;
+    let config =
+        scenarios::replay::resolve_config(log_dir.as_deref(), &log.manifest, method, options.config.as_deref())?;
     let appearance = match &options.appearance_model {
         Some(file) => Some(slam::classifier::AppearanceModel::load(file)?),
         None => None,
     };
-    let result = scenarios::replay::replay(&log, config, appearance, Some(&out))?;
+    let result = scenarios::replay::replay(log, config, appearance, Some(&out))?;
     println!("{}", scenarios::replay::summary(&result.metrics));
     println!("  outputs in {}", out.display());
     Ok(())

@@ -75,6 +75,16 @@ fn a_scenarios_log_carries_its_camera_unless_told_not_to_and_camera_replays_need
     assert!(!ok && err.contains("--appearance-model FILE"), "{err}");
     let (ok, err) = stderr_of(&["replay", without.to_str().unwrap(), "--out", replay_out.to_str().unwrap()]);
     assert!(!ok && err.contains("the log has no camera"), "{err}");
+    let missing = dir.join("no-model.json");
+    let (ok, err) = stderr_of(&[
+        "replay",
+        with.to_str().unwrap(),
+        "--appearance-model",
+        missing.to_str().unwrap(),
+        "--out",
+        replay_out.to_str().unwrap(),
+    ]);
+    assert!(!ok && err.contains("no-model.json"), "{err}");
     let (ok, err) =
         stderr_of(&["replay", with.to_str().unwrap(), "--method", "nn", "--out", replay_out.to_str().unwrap()]);
     assert!(ok, "{err}");

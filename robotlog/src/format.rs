@@ -13,6 +13,7 @@ use std::path::{Path, PathBuf};
 
 use slam::messages::{Control, Detection, LaserScan, OdometryIncrement};
 
+use crate::stream::{LogStream, MotionMessage, ObservationMessage};
 use crate::{CameraFrameFile, DetectionScan, Log, LogError, Manifest, Motion, Observations, ReferenceSample, RgbImage};
 
 pub const MANIFEST: &str = "manifest.toml";
@@ -22,10 +23,86 @@ pub const DETECTIONS: &str = "detections.csv";
 pub const REFERENCE: &str = "reference.csv";
 pub const CAMERA: &str = "camera.csv";
 
-/// Reads the log in `dir`.
+/// Reads the whole log in `dir`, checking every file (see [`open`] for a log read as it is
+/// replayed).
 pub fn read(dir: &Path) -> Result<Log, LogError> {
+    let parts = open_parts(dir)?;
+    let motion = if parts.motion.rows.header == 0 {
+        let mut v = Vec::new();
+        for m in parts.motion {
+            if let MotionMessage::Increment(o) = m? {
+                v.push(o);
+            }
+        }
+        Motion::Increments(v)
+    } else {
+        let mut v = Vec::new();
+        for m in parts.motion {
+            if let MotionMessage::Control { t, control } = m? {
+                v.push((t, control));
+            }
+        }
+        Motion::Controls(v)
+    };
+    let observations = match parts.observations {
+        ObservationRows::Scans(rows) => {
+            let mut v = Vec::new();
+            for o in rows {
+                if let ObservationMessage::Scan(s) = o? {
+                    v.push(s);
+                }
+            }
+            Observations::Scans(v)
+        }
+        ObservationRows::Detections(rows) => {
+            let mut v = Vec::new();
+            for o in rows {
+                if let ObservationMessage::Detections(d) = o? {
+                    v.push(d);
+                }
+            }
+            Observations::Detections(v)
+        }
+    };
+    Ok(Log { manifest: parts.manifest, motion, observations, reference: parts.reference, camera: parts.camera })
+}
+
+/// Opens the log in `dir` to be read as it is replayed: the manifest, the reference and
+/// the camera's frame list are read and checked now; the motion and the observations a
+/// message at a time, a fault in them arriving as an error in the message's place.
+pub fn open(dir: &Path) -> Result<LogStream, LogError> {
+    let parts = open_parts(dir)?;
+    let motion: Box<dyn Iterator<Item = Result<MotionMessage, LogError>>> = Box::new(parts.motion);
+    let observations: Box<dyn Iterator<Item = Result<ObservationMessage, LogError>>> = match parts.observations {
+        ObservationRows::Scans(rows) => Box::new(rows),
+        ObservationRows::Detections(rows) => Box::new(rows),
+    };
+    Ok(LogStream {
+        manifest: parts.manifest,
+        reference: parts.reference,
+        camera: parts.camera,
+        motion: motion.peekable(),
+        observations: observations.peekable(),
+    })
+}
+
+/// A log with its data files opened, their headers checked.
+struct OpenLog {
+    manifest: Manifest,
+    motion: MotionRows,
+    observations: ObservationRows,
+    reference: Vec<ReferenceSample>,
+    camera: Vec<CameraFrameFile>,
+}
+
+enum ObservationRows {
+    Scans(ScanRows),
+    Detections(DetectionRows),
+}
+
+fn open_parts(dir: &Path) -> Result<OpenLog, LogError> {
     let manifest = read_manifest(&dir.join(MANIFEST))?;
-    let motion = read_motion(&dir.join(ODOMETRY), &manifest)?;
+    let motion = open_motion(&dir.join(ODOMETRY), &manifest)?;
     let (scans, detections) = (dir.join(SCANS), dir.join(DETECTIONS));
     let observations = match (scans.exists(), detections.exists()) {
         (true, false) => {
@@ -35,9 +112,12 @@ pub fn read(dir: &Path) -> Result<Log, LogError> {
                     problem: "scans.csv needs a [laser] table with the beams' geometry".into(),
                 });
             };
-            Observations::Scans(read_scans(&scans, laser)?)
+            ObservationRows::Scans(ScanRows { rows: Rows::open(&scans, &[&["t", "..."]])?, laser: laser.clone() })
         }
-        (false, true) => Observations::Detections(read_detections(&detections)?),
+        (false, true) => ObservationRows::Detections(DetectionRows {
+            rows: Rows::open(&detections, &[DETECTION_COLUMNS])?,
+            pending: None,
+        }),
         (true, true) => {
             return Err(LogError::File {
                 file: dir.to_path_buf(),
@@ -81,7 +161,7 @@ pub fn read(dir: &Path) -> Result<Log, LogError> {
         }
         (false, None) => Vec::new(),
     };
-    Ok(Log { manifest, motion, observations, reference, camera })
+    Ok(OpenLog { manifest, motion, observations, reference, camera })
 }
 
 fn io(file: &Path) -> impl Fn(std::io::Error) -> LogError + '_ {
@@ -105,16 +185,21 @@ fn read_manifest(file: &Path) -> Result<Manifest, LogError> {
     Ok(manifest)
 }
 
-/// A CSV file's rows as numbers, with the header checked against `expected` (one of the
-/// allowed headers; returns its index) and each row's line.
-struct Table {
+/// A row: its line in the file, its time (column 0) and its values, empty cells `None`.
+type Row = (u64, f64, Vec<Option<f64>>);
+
+/// A CSV file read a row at a time as numbers, its header checked against `expected` (one
+/// of the allowed headers; `header` is its index), each row with its line.
+struct Rows {
     file: PathBuf,
+    reader: csv::Reader<fs::File>,
+    names: Vec<String>,
     header: usize,
-    rows: Vec<(u64, Vec<Option<f64>>)>,
+    previous_t: f64,
 }
 
-impl Table {
-    fn read(file: &Path, expected: &[&[&str]]) -> Result<Table, LogError> {
+impl Rows {
+    fn open(file: &Path, expected: &[&[&str]]) -> Result<Rows, LogError> {
         let mut reader = csv::ReaderBuilder::new()
             .has_headers(true)
             .flexible(true)
@@ -139,35 +224,45 @@ impl Table {
                     expected.iter().map(|h| format!("`{}`", h.join(","))).collect::<Vec<_>>().join(" or ")
                 ),
             })?;
-        let columns = found.len();
-        let mut rows = Vec::new();
-        for record in reader.records() {
-            let record = record.map_err(|e| csv_error(file, e))?;
-            let line = record.position().map_or(0, |p| p.line());
-            if record.len() != columns {
-                return Err(LogError::Line {
-                    file: file.to_path_buf(),
-                    line,
-                    problem: format!("{} columns, the header has {columns}", record.len()),
-                });
-            }
-            let values = record
-                .iter()
-                .enumerate()
-                .map(|(k, v)| {
-                    if v.is_empty() {
-                        return Ok(None);
-                    }
-                    v.parse::<f64>().map(Some).map_err(|_| LogError::Line {
-                        file: file.to_path_buf(),
-                        line,
-                        problem: format!("column `{}`: `{v}` is not a number", found[k]),
-                    })
-                })
-                .collect::<Result<Vec<_>, _>>()?;
-            rows.push((line, values));
+        Ok(Rows { file: file.to_path_buf(), reader, names: found, header, previous_t: f64::NEG_INFINITY })
+    }
+
+    /// The next row's line and values (empty cells `None`), with its time (column 0)
+    /// checked to be finite and not to go back.
+    fn next_row(&mut self) -> Option<Result<Row, LogError>> {
+        let mut record = csv::StringRecord::new();
+        match self.reader.read_record(&mut record) {
+            Ok(false) => return None,
+            Ok(true) => {}
+            Err(e) => return Some(Err(csv_error(&self.file, e))),
         }
-        Ok(Table { file: file.to_path_buf(), header, rows })
+        Some(self.parse(&record))
+    }
+
+    fn parse(&mut self, record: &csv::StringRecord) -> Result<Row, LogError> {
+        let line = record.position().map_or(0, |p| p.line());
+        let columns = self.names.len();
+        if record.len() != columns {
+            return Err(self.problem(line, format!("{} columns, the header has {columns}", record.len())));
+        }
+        let values = record
+            .iter()
+            .enumerate()
+            .map(|(k, v)| {
+                if v.is_empty() {
+                    return Ok(None);
+                }
+                v.parse::<f64>()
+                    .map(Some)
+                    .map_err(|_| self.problem(line, format!("column `{}`: `{v}` is not a number", self.names[k])))
+            })
+            .collect::<Result<Vec<_>, _>>()?;
+        let t = self.finite(line, &values, 0, "t")?;
+        if t < self.previous_t {
+            return Err(self.problem(line, format!("t = {t} s comes before the previous row's {} s", self.previous_t)));
+        }
+        self.previous_t = t;
+        Ok((line, t, values))
     }
 
     fn problem(&self, line: u64, problem: impl Into<String>) -> LogError {
@@ -181,21 +276,6 @@ impl Table {
             Some(v) => Err(self.problem(line, format!("`{name}` must be finite, got {v}"))),
             None => Err(self.problem(line, format!("`{name}` is empty"))),
         }
-    }
-
-    /// Each row's time (column 0), checked to be finite and never to go back.
-    fn times(&self) -> Result<Vec<f64>, LogError> {
-        let mut previous = f64::NEG_INFINITY;
-        let mut out = Vec::with_capacity(self.rows.len());
-        for (line, row) in &self.rows {
-            let t = self.finite(*line, row, 0, "t")?;
-            if t < previous {
-                return Err(self.problem(*line, format!("t = {t} s comes before the previous row's {previous} s")));
-            }
-            previous = t;
-            out.push(t);
-        }
-        Ok(out)
     }
 }
 
@@ -212,12 +292,16 @@ const INCREMENTS: &[&str] = &["t", "dx", "dy", "dtheta"];
 const DIFFERENTIAL: &[&str] = &["t", "v", "omega"];
 const ACKERMANN: &[&str] = &["t", "speed", "steering"];
 
-fn read_motion(file: &Path, manifest: &Manifest) -> Result<Motion, LogError> {
-    let table = Table::read(file, &[INCREMENTS, DIFFERENTIAL, ACKERMANN])?;
-    let times = table.times()?;
+/// `odometry.csv` as motion messages, its header checked against the manifest's vehicle.
+struct MotionRows {
+    rows: Rows,
+}
+
+fn open_motion(file: &Path, manifest: &Manifest) -> Result<MotionRows, LogError> {
+    let rows = Rows::open(file, &[INCREMENTS, DIFFERENTIAL, ACKERMANN])?;
     let car = manifest.vehicle.motion == "ackermann";
-    if car != (table.header == 2) {
-        return Err(table.problem(
+    if car != (rows.header == 2) {
+        return Err(rows.problem(
             1,
             format!(
                 "the manifest's vehicle.motion = \"{}\" needs {}",
@@ -226,71 +310,125 @@ fn read_motion(file: &Path, manifest: &Manifest) -> Result<Motion, LogError> {
             ),
         ));
     }
-    let mut increments = Vec::new();
-    let mut controls = Vec::new();
-    for ((line, row), t) in table.rows.iter().zip(times) {
-        let names = [INCREMENTS, DIFFERENTIAL, ACKERMANN][table.header];
-        let v: Vec<f64> = (1..names.len()).map(|k| table.finite(*line, row, k, names[k])).collect::<Result<_, _>>()?;
-        match table.header {
-            0 => increments.push(OdometryIncrement { t, dx: v[0], dy: v[1], dtheta: v[2] }),
-            1 => controls.push((t, Control::Differential { v: v[0], omega: v[1] })),
-            _ => controls.push((t, Control::Ackermann { speed: v[0], steering: v[1] })),
-        }
-    }
-    Ok(if table.header == 0 { Motion::Increments(increments) } else { Motion::Controls(controls) })
+    Ok(MotionRows { rows })
 }
 
-fn read_scans(file: &Path, laser: &crate::manifest::LaserGeometry) -> Result<Vec<LaserScan>, LogError> {
-    let table = Table::read(file, &[&["t", "..."]])?;
-    let times = table.times()?;
-    let mut scans = Vec::with_capacity(times.len());
-    for ((line, row), t) in table.rows.iter().zip(times) {
+impl Iterator for MotionRows {
+    type Item = Result<MotionMessage, LogError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        let (line, t, row) = match self.rows.next_row()? {
+            Ok(r) => r,
+            Err(e) => return Some(Err(e)),
+        };
+        let names = [INCREMENTS, DIFFERENTIAL, ACKERMANN][self.rows.header];
+        let v: Result<Vec<f64>, _> = (1..names.len()).map(|k| self.rows.finite(line, &row, k, names[k])).collect();
+        Some(v.map(|v| match self.rows.header {
+            0 => MotionMessage::Increment(OdometryIncrement { t, dx: v[0], dy: v[1], dtheta: v[2] }),
+            1 => MotionMessage::Control { t, control: Control::Differential { v: v[0], omega: v[1] } },
+            _ => MotionMessage::Control { t, control: Control::Ackermann { speed: v[0], steering: v[1] } },
+        }))
+    }
+}
+
+/// `scans.csv` as whole scans.
+struct ScanRows {
+    rows: Rows,
+    laser: crate::manifest::LaserGeometry,
+}
+
+impl Iterator for ScanRows {
+    type Item = Result<ObservationMessage, LogError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        let (line, t, row) = match self.rows.next_row()? {
+            Ok(r) => r,
+            Err(e) => return Some(Err(e)),
+        };
         // No return: empty, `inf`, or anything outside [range_min, range_max] (REP-117).
         let ranges = row[1..]
             .iter()
             .map(|r| match r {
-                Some(v) if v.is_nan() => Err(table.problem(*line, "a range is NaN: write no return as `inf`")),
+                Some(v) if v.is_nan() => Err(self.rows.problem(line, "a range is NaN: write no return as `inf`")),
                 Some(v) => Ok(*v),
                 None => Ok(f64::INFINITY),
             })
-            .collect::<Result<Vec<_>, _>>()?;
-        scans.push(LaserScan {
-            t,
-            angle_min: laser.angle_min_rad,
-            angle_increment: laser.angle_increment_rad,
-            range_min: laser.range_min_m,
-            range_max: laser.range_max_m,
-            ranges,
-        });
+            .collect::<Result<Vec<_>, _>>();
+        let laser = &self.laser;
+        Some(ranges.map(|ranges| {
+            ObservationMessage::Scan(LaserScan {
+                t,
+                angle_min: laser.angle_min_rad,
+                angle_increment: laser.angle_increment_rad,
+                range_min: laser.range_min_m,
+                range_max: laser.range_max_m,
+                ranges,
+            })
+        }))
     }
-    Ok(scans)
 }
 
 const DETECTION_COLUMNS: &[&str] = &["t", "range_m", "bearing_rad", "diameter_m"];
 
-fn read_detections(file: &Path) -> Result<Vec<DetectionScan>, LogError> {
-    let table = Table::read(file, &[DETECTION_COLUMNS])?;
-    let times = table.times()?;
-    let mut scans: Vec<DetectionScan> = Vec::new();
-    for ((line, row), t) in table.rows.iter().zip(times) {
-        let range_m = table.finite(*line, row, 1, "range_m")?;
+/// `detections.csv` as scans: rows of one scan share its time, and a scan that saw nothing
+/// has no row.
+struct DetectionRows {
+    rows: Rows,
+    /// The first detection of the next scan, read while finding where this one ends.
+    pending: Option<(f64, Detection)>,
+}
+
+impl DetectionRows {
+    fn next_detection(&mut self) -> Option<Result<(f64, Detection), LogError>> {
+        let (line, t, row) = match self.rows.next_row()? {
+            Ok(r) => r,
+            Err(e) => return Some(Err(e)),
+        };
+        Some(self.detection(line, &row).map(|d| (t, d)))
+    }
+
+    fn detection(&self, line: u64, row: &[Option<f64>]) -> Result<Detection, LogError> {
+        let range_m = self.rows.finite(line, row, 1, "range_m")?;
         if range_m <= 0.0 {
-            return Err(table.problem(*line, format!("`range_m` must be finite and positive, got {range_m}")));
+            return Err(self.rows.problem(line, format!("`range_m` must be finite and positive, got {range_m}")));
         }
-        let bearing_rad = table.finite(*line, row, 2, "bearing_rad")?;
+        let bearing_rad = self.rows.finite(line, row, 2, "bearing_rad")?;
         let diameter_m = match row[3] {
             None => None,
             Some(d) if d.is_finite() && d >= 0.0 => Some(d),
-            Some(d) => return Err(table.problem(*line, format!("`diameter_m` must be empty or not negative, got {d}"))),
+            Some(d) => {
+                return Err(self.rows.problem(line, format!("`diameter_m` must be empty or not negative, got {d}")));
+            }
         };
-        let detection = Detection { range_m, bearing_rad, diameter_m };
-        // Rows of one scan share its time; a scan that saw nothing has no row.
-        match scans.last_mut() {
-            Some(s) if s.t == t => s.detections.push(detection),
-            _ => scans.push(DetectionScan { t, detections: vec![detection] }),
-        }
+        Ok(Detection { range_m, bearing_rad, diameter_m })
     }
-    Ok(scans)
+}
+
+impl Iterator for DetectionRows {
+    type Item = Result<ObservationMessage, LogError>;
+
+    fn next(&mut self) -> Option<Self::Item> {
+        let (t, first) = match self.pending.take() {
+            Some(p) => p,
+            None => match self.next_detection()? {
+                Ok(p) => p,
+                Err(e) => return Some(Err(e)),
+            },
+        };
+        let mut detections = vec![first];
+        loop {
+            match self.next_detection() {
+                None => break,
+                Some(Err(e)) => return Some(Err(e)),
+                Some(Ok((next_t, d))) if next_t == t => detections.push(d),
+                Some(Ok(next)) => {
+                    self.pending = Some(next);
+                    break;
+                }
+            }
+        }
+        Some(Ok(ObservationMessage::Detections(DetectionScan { t, detections })))
+    }
 }
 
 const CAMERA_COLUMNS: &[&str] = &["t", "file"];
@@ -366,13 +504,13 @@ pub fn write_frame(dir: &Path, index: usize, t: f64, image: &RgbImage) -> Result
 }
 
 fn read_reference(file: &Path) -> Result<Vec<ReferenceSample>, LogError> {
-    let table = Table::read(file, &[&["t", "x", "y"], &["t", "x", "y", "theta"]])?;
-    let times = table.times()?;
-    let mut out = Vec::with_capacity(times.len());
-    for ((line, row), t) in table.rows.iter().zip(times) {
-        let x = table.finite(*line, row, 1, "x")?;
-        let y = table.finite(*line, row, 2, "y")?;
-        let theta = if table.header == 1 { Some(table.finite(*line, row, 3, "theta")?) } else { None };
+    let mut rows = Rows::open(file, &[&["t", "x", "y"], &["t", "x", "y", "theta"]])?;
+    let mut out = Vec::new();
+    while let Some(row) = rows.next_row() {
+        let (line, t, row) = row?;
+        let x = rows.finite(line, &row, 1, "x")?;
+        let y = rows.finite(line, &row, 2, "y")?;
+        let theta = if rows.header == 1 { Some(rows.finite(line, &row, 3, "theta")?) } else { None };
         out.push(ReferenceSample { t, x, y, theta });
     }
     Ok(out)
@@ -457,7 +595,13 @@ pub fn write(dir: &Path, log: &Log) -> Result<(), LogError> {
         }
         write_file(&dir.join(REFERENCE), &text)?;
     }
-    if !log.camera.is_empty() {
+    if !log.camera.is_empty() && log.manifest.camera.is_none() {
+        return Err(LogError::File {
+            file: dir.join(MANIFEST),
+            problem: "camera frames but no [camera] table to describe the camera".into(),
+        });
+    }
+    if log.manifest.camera.is_some() {
         let mut text = format!("{}\n", CAMERA_COLUMNS.join(","));
         for f in &log.camera {
             let name = f.file.strip_prefix(dir).unwrap_or(&f.file).to_string_lossy().into_owned();

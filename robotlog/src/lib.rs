@@ -9,6 +9,7 @@
 
 pub mod format;
 pub mod manifest;
+pub mod stream;
 pub mod victoria_park;
 
 use std::path::PathBuf;
@@ -35,14 +36,6 @@ impl Motion {
 
     pub fn is_empty(&self) -> bool {
         self.len() == 0
-    }
-
-    /// The time of message `i`.
-    pub fn time(&self, i: usize) -> f64 {
-        match self {
-            Motion::Increments(v) => v[i].t,
-            Motion::Controls(v) => v[i].0,
-        }
     }
 }
 
@@ -72,13 +65,6 @@ impl Observations {
 
     pub fn is_empty(&self) -> bool {
         self.len() == 0
-    }
-
-    pub fn time(&self, i: usize) -> f64 {
-        match self {
-            Observations::Scans(v) => v[i].t,
-            Observations::Detections(v) => v[i].t,
-        }
     }
 }
 
@@ -119,32 +105,6 @@ pub struct Log {
     pub reference: Vec<ReferenceSample>,
     /// The camera's frames (`camera.csv`), in time order; empty without a camera.
     pub camera: Vec<CameraFrameFile>,
-}
-
-impl Log {
-    /// The first instant of the log.
-    pub fn start_time(&self) -> f64 {
-        let mut t = f64::INFINITY;
-        if !self.motion.is_empty() {
-            t = t.min(self.motion.time(0));
-        }
-        if !self.observations.is_empty() {
-            t = t.min(self.observations.time(0));
-        }
-        if t.is_finite() { t } else { 0.0 }
-    }
-
-    /// The last instant of the log.
-    pub fn end_time(&self) -> f64 {
-        let mut t = f64::NEG_INFINITY;
-        if !self.motion.is_empty() {
-            t = t.max(self.motion.time(self.motion.len() - 1));
-        }
-        if !self.observations.is_empty() {
-            t = t.max(self.observations.time(self.observations.len() - 1));
-        }
-        if t.is_finite() { t } else { 0.0 }
-    }
 }
 
 /// Errors reading or writing a log; each names the file and, where there is one, the line.

@@ -125,11 +125,10 @@ pub enum ReferencePoint {
 
 impl Camera {
     fn validate(&self) -> Result<(), (String, String)> {
-        if self.width == 0 || self.height == 0 {
-            return Err((
-                "camera.width".into(),
-                format!("the image must not be empty, got {}x{}", self.width, self.height),
-            ));
+        for (name, v) in [("width", self.width), ("height", self.height)] {
+            if v == 0 {
+                return Err((format!("camera.{name}"), "must be at least 1 pixel".into()));
+            }
         }
         for (name, v) in [("fx", self.fx), ("fy", self.fy)] {
             if !(v.is_finite() && v > 0.0) {

@@ -234,6 +234,10 @@ fn camera_frames_read_back_pixel_for_pixel() {
     let e = robotlog::format::read_frame(&read.camera[0], &small).unwrap_err().to_string();
     assert!(e.contains("000000.png") && e.contains("4x3") && e.contains("5x3"), "{e}");
     std::fs::remove_dir_all(&d).ok();
+    // A camera that gave no frame reads back as one.
+    let empty = camera_log(&d, 0);
+    assert_eq!(robotlog::format::read(&d).unwrap(), empty);
+    std::fs::remove_dir_all(&d).ok();
 }
 
 #[test]
@@ -267,7 +271,8 @@ fn camera_files_and_tables_that_do_not_agree_are_errors() {
     for (from, to, expected) in [
         ("rotation = [[0.0, 0.0, 1.0]", "rotation = [[0.0, 0.0, 2.0]", "camera.rotation: must be a rotation"),
         ("rotation = [[0.0, 0.0, 1.0]", "rotation = [[0.0, 0.0, nan]", "camera.rotation: must be finite"),
-        ("width = 4", "width = 0", "camera.width: the image must not be empty"),
+        ("width = 4", "width = 0", "camera.width: must be at least 1 pixel"),
+        ("height = 3", "height = 0", "camera.height: must be at least 1 pixel"),
         ("fx = 2.0", "fx = -2.0", "camera.fx: must be finite and positive"),
     ] {
         assert!(manifest.contains(from), "{manifest}");
@@ -279,7 +284,8 @@ fn camera_files_and_tables_that_do_not_agree_are_errors() {
     let mirrored = manifest.replace("[-1.0, 0.0, 0.0]", "[1.0, 0.0, 0.0]");
     assert_ne!(mirrored, manifest);
     std::fs::write(d.join("manifest.toml"), mirrored).unwrap();
-    assert!(read_error().contains("determinant"));
+    let e = read_error();
+    assert!(e.contains("manifest.toml") && e.contains("camera.rotation") && e.contains("determinant is -1"), "{e}");
     std::fs::remove_dir_all(&d).ok();
 }
 
@@ -287,15 +293,19 @@ fn camera_files_and_tables_that_do_not_agree_are_errors() {
 fn a_turned_sensor_turns_the_camera_with_its_returns() {
     // The pipeline takes returns in the vehicle's heading; a point straight ahead of a
     // sensor yawed 90 degrees is to the vehicle's left, and still on the camera's axis.
+    // The camera sits 0.2 m ahead of and 0.1 m left of the sensor, 0.1 m up. A point 5 m
+    // ahead of the camera and 1 m to its right (optical +x) projects to u = cx + fx/5.
     let mut m = manifest("odometry", true);
-    m.camera = Some(camera());
+    m.camera = Some(Camera { translation_m: [0.2, 0.1, 0.1], ..camera() });
+    let expected = [2.0 + 2.0 / 5.0, 1.5];
+    let sensor_point = [5.2, 0.1 - 1.0, 0.1];
+    let pixel = m.camera_geometry().unwrap().project(&nalgebra::Vector3::from(sensor_point)).unwrap();
+    assert!((pixel[0] - expected[0]).abs() < 1e-9 && (pixel[1] - expected[1]).abs() < 1e-9, "{pixel:?}");
+    // Turned 90 degrees, the same point lies at (-y, x) in the vehicle's heading.
     m.sensor.yaw_rad = std::f64::consts::FRAC_PI_2;
-    let g = m.camera_geometry().unwrap();
-    let pixel = g.project(&nalgebra::Vector3::new(0.0, 5.0, 0.1)).unwrap();
-    assert!((pixel[0] - 2.0).abs() < 1e-9 && (pixel[1] - 1.5).abs() < 1e-9, "{pixel:?}");
-    m.sensor.yaw_rad = 0.0;
-    let pixel = m.camera_geometry().unwrap().project(&nalgebra::Vector3::new(5.0, 0.0, 0.1)).unwrap();
-    assert!((pixel[0] - 2.0).abs() < 1e-9 && (pixel[1] - 1.5).abs() < 1e-9, "{pixel:?}");
+    let turned = nalgebra::Vector3::new(-sensor_point[1], sensor_point[0], sensor_point[2]);
+    let pixel = m.camera_geometry().unwrap().project(&turned).unwrap();
+    assert!((pixel[0] - expected[0]).abs() < 1e-9 && (pixel[1] - expected[1]).abs() < 1e-9, "{pixel:?}");
 }
 
 #[test]

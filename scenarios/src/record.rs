@@ -321,6 +321,16 @@ pub fn record_log(
     as_logged.camera.depth_image = false;
     as_logged.camera.enabled &= pipeline.is_none_or(|p| p.method.uses_appearance());
     let config = &as_logged;
+    // Frames of an earlier recording into the same directory would not belong to this one.
+    for stale in [out.join(robotlog::format::CAMERA), out.join("camera")] {
+        let removed = if stale.is_dir() { std::fs::remove_dir_all(&stale) } else { std::fs::remove_file(&stale) };
+        match removed {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                return Err(RecordError::Io { file: stale, source: e });
+            }
+            _ => {}
+        }
+    }
     let mut sim = Simulation::new(world, config, seed)?;
     let nominal = config.max_duration_s.unwrap_or_else(|| sim.nominal_duration_s());
     let (mut increments, mut scans, mut reference, mut frames) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
@@ -368,7 +378,8 @@ pub fn record_log(
             sensor: robotlog::manifest::Sensor {
                 x_m: mx,
                 y_m: my,
-                yaw_rad: 0.0,
+                // Scans are in the laser's own frame: a replay turns them by its yaw.
+                yaw_rad: config.laser.mount_yaw_deg.to_radians(),
                 range_sigma_m: sensor.map(|s| s.range_sigma_m),
                 range_sigma_per_m: sensor.map(|s| s.range_sigma_per_m),
                 bearing_sigma_rad: sensor.map(|s| s.bearing_sigma_rad),

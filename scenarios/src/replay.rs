@@ -10,7 +10,8 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use robotlog::{Log, Motion, Observations, ReferenceKind, ReferencePoint, ReferenceSample};
+use robotlog::stream::{LogStream, MotionMessage, ObservationMessage};
+use robotlog::{Manifest, ReferenceKind, ReferencePoint, ReferenceSample};
 use serde::Serialize;
 use serde_json::json;
 use slam::association::{AssociationDecision, AssociationMethod, Choice};
@@ -37,6 +38,8 @@ pub enum ReplayError {
     Plot(#[from] crate::plot::PlotError),
     #[error("method {method} segments camera images: the log has no camera (a [camera] table and camera.csv)")]
     NoCamera { method: &'static str },
+    #[error("method {method} segments camera images: the log's camera.csv lists no frame")]
+    NoFrames { method: &'static str },
     #[error(
         "method {method} needs an appearance model (`objslam replay --appearance-model FILE`, from `objslam train`); `--method nn` or `jcbb` needs none"
     )]
@@ -66,8 +69,8 @@ pub const GPS_SPIKE_SPEED_MPS: f64 = 15.0;
 /// new landmarks only far from every known one, one filter update per scan). The
 /// detectors' diameters stay off as a cue: on Victoria Park's first half they changed
 /// nothing (docs/results.md#victoria-park).
-pub fn default_config(log: &Log, method: AssociationMethod) -> PipelineConfig {
-    let vehicle = &log.manifest.vehicle;
+pub fn default_config(manifest: &Manifest, method: AssociationMethod) -> PipelineConfig {
+    let vehicle = &manifest.vehicle;
     let motion = match vehicle.motion.as_str() {
         "ackermann" => {
             let d = AckermannMotionModel::default();
@@ -90,7 +93,7 @@ pub fn default_config(log: &Log, method: AssociationMethod) -> PipelineConfig {
     PipelineConfig {
         method,
         motion,
-        sensor: log.manifest.observation_model(&sensor_defaults),
+        sensor: manifest.observation_model(&sensor_defaults),
         new_landmark_probability: 0.9999,
         confirm_observations: 3,
         confirm_window_s: 5.0,
@@ -104,11 +107,11 @@ pub fn default_config(log: &Log, method: AssociationMethod) -> PipelineConfig {
 /// only the keys it names.
 pub fn resolve_config(
     log_dir: Option<&Path>,
-    log: &Log,
+    manifest: &Manifest,
     method: Option<AssociationMethod>,
     overrides: Option<&Path>,
 ) -> Result<PipelineConfig, ReplayError> {
-    let base = default_config(log, method.unwrap_or(AssociationMethod::Nn));
+    let base = default_config(manifest, method.unwrap_or(AssociationMethod::Nn));
     let mut value = toml::Value::try_from(&base).map_err(|e| ReplayError::Config {
         file: log_dir.map_or_else(|| PathBuf::from("manifest.toml"), |d| d.join("manifest.toml")),
         line: 1,
@@ -251,21 +254,32 @@ enum Stream {
 /// Runs `config`'s pipeline over `log`; with `out`, writes the replay's outputs there
 /// (`metrics.json`, `metadata.json`, `trajectory_est.tum`, `landmarks.json`,
 /// `decisions.jsonl`, `map.png`). The camera methods need the log's camera and an
-/// `appearance` model; the others ignore both.
+/// `appearance` model; the others ignore both. The log's motion and scans are taken a
+/// message at a time ([`robotlog::format::open`] reads them from disk as they come).
 pub fn replay(
-    log: &Log,
+    log: impl Into<LogStream>,
     config: PipelineConfig,
     appearance: Option<AppearanceModel>,
     out: Option<&Path>,
 ) -> Result<Replay, ReplayError> {
     let started = Instant::now();
-    let start = log.start_time();
+    let mut log: LogStream = log.into();
+    let first_motion = robotlog::stream::next_time(&mut log.motion, MotionMessage::time)?;
+    let first_observation = robotlog::stream::next_time(&mut log.observations, ObservationMessage::time)?;
+    // The log's first instant: its first motion message or scan.
+    let start = match (first_motion, first_observation) {
+        (Some(a), Some(b)) => a.min(b),
+        (a, b) => a.or(b).unwrap_or(0.0),
+    };
     let camera = match config.method.uses_appearance() {
         true => {
             let method = config.method.name();
             let (Some(geometry), Some(camera)) = (log.manifest.camera_geometry(), log.manifest.camera.as_ref()) else {
                 return Err(ReplayError::NoCamera { method });
             };
+            if log.camera.is_empty() {
+                return Err(ReplayError::NoFrames { method });
+            }
             let model = appearance.ok_or(ReplayError::NoAppearanceModel { method })?;
             Some((Appearance::new(model, geometry)?, camera))
         }
@@ -296,29 +310,33 @@ pub fn replay(
             [p[0] + c * mount[0] - s * mount[1], p[1] + s * mount[0] + c * mount[1], p[2]]
         }
     };
-    let spikes = reference_spikes(log);
+    let spikes = reference_spikes(&log.manifest, &log.reference);
     let scored: &[ReferenceSample] = if log.manifest.reference.is_some() { &log.reference } else { &[] };
     let mut reference = ReferencePairs::new(scored, &spikes);
     let mut path = ThinnedPath::default();
     let mut nis = NisSums::default();
     let mut scan_ms = ScanTimeHistogram::default();
     let yaw = log.manifest.sensor.yaw_rad;
-    let mut detections = 0;
-    let (mut m, mut f, mut o) = (0, 0, 0);
+    let (mut detections, mut motion_messages, mut scans, mut end) = (0, 0, 0, start);
+    let mut f = 0;
     let error = |t: f64| move |source| ReplayError::Pipeline { t, source };
-    while m < log.motion.len() || f < frames.len() || o < log.observations.len() {
+    loop {
         // At equal times: motion, then the frame, then the scan.
-        let tm = if m < log.motion.len() { log.motion.time(m) } else { f64::INFINITY };
+        let tm = robotlog::stream::next_time(&mut log.motion, MotionMessage::time)?.unwrap_or(f64::INFINITY);
         let tf = frames.get(f).map_or(f64::INFINITY, |frame| frame.t);
-        let to = if o < log.observations.len() { log.observations.time(o) } else { f64::INFINITY };
-        if m < log.motion.len() && tm <= tf && tm <= to {
-            let t = log.motion.time(m);
-            match &log.motion {
-                Motion::Increments(v) => pipeline.on_odometry(&v[m]).map_err(error(t))?,
-                Motion::Controls(v) => pipeline.on_control(t, v[m].1).map_err(error(t))?,
+        let to = robotlog::stream::next_time(&mut log.observations, ObservationMessage::time)?.unwrap_or(f64::INFINITY);
+        if tm == f64::INFINITY && tf == f64::INFINITY && to == f64::INFINITY {
+            break;
+        }
+        if tm <= tf && tm <= to {
+            let Some(Ok(message)) = log.motion.next() else { unreachable!("peeked a message") };
+            match message {
+                MotionMessage::Increment(o) => pipeline.on_odometry(&o).map_err(error(tm))?,
+                MotionMessage::Control { t, control } => pipeline.on_control(t, control).map_err(error(t))?,
             }
-            m += 1;
-        } else if f < frames.len() && tf <= to {
+            motion_messages += 1;
+            end = end.max(tm);
+        } else if tf <= to {
             let camera = camera.expect("frames only with a camera");
             let image = robotlog::format::read_frame(&frames[f], camera)?;
             pipeline.on_image(tf, image.width, image.height, image.rgb).map_err(error(tf))?;
@@ -326,19 +344,19 @@ pub fn replay(
             // A frame moves no pose: nothing to write.
             continue;
         } else {
-            let t = log.observations.time(o);
+            let Some(Ok(message)) = log.observations.next() else { unreachable!("peeked a message") };
+            let t = to;
             let tick = Instant::now();
-            let report = match &log.observations {
+            let report = match message {
                 // Beams in the vehicle's frame: the laser may look sideways.
-                Observations::Scans(v) if yaw != 0.0 => {
-                    let turned = slam::messages::LaserScan { angle_min: v[o].angle_min + yaw, ..v[o].clone() };
+                ObservationMessage::Scan(scan) => {
+                    let turned = slam::messages::LaserScan { angle_min: scan.angle_min + yaw, ..scan };
                     pipeline.on_scan(&turned).map_err(error(t))?
                 }
-                Observations::Scans(v) => pipeline.on_scan(&v[o]).map_err(error(t))?,
-                Observations::Detections(v) => {
-                    detections += v[o].detections.len();
+                ObservationMessage::Detections(scan) => {
+                    detections += scan.detections.len();
                     // Bearings in the vehicle's frame: the sensor may look sideways.
-                    let turned: Vec<_> = v[o]
+                    let turned: Vec<_> = scan
                         .detections
                         .iter()
                         .map(|d| slam::messages::Detection { bearing_rad: d.bearing_rad + yaw, ..*d })
@@ -353,7 +371,8 @@ pub fn replay(
                     s.write(Stream::Decisions, &(serde_json::to_string(d).expect("JSON") + "\n"))?;
                 }
             }
-            o += 1;
+            scans += 1;
+            end = end.max(t);
         }
         let p = pipeline.pose();
         let pose = at_point(p.pose);
@@ -364,18 +383,18 @@ pub fn replay(
         }
     }
     let wall_seconds = started.elapsed().as_secs_f64();
-    let log_seconds = log.end_time() - start;
+    let log_seconds = end - start;
     let landmarks = pipeline.mapped_landmarks();
     let metrics = ReplayMetrics {
         log: log.manifest.name.clone(),
         method: config.method.name().to_string(),
         log_seconds,
-        motion_messages: log.motion.len(),
-        scans: log.observations.len(),
+        motion_messages,
+        scans,
         detections,
         camera_frames: frames.len(),
         landmarks: landmarks.len(),
-        reference: score_reference(log, &reference.pairs, spikes.len()),
+        reference: score_reference(&log.manifest, &log.reference, &reference.pairs, spikes.len()),
         nis: nis.finish(),
         time_per_scan_ms: scan_ms.finish(),
         wall_seconds,
@@ -385,7 +404,7 @@ pub fn replay(
     let result = Replay { metrics, landmarks, config, path: path.points() };
     if let (Some(dir), Some(streams)) = (out, streams) {
         streams.finish()?;
-        write_outputs(dir, log, &result, &spikes)?;
+        write_outputs(dir, &log.manifest, &log.reference, &result, &spikes)?;
     }
     Ok(result)
 }
@@ -646,18 +665,23 @@ pub fn rigid_alignment(from: &[[f64; 2]], to: &[[f64; 2]]) -> (f64, [f64; 2]) {
 }
 
 /// The GPS fixes scoring leaves out (none for ground truth or without a reference).
-fn reference_spikes(log: &Log) -> Vec<usize> {
-    match &log.manifest.reference {
-        Some(r) if r.kind == ReferenceKind::Gps => gps_spikes(&log.reference, GPS_SPIKE_SPEED_MPS),
+fn reference_spikes(manifest: &Manifest, reference: &[ReferenceSample]) -> Vec<usize> {
+    match &manifest.reference {
+        Some(r) if r.kind == ReferenceKind::Gps => gps_spikes(reference, GPS_SPIKE_SPEED_MPS),
         _ => Vec::new(),
     }
 }
 
 /// The estimate against the reference, from the (estimate, reference) pairs of the samples
 /// scored: aligned by a rigid 2-D fit for GPS, as it is for ground truth.
-fn score_reference(log: &Log, pairs: &[([f64; 2], [f64; 2])], spikes: usize) -> Option<ReferenceScore> {
-    let r = log.manifest.reference.as_ref()?;
-    if log.reference.is_empty() {
+fn score_reference(
+    manifest: &Manifest,
+    reference: &[ReferenceSample],
+    pairs: &[([f64; 2], [f64; 2])],
+    spikes: usize,
+) -> Option<ReferenceScore> {
+    let r = manifest.reference.as_ref()?;
+    if reference.is_empty() {
         return None;
     }
     let (est, truth): (Vec<[f64; 2]>, Vec<[f64; 2]>) = pairs.iter().copied().unzip();
@@ -675,7 +699,7 @@ fn score_reference(log: &Log, pairs: &[([f64; 2], [f64; 2])], spikes: usize) -> 
     Some(ReferenceScore {
         kind: r.kind,
         point: r.point,
-        samples: log.reference.len(),
+        samples: reference.len(),
         spikes_removed: spikes,
         samples_scored: n,
         alignment: match r.kind {
@@ -691,7 +715,13 @@ fn score_reference(log: &Log, pairs: &[([f64; 2], [f64; 2])], spikes: usize) -> 
 
 /// Writes a replay's outputs into `out` beside the streamed ones: `metrics.json`,
 /// `metadata.json` (the resolved settings), `landmarks.json` and `map.png`.
-fn write_outputs(out: &Path, log: &Log, replay: &Replay, spikes: &[usize]) -> Result<(), ReplayError> {
+fn write_outputs(
+    out: &Path,
+    manifest: &Manifest,
+    reference_samples: &[ReferenceSample],
+    replay: &Replay,
+    spikes: &[usize],
+) -> Result<(), ReplayError> {
     let write = |name: &str, text: String| {
         let file = out.join(name);
         std::fs::write(&file, text).map_err(|source| ReplayError::Io { file, source })
@@ -702,7 +732,7 @@ fn write_outputs(out: &Path, log: &Log, replay: &Replay, spikes: &[usize]) -> Re
         serde_json::to_string_pretty(&json!({
             "tool": "objslam replay",
             "version": env!("CARGO_PKG_VERSION"),
-            "log": log.manifest,
+            "log": manifest,
             "configuration": replay.config,
         }))
         .expect("JSON"),
@@ -720,12 +750,12 @@ fn write_outputs(out: &Path, log: &Log, replay: &Replay, spikes: &[usize]) -> Re
     let marks: Vec<[f64; 2]> = replay.landmarks.iter().map(|l| moved(l.position)).collect();
     // The fixes scoring dropped as spikes are drawn as such, the others as the reference.
     let (mut reference, mut dropped) = (Vec::new(), Vec::new());
-    for (k, r) in log.reference.iter().enumerate() {
+    for (k, r) in reference_samples.iter().enumerate() {
         if spikes.binary_search(&k).is_ok() { &mut dropped } else { &mut reference }.push([r.x, r.y]);
     }
     let title = format!(
         "{}: {} ({} landmarks{})",
-        if log.manifest.name.is_empty() { "log" } else { &log.manifest.name },
+        if manifest.name.is_empty() { "log" } else { &manifest.name },
         replay.metrics.method,
         marks.len(),
         replay.metrics.reference.as_ref().map_or(String::new(), |r| format!(", ATE {:.2} m", r.ate_rmse_m))

@@ -52,10 +52,11 @@ fn a_recorded_log_replays_to_the_runs_estimate() {
     let out = dir.join("run");
     run(&sc, &base, &RunOptions { seed: Some(seed), out: Some(out.clone()), ..Default::default() }, |_| {}).unwrap();
 
-    let log = robotlog::format::read(&dir.join("log")).unwrap();
-    let config = resolve_config(Some(&dir.join("log")), &log, None, None).unwrap();
+    // Read as it is replayed, a message at a time.
+    let log = robotlog::format::open(&dir.join("log")).unwrap();
+    let config = resolve_config(Some(&dir.join("log")), &log.manifest, None, None).unwrap();
     assert_eq!(config, pipeline, "the log's pipeline.toml is the scenario's settings");
-    let replayed = replay(&log, config, None, Some(&dir.join("replay"))).unwrap();
+    let replayed = replay(log, config, None, Some(&dir.join("replay"))).unwrap();
     assert_same_estimate(&out, &dir.join("replay"), &replayed);
     // Scored against the log's ground truth, no alignment: the run's own ATE.
     let metrics: serde_json::Value =
@@ -100,6 +101,10 @@ fn a_recorded_log_with_camera_frames_replays_to_the_combined_runs_estimate() {
     let dir = temp_dir("camera");
     let (mut sc, base) = Scenario::load("paper_park").unwrap();
     sc.sim.max_duration_s = Some(15.0);
+    // A calibration off the truth: the log's manifest must carry the run's, not the truth.
+    sc.calibration.mode = "perturbed".into();
+    sc.calibration.rotation_sigma_deg = 0.3;
+    sc.calibration.translation_sigma_m = 0.01;
     let seed = 2;
     let world = sc.world(&base, seed).unwrap();
     let pipeline = scenarios::run::pipeline_config(&sc, None).unwrap();
@@ -128,18 +133,22 @@ fn a_recorded_log_with_camera_frames_replays_to_the_combined_runs_estimate() {
 
     let log = robotlog::format::read(&dir.join("log")).unwrap();
     assert!(log.camera.len() > 20, "{} frames", log.camera.len());
-    let config = resolve_config(Some(&dir.join("log")), &log, None, None).unwrap();
+    let truth = scenarios::calibrate::true_extrinsics(&sc.sim);
+    let camera = log.manifest.camera.as_ref().unwrap();
+    assert_eq!((camera.rotation, camera.translation_m), (calibration.phi, calibration.delta));
+    assert_ne!(camera.rotation, truth.phi);
+    let config = resolve_config(Some(&dir.join("log")), &log.manifest, None, None).unwrap();
     assert_eq!(config, pipeline);
     // Without a model the camera method is refused, naming what it needs.
-    let e = replay(&log, config.clone(), None, None).err().expect("refused without a model").to_string();
+    let e = replay(log.clone(), config.clone(), None, None).err().expect("refused without a model").to_string();
     assert!(e.contains("--appearance-model"), "{e}");
-    let replayed = replay(&log, config, Some(model), Some(&dir.join("replay"))).unwrap();
+    let replayed = replay(log.clone(), config, Some(model), Some(&dir.join("replay"))).unwrap();
     assert_eq!(replayed.metrics.camera_frames, log.camera.len());
     assert!(!replayed.landmarks.is_empty());
     assert_same_estimate(&out, &dir.join("replay"), &replayed);
     // A position method reads no frame of the same log.
-    let jcbb = resolve_config(Some(&dir.join("log")), &log, Some(AssociationMethod::Jcbb), None).unwrap();
-    assert_eq!(replay(&log, jcbb, None, None).unwrap().metrics.camera_frames, 0);
+    let jcbb = resolve_config(Some(&dir.join("log")), &log.manifest, Some(AssociationMethod::Jcbb), None).unwrap();
+    assert_eq!(replay(log, jcbb, None, None).unwrap().metrics.camera_frames, 0);
     std::fs::remove_dir_all(&dir).ok();
 }
 
@@ -263,8 +272,8 @@ fn victoria_park_form_is_read_and_mapped_with_the_car_model() {
     assert_eq!(log.manifest.sensor.x_m, 3.78);
     assert_eq!(log.reference.len(), made.reference.len());
 
-    let config = resolve_config(None, &log, Some(AssociationMethod::Nn), None).unwrap();
-    let result = replay(&log, config, None, Some(&dir.join("replay"))).unwrap();
+    let config = resolve_config(None, &log.manifest, Some(AssociationMethod::Nn), None).unwrap();
+    let result = replay(log.clone(), config, None, Some(&dir.join("replay"))).unwrap();
     let m = &result.metrics;
     let reference = m.reference.as_ref().unwrap();
     assert_eq!(reference.spikes_removed, 2, "the two GPS spikes, found from the GPS alone");
