@@ -72,10 +72,10 @@ pub fn read(dir: &Path) -> Result<Log, LogError> {
 /// message at a time, a fault in them arriving as an error in the message's place.
 pub fn open(dir: &Path) -> Result<LogStream, LogError> {
     let parts = open_parts(dir)?;
-    let motion: Box<dyn Iterator<Item = Result<MotionMessage, LogError>>> = Box::new(parts.motion);
+    let motion: Box<dyn Iterator<Item = Result<MotionMessage, LogError>>> = Box::new(until_error(parts.motion));
     let observations: Box<dyn Iterator<Item = Result<ObservationMessage, LogError>>> = match parts.observations {
-        ObservationRows::Scans(rows) => Box::new(rows),
-        ObservationRows::Detections(rows) => Box::new(rows),
+        ObservationRows::Scans(rows) => Box::new(until_error(rows)),
+        ObservationRows::Detections(rows) => Box::new(until_error(rows)),
     };
     Ok(LogStream {
         manifest: parts.manifest,
@@ -83,6 +83,19 @@ pub fn open(dir: &Path) -> Result<LogStream, LogError> {
         camera: parts.camera,
         motion: motion.peekable(),
         observations: observations.peekable(),
+    })
+}
+
+/// `messages` up to and including their first error: a file's rows after a fault are not
+/// read as if nothing had happened.
+fn until_error<T>(messages: impl Iterator<Item = Result<T, LogError>>) -> impl Iterator<Item = Result<T, LogError>> {
+    let mut failed = false;
+    messages.map_while(move |m| {
+        if failed {
+            return None;
+        }
+        failed = m.is_err();
+        Some(m)
     })
 }
 
@@ -419,6 +432,8 @@ impl Iterator for DetectionRows {
         loop {
             match self.next_detection() {
                 None => break,
+                // A fault on the row after a scan's last spoils the scan: it may have been
+                // one of its rows.
                 Some(Err(e)) => return Some(Err(e)),
                 Some(Ok((next_t, d))) if next_t == t => detections.push(d),
                 Some(Ok(next)) => {

@@ -38,7 +38,9 @@ impl ObservationMessage {
     }
 }
 
-/// Messages in time order; a file's fault comes as an error in their place.
+/// Messages in time order. A file's fault comes as an error in the place of the message it
+/// is found in (a detection scan's rows are read up to the next scan's first), and ends
+/// the messages.
 pub type Messages<T> = std::iter::Peekable<Box<dyn Iterator<Item = Result<T, LogError>>>>;
 
 /// A log whose motion and observations are read as they are taken.

@@ -321,8 +321,13 @@ pub fn record_log(
     as_logged.camera.depth_image = false;
     as_logged.camera.enabled &= pipeline.is_none_or(|p| p.method.uses_appearance());
     let config = &as_logged;
-    // Frames of an earlier recording into the same directory would not belong to this one.
-    for stale in [out.join(robotlog::format::CAMERA), out.join("camera")] {
+    // Files of an earlier log in the same directory that this recording would not replace.
+    let mut stale =
+        vec![out.join(robotlog::format::CAMERA), out.join("camera"), out.join(robotlog::format::DETECTIONS)];
+    if pipeline.is_none() {
+        stale.push(out.join(crate::replay::PIPELINE_FILE));
+    }
+    for stale in stale {
         let removed = if stale.is_dir() { std::fs::remove_dir_all(&stale) } else { std::fs::remove_file(&stale) };
         match removed {
             Err(e) if e.kind() != std::io::ErrorKind::NotFound => {

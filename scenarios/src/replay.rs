@@ -322,21 +322,27 @@ pub fn replay(
     let error = |t: f64| move |source| ReplayError::Pipeline { t, source };
     loop {
         // At equal times: motion, then the frame, then the scan.
-        let tm = robotlog::stream::next_time(&mut log.motion, MotionMessage::time)?.unwrap_or(f64::INFINITY);
-        let tf = frames.get(f).map_or(f64::INFINITY, |frame| frame.t);
-        let to = robotlog::stream::next_time(&mut log.observations, ObservationMessage::time)?.unwrap_or(f64::INFINITY);
-        if tm == f64::INFINITY && tf == f64::INFINITY && to == f64::INFINITY {
+        let tm = robotlog::stream::next_time(&mut log.motion, MotionMessage::time)?;
+        let tf = frames.get(f).map(|frame| frame.t);
+        let to = robotlog::stream::next_time(&mut log.observations, ObservationMessage::time)?;
+        if tm.is_none() && tf.is_none() && to.is_none() {
             break;
         }
-        if tm <= tf && tm <= to {
+        // Whether input a comes before input b (None: its stream is done).
+        let first = |a: Option<f64>, b: Option<f64>| match (a, b) {
+            (Some(a), Some(b)) => a <= b,
+            (a, b) => a.is_some() || b.is_none(),
+        };
+        if tm.is_some() && first(tm, tf) && first(tm, to) {
             let Some(Ok(message)) = log.motion.next() else { unreachable!("peeked a message") };
+            let t = message.time();
             match message {
-                MotionMessage::Increment(o) => pipeline.on_odometry(&o).map_err(error(tm))?,
+                MotionMessage::Increment(o) => pipeline.on_odometry(&o).map_err(error(t))?,
                 MotionMessage::Control { t, control } => pipeline.on_control(t, control).map_err(error(t))?,
             }
             motion_messages += 1;
-            end = end.max(tm);
-        } else if tf <= to {
+            end = end.max(t);
+        } else if let (Some(tf), true) = (tf, first(tf, to)) {
             let camera = camera.expect("frames only with a camera");
             let image = robotlog::format::read_frame(&frames[f], camera)?;
             pipeline.on_image(tf, image.width, image.height, image.rgb).map_err(error(tf))?;
@@ -345,7 +351,7 @@ pub fn replay(
             continue;
         } else {
             let Some(Ok(message)) = log.observations.next() else { unreachable!("peeked a message") };
-            let t = to;
+            let t = message.time();
             let tick = Instant::now();
             let report = match message {
                 // Beams in the vehicle's frame: the laser may look sideways.

@@ -287,3 +287,33 @@ fn victoria_park_form_is_read_and_mapped_with_the_car_model() {
     assert!(path.len() > 1000 && path.iter().all(|p| p.iter().all(|v| v.is_finite())));
     std::fs::remove_dir_all(&dir).ok();
 }
+
+#[test]
+fn a_fault_found_mid_replay_names_its_row_and_leaves_earlier_outputs_whole() {
+    // The log directory is read as the replay goes: a bad last row stops it there.
+    let dir = temp_dir("fault");
+    let mut log = synthetic_park();
+    log.manifest.vehicle.wheelbase_m = Some(2.83);
+    log.manifest.reference = Some(robotlog::manifest::Reference {
+        kind: robotlog::ReferenceKind::Gps,
+        point: robotlog::ReferencePoint::Sensor,
+    });
+    robotlog::format::write(&dir.join("log"), &log).unwrap();
+    let detections = dir.join("log/detections.csv");
+    let mut text = std::fs::read_to_string(&detections).unwrap();
+    let rows = text.lines().count();
+    text.push_str("1000,abc,0.1,\n");
+    std::fs::write(&detections, text).unwrap();
+    let out = dir.join("replay");
+    std::fs::create_dir_all(&out).unwrap();
+    std::fs::write(out.join("trajectory_est.tum"), "an earlier replay's\n").unwrap();
+
+    let stream = robotlog::format::open(&dir.join("log")).unwrap();
+    let config = resolve_config(None, &stream.manifest, Some(AssociationMethod::Nn), None).unwrap();
+    let e = replay(stream, config, None, Some(&out)).err().expect("the bad row stops the replay").to_string();
+    assert!(e.contains(&format!("detections.csv:{}: column `range_m`: `abc` is not a number", rows + 1)), "{e}");
+    assert_eq!(std::fs::read_to_string(out.join("trajectory_est.tum")).unwrap(), "an earlier replay's\n");
+    let left: Vec<_> = std::fs::read_dir(&out).unwrap().map(|f| f.unwrap().file_name()).collect();
+    assert_eq!(left, vec![std::ffi::OsString::from("trajectory_est.tum")], "no partial or new output");
+    std::fs::remove_dir_all(&dir).ok();
+}
