@@ -81,12 +81,13 @@ pub(crate) fn record(
     };
     bar.finish_and_clear();
     println!(
-        "recorded {:.1} s in {:.2} s ({:.0}x real time): {} scans, {} odometry messages, {} collisions -> {}",
+        "recorded {:.1} s in {:.2} s ({:.0}x real time): {} scans, {} odometry messages, {} camera frames, {} collisions -> {}",
         summary.sim_seconds,
         summary.wall_seconds,
         summary.sim_seconds / summary.wall_seconds.max(1e-9),
         summary.scans,
         summary.odometry,
+        summary.camera_frames,
         summary.collisions,
         out.display()
     );
