@@ -1,6 +1,6 @@
 //! A log read as it is replayed: the manifest, the reference and the list of camera frames
 //! in memory, the motion and the range sensor's scans one message at a time, so that a
-//! replay's memory does not grow with the log's length ([`crate::format::open`]).
+//! replay's memory does not grow with the log's data ([`crate::format::open`]).
 
 use slam::messages::{Control, LaserScan, OdometryIncrement};
 
