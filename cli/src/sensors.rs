@@ -40,9 +40,8 @@ pub(crate) fn record(
             let pipeline = scenarios::run::pipeline_config(&sc, None)?;
             // A log's camera (its method's) comes with the calibration a run is given.
             let logs_camera = format == scenarios::record::RecordFormat::Log
-                && sc.sim.camera.enabled
                 && !no_camera
-                && pipeline.method.uses_appearance();
+                && scenarios::record::logs_camera(&sc.sim, Some(&pipeline));
             let calibration = logs_camera
                 .then(|| scenarios::run::resolve_calibration(&sc, &base, seed))
                 .transpose()?

@@ -298,6 +298,12 @@ pub fn record(
     }
 }
 
+/// Whether [`record_log`] writes camera frames: where the camera is enabled and, for a
+/// scenario (`pipeline` its settings), where its method reads them, as a run renders them.
+pub fn logs_camera(config: &SimConfig, pipeline: Option<&slam::pipeline::PipelineConfig>) -> bool {
+    config.camera.enabled && pipeline.is_none_or(|p| p.method.uses_appearance())
+}
+
 /// The simulation's stream as a robot log in `out` (see [`robotlog::format`]): the noisy
 /// odometry, the raw laser scans, the camera's frames where the camera is enabled (for a
 /// scenario, where its method also reads them, as a run renders them), and the robot's
@@ -319,7 +325,7 @@ pub fn record_log(
     // of its own: the other sensors' messages are the same with or without it.)
     let mut as_logged = config.clone();
     as_logged.camera.depth_image = false;
-    as_logged.camera.enabled &= pipeline.is_none_or(|p| p.method.uses_appearance());
+    as_logged.camera.enabled = logs_camera(config, pipeline);
     let config = &as_logged;
     // Files of an earlier log in the same directory that this recording would not replace.
     let mut stale =
