@@ -241,6 +241,35 @@ fn camera_frames_read_back_pixel_for_pixel() {
 }
 
 #[test]
+fn jpeg_and_grey_frames_are_read_as_rgb() {
+    let d = dir("camera-jpeg");
+    let mut log = camera_log(&d, 0);
+    // A flat grey JPEG (lossy, so a flat image: its pixels decode to the value written)
+    // and an 8-bit grey PNG.
+    std::fs::create_dir_all(d.join("camera")).unwrap();
+    let jpeg = d.join("camera/grey.jpg");
+    image::save_buffer(&jpeg, &[128u8; 12], 4, 3, image::ExtendedColorType::L8).unwrap();
+    let png = d.join("camera/grey.png");
+    image::save_buffer(&png, &[0u8, 50, 100, 150, 200, 250, 1, 2, 3, 4, 5, 6], 4, 3, image::ExtendedColorType::L8)
+        .unwrap();
+    log.camera = vec![
+        robotlog::CameraFrameFile { t: 0.0, file: "camera/grey.jpg".into() },
+        robotlog::CameraFrameFile { t: 0.1, file: "camera/grey.png".into() },
+    ];
+    robotlog::format::write(&d, &log).unwrap();
+    let read = robotlog::format::read(&d).unwrap();
+    let jpeg = robotlog::format::read_frame(&read.camera[0], &camera()).unwrap();
+    assert!(jpeg.rgb.len() == 36 && jpeg.rgb.iter().all(|&v| v.abs_diff(128) <= 2), "{:?}", jpeg.rgb);
+    let png = robotlog::format::read_frame(&read.camera[1], &camera()).unwrap();
+    assert_eq!(&png.rgb[..6], &[0, 0, 0, 50, 50, 50]);
+    // Something that is no image is an error naming the file.
+    std::fs::write(d.join("camera/grey.png"), "not a picture").unwrap();
+    let e = robotlog::format::read_frame(&read.camera[1], &camera()).unwrap_err().to_string();
+    assert!(e.contains("grey.png"), "{e}");
+    std::fs::remove_dir_all(&d).ok();
+}
+
+#[test]
 fn camera_files_and_tables_that_do_not_agree_are_errors() {
     let d = dir("camera-bad");
     camera_log(&d, 2);
