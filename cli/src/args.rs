@@ -452,11 +452,12 @@ pub(crate) enum WorldCommand {
 #[derive(clap::Args, Debug)]
 pub(crate) struct ReplayArgs {
     /// Association method (default: the log's `pipeline.toml`, else `nn`). The camera
-    /// methods (`combined`, `appearance`) need a log with camera frames and
-    /// `--appearance-model`.
+    /// methods (`combined`, `appearance`) need a log with camera frames and an appearance
+    /// model.
     #[arg(long, value_enum)]
     pub(crate) method: Option<MethodArg>,
-    /// The appearance model of the camera methods: a JSON file `objslam train` wrote.
+    /// The appearance model of the camera methods: a JSON file `objslam train` wrote
+    /// (default: the log's `appearance_model.json`, if it has one).
     #[arg(long)]
     pub(crate) appearance_model: Option<PathBuf>,
     /// A TOML file of pipeline settings (`[pipeline]` keys, as in a scenario) over the

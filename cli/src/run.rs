@@ -59,7 +59,12 @@ pub(crate) fn replay(log: Option<PathBuf>, options: ReplayArgs, dataset: Option<
     let out = options.out.expect("clap requires --out");
     let config =
         scenarios::replay::resolve_config(log_dir.as_deref(), &log.manifest, method, options.config.as_deref())?;
-    let appearance = match &options.appearance_model {
+    // The model given, else the log's own for a camera method.
+    let beside_log = log_dir
+        .as_ref()
+        .map(|d| d.join(scenarios::replay::APPEARANCE_MODEL_FILE))
+        .filter(|f| config.method.uses_appearance() && f.is_file());
+    let appearance = match options.appearance_model.as_ref().or(beside_log.as_ref()) {
         Some(file) => Some(slam::classifier::AppearanceModel::load(file)?),
         None => None,
     };

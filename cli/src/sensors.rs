@@ -22,7 +22,7 @@ pub(crate) fn record(
     no_camera: bool,
     out: &std::path::Path,
 ) -> Result<()> {
-    let (world, mut config, sim_seed, scoring, pipeline, calibration) = match source {
+    let (world, mut config, sim_seed, scoring, pipeline, calibration, model) = match source {
         RecordSource::World { input, sim_config } => {
             let seed = seed.unwrap_or(1);
             let config = match sim_config {
@@ -30,7 +30,7 @@ pub(crate) fn record(
                 None => sim::SimConfig::default(),
             };
             let world = crate::world::load_world(&input, seed)?;
-            (world, config, seed, scenarios::score::log::LogScoring::of_world(), None, None)
+            (world, config, seed, scenarios::score::log::LogScoring::of_world(), None, None, None)
         }
         RecordSource::Scenario(name) => {
             let (sc, base) = scenarios::scenario::Scenario::load(&name)?;
@@ -46,6 +46,18 @@ pub(crate) fn record(
                 .then(|| scenarios::run::resolve_calibration(&sc, &base, seed))
                 .transpose()?
                 .map(|c| c.extrinsics);
+            // ... and with the appearance model a run uses (trained and cached if need be),
+            // so that `objslam replay` of the log needs nothing more.
+            let model = if logs_camera {
+                let bar = progress::training(&name);
+                let m = scenarios::run::resolve_appearance(&sc, &base, |stage, done, total| {
+                    progress::set_training(&bar, stage, done, total)
+                })?;
+                bar.finish_and_clear();
+                Some(m)
+            } else {
+                None
+            };
             (
                 world,
                 sc.sim.clone(),
@@ -53,6 +65,7 @@ pub(crate) fn record(
                 scenarios::score::log::LogScoring::of_scenario(&sc, seed),
                 Some(pipeline),
                 calibration,
+                model,
             )
         }
     };
@@ -79,6 +92,9 @@ pub(crate) fn record(
         _ => scenarios::record::record(&world, &config, sim_seed, &scoring, out, format, show)?,
     };
     bar.finish_and_clear();
+    if let Some(m) = &model {
+        m.save(&out.join(scenarios::replay::APPEARANCE_MODEL_FILE))?;
+    }
     println!(
         "recorded {:.1} s in {:.2} s ({:.0}x real time): {} scans, {} odometry messages, {} camera frames, {} collisions -> {}",
         summary.sim_seconds,

@@ -69,8 +69,16 @@ fn a_scenarios_log_carries_its_camera_unless_told_not_to_and_camera_replays_need
     record(&without, &["--no-camera"]);
     assert!(with.join("camera.csv").is_file() && with.join("camera/000000.png").is_file());
     assert!(!without.join("camera.csv").exists() && !without.join("camera").exists());
-    // paper_park's method is combined: its log replays with it, which needs a model.
+    // paper_park's method is combined: its log replays with it, with the model its run
+    // uses, which the recording put beside the log.
+    assert!(with.join("appearance_model.json").is_file() && !without.join("appearance_model.json").exists());
     let replay_out = dir.join("replay");
+    let (ok, err) = stderr_of(&["replay", with.to_str().unwrap(), "--out", replay_out.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    let metrics = std::fs::read_to_string(replay_out.join("metrics.json")).unwrap();
+    assert!(metrics.contains("\"method\": \"combined\"") && metrics.contains("\"camera_frames\": 6"), "{metrics}");
+    // Without it, a camera method needs one named.
+    std::fs::remove_file(with.join("appearance_model.json")).unwrap();
     let (ok, err) = stderr_of(&["replay", with.to_str().unwrap(), "--out", replay_out.to_str().unwrap()]);
     assert!(!ok && err.contains("--appearance-model FILE"), "{err}");
     let (ok, err) = stderr_of(&["replay", without.to_str().unwrap(), "--out", replay_out.to_str().unwrap()]);

@@ -328,8 +328,12 @@ pub fn record_log(
     as_logged.camera.enabled = logs_camera(config, pipeline);
     let config = &as_logged;
     // Files of an earlier log in the same directory that this recording would not replace.
-    let mut stale =
-        vec![out.join(robotlog::format::CAMERA), out.join("camera"), out.join(robotlog::format::DETECTIONS)];
+    let mut stale = vec![
+        out.join(robotlog::format::CAMERA),
+        out.join("camera"),
+        out.join(robotlog::format::DETECTIONS),
+        out.join(crate::replay::APPEARANCE_MODEL_FILE),
+    ];
     if pipeline.is_none() {
         stale.push(out.join(crate::replay::PIPELINE_FILE));
     }

@@ -58,6 +58,11 @@ impl From<crate::partial_files::PartialFileError> for ReplayError {
 /// record --format log` writes the scenario's).
 pub const PIPELINE_FILE: &str = "pipeline.toml";
 
+/// The appearance model a log's producer recommends for the camera methods (optional;
+/// `objslam record --format log` of a scenario whose method reads the camera writes the
+/// model its run uses), taken when `objslam replay` is given none.
+pub const APPEARANCE_MODEL_FILE: &str = "appearance_model.json";
+
 /// Highest speed a GPS fix may imply from both its neighbours before it is taken for a
 /// spike (m/s): far above what a vehicle in a park drives (Victoria Park's car: 6.6 m/s
 /// at most), far below the spikes' hundreds of m/s.
