@@ -65,7 +65,10 @@ pub(crate) fn replay(log: Option<PathBuf>, options: ReplayArgs, dataset: Option<
         .map(|d| d.join(scenarios::replay::APPEARANCE_MODEL_FILE))
         .filter(|f| config.method.uses_appearance() && f.is_file());
     let appearance = match options.appearance_model.as_ref().or(beside_log.as_ref()) {
-        Some(file) => Some(slam::classifier::AppearanceModel::load(file)?),
+        Some(file) => {
+            println!("appearance model: {}", file.display());
+            Some(slam::classifier::AppearanceModel::load(file)?)
+        }
         None => None,
     };
     let result = scenarios::replay::replay(log, config, appearance, Some(&out))?;

@@ -92,7 +92,8 @@ pub(crate) fn record(
         _ => scenarios::record::record(&world, &config, sim_seed, &scoring, out, format, show)?,
     };
     bar.finish_and_clear();
-    if let Some(m) = &model {
+    // Only beside frames: a recording too short for one has no camera to segment.
+    if let Some(m) = model.as_ref().filter(|_| summary.camera_frames > 0) {
         m.save(&out.join(scenarios::replay::APPEARANCE_MODEL_FILE))?;
     }
     println!(

@@ -75,8 +75,10 @@ fn a_scenarios_log_carries_its_camera_unless_told_not_to_and_camera_replays_need
     let replay_out = dir.join("replay");
     let (ok, err) = stderr_of(&["replay", with.to_str().unwrap(), "--out", replay_out.to_str().unwrap()]);
     assert!(ok, "{err}");
-    let metrics = std::fs::read_to_string(replay_out.join("metrics.json")).unwrap();
-    assert!(metrics.contains("\"method\": \"combined\"") && metrics.contains("\"camera_frames\": 6"), "{metrics}");
+    let metrics: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(replay_out.join("metrics.json")).unwrap()).unwrap();
+    // 1 s of the camera at 5 Hz: frames at 0, 0.2, ..., 1.0 s.
+    assert_eq!((metrics["method"].as_str(), metrics["camera_frames"].as_u64()), (Some("combined"), Some(6)));
     // Without it, a camera method needs one named.
     std::fs::remove_file(with.join("appearance_model.json")).unwrap();
     let (ok, err) = stderr_of(&["replay", with.to_str().unwrap(), "--out", replay_out.to_str().unwrap()]);
@@ -96,5 +98,12 @@ fn a_scenarios_log_carries_its_camera_unless_told_not_to_and_camera_replays_need
     let (ok, err) =
         stderr_of(&["replay", with.to_str().unwrap(), "--method", "nn", "--out", replay_out.to_str().unwrap()]);
     assert!(ok, "{err}");
+    // Recording again into the same directory leaves nothing of the earlier log's camera.
+    record(&with, &[]);
+    assert!(with.join("appearance_model.json").is_file());
+    record(&with, &["--no-camera"]);
+    for gone in ["camera.csv", "camera", "appearance_model.json"] {
+        assert!(!with.join(gone).exists(), "{gone} left behind");
+    }
     std::fs::remove_dir_all(&dir).ok();
 }

@@ -36,6 +36,8 @@ pub enum RecordError {
     Ros2(#[from] crate::ros2::Ros2Error),
     #[error(transparent)]
     Log(#[from] robotlog::LogError),
+    #[error("the camera stopped during the recording, so the log would lack its later frames: {0}")]
+    CameraStopped(String),
 }
 
 /// What `objslam record` writes.
@@ -298,6 +300,33 @@ pub fn record(
     }
 }
 
+/// Removes the files of a robot log in `out`, so that what a recording leaves there, even
+/// one that fails on the way, is never an earlier log's data mixed with its own.
+fn remove_robot_log(out: &Path) -> Result<(), RecordError> {
+    use robotlog::format as f;
+    let names = [
+        f::MANIFEST,
+        f::ODOMETRY,
+        f::SCANS,
+        f::DETECTIONS,
+        f::REFERENCE,
+        f::CAMERA,
+        "camera",
+        crate::replay::PIPELINE_FILE,
+        crate::replay::APPEARANCE_MODEL_FILE,
+    ];
+    for stale in names.map(|n| out.join(n)) {
+        let removed = if stale.is_dir() { std::fs::remove_dir_all(&stale) } else { std::fs::remove_file(&stale) };
+        match removed {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+                return Err(RecordError::Io { file: stale, source: e });
+            }
+            _ => {}
+        }
+    }
+    Ok(())
+}
+
 /// Whether [`record_log`] writes camera frames: where the camera is enabled and, for a
 /// scenario (`pipeline` its settings), where its method reads them, as a run renders them.
 pub fn logs_camera(config: &SimConfig, pipeline: Option<&slam::pipeline::PipelineConfig>) -> bool {
@@ -327,25 +356,7 @@ pub fn record_log(
     as_logged.camera.depth_image = false;
     as_logged.camera.enabled = logs_camera(config, pipeline);
     let config = &as_logged;
-    // Files of an earlier log in the same directory that this recording would not replace.
-    let mut stale = vec![
-        out.join(robotlog::format::CAMERA),
-        out.join("camera"),
-        out.join(robotlog::format::DETECTIONS),
-        out.join(crate::replay::APPEARANCE_MODEL_FILE),
-    ];
-    if pipeline.is_none() {
-        stale.push(out.join(crate::replay::PIPELINE_FILE));
-    }
-    for stale in stale {
-        let removed = if stale.is_dir() { std::fs::remove_dir_all(&stale) } else { std::fs::remove_file(&stale) };
-        match removed {
-            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
-                return Err(RecordError::Io { file: stale, source: e });
-            }
-            _ => {}
-        }
-    }
+    remove_robot_log(out)?;
     let mut sim = Simulation::new(world, config, seed)?;
     let nominal = config.max_duration_s.unwrap_or_else(|| sim.nominal_duration_s());
     let (mut increments, mut scans, mut reference, mut frames) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
@@ -369,6 +380,9 @@ pub fn record_log(
             progress(t, nominal);
             last_progress = t;
         }
+    }
+    if let Some(e) = sim.camera_error().filter(|_| config.camera.enabled) {
+        return Err(RecordError::CameraStopped(e.to_string()));
     }
     let start = world.robot.start;
     let [mx, my, _] = config.laser.mount_xyz_m;
@@ -495,6 +509,8 @@ fn record_jsonl(
     mut progress: impl FnMut(f64, f64),
 ) -> Result<RecordSummary, RecordError> {
     std::fs::create_dir_all(out).map_err(|source| RecordError::Io { file: out.to_path_buf(), source })?;
+    // Its images share `camera/` with a robot log's: an earlier log there would read them.
+    remove_robot_log(out)?;
     let started = std::time::Instant::now();
     let mut sim = Simulation::new(world, config, seed)?;
     let nominal = config.max_duration_s.unwrap_or_else(|| sim.nominal_duration_s());

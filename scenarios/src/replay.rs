@@ -41,7 +41,7 @@ pub enum ReplayError {
     #[error("method {method} segments camera images: the log's camera.csv lists no frame")]
     NoFrames { method: &'static str },
     #[error(
-        "method {method} needs an appearance model (`objslam replay --appearance-model FILE`, from `objslam train`); `--method nn` or `jcbb` needs none"
+        "method {method} needs an appearance model (`objslam replay --appearance-model FILE`, from `objslam train`, or the log's own appearance_model.json); `--method nn` or `jcbb` needs none"
     )]
     NoAppearanceModel { method: &'static str },
     #[error("the appearance model: {0}")]
