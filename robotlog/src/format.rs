@@ -536,11 +536,26 @@ fn read_reference(file: &Path) -> Result<Vec<ReferenceSample>, LogError> {
 /// (scans with equal beam counts, detection scans with at least one detection and distinct
 /// times, headings on all reference samples or none, finite numbers).
 pub fn write(dir: &Path, log: &Log) -> Result<(), LogError> {
-    fs::create_dir_all(dir).map_err(io(dir))?;
+    // What can be refused is refused before anything is written, and the manifest, without
+    // which nothing reads the directory as a log, is written last.
+    if let Observations::Scans(scans) = &log.observations {
+        let beams = scans.first().map_or(0, |s| s.ranges.len());
+        if let Some(s) = scans.iter().find(|s| s.ranges.len() != beams) {
+            return Err(LogError::File {
+                file: dir.join(SCANS),
+                problem: format!("the scan at t = {} s has {} beams, the first has {beams}", s.t, s.ranges.len()),
+            });
+        }
+    }
+    if !log.camera.is_empty() && log.manifest.camera.is_none() {
+        return Err(LogError::File {
+            file: dir.join(MANIFEST),
+            problem: "camera frames but no [camera] table to describe the camera".into(),
+        });
+    }
     let manifest = toml::to_string(&log.manifest)
         .map_err(|e| LogError::File { file: dir.join(MANIFEST), problem: e.to_string() })?;
-    let header = "# A robot log: docs/reference/robot-log.md describes the files.\n";
-    fs::write(dir.join(MANIFEST), format!("{header}{manifest}")).map_err(io(&dir.join(MANIFEST)))?;
+    fs::create_dir_all(dir).map_err(io(dir))?;
     let mut odometry = String::new();
     match &log.motion {
         Motion::Increments(v) => {
@@ -567,12 +582,6 @@ pub fn write(dir: &Path, log: &Log) -> Result<(), LogError> {
     match &log.observations {
         Observations::Scans(scans) => {
             let beams = scans.first().map_or(0, |s| s.ranges.len());
-            if let Some(s) = scans.iter().find(|s| s.ranges.len() != beams) {
-                return Err(LogError::File {
-                    file: dir.join(SCANS),
-                    problem: format!("the scan at t = {} s has {} beams, the first has {beams}", s.t, s.ranges.len()),
-                });
-            }
             let mut text = String::from("t");
             for i in 0..beams {
                 text.push_str(&format!(",r{i}"));
@@ -610,12 +619,6 @@ pub fn write(dir: &Path, log: &Log) -> Result<(), LogError> {
         }
         write_file(&dir.join(REFERENCE), &text)?;
     }
-    if !log.camera.is_empty() && log.manifest.camera.is_none() {
-        return Err(LogError::File {
-            file: dir.join(MANIFEST),
-            problem: "camera frames but no [camera] table to describe the camera".into(),
-        });
-    }
     if log.manifest.camera.is_some() {
         let mut text = format!("{}\n", CAMERA_COLUMNS.join(","));
         for f in &log.camera {
@@ -630,7 +633,8 @@ pub fn write(dir: &Path, log: &Log) -> Result<(), LogError> {
         }
         write_file(&dir.join(CAMERA), &text)?;
     }
-    Ok(())
+    let header = "# A robot log: docs/reference/robot-log.md describes the files.\n";
+    write_file(&dir.join(MANIFEST), &format!("{header}{manifest}"))
 }
 
 fn write_file(file: &Path, text: &str) -> Result<(), LogError> {
