@@ -27,42 +27,16 @@ pub const CAMERA: &str = "camera.csv";
 /// replayed).
 pub fn read(dir: &Path) -> Result<Log, LogError> {
     let parts = open_parts(dir)?;
-    let motion = if parts.motion.rows.header == 0 {
-        let mut v = Vec::new();
-        for m in parts.motion {
-            if let MotionMessage::Increment(o) = m? {
-                v.push(o);
-            }
-        }
-        Motion::Increments(v)
+    let increments = parts.motion.rows.header == 0;
+    let messages = parts.motion.collect::<Result<Vec<_>, _>>()?;
+    let motion = if increments {
+        Motion::Increments(messages.into_iter().filter_map(MotionMessage::into_increment).collect())
     } else {
-        let mut v = Vec::new();
-        for m in parts.motion {
-            if let MotionMessage::Control { t, control } = m? {
-                v.push((t, control));
-            }
-        }
-        Motion::Controls(v)
+        Motion::Controls(messages.into_iter().filter_map(MotionMessage::into_control).collect())
     };
     let observations = match parts.observations {
-        ObservationRows::Scans(rows) => {
-            let mut v = Vec::new();
-            for o in rows {
-                if let ObservationMessage::Scan(s) = o? {
-                    v.push(s);
-                }
-            }
-            Observations::Scans(v)
-        }
-        ObservationRows::Detections(rows) => {
-            let mut v = Vec::new();
-            for o in rows {
-                if let ObservationMessage::Detections(d) = o? {
-                    v.push(d);
-                }
-            }
-            Observations::Detections(v)
-        }
+        ObservationRows::Scans(rows) => Observations::Scans(rows.collect::<Result<_, _>>()?),
+        ObservationRows::Detections(rows) => Observations::Detections(rows.collect::<Result<_, _>>()?),
     };
     Ok(Log { manifest: parts.manifest, motion, observations, reference: parts.reference, camera: parts.camera })
 }
@@ -74,8 +48,8 @@ pub fn open(dir: &Path) -> Result<LogStream, LogError> {
     let parts = open_parts(dir)?;
     let motion: Box<dyn Iterator<Item = Result<MotionMessage, LogError>>> = Box::new(until_error(parts.motion));
     let observations: Box<dyn Iterator<Item = Result<ObservationMessage, LogError>>> = match parts.observations {
-        ObservationRows::Scans(rows) => Box::new(until_error(rows)),
-        ObservationRows::Detections(rows) => Box::new(until_error(rows)),
+        ObservationRows::Scans(rows) => Box::new(until_error(rows.map(|s| s.map(ObservationMessage::Scan)))),
+        ObservationRows::Detections(rows) => Box::new(until_error(rows.map(|d| d.map(ObservationMessage::Detections)))),
     };
     Ok(LogStream {
         manifest: parts.manifest,
@@ -240,42 +214,51 @@ impl Rows {
         Ok(Rows { file: file.to_path_buf(), reader, names: found, header, previous_t: f64::NEG_INFINITY })
     }
 
-    /// The next row's line and values (empty cells `None`), with its time (column 0)
-    /// checked to be finite and not to go back.
-    fn next_row(&mut self) -> Option<Result<Row, LogError>> {
+    /// The next record and its line, with as many cells as the header.
+    fn next_record(&mut self) -> Option<Result<(u64, csv::StringRecord), LogError>> {
         let mut record = csv::StringRecord::new();
         match self.reader.read_record(&mut record) {
             Ok(false) => return None,
             Ok(true) => {}
             Err(e) => return Some(Err(csv_error(&self.file, e))),
         }
-        Some(self.parse(&record))
-    }
-
-    fn parse(&mut self, record: &csv::StringRecord) -> Result<Row, LogError> {
         let line = record.position().map_or(0, |p| p.line());
         let columns = self.names.len();
         if record.len() != columns {
-            return Err(self.problem(line, format!("{} columns, the header has {columns}", record.len())));
+            return Some(Err(self.problem(line, format!("{} columns, the header has {columns}", record.len()))));
         }
-        let values = record
-            .iter()
-            .enumerate()
-            .map(|(k, v)| {
-                if v.is_empty() {
-                    return Ok(None);
-                }
-                v.parse::<f64>()
-                    .map(Some)
-                    .map_err(|_| self.problem(line, format!("column `{}`: `{v}` is not a number", self.names[k])))
-            })
-            .collect::<Result<Vec<_>, _>>()?;
-        let t = self.finite(line, &values, 0, "t")?;
+        Some(Ok((line, record)))
+    }
+
+    /// The next row's line and values (empty cells `None`), with its time (column 0)
+    /// checked to be finite and not to go back.
+    fn next_row(&mut self) -> Option<Result<Row, LogError>> {
+        Some(self.next_record()?.and_then(|(line, record)| {
+            let values = (0..record.len()).map(|k| self.number(line, &record, k)).collect::<Result<Vec<_>, _>>()?;
+            let t = self.time(line, values[0])?;
+            Ok((line, t, values))
+        }))
+    }
+
+    /// Cell `k` of a record as a number (`None` when empty).
+    fn number(&self, line: u64, record: &csv::StringRecord, k: usize) -> Result<Option<f64>, LogError> {
+        let v = &record[k];
+        if v.is_empty() {
+            return Ok(None);
+        }
+        v.parse::<f64>()
+            .map(Some)
+            .map_err(|_| self.problem(line, format!("column `{}`: `{v}` is not a number", self.names[k])))
+    }
+
+    /// A row's time, checked to be there, finite and not before the previous row's.
+    fn time(&mut self, line: u64, t: Option<f64>) -> Result<f64, LogError> {
+        let t = self.finite(line, &[t], 0, "t")?;
         if t < self.previous_t {
             return Err(self.problem(line, format!("t = {t} s comes before the previous row's {} s", self.previous_t)));
         }
         self.previous_t = t;
-        Ok((line, t, values))
+        Ok(t)
     }
 
     fn problem(&self, line: u64, problem: impl Into<String>) -> LogError {
@@ -351,7 +334,7 @@ struct ScanRows {
 }
 
 impl Iterator for ScanRows {
-    type Item = Result<ObservationMessage, LogError>;
+    type Item = Result<LaserScan, LogError>;
 
     fn next(&mut self) -> Option<Self::Item> {
         let (line, t, row) = match self.rows.next_row()? {
@@ -368,15 +351,13 @@ impl Iterator for ScanRows {
             })
             .collect::<Result<Vec<_>, _>>();
         let laser = &self.laser;
-        Some(ranges.map(|ranges| {
-            ObservationMessage::Scan(LaserScan {
-                t,
-                angle_min: laser.angle_min_rad,
-                angle_increment: laser.angle_increment_rad,
-                range_min: laser.range_min_m,
-                range_max: laser.range_max_m,
-                ranges,
-            })
+        Some(ranges.map(|ranges| LaserScan {
+            t,
+            angle_min: laser.angle_min_rad,
+            angle_increment: laser.angle_increment_rad,
+            range_min: laser.range_min_m,
+            range_max: laser.range_max_m,
+            ranges,
         }))
     }
 }
@@ -418,7 +399,7 @@ impl DetectionRows {
 }
 
 impl Iterator for DetectionRows {
-    type Item = Result<ObservationMessage, LogError>;
+    type Item = Result<DetectionScan, LogError>;
 
     fn next(&mut self) -> Option<Self::Item> {
         let (t, first) = match self.pending.take() {
@@ -442,7 +423,7 @@ impl Iterator for DetectionRows {
                 }
             }
         }
-        Some(Ok(ObservationMessage::Detections(DetectionScan { t, detections })))
+        Some(Ok(DetectionScan { t, detections }))
     }
 }
 
@@ -451,35 +432,18 @@ const CAMERA_COLUMNS: &[&str] = &["t", "file"];
 /// `camera.csv`: `t,file` rows, the file relative to the log's directory (or absolute),
 /// each checked to exist; the images themselves are read when needed ([`read_frame`]).
 fn read_camera(file: &Path, dir: &Path) -> Result<Vec<CameraFrameFile>, LogError> {
-    let line_error = |line: u64, problem: String| LogError::Line { file: file.to_path_buf(), line, problem };
-    let mut reader = csv::ReaderBuilder::new()
-        .has_headers(true)
-        .trim(csv::Trim::All)
-        .from_path(file)
-        .map_err(|e| csv_error(file, e))?;
-    let found: Vec<String> = reader.headers().map_err(|e| csv_error(file, e))?.iter().map(str::to_string).collect();
-    if found != CAMERA_COLUMNS {
-        return Err(line_error(1, format!("header `{}`; expected `{}`", found.join(","), CAMERA_COLUMNS.join(","))));
-    }
-    let mut frames: Vec<CameraFrameFile> = Vec::new();
-    for record in reader.records() {
-        let record = record.map_err(|e| csv_error(file, e))?;
-        let line = record.position().map_or(0, |p| p.line());
-        let t = record[0]
-            .parse::<f64>()
-            .map_err(|_| line_error(line, format!("column `t`: `{}` is not a number", &record[0])))?;
-        if !t.is_finite() {
-            return Err(line_error(line, format!("`t` must be finite, got {t}")));
-        }
-        if let Some(previous) = frames.last().map(|f| f.t).filter(|&p| t < p) {
-            return Err(line_error(line, format!("t = {t} s comes before the previous row's {previous} s")));
-        }
+    let mut rows = Rows::open(file, &[CAMERA_COLUMNS])?;
+    let mut frames = Vec::new();
+    while let Some(record) = rows.next_record() {
+        let (line, record) = record?;
+        let t = rows.number(line, &record, 0)?;
+        let t = rows.time(line, t)?;
         if record[1].is_empty() {
-            return Err(line_error(line, "`file` is empty".into()));
+            return Err(rows.problem(line, "`file` is empty"));
         }
         let image = dir.join(&record[1]);
         if !image.is_file() {
-            return Err(line_error(line, format!("no image file {}", image.display())));
+            return Err(rows.problem(line, format!("no image file {}", image.display())));
         }
         frames.push(CameraFrameFile { t, file: image });
     }

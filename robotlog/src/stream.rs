@@ -14,6 +14,22 @@ pub enum MotionMessage {
 }
 
 impl MotionMessage {
+    /// The increment, if this is one.
+    pub fn into_increment(self) -> Option<OdometryIncrement> {
+        match self {
+            MotionMessage::Increment(o) => Some(o),
+            MotionMessage::Control { .. } => None,
+        }
+    }
+
+    /// The control and its time, if this is one.
+    pub fn into_control(self) -> Option<(f64, Control)> {
+        match self {
+            MotionMessage::Control { t, control } => Some((t, control)),
+            MotionMessage::Increment(_) => None,
+        }
+    }
+
     pub fn time(&self) -> f64 {
         match self {
             MotionMessage::Increment(o) => o.t,

@@ -3,9 +3,11 @@
 //!
 //! Inputs are fed in time order; at equal times motion comes first, then the camera's
 //! frame, then the scan (as the simulator emits them). Camera frames are read from disk
-//! one at a time, and only by the camera methods. Against ground truth the estimate is scored as it is; against GPS, which has its
-//! own frame, after the rigid 2-D motion (rotation and translation, no scale) that best
-//! fits the estimate to it, once GPS spikes are removed (see [`gps_spikes`]).
+//! one at a time, and only by the camera methods.
+//!
+//! Against ground truth the estimate is scored as it is; against GPS, which has its own
+//! frame, after the rigid 2-D motion (rotation and translation, no scale) that best fits
+//! the estimate to it, once GPS spikes are removed (see [`gps_spikes`]).
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
