@@ -61,6 +61,16 @@ pub(crate) fn train(args: &crate::args::TrainArgs) -> Result<()> {
     if heldout_every > 0 {
         println!("  held-out patches called object, by true class: {}", class_shares(&classes));
     }
+    if let Some(s) = &t.foliage_heldout {
+        println!(
+            "  foliage ({} patches, {} components), held out: precision {:.3}, recall {:.3}, F1 {:.3}",
+            t.foliage_patches,
+            model.foliage.as_ref().map_or(0, |f| f.gmm.effective_components(1e-3)),
+            s.precision(),
+            s.recall(),
+            s.f1()
+        );
+    }
     let mut worlds = Vec::new();
     for other in &args.heldout_dataset {
         let w = scenarios::train::score_on_dataset(other, &model, options.label_fraction)?;

@@ -59,7 +59,18 @@ pub fn load_image(dir: &Path, manifest: &Manifest, i: usize) -> Result<LabelledI
             ),
         ));
     }
-    Ok(LabelledImage { width: w, height: h, rgb: rgb.into_raw(), fractions: labels.fractions })
+    // Foliage labels come from the class mask (a dataset's labels file holds only the
+    // object classes' fractions).
+    let class_path = dir.join(&entry.class);
+    let class = image::open(&class_path).map_err(|e| file_err(&class_path, e))?.to_luma8();
+    if class.dimensions() != (w, h) {
+        let (cw, ch) = class.dimensions();
+        return Err(file_err(&class_path, format!("the class mask is {cw}x{ch}, its image {w}x{h}")));
+    }
+    let foliage =
+        crate::dataset::patch_labels(class.as_raw(), w, h, labels.patch_size, &[worlds::ObjectClass::Foliage.id()])
+            .fractions;
+    Ok(LabelledImage { width: w, height: h, rgb: rgb.into_raw(), fractions: labels.fractions, foliage })
 }
 
 fn model_error(e: TrainError) -> ModelError {
@@ -97,6 +108,9 @@ pub fn train_from_dataset(
         let (scores, table) = score_images(dir, &manifest, &model, &test_ids, options.label_fraction)?;
         model.training.heldout = Some(scores);
         classes = table;
+        let load = |k: usize| load_image(dir, &manifest, test_ids[k]).map_err(model_error);
+        model.training.foliage_heldout =
+            classifier::evaluate_foliage(&model, test_ids.len(), load, options.label_fraction)?;
     }
     Ok((model, classes))
 }

@@ -5,6 +5,10 @@
 //! density; a patch z is an object patch when
 //! R = w_obj p(z | obj) / (w_obj p(z | obj) + w_bg p(z | bg)) exceeds a threshold (0.5),
 //! with w the classes' proportions in the training data.
+//!
+//! A third mixture, fitted to the background patches that are leaves (canopies and palm
+//! crowns), tells foliage from the rest of the background: segmentation uses it to see
+//! where a trunk ends in its canopy.
 
 use std::path::Path;
 
@@ -92,6 +96,21 @@ pub struct TrainingSummary {
     /// one classifies borderline patches differently from one trained on another.
     #[serde(default)]
     pub renderer: Option<String>,
+    /// Background patches that were foliage (0 in models trained without foliage labels).
+    #[serde(default)]
+    pub foliage_patches: usize,
+    /// Held-out scores of the foliage decision (P(foliage | z) > 0.5), when the model has a
+    /// foliage model and the trainer had held-out images.
+    #[serde(default)]
+    pub foliage_heldout: Option<PatchScores>,
+}
+
+/// Foliage among the background: its mixture and its share of the background patches.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FoliageModel {
+    pub gmm: VbGmm,
+    /// w_fol|bg: the foliage patches' share of the background patches.
+    pub weight: f64,
 }
 
 /// The output of the offline phase: features, both class models and their proportions.
@@ -108,6 +127,9 @@ pub struct AppearanceModel {
     /// R above this is an object patch.
     pub threshold: f64,
     pub training: TrainingSummary,
+    /// The foliage model; absent in models trained without foliage labels.
+    #[serde(default)]
+    pub foliage: Option<FoliageModel>,
 }
 
 impl AppearanceModel {
@@ -144,7 +166,10 @@ impl AppearanceModel {
             .pca
             .check()
             .map_err(|(field, problem)| inconsistent(format!("extractor.pca.{field}: {problem}")))?;
-        for (name, class) in [("object", &model.object), ("background", &model.background)] {
+        for (name, class) in [("object", &model.object), ("background", &model.background)]
+            .into_iter()
+            .chain(model.foliage.as_ref().map(|f| ("foliage.gmm", &f.gmm)))
+        {
             class.check().map_err(|e| inconsistent(format!("{name}: {e}")))?;
         }
         let d = model.extractor.dims();
@@ -160,6 +185,17 @@ impl AppearanceModel {
         }
         if !(model.object_weight > 0.0 && model.object_weight < 1.0) || !(0.0..=1.0).contains(&model.threshold) {
             return Err(inconsistent("object_weight must lie in (0, 1) and threshold in [0, 1]".into()));
+        }
+        if let Some(f) = &model.foliage {
+            if f.gmm.dims() != d {
+                return Err(inconsistent(format!(
+                    "foliage.gmm is {}-dimensional, features are {d}-dimensional",
+                    f.gmm.dims()
+                )));
+            }
+            if !(f.weight > 0.0 && f.weight <= 1.0) {
+                return Err(inconsistent(format!("foliage.weight must lie in (0, 1], got {}", f.weight)));
+            }
         }
         PatchClassifier::new(&model).map_err(|e| inconsistent(e.to_string()))?;
         Ok(model)
@@ -181,6 +217,8 @@ pub struct PatchClassifier {
     ln_w_obj: f64,
     ln_w_bg: f64,
     pub threshold: f64,
+    /// The foliage density and ln w_fol|bg, when the model has them.
+    foliage: Option<(GmmEvaluator, f64)>,
 }
 
 impl PatchClassifier {
@@ -193,7 +231,29 @@ impl PatchClassifier {
             ln_w_obj: model.object_weight.ln(),
             ln_w_bg: (1.0 - model.object_weight).ln(),
             threshold: model.threshold,
+            foliage: match &model.foliage {
+                Some(f) => Some((StudentTMixture::new(&f.gmm)?.gaussian_approximation()?.evaluator()?, f.weight.ln())),
+                None => None,
+            },
         })
+    }
+
+    /// Whether the model can tell foliage from the rest of the background.
+    pub fn has_foliage(&self) -> bool {
+        self.foliage.is_some()
+    }
+
+    /// P(foliage | z), `None` without a foliage model. Foliage is part of the background,
+    /// so P(fol | z) = P(bg | z) P(fol | bg, z), with P(fol | bg, z) = w_fol|bg p(z | fol) /
+    /// p(z | bg) capped at 1 (the two densities are fitted apart, so their ratio can pass it).
+    pub fn foliage_probability(&self, z: &[f64]) -> Option<f64> {
+        let (foliage, ln_w_fol) = self.foliage.as_ref()?;
+        let a = self.ln_w_obj + self.object.log_density(z);
+        let ln_p_bg = self.background.log_density(z);
+        let b = self.ln_w_bg + ln_p_bg;
+        let p_bg = 1.0 / (1.0 + (a - b).exp());
+        let within = (ln_w_fol + foliage.log_density(z) - ln_p_bg).min(0.0).exp();
+        Some(p_bg * within)
     }
 
     /// R for one feature row.
@@ -243,11 +303,13 @@ impl PatchClassifier {
 }
 
 /// One training image: pixels and the fraction of each patch (row-major over the grid)
-/// that belongs to the object class.
+/// that belongs to the object class, and that is foliage.
 pub struct LabelledImage {
     pub width: u32,
     pub height: u32,
     pub rgb: Vec<u8>,
+    /// Foliage fraction of each patch, like `fractions`; empty when the labels do not say.
+    pub foliage: Vec<f32>,
     pub fractions: Vec<f32>,
 }
 
@@ -269,6 +331,8 @@ pub struct TrainingOptions {
     pub seed: u64,
     /// Name recorded in the model for the object class.
     pub object_class: String,
+    /// Also fit the foliage model, from the images that carry foliage labels.
+    pub foliage: bool,
 }
 
 impl Default for TrainingOptions {
@@ -283,6 +347,7 @@ impl Default for TrainingOptions {
             threshold: 0.5,
             seed: 1,
             object_class: "tree".into(),
+            foliage: true,
         }
     }
 }
@@ -336,7 +401,7 @@ pub fn train(
     drop(sample_rows);
     let extractor = FeatureExtractor::new(cfg, pca)?;
     // Pass 2: features of every patch, split by label.
-    let (mut obj, mut bg): (Vec<f64>, Vec<f64>) = (Vec::new(), Vec::new());
+    let (mut obj, mut bg, mut fol): (Vec<f64>, Vec<f64>, Vec<f64>) = (Vec::new(), Vec::new(), Vec::new());
     let d = extractor.dims();
     for i in 0..count {
         progress("features", i, count);
@@ -351,14 +416,25 @@ pub fn train(
                 f.z.nrows()
             )));
         }
+        let foliage_labels = options.foliage && !img.foliage.is_empty();
+        if foliage_labels && img.foliage.len() != img.fractions.len() {
+            return Err(ModelError::Training(format!(
+                "image {i}: {} foliage labels for {} patches",
+                img.foliage.len(),
+                img.fractions.len()
+            )));
+        }
         for k in 0..f.z.nrows() {
             let (c, r) = f.rect.patch(k);
-            let target = if img.fractions[(r * cols + c) as usize] as f64 >= options.label_fraction {
-                &mut obj
+            let cell = (r * cols + c) as usize;
+            if img.fractions[cell] as f64 >= options.label_fraction {
+                obj.extend(f.z.row(k).iter());
             } else {
-                &mut bg
-            };
-            target.extend(f.z.row(k).iter());
+                bg.extend(f.z.row(k).iter());
+                if foliage_labels && img.foliage[cell] as f64 >= options.label_fraction {
+                    fol.extend(f.z.row(k).iter());
+                }
+            }
         }
     }
     let (n_obj, n_bg) = (obj.len() / d, bg.len() / d);
@@ -378,11 +454,20 @@ pub fn train(
     };
     let obj_data = subsample(&obj, n_obj, &mut rng);
     let bg_data = subsample(&bg, n_bg, &mut rng);
-    progress("object model", 0, 2);
+    progress("object model", 0, 3);
     let object = gmm::fit(&obj_data, None, &options.vb)?;
-    progress("background model", 1, 2);
+    progress("background model", 1, 3);
     let background = gmm::fit(&bg_data, None, &options.vb)?;
-    progress("done", 2, 2);
+    // Drawn after the other two, so they are what they were before foliage was modelled.
+    let n_fol = fol.len() / d;
+    let foliage = if n_fol > d {
+        progress("foliage model", 2, 3);
+        let fol_data = subsample(&fol, n_fol, &mut rng);
+        Some(FoliageModel { gmm: gmm::fit(&fol_data, None, &options.vb)?, weight: n_fol as f64 / n_bg as f64 })
+    } else {
+        None
+    };
+    progress("done", 3, 3);
     Ok(AppearanceModel {
         format_version: MODEL_FORMAT_VERSION,
         object_class: options.object_class.clone(),
@@ -398,11 +483,45 @@ pub fn train(
             seed: options.seed,
             heldout: None,
             renderer: None,
+            foliage_patches: n_fol,
+            foliage_heldout: None,
         },
         extractor,
         object,
         background,
+        foliage,
     })
+}
+
+/// Scores a model's foliage decisions (more probably foliage than not) on labelled images
+/// with foliage labels; `None` for a model without a foliage model.
+pub fn evaluate_foliage(
+    model: &AppearanceModel,
+    count: usize,
+    images: impl Fn(usize) -> Result<LabelledImage, ModelError>,
+    label_fraction: f64,
+) -> Result<Option<PatchScores>, ModelError> {
+    let classifier = PatchClassifier::new(model)?;
+    if !classifier.has_foliage() {
+        return Ok(None);
+    }
+    let l = model.extractor.config.patch_size;
+    let mut scores = PatchScores::default();
+    for i in 0..count {
+        let img = images(i)?;
+        if img.foliage.len() != img.fractions.len() {
+            return Err(ModelError::Training(format!("image {i}: no foliage label for every patch")));
+        }
+        let image = ImageRef::new(img.width, img.height, &img.rgb)?;
+        let f = model.extractor.features(&image, None)?;
+        let (cols, _) = image.grid(l);
+        for k in 0..f.z.nrows() {
+            let (c, r) = f.rect.patch(k);
+            let p = classifier.foliage_probability(f.z.row(k).transpose().as_slice()).expect("has foliage");
+            scores.add(p > 0.5, img.foliage[(r * cols + c) as usize] as f64 >= label_fraction);
+        }
+    }
+    Ok(Some(scores))
 }
 
 /// Scores a model's patch decisions on labelled images.
@@ -469,7 +588,7 @@ mod tests {
                 fractions[(r * cols + c) as usize] = k as f32 / 81.0;
             }
         }
-        LabelledImage { width: w, height: h, rgb, fractions }
+        LabelledImage { width: w, height: h, rgb, fractions, foliage: Vec::new() }
     }
 
     #[test]
@@ -549,6 +668,26 @@ mod tests {
         assert!(err.contains("extractor.pca.variances"), "{err}");
         let err = edit(&|v| v["extractor"]["pca"]["variances"][0] = "x".into());
         assert!(err.contains("extractor.pca.variances[0]: invalid type"), "{err}");
+        // A foliage model must match the features and carry a share in (0, 1].
+        assert!(model.foliage.is_none(), "trained without foliage labels");
+        let with_foliage = |weight: f64, gmm: &VbGmm| {
+            let mut v = json.clone();
+            v["foliage"] = serde_json::json!({ "gmm": gmm, "weight": weight });
+            AppearanceModel::from_json(&v.to_string(), "m.json")
+        };
+        let loaded = with_foliage(0.3, &model.background).unwrap();
+        assert!(PatchClassifier::new(&loaded).unwrap().has_foliage());
+        let err = with_foliage(0.0, &model.background).unwrap_err().to_string();
+        assert!(err.contains("foliage.weight"), "{err}");
+        let other = train(
+            2,
+            |i| Ok(scene(i as u64, 90, 63)),
+            &TrainingOptions { pca_dims: 3, ..options.clone() },
+            |_, _, _| {},
+        )
+        .unwrap();
+        let err = with_foliage(0.3, &other.background).unwrap_err().to_string();
+        assert!(err.contains("foliage.gmm is"), "{err}");
     }
 
     #[test]

@@ -81,6 +81,11 @@ pub struct SegmentationConfig {
     /// from a post: the cluster is an object by its other criteria but `band_visible` is
     /// false, and the pipeline only lets it update landmarks already confirmed.
     pub min_band_rows: usize,
+    /// Count the band's foliage patches with its object patches, when the appearance model
+    /// can tell foliage: a tree's trunk ends in its canopy, so where a short tree's canopy
+    /// comes down into the band its leaves carry the trunk on, while a post ends in whatever
+    /// stands behind it. A patch is foliage when that is more probable than not.
+    pub band_counts_foliage: bool,
     /// Extra patch columns classified on each side of the projected points.
     pub column_margin: u32,
     /// A patch is an object patch when R exceeds this; absent: the classifier's own threshold
@@ -99,6 +104,7 @@ impl Default for SegmentationConfig {
             above_band_from_m: 2.2,
             above_band_m: 2.7,
             min_band_rows: 2,
+            band_counts_foliage: true,
             column_margin: 0,
             patch_threshold: None,
         }
@@ -174,9 +180,12 @@ pub struct SegmentedCluster {
     /// Distinct patches (col, row) the cluster's laser points project into.
     pub hit_patches: Vec<(u32, u32)>,
     pub hit_fraction: f64,
-    /// Fraction of object patches in the judged band (see [`SegmentationConfig`]); the hit
-    /// fraction when the band is not visible.
+    /// Fraction of object patches (with foliage patches, see
+    /// [`SegmentationConfig::band_counts_foliage`]) in the judged band; the hit fraction when
+    /// the band is not visible.
     pub above_fraction: f64,
+    /// Of the band's patches counted in `above_fraction`, how many were foliage.
+    pub band_foliage_patches: usize,
     /// Whether at least `min_band_rows` rows of the band are in the image.
     pub band_visible: bool,
     /// Whether the cluster's laser points reach the image's left or right edge (the object
@@ -346,6 +355,8 @@ pub fn segment_located(
         })
         .collect();
     let band_visible = band_rows.len() >= config.min_band_rows.max(1);
+    let count_foliage = config.band_counts_foliage && classifier.has_foliage();
+    let mut band_foliage_patches = 0;
     let above_fraction = if !band_visible {
         hit_fraction
     } else if trunk_columns.is_empty() {
@@ -354,11 +365,37 @@ pub fn segment_located(
         let mut columns = trunk_columns;
         columns.sort_unstable();
         columns.dedup();
-        let n = band_rows
-            .iter()
-            .flat_map(|&row| columns.iter().map(move |&c| (c, row)))
-            .filter(|&(c, row)| features.index(c, row).is_some_and(|i| object[i]))
-            .count();
+        let is_foliage = |i: usize| {
+            classifier.foliage_probability(features.z.row(i).transpose().as_slice()).is_some_and(|p| p > 0.5)
+        };
+        let band_bottom_row = *band_rows.iter().max().expect("a visible band has rows");
+        let mut n = 0;
+        for &c in &columns {
+            // Foliage counts only in a column whose trunk ends below the band and runs
+            // straight into it: the object patches above the laser end below the band's
+            // lowest row, and the patch above the last of them is foliage. Leaves seen
+            // behind a post's top, across a gap of background, do not carry it on; nor do
+            // leaves above an object that reaches the band, which its own patches judge.
+            // (Allowing one patch of background between trunk and leaves, for a patch across
+            // both, mapped more trees of the tune split but also more posts, and tripled
+            // its wrong associations: docs/results.md#generalisation.)
+            let ends_in_canopy = count_foliage && {
+                let mut row = top_hit_row;
+                while row > rect.row0 && features.index(c, row - 1).is_some_and(|i| object[i]) {
+                    row -= 1;
+                }
+                row > band_bottom_row && row > rect.row0 && features.index(c, row - 1).is_some_and(is_foliage)
+            };
+            for &row in &band_rows {
+                let Some(i) = features.index(c, row) else { continue };
+                if object[i] {
+                    n += 1;
+                } else if ends_in_canopy && is_foliage(i) {
+                    n += 1;
+                    band_foliage_patches += 1;
+                }
+            }
+        }
         n as f64 / (band_rows.len() * columns.len()) as f64
     };
     let is_object = hit_fraction >= config.min_hit_fraction
@@ -372,6 +409,7 @@ pub fn segment_located(
         hit_patches: hits,
         hit_fraction,
         above_fraction,
+        band_foliage_patches,
         band_visible,
         at_image_edge,
         row_profile,
@@ -397,6 +435,155 @@ mod tests {
             height: 480,
             laser_from_camera: Extrinsics::from_parts(&phi, &Vector3::new(0.0, 0.0, 0.3)),
         }
+    }
+
+    /// Synthetic textures: bark (vertical stripes), leaves (blotches), sky and grass.
+    const BARK: u8 = 1;
+    const LEAVES: u8 = 2;
+    const SKY: u8 = 3;
+    const GRASS: u8 = 4;
+
+    /// Paints `kind_at(x, y)` with its texture and a seeded noise; returns the pixels and
+    /// the kinds.
+    fn paint(w: u32, h: u32, seed: u64, kind_at: impl Fn(u32, u32) -> u8) -> (Vec<u8>, Vec<u8>) {
+        let mut s = seed.wrapping_mul(2654435761).wrapping_add(7);
+        let (mut rgb, mut kinds) = (Vec::new(), Vec::new());
+        for y in 0..h {
+            for x in 0..w {
+                s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+                let n = ((s >> 33) % 30) as u8;
+                let kind = kind_at(x, y);
+                let stripe = if x % 4 < 2 { 0 } else { 25 };
+                let blotch = if (x / 3 + y / 3) % 2 == 0 { 0 } else { 40 };
+                rgb.extend(match kind {
+                    BARK => [90 + stripe + n, 60 + stripe / 2 + n / 2, 35 + n / 3],
+                    LEAVES => [20 + n / 2, 60 + blotch + n / 2, 20 + n / 3],
+                    SKY => [170 + n / 6, 200 + n / 6, 235],
+                    _ => [40 + n / 2, 110 + n, 40 + n / 3],
+                });
+                kinds.push(kind);
+            }
+        }
+        (rgb, kinds)
+    }
+
+    /// Fraction of each 9 px patch of kind `kind`.
+    fn fractions(kinds: &[u8], w: u32, h: u32, kind: u8) -> Vec<f32> {
+        let (cols, rows) = (w / 9, h / 9);
+        let mut out = vec![0.0f32; (cols * rows) as usize];
+        for r in 0..rows {
+            for c in 0..cols {
+                let n = (r * 9..(r + 1) * 9)
+                    .flat_map(|y| (c * 9..(c + 1) * 9).map(move |x| (x, y)))
+                    .filter(|&(x, y)| kinds[(y * w + x) as usize] == kind)
+                    .count();
+                out[(r * cols + c) as usize] = n as f32 / 81.0;
+            }
+        }
+        out
+    }
+
+    /// A tree (trunk under a canopy) on sky and grass, at a seeded place and size.
+    fn training_scene(seed: u64) -> crate::classifier::LabelledImage {
+        let (w, h) = (180, 135);
+        let x0 = 20 + (seed * 37 % 100) as u32;
+        let tw = 15 + (seed * 13 % 20) as u32;
+        let canopy_bottom = 25 + (seed * 7 % 30) as u32;
+        let (rgb, kinds) = paint(w, h, seed, |x, y| {
+            if y < canopy_bottom && x + 25 >= x0 && x < x0 + tw + 25 {
+                LEAVES
+            } else if y >= canopy_bottom && x >= x0 && x < x0 + tw {
+                BARK
+            } else if y < h / 2 {
+                SKY
+            } else {
+                GRASS
+            }
+        });
+        crate::classifier::LabelledImage {
+            width: w,
+            height: h,
+            rgb,
+            fractions: fractions(&kinds, w, h, BARK),
+            foliage: fractions(&kinds, w, h, LEAVES),
+        }
+    }
+
+    /// A bark column 45 px wide (patch columns 33-37) from `top` down, with leaves above
+    /// `canopy_bottom` (behind or on it), on sky and grass: seen by [`geometry`], a trunk
+    /// 5 m ahead.
+    fn column_scene(top: u32, canopy_bottom: u32) -> Vec<u8> {
+        paint(640, 480, 99, |x, y| {
+            if y < canopy_bottom && (220..420).contains(&x) {
+                LEAVES
+            } else if y >= top && (297..342).contains(&x) {
+                BARK
+            } else if y < 240 {
+                SKY
+            } else {
+                GRASS
+            }
+        })
+        .0
+    }
+
+    #[test]
+    fn a_trunk_that_runs_into_its_canopy_passes_the_band_and_a_post_before_leaves_does_not() {
+        use crate::classifier::{PatchClassifier, TrainingOptions, train};
+        use crate::gmm::VbOptions;
+        let options = TrainingOptions {
+            pca_dims: 6,
+            max_patches_per_class: 3000,
+            vb: VbOptions { max_components: 4, ..Default::default() },
+            ..Default::default()
+        };
+        let model = train(8, |i| Ok(training_scene(i as u64 + 1)), &options, |_, _, _| {}).unwrap();
+        assert!(model.foliage.is_some() && model.training.foliage_patches > 0);
+        let classifier = PatchClassifier::new(&model).unwrap();
+        let g = geometry();
+        // A trunk 0.3 m wide 5 m ahead: its points land on row 30 (v = 270), columns 33-37.
+        let points: Vec<[f64; 2]> = (0..7).map(|k| [5.0, -0.15 + 0.05 * k as f64]).collect();
+        let cluster = Cluster {
+            first_beam: 0,
+            last_beam: 6,
+            points,
+            centre: [5.15, 0.0],
+            diameter_m: 0.3,
+            range_m: 5.15,
+            bearing_rad: 0.0,
+            occluded: false,
+        };
+        let segment = |rgb: &[u8], config: &SegmentationConfig| {
+            let image = ImageRef::new(640, 480, rgb).unwrap();
+            let located = locate_cluster(&cluster, &g, 640, 480, 9, config).unwrap();
+            segment_located(&cluster, located, &image, &model.extractor, &classifier, &g, config).unwrap()
+        };
+        let counting = SegmentationConfig::default();
+        let not_counting = SegmentationConfig { band_counts_foliage: false, ..counting.clone() };
+        // The band (2.2-2.7 m above the laser at 5 m) is the image's top 50 rows: a short
+        // tree's canopy, down to 70, fills it.
+        let tree = column_scene(70, 70);
+        let seen = segment(&tree, &counting);
+        assert!(seen.band_visible && seen.band_foliage_patches > 0, "{seen:?}");
+        assert!(seen.is_object, "above fraction {}", seen.above_fraction);
+        let bark_only = segment(&tree, &not_counting);
+        assert!(!bark_only.is_object && bark_only.band_foliage_patches == 0, "{}", bark_only.above_fraction);
+        // A post ending 1.5 m above the laser (v = 120) with the same leaves behind its top,
+        // across a gap of sky: the classifier calls those leaves foliage, but they do not
+        // carry the post on.
+        let post = column_scene(120, 40);
+        let seen = segment(&post, &counting);
+        let leaves = (0..4)
+            .filter_map(|row| seen.features.index(35, row))
+            .filter(|&i| classifier.foliage_probability(seen.features.z.row(i).transpose().as_slice()).unwrap() > 0.5)
+            .count();
+        assert!(leaves >= 3, "the band's leaves above the post are foliage: {leaves} of 4");
+        assert!(!seen.is_object && seen.band_foliage_patches == 0, "above fraction {}", seen.above_fraction);
+        // A post reaching the band's lowest row (its top at v = 45) with leaves right on its
+        // top: its own patches judge the band, and the leaves above it do not count.
+        let tall_post = column_scene(45, 45);
+        let seen = segment(&tall_post, &counting);
+        assert!(!seen.is_object && seen.band_foliage_patches == 0, "above fraction {}", seen.above_fraction);
     }
 
     #[test]

@@ -5,7 +5,8 @@ use scenarios::dataset::{DatasetConfig, make_dataset};
 use slam::classifier::TrainingOptions;
 
 /// A CI-sized run (40 images, 6,000 patches per class) measured held-out patch F1 0.82
-/// (precision 0.72, recall 0.95); the guard is 0.8. At full size (100 images, 20,000
+/// (precision 0.72, recall 0.95); the guard is 0.8. Its foliage model: F1 0.84 (precision
+/// 0.85, recall 0.83), guarded at 0.75. At full size (100 images, 20,000
 /// patches per class: `objslam train` defaults, see docs/results.md) F1 is 0.89, above the
 /// 0.85 goal.
 #[test]
@@ -23,6 +24,10 @@ fn tree_patches_are_found_on_held_out_rendered_images() {
     let s = model.training.heldout.expect("held-out images");
     eprintln!("held-out patches: precision {:.3}, recall {:.3}, F1 {:.3}", s.precision(), s.recall(), s.f1());
     assert!(s.f1() >= 0.8, "F1 {:.3} (precision {:.3}, recall {:.3})", s.f1(), s.precision(), s.recall());
+    let f = model.training.foliage_heldout.expect("a foliage model, scored on the held-out images");
+    eprintln!("held-out foliage: precision {:.3}, recall {:.3}, F1 {:.3}", f.precision(), f.recall(), f.f1());
+    // Measured: foliage precision 0.85, recall 0.83 (F1 0.84) on the held-out images.
+    assert!(f.f1() >= 0.75, "foliage F1 {:.3} (precision {:.3}, recall {:.3})", f.f1(), f.precision(), f.recall());
 
     // Scored on every image of another world, as `objslam train --heldout-dataset` does.
     let other = dir.join("other");

@@ -467,6 +467,12 @@ pub(super) const KEYS: &[(&str, &str)] = &[
          judged only updates landmarks already confirmed; 1 to 1000.",
     ),
     (
+        "pipeline.segmentation.band_counts_foliage",
+        "Count the band's foliage patches with its object patches in a column whose object patches end below the \
+         band straight in foliage (a trunk ending in its canopy), when the appearance model has a foliage model; \
+         true or false.",
+    ),
+    (
         "pipeline.segmentation.column_margin",
         "Extra patch columns classified on each side of the projected laser points; at most 1000.",
     ),

@@ -125,6 +125,7 @@ mod tests {
             is_object: true,
             hit_fraction: 1.0,
             above_fraction: 0.0,
+            band_foliage_patches: 0,
             pooled: None,
             observed: true,
             band_visible,

@@ -122,6 +122,7 @@ impl Pipeline {
                 is_object: seg.is_object,
                 hit_fraction: seg.hit_fraction,
                 above_fraction: seg.above_fraction,
+                band_foliage_patches: seg.band_foliage_patches,
                 pooled: pooled.flatten(),
                 observed,
                 band_visible: seg.band_visible,

@@ -93,6 +93,10 @@ pub struct ClusterSegmentation {
     /// Fraction of the patches its laser points fall in that are object patches.
     pub hit_fraction: f64,
     pub above_fraction: f64,
+    /// Of the band's patches counted in `above_fraction`, those that were foliage on top of
+    /// the trunk (see [`crate::segmentation::SegmentationConfig::band_counts_foliage`]).
+    #[serde(default)]
+    pub band_foliage_patches: usize,
     /// The pooled evidence of the cluster's place (see [`crate::evidence`]), when pooling.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub pooled: Option<Judgement>,
