@@ -230,6 +230,8 @@ pub struct ReplayMetrics {
     pub detections: usize,
     /// Camera frames given to the pipeline (the camera methods'; 0 for the others).
     pub camera_frames: usize,
+    /// The appearance model the camera methods used (null for the others).
+    pub appearance_model: Option<crate::run::ModelProvenance>,
     pub landmarks: usize,
     pub reference: Option<ReferenceScore>,
     pub nis: Nis,
@@ -288,11 +290,13 @@ pub fn replay(
                 return Err(ReplayError::NoFrames { method });
             }
             let model = appearance.ok_or(ReplayError::NoAppearanceModel { method })?;
-            Some((Appearance::new(model, geometry)?, camera))
+            let provenance = crate::run::ModelProvenance::of(&model);
+            Some(((Appearance::new(model, geometry)?, provenance), camera))
         }
         false => None,
     };
     let (appearance, camera) = camera.unzip();
+    let (appearance, model_provenance) = appearance.unzip();
     // Frames only reach the methods that read them.
     let frames: &[robotlog::CameraFrameFile] = if camera.is_some() { &log.camera } else { &[] };
     let mut pipeline = Pipeline::new(config.clone(), log.manifest.vehicle.start_pose, appearance)
@@ -406,6 +410,7 @@ pub fn replay(
         scans,
         detections,
         camera_frames: frames.len(),
+        appearance_model: model_provenance,
         landmarks: landmarks.len(),
         reference: score_reference(&log.manifest, &log.reference, &reference.pairs, spikes.len()),
         nis: nis.finish(),
@@ -747,6 +752,7 @@ fn write_outputs(
             "version": env!("CARGO_PKG_VERSION"),
             "log": manifest,
             "configuration": replay.config,
+            "appearance_model": replay.metrics.appearance_model,
         }))
         .expect("JSON"),
     )?;

@@ -146,9 +146,18 @@ fn a_recorded_log_with_camera_frames_replays_to_the_combined_runs_estimate() {
     assert_eq!(replayed.metrics.camera_frames, log.camera.len());
     assert!(!replayed.landmarks.is_empty());
     assert_same_estimate(&out, &dir.join("replay"), &replayed);
+    // The replay records which model it used, as the run does: the same model, the same
+    // provenance, in metrics.json and metadata.json.
+    let used = replayed.metrics.appearance_model.as_ref().expect("a camera method records its model");
+    assert_eq!(Some(used), run_metrics.appearance_model.as_ref());
+    assert_eq!(used.digest.as_ref().map(String::len), Some(16));
+    let metadata: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("replay/metadata.json")).unwrap()).unwrap();
+    assert_eq!(metadata["appearance_model"]["digest"].as_str(), used.digest.as_deref());
     // A position method reads no frame of the same log.
     let jcbb = resolve_config(Some(&dir.join("log")), &log.manifest, Some(AssociationMethod::Jcbb), None).unwrap();
-    assert_eq!(replay(log, jcbb, None, None).unwrap().metrics.camera_frames, 0);
+    let position_only = replay(log, jcbb, None, None).unwrap().metrics;
+    assert_eq!((position_only.camera_frames, position_only.appearance_model), (0, None));
     std::fs::remove_dir_all(&dir).ok();
 }
 

@@ -88,6 +88,25 @@ pub struct ModelProvenance {
     /// The graphics adapter that rendered its training images (absent for models trained
     /// before that was recorded).
     pub training_renderer: Option<String>,
+    /// The first 16 hex digits of the SHA-256 of the model's JSON: which model it was, even
+    /// between two trained alike by different builds (absent in older metrics).
+    #[serde(default)]
+    pub digest: Option<String>,
+}
+
+impl ModelProvenance {
+    /// The provenance of `model`.
+    pub fn of(model: &slam::classifier::AppearanceModel) -> ModelProvenance {
+        use sha2::{Digest, Sha256};
+        let json = serde_json::to_string(model).expect("a model serialises");
+        let digest = Sha256::digest(json.as_bytes());
+        ModelProvenance {
+            training_seed: model.training.seed,
+            training_images: model.training.images,
+            training_renderer: model.training.renderer.clone(),
+            digest: Some(digest.iter().take(8).map(|b| format!("{b:02x}")).collect()),
+        }
+    }
 }
 
 impl Metrics {

@@ -388,11 +388,7 @@ pub fn run(
     let map_landmarks: Vec<MapLandmark> =
         pipeline.mapped_landmarks().iter().map(|l| MapLandmark { id: l.id, position: l.position }).collect();
     let scored = scorer.finish(&map_landmarks);
-    let model_provenance = appearance_model.as_ref().map(|m| ModelProvenance {
-        training_seed: m.training.seed,
-        training_images: m.training.images,
-        training_renderer: m.training.renderer.clone(),
-    });
+    let model_provenance = appearance_model.as_deref().map(ModelProvenance::of);
     let mut metrics = Metrics {
         scenario: scenario.name.clone(),
         seed,
