@@ -353,6 +353,19 @@ pub(crate) enum MontecarloCommand {
         #[arg(long)]
         out: PathBuf,
     },
+    /// Run one job of a study again with all of `objslam run`'s outputs, to look into a run
+    /// the study found failing, and say whether it repeats the study's record (exit status
+    /// 1 if it does not).
+    Rerun {
+        /// The study's directory (its study.json; a benchmark's DIR/combined or DIR/jcbb).
+        dir: PathBuf,
+        /// The job: its index (`job.index` in runs.jsonl) or its key (`key`).
+        #[arg(long)]
+        job: String,
+        /// Where the run's outputs go.
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// The built-in study of the paper's argument on paper_park: failure rate of combined,
     /// nn and jcbb against odometry heading drift (DIR/odometry) and against post-to-tree
     /// distance (DIR/post_distance). Resumable and shardable like any study.

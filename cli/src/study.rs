@@ -34,6 +34,9 @@ pub(crate) fn montecarlo(args: MontecarloArgs) -> Result<()> {
         println!("merged {} runs from {} directories into {}", runs.len(), dirs.len(), out.display());
         return Ok(());
     }
+    if let Some(MontecarloCommand::Rerun { dir, job, out }) = args.command {
+        return rerun(&dir, &job, &out);
+    }
     if let Some(MontecarloCommand::Study { runs, seed, shard, out }) = args.command {
         let shard = match &shard {
             Some(s) => mc::Shard::parse(s)?,
@@ -194,4 +197,29 @@ fn print_summary(rows: &[scenarios::montecarlo::SummaryRow]) {
             r.min_tree_recall
         );
     }
+}
+
+/// `objslam montecarlo rerun`: one job again, with its outputs, against the study's record.
+fn rerun(dir: &std::path::Path, job: &str, out: &std::path::Path) -> Result<()> {
+    let rerun = scenarios::montecarlo::rerun(dir, job, out)?;
+    println!("job {} ({}), seed {}", rerun.job.index, rerun.job.key(), rerun.job.seed);
+    match (&rerun.record.metrics, &rerun.record.error) {
+        (Some(m), _) => print!("{}", scenarios::run::summary_table(m)),
+        (None, Some(e)) => anyhow::bail!("the run failed: {e}"),
+        (None, None) => anyhow::bail!("the run left no metrics"),
+    }
+    println!("  outputs in {}", out.display());
+    match rerun.repeats_record() {
+        Some(true) => println!("  the same figures as the study's record in {}", dir.join("runs.jsonl").display()),
+        Some(false) => {
+            println!(
+                "  NOT the figures the study recorded in {} (same build, renderer and settings?); they differ in {}",
+                dir.join("runs.jsonl").display(),
+                rerun.differences().join(", ")
+            );
+            std::process::exit(1);
+        }
+        None => println!("  the study has no record of this job yet"),
+    }
+    Ok(())
 }

@@ -645,6 +645,11 @@ impl StudyModels {
 /// Runs one job, with the appearance model of its own scenario; errors and panics become
 /// the record's error.
 pub fn run_job(base: &Scenario, base_dir: &Path, job: &Job, models: &StudyModels) -> RunRecord {
+    run_job_into(base, base_dir, job, models, None)
+}
+
+/// [`run_job`], writing the run's outputs into `out` when given.
+fn run_job_into(base: &Scenario, base_dir: &Path, job: &Job, models: &StudyModels, out: Option<&Path>) -> RunRecord {
     let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| -> Result<Metrics, String> {
         let scenario = job_scenario(base, job).map_err(|e| e.to_string())?;
         let method =
@@ -657,7 +662,7 @@ pub fn run_job(base: &Scenario, base_dir: &Path, job: &Job, models: &StudyModels
         let options = RunOptions {
             seed: Some(job.seed),
             method: Some(method),
-            out: None,
+            out: out.map(Path::to_path_buf),
             appearance,
             full_frames: false,
             bag: None,
@@ -677,6 +682,118 @@ pub fn run_job(base: &Scenario, base_dir: &Path, job: &Job, models: &StudyModels
         }
     };
     RunRecord { key: job.key(), job: job.clone(), metrics, error, retryable: false }
+}
+
+/// A study's job run again with its outputs, beside what the study recorded for it.
+pub struct Rerun {
+    pub job: Job,
+    /// The run just made.
+    pub record: RunRecord,
+    /// The study's record of the job, if it has one.
+    pub recorded: Option<RunRecord>,
+    /// The record's line as written: which figures the recording build wrote.
+    recorded_line: Option<serde_json::Value>,
+}
+
+impl Rerun {
+    /// Whether the run repeats the study's record (wall-clock figures aside); `None` when
+    /// the study has no record of the job. Figures that a newer build records and the
+    /// record lacks are left out of the comparison.
+    pub fn repeats_record(&self) -> Option<bool> {
+        self.recorded.as_ref().map(|_| self.differences().is_empty())
+    }
+
+    /// The recorded figures the run does not repeat, as dotted paths (`metrics.map.posts`);
+    /// empty without a record.
+    pub fn differences(&self) -> Vec<String> {
+        let value = |r: &RunRecord| serde_json::to_value(r.without_wall_clock()).expect("a record serialises");
+        let mut out = Vec::new();
+        if let (Some(r), Some(line)) = (&self.recorded, &self.recorded_line) {
+            let mut recorded = value(r);
+            keep_keys_of(&mut recorded, line);
+            differences_from_record(&recorded, &value(&self.record), "", &mut out);
+        }
+        out
+    }
+}
+
+/// Removes from `value` the object keys that `like` lacks, at every depth: a record read
+/// back gets defaults for figures its build did not write, and those are not figures.
+fn keep_keys_of(value: &mut serde_json::Value, like: &serde_json::Value) {
+    if let (serde_json::Value::Object(v), serde_json::Value::Object(l)) = (value, like) {
+        v.retain(|k, _| l.contains_key(k));
+        for (k, x) in v.iter_mut() {
+            keep_keys_of(x, &l[k]);
+        }
+    }
+}
+
+/// Pushes to `out` the paths where `new` lacks or differs from a value of `recorded`:
+/// objects compared key by key over `recorded`'s keys, other values by equality.
+fn differences_from_record(recorded: &serde_json::Value, new: &serde_json::Value, path: &str, out: &mut Vec<String>) {
+    match (recorded, new) {
+        (serde_json::Value::Object(a), serde_json::Value::Object(b)) => {
+            for (k, v) in a {
+                let here = if path.is_empty() { k.clone() } else { format!("{path}.{k}") };
+                match b.get(k) {
+                    Some(w) => differences_from_record(v, w, &here, out),
+                    None => out.push(here),
+                }
+            }
+        }
+        _ if recorded != new => out.push(path.to_string()),
+        _ => {}
+    }
+}
+
+/// Runs a job of the study in `dir` (its `study.json`) again, writing every output of
+/// `objslam run` into `out`, so that a run a study found failing can be looked into. `job`
+/// is the job's index or its key, as `runs.jsonl` gives them (`job.index`, `key`).
+pub fn rerun(dir: &Path, job: &str, out: &Path) -> Result<Rerun, StudyError> {
+    let plan_file = dir.join("study.json");
+    let bytes = std::fs::read(&plan_file).map_err(|e| StudyError::Io { file: plan_file.clone(), source: e })?;
+    let plan: StudyPlan = serde_json::from_slice(&bytes)
+        .map_err(|e| StudyError::File { file: plan_file.clone(), message: format!("not a study plan ({e})") })?;
+    plan.check()?;
+    let all = jobs(&plan);
+    let job = match job.trim().parse::<usize>() {
+        Ok(index) => all.get(index),
+        Err(_) => all.iter().find(|j| j.key() == job),
+    }
+    .cloned()
+    .ok_or_else(|| StudyError::File {
+        file: plan_file.clone(),
+        message: format!(
+            "no job {job:?} in this study: give an index from 0 to {} or a key from runs.jsonl",
+            all.len().saturating_sub(1)
+        ),
+    })?;
+    let (base, base_dir) = Scenario::load(&plan.scenario)?;
+    let (recorded, recorded_line) = recorded_run(&dir.join("runs.jsonl"), &job.key())?.unzip();
+    let record = run_job_into(&base, &base_dir, &job, &StudyModels::new(&base_dir), Some(out));
+    Ok(Rerun { job, record, recorded, recorded_line })
+}
+
+/// The finished record of the job `key` in a study's `runs.jsonl`, read without touching
+/// the file (a study may be appending to it: its last line may be unfinished).
+fn recorded_run(file: &Path, key: &str) -> Result<Option<(RunRecord, serde_json::Value)>, StudyError> {
+    let text = match std::fs::read_to_string(file) {
+        Ok(t) => t,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+        Err(e) => return Err(StudyError::Io { file: file.into(), source: e }),
+    };
+    let mut found = None;
+    for (i, line) in text.split_inclusive('\n').enumerate().filter(|(_, l)| l.ends_with('\n')) {
+        let bad = |e: serde_json::Error| StudyError::File {
+            file: file.into(),
+            message: format!("line {}: not a run record ({e})", i + 1),
+        };
+        let record: RunRecord = serde_json::from_str(line).map_err(bad)?;
+        if record.key == key && !record.retryable {
+            found = Some((record, serde_json::from_str(line).map_err(bad)?));
+        }
+    }
+    Ok(found)
 }
 
 /// Merges shard directories into `out`: runs de-duplicated by job and ordered by job index.
@@ -836,6 +953,26 @@ pub fn write_summary(plan: &StudyPlan, rows: &[SummaryRow], out: &Path) -> Resul
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_rerun_is_compared_on_the_figures_its_record_holds() {
+        let recorded = serde_json::json!({"map": {"trees_mapped": 3, "posts": 0}, "model": {"seed": 1}});
+        let differences = |new: serde_json::Value| {
+            let mut out = Vec::new();
+            differences_from_record(&recorded, &new, "", &mut out);
+            out
+        };
+        let newer = serde_json::json!({"map": {"trees_mapped": 3, "posts": 0, "palms": 0}, "model": {"seed": 1, "digest": "ab"}});
+        assert!(differences(newer).is_empty(), "keys only the newer build records are left out");
+        let differs = serde_json::json!({"map": {"trees_mapped": 2, "posts": 0}, "model": {"seed": 1}});
+        assert_eq!(differences(differs), ["map.trees_mapped"]);
+        let lacks = serde_json::json!({"map": {"trees_mapped": 3}, "model": {"seed": 1}});
+        assert_eq!(differences(lacks), ["map.posts"], "a recorded figure the rerun lacks is a difference");
+        // A record read back gets defaults for what its build did not write; those go.
+        let mut read_back = serde_json::json!({"model": {"seed": 1, "digest": null}, "map": {"posts": 0}});
+        keep_keys_of(&mut read_back, &serde_json::json!({"model": {"seed": 1}, "map": {"posts": 0}}));
+        assert_eq!(read_back, serde_json::json!({"model": {"seed": 1}, "map": {"posts": 0}}));
+    }
 
     /// Every value of the built-in study makes a valid scenario whose world generates.
     #[test]

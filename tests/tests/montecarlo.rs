@@ -103,6 +103,23 @@ fn sharded_merged_study_equals_the_unsharded_one_and_resumes() {
     std::fs::write(twice.join("runs.jsonl"), &conflicting).unwrap();
     let e = mc::run_study(&plan, Shard::all(), &twice, |_| {}).unwrap_err().to_string();
     assert!(e.contains("runs.jsonl") && e.contains("lines 1 and 19"), "{e}");
+    // Any job runs again with its outputs and repeats its record, found by index or key;
+    // a record that the run does not repeat is told apart.
+    let rerun = mc::rerun(&root.join("whole"), "1", &root.join("rerun")).unwrap();
+    assert_eq!((rerun.job.index, rerun.repeats_record()), (1, Some(true)));
+    for f in ["trajectory_est.tum", "metrics.json", "metadata.json", "landmarks.json"] {
+        assert!(root.join("rerun").join(f).is_file(), "{f} missing");
+    }
+    let edited = root.join("edited");
+    std::fs::create_dir_all(&edited).unwrap();
+    std::fs::copy(root.join("whole/study.json"), edited.join("study.json")).unwrap();
+    let rerun = mc::rerun(&edited, &changed.key, &root.join("rerun2")).unwrap();
+    assert_eq!((rerun.job.key(), rerun.repeats_record()), (changed.key.clone(), None), "no record yet");
+    std::fs::write(edited.join("runs.jsonl"), format!("{}\n", serde_json::to_string(&changed).unwrap())).unwrap();
+    let rerun = mc::rerun(&edited, &changed.key, &root.join("rerun2")).unwrap();
+    assert_eq!(rerun.repeats_record(), Some(false));
+    let e = mc::rerun(&edited, "18", &root.join("rerun3")).err().expect("no job 18").to_string();
+    assert!(e.contains("study.json") && e.contains("0 to 17"), "{e}");
     std::fs::write(dirs[0].join("runs.jsonl"), format!("{}\n", serde_json::to_string(&changed).unwrap())).unwrap();
     let e = mc::merge(&[root.join("whole"), dirs[0].clone()], &root.join("merged2")).unwrap_err().to_string();
     assert!(e.contains("recorded differently"), "{e}");
