@@ -360,7 +360,7 @@ pub(crate) enum MontecarloCommand {
         /// The study's directory (its study.json; a benchmark's DIR/combined or DIR/jcbb).
         dir: PathBuf,
         /// The job: its index (`job.index` in runs.jsonl) or its key (`key`).
-        #[arg(long)]
+        #[arg(long, allow_negative_numbers = true)]
         job: String,
         /// Where the run's outputs go.
         #[arg(long)]

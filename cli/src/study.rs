@@ -203,14 +203,19 @@ fn print_summary(rows: &[scenarios::montecarlo::SummaryRow]) {
 fn rerun(dir: &std::path::Path, job: &str, out: &std::path::Path) -> Result<()> {
     let rerun = scenarios::montecarlo::rerun(dir, job, out)?;
     println!("job {} ({}), seed {}", rerun.job.index, rerun.job.key(), rerun.job.seed);
-    match (&rerun.record.metrics, &rerun.record.error) {
-        (Some(m), _) => print!("{}", scenarios::run::summary_table(m)),
-        (None, Some(e)) => anyhow::bail!("the run failed: {e}"),
-        (None, None) => anyhow::bail!("the run left no metrics"),
-    }
-    println!("  outputs in {}", out.display());
+    let failed = match (&rerun.record.metrics, &rerun.record.error) {
+        (Some(m), _) => {
+            print!("{}", scenarios::run::summary_table(m));
+            println!("  outputs in {}", out.display());
+            false
+        }
+        (None, error) => {
+            println!("  the run failed: {}", error.as_deref().unwrap_or("no metrics and no error"));
+            true
+        }
+    };
     match rerun.repeats_record() {
-        Some(true) => println!("  the same figures as the study's record in {}", dir.join("runs.jsonl").display()),
+        Some(true) => println!("  the same as the study's record in {}", dir.join("runs.jsonl").display()),
         Some(false) => {
             println!(
                 "  NOT the figures the study recorded in {} (same build, renderer and settings?); they differ in {}",
@@ -220,6 +225,9 @@ fn rerun(dir: &std::path::Path, job: &str, out: &std::path::Path) -> Result<()> 
             std::process::exit(1);
         }
         None => println!("  the study has no record of this job yet"),
+    }
+    if failed {
+        std::process::exit(1);
     }
     Ok(())
 }

@@ -22,7 +22,7 @@ fn negative_numbers_are_values_checked_like_any_other() {
         (vec!["montecarlo", "laser_only", "--runs", "-3"], "invalid value '-3' for '--runs <RUNS>'"),
         (vec!["run", "--method", "bogus"], "invalid value 'bogus' for '--method <METHOD>'"),
         (vec!["montecarlo", "laser_only", "--methods", "nn, bogus", "--out", out], "unknown method \"bogus\""),
-        (vec!["montecarlo", "rerun", out, "--job", "0", "--out", out], "study.json"),
+        (vec!["montecarlo", "rerun", out, "--job", "-1", "--out", out], "study.json"),
     ] {
         let (ok, err) = stderr_of(&args);
         assert!(!ok, "{args:?} succeeded");

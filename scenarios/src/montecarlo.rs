@@ -352,9 +352,15 @@ impl Shard {
 /// record wins over a retryable one, the later retryable one over an earlier; two final
 /// records that differ (wall clock aside) are an error naming both lines.
 pub fn read_runs(path: &Path) -> Result<Vec<RunRecord>, StudyError> {
+    Ok(one_record_per_job(path, read_run_lines(path)?)?.into_iter().map(|(_, r)| r).collect())
+}
+
+/// `records` (line, record) of the file `path` with one record per job, as [`read_runs`]
+/// keeps them, each with its line.
+fn one_record_per_job(path: &Path, records: Vec<(usize, RunRecord)>) -> Result<Vec<(usize, RunRecord)>, StudyError> {
     let mut kept: Vec<(usize, RunRecord)> = Vec::new();
     let mut by_key: BTreeMap<String, usize> = BTreeMap::new();
-    for (line, record) in read_run_lines(path)? {
+    for (line, record) in records {
         match by_key.get(&record.key) {
             None => {
                 by_key.insert(record.key.clone(), kept.len());
@@ -376,25 +382,38 @@ pub fn read_runs(path: &Path) -> Result<Vec<RunRecord>, StudyError> {
             }
         }
     }
-    Ok(kept.into_iter().map(|(_, r)| r).collect())
+    Ok(kept)
 }
 
 /// The records of `runs.jsonl` with their line numbers, repairing a torn last line.
 fn read_run_lines(path: &Path) -> Result<Vec<(usize, RunRecord)>, StudyError> {
-    let text = match std::fs::read_to_string(path) {
-        Ok(t) => t,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(vec![]),
-        Err(e) => return Err(StudyError::Io { file: path.into(), source: e }),
-    };
-    let complete = match text.rfind('\n') {
-        Some(i) => &text[..=i],
-        None => "",
-    };
-    if complete.len() != text.len() {
+    let (complete, torn) = complete_lines(path)?;
+    if torn {
         let f =
             OpenOptions::new().write(true).open(path).map_err(|e| StudyError::Io { file: path.into(), source: e })?;
         f.set_len(complete.len() as u64).map_err(|e| StudyError::Io { file: path.into(), source: e })?;
     }
+    parse_run_lines(path, &complete)
+}
+
+/// The text of `path` up to its last newline (empty if there is none or no file), and
+/// whether more (a line being written, or torn by a crash) follows it.
+fn complete_lines(path: &Path) -> Result<(String, bool), StudyError> {
+    let mut bytes = match std::fs::read(path) {
+        Ok(b) => b,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok((String::new(), false)),
+        Err(e) => return Err(StudyError::Io { file: path.into(), source: e }),
+    };
+    let length = bytes.len();
+    bytes.truncate(bytes.iter().rposition(|&b| b == b'\n').map_or(0, |i| i + 1));
+    let torn = bytes.len() != length;
+    let text = String::from_utf8(bytes)
+        .map_err(|e| StudyError::File { file: path.into(), message: format!("not UTF-8 text ({e})") })?;
+    Ok((text, torn))
+}
+
+/// The records of the complete lines `complete` of `path`, with their line numbers.
+fn parse_run_lines(path: &Path, complete: &str) -> Result<Vec<(usize, RunRecord)>, StudyError> {
     complete
         .lines()
         .enumerate()
@@ -697,8 +716,9 @@ pub struct Rerun {
 
 impl Rerun {
     /// Whether the run repeats the study's record (wall-clock figures aside); `None` when
-    /// the study has no record of the job. Figures that a newer build records and the
-    /// record lacks are left out of the comparison.
+    /// the study has no record of the job. Only the figures the record's line holds are
+    /// compared: one that the rerun has and the line lacks (a newer build's key, or an
+    /// optional figure left out when empty) is not.
     pub fn repeats_record(&self) -> Option<bool> {
         self.recorded.as_ref().map(|_| self.differences().is_empty())
     }
@@ -754,8 +774,12 @@ pub fn rerun(dir: &Path, job: &str, out: &Path) -> Result<Rerun, StudyError> {
     let bytes = std::fs::read(&plan_file).map_err(|e| StudyError::Io { file: plan_file.clone(), source: e })?;
     let plan: StudyPlan = serde_json::from_slice(&bytes)
         .map_err(|e| StudyError::File { file: plan_file.clone(), message: format!("not a study plan ({e})") })?;
-    plan.check()?;
+    plan.check()
+        .map_err(|e| StudyError::File { file: plan_file.clone(), message: format!("not a plan that can run ({e})") })?;
     let all = jobs(&plan);
+    if all.is_empty() {
+        return Err(StudyError::File { file: plan_file, message: "this study has no jobs".into() });
+    }
     let job = match job.trim().parse::<usize>() {
         Ok(index) => all.get(index),
         Err(_) => all.iter().find(|j| j.key() == job),
@@ -774,26 +798,19 @@ pub fn rerun(dir: &Path, job: &str, out: &Path) -> Result<Rerun, StudyError> {
     Ok(Rerun { job, record, recorded, recorded_line })
 }
 
-/// The finished record of the job `key` in a study's `runs.jsonl`, read without touching
-/// the file (a study may be appending to it: its last line may be unfinished).
+/// The record of the job `key` in a study's `runs.jsonl` as the study keeps it (a final
+/// one; records that disagree are an error), with its line as written. The file is read
+/// without being touched: a study may be appending to it.
 fn recorded_run(file: &Path, key: &str) -> Result<Option<(RunRecord, serde_json::Value)>, StudyError> {
-    let text = match std::fs::read_to_string(file) {
-        Ok(t) => t,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
-        Err(e) => return Err(StudyError::Io { file: file.into(), source: e }),
+    let (complete, _) = complete_lines(file)?;
+    let records = one_record_per_job(file, parse_run_lines(file, &complete)?)?;
+    let Some((line, record)) = records.into_iter().find(|(_, r)| r.key == key && !r.retryable) else {
+        return Ok(None);
     };
-    let mut found = None;
-    for (i, line) in text.split_inclusive('\n').enumerate().filter(|(_, l)| l.ends_with('\n')) {
-        let bad = |e: serde_json::Error| StudyError::File {
-            file: file.into(),
-            message: format!("line {}: not a run record ({e})", i + 1),
-        };
-        let record: RunRecord = serde_json::from_str(line).map_err(bad)?;
-        if record.key == key && !record.retryable {
-            found = Some((record, serde_json::from_str(line).map_err(bad)?));
-        }
-    }
-    Ok(found)
+    let text = complete.lines().nth(line - 1).expect("a parsed line is in the text");
+    let value = serde_json::from_str(text)
+        .map_err(|e| StudyError::File { file: file.into(), message: format!("line {line}: not a run record ({e})") })?;
+    Ok(Some((record, value)))
 }
 
 /// Merges shard directories into `out`: runs de-duplicated by job and ordered by job index.
