@@ -18,6 +18,7 @@ pub(crate) fn train(args: &crate::args::TrainArgs) -> Result<()> {
         pca_dims: *pca_dims,
         seed: *seed,
         threshold: *threshold,
+        distractors: args.distractors,
         vb: slam::gmm::VbOptions { max_components: *max_components, ..Default::default() },
         ..Default::default()
     };
@@ -69,6 +70,14 @@ pub(crate) fn train(args: &crate::args::TrainArgs) -> Result<()> {
             s.precision(),
             s.recall(),
             s.f1()
+        );
+    }
+    if let Some(d) = &model.distractors {
+        println!(
+            "  distractors: {} patches ({:.1}% of the background), {} components",
+            t.distractor_patches,
+            100.0 * d.weight,
+            d.gmm.effective_components(1e-3)
         );
     }
     let mut worlds = Vec::new();

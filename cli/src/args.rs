@@ -235,6 +235,10 @@ pub(crate) struct TrainArgs {
     pub(crate) threshold: f64,
     #[arg(long, default_value_t = 1, allow_negative_numbers = true)]
     pub(crate) seed: u64,
+    /// Fit posts, palms, walls and people (the distractors) with their own mixture, apart
+    /// from the rest of the background.
+    #[arg(long)]
+    pub(crate) distractors: bool,
 }
 
 #[derive(Subcommand)]

@@ -30,6 +30,9 @@ pub struct AppearanceSource {
     pub max_patches_per_class: usize,
     pub max_components: usize,
     pub pca_dims: usize,
+    /// Fit the distractors (posts, palms, walls, people) apart from the rest of the
+    /// background (`slam::classifier::TrainingOptions::distractors`).
+    pub distractors: bool,
 }
 
 /// The run's model is smaller than `objslam train`'s default (d = 10 and 10 components
@@ -46,6 +49,7 @@ impl Default for AppearanceSource {
             max_patches_per_class: 10_000,
             max_components: 10,
             pca_dims: 10,
+            distractors: false,
         }
     }
 }
@@ -95,6 +99,7 @@ impl AppearanceSource {
             pca_dims: self.pca_dims,
             max_patches_per_class: self.max_patches_per_class,
             seed: self.training_seed,
+            distractors: self.distractors,
             vb: VbOptions { max_components: self.max_components, ..Default::default() },
             ..Default::default()
         }
@@ -111,8 +116,32 @@ impl AppearanceSource {
 
     /// The cache file name for this source and camera.
     pub fn cache_key(&self, camera: &sim::camera::CameraConfig) -> String {
-        let mut key = self.clone();
-        key.model = None;
+        /// The source as hashed: without the model file, and `distractors` only when set,
+        /// so models cached before that setting existed keep their keys.
+        #[derive(Serialize)]
+        struct Key<'a> {
+            model: Option<&'a str>,
+            training_preset: &'a str,
+            training_world_seed: u64,
+            training_images: usize,
+            training_seed: u64,
+            max_patches_per_class: usize,
+            max_components: usize,
+            pca_dims: usize,
+            #[serde(skip_serializing_if = "std::ops::Not::not")]
+            distractors: bool,
+        }
+        let key = Key {
+            model: None,
+            training_preset: &self.training_preset,
+            training_world_seed: self.training_world_seed,
+            training_images: self.training_images,
+            training_seed: self.training_seed,
+            max_patches_per_class: self.max_patches_per_class,
+            max_components: self.max_components,
+            pca_dims: self.pca_dims,
+            distractors: self.distractors,
+        };
         let text =
             serde_json::to_string(&(MODEL_FORMAT_VERSION, key, self.dataset_config(camera), self.training_options()))
                 .expect("JSON");
@@ -218,6 +247,20 @@ fn process_ended(pid: u32) -> bool {
 #[cfg(test)]
 mod scratch_tests {
     use super::*;
+
+    #[test]
+    fn the_cache_key_holds_every_training_setting_and_distractors_only_when_set() {
+        let camera = sim::camera::CameraConfig::default();
+        let base = AppearanceSource::default();
+        // The key of the default source as it was before `distractors` existed.
+        assert_eq!(base.cache_key(&camera), "appearance-bdf80a1814484af2.json");
+        let split = AppearanceSource { distractors: true, ..base.clone() };
+        let named = AppearanceSource { model: Some("m.json".into()), ..base.clone() };
+        let other_seed = AppearanceSource { training_seed: 2, ..base.clone() };
+        assert_ne!(split.cache_key(&camera), base.cache_key(&camera));
+        assert_ne!(other_seed.cache_key(&camera), base.cache_key(&camera));
+        assert_eq!(named.cache_key(&camera), base.cache_key(&camera), "the model file is not hashed");
+    }
 
     #[test]
     fn what_a_killed_training_left_is_removed_and_nothing_else() {

@@ -28,6 +28,11 @@ fn file_err(file: &Path, message: impl ToString) -> TrainError {
     TrainError::File { file: file.to_path_buf(), message: message.to_string() }
 }
 
+/// The classes a model may fit apart from the rest of the background (see
+/// `slam::classifier`), less the dataset's wanted classes.
+const DISTRACTORS: [worlds::ObjectClass; 4] =
+    [worlds::ObjectClass::Post, worlds::ObjectClass::Palm, worlds::ObjectClass::Wall, worlds::ObjectClass::Person];
+
 /// Reads `DIR/dataset.json`.
 pub fn read_manifest(dir: &Path) -> Result<Manifest, TrainError> {
     let path = dir.join("dataset.json");
@@ -70,7 +75,12 @@ pub fn load_image(dir: &Path, manifest: &Manifest, i: usize) -> Result<LabelledI
     let foliage =
         crate::dataset::patch_labels(class.as_raw(), w, h, labels.patch_size, &[worlds::ObjectClass::Foliage.id()])
             .fractions;
-    Ok(LabelledImage { width: w, height: h, rgb: rgb.into_raw(), fractions: labels.fractions, foliage })
+    // Distractors: the things that stand up like the wanted objects and are not of their
+    // classes.
+    let distractor_ids: Vec<u8> =
+        DISTRACTORS.iter().filter(|c| !manifest.classes.contains(c)).map(|c| c.id()).collect();
+    let distractors = crate::dataset::patch_labels(class.as_raw(), w, h, labels.patch_size, &distractor_ids).fractions;
+    Ok(LabelledImage { width: w, height: h, rgb: rgb.into_raw(), fractions: labels.fractions, foliage, distractors })
 }
 
 fn model_error(e: TrainError) -> ModelError {

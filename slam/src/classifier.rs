@@ -9,6 +9,12 @@
 //! A third mixture, fitted to the background patches that are leaves (canopies and palm
 //! crowns), tells foliage from the rest of the background: segmentation uses it to see
 //! where a trunk ends in its canopy.
+//!
+//! The background may be split in two: the distractors (posts, palms, walls, people: the
+//! things that look like the object) and the rest, each with its own mixture, so that
+//! p(z | bg) = w_dis p(z | dis) + (1 - w_dis) p(z | rest). Fitted as one, the background's
+//! few components go to sky, grass and leaves, which are most of its patches, and a
+//! post's patches are explained better by the trunk model than by the background's.
 
 use std::path::Path;
 
@@ -103,13 +109,18 @@ pub struct TrainingSummary {
     /// foliage model and the trainer had held-out images.
     #[serde(default)]
     pub foliage_heldout: Option<PatchScores>,
+    /// Background patches that were distractors, when the model fits them apart (0
+    /// otherwise).
+    #[serde(default)]
+    pub distractor_patches: usize,
 }
 
-/// Foliage among the background: its mixture and its share of the background patches.
+/// A part of the background (foliage, distractors): its mixture and its share of the
+/// background patches.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct FoliageModel {
+pub struct BackgroundPart {
     pub gmm: VbGmm,
-    /// w_fol|bg: the foliage patches' share of the background patches.
+    /// The part's share of the background patches (w_fol|bg, w_dis|bg).
     pub weight: f64,
 }
 
@@ -129,7 +140,11 @@ pub struct AppearanceModel {
     pub training: TrainingSummary,
     /// The foliage model; absent in models trained without foliage labels.
     #[serde(default)]
-    pub foliage: Option<FoliageModel>,
+    pub foliage: Option<BackgroundPart>,
+    /// The distractors' model; with it `background` is fitted to the rest of the
+    /// background only. Absent in models trained without distractor labels.
+    #[serde(default)]
+    pub distractors: Option<BackgroundPart>,
 }
 
 impl AppearanceModel {
@@ -169,6 +184,7 @@ impl AppearanceModel {
         for (name, class) in [("object", &model.object), ("background", &model.background)]
             .into_iter()
             .chain(model.foliage.as_ref().map(|f| ("foliage.gmm", &f.gmm)))
+            .chain(model.distractors.as_ref().map(|f| ("distractors.gmm", &f.gmm)))
         {
             class.check().map_err(|e| inconsistent(format!("{name}: {e}")))?;
         }
@@ -186,15 +202,16 @@ impl AppearanceModel {
         if !(model.object_weight > 0.0 && model.object_weight < 1.0) || !(0.0..=1.0).contains(&model.threshold) {
             return Err(inconsistent("object_weight must lie in (0, 1) and threshold in [0, 1]".into()));
         }
-        if let Some(f) = &model.foliage {
+        for (name, part, max) in [("foliage", &model.foliage, 1.0), ("distractors", &model.distractors, 0.999)] {
+            let Some(f) = part else { continue };
             if f.gmm.dims() != d {
                 return Err(inconsistent(format!(
-                    "foliage.gmm is {}-dimensional, features are {d}-dimensional",
+                    "{name}.gmm is {}-dimensional, features are {d}-dimensional",
                     f.gmm.dims()
                 )));
             }
-            if !(f.weight > 0.0 && f.weight <= 1.0) {
-                return Err(inconsistent(format!("foliage.weight must lie in (0, 1], got {}", f.weight)));
+            if !(f.weight > 0.0 && f.weight <= max) {
+                return Err(inconsistent(format!("{name}.weight must lie in (0, {max}], got {}", f.weight)));
             }
         }
         PatchClassifier::new(&model).map_err(|e| inconsistent(e.to_string()))?;
@@ -214,6 +231,10 @@ impl AppearanceModel {
 pub struct PatchClassifier {
     object: GmmEvaluator,
     background: GmmEvaluator,
+    /// The distractors' density and ln w_dis|bg; `background` is then the rest's, weighted
+    /// by `ln_w_rest`.
+    distractors: Option<(GmmEvaluator, f64)>,
+    ln_w_rest: f64,
     ln_w_obj: f64,
     ln_w_bg: f64,
     pub threshold: f64,
@@ -225,9 +246,15 @@ impl PatchClassifier {
     pub fn new(model: &AppearanceModel) -> Result<Self, GmmError> {
         let object = StudentTMixture::new(&model.object)?.gaussian_approximation()?.evaluator()?;
         let background = StudentTMixture::new(&model.background)?.gaussian_approximation()?.evaluator()?;
+        let distractors = match &model.distractors {
+            Some(f) => Some((StudentTMixture::new(&f.gmm)?.gaussian_approximation()?.evaluator()?, f.weight.ln())),
+            None => None,
+        };
         Ok(PatchClassifier {
             object,
             background,
+            ln_w_rest: model.distractors.as_ref().map_or(0.0, |f| (1.0 - f.weight).ln()),
+            distractors,
             ln_w_obj: model.object_weight.ln(),
             ln_w_bg: (1.0 - model.object_weight).ln(),
             threshold: model.threshold,
@@ -249,17 +276,26 @@ impl PatchClassifier {
     pub fn foliage_probability(&self, z: &[f64]) -> Option<f64> {
         let (foliage, ln_w_fol) = self.foliage.as_ref()?;
         let a = self.ln_w_obj + self.object.log_density(z);
-        let ln_p_bg = self.background.log_density(z);
+        let ln_p_bg = self.background_log_density(z);
         let b = self.ln_w_bg + ln_p_bg;
         let p_bg = 1.0 / (1.0 + (a - b).exp());
         let within = (ln_w_fol + foliage.log_density(z) - ln_p_bg).min(0.0).exp();
         Some(p_bg * within)
     }
 
+    /// ln p(z | bg): the background's density, with its distractors' part when it has one.
+    fn background_log_density(&self, z: &[f64]) -> f64 {
+        let rest = self.background.log_density(z);
+        match &self.distractors {
+            Some((d, ln_w)) => gmm::log_sum_exp(&[self.ln_w_rest + rest, ln_w + d.log_density(z)]),
+            None => rest,
+        }
+    }
+
     /// R for one feature row.
     pub fn posterior(&self, z: &[f64]) -> f64 {
         let a = self.ln_w_obj + self.object.log_density(z);
-        let b = self.ln_w_bg + self.background.log_density(z);
+        let b = self.ln_w_bg + self.background_log_density(z);
         1.0 / (1.0 + (b - a).exp())
     }
 
@@ -271,6 +307,7 @@ impl PatchClassifier {
         let mut x = vec![[0.0f64; LANES]; d];
         let mut object = vec![[0.0f64; LANES]; self.object.component_count()];
         let mut background = vec![[0.0f64; LANES]; self.background.component_count()];
+        let mut distractors = vec![[0.0f64; LANES]; self.distractors.as_ref().map_or(0, |(d, _)| d.component_count())];
         let mut lane_terms = Vec::new();
         let mut density = |terms: &[[f64; LANES]], l: usize| {
             lane_terms.clear();
@@ -287,9 +324,17 @@ impl PatchClassifier {
             }
             self.object.log_terms_lanes(&x, &mut object);
             self.background.log_terms_lanes(&x, &mut background);
+            if let Some((d, _)) = &self.distractors {
+                d.log_terms_lanes(&x, &mut distractors);
+            }
             for l in 0..LANES.min(n - first) {
                 let a = self.ln_w_obj + density(&object, l);
-                let b = self.ln_w_bg + density(&background, l);
+                let rest = density(&background, l);
+                let ln_p_bg = match &self.distractors {
+                    Some((_, ln_w)) => gmm::log_sum_exp(&[self.ln_w_rest + rest, ln_w + density(&distractors, l)]),
+                    None => rest,
+                };
+                let b = self.ln_w_bg + ln_p_bg;
                 out.push(1.0 / (1.0 + (b - a).exp()));
             }
         }
@@ -310,6 +355,9 @@ pub struct LabelledImage {
     pub rgb: Vec<u8>,
     /// Foliage fraction of each patch, like `fractions`; empty when the labels do not say.
     pub foliage: Vec<f32>,
+    /// Distractor fraction of each patch (posts, palms, walls, people), like `fractions`;
+    /// empty when the labels do not say.
+    pub distractors: Vec<f32>,
     pub fractions: Vec<f32>,
 }
 
@@ -333,6 +381,13 @@ pub struct TrainingOptions {
     pub object_class: String,
     /// Also fit the foliage model, from the images that carry foliage labels.
     pub foliage: bool,
+    /// Fit the distractors apart from the rest of the background, from the images that
+    /// carry distractor labels (see the module's documentation). Off by default: it
+    /// halves the posts' patches called object on held-out worlds, but the trunks' patches
+    /// lose more of their posterior and runs map fewer trees (docs/results.md). Written
+    /// only when set, so settings from before it existed keep their digests.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub distractors: bool,
 }
 
 impl Default for TrainingOptions {
@@ -348,6 +403,7 @@ impl Default for TrainingOptions {
             seed: 1,
             object_class: "tree".into(),
             foliage: true,
+            distractors: false,
         }
     }
 }
@@ -402,6 +458,8 @@ pub fn train(
     let extractor = FeatureExtractor::new(cfg, pca)?;
     // Pass 2: features of every patch, split by label.
     let (mut obj, mut bg, mut fol): (Vec<f64>, Vec<f64>, Vec<f64>) = (Vec::new(), Vec::new(), Vec::new());
+    // With distractor labels: the distractors' patches and the rest of the background's.
+    let (mut dis, mut rest): (Vec<f64>, Vec<f64>) = (Vec::new(), Vec::new());
     let d = extractor.dims();
     for i in 0..count {
         progress("features", i, count);
@@ -424,6 +482,14 @@ pub fn train(
                 img.fractions.len()
             )));
         }
+        let distractor_labels = options.distractors && !img.distractors.is_empty();
+        if distractor_labels && img.distractors.len() != img.fractions.len() {
+            return Err(ModelError::Training(format!(
+                "image {i}: {} distractor labels for {} patches",
+                img.distractors.len(),
+                img.fractions.len()
+            )));
+        }
         for k in 0..f.z.nrows() {
             let (c, r) = f.rect.patch(k);
             let cell = (r * cols + c) as usize;
@@ -431,6 +497,11 @@ pub fn train(
                 obj.extend(f.z.row(k).iter());
             } else {
                 bg.extend(f.z.row(k).iter());
+                if distractor_labels && img.distractors[cell] as f64 >= options.label_fraction {
+                    dis.extend(f.z.row(k).iter());
+                } else {
+                    rest.extend(f.z.row(k).iter());
+                }
                 if foliage_labels && img.foliage[cell] as f64 >= options.label_fraction {
                     fol.extend(f.z.row(k).iter());
                 }
@@ -452,8 +523,11 @@ pub fn train(
         let flat: Vec<f64> = idx.iter().flat_map(|&i| rows[i * d..(i + 1) * d].iter().copied()).collect();
         DMatrix::from_row_slice(idx.len(), d, &flat)
     };
+    let (n_dis, n_rest) = (dis.len() / d, rest.len() / d);
+    let split = n_dis > d && n_rest > d;
     let obj_data = subsample(&obj, n_obj, &mut rng);
-    let bg_data = subsample(&bg, n_bg, &mut rng);
+    let bg_data = if split { subsample(&rest, n_rest, &mut rng) } else { subsample(&bg, n_bg, &mut rng) };
+    drop(rest);
     progress("object model", 0, 3);
     let object = gmm::fit(&obj_data, None, &options.vb)?;
     progress("background model", 1, 3);
@@ -463,7 +537,14 @@ pub fn train(
     let foliage = if n_fol > d {
         progress("foliage model", 2, 3);
         let fol_data = subsample(&fol, n_fol, &mut rng);
-        Some(FoliageModel { gmm: gmm::fit(&fol_data, None, &options.vb)?, weight: n_fol as f64 / n_bg as f64 })
+        Some(BackgroundPart { gmm: gmm::fit(&fol_data, None, &options.vb)?, weight: n_fol as f64 / n_bg as f64 })
+    } else {
+        None
+    };
+    let distractors = if split {
+        progress("distractor model", 2, 3);
+        let dis_data = subsample(&dis, n_dis, &mut rng);
+        Some(BackgroundPart { gmm: gmm::fit(&dis_data, None, &options.vb)?, weight: n_dis as f64 / n_bg as f64 })
     } else {
         None
     };
@@ -484,12 +565,14 @@ pub fn train(
             heldout: None,
             renderer: None,
             foliage_patches: n_fol,
+            distractor_patches: if split { n_dis } else { 0 },
             foliage_heldout: None,
         },
         extractor,
         object,
         background,
         foliage,
+        distractors,
     })
 }
 
@@ -588,7 +671,7 @@ mod tests {
                 fractions[(r * cols + c) as usize] = k as f32 / 81.0;
             }
         }
-        LabelledImage { width: w, height: h, rgb, fractions, foliage: Vec::new() }
+        LabelledImage { width: w, height: h, rgb, fractions, foliage: Vec::new(), distractors: Vec::new() }
     }
 
     #[test]
@@ -688,6 +771,36 @@ mod tests {
         .unwrap();
         let err = with_foliage(0.3, &other.background).unwrap_err().to_string();
         assert!(err.contains("foliage.gmm is"), "{err}");
+
+        // A distractors' part: the background then mixes it with the rest, so a patch the
+        // distractors' density explains is less of an object patch.
+        assert!(model.distractors.is_none(), "trained without distractor labels");
+        let with_distractors = |weight: f64, gmm: &VbGmm| {
+            let mut v = json.clone();
+            v["distractors"] = serde_json::json!({ "gmm": gmm, "weight": weight });
+            AppearanceModel::from_json(&v.to_string(), "m.json")
+        };
+        let loaded = with_distractors(0.5, &model.object).unwrap();
+        let (plain, split) = (PatchClassifier::new(&model).unwrap(), PatchClassifier::new(&loaded).unwrap());
+        let img = scene(1, 90, 63);
+        let f = model.extractor.features(&ImageRef::new(90, 63, &img.rgb).unwrap(), None).unwrap();
+        let (r_plain, r_split) = (plain.posteriors(&f), split.posteriors(&f));
+        let mut object_patches = 0;
+        for (k, (&a, &b)) in r_plain.iter().zip(&r_split).enumerate() {
+            // Where the object's density is the higher (every object patch, as w_obj < w_bg).
+            if a > 0.5 {
+                assert!(b < a, "patch {k}: R {b} with an object-like distractor part, {a} without");
+                object_patches += 1;
+            }
+            assert!((split.posterior(f.z.row(k).transpose().as_slice()) - b).abs() < 1e-9);
+        }
+        assert!(object_patches > 0);
+        for weight in [0.0, 1.0] {
+            let err = with_distractors(weight, &model.background).unwrap_err().to_string();
+            assert!(err.contains("distractors.weight"), "{err}");
+        }
+        let err = with_distractors(0.3, &other.background).unwrap_err().to_string();
+        assert!(err.contains("distractors.gmm is"), "{err}");
     }
 
     #[test]

@@ -39,6 +39,16 @@ impl CameraGeometry {
         (self.laser_from_camera.delta(), d)
     }
 
+    /// The image of the vertical line through the laser-frame ground point `p` (x, y): a
+    /// trunk's axis. A camera tilted up or down sees vertical lines lean away from the image
+    /// centre's column, so the trunk at the laser's rows and the trunk some metres up lie
+    /// in different columns; `None` when the line is behind the camera or seen end on.
+    pub fn vertical_line(&self, p: [f64; 2]) -> Option<VerticalLine> {
+        let [u0, v0] = self.project(&Vector3::new(p[0], p[1], 0.0))?;
+        let [u1, v1] = self.project(&Vector3::new(p[0], p[1], 1.0))?;
+        ((v1 - v0).abs() > 1e-9).then(|| VerticalLine { u0, v0, du_dv: (u1 - u0) / (v1 - v0) })
+    }
+
     /// Where the ray through (u, v) meets the vertical plane through the laser-frame point
     /// `centre` facing the laser (the object's visible face, to first order).
     pub fn point_on_object_plane(&self, u: f64, v: f64, centre: [f64; 2]) -> Option<Vector3<f64>> {
@@ -50,6 +60,28 @@ impl CameraGeometry {
         let n = Vector3::new(centre[0] / r, centre[1] / r, 0.0);
         let denom = n.dot(&d);
         (denom > 1e-6).then(|| o + d * ((r - n.dot(&o)) / denom))
+    }
+}
+
+/// A vertical line's image (see [`CameraGeometry::vertical_line`]): the pixel column at
+/// any image row. A straight line projects to a straight line, so two points fix it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VerticalLine {
+    u0: f64,
+    v0: f64,
+    du_dv: f64,
+}
+
+impl VerticalLine {
+    /// The pixel column (u) where the line crosses image row `v` (pixels).
+    pub fn u_at(&self, v: f64) -> f64 {
+        self.u0 + (v - self.v0) * self.du_dv
+    }
+
+    /// The patch column at the centre of patch row `row`, `None` left of the image.
+    fn patch_col(&self, row: u32, l: u32) -> Option<u32> {
+        let u = self.u_at((row as f64 + 0.5) * l as f64);
+        (u >= 0.0).then(|| (u / l as f64) as u32)
     }
 }
 
@@ -253,8 +285,23 @@ pub fn locate_cluster(
         return None;
     }
     let at_image_edge = hits.iter().any(|h| h.0 == 0 || h.0 + 1 == cols);
-    let c0 = hits.iter().map(|h| h.0).min().expect("non-empty").saturating_sub(config.column_margin);
-    let c1 = (hits.iter().map(|h| h.0).max().expect("non-empty") + 1 + config.column_margin).min(cols);
+    // The columns the trunk's axis crosses from the laser's rows up to the band's top, for
+    // a camera that is not level (see `CameraGeometry::vertical_line`).
+    let mut lo = hits.iter().map(|h| h.0).min().expect("non-empty");
+    let mut hi = hits.iter().map(|h| h.0).max().expect("non-empty");
+    for p in &cluster.points {
+        let (Some(line), Some([_, v_top])) =
+            (geometry.vertical_line(*p), geometry.project(&Vector3::new(p[0], p[1], config.above_band_m)))
+        else {
+            continue;
+        };
+        let u = line.u_at(v_top.clamp(0.0, (rows * l) as f64));
+        let col = (u.max(0.0) / l as f64).min((cols - 1) as f64) as u32;
+        lo = lo.min(col);
+        hi = hi.max(col);
+    }
+    let c0 = lo.saturating_sub(config.column_margin);
+    let c1 = (hi + 1 + config.column_margin).min(cols);
     Some(ClusterInImage { hits, rect: PatchRect { col0: c0, col1: c1, row0: 0, row1: rows }, at_image_edge })
 }
 
@@ -345,10 +392,33 @@ pub fn segment_located(
             (height, n as f64 / width as f64)
         })
         .collect();
-    // The band is judged in the columns where the laser hit object patches: a thin trunk
-    // fills only some of the cluster's columns, and it is that trunk that must go on up.
-    let trunk_columns: Vec<u32> =
-        hits.iter().filter(|&&(c, r)| features.index(c, r).is_some_and(|i| object[i])).map(|h| h.0).collect();
+    // The band is judged along the trunk: the axis of each column where the laser hit
+    // object patches (a thin trunk fills only some of the cluster's columns, and it is that
+    // trunk that must go on up), followed up the image as it leans (the mean of that
+    // column's trunk points, see `CameraGeometry::vertical_line`).
+    let mut trunk_points: Vec<(u32, [f64; 2], usize)> = Vec::new();
+    for p in &cluster.points {
+        let Some([u, v]) = geometry.project(&Vector3::new(p[0], p[1], 0.0)) else { continue };
+        if u < 0.0 || v < 0.0 {
+            continue;
+        }
+        let (c, r) = ((u / l as f64) as u32, (v / l as f64) as u32);
+        if !features.index(c, r).is_some_and(|i| object[i]) {
+            continue;
+        }
+        match trunk_points.iter_mut().find(|t| t.0 == c) {
+            Some(t) => {
+                t.1 = [t.1[0] + p[0], t.1[1] + p[1]];
+                t.2 += 1;
+            }
+            None => trunk_points.push((c, *p, 1)),
+        }
+    }
+    trunk_points.sort_unstable_by_key(|t| t.0);
+    let trunk_lines: Vec<VerticalLine> = trunk_points
+        .iter()
+        .filter_map(|&(_, sum, n)| geometry.vertical_line([sum[0] / n as f64, sum[1] / n as f64]))
+        .collect();
     let band_rows: Vec<u32> = (rect.row0..top_hit_row)
         .filter(|&row| {
             (config.above_band_from_m..=config.above_band_m).contains(&row_profile[(row - rect.row0) as usize].0)
@@ -359,44 +429,47 @@ pub fn segment_located(
     let mut band_foliage_patches = 0;
     let above_fraction = if !band_visible {
         hit_fraction
-    } else if trunk_columns.is_empty() {
+    } else if trunk_lines.is_empty() {
         0.0
     } else {
-        let mut columns = trunk_columns;
-        columns.sort_unstable();
-        columns.dedup();
         let is_foliage = |i: usize| {
             classifier.foliage_probability(features.z.row(i).transpose().as_slice()).is_some_and(|p| p > 0.5)
         };
         let band_bottom_row = *band_rows.iter().max().expect("a visible band has rows");
-        let mut n = 0;
-        for &c in &columns {
-            // Foliage counts only in a column whose trunk ends below the band and runs
-            // straight into it: the object patches above the laser end below the band's
-            // lowest row, and the patch above the last of them is foliage. Leaves seen
-            // behind a post's top, across a gap of background, do not carry it on; nor do
-            // leaves above an object that reaches the band, which its own patches judge.
-            // (Allowing one patch of background between trunk and leaves, for a patch across
-            // both, mapped more trees of the tune split but also more posts, and tripled
-            // its wrong associations: docs/results.md#generalisation.)
+        let at = |line: &VerticalLine, row: u32| line.patch_col(row, l).and_then(|c| features.index(c, row));
+        // Band patch -> whether it counts; a patch two trunk lines cross counts if either
+        // line counts it.
+        let mut band: Vec<((u32, u32), bool, bool)> = Vec::new();
+        for line in &trunk_lines {
+            // Foliage counts only along a trunk that ends below the band and runs straight
+            // into it: the object patches above the laser end below the band's lowest row,
+            // and the patch above the last of them is foliage. Leaves seen behind a post's
+            // top, across a gap of background, do not carry it on; nor do leaves above an
+            // object that reaches the band, which its own patches judge. (Allowing one
+            // patch of background between trunk and leaves, for a patch across both, mapped
+            // more trees of the tune split but also more posts, and tripled its wrong
+            // associations: docs/results.md#generalisation.)
             let ends_in_canopy = count_foliage && {
                 let mut row = top_hit_row;
-                while row > rect.row0 && features.index(c, row - 1).is_some_and(|i| object[i]) {
+                while row > rect.row0 && at(line, row - 1).is_some_and(|i| object[i]) {
                     row -= 1;
                 }
-                row > band_bottom_row && row > rect.row0 && features.index(c, row - 1).is_some_and(is_foliage)
+                row > band_bottom_row && row > rect.row0 && at(line, row - 1).is_some_and(is_foliage)
             };
             for &row in &band_rows {
-                let Some(i) = features.index(c, row) else { continue };
-                if object[i] {
-                    n += 1;
-                } else if ends_in_canopy && is_foliage(i) {
-                    n += 1;
-                    band_foliage_patches += 1;
+                let Some(i) = at(line, row) else { continue };
+                let by_leaves = !object[i] && ends_in_canopy && is_foliage(i);
+                let counts = object[i] || by_leaves;
+                let patch = rect.patch(i);
+                match band.iter_mut().find(|b| b.0 == patch) {
+                    Some(b) if !b.1 && counts => *b = (patch, true, by_leaves),
+                    Some(_) => {}
+                    None => band.push((patch, counts, by_leaves)),
                 }
             }
         }
-        n as f64 / (band_rows.len() * columns.len()) as f64
+        band_foliage_patches = band.iter().filter(|b| b.2).count();
+        band.iter().filter(|b| b.1).count() as f64 / band.len().max(1) as f64
     };
     let is_object = hit_fraction >= config.min_hit_fraction
         && n_object >= config.min_object_patches
@@ -506,6 +579,7 @@ mod tests {
             rgb,
             fractions: fractions(&kinds, w, h, BARK),
             foliage: fractions(&kinds, w, h, LEAVES),
+            distractors: Vec::new(),
         }
     }
 
@@ -527,9 +601,9 @@ mod tests {
         .0
     }
 
-    #[test]
-    fn a_trunk_that_runs_into_its_canopy_passes_the_band_and_a_post_before_leaves_does_not() {
-        use crate::classifier::{PatchClassifier, TrainingOptions, train};
+    /// A model of bark against leaves, sky and grass, trained on [`training_scene`]s.
+    fn bark_model() -> crate::classifier::AppearanceModel {
+        use crate::classifier::{TrainingOptions, train};
         use crate::gmm::VbOptions;
         let options = TrainingOptions {
             pca_dims: 6,
@@ -537,7 +611,80 @@ mod tests {
             vb: VbOptions { max_components: 4, ..Default::default() },
             ..Default::default()
         };
-        let model = train(8, |i| Ok(training_scene(i as u64 + 1)), &options, |_, _, _| {}).unwrap();
+        train(8, |i| Ok(training_scene(i as u64 + 1)), &options, |_, _, _| {}).unwrap()
+    }
+
+    /// Points of a trunk of radius `r` at laser-frame `centre`, on the arc facing the laser.
+    fn trunk_cluster(centre: [f64; 2], r: f64) -> Cluster {
+        let range = (centre[0].powi(2) + centre[1].powi(2)).sqrt();
+        let toward = centre[1].atan2(centre[0]) + std::f64::consts::PI;
+        let points: Vec<[f64; 2]> = (-3..=3)
+            .map(|k| {
+                let a = toward + k as f64 * 0.3;
+                [centre[0] + r * a.cos(), centre[1] + r * a.sin()]
+            })
+            .collect();
+        Cluster {
+            first_beam: 0,
+            last_beam: points.len() - 1,
+            points,
+            centre,
+            diameter_m: 2.0 * r,
+            range_m: range,
+            bearing_rad: centre[1].atan2(centre[0]),
+            occluded: false,
+        }
+    }
+
+    #[test]
+    fn a_tilted_camera_sees_vertical_lines_lean_and_the_band_follows_the_trunk() {
+        use crate::classifier::PatchClassifier;
+        // Pitched up 15 degrees: optical z = (cos, 0, sin), x = -laser y, y = z cross x.
+        let (s, c) = 15f64.to_radians().sin_cos();
+        let phi = Matrix3::new(0.0, s, c, -1.0, 0.0, 0.0, 0.0, -c, s);
+        let g = CameraGeometry {
+            laser_from_camera: Extrinsics::from_parts(&phi, &Vector3::new(0.0, 0.0, 0.3)),
+            ..geometry()
+        };
+        let centre = [5.0, 2.5];
+        let line = g.vertical_line(centre).unwrap();
+        for z in [-0.2, 0.0, 1.3, 2.5, 4.0] {
+            let [u, v] = g.project(&Vector3::new(centre[0], centre[1], z)).unwrap();
+            assert!((line.u_at(v) - u).abs() < 1e-9, "the line holds the trunk's point {z} m up");
+        }
+        // A trunk 0.3 m thick, left of the axis: from the laser's rows to the band it leans
+        // right by more than its own width in the image.
+        let [u_laser, _] = g.project(&Vector3::new(centre[0], centre[1], 0.0)).unwrap();
+        let [u_band, _] = g.project(&Vector3::new(centre[0], centre[1], 2.45)).unwrap();
+        assert!(u_band - u_laser > 30.0, "lean {} px", u_band - u_laser);
+        // Painted as the camera sees it: bark along the leaning line, sky above the horizon.
+        let horizon = g.project(&Vector3::new(1000.0, 0.0, 0.3)).unwrap()[1] as u32;
+        let (rgb, _) = paint(640, 480, 5, |x, y| {
+            if (x as f64 - line.u_at(y as f64 + 0.5)).abs() < 15.0 {
+                BARK
+            } else if y < horizon {
+                SKY
+            } else {
+                GRASS
+            }
+        });
+        let model = bark_model();
+        let classifier = PatchClassifier::new(&model).unwrap();
+        let config = SegmentationConfig::default();
+        let cluster = trunk_cluster(centre, 0.15);
+        let located = locate_cluster(&cluster, &g, 640, 480, 9, &config).unwrap();
+        let hit_cols = located.hits.iter().map(|h| h.0).max().unwrap();
+        assert!(located.rect.col1 > hit_cols + 2, "the classified columns reach the band's: {:?}", located.rect);
+        let image = ImageRef::new(640, 480, &rgb).unwrap();
+        let seen = segment_located(&cluster, located, &image, &model.extractor, &classifier, &g, &config).unwrap();
+        assert!(seen.band_visible && seen.above_fraction >= 0.9, "band fraction {}", seen.above_fraction);
+        assert!(seen.is_object);
+    }
+
+    #[test]
+    fn a_trunk_that_runs_into_its_canopy_passes_the_band_and_a_post_before_leaves_does_not() {
+        use crate::classifier::PatchClassifier;
+        let model = bark_model();
         assert!(model.foliage.is_some() && model.training.foliage_patches > 0);
         let classifier = PatchClassifier::new(&model).unwrap();
         let g = geometry();

@@ -42,6 +42,31 @@ fn tree_patches_are_found_on_held_out_rendered_images() {
     // Measured on this pair: precision 0.84, recall 0.95 (posts 154 of 185 patches called
     // object); the guard only says the model still finds trees in a world it never saw.
     assert!(w.f1 >= 0.5, "another world's F1 {:.3} (precision {:.3}, recall {:.3})", w.f1, w.precision, w.recall);
+
+    // The distractors (posts, palms, walls, people) fitted apart from the rest of the
+    // background (`distractors`, off by default): without that, the other world's posts
+    // are mostly called object.
+    assert!(model.distractors.is_none());
+    let apart = TrainingOptions { distractors: true, ..options.clone() };
+    let (split, _) = scenarios::train::train_from_dataset(&dir, &apart, 4, |_, _, _| {}).unwrap();
+    assert!(split.distractors.is_some() && split.training.distractor_patches > 0);
+    let (p, w) = (w, scenarios::train::score_on_dataset(&other, &split, options.label_fraction).unwrap());
+    let share = |w: &scenarios::train::HeldoutWorld, class: &str| {
+        let (n, called) = w.by_class[class];
+        called as f64 / n as f64
+    };
+    eprintln!(
+        "posts called object: {:.3} with the distractors apart, {:.3} without; precision {:.3} against {:.3}",
+        share(&w, "post"),
+        share(&p, "post"),
+        w.precision,
+        p.precision
+    );
+    // Measured on this pair: 0.70 of the posts' patches against 0.80, precision 0.88
+    // against 0.85. (At the run's model size, 10 components where this has 20, the
+    // posts fall from 0.83 to 0.32 on 40 images of this world: docs/results.md.)
+    assert!(share(&w, "post") < 0.9 * share(&p, "post"), "posts {:?} against {:?}", w.by_class, p.by_class);
+    assert!(w.precision > p.precision, "precision {:.3} against {:.3}", w.precision, p.precision);
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -587,6 +587,11 @@ pub(super) const KEYS: &[(&str, &str)] = &[
          10000000.",
     ),
     (
+        "appearance.distractors",
+        "Fit posts, palms, walls and people with their own mixture, apart from the rest of the background: \
+         fewer posts' patches called object, but fewer trees mapped (docs/results.md).",
+    ),
+    (
         "appearance.max_components",
         "Most mixture components of each class's appearance density (the search grows up to it); 1 to 100.",
     ),
