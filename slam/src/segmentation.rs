@@ -96,9 +96,10 @@ pub struct SegmentationConfig {
     /// ...and at least this many object patches lie in its columns...
     pub min_object_patches: usize,
     /// ...and at least this fraction of the patches between `above_band_from_m` and
-    /// `above_band_m` above the laser plane (at the cluster's range), in the columns where
-    /// the laser hit object patches, are object patches: a trunk goes on up the image,
-    /// while posts, people and most look-alikes end lower with background above them.
+    /// `above_band_m` above the laser plane (at the cluster's range), along the trunk's axis
+    /// up from where the laser hit object patches, are object patches: a trunk goes on up
+    /// the image, while posts, people and most look-alikes end lower with background above
+    /// them.
     pub min_above_fraction: f64,
     /// Bottom of the judged band (m above the laser plane): lower rows are object for posts
     /// and trees alike. 2.2 m is 0.1 m above the park generator's tallest post, a constant

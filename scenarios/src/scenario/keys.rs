@@ -453,8 +453,9 @@ pub(super) const KEYS: &[(&str, &str)] = &[
     ),
     (
         "pipeline.segmentation.min_above_fraction",
-        "...and at least this fraction of the patches in the band above the laser, in the columns where the \
-         laser hit object patches, are object patches; in [0, 1].",
+        "...and at least this fraction of the patches in the band above the laser, along the trunk up from \
+         where the laser hit object patches (as the camera sees it, leaning when tilted), are object patches; in \
+         [0, 1].",
     ),
     (
         "pipeline.segmentation.above_band_from_m",
