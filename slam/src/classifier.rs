@@ -285,10 +285,15 @@ impl PatchClassifier {
 
     /// ln p(z | bg): the background's density, with its distractors' part when it has one.
     fn background_log_density(&self, z: &[f64]) -> f64 {
-        let rest = self.background.log_density(z);
-        match &self.distractors {
-            Some((d, ln_w)) => gmm::log_sum_exp(&[self.ln_w_rest + rest, ln_w + d.log_density(z)]),
-            None => rest,
+        self.mix_background(self.background.log_density(z), self.distractors.as_ref().map(|(d, _)| d.log_density(z)))
+    }
+
+    /// ln p(z | bg) from the rest's ln density and the distractors' (`None` where the model
+    /// has none).
+    fn mix_background(&self, ln_p_rest: f64, ln_p_dis: Option<f64>) -> f64 {
+        match (&self.distractors, ln_p_dis) {
+            (Some((_, ln_w)), Some(dis)) => gmm::log_sum_exp(&[self.ln_w_rest + ln_p_rest, ln_w + dis]),
+            _ => ln_p_rest,
         }
     }
 
@@ -330,11 +335,8 @@ impl PatchClassifier {
             for l in 0..LANES.min(n - first) {
                 let a = self.ln_w_obj + density(&object, l);
                 let rest = density(&background, l);
-                let ln_p_bg = match &self.distractors {
-                    Some((_, ln_w)) => gmm::log_sum_exp(&[self.ln_w_rest + rest, ln_w + density(&distractors, l)]),
-                    None => rest,
-                };
-                let b = self.ln_w_bg + ln_p_bg;
+                let b = self.ln_w_bg
+                    + self.mix_background(rest, self.distractors.as_ref().map(|_| density(&distractors, l)));
                 out.push(1.0 / (1.0 + (b - a).exp()));
             }
         }
@@ -457,8 +459,8 @@ pub fn train(
     drop(sample_rows);
     let extractor = FeatureExtractor::new(cfg, pca)?;
     // Pass 2: features of every patch, split by label.
-    let (mut obj, mut bg, mut fol): (Vec<f64>, Vec<f64>, Vec<f64>) = (Vec::new(), Vec::new(), Vec::new());
-    // With distractor labels: the distractors' patches and the rest of the background's.
+    let (mut obj, mut fol): (Vec<f64>, Vec<f64>) = (Vec::new(), Vec::new());
+    // The background's patches: the distractors' (with distractor labels) and the rest.
     let (mut dis, mut rest): (Vec<f64>, Vec<f64>) = (Vec::new(), Vec::new());
     let d = extractor.dims();
     for i in 0..count {
@@ -496,7 +498,6 @@ pub fn train(
             if img.fractions[cell] as f64 >= options.label_fraction {
                 obj.extend(f.z.row(k).iter());
             } else {
-                bg.extend(f.z.row(k).iter());
                 if distractor_labels && img.distractors[cell] as f64 >= options.label_fraction {
                     dis.extend(f.z.row(k).iter());
                 } else {
@@ -508,7 +509,7 @@ pub fn train(
             }
         }
     }
-    let (n_obj, n_bg) = (obj.len() / d, bg.len() / d);
+    let (n_obj, n_bg) = (obj.len() / d, (dis.len() + rest.len()) / d);
     if n_obj < d + 1 || n_bg < d + 1 {
         return Err(ModelError::Training(format!(
             "need at least {} patches of each class, found {n_obj} object and {n_bg} background",
@@ -526,7 +527,11 @@ pub fn train(
     let (n_dis, n_rest) = (dis.len() / d, rest.len() / d);
     let split = n_dis > d && n_rest > d;
     let obj_data = subsample(&obj, n_obj, &mut rng);
-    let bg_data = if split { subsample(&rest, n_rest, &mut rng) } else { subsample(&bg, n_bg, &mut rng) };
+    if !split {
+        // Too few of either to fit apart: one background, as without distractor labels.
+        rest.append(&mut dis);
+    }
+    let bg_data = subsample(&rest, rest.len() / d, &mut rng);
     drop(rest);
     progress("object model", 0, 3);
     let object = gmm::fit(&obj_data, None, &options.vb)?;
@@ -753,11 +758,13 @@ mod tests {
         assert!(err.contains("extractor.pca.variances[0]: invalid type"), "{err}");
         // A foliage model must match the features and carry a share in (0, 1].
         assert!(model.foliage.is_none(), "trained without foliage labels");
-        let with_foliage = |weight: f64, gmm: &VbGmm| {
+        // The model with a background part (`foliage`, `distractors`) added.
+        let with_part = |part: &str, weight: f64, gmm: &VbGmm| {
             let mut v = json.clone();
-            v["foliage"] = serde_json::json!({ "gmm": gmm, "weight": weight });
+            v[part] = serde_json::json!({ "gmm": gmm, "weight": weight });
             AppearanceModel::from_json(&v.to_string(), "m.json")
         };
+        let with_foliage = |weight: f64, gmm: &VbGmm| with_part("foliage", weight, gmm);
         let loaded = with_foliage(0.3, &model.background).unwrap();
         assert!(PatchClassifier::new(&loaded).unwrap().has_foliage());
         let err = with_foliage(0.0, &model.background).unwrap_err().to_string();
@@ -775,11 +782,7 @@ mod tests {
         // A distractors' part: the background then mixes it with the rest, so a patch the
         // distractors' density explains is less of an object patch.
         assert!(model.distractors.is_none(), "trained without distractor labels");
-        let with_distractors = |weight: f64, gmm: &VbGmm| {
-            let mut v = json.clone();
-            v["distractors"] = serde_json::json!({ "gmm": gmm, "weight": weight });
-            AppearanceModel::from_json(&v.to_string(), "m.json")
-        };
+        let with_distractors = |weight: f64, gmm: &VbGmm| with_part("distractors", weight, gmm);
         let loaded = with_distractors(0.5, &model.object).unwrap();
         let (plain, split) = (PatchClassifier::new(&model).unwrap(), PatchClassifier::new(&loaded).unwrap());
         let img = scene(1, 90, 63);

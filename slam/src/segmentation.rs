@@ -251,7 +251,11 @@ impl SegmentedCluster {
 pub struct ClusterInImage {
     /// Distinct patches (col, row) the cluster's laser points project into.
     pub hits: Vec<(u32, u32)>,
-    /// The classified columns (whole image height): the hits' columns and the margin.
+    /// The patch each of the cluster's points projects into, in the points' order (`None`
+    /// outside the patch grid).
+    pub point_cells: Vec<Option<(u32, u32)>>,
+    /// The classified columns (whole image height): the hits' columns, those the trunk's
+    /// axis crosses up to the band, and the margin.
     pub rect: PatchRect,
     pub at_image_edge: bool,
 }
@@ -268,18 +272,19 @@ pub fn locate_cluster(
 ) -> Option<ClusterInImage> {
     let l = patch_size;
     let (cols, rows) = (width / l, height / l);
+    let point_cells: Vec<Option<(u32, u32)>> = cluster
+        .points
+        .iter()
+        .map(|p| {
+            let [u, v] = geometry.project(&Vector3::new(p[0], p[1], 0.0))?;
+            (u >= 0.0 && v >= 0.0 && u < (cols * l) as f64 && v < (rows * l) as f64)
+                .then(|| ((u / l as f64) as u32, (v / l as f64) as u32))
+        })
+        .collect();
     let mut hits: Vec<(u32, u32)> = Vec::new();
-    for p in &cluster.points {
-        if let Some([u, v]) = geometry.project(&Vector3::new(p[0], p[1], 0.0))
-            && u >= 0.0
-            && v >= 0.0
-            && u < (cols * l) as f64
-            && v < (rows * l) as f64
-        {
-            let cell = ((u / l as f64) as u32, (v / l as f64) as u32);
-            if !hits.contains(&cell) {
-                hits.push(cell);
-            }
+    for &cell in point_cells.iter().flatten() {
+        if !hits.contains(&cell) {
+            hits.push(cell);
         }
     }
     if hits.is_empty() {
@@ -303,7 +308,12 @@ pub fn locate_cluster(
     }
     let c0 = lo.saturating_sub(config.column_margin);
     let c1 = (hi + 1 + config.column_margin).min(cols);
-    Some(ClusterInImage { hits, rect: PatchRect { col0: c0, col1: c1, row0: 0, row1: rows }, at_image_edge })
+    Some(ClusterInImage {
+        hits,
+        point_cells,
+        rect: PatchRect { col0: c0, col1: c1, row0: 0, row1: rows },
+        at_image_edge,
+    })
 }
 
 /// The pixel columns that segmenting a scan's clusters reads: all a camera need render
@@ -371,7 +381,7 @@ pub fn segment_located(
     config: &SegmentationConfig,
 ) -> Result<SegmentedCluster, FeatureError> {
     let l = extractor.config.patch_size;
-    let ClusterInImage { hits, rect, at_image_edge } = located;
+    let ClusterInImage { hits, point_cells, rect, at_image_edge } = located;
     let features = extractor.features(image, Some(rect))?;
     let posteriors = classifier.posteriors(&features);
     let threshold = config.patch_threshold.unwrap_or(classifier.threshold);
@@ -398,15 +408,8 @@ pub fn segment_located(
     // trunk that must go on up), followed up the image as it leans (the mean of that
     // column's trunk points, see `CameraGeometry::vertical_line`).
     let mut trunk_points: Vec<(u32, [f64; 2], usize)> = Vec::new();
-    for p in &cluster.points {
-        let Some([u, v]) = geometry.project(&Vector3::new(p[0], p[1], 0.0)) else { continue };
-        if u < 0.0 || v < 0.0 {
-            continue;
-        }
-        let (c, r) = ((u / l as f64) as u32, (v / l as f64) as u32);
-        if !features.index(c, r).is_some_and(|i| object[i]) {
-            continue;
-        }
+    for (p, &cell) in cluster.points.iter().zip(&point_cells) {
+        let Some((c, _)) = cell.filter(|&(c, r)| features.index(c, r).is_some_and(|i| object[i])) else { continue };
         match trunk_points.iter_mut().find(|t| t.0 == c) {
             Some(t) => {
                 t.1 = [t.1[0] + p[0], t.1[1] + p[1]];
