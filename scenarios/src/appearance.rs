@@ -131,16 +131,29 @@ impl AppearanceSource {
             #[serde(skip_serializing_if = "std::ops::Not::not")]
             distractors: bool,
         }
+        // Destructured without `..`, so a field added to the source fails to compile here
+        // until it is hashed too.
+        let AppearanceSource {
+            model: _,
+            training_preset,
+            training_world_seed,
+            training_images,
+            training_seed,
+            max_patches_per_class,
+            max_components,
+            pca_dims,
+            distractors,
+        } = self;
         let key = Key {
             model: None,
-            training_preset: &self.training_preset,
-            training_world_seed: self.training_world_seed,
-            training_images: self.training_images,
-            training_seed: self.training_seed,
-            max_patches_per_class: self.max_patches_per_class,
-            max_components: self.max_components,
-            pca_dims: self.pca_dims,
-            distractors: self.distractors,
+            training_preset,
+            training_world_seed: *training_world_seed,
+            training_images: *training_images,
+            training_seed: *training_seed,
+            max_patches_per_class: *max_patches_per_class,
+            max_components: *max_components,
+            pca_dims: *pca_dims,
+            distractors: *distractors,
         };
         let text =
             serde_json::to_string(&(MODEL_FORMAT_VERSION, key, self.dataset_config(camera), self.training_options()))
