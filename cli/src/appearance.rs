@@ -19,6 +19,7 @@ pub(crate) fn train(args: &crate::args::TrainArgs) -> Result<()> {
         seed: *seed,
         threshold: *threshold,
         distractors: args.distractors,
+        context: args.context,
         vb: slam::gmm::VbOptions { max_components: *max_components, ..Default::default() },
         ..Default::default()
     };
@@ -78,6 +79,14 @@ pub(crate) fn train(args: &crate::args::TrainArgs) -> Result<()> {
             t.distractor_patches,
             100.0 * d.weight,
             d.gmm.effective_components(1e-3)
+        );
+    }
+    if let Some(c) = &model.context {
+        let w = c.weights;
+        println!(
+            "  column context ({} images, {} patches): {:.3} x own log-odds {:+.3}, above {:.3}, below {:.3}, \
+             mean of 2-{} above {:.3}, below {:.3}",
+            c.images, c.patches, w[0], w[1], w[2], w[3], c.reach, w[4], w[5]
         );
     }
     let mut worlds = Vec::new();

@@ -239,6 +239,10 @@ pub(crate) struct TrainArgs {
     /// from the rest of the background.
     #[arg(long)]
     pub(crate) distractors: bool,
+    /// Learn a column context that decides each patch again from the patches above and
+    /// below it (fitted on every 5th training image, which the mixtures then do not see).
+    #[arg(long)]
+    pub(crate) context: bool,
 }
 
 #[derive(Subcommand)]

@@ -33,6 +33,8 @@ pub struct AppearanceSource {
     /// Fit the distractors (posts, palms, walls, people) apart from the rest of the
     /// background (`slam::classifier::TrainingOptions::distractors`).
     pub distractors: bool,
+    /// Learn the column context (`slam::classifier::TrainingOptions::context`).
+    pub context: bool,
 }
 
 /// The run's model is smaller than `objslam train`'s default (d = 10 and 10 components
@@ -50,6 +52,7 @@ impl Default for AppearanceSource {
             max_components: 10,
             pca_dims: 10,
             distractors: false,
+            context: false,
         }
     }
 }
@@ -100,6 +103,7 @@ impl AppearanceSource {
             max_patches_per_class: self.max_patches_per_class,
             seed: self.training_seed,
             distractors: self.distractors,
+            context: self.context,
             vb: VbOptions { max_components: self.max_components, ..Default::default() },
             ..Default::default()
         }
@@ -130,6 +134,8 @@ impl AppearanceSource {
             pca_dims: usize,
             #[serde(skip_serializing_if = "std::ops::Not::not")]
             distractors: bool,
+            #[serde(skip_serializing_if = "std::ops::Not::not")]
+            context: bool,
         }
         // Destructured without `..`, so a field added to the source fails to compile here
         // until it is hashed too.
@@ -143,6 +149,7 @@ impl AppearanceSource {
             max_components,
             pca_dims,
             distractors,
+            context,
         } = self;
         let key = Key {
             model: None,
@@ -154,6 +161,7 @@ impl AppearanceSource {
             max_components: *max_components,
             pca_dims: *pca_dims,
             distractors: *distractors,
+            context: *context,
         };
         let text =
             serde_json::to_string(&(MODEL_FORMAT_VERSION, key, self.dataset_config(camera), self.training_options()))
@@ -262,7 +270,7 @@ mod scratch_tests {
     use super::*;
 
     #[test]
-    fn the_cache_key_holds_every_training_setting_and_distractors_only_when_set() {
+    fn the_cache_key_holds_every_training_setting_and_distractors_and_context_only_when_set() {
         let camera = sim::camera::CameraConfig::default();
         let base = AppearanceSource::default();
         // The key of the default source as it was before `distractors` existed.
@@ -271,6 +279,9 @@ mod scratch_tests {
         let named = AppearanceSource { model: Some("m.json".into()), ..base.clone() };
         let other_seed = AppearanceSource { training_seed: 2, ..base.clone() };
         assert_ne!(split.cache_key(&camera), base.cache_key(&camera));
+        let context = AppearanceSource { context: true, ..base.clone() };
+        assert_ne!(context.cache_key(&camera), base.cache_key(&camera));
+        assert_ne!(context.cache_key(&camera), split.cache_key(&camera));
         assert_ne!(other_seed.cache_key(&camera), base.cache_key(&camera));
         assert_eq!(named.cache_key(&camera), base.cache_key(&camera), "the model file is not hashed");
     }

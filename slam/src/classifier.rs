@@ -15,6 +15,9 @@
 //! p(z | bg) = w_dis p(z | dis) + (1 - w_dis) p(z | rest). Fitted as one, the background's
 //! few components go to sky, grass and leaves, which are most of its patches, and a
 //! post's patches are explained better by the trunk model than by the background's.
+//!
+//! A model may also carry a learnt column context ([`ColumnContext`]) that decides each
+//! patch again from its own log-odds and those of the patches above and below it.
 
 use std::path::Path;
 
@@ -24,6 +27,7 @@ use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
+use crate::column_context::{self, ColumnContext, LabelledGrid};
 use crate::features::{
     FeatureConfig, FeatureError, FeatureExtractor, ImageRef, PatchFeatures, PatchRect, Pca, raw_patches,
 };
@@ -145,6 +149,10 @@ pub struct AppearanceModel {
     /// background only. Absent in models trained without distractor labels.
     #[serde(default)]
     pub distractors: Option<BackgroundPart>,
+    /// The column context; absent in models trained without it (and then not written, so
+    /// such models keep their bytes and digests).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub context: Option<ColumnContext>,
 }
 
 impl AppearanceModel {
@@ -214,6 +222,9 @@ impl AppearanceModel {
                 return Err(inconsistent(format!("{name}.weight must lie in (0, {max}], got {}", f.weight)));
             }
         }
+        if let Some(c) = &model.context {
+            c.check().map_err(|(field, problem)| inconsistent(format!("context.{field}: {problem}")))?;
+        }
         PatchClassifier::new(&model).map_err(|e| inconsistent(e.to_string()))?;
         Ok(model)
     }
@@ -240,6 +251,7 @@ pub struct PatchClassifier {
     pub threshold: f64,
     /// The foliage density and ln w_fol|bg, when the model has them.
     foliage: Option<(GmmEvaluator, f64)>,
+    context: Option<ColumnContext>,
 }
 
 impl PatchClassifier {
@@ -262,6 +274,7 @@ impl PatchClassifier {
                 Some(f) => Some((StudentTMixture::new(&f.gmm)?.gaussian_approximation()?.evaluator()?, f.weight.ln())),
                 None => None,
             },
+            context: model.context.clone(),
         })
     }
 
@@ -297,16 +310,31 @@ impl PatchClassifier {
         }
     }
 
-    /// R for one feature row.
+    /// R for one feature row, from the mixtures alone (without the column context, which
+    /// needs the patch's column).
     pub fn posterior(&self, z: &[f64]) -> f64 {
         let a = self.ln_w_obj + self.object.log_density(z);
         let b = self.ln_w_bg + self.background_log_density(z);
         1.0 / (1.0 + (b - a).exp())
     }
 
-    /// R for every row of `features` (the values [`PatchClassifier::posterior`] gives, four
-    /// rows at a time: see [`GmmEvaluator::log_terms_lanes`]).
+    /// R for every patch of `features`: with a column context, the context's probability
+    /// over the rectangle's columns; without, the values [`PatchClassifier::posterior`]
+    /// gives.
     pub fn posteriors(&self, features: &PatchFeatures) -> Vec<f64> {
+        let minus_log_odds = self.minus_log_odds(features);
+        match &self.context {
+            None => minus_log_odds.into_iter().map(|m| 1.0 / (1.0 + m.exp())).collect(),
+            Some(context) => {
+                let log_odds: Vec<f64> = minus_log_odds.into_iter().map(|m| -m).collect();
+                context.apply(&log_odds, features.rect.cols() as usize, features.rect.rows() as usize)
+            }
+        }
+    }
+
+    /// The mixtures' ln(w_bg p(z | bg)) - ln(w_obj p(z | obj)) of every row, four rows at a
+    /// time (see [`GmmEvaluator::log_terms_lanes`]).
+    fn minus_log_odds(&self, features: &PatchFeatures) -> Vec<f64> {
         const LANES: usize = 4;
         let (n, d) = features.z.shape();
         let mut x = vec![[0.0f64; LANES]; d];
@@ -337,7 +365,7 @@ impl PatchClassifier {
                 let rest = density(&background, l);
                 let b = self.ln_w_bg
                     + self.mix_background(rest, self.distractors.as_ref().map(|_| density(&distractors, l)));
-                out.push(1.0 / (1.0 + (b - a).exp()));
+                out.push(b - a);
             }
         }
         out
@@ -390,6 +418,11 @@ pub struct TrainingOptions {
     /// only when set, so settings from before it existed keep their digests.
     #[serde(skip_serializing_if = "std::ops::Not::not")]
     pub distractors: bool,
+    /// Learn a column context ([`ColumnContext`]): every 5th training image is then kept
+    /// from the PCA and the mixtures, and the context is fitted on those images instead.
+    /// Written only when set, like `distractors`.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub context: bool,
 }
 
 impl Default for TrainingOptions {
@@ -406,6 +439,7 @@ impl Default for TrainingOptions {
             object_class: "tree".into(),
             foliage: true,
             distractors: false,
+            context: false,
         }
     }
 }
@@ -423,13 +457,22 @@ pub fn train(
     }
     let cfg = &options.features;
     let l = cfg.patch_size;
+    // The images the mixtures are fitted to, and those the column context is.
+    let (mixture_ids, context_ids): (Vec<usize>, Vec<usize>) =
+        (0..count).partition(|i| !options.context || i % CONTEXT_EVERY != CONTEXT_EVERY - 1);
+    if options.context && context_ids.is_empty() {
+        return Err(ModelError::Training(format!(
+            "the column context is fitted on every {CONTEXT_EVERY}th training image: at least {CONTEXT_EVERY} images needed, got {count}"
+        )));
+    }
+    let n_mix = mixture_ids.len();
     // Pass 1: sample raw patches for the PCA.
-    let per_image = options.pca_samples.div_ceil(count).max(1);
+    let per_image = options.pca_samples.div_ceil(n_mix).max(1);
     let mut rng = ChaCha8Rng::seed_from_u64(options.seed);
     let mut sample_rows: Vec<f64> = Vec::new();
     let mut sampled = 0usize;
-    for i in 0..count {
-        progress("pca", i, count);
+    for (k, &i) in mixture_ids.iter().enumerate() {
+        progress("pca", k, n_mix);
         let img = images(i)?;
         let image = ImageRef::new(img.width, img.height, &img.rgb)?;
         let rect = PatchRect::whole(&image, l);
@@ -463,8 +506,8 @@ pub fn train(
     // The background's patches: the distractors' (with distractor labels) and the rest.
     let (mut dis, mut rest): (Vec<f64>, Vec<f64>) = (Vec::new(), Vec::new());
     let d = extractor.dims();
-    for i in 0..count {
-        progress("features", i, count);
+    for (k, &i) in mixture_ids.iter().enumerate() {
+        progress("features", k, n_mix);
         let img = images(i)?;
         let image = ImageRef::new(img.width, img.height, &img.rgb)?;
         let f = extractor.features(&image, None)?;
@@ -553,14 +596,13 @@ pub fn train(
     } else {
         None
     };
-    progress("done", 3, 3);
-    Ok(AppearanceModel {
+    let mut model = AppearanceModel {
         format_version: MODEL_FORMAT_VERSION,
         object_class: options.object_class.clone(),
         object_weight: n_obj as f64 / (n_obj + n_bg) as f64,
         threshold: options.threshold,
         training: TrainingSummary {
-            images: count,
+            images: n_mix,
             object_patches: n_obj,
             background_patches: n_bg,
             fitted_object_patches: obj_data.nrows(),
@@ -578,7 +620,51 @@ pub fn train(
         background,
         foliage,
         distractors,
-    })
+        context: None,
+    };
+    if options.context {
+        progress("column context", 0, context_ids.len());
+        model.context = Some(fit_context(&model, &context_ids, &images, options.label_fraction)?);
+    }
+    progress("done", 3, 3);
+    Ok(model)
+}
+
+/// Every how many training images one is kept for the column context.
+pub const CONTEXT_EVERY: usize = 5;
+
+/// Fits the column context on images `ids`, which the model's mixtures were not fitted to.
+fn fit_context(
+    model: &AppearanceModel,
+    ids: &[usize],
+    images: &impl Fn(usize) -> Result<LabelledImage, ModelError>,
+    label_fraction: f64,
+) -> Result<ColumnContext, ModelError> {
+    let classifier = PatchClassifier::new(model)?;
+    let l = model.extractor.config.patch_size;
+    let mut grids = Vec::with_capacity(ids.len());
+    for &i in ids {
+        let img = images(i)?;
+        let image = ImageRef::new(img.width, img.height, &img.rgb)?;
+        let f = model.extractor.features(&image, None)?;
+        let (cols, _) = image.grid(l);
+        if img.fractions.len() != f.z.nrows() {
+            return Err(ModelError::Training(format!(
+                "image {i}: {} patch labels for {} patches",
+                img.fractions.len(),
+                f.z.nrows()
+            )));
+        }
+        let log_odds: Vec<f64> = classifier.minus_log_odds(&f).into_iter().map(|m| -m).collect();
+        let object: Vec<bool> = (0..f.z.nrows())
+            .map(|k| {
+                let (c, r) = f.rect.patch(k);
+                img.fractions[(r * cols + c) as usize] as f64 >= label_fraction
+            })
+            .collect();
+        grids.push(LabelledGrid { log_odds, object, cols: f.rect.cols() as usize, rows: f.rect.rows() as usize });
+    }
+    ColumnContext::fit(&grids, column_context::DEFAULT_REACH).map_err(|e| ModelError::Training(e.to_string()))
 }
 
 /// Scores a model's foliage decisions (more probably foliage than not) on labelled images
@@ -804,6 +890,45 @@ mod tests {
         }
         let err = with_distractors(0.3, &other.background).unwrap_err().to_string();
         assert!(err.contains("distractors.gmm is"), "{err}");
+    }
+
+    #[test]
+    fn the_column_context_is_fitted_on_images_the_mixtures_did_not_see() {
+        let options = TrainingOptions {
+            pca_dims: 6,
+            max_patches_per_class: 2000,
+            vb: VbOptions { max_components: 4, ..Default::default() },
+            context: true,
+            ..Default::default()
+        };
+        let model = train(10, |i| Ok(scene(i as u64, 120, 90)), &options, |_, _, _| {}).unwrap();
+        let context = model.context.as_ref().expect("trained with a context");
+        // Images 4 and 9 fit the context; the other 8 the PCA and the mixtures.
+        assert_eq!((model.training.images, context.images), (8, 2));
+        assert_eq!(context.patches, 2 * 13 * 10);
+        assert!(context.weights[0] > 0.0, "a patch's own log-odds count for it: {:?}", context.weights);
+        let scores = evaluate(&model, 4, |i| Ok(scene(100 + i as u64, 120, 90)), 0.5).unwrap();
+        assert!(scores.f1() > 0.9, "{scores:?}");
+        // The context is part of the model file, and checked when read.
+        let text = serde_json::to_string(&model).unwrap();
+        assert_eq!(AppearanceModel::from_json(&text, "m.json").unwrap(), model);
+        let mut v: serde_json::Value = serde_json::from_str(&text).unwrap();
+        v["context"]["reach"] = 1.into();
+        let err = AppearanceModel::from_json(&v.to_string(), "m.json").unwrap_err().to_string();
+        assert!(err.contains("m.json") && err.contains("context.reach"), "{err}");
+        // Without the context nothing is held back, and the file has no `context` key.
+        let plain = train(
+            10,
+            |i| Ok(scene(i as u64, 120, 90)),
+            &TrainingOptions { context: false, ..options.clone() },
+            |_, _, _| {},
+        )
+        .unwrap();
+        assert_eq!(plain.training.images, 10);
+        assert!(!serde_json::to_string(&plain).unwrap().contains("\"context\""));
+        // Too few images to keep one back is a clear error.
+        let err = train(4, |i| Ok(scene(i as u64, 120, 90)), &options, |_, _, _| {}).unwrap_err().to_string();
+        assert!(err.contains("at least 5 images"), "{err}");
     }
 
     #[test]

@@ -13,6 +13,7 @@ pub mod calibration;
 pub mod checkerboard;
 pub mod classifier;
 pub mod clustering;
+pub mod column_context;
 pub mod ekf;
 pub mod evidence;
 pub mod features;

@@ -593,6 +593,11 @@ pub(super) const KEYS: &[(&str, &str)] = &[
          fewer posts' patches called object, but fewer trees mapped (docs/results.md).",
     ),
     (
+        "appearance.context",
+        "Learn a column context that decides each patch again from its own log-odds and those of the patches \
+         above and below it, fitted on every 5th training image (docs/results.md).",
+    ),
+    (
         "appearance.max_components",
         "Most mixture components of each class's appearance density (the search grows up to it); 1 to 100.",
     ),
