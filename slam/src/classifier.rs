@@ -509,16 +509,7 @@ pub fn train(
     for (k, &i) in mixture_ids.iter().enumerate() {
         progress("features", k, n_mix);
         let img = images(i)?;
-        let image = ImageRef::new(img.width, img.height, &img.rgb)?;
-        let f = extractor.features(&image, None)?;
-        let (cols, _) = image.grid(l);
-        if img.fractions.len() != f.z.nrows() {
-            return Err(ModelError::Training(format!(
-                "image {i}: {} patch labels for {} patches",
-                img.fractions.len(),
-                f.z.nrows()
-            )));
-        }
+        let (f, cols) = labelled_features(&extractor, &img, i)?;
         let foliage_labels = options.foliage && !img.foliage.is_empty();
         if foliage_labels && img.foliage.len() != img.fractions.len() {
             return Err(ModelError::Training(format!(
@@ -630,6 +621,25 @@ pub fn train(
     Ok(model)
 }
 
+/// The features of training image `i` and its patch grid's width, checked to have one
+/// label per patch.
+fn labelled_features(
+    extractor: &FeatureExtractor,
+    img: &LabelledImage,
+    i: usize,
+) -> Result<(PatchFeatures, u32), ModelError> {
+    let image = ImageRef::new(img.width, img.height, &img.rgb)?;
+    let f = extractor.features(&image, None)?;
+    if img.fractions.len() != f.z.nrows() {
+        return Err(ModelError::Training(format!(
+            "image {i}: {} patch labels for {} patches",
+            img.fractions.len(),
+            f.z.nrows()
+        )));
+    }
+    Ok((f, image.grid(extractor.config.patch_size).0))
+}
+
 /// Every how many training images one is kept for the column context.
 pub const CONTEXT_EVERY: usize = 5;
 
@@ -641,20 +651,10 @@ fn fit_context(
     label_fraction: f64,
 ) -> Result<ColumnContext, ModelError> {
     let classifier = PatchClassifier::new(model)?;
-    let l = model.extractor.config.patch_size;
     let mut grids = Vec::with_capacity(ids.len());
     for &i in ids {
         let img = images(i)?;
-        let image = ImageRef::new(img.width, img.height, &img.rgb)?;
-        let f = model.extractor.features(&image, None)?;
-        let (cols, _) = image.grid(l);
-        if img.fractions.len() != f.z.nrows() {
-            return Err(ModelError::Training(format!(
-                "image {i}: {} patch labels for {} patches",
-                img.fractions.len(),
-                f.z.nrows()
-            )));
-        }
+        let (f, cols) = labelled_features(&model.extractor, &img, i)?;
         let log_odds: Vec<f64> = classifier.minus_log_odds(&f).into_iter().map(|m| -m).collect();
         let object: Vec<bool> = (0..f.z.nrows())
             .map(|k| {
@@ -679,16 +679,13 @@ pub fn evaluate_foliage(
     if !classifier.has_foliage() {
         return Ok(None);
     }
-    let l = model.extractor.config.patch_size;
     let mut scores = PatchScores::default();
     for i in 0..count {
         let img = images(i)?;
         if img.foliage.len() != img.fractions.len() {
             return Err(ModelError::Training(format!("image {i}: no foliage label for every patch")));
         }
-        let image = ImageRef::new(img.width, img.height, &img.rgb)?;
-        let f = model.extractor.features(&image, None)?;
-        let (cols, _) = image.grid(l);
+        let (f, cols) = labelled_features(&model.extractor, &img, i)?;
         for k in 0..f.z.nrows() {
             let (c, r) = f.rect.patch(k);
             let p = classifier.foliage_probability(f.z.row(k).transpose().as_slice()).expect("has foliage");
@@ -706,13 +703,10 @@ pub fn evaluate(
     label_fraction: f64,
 ) -> Result<PatchScores, ModelError> {
     let classifier = PatchClassifier::new(model)?;
-    let l = model.extractor.config.patch_size;
     let mut scores = PatchScores::default();
     for i in 0..count {
         let img = images(i)?;
-        let image = ImageRef::new(img.width, img.height, &img.rgb)?;
-        let f = model.extractor.features(&image, None)?;
-        let (cols, _) = image.grid(l);
+        let (f, cols) = labelled_features(&model.extractor, &img, i)?;
         for (k, predicted) in classifier.classify(&f).into_iter().enumerate() {
             let (c, r) = f.rect.patch(k);
             scores.add(predicted, img.fractions[(r * cols + c) as usize] as f64 >= label_fraction);
@@ -926,6 +920,14 @@ mod tests {
         .unwrap();
         assert_eq!(plain.training.images, 10);
         assert!(!serde_json::to_string(&plain).unwrap().contains("\"context\""));
+        // An image with a label missing is an error, not a panic, when scored.
+        let short = |_| {
+            let mut img = scene(7, 120, 90);
+            img.fractions.pop();
+            Ok(img)
+        };
+        let err = evaluate(&model, 1, short, 0.5).unwrap_err().to_string();
+        assert!(err.contains("image 0") && err.contains("patch labels"), "{err}");
         // Too few images to keep one back is a clear error.
         let err = train(4, |i| Ok(scene(i as u64, 120, 90)), &options, |_, _, _| {}).unwrap_err().to_string();
         assert!(err.contains("at least 5 images"), "{err}");
