@@ -332,6 +332,11 @@ pub(super) const KEYS: &[(&str, &str)] = &[
         "First-estimate Jacobians in the filter, which keep it from gaining information it does not have.",
     ),
     (
+        "pipeline.observability_constrained",
+        "With first_estimate_jacobians: observation Jacobians at the latest estimates, changed as little as \
+         possible so the first estimates' unobservable directions stay unobservable.",
+    ),
+    (
         "pipeline.relinearise_loop_closures",
         "Combined method: after a scan that closes a loop jointly, relinearise the filter by solving its whole \
          history again.",

@@ -10,15 +10,16 @@
 //! of P. Single updates are in Joseph
 //! form, expanded as `P - K(HP) - (HP)ᵀKᵀ + K S Kᵀ`, which equals
 //! `(I-KH)P(I-KH)ᵀ + KRKᵀ` for any gain, evaluated so that P stays exactly symmetric.
-//! Jacobians can be taken at first estimates ([`FirstEstimates`]), which keeps the global
-//! heading unobservable as it truly is.
+//! Jacobians can be taken at first estimates ([`FirstEstimates`]), or at the latest
+//! estimates constrained by the first ones, which keeps the global heading unobservable as
+//! it truly is.
 
 pub mod motion;
 pub mod observation;
 pub mod smoother;
 pub mod synthetic;
 
-use nalgebra::{DMatrix, DVector, Matrix2, Matrix3, Vector2, Vector3};
+use nalgebra::{DMatrix, DVector, Matrix2, Matrix2x3, Matrix3, SMatrix, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
 pub use motion::{AckermannMotionModel, CalibratedPrediction, MotionConfig, MotionModel, OdometryMotionModel};
@@ -63,6 +64,15 @@ pub struct FirstEstimates {
     pub predicted_pose: Vector3<f64>,
     /// Each landmark's position when it was added.
     pub landmarks: Vec<Vector2<f64>>,
+    /// Observability-constrained Jacobians (Huang, Mourikis & Roumeliotis 2010): the
+    /// observation Jacobians are taken at the latest estimates, as accurate as the filter
+    /// knows, and then changed as little as possible (least squares) so that they still
+    /// see nothing along the directions the first estimates leave unobservable. First
+    /// estimates alone linearise at a landmark's first position: one first seen far away
+    /// with the heading unsure can be metres off by the time the robot passes it, and then
+    /// its updates pull the heading wrong.
+    #[serde(default)]
+    pub observability_constrained: bool,
 }
 
 fn pose_dims() -> usize {
@@ -89,11 +99,24 @@ impl Ekf {
         Ekf { x, p, vehicle_dims: vd, first_estimates: None }
     }
 
-    /// Switches to first-estimate Jacobians (see [`FirstEstimates`]); landmarks already in
-    /// the state take their current positions as first estimates.
+    /// Switches to first-estimate Jacobians (see [`FirstEstimates`]), or restarts them:
+    /// the pose and the landmarks already in the state take their current positions as
+    /// first estimates. Observability constraints, if on, stay on.
     pub fn use_first_estimates(&mut self) {
         let landmarks = (0..self.landmark_count()).map(|i| self.landmark(i)).collect();
-        self.first_estimates = Some(FirstEstimates { predicted_pose: self.pose(), landmarks });
+        let observability_constrained = self.first_estimates.as_ref().is_some_and(|fe| fe.observability_constrained);
+        self.first_estimates =
+            Some(FirstEstimates { predicted_pose: self.pose(), landmarks, observability_constrained });
+    }
+
+    /// Switches to observability-constrained Jacobians (see
+    /// [`FirstEstimates::observability_constrained`]), with first estimates at the current
+    /// state.
+    pub fn use_observability_constraints(&mut self) {
+        self.use_first_estimates();
+        if let Some(fe) = &mut self.first_estimates {
+            fe.observability_constrained = true;
+        }
     }
 
     /// The propagation Jacobian's position terms from consecutive predicted poses, when
@@ -177,7 +200,11 @@ impl Ekf {
     ) -> (Vector2<f64>, nalgebra::Matrix2x3<f64>, Matrix2<f64>, Matrix2<f64>) {
         let (z, mut hr, mut hl) = model.observe(&self.pose(), &self.landmark(i));
         if let Some(fe) = &self.first_estimates {
-            (_, hr, hl) = model.observe(&fe.predicted_pose, &fe.landmarks[i]);
+            if fe.observability_constrained {
+                (hr, hl) = observability_constrained(&hr, &hl, &fe.predicted_pose, &fe.landmarks[i]);
+            } else {
+                (_, hr, hl) = model.observe(&fe.predicted_pose, &fe.landmarks[i]);
+            }
         }
         let li = self.vehicle_dims + 2 * i;
         let prr = self.pose_covariance();
@@ -482,6 +509,40 @@ impl Ekf {
             fe.landmarks.remove(i);
         }
     }
+}
+
+/// The observation Jacobian `[hr hl]` (robot pose, landmark) changed as little as possible,
+/// in the least-squares sense, so that it is blind to the motions of the whole map that
+/// nothing observes: translating robot and landmark together, and rotating them together
+/// about the robot, as the first estimates (`pose`, `landmark`) place them. With those
+/// points the filter's propagation keeps the same directions unobservable (first-estimate
+/// propagation), so the global heading gains no information it does not have.
+fn observability_constrained(
+    hr: &Matrix2x3<f64>,
+    hl: &Matrix2<f64>,
+    pose: &Vector3<f64>,
+    landmark: &Vector2<f64>,
+) -> (Matrix2x3<f64>, Matrix2<f64>) {
+    let h = SMatrix::<f64, 2, 5>::from_columns(&[
+        hr.column(0).into_owned(),
+        hr.column(1).into_owned(),
+        hr.column(2).into_owned(),
+        hl.column(0).into_owned(),
+        hl.column(1).into_owned(),
+    ]);
+    // The unobservable directions: x and y translation, and rotation about the robot.
+    let (dx, dy) = (landmark.x - pose.x, landmark.y - pose.y);
+    let n = SMatrix::<f64, 5, 3>::from_row_slice(&[
+        1.0, 0.0, 0.0, //
+        0.0, 1.0, 0.0, //
+        0.0, 0.0, 1.0, //
+        1.0, 0.0, -dy, //
+        0.0, 1.0, dx,
+    ]);
+    // NᵀN is positive definite whatever the points (the pose's rows alone make it so).
+    let ntn_inv = (n.transpose() * n).try_inverse().unwrap_or_else(SMatrix::zeros);
+    let constrained = h - h * n * ntn_inv * n.transpose();
+    (constrained.fixed_columns::<3>(0).into_owned(), constrained.fixed_columns::<2>(3).into_owned())
 }
 
 /// `p` (n x n, column-major) minus `V Vᵀ`, where `v[k]` is column k of V (n long). Every

@@ -356,14 +356,22 @@ fn iterated_update_relinearises_large_corrections() {
 /// inconsistency); with first estimates it does not.
 #[test]
 fn first_estimates_keep_the_global_heading_unobservable() {
-    let heading_variance_ratio = |first_estimates: bool| {
+    #[derive(Clone, Copy)]
+    enum Jacobians {
+        Latest,
+        FirstEstimates,
+        ObservabilityConstrained,
+    }
+    let heading_variance_ratio = |jacobians: Jacobians| {
         let mut rng = ChaCha8Rng::seed_from_u64(11);
         let motion = OdometryMotionModel::white(0.005, 0.0002, 0.002, 0.005);
         let sensor = RangeBearingModel::default();
         let start_var = 0.01;
         let mut ekf = Ekf::new(Vector3::zeros(), Matrix3::from_diagonal(&Vector3::new(1e-6, 1e-6, start_var)));
-        if first_estimates {
-            ekf.use_first_estimates();
+        match jacobians {
+            Jacobians::Latest => {}
+            Jacobians::FirstEstimates => ekf.use_first_estimates(),
+            Jacobians::ObservabilityConstrained => ekf.use_observability_constraints(),
         }
         let landmarks = [Vector2::new(4.0, 1.0), Vector2::new(5.0, -1.5), Vector2::new(3.0, 3.0)];
         let mut truth = Vector3::zeros();
@@ -389,10 +397,35 @@ fn first_estimates_keep_the_global_heading_unobservable() {
         }
         ekf.pose_covariance()[(2, 2)] / start_var
     };
-    let (standard, first) = (heading_variance_ratio(false), heading_variance_ratio(true));
+    let standard = heading_variance_ratio(Jacobians::Latest);
+    let first = heading_variance_ratio(Jacobians::FirstEstimates);
+    let constrained = heading_variance_ratio(Jacobians::ObservabilityConstrained);
     assert!(first > 0.99, "first estimates: heading variance fell to {first} of its start");
+    assert!(constrained > 0.99, "observability-constrained: heading variance fell to {constrained} of its start");
     // Measured: 0.07 with the latest estimates, 1.002 with first estimates.
     assert!(standard < 0.5, "latest estimates: heading variance only fell to {standard} of its start");
+}
+
+/// The constrained Jacobian sees nothing of the whole map's translation or its rotation
+/// about the first estimates, and where the first estimates are the latest ones it is the
+/// latest Jacobian unchanged (which is already blind to those motions there).
+#[test]
+fn observability_constrained_jacobians_are_blind_to_the_unobservable_motions() {
+    let m = RangeBearingModel { mount_x: 0.16, mount_y: 0.05, ..Default::default() };
+    let (pose, landmark) = (Vector3::new(1.0, -2.0, 0.4), Vector2::new(5.0, 1.5));
+    let (_, hr, hl) = m.observe(&pose, &landmark);
+    let (same_r, same_l) = observability_constrained(&hr, &hl, &pose, &landmark);
+    assert!((same_r - hr).amax() < 1e-12 && (same_l - hl).amax() < 1e-12);
+    // First estimates 0.8 m and 0.1 rad away from the latest ones.
+    let (first_pose, first_landmark) = (Vector3::new(1.3, -2.4, 0.5), Vector2::new(5.6, 1.2));
+    let (cr, cl) = observability_constrained(&hr, &hl, &first_pose, &first_landmark);
+    let (dx, dy) = (first_landmark.x - first_pose.x, first_landmark.y - first_pose.y);
+    for motion in [[1.0, 0.0, 0.0, 1.0, 0.0], [0.0, 1.0, 0.0, 0.0, 1.0], [0.0, 0.0, 1.0, -dy, dx]] {
+        let seen = cr * Vector3::new(motion[0], motion[1], motion[2]) + cl * Vector2::new(motion[3], motion[4]);
+        assert!(seen.amax() < 1e-12, "{motion:?} is seen: {seen}");
+    }
+    // Not blind to what the observation does tell: the range still changes with distance.
+    assert!((cl[(0, 0)] - hl[(0, 0)]).abs() < 0.2 && cl[(0, 0)] > 0.5);
 }
 
 /// A filter with `count` landmarks around the robot, correlated through a few updates.

@@ -157,7 +157,9 @@ impl Pipeline {
             Matrix3::from_diagonal(&Vector3::new(s[0] * s[0], s[1] * s[1], s[2] * s[2])),
             &config.motion.calibration_prior(),
         );
-        if config.first_estimate_jacobians {
+        if config.first_estimate_jacobians && config.observability_constrained {
+            ekf.use_observability_constraints();
+        } else if config.first_estimate_jacobians {
             ekf.use_first_estimates();
         }
         let evidence = ObjectEvidence::new(config.evidence.clone());
