@@ -55,7 +55,9 @@ pub struct PipelineConfig {
     /// [`crate::ekf::FirstEstimates::observability_constrained`]). First estimates alone
     /// linearise about a landmark's first position, wrong by up to metres for one first
     /// seen far off while the heading was unsure; measured in docs/results.md, on by
-    /// default.
+    /// default. With `first_estimate_jacobians = false` the Jacobians are the latest
+    /// estimates' and this has nothing to constrain, so that setting alone turns both off
+    /// (an error there would break every file written before this setting existed).
     pub observability_constrained: bool,
     /// Combined method: a candidate landmark whose trunk diameter (the mean of its laser
     /// clusters' circle fits) disagrees with the observation's is not that object.
@@ -268,12 +270,6 @@ impl PipelineConfig {
             return Err(InvalidSetting::new(
                 "relinearise_every_s",
                 "only applies with relinearise_loop_closures = true",
-            ));
-        }
-        if self.observability_constrained && !self.first_estimate_jacobians {
-            return Err(InvalidSetting::new(
-                "observability_constrained",
-                "only applies with first_estimate_jacobians = true (the first estimates define what stays unobservable)",
             ));
         }
         Ok(())
