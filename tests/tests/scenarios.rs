@@ -519,6 +519,10 @@ fn nonsense_pipeline_settings_are_named_with_their_line() {
     let text = "name = \"x\"\n[world]\npreset = \"park\"\n[pipeline]\nfirst_estimate_jacobians = false\n";
     let sc = Scenario::parse(text, std::path::Path::new("x.toml")).unwrap();
     assert!(!sc.pipeline.first_estimate_jacobians && sc.pipeline.observability_constrained);
+    // The free-space test of joint closures acts only on joint closures.
+    let text = "name = \"x\"\n[world]\npreset = \"park\"\n[pipeline]\njoint_loop_closing = false\njoint_loop_free_space = true\n";
+    let e = Scenario::parse(text, std::path::Path::new("x.toml")).unwrap_err().to_string();
+    assert!(e.contains("x.toml: line 6:") && e.contains("pipeline.joint_loop_free_space"), "{e}");
     // Unknown keys, in every table, are errors with their line.
     for table in ["pipeline", "pipeline.evidence", "pipeline.clustering", "pipeline.sensor"] {
         let text = format!("name = \"x\"\n[world]\npreset = \"park\"\n[{table}]\nradius = 1.0\n");

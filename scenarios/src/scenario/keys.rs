@@ -323,6 +323,11 @@ pub(super) const KEYS: &[(&str, &str)] = &[
          two or more in a scan fit the map jointly (JCBB over look-alike candidates).",
     ),
     (
+        "pipeline.joint_loop_free_space",
+        "With joint_loop_closing: a joint closure is refused where, with the pose it corrects, a confirmed \
+         landmark it leaves unpaired is in plain view where the scan's beams reach past it.",
+    ),
+    (
         "pipeline.defer_near_lookalike",
         "Combined method: an observation the KL test leaves without a landmark starts none while a confirmed \
          look-alike (appearance, trunk diameter) lies within its new-landmark gate.",

@@ -177,10 +177,19 @@ impl Pipeline {
         out
     }
 
+    /// Probability that the landmark's bearing falls on beams that see past it, above which
+    /// a joint closure is refused: the confidence of the joint compatibility test itself.
+    pub(super) const FREE_SPACE_PROBABILITY: f64 = 0.95;
+
     /// Observations the KL test left without a landmark, paired by joint compatibility
     /// where that is unambiguous (see [`PipelineConfig::joint_loop_closing`]): per plan, the
     /// (id, index) of its landmark, `None` where the KL test decides.
-    pub(super) fn close_loop_jointly(&self, plans: &[Plan], cfg: &ObjectModelConfig) -> Vec<Option<(u32, usize)>> {
+    pub(super) fn close_loop_jointly(
+        &self,
+        plans: &[Plan],
+        cfg: &ObjectModelConfig,
+        scan: &LaserScan,
+    ) -> Vec<Option<(u32, usize)>> {
         let none = vec![None; plans.len()];
         let n = self.ekf.landmark_count();
         // KL-associated observations keep their landmark (or stay out); the others may take
@@ -214,10 +223,43 @@ impl Pipeline {
         if h.iter().zip(plans).filter(|(j, p)| j.is_some() && p.best.is_none()).count() < 2 {
             return none;
         }
+        if self.config.joint_loop_free_space && self.sees_past_a_landmark(&h, &zs, scan) {
+            return none;
+        }
         h.iter()
             .zip(plans)
             .map(|(j, p)| if p.best.is_some() { None } else { j.map(|j| (self.table.get(j).id, j)) })
             .collect()
+    }
+
+    /// Whether, with the pose corrected by hypothesis `h` (observations `zs`), a confirmed
+    /// landmark that `h` leaves unpaired is predicted in plain view within the clustering
+    /// range where `scan` sees past it (see [`PipelineConfig::joint_loop_free_space`] and
+    /// [`free_space_probability`]). The tentative filter costs a copy of the covariance,
+    /// made only for a closure about to be accepted.
+    fn sees_past_a_landmark(&self, h: &[Option<usize>], zs: &[Vector2<f64>], scan: &LaserScan) -> bool {
+        let mut trial = self.ekf.clone();
+        for (i, j) in h.iter().enumerate() {
+            if let Some(j) = *j {
+                let _ = trial.update_iterated(&self.config.sensor, j, &zs[i], 1);
+            }
+        }
+        let n = trial.landmark_count();
+        for k in 0..n {
+            if h.contains(&Some(k)) || !self.table.get(k).confirmed {
+                continue;
+            }
+            let (zp, _, _, s) = trial.predict_observation(&self.config.sensor, k);
+            let (r, b) = (zp.x, zp.y);
+            if !(r > 0.5 && r <= self.config.clustering.max_range_m) {
+                continue;
+            }
+            let radius = 0.5 * self.table.get(k).diameter_m;
+            if free_space_probability(scan, r, b, &s, radius).is_some_and(|p| p >= Self::FREE_SPACE_PROBABILITY) {
+                return true;
+            }
+        }
+        false
     }
 
     /// Indices of the confirmed candidates whose object model looks like the observation
@@ -265,7 +307,8 @@ impl Pipeline {
     }
 
     /// Appearance methods: segmentation, object models and KL association.
-    pub(super) fn on_scan_with_appearance(&mut self, t: f64, clusters: Vec<Cluster>) -> ScanReport {
+    pub(super) fn on_scan_with_appearance(&mut self, scan: &LaserScan, clusters: Vec<Cluster>) -> ScanReport {
+        let t = scan.t;
         self.t = t;
         // The state the recorded poses agree with, where a relinearisation starts.
         let before = self.history.as_ref().map(|_| self.ekf.x.clone());
@@ -331,7 +374,7 @@ impl Pipeline {
             plans.push(Plan { cluster: ci, observation: obs, fitted, z, candidates, best, fully_judged });
         }
         let joint = if method == AssociationMethod::Combined && self.config.joint_loop_closing {
-            self.close_loop_jointly(&plans, &cfg)
+            self.close_loop_jointly(&plans, &cfg, scan)
         } else {
             vec![None; plans.len()]
         };
@@ -430,6 +473,34 @@ impl Pipeline {
     }
 }
 
+/// The probability that a landmark predicted at range `r` and bearing `b` (laser frame),
+/// with innovation covariance `s` and trunk radius `radius`, lies where `scan` sees past
+/// it; `None` where its bearing's three-sigma window leaves the scan's field of view. The
+/// bearing is taken as Gaussian (the innovation's bearing variance plus the trunk's own
+/// angular width); each beam in the window is weighted by that density, and sees past the
+/// landmark when it has no return or returns beyond `r` by three sigma of range and a
+/// trunk's diameter. A closer return (something in front) does not.
+pub(super) fn free_space_probability(scan: &LaserScan, r: f64, b: f64, s: &Matrix2<f64>, radius: f64) -> Option<f64> {
+    let sigma = (s[(1, 1)].max(0.0) + (radius / r).powi(2)).sqrt();
+    let margin = 3.0 * s[(0, 0)].max(0.0).sqrt() + 2.0 * radius;
+    let lo = ((b - 3.0 * sigma - scan.angle_min) / scan.angle_increment).ceil();
+    let hi = ((b + 3.0 * sigma - scan.angle_min) / scan.angle_increment).floor();
+    if !(lo >= 0.0 && hi <= scan.ranges.len() as f64 - 1.0 && lo <= hi) {
+        return None;
+    }
+    let (mut free, mut all) = (0.0, 0.0);
+    for i in lo as usize..=hi as usize {
+        let a = scan.angle_min + i as f64 * scan.angle_increment;
+        let w = (-0.5 * ((a - b) / sigma).powi(2)).exp();
+        let ri = scan.ranges[i];
+        all += w;
+        if !ri.is_finite() || ri > scan.range_max || (scan.valid(i) && ri > r + margin) {
+            free += w;
+        }
+    }
+    (all > 0.0).then(|| free / all)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -523,5 +594,49 @@ mod tests {
             DiameterCheck { sigma_m: 0.0, sigma_per_m: 0.0, ..Default::default() }.validate().unwrap_err().0,
             "sigma_m"
         );
+    }
+
+    /// A 180-degree scan of 361 beams, 0.5 degrees apart, every beam reading `range`.
+    fn scan_reading(range: f64) -> LaserScan {
+        LaserScan {
+            t: 0.0,
+            angle_min: -std::f64::consts::FRAC_PI_2,
+            angle_increment: 0.5f64.to_radians(),
+            range_min: 0.05,
+            range_max: 80.0,
+            ranges: vec![range; 361],
+        }
+    }
+
+    #[test]
+    fn free_space_is_where_the_laser_sees_past_a_landmark() {
+        // A trunk of 0.2 m radius predicted 7 m ahead, 2 degrees of bearing sigma.
+        let s = Matrix2::new(0.1, 0.0, 0.0, 2f64.to_radians().powi(2));
+        let p = |scan: &LaserScan| free_space_probability(scan, 7.0, 0.0, &s, 0.2).unwrap();
+        // No return anywhere: the landmark would have been seen.
+        assert_eq!(p(&scan_reading(f64::INFINITY)), 1.0);
+        // Returns far beyond it: the same.
+        assert_eq!(p(&scan_reading(20.0)), 1.0);
+        // Returns at its range (the trunk is there), or something in front: not free.
+        assert_eq!(p(&scan_reading(7.1)), 0.0);
+        assert_eq!(p(&scan_reading(3.0)), 0.0);
+        // A reading below the laser's minimum is no sight past it either.
+        assert_eq!(p(&scan_reading(0.01)), 0.0);
+        // Within range sigma and a trunk's diameter of the prediction is not past it.
+        let margin = 3.0 * 0.1f64.sqrt() + 0.4;
+        assert_eq!(p(&scan_reading(7.0 + margin - 0.01)), 0.0);
+        // One close return at the window's edge (a person 3 sigma off) leaves most of the
+        // bearing's probability free; one where the trunk is predicted does not.
+        let mut edge = scan_reading(f64::INFINITY);
+        let i = |deg: f64| ((deg.to_radians() + std::f64::consts::FRAC_PI_2) / 0.5f64.to_radians()).round() as usize;
+        edge.ranges[i(-6.0)] = 2.7;
+        assert!(p(&edge) > 0.95, "{}", p(&edge));
+        let mut centre = scan_reading(f64::INFINITY);
+        for deg in [-1.0, -0.5, 0.0, 0.5, 1.0] {
+            centre.ranges[i(deg)] = 7.0;
+        }
+        assert!(p(&centre) < 0.95, "{}", p(&centre));
+        // A window that leaves the field of view says nothing.
+        assert!(free_space_probability(&scan_reading(20.0), 7.0, 89f64.to_radians(), &s, 0.2).is_none());
     }
 }

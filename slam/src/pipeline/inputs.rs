@@ -111,7 +111,7 @@ impl Pipeline {
         self.advance_to(scan.t);
         let clusters = cluster(scan, &self.config.clustering);
         if self.config.method.uses_appearance() {
-            return Ok(self.on_scan_with_appearance(scan.t, clusters));
+            return Ok(self.on_scan_with_appearance(scan, clusters));
         }
         let keep = vec![true; clusters.len()];
         Ok(self.observe_positions(scan.t, clusters, &keep, "unknown"))
