@@ -177,10 +177,6 @@ impl Pipeline {
         out
     }
 
-    /// Probability that the landmark's bearing falls on beams that see past it, above which
-    /// a joint closure is refused: the confidence of the joint compatibility test itself.
-    pub(super) const FREE_SPACE_PROBABILITY: f64 = 0.95;
-
     /// Observations the KL test left without a landmark, paired by joint compatibility
     /// where that is unambiguous (see [`PipelineConfig::joint_loop_closing`]): per plan, the
     /// (id, index) of its landmark, `None` where the KL test decides.
@@ -251,11 +247,11 @@ impl Pipeline {
             }
             let (zp, _, _, s) = trial.predict_observation(&self.config.sensor, k);
             let (r, b) = (zp.x, zp.y);
-            if !(r > 0.5 && r <= self.config.clustering.max_range_m) {
+            if !(r > MIN_FREE_SPACE_RANGE_M && r <= self.config.clustering.max_range_m) {
                 continue;
             }
             let radius = 0.5 * self.table.get(k).diameter_m;
-            if free_space_probability(scan, r, b, &s, radius).is_some_and(|p| p >= Self::FREE_SPACE_PROBABILITY) {
+            if free_space_probability(scan, r, b, &s, radius).is_some_and(|p| p >= FREE_SPACE_PROBABILITY) {
                 return true;
             }
         }
@@ -472,6 +468,14 @@ impl Pipeline {
             .is_ok_and(|kl| kl.is_finite() && kl < cfg.kl_threshold)
     }
 }
+
+/// Probability that a landmark's bearing falls on beams that see past it, above which a
+/// joint closure is refused: the confidence of the joint compatibility test itself.
+const FREE_SPACE_PROBABILITY: f64 = 0.95;
+
+/// A landmark predicted closer than this to the laser would stand inside the robot (the
+/// Pioneer is 0.63 m long): a broken prediction, not something the scan could confirm.
+const MIN_FREE_SPACE_RANGE_M: f64 = 0.5;
 
 /// The probability that a landmark predicted at range `r` and bearing `b` (laser frame),
 /// with innovation covariance `s` and trunk radius `radius`, lies where `scan` sees past
