@@ -146,9 +146,24 @@ fn park_640x480_columns(bencher: divan::Bencher) {
     let (mut r, camera, _) = park();
     let light = Lighting::default();
     let mut frame = Frame::default();
-    let spans = [(100, 145), (300, 345), (500, 545)];
+    let spans = [(100, 145), (300, 345), (500, 545)].map(|columns| Region { columns, rows: (0, 480) });
     bencher.bench_local(|| {
-        r.render_columns_into(&camera, &light, Some(&spans), &mut frame).unwrap();
+        r.render_regions_into(&camera, &light, Some(&spans), &mut frame).unwrap();
+        divan::black_box(&frame);
+    });
+}
+
+/// The same three column spans cut to the rows a segmentation reads of a cluster some
+/// metres off (from the band above the laser down to the laser's rows): about two fifths
+/// of their height.
+#[divan::bench(sample_count = 50, sample_size = 4)]
+fn park_640x480_regions(bencher: divan::Bencher) {
+    let (mut r, camera, _) = park();
+    let light = Lighting::default();
+    let mut frame = Frame::default();
+    let spans = [(100, 145), (300, 345), (500, 545)].map(|columns| Region { columns, rows: (60, 260) });
+    bencher.bench_local(|| {
+        r.render_regions_into(&camera, &light, Some(&spans), &mut frame).unwrap();
         divan::black_box(&frame);
     });
 }

@@ -1,8 +1,8 @@
 //! Frustum culling: bounding spheres of meshes and the view volume of the camera (or of
-//! some of its pixel columns), to skip instances that cannot be seen.
+//! some of its pixels), to skip instances that cannot be seen.
 
-use crate::Camera;
 use crate::math::{dot, dot3, normalised, rigid_inverse, sub, transform_point};
+use crate::{Camera, Region};
 
 /// The camera's view volume as planes through the optical centre (and near/far), in the
 /// camera frame, to skip instances that cannot be seen (software rasterisers pay for them).
@@ -16,14 +16,15 @@ pub(crate) struct Frustum {
 
 impl Frustum {
     pub(crate) fn new(c: &Camera, width: u32, height: u32) -> Self {
-        Frustum::of_columns(c, 0, width, height)
+        Frustum::of_region(c, &Region::whole(width, height))
     }
 
-    /// The view through pixel columns `start..end` only.
-    pub(crate) fn of_columns(c: &Camera, start: u32, end: u32, height: u32) -> Self {
-        let (u0, u1, h) = (start as f32, end as f32, height as f32);
+    /// The view through the pixels of `region` only.
+    pub(crate) fn of_region(c: &Camera, region: &Region) -> Self {
+        let (u0, u1) = (region.columns.0 as f32, region.columns.1 as f32);
+        let (v0, v1) = (region.rows.0 as f32, region.rows.1 as f32);
         // u >= u0: fx X + (cx - u0) Z >= 0; u <= u1: -fx X + (u1 - cx) Z >= 0; likewise for v.
-        let sides = [[c.fx, 0.0, c.cx - u0], [-c.fx, 0.0, u1 - c.cx], [0.0, c.fy, c.cy], [0.0, -c.fy, h - c.cy]]
+        let sides = [[c.fx, 0.0, c.cx - u0], [-c.fx, 0.0, u1 - c.cx], [0.0, c.fy, c.cy - v0], [0.0, -c.fy, v1 - c.cy]]
             .map(|n| normalised(n).unwrap_or([0.0, 0.0, 1.0]));
         Frustum { camera_from_world: rigid_inverse(&c.world_from_camera), sides, near_m: c.near_m, far_m: c.far_m }
     }

@@ -1,11 +1,11 @@
 //! Drawing a frame: checking the inputs, the per-frame uniform, and the render pass
-//! (instances frustum-culled and drawn near to far, scissored to the requested columns).
+//! (instances frustum-culled and drawn near to far, scissored to the requested regions).
 
 use crate::cull::Frustum;
 use crate::device::FrameUniform;
 use crate::math::{determinant3, mat_mul, normalised, rigid_inverse};
 use crate::texture::srgb_to_linear;
-use crate::{Camera, Frame, Lighting, RenderError, Renderer};
+use crate::{Camera, Frame, Lighting, Region, RenderError, Renderer};
 
 impl Renderer {
     /// Renders one frame and reads back all images.
@@ -17,32 +17,38 @@ impl Renderer {
 
     /// Like [`Renderer::render`], but reuses `frame`'s allocations (for long runs).
     pub fn render_into(&mut self, camera: &Camera, lighting: &Lighting, frame: &mut Frame) -> Result<(), RenderError> {
-        self.render_columns_into(camera, lighting, None, frame)
+        self.render_regions_into(camera, lighting, None, frame)
     }
 
-    /// Renders only the pixel columns in `columns` (`start..end` each; `None`: the whole
-    /// image), for consumers that read only part of each frame. The pixels inside are
-    /// those of the whole frame (the same draws in the same order, scissored); outside
-    /// them the frame is zero. With no columns nothing is drawn at all.
-    pub fn render_columns_into(
+    /// Renders only the pixel `regions` (sorted by column and column-disjoint; `None`: the
+    /// whole image), for consumers that read only part of each frame. The pixels inside
+    /// are those of the whole frame (the same draws in the same order, scissored); outside
+    /// them the frame is zero. With no regions nothing is drawn at all.
+    pub fn render_regions_into(
         &mut self,
         camera: &Camera,
         lighting: &Lighting,
-        columns: Option<&[(u32, u32)]>,
+        regions: Option<&[Region]>,
         frame: &mut Frame,
     ) -> Result<(), RenderError> {
         camera.validate()?;
-        let spans = match columns {
-            None => vec![(0, self.width)],
-            Some(columns) => {
+        let spans = match regions {
+            None => vec![Region::whole(self.width, self.height)],
+            Some(regions) => {
                 let mut previous_end = 0;
-                for (i, &(start, end)) in columns.iter().enumerate() {
-                    if start >= end || end > self.width || (i > 0 && start < previous_end) {
-                        return Err(RenderError::Columns { start, end, width: self.width });
+                for (i, r) in regions.iter().enumerate() {
+                    let (start, end) = r.columns;
+                    if start >= end
+                        || end > self.width
+                        || (i > 0 && start < previous_end)
+                        || r.rows.0 >= r.rows.1
+                        || r.rows.1 > self.height
+                    {
+                        return Err(RenderError::Region { region: *r, width: self.width, height: self.height });
                     }
                     previous_end = end;
                 }
-                columns.to_vec()
+                regions.to_vec()
             }
         };
         if lighting
@@ -123,13 +129,14 @@ impl Renderer {
             let mut bound_texture = usize::MAX;
             let mut bound_mesh = usize::MAX;
             let mut culling = None;
-            let whole = spans == [(0, self.width)];
-            for &(start, end) in &spans {
-                // Each span draws what can reach it, in the whole frame's order, so every
+            let whole = spans == [Region::whole(self.width, self.height)];
+            for span in &spans {
+                // Each region draws what can reach it, in the whole frame's order, so every
                 // pixel in it sees the same fragments as in the whole frame.
-                let span_frustum = (!whole).then(|| Frustum::of_columns(camera, start, end, self.height));
+                let span_frustum = (!whole).then(|| Frustum::of_region(camera, span));
                 if !whole {
-                    pass.set_scissor_rect(start, 0, end - start, self.height);
+                    let (x, y) = (span.columns.0, span.rows.0);
+                    pass.set_scissor_rect(x, y, span.columns.1 - x, span.rows.1 - y);
                 }
                 for &(_, k) in &self.draw_order {
                     let inst = &self.instances[k];
@@ -159,7 +166,7 @@ impl Renderer {
                 }
             }
         }
-        self.read_back(encoder, &spans, columns, frame)
+        self.read_back(encoder, &spans, regions.is_some(), frame)
     }
 }
 

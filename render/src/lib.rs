@@ -63,7 +63,7 @@ use std::sync::{Arc, Mutex};
 
 pub use math::{IDENTITY, rigid_inverse};
 pub use types::{
-    AdapterSummary, Camera, Frame, InstanceHandle, Lighting, MeshData, MeshId, RenderError, RendererConfig,
+    AdapterSummary, Camera, Frame, InstanceHandle, Lighting, MeshData, MeshId, Region, RenderError, RendererConfig,
     TextureData, TextureId,
 };
 

@@ -1,8 +1,8 @@
 //! Getting the images back: copying the render targets into the readback buffer (whole,
-//! or column span by column span), mapping it and unpacking it into a `Frame`, with the
-//! columns not rendered zeroed.
+//! or region by region), mapping it and unpacking it into a `Frame`, with the pixels not
+//! rendered zeroed.
 
-use crate::{Frame, RenderError, Renderer};
+use crate::{Frame, Region, RenderError, Renderer};
 
 /// Where one target's rows lie in the shared readback buffer.
 #[derive(Clone, Copy)]
@@ -13,37 +13,37 @@ pub(crate) struct Plane {
 }
 
 impl Renderer {
-    /// Copies the targets into the readback buffer (only the columns `spans` when they fit),
-    /// submits `encoder` with the frame's draws and unpacks the images into `frame`:
-    /// only the columns `spans` if `columns` were asked for, else all of them.
+    /// Copies the targets into the readback buffer (only the `spans` when they fit),
+    /// submits `encoder` with the frame's draws and unpacks the images into `frame`: only
+    /// the `spans` if `partial` (regions were asked for), else all of them.
     pub(crate) fn read_back(
         &self,
         mut encoder: wgpu::CommandEncoder,
-        spans: &[(u32, u32)],
-        columns: Option<&[(u32, u32)]>,
+        spans: &[Region],
+        partial: bool,
         frame: &mut Frame,
     ) -> Result<(), RenderError> {
-        // Only the rendered columns leave the GPU when they fit the buffer span by span.
-        let layout = match (spans != [(0, self.width)]).then(|| self.span_planes(spans)).flatten() {
+        let whole = Region::whole(self.width, self.height);
+        // Only the rendered regions leave the GPU when they fit the buffer one by one.
+        let layout = match (spans != [whole]).then(|| self.span_planes(spans)).flatten() {
             Some(per_span) => spans.iter().copied().zip(per_span).collect(),
-            None => vec![((0, self.width), self.planes.clone())],
+            None => vec![(whole, self.planes.clone())],
         };
-        for ((start, end), planes) in &layout {
+        for (region, planes) in &layout {
+            let (x, y) = (region.columns.0, region.rows.0);
+            let (width, height) = (region.columns.1 - x, region.rows.1 - y);
             for (target, plane) in self.targets.iter().zip(planes) {
                 encoder.copy_texture_to_buffer(
-                    wgpu::TexelCopyTextureInfo {
-                        origin: wgpu::Origin3d { x: *start, y: 0, z: 0 },
-                        ..target.as_image_copy()
-                    },
+                    wgpu::TexelCopyTextureInfo { origin: wgpu::Origin3d { x, y, z: 0 }, ..target.as_image_copy() },
                     wgpu::TexelCopyBufferInfo {
                         buffer: &self.readback,
                         layout: wgpu::TexelCopyBufferLayout {
                             offset: plane.offset,
                             bytes_per_row: Some(plane.bytes_per_row),
-                            rows_per_image: Some(self.height),
+                            rows_per_image: Some(height),
                         },
                     },
-                    wgpu::Extent3d { width: end - start, height: self.height, depth_or_array_layers: 1 },
+                    wgpu::Extent3d { width, height, depth_or_array_layers: 1 },
                 );
             }
         }
@@ -63,7 +63,7 @@ impl Renderer {
             .map_err(|e| RenderError::Readback(e.to_string()))?;
         let unpacked = match slice.get_mapped_range() {
             Ok(data) => {
-                self.unpack(&data, &layout, frame, if columns.is_some() { Some(spans) } else { None });
+                self.unpack(&data, &layout, frame, partial.then_some(spans));
                 Ok(())
             }
             Err(e) => Err(RenderError::Readback(e.to_string())),
@@ -74,20 +74,20 @@ impl Renderer {
         self.check_gpu_error()
     }
 
-    /// Where each span's rows of each target go in the readback buffer: the spans one after
-    /// another, rows padded as copies require; `None` when they would not fit.
-    fn span_planes(&self, spans: &[(u32, u32)]) -> Option<Vec<Vec<Plane>>> {
+    /// Where each region's rows of each target go in the readback buffer: the regions one
+    /// after another, rows padded as copies require; `None` when they would not fit.
+    fn span_planes(&self, spans: &[Region]) -> Option<Vec<Vec<Plane>>> {
         let mut offset = 0u64;
         let layout = spans
             .iter()
-            .map(|&(start, end)| {
+            .map(|r| {
                 self.planes
                     .iter()
                     .map(|p| {
-                        let bytes_per_row =
-                            (p.bytes_per_pixel * (end - start)).next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
+                        let bytes_per_row = (p.bytes_per_pixel * (r.columns.1 - r.columns.0))
+                            .next_multiple_of(wgpu::COPY_BYTES_PER_ROW_ALIGNMENT);
                         let plane = Plane { offset, bytes_per_row, bytes_per_pixel: p.bytes_per_pixel };
-                        offset += bytes_per_row as u64 * self.height as u64;
+                        offset += bytes_per_row as u64 * (r.rows.1 - r.rows.0) as u64;
                         plane
                     })
                     .collect()
@@ -96,57 +96,56 @@ impl Renderer {
         (offset <= self.readback.size()).then_some(layout)
     }
 
-    /// Copies the readback buffer, laid out as `layout` says (each copied span's column range
-    /// and its targets' rows), into `frame`: all of it, or only the pixel columns `spans`,
-    /// the rest zeroed.
-    fn unpack(
-        &self,
-        data: &[u8],
-        layout: &[((u32, u32), Vec<Plane>)],
-        frame: &mut Frame,
-        spans: Option<&[(u32, u32)]>,
-    ) {
+    /// Copies the readback buffer, laid out as `layout` says (each copied region and its
+    /// targets' rows), into `frame`: all of it, or only the pixel regions `spans`, the
+    /// rest zeroed.
+    fn unpack(&self, data: &[u8], layout: &[(Region, Vec<Plane>)], frame: &mut Frame, spans: Option<&[Region]>) {
         let (w, h) = (self.width as usize, self.height as usize);
         self.size_frame(frame);
-        let whole = [(0, self.width)];
+        let whole = [Region::whole(self.width, self.height)];
         let copied = spans.unwrap_or(&whole);
-        let empty = if spans.is_some() { gaps(copied, self.width) } else { Vec::new() };
-        // Row `y` of columns `a..b` of a target, copied as `plane` from column `first` on.
-        let row = |plane: &Plane, first: usize, y: usize, (a, b): (usize, usize)| {
-            let start = plane.offset as usize + y * plane.bytes_per_row as usize;
+        // Row `y` of columns `a..b` of a target, copied as `plane` from (`first`, `top`) on.
+        let row = |plane: &Plane, (first, top): (usize, usize), y: usize, (a, b): (usize, usize)| {
+            let start = plane.offset as usize + (y - top) * plane.bytes_per_row as usize;
             let bytes = plane.bytes_per_pixel as usize;
             &data[start + bytes * (a - first)..start + bytes * (b - first)]
         };
+        let mut in_row: Vec<(u32, u32)> = Vec::with_capacity(copied.len());
         for y in 0..h {
-            blank_row(frame, y, &empty);
-            for &(a, b) in copied {
-                let ((first, _), planes) = layout
+            in_row.clear();
+            in_row.extend(copied.iter().filter(|r| (r.rows.0..r.rows.1).contains(&(y as u32))).map(|r| r.columns));
+            blank_row(frame, y, &gaps(&in_row, self.width));
+            for &(a, b) in &in_row {
+                let (region, planes) = layout
                     .iter()
-                    .find(|((s, e), _)| *s <= a && b <= *e)
-                    .expect("every span is copied, alone or in the whole frame");
-                let (a, b, first) = (a as usize, b as usize, *first as usize);
+                    .find(|(r, _)| {
+                        r.columns.0 <= a && b <= r.columns.1 && r.rows.0 <= y as u32 && (y as u32) < r.rows.1
+                    })
+                    .expect("every region is copied, alone or in the whole frame");
+                let origin = (region.columns.0 as usize, region.rows.0 as usize);
+                let (a, b) = (a as usize, b as usize);
                 let (i0, i1) = (w * y + a, w * y + b);
-                for (d, s) in
-                    frame.rgb[3 * i0..3 * i1].chunks_exact_mut(3).zip(row(&planes[0], first, y, (a, b)).chunks_exact(4))
+                for (d, s) in frame.rgb[3 * i0..3 * i1]
+                    .chunks_exact_mut(3)
+                    .zip(row(&planes[0], origin, y, (a, b)).chunks_exact(4))
                 {
                     d.copy_from_slice(&s[..3]);
                 }
-                let ids = row(&planes[1], first, y, (a, b)).chunks_exact(4);
+                let ids = row(&planes[1], origin, y, (a, b)).chunks_exact(4);
                 for ((instance, class), s) in frame.instance[i0..i1].iter_mut().zip(&mut frame.class[i0..i1]).zip(ids) {
                     let v = u32::from_le_bytes([s[0], s[1], s[2], s[3]]);
                     *instance = (v >> 8) as u16;
                     *class = (v & 0xff) as u8;
                 }
                 let Some(depth) = planes.get(2) else { continue };
-                for (d, s) in frame.depth_m[i0..i1].iter_mut().zip(row(depth, first, y, (a, b)).chunks_exact(4)) {
+                for (d, s) in frame.depth_m[i0..i1].iter_mut().zip(row(depth, origin, y, (a, b)).chunks_exact(4)) {
                     let z = f32::from_le_bytes([s[0], s[1], s[2], s[3]]);
                     *d = if z > 0.0 { z } else { f32::INFINITY };
                 }
             }
         }
-        frame.columns = spans.map(<[_]>::to_vec);
+        frame.regions = spans.map(<[_]>::to_vec);
     }
-
     /// Sizes `frame`'s images for this renderer (contents left as they were).
     fn size_frame(&self, frame: &mut Frame) {
         let n = self.width as usize * self.height as usize;
@@ -165,7 +164,7 @@ impl Renderer {
         for y in 0..self.height as usize {
             blank_row(frame, y, &empty);
         }
-        frame.columns = Some(Vec::new());
+        frame.regions = Some(Vec::new());
     }
 }
 

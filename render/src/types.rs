@@ -23,9 +23,10 @@ pub enum RenderError {
     #[error("invalid lighting: {0}")]
     Lighting(String),
     #[error(
-        "invalid pixel columns {start}..{end}: spans must be non-empty, sorted, disjoint and within the image's {width} columns"
+        "invalid pixel region: columns {}..{}, rows {}..{}: regions must be non-empty, sorted by column, column-disjoint and within the {width} x {height} image",
+        region.columns.0, region.columns.1, region.rows.0, region.rows.1
     )]
-    Columns { start: u32, end: u32, width: u32 },
+    Region { region: Region, width: u32, height: u32 },
     #[error("instance {instance} refers to mesh {mesh} or texture {texture}, which this renderer does not have")]
     UnknownResource { instance: usize, mesh: usize, texture: usize },
     #[error("GPU error: {0}")]
@@ -206,10 +207,34 @@ pub struct Frame {
     /// Z-depth along the optical axis (m); `f32::INFINITY` where nothing was drawn. Empty
     /// when the renderer was made without depth (`RendererConfig::depth`).
     pub depth_m: Vec<f32>,
-    /// The pixel columns rendered (`start..end`, sorted, disjoint); `None`: all of them.
-    /// Outside them the images are zero (black, no instance, no class) and the depth
-    /// infinite (see [`Renderer::render_columns_into`](crate::Renderer::render_columns_into)).
-    pub columns: Option<Vec<(u32, u32)>>,
+    /// The pixel regions rendered (sorted by column, column-disjoint); `None`: the whole
+    /// frame. Outside them the images are zero (black, no instance, no class) and the
+    /// depth infinite (see [`Renderer::render_regions_into`](crate::Renderer::render_regions_into)).
+    pub regions: Option<Vec<Region>>,
+}
+
+/// A rectangle of pixels: columns `columns.0..columns.1`, rows `rows.0..rows.1`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct Region {
+    pub columns: (u32, u32),
+    pub rows: (u32, u32),
+}
+
+impl Region {
+    /// The whole of a `width` x `height` image.
+    pub fn whole(width: u32, height: u32) -> Region {
+        Region { columns: (0, width), rows: (0, height) }
+    }
+
+    /// Whether pixel (u, v) lies in it.
+    pub fn contains(&self, u: u32, v: u32) -> bool {
+        (self.columns.0..self.columns.1).contains(&u) && (self.rows.0..self.rows.1).contains(&v)
+    }
+
+    /// Its number of pixels.
+    pub fn area(&self) -> u64 {
+        self.columns.1.saturating_sub(self.columns.0) as u64 * self.rows.1.saturating_sub(self.rows.0) as u64
+    }
 }
 
 impl Frame {

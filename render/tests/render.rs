@@ -535,53 +535,64 @@ fn a_renderer_without_depth_draws_the_same_colour_and_masks() {
 }
 
 #[test]
-fn rendering_some_columns_gives_the_whole_frames_pixels_there_and_zero_elsewhere() {
+fn rendering_some_regions_gives_the_whole_frames_pixels_there_and_zero_elsewhere() {
     let mut scene = golden_scene_on(renderer(160, 120), true);
     let light = Lighting::default();
     let whole = scene.r.render(&scene.camera, &light).unwrap();
-    assert_eq!(whole.columns, None);
-    // Spans through the post (one a single column wide), the block's edge and the trunk's
-    // middle, the last at the image's edge; rendered into a frame holding a whole render,
-    // which must not show through. Five spans' padded rows do not fit the readback buffer
-    // (the whole targets are copied); two do (copied span by span).
-    for spans in [&[(10, 37), (60, 61), (70, 96), (108, 112), (150, 160)][..], &[(70, 96), (108, 112)]] {
+    assert_eq!(whole.regions, None);
+    let r = |c0, c1, r0, r1| Region { columns: (c0, c1), rows: (r0, r1) };
+    // Regions through the post (one a single column wide), the block's edge and the
+    // trunk's middle, the last at the image's edge, some of the whole height and some of a
+    // band of rows; rendered into a frame holding a whole render, which must not show
+    // through. Five regions' padded rows do not fit the readback buffer (the whole targets
+    // are copied); two do (copied region by region).
+    let many = [r(10, 37, 0, 120), r(60, 61, 30, 31), r(70, 96, 20, 90), r(108, 112, 0, 120), r(150, 160, 100, 120)];
+    for spans in [&many[..], &[r(70, 96, 0, 120), r(108, 112, 40, 75)]] {
         let mut part = whole.clone();
-        scene.r.render_columns_into(&scene.camera, &light, Some(spans), &mut part).unwrap();
-        assert_eq!(part.columns.as_deref(), Some(spans));
+        scene.r.render_regions_into(&scene.camera, &light, Some(spans), &mut part).unwrap();
+        assert_eq!(part.regions.as_deref(), Some(spans));
         let mut inside = 0;
         for v in 0..120 {
             for u in 0..160 {
-                if spans.iter().any(|&(a, b)| (a..b).contains(&u)) {
+                if spans.iter().any(|s| s.contains(u, v)) {
                     let same = (part.rgb_at(u, v), part.instance_at(u, v), part.class_at(u, v), part.depth_at(u, v))
                         == (whole.rgb_at(u, v), whole.instance_at(u, v), whole.class_at(u, v), whole.depth_at(u, v));
-                    assert!(same, "pixel ({u}, {v}) differs from the whole frame's with spans {spans:?}");
+                    assert!(same, "pixel ({u}, {v}) differs from the whole frame's with regions {spans:?}");
                     inside += (whole.instance_at(u, v) > 1) as usize;
                 } else {
                     assert_eq!(
                         (part.rgb_at(u, v), part.instance_at(u, v), part.class_at(u, v)),
                         ([0; 3], 0, 0),
-                        "pixel ({u}, {v}) outside the columns"
+                        "pixel ({u}, {v}) outside the regions"
                     );
                     assert_eq!(part.depth_at(u, v), f32::INFINITY);
                 }
             }
         }
-        assert!(inside > 400, "the spans cross objects ({inside} object pixels)");
+        assert!(inside > 300, "the regions cross objects ({inside} object pixels)");
     }
     let mut part = whole.clone();
-    // No columns: nothing drawn, an empty frame of the right size.
-    scene.r.render_columns_into(&scene.camera, &light, Some(&[]), &mut part).unwrap();
-    assert_eq!((part.width, part.height, part.columns.as_deref()), (160, 120, Some(&[][..])));
+    // No regions: nothing drawn, an empty frame of the right size.
+    scene.r.render_regions_into(&scene.camera, &light, Some(&[]), &mut part).unwrap();
+    assert_eq!((part.width, part.height, part.regions.as_deref()), (160, 120, Some(&[][..])));
     assert!(part.instance.iter().all(|&i| i == 0) && part.rgb.iter().all(|&c| c == 0));
 }
 
 #[test]
-fn columns_out_of_order_overlapping_empty_or_outside_the_image_are_errors() {
+fn regions_out_of_order_overlapping_empty_or_outside_the_image_are_errors() {
     let mut scene = golden_scene(32, 24);
     let mut frame = Frame::default();
-    for bad in [&[(5, 5)][..], &[(0, 33)], &[(10, 20), (15, 25)], &[(10, 20), (0, 5)]] {
-        let e = scene.r.render_columns_into(&scene.camera, &Lighting::default(), Some(bad), &mut frame).unwrap_err();
-        assert!(matches!(e, RenderError::Columns { .. }), "{bad:?}: {e}");
-        assert!(e.to_string().contains("sorted, disjoint and within"), "{e}");
+    let r = |c0, c1, r0, r1| Region { columns: (c0, c1), rows: (r0, r1) };
+    for bad in [
+        &[r(5, 5, 0, 24)][..],
+        &[r(0, 33, 0, 24)],
+        &[r(10, 20, 0, 24), r(15, 25, 0, 24)],
+        &[r(10, 20, 0, 24), r(0, 5, 0, 24)],
+        &[r(0, 5, 7, 7)],
+        &[r(0, 5, 3, 25)],
+    ] {
+        let e = scene.r.render_regions_into(&scene.camera, &Lighting::default(), Some(bad), &mut frame).unwrap_err();
+        assert!(matches!(e, RenderError::Region { .. }), "{bad:?}: {e}");
+        assert!(e.to_string().contains("column-disjoint and within the 32 x 24 image"), "{e}");
     }
 }

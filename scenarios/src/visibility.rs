@@ -13,7 +13,8 @@
 use std::collections::{BTreeMap, BTreeSet};
 
 use nalgebra::Vector3;
-use slam::segmentation::{CameraGeometry, merge_spans};
+use slam::features::PixelRegion;
+use slam::segmentation::{CameraGeometry, merge_regions};
 
 /// Counts, scan by scan, the trees the laser saw and the trees the camera showed where the
 /// laser hit them.
@@ -41,8 +42,8 @@ pub struct InstanceImage<'a> {
     pub height: u32,
     /// Instance id per pixel, row-major.
     pub instance: &'a [u16],
-    /// Columns rendered (`None`: all); outside them the image holds no instance.
-    pub columns: Option<&'a [(u32, u32)]>,
+    /// Regions rendered (`None`: all the image); outside them it holds no instance.
+    pub regions: Option<&'a [render::Region]>,
 }
 
 impl TreeVisibility {
@@ -93,15 +94,15 @@ impl TreeVisibility {
         (u >= 0.0 && v >= 0.0 && u < camera.width as f64 && v < camera.height as f64).then_some((u as u32, v as u32))
     }
 
-    /// The pixel columns that [`TreeVisibility::on_scan`] will read in the frame of `scan`'s
-    /// instant: a camera that renders only some columns must render these too, so that the
-    /// count does not depend on which columns a method asked for.
-    pub fn columns(&self, scan: &sim::LaserScan, truth: &sim::LaserTruth) -> Vec<(u32, u32)> {
+    /// The pixels that [`TreeVisibility::on_scan`] will read in the frame of `scan`'s
+    /// instant: a camera that renders only some regions must render these too, so that the
+    /// count does not depend on which regions a method asked for.
+    pub fn regions(&self, scan: &sim::LaserScan, truth: &sim::LaserTruth) -> Vec<PixelRegion> {
         let Some(camera) = &self.camera else { return vec![] };
-        merge_spans(
+        merge_regions(
             self.tree_beams(scan.angle_min, scan.angle_increment, truth)
                 .filter_map(|(_, _, p)| Self::pixel(camera, &p))
-                .map(|(u, _)| (u, u + 1))
+                .map(|(u, v)| PixelRegion { columns: (u, u + 1), rows: (v, v + 1) })
                 .collect(),
         )
     }
@@ -122,7 +123,7 @@ impl TreeVisibility {
         let mut unrendered = 0;
         for (i, id, p) in self.tree_beams(scan.angle_min, scan.angle_increment, truth) {
             let Some((u, v)) = Self::pixel(camera, &p) else { continue };
-            if !frame.columns.is_none_or(|c| c.iter().any(|s| s.0 <= u && u < s.1)) {
+            if !frame.regions.is_none_or(|r| r.iter().any(|r| r.contains(u, v))) {
                 unrendered += 1;
             } else if frame.instance[(v * frame.width + u) as usize] == id {
                 shown.push(i);
@@ -219,7 +220,7 @@ mod tests {
     }
 
     fn whole(instance: &[u16]) -> InstanceImage<'_> {
-        InstanceImage { t: 1.0, width: 100, height: 100, instance, columns: None }
+        InstanceImage { t: 1.0, width: 100, height: 100, instance, regions: None }
     }
 
     #[test]
@@ -251,32 +252,34 @@ mod tests {
     }
 
     #[test]
-    fn the_columns_read_are_those_the_tree_beams_project_to() {
+    fn the_pixels_read_are_those_the_tree_beams_project_to() {
         let (scan, truth) = scan_and_truth();
         let v = TreeVisibility::new([7].into(), Some(forward_camera()), 3, 12.0, 1);
-        let cols = v.columns(&scan, &truth);
-        // Beams at -1, 0, +1 degrees: u = 50 - 50 tan(a) (y left is image left).
-        assert_eq!(cols.len(), 1, "{cols:?}");
-        assert!(cols[0].0 >= 48 && cols[0].1 <= 52, "{cols:?}");
-        // Only those columns rendered: the count is the same as with the whole frame.
+        let regions = v.regions(&scan, &truth);
+        // Beams at -1, 0, +1 degrees: u = 50 - 50 tan(a) (y left is image left), all in
+        // the laser's row.
+        assert_eq!(regions.len(), 1, "{regions:?}");
+        let r = regions[0];
+        assert!(r.columns.0 >= 48 && r.columns.1 <= 52 && r.rows.1 == r.rows.0 + 1, "{regions:?}");
+        // Only those pixels rendered: the count is the same as with the whole frame.
         let img = image_of(7);
-        let mut all_columns = TreeVisibility::new([7].into(), Some(forward_camera()), 3, 12.0, 1);
-        let mut some_columns = TreeVisibility::new([7].into(), Some(forward_camera()), 3, 12.0, 1);
-        all_columns.on_scan(&scan, &truth, Some(&whole(&img)));
+        let mut all_pixels = TreeVisibility::new([7].into(), Some(forward_camera()), 3, 12.0, 1);
+        let mut some_pixels = TreeVisibility::new([7].into(), Some(forward_camera()), 3, 12.0, 1);
+        all_pixels.on_scan(&scan, &truth, Some(&whole(&img)));
         let mut masked = vec![0u16; 100 * 100];
-        for v in 0..100 {
-            for &(a, b) in &cols {
-                for u in a..b {
-                    masked[v * 100 + u as usize] = 7;
-                }
+        for v in r.rows.0..r.rows.1 {
+            for u in r.columns.0..r.columns.1 {
+                masked[(v * 100 + u) as usize] = 7;
             }
         }
-        some_columns.on_scan(
+        let rendered = [render::Region { columns: r.columns, rows: r.rows }];
+        some_pixels.on_scan(
             &scan,
             &truth,
-            Some(&InstanceImage { t: 1.0, width: 100, height: 100, instance: &masked, columns: Some(&cols) }),
+            Some(&InstanceImage { t: 1.0, width: 100, height: 100, instance: &masked, regions: Some(&rendered) }),
         );
-        assert_eq!(all_columns.trees_in_view(), some_columns.trees_in_view());
-        assert_eq!(all_columns.trees_in_view(), Some([7].into()));
+        assert_eq!(some_pixels.unrendered_reads(), 0);
+        assert_eq!(all_pixels.trees_in_view(), some_pixels.trees_in_view());
+        assert_eq!(all_pixels.trees_in_view(), Some([7].into()));
     }
 }

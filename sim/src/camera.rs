@@ -147,17 +147,17 @@ impl CameraSensor {
 
     /// Renders from an arbitrary camera pose (datasets, calibration).
     pub fn render_from(&mut self, t: f64, world_from_camera: Rigid) -> Result<CameraFrame, CameraError> {
-        self.render_columns_from(t, world_from_camera, None)
+        self.render_regions_from(t, world_from_camera, None)
     }
 
-    /// [`CameraSensor::render_from`] rendering only the pixel columns `columns` (see
-    /// `render::Renderer::render_columns_into`); noise and exposure draw the same random
+    /// [`CameraSensor::render_from`] rendering only the pixel `regions` (see
+    /// `render::Renderer::render_regions_into`); noise and exposure draw the same random
     /// numbers either way, so the pixels rendered are those of the whole frame.
-    pub fn render_columns_from(
+    pub fn render_regions_from(
         &mut self,
         t: f64,
         world_from_camera: Rigid,
-        columns: Option<&[(u32, u32)]>,
+        regions: Option<&[render::Region]>,
     ) -> Result<CameraFrame, CameraError> {
         let k = self.config.intrinsics();
         let camera = render::Camera {
@@ -175,15 +175,15 @@ impl CameraSensor {
             lighting.exposure *= (n.sample(&mut self.rng) as f32).max(0.1);
         }
         let mut image = render::Frame::default();
-        self.renderer.render_columns_into(&camera, &lighting, columns, &mut image)?;
+        self.renderer.render_regions_into(&camera, &lighting, regions, &mut image)?;
         if self.config.noise_sigma > 0.0 {
             let n = Normal::new(0.0, self.config.noise_sigma).expect("finite sigma");
-            let (width, spans) = (image.width as usize, image.columns.clone());
+            let (width, spans) = (image.width as usize, image.regions.clone());
             for (i, v) in image.rgb.iter_mut().enumerate() {
-                // Drawn for every value, so the stream does not depend on the columns.
+                // Drawn for every value, so the stream does not depend on the regions.
                 let e = n.sample(&mut self.rng);
-                let u = (i / 3 % width) as u32;
-                if spans.as_ref().is_none_or(|s| s.iter().any(|&(a, b)| (a..b).contains(&u))) {
+                let (u, row) = ((i / 3 % width) as u32, (i / 3 / width) as u32);
+                if spans.as_ref().is_none_or(|s| s.iter().any(|r| r.contains(u, row))) {
                     *v = (*v as f64 + e).round().clamp(0.0, 255.0) as u8;
                 }
             }
@@ -193,19 +193,19 @@ impl CameraSensor {
 
     /// Renders the robot's view at `robot` with `people` posed.
     pub fn capture(&mut self, t: f64, robot: &Pose2D, people: &[PersonState]) -> Result<CameraFrame, CameraError> {
-        self.capture_columns(t, robot, people, None)
+        self.capture_regions(t, robot, people, None)
     }
 
-    /// [`CameraSensor::capture`] rendering only the pixel columns `columns`.
-    pub fn capture_columns(
+    /// [`CameraSensor::capture`] rendering only the pixel `regions`.
+    pub fn capture_regions(
         &mut self,
         t: f64,
         robot: &Pose2D,
         people: &[PersonState],
-        columns: Option<&[(u32, u32)]>,
+        regions: Option<&[render::Region]>,
     ) -> Result<CameraFrame, CameraError> {
         self.pose_people(people);
         let pose = self.config.world_from_camera(robot);
-        self.render_columns_from(t, pose, columns)
+        self.render_regions_from(t, pose, regions)
     }
 }

@@ -16,7 +16,7 @@ struct Request {
     t: f64,
     robot: Pose2D,
     people: Vec<PersonState>,
-    columns: Option<Vec<(u32, u32)>>,
+    regions: Option<Vec<render::Region>>,
 }
 
 pub(crate) struct CameraThread {
@@ -34,7 +34,7 @@ impl CameraThread {
         let (outbox, frames) = mpsc::channel();
         let worker = std::thread::Builder::new().name("camera".into()).spawn(move || {
             for r in inbox {
-                if outbox.send(camera.capture_columns(r.t, &r.robot, &r.people, r.columns.as_deref())).is_err() {
+                if outbox.send(camera.capture_regions(r.t, &r.robot, &r.people, r.regions.as_deref())).is_err() {
                     break;
                 }
             }
@@ -46,11 +46,17 @@ impl CameraThread {
         &self.adapter
     }
 
-    /// Asks for the frame at `t` (only the pixel columns `columns`, if given).
-    pub(crate) fn request(&self, t: f64, robot: Pose2D, people: Vec<PersonState>, columns: Option<Vec<(u32, u32)>>) {
+    /// Asks for the frame at `t` (only the pixel `regions`, if given).
+    pub(crate) fn request(
+        &self,
+        t: f64,
+        robot: Pose2D,
+        people: Vec<PersonState>,
+        regions: Option<Vec<render::Region>>,
+    ) {
         if let Some(requests) = &self.requests {
             // A send fails only when the thread has ended; the next frame() says so.
-            let _ = requests.send(Request { t, robot, people, columns });
+            let _ = requests.send(Request { t, robot, people, regions });
         }
     }
 

@@ -108,9 +108,9 @@ enum Pending {
 }
 
 /// Chooses, from the laser scan of a frame's instant (and what its beams truly hit, for
-/// consumers that score against ground truth), the pixel columns (`start..end`, sorted,
-/// disjoint) of that frame a consumer will read.
-pub type ColumnSelector = Box<dyn Fn(&LaserScan, &LaserTruth) -> Vec<(u32, u32)> + Send + Sync>;
+/// consumers that score against ground truth), the pixel regions (sorted by column,
+/// column-disjoint) of that frame a consumer will read.
+pub type RegionSelector = Box<dyn Fn(&LaserScan, &LaserTruth) -> Vec<render::Region> + Send + Sync>;
 
 /// A running simulation.
 pub struct Simulation {
@@ -128,8 +128,8 @@ pub struct Simulation {
     camera_thread: Option<camera_thread::CameraThread>,
     camera_schedule: Schedule,
     camera_error: Option<String>,
-    /// See [`Simulation::render_camera_columns`].
-    camera_columns: Option<ColumnSelector>,
+    /// See [`Simulation::render_camera_regions`].
+    camera_regions: Option<RegionSelector>,
     step: u64,
     dt: f64,
     pending: VecDeque<Pending>,
@@ -166,7 +166,7 @@ impl Simulation {
             camera_thread: None,
             camera_schedule: Schedule::new(config.camera.rate_hz),
             camera_error: None,
-            camera_columns: None,
+            camera_regions: None,
             scene,
             follower,
             step: 0,
@@ -244,15 +244,15 @@ impl Simulation {
         Ok(())
     }
 
-    /// From now on renders each camera frame only in the pixel columns `select` picks from
+    /// From now on renders each camera frame only in the pixel regions `select` picks from
     /// the laser scan of the same instant (frames with no scan at their instant are
     /// rendered whole). For consumers that read only where the laser points, as the
     /// paper's segmentation does: the pixels rendered are those of the whole frame (the
-    /// frame's `image.columns` says which), at a fraction of the rendering cost. Columns
-    /// that are not sorted, disjoint and within the image stop the camera with an error, as
-    /// a lost renderer does ([`Simulation::camera_error`]).
-    pub fn render_camera_columns(&mut self, select: ColumnSelector) {
-        self.camera_columns = Some(select);
+    /// frame's `image.regions` says which), at a fraction of the rendering cost. Regions
+    /// that are not sorted by column, column-disjoint and within the image stop the camera
+    /// with an error, as a lost renderer does ([`Simulation::camera_error`]).
+    pub fn render_camera_regions(&mut self, select: RegionSelector) {
+        self.camera_regions = Some(select);
     }
 
     /// A rendering failure that stopped the camera mid-run, if any.
@@ -347,15 +347,15 @@ impl Simulation {
         // images has the matching image when the scan arrives.
         let scan = self.laser_schedule.due(t).then(|| self.laser.scan(&self.scene, &truth.robot, t));
         if self.camera_schedule.due(t) {
-            let columns = match (&self.camera_columns, &scan) {
+            let regions = match (&self.camera_regions, &scan) {
                 (Some(select), Some((scan, beams))) => Some(select(scan, beams)),
                 _ => None,
             };
             if let Some(thread) = &self.camera_thread {
-                thread.request(t, truth.robot, truth.people.clone(), columns);
+                thread.request(t, truth.robot, truth.people.clone(), regions);
                 self.pending.push_back(Pending::Frame(truth.clone()));
             } else if let Some(cam) = &mut self.camera {
-                match cam.capture_columns(t, &truth.robot, &truth.people, columns.as_deref()) {
+                match cam.capture_regions(t, &truth.robot, &truth.people, regions.as_deref()) {
                     Ok(frame) => self.pending.push_back(Pending::Ready(SensorEvent::Camera {
                         frame: Box::new(frame),
                         truth: truth.clone(),

@@ -1,6 +1,7 @@
 //! The camera against the laser and the ground truth: what the laser hits, carried into the
 //! image with the extrinsics (the paper's Phi, Delta) and K, lands on the same object.
 
+use render::Region;
 use sim::{SensorEvent, SimConfig, Simulation};
 
 #[test]
@@ -217,21 +218,25 @@ fn rendering_on_the_camera_thread_gives_the_inline_event_stream() {
 }
 
 #[test]
-fn a_column_selector_renders_each_frame_where_the_scan_of_its_instant_says() {
+fn a_region_selector_renders_each_frame_where_the_scan_of_its_instant_says() {
     let world = worlds::generate::park(&Default::default(), 2006).unwrap();
     // With image noise and exposure variation, which must draw the same numbers either way.
     let mut config = SimConfig { max_duration_s: Some(4.0), ..Default::default() };
     config.camera.noise_sigma = 2.0;
     config.camera.exposure_sigma = 0.05;
-    // Columns from the scan: a band that moves with the number of beams that hit something.
+    // Regions from the scan: a rectangle that moves with the number of beams that hit
+    // something, and a fixed one of the whole height.
     let select = |scan: &sim::LaserScan, _: &sim::LaserTruth| {
         let hits = scan.ranges.iter().filter(|r| r.is_finite() && **r < scan.range_max).count() as u32;
-        vec![(hits % 300, hits % 300 + 40), (400, 480)]
+        vec![
+            Region { columns: (hits % 300, hits % 300 + 40), rows: (hits % 200, hits % 200 + 90) },
+            Region { columns: (400, 480), rows: (0, 480) },
+        ]
     };
-    let frames = |columns: bool, threaded: bool| {
+    let frames = |regions: bool, threaded: bool| {
         let mut s = Simulation::new(&world, &config, 5).unwrap();
-        if columns {
-            s.render_camera_columns(Box::new(select));
+        if regions {
+            s.render_camera_regions(Box::new(select));
         }
         if threaded {
             s.render_camera_on_thread().unwrap();
@@ -258,26 +263,29 @@ fn a_column_selector_renders_each_frame_where_the_scan_of_its_instant_says() {
     for ((w, _), (p, chosen)) in whole.iter().zip(&parts) {
         let t = p.t;
         let (w, p) = (&w.image, &p.image);
-        assert_eq!(w.columns, None);
+        assert_eq!(w.regions, None);
         // The frame at 0 s is made with the simulation, before a selector can be given.
-        let spans =
-            if t == 0.0 { vec![(0, p.width)] } else { chosen.clone().expect("a scan at every frame's instant") };
-        assert_eq!(p.columns, (t > 0.0).then(|| spans.clone()), "frame at {t} s: the columns of its scan");
+        let spans = if t == 0.0 {
+            vec![Region::whole(p.width, p.height)]
+        } else {
+            chosen.clone().expect("a scan at every frame's instant")
+        };
+        assert_eq!(p.regions, (t > 0.0).then(|| spans.clone()), "frame at {t} s: the regions of its scan");
         for v in 0..p.height {
             for u in 0..p.width {
-                let inside = spans.iter().any(|&(a, b)| (a..b).contains(&u));
+                let inside = spans.iter().any(|r| r.contains(u, v));
                 let expected = if inside { (w.rgb_at(u, v), w.instance_at(u, v)) } else { ([0; 3], 0) };
                 assert_eq!(
                     (p.rgb_at(u, v), p.instance_at(u, v)),
                     expected,
-                    "pixel ({u}, {v}), inside the columns: {inside}"
+                    "pixel ({u}, {v}), inside the regions: {inside}"
                 );
             }
         }
     }
-    // Columns the image does not have stop the camera, not the run.
+    // Regions the image does not have stop the camera, not the run.
     let mut s = Simulation::new(&world, &config, 5).unwrap();
-    s.render_camera_columns(Box::new(|_, _| vec![(600, 700)]));
+    s.render_camera_regions(Box::new(|_, _| vec![Region { columns: (600, 700), rows: (0, 10) }]));
     let mut events = 0;
     while s.next_event().is_some() {
         events += 1;

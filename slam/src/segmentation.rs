@@ -1,6 +1,6 @@
 //! Laser-camera segmentation (paper section 4.1): a laser cluster's points are projected
 //! into the image with K and the extrinsics (P_l = Phi P_c + Delta); the patches at those
-//! points and all patches in the same image columns are classified; the cluster is an
+//! points and the patches above them up to the band are classified; the cluster is an
 //! object of interest when enough of the patches its points fall in are object patches.
 
 use nalgebra::Vector3;
@@ -9,7 +9,7 @@ use serde::{Deserialize, Serialize};
 use crate::calibration::Extrinsics;
 use crate::classifier::PatchClassifier;
 use crate::clustering::{Cluster, ClusteringConfig, cluster};
-use crate::features::{FeatureConfig, FeatureError, FeatureExtractor, ImageRef, PatchFeatures, PatchRect};
+use crate::features::{FeatureConfig, FeatureError, FeatureExtractor, ImageRef, PatchFeatures, PatchRect, PixelRegion};
 use crate::messages::LaserScan;
 
 /// The camera as the pipeline knows it: pinhole intrinsics K and the laser <- camera
@@ -203,7 +203,7 @@ impl SegmentationConfig {
 /// The segmentation of one cluster.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SegmentedCluster {
-    /// The classified columns (whole image height).
+    /// The classified patches (see [`ClusterInImage::rect`]).
     pub rect: PatchRect,
     pub features: PatchFeatures,
     /// R per patch of `rect` (row-major).
@@ -224,7 +224,7 @@ pub struct SegmentedCluster {
     /// Whether the cluster's laser points reach the image's left or right edge (the object
     /// may go on outside the image, so its columns are not all seen).
     pub at_image_edge: bool,
-    /// Rows from the image's top down to the laser's rows: (height of the row's centre
+    /// Rows from the classified top down to the laser's rows: (height of the row's centre
     /// above the laser plane at the cluster's range in m, fraction of its classified
     /// patches that are object). Shows how far up the image an object goes.
     pub row_profile: Vec<(f64, f64)>,
@@ -254,8 +254,9 @@ pub struct ClusterInImage {
     /// The patch each of the cluster's points projects into, in the points' order (`None`
     /// outside the patch grid).
     pub point_cells: Vec<Option<(u32, u32)>>,
-    /// The classified columns (whole image height): the hits' columns, those the trunk's
-    /// axis crosses up to the band, and the margin.
+    /// The classified patches: the hits' columns, those the trunk's axis crosses up to the
+    /// band, and the margin, from the band's top row (the image's top if the band reaches
+    /// above it) down to the hits' lowest row.
     pub rect: PatchRect,
     pub at_image_edge: bool,
 }
@@ -308,12 +309,22 @@ pub fn locate_cluster(
     }
     let c0 = lo.saturating_sub(config.column_margin);
     let c1 = (hi + 1 + config.column_margin).min(cols);
-    Some(ClusterInImage {
-        hits,
-        point_cells,
-        rect: PatchRect { col0: c0, col1: c1, row0: 0, row1: rows },
-        at_image_edge,
-    })
+    // The rows from the band's top down to the laser's lowest: the judgement reads nothing
+    // else, and the object model describes the trunk the laser and the band judged, not
+    // the ground below it or whatever stands above the band. The top is the highest row
+    // whose height (as `segment_located` measures it) is at most the band's top, so the
+    // band's rows are the same as in the whole column.
+    let u_mid = (c0 + c1) as f64 * 0.5 * l as f64;
+    let top_hit_row = hits.iter().map(|h| h.1).min().expect("non-empty");
+    let row0 = (0..top_hit_row)
+        .find(|&row| {
+            geometry
+                .point_on_object_plane(u_mid, (row as f64 + 0.5) * l as f64, cluster.centre)
+                .is_some_and(|p| p.z <= config.above_band_m)
+        })
+        .unwrap_or(top_hit_row);
+    let row1 = hits.iter().map(|h| h.1).max().expect("non-empty") + 1;
+    Some(ClusterInImage { hits, point_cells, rect: PatchRect { col0: c0, col1: c1, row0, row1 }, at_image_edge })
 }
 
 /// The pixel columns that segmenting a scan's clusters reads: all a camera need render
@@ -329,15 +340,16 @@ pub struct ImageRegion {
 }
 
 impl ImageRegion {
-    /// Pixel columns `start..end`, sorted and disjoint, that segmenting `scan` reads.
-    pub fn columns(&self, scan: &LaserScan) -> Vec<(u32, u32)> {
-        merge_spans(
-            cluster(scan, &self.clustering).iter().filter(|c| !c.occluded).filter_map(|c| self.columns_of(c)).collect(),
+    /// The pixel regions, column-disjoint and sorted (see [`merge_regions`]), that
+    /// segmenting `scan` reads.
+    pub fn regions(&self, scan: &LaserScan) -> Vec<PixelRegion> {
+        merge_regions(
+            cluster(scan, &self.clustering).iter().filter(|c| !c.occluded).filter_map(|c| self.region_of(c)).collect(),
         )
     }
 
-    /// Pixel columns segmenting `cluster` reads, `None` when it is not in the image.
-    pub fn columns_of(&self, cluster: &Cluster) -> Option<(u32, u32)> {
+    /// The pixels segmenting `cluster` reads, `None` when it is not in the image.
+    pub fn region_of(&self, cluster: &Cluster) -> Option<PixelRegion> {
         let located = locate_cluster(
             cluster,
             &self.camera,
@@ -346,27 +358,33 @@ impl ImageRegion {
             self.features.patch_size,
             &self.segmentation,
         )?;
-        Some(self.features.columns_read(&located.rect, self.camera.width))
+        Some(self.features.pixels_read(&located.rect, self.camera.width, self.camera.height))
     }
 }
 
-/// `spans` (`start..end`) sorted, with overlapping and touching ones joined.
-pub fn merge_spans(mut spans: Vec<(u32, u32)>) -> Vec<(u32, u32)> {
-    spans.retain(|s| s.0 < s.1);
-    spans.sort_unstable();
-    let mut out: Vec<(u32, u32)> = Vec::with_capacity(spans.len());
-    for s in spans {
+/// `regions` joined into column-disjoint ones, sorted by column: regions whose columns
+/// overlap or touch become one, over the union of their columns and of their rows (a
+/// renderer scissors each to a rectangle; the few pixels the union adds cost less than
+/// overlapping draws). Empty regions are dropped.
+pub fn merge_regions(mut regions: Vec<PixelRegion>) -> Vec<PixelRegion> {
+    regions.retain(|r| !r.is_empty());
+    regions.sort_unstable_by_key(|r| (r.columns, r.rows));
+    let mut out: Vec<PixelRegion> = Vec::with_capacity(regions.len());
+    for r in regions {
         match out.last_mut() {
-            Some(last) if s.0 <= last.1 => last.1 = last.1.max(s.1),
-            _ => out.push(s),
+            Some(last) if r.columns.0 <= last.columns.1 => {
+                last.columns.1 = last.columns.1.max(r.columns.1);
+                last.rows = (last.rows.0.min(r.rows.0), last.rows.1.max(r.rows.1));
+            }
+            _ => out.push(r),
         }
     }
     out
 }
 
-/// Whether the disjoint sorted `spans` cover `needed` (`start..end`).
-pub fn spans_cover(spans: &[(u32, u32)], needed: (u32, u32)) -> bool {
-    needed.0 >= needed.1 || spans.iter().any(|s| s.0 <= needed.0 && needed.1 <= s.1)
+/// Whether one of the column-disjoint `regions` covers `needed` (an empty one always is).
+pub fn regions_cover(regions: &[PixelRegion], needed: &PixelRegion) -> bool {
+    needed.is_empty() || regions.iter().any(|r| r.covers(needed))
 }
 
 /// Segments a cluster [`locate_cluster`] found in the image (a cluster that it does not
@@ -724,11 +742,18 @@ mod tests {
         // carry the post on.
         let post = column_scene(120, 40);
         let seen = segment(&post, &counting);
-        let leaves = (0..4)
+        // The band's top is the classified rows' top (the leaves reach down to row 4).
+        assert!(seen.rect.row0 <= 2, "{:?}", seen.rect);
+        let leaf_rows = seen.rect.row0..4;
+        let leaves = leaf_rows
+            .clone()
             .filter_map(|row| seen.features.index(35, row))
             .filter(|&i| classifier.foliage_probability(seen.features.z.row(i).transpose().as_slice()).unwrap() > 0.5)
             .count();
-        assert!(leaves >= 3, "the band's leaves above the post are foliage: {leaves} of 4");
+        assert!(
+            leaves >= 2 && 3 * leaves >= 2 * leaf_rows.len(),
+            "the band's leaves above the post are foliage: {leaves} of rows {leaf_rows:?}"
+        );
         assert!(!seen.is_object && seen.band_foliage_patches == 0, "above fraction {}", seen.above_fraction);
         // A post reaching the band's lowest row (its top at v = 45) with leaves right on its
         // top: its own patches judge the band, and the leaves above it do not count.
@@ -738,11 +763,19 @@ mod tests {
     }
 
     #[test]
-    fn spans_are_merged_and_covering_is_checked_span_by_span() {
-        assert_eq!(merge_spans(vec![(30, 40), (0, 10), (5, 12), (12, 20), (50, 50)]), vec![(0, 20), (30, 40)]);
-        let spans = [(0, 20), (30, 40)];
-        assert!(spans_cover(&spans, (3, 20)) && spans_cover(&spans, (30, 31)) && spans_cover(&spans, (25, 25)));
-        assert!(!spans_cover(&spans, (15, 35)) && !spans_cover(&spans, (19, 21)) && !spans_cover(&[], (0, 1)));
+    fn regions_are_merged_by_column_and_covering_is_checked_region_by_region() {
+        let r = |c0, c1, r0, r1| PixelRegion { columns: (c0, c1), rows: (r0, r1) };
+        assert_eq!(
+            merge_regions(vec![r(30, 40, 5, 9), r(0, 10, 2, 8), r(5, 12, 0, 4), r(12, 20, 6, 12), r(50, 50, 0, 9)]),
+            vec![r(0, 20, 0, 12), r(30, 40, 5, 9)]
+        );
+        assert_eq!(merge_regions(vec![r(0, 10, 3, 3)]), vec![], "no rows: empty");
+        let regions = [r(0, 20, 0, 12), r(30, 40, 5, 9)];
+        assert!(regions_cover(&regions, &r(3, 20, 0, 12)) && regions_cover(&regions, &r(30, 31, 5, 6)));
+        assert!(regions_cover(&regions, &r(25, 25, 0, 1)) && regions_cover(&[], &r(3, 4, 2, 2)));
+        assert!(!regions_cover(&regions, &r(15, 35, 5, 9)) && !regions_cover(&regions, &r(19, 21, 0, 1)));
+        assert!(!regions_cover(&regions, &r(30, 31, 4, 6)) && !regions_cover(&regions, &r(3, 4, 11, 13)));
+        assert!(!regions_cover(&[], &r(0, 1, 0, 1)));
     }
 
     #[test]

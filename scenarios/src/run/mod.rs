@@ -22,7 +22,7 @@ use sim::Simulation;
 use slam::association::AssociationMethod;
 use slam::classifier::AppearanceModel;
 use slam::pipeline::{Appearance, Pipeline, PipelineConfig};
-use slam::segmentation::{CameraGeometry, merge_spans};
+use slam::segmentation::{CameraGeometry, merge_regions};
 
 use crate::scenario::{Scenario, ScenarioError};
 use crate::score::scorer::{MapLandmark, RecallBasis, RunScorer, VisibilitySettings};
@@ -61,7 +61,7 @@ pub enum RunError {
     Mixture(#[from] slam::gmm::GmmError),
     #[error("the camera stopped during the run: {0}")]
     CameraStopped(String),
-    #[error("{count} {what} in image columns the camera did not render (a bug; `--full-frames` renders whole frames)")]
+    #[error("{count} {what} in image regions the camera did not render (a bug; `--full-frames` renders whole frames)")]
     Unrendered { what: &'static str, count: usize },
     #[error(transparent)]
     Objects(#[from] crate::objects::ObjectsError),
@@ -524,9 +524,12 @@ fn render_only_read_columns(
     let frame_read_by_one_scan =
         config.image_max_age_s < 1.0 / sim_config.laser.rate_hz - 1.0 / sim_config.physics_rate_hz;
     if let Some(region) = pipeline.image_region().filter(|_| frame_read_by_one_scan) {
-        let truth_columns = scorer.visibility().clone();
-        sim.render_camera_columns(Box::new(move |scan, beams| {
-            merge_spans([region.columns(&slam_scan(scan)), truth_columns.columns(scan, beams)].concat())
+        let truth_pixels = scorer.visibility().clone();
+        sim.render_camera_regions(Box::new(move |scan, beams| {
+            merge_regions([region.regions(&slam_scan(scan)), truth_pixels.regions(scan, beams)].concat())
+                .into_iter()
+                .map(|r| render::Region { columns: r.columns, rows: r.rows })
+                .collect()
         }));
     }
 }

@@ -26,7 +26,7 @@ struct TruthImages {
     height: u32,
     class: Vec<u8>,
     instance: Vec<u16>,
-    columns: Option<Vec<(u32, u32)>>,
+    regions: Option<Vec<render::Region>>,
 }
 
 /// What a run keeps of the pipeline's reports: the figures every run scores, and the logs
@@ -172,7 +172,7 @@ impl<'w> RunLoop<'w> {
                 width: f.width,
                 height: f.height,
                 instance: &f.instance,
-                columns: f.columns.as_deref(),
+                regions: f.regions.as_deref(),
             });
         let shown = frame.map(|f| self.scorer.beams_shown(scan, beams, &f));
         self.scorer.on_scan(scan, beams, shown.as_deref(), &observations, &fusions);
@@ -199,17 +199,21 @@ impl<'w> RunLoop<'w> {
     fn on_frame(&mut self, frame: Box<sim::camera::CameraFrame>) -> Result<(), RunError> {
         // Moved, not copied: a frame is about 1.5 MB.
         let img = frame.image;
-        let columns_rendered = img.columns.as_ref().map_or(img.width, |c| c.iter().map(|(a, b)| b - a).sum());
-        self.log.pixels_rendered += columns_rendered as u64 * img.height as u64;
-        self.log.pixels_framed += img.width as u64 * img.height as u64;
-        self.pipeline.on_image_columns(frame.t, img.width, img.height, img.rgb, img.columns.clone())?;
+        let whole = img.width as u64 * img.height as u64;
+        self.log.pixels_rendered += img.regions.as_ref().map_or(whole, |r| r.iter().map(render::Region::area).sum());
+        self.log.pixels_framed += whole;
+        let regions = img
+            .regions
+            .as_ref()
+            .map(|r| r.iter().map(|r| slam::features::PixelRegion { columns: r.columns, rows: r.rows }).collect());
+        self.pipeline.on_image_regions(frame.t, img.width, img.height, img.rgb, regions)?;
         self.last_frame = Some(TruthImages {
             t: frame.t,
             width: img.width,
             height: img.height,
             class: img.class,
             instance: img.instance,
-            columns: img.columns,
+            regions: img.regions,
         });
         Ok(())
     }

@@ -571,7 +571,7 @@ fn score_scans(
                             width: c.width,
                             height: c.height,
                             instance: &pixels,
-                            columns: None,
+                            regions: None,
                         };
                         Some(scorer.beams_shown(&scan, &beams.beams, &image))
                     }

@@ -187,15 +187,44 @@ impl FeatureConfig {
         (self.patch_size * self.patch_size) as usize * (3 + self.bank.len())
     }
 
-    /// Pixel columns `start..end` that the features of `rect` read in an image `width`
-    /// pixels wide: the rectangle, the neighbour ring around it and the filters' reach
-    /// (what a camera rendering only the columns a consumer reads must render).
-    pub fn columns_read(&self, rect: &PatchRect, width: u32) -> (u32, u32) {
+    /// The pixels that the features of `rect` read in an image `width` x `height`: the
+    /// rectangle, the neighbour ring around it and the filters' reach (what a camera
+    /// rendering only the pixels a consumer reads must render).
+    pub fn pixels_read(&self, rect: &PatchRect, width: u32, height: u32) -> PixelRegion {
         let l = self.patch_size;
-        let cols = width / l;
-        let big = rect.grown(cols, rect.row1);
-        let (x0, x1) = reach((big.col0 * l) as usize, (big.col1 * l) as usize, self.bank.radius(), width as usize);
-        (x0 as u32, x1 as u32)
+        let big = rect.grown(width / l, height / l);
+        let r = self.bank.radius();
+        let (x0, x1) = reach((big.col0 * l) as usize, (big.col1 * l) as usize, r, width as usize);
+        let (y0, y1) = reach((big.row0 * l) as usize, (big.row1 * l) as usize, r, height as usize);
+        PixelRegion { columns: (x0 as u32, x1 as u32), rows: (y0 as u32, y1 as u32) }
+    }
+}
+
+/// A rectangle of pixels: columns `columns.0..columns.1`, rows `rows.0..rows.1`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct PixelRegion {
+    pub columns: (u32, u32),
+    pub rows: (u32, u32),
+}
+
+impl PixelRegion {
+    /// Whether it holds no pixel.
+    pub fn is_empty(&self) -> bool {
+        self.columns.0 >= self.columns.1 || self.rows.0 >= self.rows.1
+    }
+
+    /// Whether pixel (u, v) lies in it.
+    pub fn contains(&self, u: u32, v: u32) -> bool {
+        (self.columns.0..self.columns.1).contains(&u) && (self.rows.0..self.rows.1).contains(&v)
+    }
+
+    /// Whether `other` lies wholly in it (an empty one always does).
+    pub fn covers(&self, other: &PixelRegion) -> bool {
+        other.is_empty()
+            || (self.columns.0 <= other.columns.0
+                && other.columns.1 <= self.columns.1
+                && self.rows.0 <= other.rows.0
+                && other.rows.1 <= self.rows.1)
     }
 }
 
@@ -394,28 +423,38 @@ mod tests {
     }
 
     #[test]
-    fn features_read_no_pixel_outside_the_columns_they_say() {
+    fn features_read_no_pixel_outside_the_region_they_say() {
         let (w, h) = (130, 100);
         let rgb = textured_image(w, h, 1);
         let image = ImageRef::new(w, h, &rgb).unwrap();
         let fx = extractor(&image);
         let other = textured_image(w, h, 9);
-        for (c0, c1) in [(0, 2), (5, 8), (13, 14)] {
-            let rect = PatchRect::columns(&image, 9, c0, c1);
-            let (x0, x1) = fx.config.columns_read(&rect, w);
-            // A different image outside the columns: the features must not change.
+        for rect in [
+            PatchRect::columns(&image, 9, 0, 2),
+            PatchRect::columns(&image, 9, 5, 8),
+            PatchRect::columns(&image, 9, 13, 14),
+            PatchRect { col0: 4, col1: 7, row0: 3, row1: 6 },
+            PatchRect { col0: 9, col1: 14, row0: 0, row1: 2 },
+            PatchRect { col0: 1, col1: 3, row0: 8, row1: 11 },
+        ] {
+            let region = fx.config.pixels_read(&rect, w, h);
+            // A different image outside the region: the features must not change.
             let mixed: Vec<u8> = (0..(w * h) as usize)
                 .flat_map(|i| {
-                    if (x0..x1).contains(&(i as u32 % w)) { &rgb[3 * i..3 * i + 3] } else { &other[3 * i..3 * i + 3] }
+                    let (u, v) = (i as u32 % w, i as u32 / w);
+                    if region.contains(u, v) { &rgb[3 * i..3 * i + 3] } else { &other[3 * i..3 * i + 3] }
                 })
                 .copied()
                 .collect();
             let a = fx.features(&image, Some(rect)).unwrap();
             let b = fx.features(&ImageRef::new(w, h, &mixed).unwrap(), Some(rect)).unwrap();
-            assert_eq!(a, b, "columns {c0}..{c1} read outside pixels {x0}..{x1}");
-            // ...and the columns are no wider than the ring and the filters' reach.
+            assert_eq!(a, b, "{rect:?} read outside {region:?}");
+            // ...and the region is no larger than the ring and the filters' reach.
             let reach = 9 + fx.config.bank.radius() as u32;
-            assert!(x0 + reach >= c0 * 9 && x1 <= (c1 * 9 + reach).min(w), "{x0}..{x1} for patch columns {c0}..{c1}");
+            let (x0, x1) = region.columns;
+            let (y0, y1) = region.rows;
+            assert!(x0 + reach >= rect.col0 * 9 && x1 <= (rect.col1 * 9 + reach).min(w), "{region:?} for {rect:?}");
+            assert!(y0 + reach >= rect.row0 * 9 && y1 <= (rect.row1 * 9 + reach).min(h), "{region:?} for {rect:?}");
         }
     }
 

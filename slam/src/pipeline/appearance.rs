@@ -71,8 +71,8 @@ impl Pipeline {
                 let Some(located) = locate_cluster(c, &app.camera, image.width, image.height, l, seg_config) else {
                     return Ok(None);
                 };
-                if let Some(columns) = &img.columns
-                    && !spans_cover(columns, extractor.config.columns_read(&located.rect, image.width))
+                if let Some(regions) = &img.regions
+                    && !regions_cover(regions, &extractor.config.pixels_read(&located.rect, image.width, image.height))
                 {
                     return Err(());
                 }

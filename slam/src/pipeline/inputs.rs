@@ -119,30 +119,29 @@ impl Pipeline {
 
     /// Stores a camera image (8-bit RGB, row-major) for the next scans to segment.
     pub fn on_image(&mut self, t: f64, width: u32, height: u32, rgb: Vec<u8>) -> Result<(), PipelineError> {
-        self.on_image_columns(t, width, height, rgb, None)
+        self.on_image_regions(t, width, height, rgb, None)
     }
 
-    /// [`Pipeline::on_image`] for an image rendered only in the pixel columns `columns`
-    /// (`start..end`, sorted and disjoint; see [`Pipeline::image_region`]). A cluster whose
-    /// segmentation would read outside them is not segmented and is counted in
-    /// [`Pipeline::unrendered_reads`].
-    pub fn on_image_columns(
+    /// [`Pipeline::on_image`] for an image rendered only in the pixel `regions` (see
+    /// [`Pipeline::image_region`]). A cluster whose segmentation would read outside them
+    /// is not segmented and is counted in [`Pipeline::unrendered_reads`].
+    pub fn on_image_regions(
         &mut self,
         t: f64,
         width: u32,
         height: u32,
         rgb: Vec<u8>,
-        columns: Option<Vec<(u32, u32)>>,
+        regions: Option<Vec<PixelRegion>>,
     ) -> Result<(), PipelineError> {
         let expected = width as usize * height as usize * 3;
         if rgb.len() != expected {
             return Err(PipelineError::Image { width, height, expected, found: rgb.len() });
         }
-        self.image = Some(StoredImage { t, width, height, rgb, columns });
+        self.image = Some(StoredImage { t, width, height, rgb, regions });
         Ok(())
     }
 
-    /// The pixel columns this pipeline's segmentation reads, scan by scan (appearance
+    /// The pixels this pipeline's segmentation reads, scan by scan (appearance
     /// methods only): a camera that renders just those gives it the same results.
     pub fn image_region(&self) -> Option<ImageRegion> {
         let app = self.appearance.as_ref()?;
@@ -155,7 +154,7 @@ impl Pipeline {
     }
 
     /// Clusters left unsegmented because their image was not rendered where segmentation
-    /// reads: non-zero only when a camera's columns disagree with [`Pipeline::image_region`].
+    /// reads: non-zero only when a camera's regions disagree with [`Pipeline::image_region`].
     pub fn unrendered_reads(&self) -> usize {
         self.unrendered_reads
     }

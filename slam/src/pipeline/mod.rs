@@ -42,12 +42,12 @@ use crate::clustering::{Cluster, ClusteringConfig, cluster};
 use crate::ekf::smoother::{History, Relinearisation, SmootherError};
 use crate::ekf::{Ekf, MotionConfig, MotionModel, RangeBearingModel};
 use crate::evidence::{EvidenceConfig, Judgement, ObjectEvidence};
-use crate::features::ImageRef;
+use crate::features::{ImageRef, PixelRegion};
 use crate::gmm::{Gmm, StudentTMixture};
 use crate::messages::{Control, Detection, LaserScan, OdometryIncrement};
 use crate::object_model::{ObjectModel, ObjectModelConfig, ObjectObservation, fit_observation};
 use crate::segmentation::{
-    CameraGeometry, ImageRegion, SegmentationConfig, SegmentedCluster, locate_cluster, segment_located, spans_cover,
+    CameraGeometry, ImageRegion, SegmentationConfig, SegmentedCluster, locate_cluster, regions_cover, segment_located,
 };
 use crate::settings::InvalidSetting;
 use rayon::prelude::*;
@@ -60,8 +60,8 @@ struct StoredImage {
     width: u32,
     height: u32,
     rgb: Vec<u8>,
-    /// The pixel columns that hold the scene (`None`: all of them).
-    columns: Option<Vec<(u32, u32)>>,
+    /// The pixel regions that hold the scene (`None`: all of the image).
+    regions: Option<Vec<PixelRegion>>,
 }
 
 /// The online SLAM pipeline. Cloning it forks a run (benchmarks, what-if studies).
