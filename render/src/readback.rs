@@ -110,11 +110,14 @@ impl Renderer {
             let bytes = plane.bytes_per_pixel as usize;
             &data[start + bytes * (a - first)..start + bytes * (b - first)]
         };
+        // The regions' columns in row `y` and the gaps between them, reused row to row.
         let mut in_row: Vec<(u32, u32)> = Vec::with_capacity(copied.len());
+        let mut empty: Vec<(usize, usize)> = Vec::with_capacity(copied.len() + 1);
         for y in 0..h {
             in_row.clear();
             in_row.extend(copied.iter().filter(|r| (r.rows.0..r.rows.1).contains(&(y as u32))).map(|r| r.columns));
-            blank_row(frame, y, &gaps(&in_row, self.width));
+            gaps(&in_row, self.width, &mut empty);
+            blank_row(frame, y, &empty);
             for &(a, b) in &in_row {
                 let (region, planes) = layout
                     .iter()
@@ -168,9 +171,9 @@ impl Renderer {
     }
 }
 
-/// The pixel columns of `0..width` outside the sorted disjoint `spans`.
-fn gaps(spans: &[(u32, u32)], width: u32) -> Vec<(usize, usize)> {
-    let mut out = Vec::with_capacity(spans.len() + 1);
+/// The pixel columns of `0..width` outside the sorted disjoint `spans`, into `out`.
+fn gaps(spans: &[(u32, u32)], width: u32, out: &mut Vec<(usize, usize)>) {
+    out.clear();
     let mut from = 0;
     for &(a, b) in spans {
         if a > from {
@@ -181,7 +184,6 @@ fn gaps(spans: &[(u32, u32)], width: u32) -> Vec<(usize, usize)> {
     if from < width {
         out.push((from as usize, width as usize));
     }
-    out
 }
 
 /// Zeroes row `y` of `frame` in the pixel columns `empty` (depth: infinity).
