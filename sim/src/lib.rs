@@ -32,6 +32,7 @@ pub mod messages;
 pub mod odometry;
 pub mod people;
 pub mod physics;
+mod raycast;
 
 use std::collections::VecDeque;
 

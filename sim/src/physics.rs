@@ -299,12 +299,10 @@ impl PhysicsScene {
     /// Casts a horizontal ray; returns (range, instance id) of the first hit other than the
     /// robot within `max_range`.
     pub fn cast(&self, origin: [f64; 3], dir: [f64; 2], max_range: f64) -> Option<(f64, u16)> {
-        let ray = Ray::new(v3(origin[0], origin[1], origin[2]), v3(dir[0], dir[1], 0.0));
         let filter = QueryFilter::default().exclude_rigid_body(self.robot);
-        self.world
-            .query_pipeline_with_filter(filter)
-            .cast_ray(&ray, max_range as f32, true)
-            .map(|(h, toi)| (toi as f64, self.world.colliders[h].user_data as u16))
+        let query = self.world.query_pipeline_with_filter(filter);
+        crate::raycast::first_hit(&query, origin, [dir[0], dir[1], 0.0], max_range)
+            .map(|(h, toi)| (toi, self.world.colliders[h].user_data as u16))
     }
 }
 
