@@ -167,3 +167,17 @@ fn park_640x480_regions(bencher: divan::Bencher) {
         divan::black_box(&frame);
     });
 }
+
+/// One pixel of the same scene: what a frame costs whatever is drawn (clearing the targets,
+/// submitting, reading back, waiting for the rasteriser).
+#[divan::bench(sample_count = 50, sample_size = 4)]
+fn park_640x480_one_pixel(bencher: divan::Bencher) {
+    let (mut r, camera, _) = park();
+    let light = Lighting::default();
+    let mut frame = Frame::default();
+    let spans = [(0, 1)].map(|columns| Region { columns, rows: (0, 1) });
+    bencher.bench_local(|| {
+        r.render_regions_into(&camera, &light, Some(&spans), &mut frame).unwrap();
+        divan::black_box(&frame);
+    });
+}

@@ -101,7 +101,7 @@ impl Renderer {
     /// rest zeroed.
     fn unpack(&self, data: &[u8], layout: &[(Region, Vec<Plane>)], frame: &mut Frame, spans: Option<&[Region]>) {
         let (w, h) = (self.width as usize, self.height as usize);
-        self.size_frame(frame);
+        let blank = self.size_frame(frame);
         let whole = [Region::whole(self.width, self.height)];
         let copied = spans.unwrap_or(&whole);
         // Row `y` of columns `a..b` of a target, copied as `plane` from (`first`, `top`) on.
@@ -116,8 +116,10 @@ impl Renderer {
         for y in 0..h {
             in_row.clear();
             in_row.extend(copied.iter().filter(|r| (r.rows.0..r.rows.1).contains(&(y as u32))).map(|r| r.columns));
-            gaps(&in_row, self.width, &mut empty);
-            blank_row(frame, y, &empty);
+            if !blank {
+                gaps(&in_row, self.width, &mut empty);
+                blank_row(frame, y, &empty);
+            }
             for &(a, b) in &in_row {
                 let (region, planes) = layout
                     .iter()
@@ -149,23 +151,35 @@ impl Renderer {
         }
         frame.regions = spans.map(<[_]>::to_vec);
     }
-    /// Sizes `frame`'s images for this renderer (contents left as they were).
-    fn size_frame(&self, frame: &mut Frame) {
+    /// Sizes `frame`'s images for this renderer: a frame of no images (a new one) is made
+    /// blank, as nothing were rendered, and `true` is returned; else the contents are left
+    /// as they were. A new frame per image is then written once, not zeroed and blanked.
+    fn size_frame(&self, frame: &mut Frame) -> bool {
         let n = self.width as usize * self.height as usize;
+        let depth = if self.planes.len() > 2 { n } else { 0 };
         frame.width = self.width;
         frame.height = self.height;
+        if frame.rgb.is_empty() && frame.instance.is_empty() && frame.class.is_empty() && frame.depth_m.is_empty() {
+            frame.rgb = vec![0; 3 * n];
+            frame.instance = vec![0; n];
+            frame.class = vec![0; n];
+            frame.depth_m = vec![f32::INFINITY; depth];
+            return true;
+        }
         frame.rgb.resize(3 * n, 0);
         frame.instance.resize(n, 0);
         frame.class.resize(n, 0);
-        frame.depth_m.resize(if self.planes.len() > 2 { n } else { 0 }, 0.0);
+        frame.depth_m.resize(depth, 0.0);
+        false
     }
 
     /// `frame` with nothing rendered: every column empty.
     pub(crate) fn blank(&self, frame: &mut Frame) {
-        self.size_frame(frame);
-        let empty = [(0, self.width as usize)];
-        for y in 0..self.height as usize {
-            blank_row(frame, y, &empty);
+        if !self.size_frame(frame) {
+            let empty = [(0, self.width as usize)];
+            for y in 0..self.height as usize {
+                blank_row(frame, y, &empty);
+            }
         }
         frame.regions = Some(Vec::new());
     }

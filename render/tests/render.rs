@@ -545,13 +545,20 @@ fn rendering_some_regions_gives_the_whole_frames_pixels_there_and_zero_elsewhere
     // trunk's middle, the last at the image's edge, some of the whole height and some of a
     // band of rows; rendered into a frame holding a whole render, which must not show
     // through. Five regions' padded rows do not fit the readback buffer (the whole targets
-    // are copied); two do (copied region by region).
+    // are copied); two do (copied region by region). Each follows a frame from elsewhere
+    // under another sky, whose pixels the regions must not keep.
     let many = [r(10, 37, 0, 120), r(60, 61, 30, 31), r(70, 96, 20, 90), r(108, 112, 0, 120), r(150, 160, 100, 120)];
+    let mut away = scene.camera;
+    away.world_from_camera[3][1] += 0.7;
+    let other_sky = Lighting { sky_colour: [0.2, 0.1, 0.5], ..Lighting::default() };
     for spans in [&many[..], &[r(70, 96, 0, 120), r(108, 112, 40, 75)]] {
+        let before = scene.r.render(&away, &other_sky).unwrap();
+        assert_ne!(before.instance, whole.instance);
         let mut part = whole.clone();
         scene.r.render_regions_into(&scene.camera, &light, Some(spans), &mut part).unwrap();
         assert_eq!(part.regions.as_deref(), Some(spans));
         let mut inside = 0;
+        let mut sky = 0;
         for v in 0..120 {
             for u in 0..160 {
                 if spans.iter().any(|s| s.contains(u, v)) {
@@ -559,6 +566,7 @@ fn rendering_some_regions_gives_the_whole_frames_pixels_there_and_zero_elsewhere
                         == (whole.rgb_at(u, v), whole.instance_at(u, v), whole.class_at(u, v), whole.depth_at(u, v));
                     assert!(same, "pixel ({u}, {v}) differs from the whole frame's with regions {spans:?}");
                     inside += (whole.instance_at(u, v) > 1) as usize;
+                    sky += (whole.instance_at(u, v) == 0) as usize;
                 } else {
                     assert_eq!(
                         (part.rgb_at(u, v), part.instance_at(u, v), part.class_at(u, v)),
@@ -569,13 +577,20 @@ fn rendering_some_regions_gives_the_whole_frames_pixels_there_and_zero_elsewhere
                 }
             }
         }
-        assert!(inside > 300, "the regions cross objects ({inside} object pixels)");
+        assert!(inside > 300 && sky > 20, "the regions cross objects ({inside} pixels) and sky ({sky})");
+        // A new frame (one allocation, written once) comes out the same.
+        let mut new = Frame::default();
+        scene.r.render_regions_into(&scene.camera, &light, Some(spans), &mut new).unwrap();
+        assert!(new == part, "a new frame differs from a reused one");
     }
     let mut part = whole.clone();
     // No regions: nothing drawn, an empty frame of the right size.
     scene.r.render_regions_into(&scene.camera, &light, Some(&[]), &mut part).unwrap();
     assert_eq!((part.width, part.height, part.regions.as_deref()), (160, 120, Some(&[][..])));
     assert!(part.instance.iter().all(|&i| i == 0) && part.rgb.iter().all(|&c| c == 0));
+    let mut new = Frame::default();
+    scene.r.render_regions_into(&scene.camera, &light, Some(&[]), &mut new).unwrap();
+    assert!(new == part, "a new empty frame differs from a reused one");
 }
 
 #[test]
