@@ -38,7 +38,7 @@ pub(crate) enum Command {
         /// Output directory (default runs/<scenario>-<seed>).
         #[arg(long)]
         out: Option<PathBuf>,
-        /// Render whole camera frames, not only the image columns the pipeline reads (the
+        /// Render whole camera frames, not only the image regions the pipeline reads (the
         /// same results, more slowly).
         #[arg(long)]
         full_frames: bool,

@@ -102,7 +102,7 @@ fn combined_runs_are_identical_whatever_the_thread_count() {
 /// association and segmentation logs as with whole frames, from a fraction of the pixels.
 #[test]
 fn rendering_only_the_regions_the_pipeline_reads_changes_no_result() {
-    let dir = std::env::temp_dir().join(format!("objslam-columns-{}", std::process::id()));
+    let dir = std::env::temp_dir().join(format!("objslam-regions-{}", std::process::id()));
     let (mut sc, base) = Scenario::load("paper_park").unwrap();
     sc.sim.max_duration_s = Some(60.0);
     let with = |full_frames: bool| {

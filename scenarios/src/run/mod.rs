@@ -141,7 +141,7 @@ pub struct RunOptions {
     /// An appearance model already loaded (Monte Carlo studies resolve it once); `None`
     /// resolves the scenario's `[appearance]` source when the method needs it.
     pub appearance: Option<std::sync::Arc<AppearanceModel>>,
-    /// Render whole camera frames, not only the pixel columns the pipeline reads: the same
+    /// Render whole camera frames, not only the pixel regions the pipeline reads: the same
     /// results, more slowly (for checking exactly that).
     pub full_frames: bool,
     /// Also write the run's sensor stream as a ROS 2 bag in this directory (see
@@ -348,7 +348,7 @@ pub fn run(
     // A bag holds whole images.
     let whole_frames = options.full_frames || options.bag.is_some();
     if !whole_frames {
-        render_only_read_columns(&mut sim, &pipeline, &scorer, &config, &sim_config);
+        render_only_read_regions(&mut sim, &pipeline, &scorer, &config, &sim_config);
     }
     let mut bag = match &options.bag {
         Some(dir) => Some(crate::ros2::Ros2Recorder::create(dir, &sim_config)?),
@@ -508,13 +508,13 @@ fn simulated_for(scenario: &Scenario, config: &PipelineConfig) -> sim::SimConfig
     sim_config
 }
 
-/// Has the camera render only the columns segmentation will read, chosen from the scan of
+/// Has the camera render only the regions segmentation will read, chosen from the scan of
 /// the frame's instant as the pipeline will cluster it (most of each frame is never read),
-/// and the columns the ground-truth tree count reads, so that the count does not depend on
+/// and the pixels the ground-truth tree count reads, so that the count does not depend on
 /// what the method asked for. Only where no other scan can use the frame (one within
 /// `image_max_age_s` of it): sensors fire on the first physics step at or after their
 /// time, so two scans can be up to a step closer than the laser's period.
-fn render_only_read_columns(
+fn render_only_read_regions(
     sim: &mut Simulation,
     pipeline: &Pipeline,
     scorer: &RunScorer,
