@@ -160,10 +160,14 @@ impl Renderer {
         frame.width = self.width;
         frame.height = self.height;
         if frame.rgb.is_empty() && frame.instance.is_empty() && frame.class.is_empty() && frame.depth_m.is_empty() {
-            frame.rgb = vec![0; 3 * n];
-            frame.instance = vec![0; n];
-            frame.class = vec![0; n];
-            frame.depth_m = vec![f32::INFINITY; depth];
+            // Filled here rather than allocated zeroed: a zeroed allocation this large comes
+            // as new pages that the kernel faults in and clears (7.6% of a `paper_park`
+            // profile, against 1.7% for filling and blanking; wall time did not move
+            // measurably either way).
+            frame.rgb.resize(3 * n, 0);
+            frame.instance.resize(n, 0);
+            frame.class.resize(n, 0);
+            frame.depth_m.resize(depth, f32::INFINITY);
             return true;
         }
         frame.rgb.resize(3 * n, 0);
