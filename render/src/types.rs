@@ -231,6 +231,14 @@ impl Region {
         (self.columns.0..self.columns.1).contains(&u) && (self.rows.0..self.rows.1).contains(&v)
     }
 
+    /// Whether it lies within a `width` x `height` image (an empty one may).
+    pub fn fits(&self, width: u32, height: u32) -> bool {
+        self.columns.0 <= self.columns.1
+            && self.columns.1 <= width
+            && self.rows.0 <= self.rows.1
+            && self.rows.1 <= height
+    }
+
     /// Its number of pixels.
     pub fn area(&self) -> u64 {
         self.columns.1.saturating_sub(self.columns.0) as u64 * self.rows.1.saturating_sub(self.rows.0) as u64

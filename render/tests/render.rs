@@ -551,7 +551,16 @@ fn rendering_some_regions_gives_the_whole_frames_pixels_there_and_zero_elsewhere
     let mut away = scene.camera;
     away.world_from_camera[3][1] += 0.7;
     let other_sky = Lighting { sky_colour: [0.2, 0.1, 0.5], ..Lighting::default() };
-    for spans in [&many[..], &[r(70, 96, 0, 120), r(108, 112, 40, 75)]] {
+    // Also rendered into one frame after another: each time it holds the last regions'
+    // pixels (a frame of another size first), which must not show through either.
+    let mut small = golden_scene(32, 24);
+    let mut chained = Frame::default();
+    small.r.render_regions_into(&small.camera, &light, Some(&[r(3, 20, 2, 20)]), &mut chained).unwrap();
+    for spans in [
+        &many[..],
+        &[r(70, 96, 0, 120), r(108, 112, 40, 75)],
+        &[r(10, 37, 0, 120), r(70, 96, 20, 90), r(108, 112, 0, 120)],
+    ] {
         let before = scene.r.render(&away, &other_sky).unwrap();
         assert_ne!(before.instance, whole.instance);
         let mut part = whole.clone();
@@ -582,6 +591,8 @@ fn rendering_some_regions_gives_the_whole_frames_pixels_there_and_zero_elsewhere
         let mut new = Frame::default();
         scene.r.render_regions_into(&scene.camera, &light, Some(spans), &mut new).unwrap();
         assert!(new == part, "a new frame differs from a reused one");
+        scene.r.render_regions_into(&scene.camera, &light, Some(spans), &mut chained).unwrap();
+        assert!(new == chained, "a frame reused from other regions differs from a new one with regions {spans:?}");
     }
     let mut part = whole.clone();
     // No regions: nothing drawn, an empty frame of the right size.

@@ -1,6 +1,8 @@
 //! The camera sensor: renders the world from the robot's camera with the `render` crate,
 //! people posed at the frame's instant, with exact instance, class and depth images.
 
+use std::sync::{Arc, Mutex};
+
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
@@ -34,6 +36,42 @@ pub struct CameraFrame {
     pub image: render::Frame,
 }
 
+/// Spent frames handed back for the camera to render into again: a frame is about 1.8 MB,
+/// and a reused one needs blanking only where it was last rendered (see
+/// `render::Renderer::render_regions_into`), where a new one is filled whole. A consumer
+/// that is done with a frame's images gives them here; reuse changes no pixel.
+#[derive(Debug, Clone, Default)]
+pub struct FramePool(Arc<Mutex<Vec<render::Frame>>>);
+
+impl FramePool {
+    /// Frames kept at most: a consumer holds one or two, and frames in flight between the
+    /// camera and it are at most a second of them ahead.
+    pub const CAPACITY: usize = 4;
+
+    /// Keeps `frame` for a later render (dropped when the pool is full).
+    pub fn give(&self, frame: render::Frame) {
+        let mut spares = self.0.lock().unwrap_or_else(|p| p.into_inner());
+        if spares.len() < Self::CAPACITY {
+            spares.push(frame);
+        }
+    }
+
+    /// A spare frame, or a new (empty) one.
+    fn take(&self) -> render::Frame {
+        self.0.lock().unwrap_or_else(|p| p.into_inner()).pop().unwrap_or_default()
+    }
+
+    /// How many frames wait for reuse.
+    pub fn len(&self) -> usize {
+        self.0.lock().unwrap_or_else(|p| p.into_inner()).len()
+    }
+
+    /// Whether none waits.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
 struct PersonInstances {
     id: u16,
     left: InstanceHandle,
@@ -50,6 +88,7 @@ pub struct CameraSensor {
     people: Vec<PersonInstances>,
     rng: ChaCha8Rng,
     pub lighting: Lighting,
+    frames: FramePool,
 }
 
 /// The worlds crate's procedural meshes are closed wherever they can be seen and wound
@@ -121,7 +160,14 @@ impl CameraSensor {
             people,
             rng: ChaCha8Rng::seed_from_u64(seed),
             lighting: Lighting::default(),
+            frames: FramePool::default(),
         })
+    }
+
+    /// Where consumers give back frames they are done with (shared: a clone gives to the
+    /// same camera).
+    pub fn frame_pool(&self) -> FramePool {
+        self.frames.clone()
     }
 
     /// The adapter rendering the images.
@@ -174,7 +220,7 @@ impl CameraSensor {
             let n = Normal::new(1.0, self.config.exposure_sigma).expect("finite sigma");
             lighting.exposure *= (n.sample(&mut self.rng) as f32).max(0.1);
         }
-        let mut image = render::Frame::default();
+        let mut image = self.frames.take();
         self.renderer.render_regions_into(&camera, &lighting, regions, &mut image)?;
         if self.config.noise_sigma > 0.0 {
             let n = Normal::new(0.0, self.config.noise_sigma).expect("finite sigma");

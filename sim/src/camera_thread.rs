@@ -9,7 +9,7 @@ use std::sync::Mutex;
 use std::sync::mpsc::{self, Receiver, Sender, TryRecvError};
 use std::thread::JoinHandle;
 
-use crate::camera::{CameraError, CameraFrame, CameraSensor};
+use crate::camera::{CameraError, CameraFrame, CameraSensor, FramePool};
 use crate::messages::{PersonState, Pose2D};
 
 struct Request {
@@ -25,11 +25,13 @@ pub(crate) struct CameraThread {
     frames: Mutex<Receiver<Result<CameraFrame, CameraError>>>,
     worker: Option<JoinHandle<()>>,
     adapter: render::AdapterSummary,
+    frame_pool: FramePool,
 }
 
 impl CameraThread {
     pub(crate) fn start(mut camera: CameraSensor) -> std::io::Result<Self> {
         let adapter = camera.adapter();
+        let frame_pool = camera.frame_pool();
         let (requests, inbox) = mpsc::channel::<Request>();
         let (outbox, frames) = mpsc::channel();
         let worker = std::thread::Builder::new().name("camera".into()).spawn(move || {
@@ -39,11 +41,21 @@ impl CameraThread {
                 }
             }
         })?;
-        Ok(CameraThread { requests: Some(requests), frames: Mutex::new(frames), worker: Some(worker), adapter })
+        Ok(CameraThread {
+            requests: Some(requests),
+            frames: Mutex::new(frames),
+            worker: Some(worker),
+            adapter,
+            frame_pool,
+        })
     }
 
     pub(crate) fn adapter(&self) -> &render::AdapterSummary {
         &self.adapter
+    }
+
+    pub(crate) fn frame_pool(&self) -> FramePool {
+        self.frame_pool.clone()
     }
 
     /// Asks for the frame at `t` (only the pixel `regions`, if given).

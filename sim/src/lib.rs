@@ -227,6 +227,12 @@ impl Simulation {
         self.camera.as_ref()
     }
 
+    /// Where a consumer gives back camera frames it is done with, for the camera to render
+    /// into again (faster, same pixels); `None` when the camera is off.
+    pub fn camera_frame_pool(&self) -> Option<camera::FramePool> {
+        self.camera.as_ref().map(|c| c.frame_pool()).or_else(|| self.camera_thread.as_ref().map(|c| c.frame_pool()))
+    }
+
     /// The adapter rendering the camera's frames, when the camera is on.
     pub fn camera_adapter(&self) -> Option<render::AdapterSummary> {
         self.camera.as_ref().map(|c| c.adapter()).or_else(|| self.camera_thread.as_ref().map(|c| c.adapter().clone()))

@@ -360,7 +360,8 @@ pub fn run(
         Some(out) => Some(outputs::stream_outputs(out, sim_config.camera.enabled, camera_method)?),
         None => None,
     };
-    let mut online = RunLoop::new(pipeline, scorer, &world, streams, sim_config.physics_rate_hz);
+    let spent_frames = sim.camera_frame_pool();
+    let mut online = RunLoop::new(pipeline, scorer, &world, streams, sim_config.physics_rate_hz, spent_frames);
     let mut last_progress = -1.0;
     let mut events = EventSource::start(sim, &mut |w| progress(RunProgress::Warning(w)));
     while let Some(event) = events.next() {

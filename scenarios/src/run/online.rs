@@ -69,6 +69,9 @@ pub(super) struct RunLoop<'w> {
     /// step).
     same_instant_s: f64,
     last_frame: Option<TruthImages>,
+    /// Where frames go back to the camera once the pipeline and the scorer are done with
+    /// them (see `sim::camera::FramePool`).
+    spent_frames: Option<sim::camera::FramePool>,
     pub log: RunLog,
 }
 
@@ -79,6 +82,7 @@ impl<'w> RunLoop<'w> {
         world: &'w worlds::World,
         streams: Option<StreamedOutputs>,
         physics_rate_hz: f64,
+        spent_frames: Option<sim::camera::FramePool>,
     ) -> Self {
         RunLoop {
             pipeline,
@@ -87,6 +91,7 @@ impl<'w> RunLoop<'w> {
             streams,
             same_instant_s: 0.5 / physics_rate_hz,
             last_frame: None,
+            spent_frames,
             log: RunLog::default(),
         }
     }
@@ -206,8 +211,8 @@ impl<'w> RunLoop<'w> {
             .regions
             .as_ref()
             .map(|r| r.iter().map(|r| slam::features::PixelRegion { columns: r.columns, rows: r.rows }).collect());
-        self.pipeline.on_image_regions(frame.t, img.width, img.height, img.rgb, regions)?;
-        self.last_frame = Some(TruthImages {
+        let spent_rgb = self.pipeline.on_image_regions(frame.t, img.width, img.height, img.rgb, regions)?;
+        let spent_truth = self.last_frame.replace(TruthImages {
             t: frame.t,
             width: img.width,
             height: img.height,
@@ -215,6 +220,19 @@ impl<'w> RunLoop<'w> {
             instance: img.instance,
             regions: img.regions,
         });
+        // The frame before this one is read by no one now: its colour went to the pipeline
+        // and its masks to the scorer, each kept until the next frame.
+        if let (Some(pool), Some(rgb), Some(truth)) = (&self.spent_frames, spent_rgb, spent_truth) {
+            pool.give(render::Frame {
+                width: truth.width,
+                height: truth.height,
+                rgb,
+                instance: truth.instance,
+                class: truth.class,
+                depth_m: Vec::new(),
+                regions: truth.regions,
+            });
+        }
         Ok(())
     }
 }

@@ -117,8 +117,15 @@ impl Pipeline {
         Ok(self.observe_positions(scan.t, clusters, &keep, "unknown"))
     }
 
-    /// Stores a camera image (8-bit RGB, row-major) for the next scans to segment.
-    pub fn on_image(&mut self, t: f64, width: u32, height: u32, rgb: Vec<u8>) -> Result<(), PipelineError> {
+    /// Stores a camera image (8-bit RGB, row-major) for the next scans to segment, and
+    /// gives back the pixels of the image it replaces, for the caller to reuse.
+    pub fn on_image(
+        &mut self,
+        t: f64,
+        width: u32,
+        height: u32,
+        rgb: Vec<u8>,
+    ) -> Result<Option<Vec<u8>>, PipelineError> {
         self.on_image_regions(t, width, height, rgb, None)
     }
 
@@ -132,13 +139,12 @@ impl Pipeline {
         height: u32,
         rgb: Vec<u8>,
         regions: Option<Vec<PixelRegion>>,
-    ) -> Result<(), PipelineError> {
+    ) -> Result<Option<Vec<u8>>, PipelineError> {
         let expected = width as usize * height as usize * 3;
         if rgb.len() != expected {
             return Err(PipelineError::Image { width, height, expected, found: rgb.len() });
         }
-        self.image = Some(StoredImage { t, width, height, rgb, regions });
-        Ok(())
+        Ok(self.image.replace(StoredImage { t, width, height, rgb, regions }).map(|spent| spent.rgb))
     }
 
     /// The pixels this pipeline's segmentation reads, scan by scan (appearance
@@ -176,6 +182,17 @@ mod tests {
 
     fn detection(range_m: f64, bearing_rad: f64, diameter_m: f64) -> Detection {
         Detection { range_m, bearing_rad, diameter_m: Some(diameter_m) }
+    }
+
+    #[test]
+    fn a_new_image_gives_back_the_pixels_of_the_one_it_replaces() {
+        let config = PipelineConfig { method: AssociationMethod::Nn, ..Default::default() };
+        let mut p = Pipeline::new(config, [0.0; 3], None).unwrap();
+        assert_eq!(p.on_image(0.0, 2, 1, vec![1; 6]).unwrap(), None);
+        assert_eq!(p.on_image(0.1, 2, 1, vec![2; 6]).unwrap(), Some(vec![1; 6]));
+        // A refused image replaces nothing.
+        assert!(p.on_image(0.2, 2, 1, vec![3; 5]).is_err());
+        assert_eq!(p.on_image(0.3, 2, 1, vec![4; 6]).unwrap(), Some(vec![2; 6]));
     }
 
     #[test]
