@@ -526,40 +526,42 @@ pub struct Route {
 impl Route {
     /// Segments of the route, including the closing one for looping routes.
     pub fn segments(&self) -> Vec<([f64; 2], [f64; 2])> {
+        self.segment_iter().collect()
+    }
+
+    /// [`Route::segments`] without collecting them (people's routes are walked every
+    /// physics step).
+    fn segment_iter(&self) -> impl Iterator<Item = ([f64; 2], [f64; 2])> + '_ {
         let w = &self.waypoints;
-        let mut segs: Vec<_> = w.windows(2).map(|p| (p[0], p[1])).collect();
         // A looping route closes back to its start; with two waypoints that is a
         // back-and-forth walk.
-        if self.looping && w.len() >= 2 {
-            segs.push((w[w.len() - 1], w[0]));
-        }
-        segs
+        let closing = (self.looping && w.len() >= 2).then(|| (w[w.len() - 1], w[0]));
+        w.windows(2).map(|p| (p[0], p[1])).chain(closing)
     }
 
     /// Length of one traversal in metres.
     pub fn length_m(&self) -> f64 {
-        self.segments().iter().map(|(a, b)| dist(*a, *b)).sum()
+        self.segment_iter().map(|(a, b)| dist(a, b)).sum()
     }
 
     /// Point at arc length `s` along one traversal (clamped; wraps for looping routes).
     pub fn point_at(&self, s: f64) -> ([f64; 2], f64) {
-        let segs = self.segments();
-        if segs.is_empty() {
+        let count = self.segment_iter().count();
+        if count == 0 {
             return (self.waypoints.first().copied().unwrap_or([0.0, 0.0]), 0.0);
         }
         let total = self.length_m();
         let mut s = if self.looping && total > 0.0 { s.rem_euclid(total) } else { s.clamp(0.0, total) };
-        let last = segs.len() - 1;
-        for (k, (a, b)) in segs.iter().enumerate() {
-            let l = dist(*a, *b);
-            if s <= l || k == last {
+        for (k, (a, b)) in self.segment_iter().enumerate() {
+            let l = dist(a, b);
+            if s <= l || k == count - 1 {
                 let t = if l > 0.0 { (s / l).clamp(0.0, 1.0) } else { 0.0 };
                 let heading = (b[1] - a[1]).atan2(b[0] - a[0]);
                 return ([a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1])], heading);
             }
             s -= l;
         }
-        unreachable!("segments is non-empty")
+        unreachable!("the route has segments")
     }
 }
 

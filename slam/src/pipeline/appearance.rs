@@ -41,7 +41,11 @@ impl Appearance {
 fn patch_pixels(rgb: &[u8], width: u32, col: u32, row: u32, l: u32) -> Vec<u8> {
     let (w, l) = (width as usize, l as usize);
     let (x0, y0) = (col as usize * l, row as usize * l);
-    (y0..y0 + l).flat_map(|y| rgb[(y * w + x0) * 3..(y * w + x0 + l) * 3].iter().copied()).collect()
+    let mut pixels = Vec::with_capacity(l * l * 3);
+    for y in y0..y0 + l {
+        pixels.extend_from_slice(&rgb[(y * w + x0) * 3..(y * w + x0 + l) * 3]);
+    }
+    pixels
 }
 
 impl Pipeline {
