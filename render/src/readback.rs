@@ -103,34 +103,18 @@ impl Renderer {
         let (w, h) = (self.width as usize, self.height as usize);
         let whole = [Region::whole(self.width, self.height)];
         let copied = spans.unwrap_or(&whole);
-        // Only what the frame's last render drew needs blanking: its regions when it says
-        // so (the new ones overwrite what they cover), else every pixel not copied now.
-        let blank = match self.size_frame(frame) {
-            Held::Nothing => true,
-            Held::Regions(held) => {
-                for r in &held {
-                    blank_region(frame, r);
-                }
-                true
-            }
-            Held::Anything => false,
-        };
+        self.prepare_frame(frame, copied);
         // Row `y` of columns `a..b` of a target, copied as `plane` from (`first`, `top`) on.
         let row = |plane: &Plane, (first, top): (usize, usize), y: usize, (a, b): (usize, usize)| {
             let start = plane.offset as usize + (y - top) * plane.bytes_per_row as usize;
             let bytes = plane.bytes_per_pixel as usize;
             &data[start + bytes * (a - first)..start + bytes * (b - first)]
         };
-        // The regions' columns in row `y` and the gaps between them, reused row to row.
+        // The regions' columns in row `y`, reused row to row.
         let mut in_row: Vec<(u32, u32)> = Vec::with_capacity(copied.len());
-        let mut empty: Vec<(usize, usize)> = Vec::with_capacity(copied.len() + 1);
         for y in 0..h {
             in_row.clear();
             in_row.extend(copied.iter().filter(|r| (r.rows.0..r.rows.1).contains(&(y as u32))).map(|r| r.columns));
-            if !blank {
-                gaps(&in_row, self.width, &mut empty);
-                blank_row(frame, y, &empty);
-            }
             for &(a, b) in &in_row {
                 let (region, planes) = layout
                     .iter()
@@ -197,18 +181,21 @@ impl Renderer {
         held
     }
 
-    /// `frame` with nothing rendered: every column empty.
-    pub(crate) fn blank(&self, frame: &mut Frame) {
+    /// Sizes `frame` and zeroes what an earlier drawing may have left in it, except where
+    /// all of it is about to be `copied` over: a reused frame of regions is blanked only
+    /// there, any other reused frame whole.
+    fn prepare_frame(&self, frame: &mut Frame, copied: &[Region]) {
         match self.size_frame(frame) {
             Held::Nothing => {}
             Held::Regions(held) => held.iter().for_each(|r| blank_region(frame, r)),
-            Held::Anything => {
-                let empty = [(0, self.width as usize)];
-                for y in 0..self.height as usize {
-                    blank_row(frame, y, &empty);
-                }
-            }
+            Held::Anything if copied == [Region::whole(self.width, self.height)] => {}
+            Held::Anything => blank_region(frame, &Region::whole(self.width, self.height)),
         }
+    }
+
+    /// `frame` with nothing rendered: every column empty.
+    pub(crate) fn blank(&self, frame: &mut Frame) {
+        self.prepare_frame(frame, &[]);
         frame.regions = Some(Vec::new());
     }
 }
@@ -225,31 +212,9 @@ enum Held {
 
 /// Zeroes `region` of `frame` (depth: infinity).
 fn blank_region(frame: &mut Frame, region: &Region) {
-    let columns = [(region.columns.0 as usize, region.columns.1 as usize)];
-    for y in region.rows.0..region.rows.1 {
-        blank_row(frame, y as usize, &columns);
-    }
-}
-
-/// The pixel columns of `0..width` outside the sorted disjoint `spans`, into `out`.
-fn gaps(spans: &[(u32, u32)], width: u32, out: &mut Vec<(usize, usize)>) {
-    out.clear();
-    let mut from = 0;
-    for &(a, b) in spans {
-        if a > from {
-            out.push((from as usize, a as usize));
-        }
-        from = b;
-    }
-    if from < width {
-        out.push((from as usize, width as usize));
-    }
-}
-
-/// Zeroes row `y` of `frame` in the pixel columns `empty` (depth: infinity).
-fn blank_row(frame: &mut Frame, y: usize, empty: &[(usize, usize)]) {
     let w = frame.width as usize;
-    for &(a, b) in empty {
+    let (a, b) = (region.columns.0 as usize, region.columns.1 as usize);
+    for y in region.rows.0 as usize..region.rows.1 as usize {
         let (i0, i1) = (w * y + a, w * y + b);
         frame.rgb[3 * i0..3 * i1].fill(0);
         frame.instance[i0..i1].fill(0);
