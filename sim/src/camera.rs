@@ -6,9 +6,10 @@ use std::sync::{Arc, Mutex};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
+use rayon::prelude::*;
 use render::{InstanceHandle, Lighting, MeshData, Renderer, RendererConfig, TextureData};
 use worlds::World;
-use worlds::mesh::{MeshPart, TriMesh, person_parts, static_world_parts};
+use worlds::mesh::{MeshPart, PersonParts, TriMesh, person_parts, static_world_parts};
 
 pub use crate::camera_model::{CameraConfig, Intrinsics, Rigid};
 use crate::messages::{PersonState, Pose2D};
@@ -104,6 +105,11 @@ fn mesh_data(m: &TriMesh) -> MeshData {
     }
 }
 
+/// A person's parts in the order [`PersonInstances`] names them.
+fn person_limbs(p: &PersonParts) -> [&MeshPart; 4] {
+    [&p.left_leg, &p.right_leg, &p.body, &p.head]
+}
+
 fn texture_data(part: &MeshPart) -> TextureData {
     let t = worlds::texture::generate(&part.appearance);
     TextureData { width: t.width, height: t.height, rgba: t.rgba }
@@ -130,27 +136,38 @@ impl CameraSensor {
     /// Uploads the world's meshes and textures. `seed` drives image noise and exposure.
     pub fn new(world: &World, config: &CameraConfig, seed: u64) -> Result<Self, CameraError> {
         config.check().map_err(|(field, message)| CameraError::Config(format!("camera.{field}: {message}")))?;
-        let mut renderer =
-            Renderer::new(&RendererConfig { width: config.width, height: config.height, depth: config.depth_image })?;
-        for part in static_world_parts(world) {
+        let parts = static_world_parts(world);
+        let people_parts: Vec<_> = world.people.iter().map(person_parts).collect();
+        // Starting the graphics device and generating the textures are independent and
+        // each takes a noticeable part of a short run's start: do them at once, the
+        // textures spread over the pool. Each texture is a pure function of its part.
+        let (renderer, (textures, people_textures)) = rayon::join(
+            || Renderer::new(&RendererConfig { width: config.width, height: config.height, depth: config.depth_image }),
+            || {
+                rayon::join(
+                    || parts.par_iter().map(texture_data).collect::<Vec<_>>(),
+                    || people_parts.par_iter().map(|p| person_limbs(p).map(texture_data)).collect::<Vec<_>>(),
+                )
+            },
+        );
+        let mut renderer = renderer?;
+        let mut add = |part: &MeshPart, texture: &TextureData| -> Result<InstanceHandle, CameraError> {
             let mesh = renderer.add_mesh(&mesh_data(&part.mesh))?;
-            let tex = renderer.add_texture(&texture_data(&part))?;
-            renderer.add_instance(mesh, tex, render::IDENTITY, part.instance_id, part.class.id());
+            let tex = renderer.add_texture(texture)?;
+            Ok(renderer.add_instance(mesh, tex, render::IDENTITY, part.instance_id, part.class.id()))
+        };
+        for (part, texture) in parts.iter().zip(&textures) {
+            add(part, texture)?;
         }
         let mut people = Vec::new();
-        for p in &world.people {
-            let parts = person_parts(p);
-            let mut add = |part: &MeshPart| -> Result<InstanceHandle, CameraError> {
-                let mesh = renderer.add_mesh(&mesh_data(&part.mesh))?;
-                let tex = renderer.add_texture(&texture_data(part))?;
-                Ok(renderer.add_instance(mesh, tex, render::IDENTITY, part.instance_id, part.class.id()))
-            };
+        for ((p, parts), [tl, tr, tb, th]) in world.people.iter().zip(&people_parts).zip(&people_textures) {
+            let [left, right, body, head] = person_limbs(parts);
             people.push(PersonInstances {
                 id: p.id,
-                left: add(&parts.left_leg)?,
-                right: add(&parts.right_leg)?,
-                body: add(&parts.body)?,
-                head: add(&parts.head)?,
+                left: add(left, tl)?,
+                right: add(right, tr)?,
+                body: add(body, tb)?,
+                head: add(head, th)?,
             });
         }
         Ok(CameraSensor {
