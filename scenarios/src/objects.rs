@@ -3,6 +3,7 @@
 
 use std::path::{Path, PathBuf};
 
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use slam::classifier::{AppearanceModel, ModelError, PatchClassifier};
 use slam::features::ImageRef;
@@ -36,17 +37,26 @@ pub fn write_objects(dir: &Path, pipeline: &Pipeline) -> Result<usize, ObjectsEr
     let Some(app) = pipeline.appearance() else { return Ok(0) };
     let out = dir.join("objects");
     std::fs::create_dir_all(&out).map_err(|e| file_err(&out, e))?;
-    let mut models = Vec::new();
-    let mut written = 0;
-    for lm in pipeline.mapped_landmarks() {
-        let Some(model) = pipeline.object_model(lm.id) else { continue };
-        let file = out.join(format!("landmark_{}.png", lm.id));
-        if let Some((w, h, rgb)) = mosaic_picture(lm.id, &lm.class, model, &app.model.extractor) {
+    let landmarks = pipeline.mapped_landmarks();
+    let modelled: Vec<_> =
+        landmarks.iter().filter_map(|lm| pipeline.object_model(lm.id).map(|model| (lm, model))).collect();
+    // Each mosaic is drawn and compressed on its own (a run's end waits for them all).
+    let pictures: Vec<Result<bool, ObjectsError>> = modelled
+        .par_iter()
+        .map(|(lm, model)| {
+            let Some((w, h, rgb)) = mosaic_picture(lm.id, &lm.class, model, &app.model.extractor) else {
+                return Ok(false);
+            };
+            let file = out.join(format!("landmark_{}.png", lm.id));
             image::save_buffer(&file, &rgb, w, h, image::ExtendedColorType::Rgb8).map_err(|e| file_err(&file, e))?;
-            written += 1;
-        }
-        models.push((lm.id, model.clone()));
+            Ok(true)
+        })
+        .collect();
+    let mut written = 0;
+    for picture in pictures {
+        written += picture? as usize;
     }
+    let models: Vec<_> = modelled.iter().map(|(lm, model)| (lm.id, (*model).clone())).collect();
     let file = out.join("models.json");
     std::fs::write(&file, serde_json::to_string(&ObjectModels { format_version: 1, objects: models }).expect("JSON"))
         .map_err(|e| file_err(&file, e))?;

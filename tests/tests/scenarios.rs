@@ -203,6 +203,37 @@ fn run_writes_every_output() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// A file that cannot be written at a run's end is named in the error, and every other
+/// output is still written (they are written in groups at once).
+#[test]
+fn an_output_that_cannot_be_written_is_named_and_the_others_are_kept() {
+    let outputs = [
+        "metrics.json",
+        "metadata.json",
+        "trajectory_est.tum",
+        "decisions.jsonl",
+        "landmarks.json",
+        "map.png",
+        "run.mcap",
+    ];
+    let (mut sc, base) = Scenario::load("laser_only").unwrap();
+    sc.sim.max_duration_s = Some(10.0);
+    for blocked in ["metrics.json", "map.png", "run.mcap"] {
+        let dir = std::env::temp_dir().join(format!("objslam-outputs-fault-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        // A directory where the file should go.
+        std::fs::create_dir_all(dir.join(blocked)).unwrap();
+        let err = run(&sc, &base, &RunOptions { seed: Some(3), out: Some(dir.clone()), ..Default::default() }, |_| {})
+            .err()
+            .unwrap_or_else(|| panic!("{blocked} cannot be written"));
+        assert!(err.to_string().contains(blocked), "{blocked}: {err}");
+        for name in outputs.iter().filter(|n| **n != blocked) {
+            assert!(std::fs::metadata(dir.join(name)).is_ok_and(|m| m.is_file() && m.len() > 0), "{name} lost");
+        }
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+}
+
 /// `objslam run --bag` writes the run's own sensor stream as a ROS 2 bag: a scan message
 /// per scan the pipeline took, whole camera frames, and the same metrics as without it.
 #[test]

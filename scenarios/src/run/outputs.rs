@@ -112,20 +112,39 @@ pub(super) struct FinishedRun<'a> {
 
 /// Writes a finished run's outputs into `out`, the streamed ones given their final names.
 pub(super) fn write_outputs(out: &Path, run: &FinishedRun, streams: StreamedOutputs) -> Result<(), RunError> {
-    let FinishedRun { world, pipeline, metrics, resolved, log, landmark_objects, sim_config, scoring } = *run;
     streams.finish()?;
-    let (est, gt, people_tracks) = (&log.estimate, &log.truth, &log.people_tracks);
+    // Three independent groups of files, written at once: a short run's end is otherwise
+    // one core's work. Each group finishes even if another fails; the first error (in
+    // this order) is returned.
+    let (texts, (objects, plots)) = rayon::join(
+        || write_texts(out, run),
+        || rayon::join(|| crate::objects::write_objects(out, run.pipeline), || write_map_and_mcap(out, run)),
+    );
+    texts?;
+    objects?;
+    plots
+}
+
+/// metrics.json, the log's own files (world, sensors, collisions, metadata), the
+/// trajectories, decisions, solves and landmarks.
+fn write_texts(out: &Path, run: &FinishedRun) -> Result<(), RunError> {
+    let FinishedRun { world, pipeline, metrics, resolved, log, landmark_objects, sim_config, scoring } = *run;
+    let (est, gt) = (&log.estimate, &log.truth);
     let solves = &log.solves;
+    // A file that cannot be written does not stop the others; the first error is returned.
+    let errors = std::cell::RefCell::new(Vec::new());
     let write = |name: &str, text: &str| {
         let file = out.join(name);
-        std::fs::write(&file, text).map_err(|source| RunError::Io { file, source })
+        if let Err(source) = std::fs::write(&file, text) {
+            errors.borrow_mut().push(RunError::Io { file, source });
+        }
     };
-    write("metrics.json", &serde_json::to_string_pretty(metrics).expect("JSON"))?;
+    write("metrics.json", &serde_json::to_string_pretty(metrics).expect("JSON"));
     // The directory is also a sensor log with its truth, which `objslam score --log` reads
     // (the same files as `objslam record` writes, camera images aside).
-    write("world.toml", &world.to_toml())?;
-    write("sensors.json", &serde_json::to_string_pretty(&crate::record::sensors_json(sim_config)).expect("JSON"))?;
-    write("collisions.jsonl", &log.collisions)?;
+    write("world.toml", &world.to_toml());
+    write("sensors.json", &serde_json::to_string_pretty(&crate::record::sensors_json(sim_config)).expect("JSON"));
+    write("collisions.jsonl", &log.collisions);
     write(
         "metadata.json",
         &serde_json::to_string_pretty(&json!({
@@ -140,7 +159,7 @@ pub(super) fn write_outputs(out: &Path, run: &FinishedRun, streams: StreamedOutp
             "configuration": resolved,
         }))
         .expect("JSON"),
-    )?;
+    );
     let tum = |path: &[(f64, [f64; 3])]| {
         let mut s = String::from(crate::record::TUM_HEADER);
         for (t, p) in path {
@@ -149,14 +168,14 @@ pub(super) fn write_outputs(out: &Path, run: &FinishedRun, streams: StreamedOutp
         }
         s
     };
-    write("trajectory_est.tum", &tum(est))?;
+    write("trajectory_est.tum", &tum(est));
     let mut covariances = crate::score::estimate::covariance_header() + "\n";
     for ((t, _), p) in est.iter().zip(&log.covariances) {
         covariances.push_str(&crate::score::estimate::covariance_line(*t, p));
         covariances.push('\n');
     }
-    write("trajectory_est_covariance.csv", &covariances)?;
-    write("trajectory_gt.tum", &tum(gt))?;
+    write("trajectory_est_covariance.csv", &covariances);
+    write("trajectory_gt.tum", &tum(gt));
     // Each decision with the ground truth beside it: the observation's true object and the
     // true object of every candidate landmark. After a scan's decisions, the fusions made
     // after that scan: `{"t": .., "fusion": {"kept": .., "removed": ..}}`.
@@ -181,7 +200,7 @@ pub(super) fn write_outputs(out: &Path, run: &FinishedRun, streams: StreamedOutp
     for f in fusions {
         decisions.push_str(&fusion_line(f));
     }
-    write("decisions.jsonl", &decisions)?;
+    write("decisions.jsonl", &decisions);
     // Each solve of the smoother (combined method): what it solved and how far the cost
     // fell, or why it failed (the filter then carried on as it was).
     write(
@@ -197,7 +216,7 @@ pub(super) fn write_outputs(out: &Path, run: &FinishedRun, streams: StreamedOutp
                 serde_json::to_string(&v).expect("JSON") + "\n"
             })
             .collect::<String>(),
-    )?;
+    );
     let landmarks: Vec<_> = pipeline
         .mapped_landmarks()
         .iter()
@@ -209,9 +228,14 @@ pub(super) fn write_outputs(out: &Path, run: &FinishedRun, streams: StreamedOutp
             v
         })
         .collect();
-    write("landmarks.json", &serde_json::to_string_pretty(&landmarks).expect("JSON"))?;
-    crate::objects::write_objects(out, pipeline)?;
+    write("landmarks.json", &serde_json::to_string_pretty(&landmarks).expect("JSON"));
+    errors.into_inner().into_iter().next().map_or(Ok(()), Err)
+}
 
+/// map.png and run.mcap, each written even if the other cannot be.
+fn write_map_and_mcap(out: &Path, run: &FinishedRun) -> Result<(), RunError> {
+    let FinishedRun { world, pipeline, metrics, log, landmark_objects, .. } = *run;
+    let (est, gt, people_tracks) = (&log.estimate, &log.truth, &log.people_tracks);
     // The map picture: ground truth by class, landmarks with 2-sigma ellipses (red when
     // on something other than a tree), both trajectories and people's tracks.
     let marks = pipeline
@@ -251,7 +275,17 @@ pub(super) fn write_outputs(out: &Path, run: &FinishedRun, streams: StreamedOutp
         people_tracks: people_tracks.values().cloned().collect(),
         routes: false,
     };
-    crate::plot::draw_map(world, &overlays, &out.join("map.png"))?;
+    let map = crate::plot::draw_map(world, &overlays, &out.join("map.png"));
+    // The recording is written even if the picture could not be.
+    let recording = write_mcap(out, run);
+    map?;
+    recording
+}
+
+/// run.mcap: both paths and the final map, for Foxglove.
+fn write_mcap(out: &Path, run: &FinishedRun) -> Result<(), RunError> {
+    let FinishedRun { pipeline, log, .. } = *run;
+    let (est, gt) = (&log.estimate, &log.truth);
 
     let mut mcap = crate::foxglove::McapWriter::create(&out.join("run.mcap"))?;
     for ((t, e), (_, g)) in est.iter().zip(gt) {
