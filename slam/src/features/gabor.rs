@@ -249,12 +249,18 @@ fn convolve_separable_within(
         padded[rx + w..].fill(row[w - 1]);
         convolve_line(&padded[x0..], 1, h, dst);
     }
-    // Rows y0 - ry .. y0 + rh + ry of the row pass, edges replicated.
-    let mut column = Vec::with_capacity(rw * (rh + 2 * ry));
-    for y in y0 as i64 - ry as i64..(y0 + rh + ry) as i64 {
-        let sy = y.clamp(0, height as i64 - 1) as usize - ya;
-        column.extend_from_slice(&rows[sy * rw..(sy + 1) * rw]);
-    }
+    // Rows y0 - ry .. y0 + rh + ry of the row pass, edges replicated: the row pass itself
+    // unless the region is within ry of the plane's top or bottom.
+    let column = if ya + ry == y0 && yb == y0 + rh + ry {
+        rows
+    } else {
+        let mut column = Vec::with_capacity(rw * (rh + 2 * ry));
+        for y in y0 as i64 - ry as i64..(y0 + rh + ry) as i64 {
+            let sy = y.clamp(0, height as i64 - 1) as usize - ya;
+            column.extend_from_slice(&rows[sy * rw..(sy + 1) * rw]);
+        }
+        column
+    };
     let mut out = vec![0.0f32; rw * rh];
     for (y, dst) in out.chunks_exact_mut(rw.max(1)).enumerate() {
         convolve_line(&column[y * rw..], rw, v, dst);
@@ -330,18 +336,27 @@ unsafe fn convolve_line_avx(src: &[f32], step: usize, kernel: &[f32], dst: &mut 
 /// Outputs per block of [`convolve_line`].
 const BLOCK: usize = 16;
 
-/// dst[x..x + BLOCK] over all taps. A function, not a closure, so that it is inlined into
-/// the AVX copy and compiled for it (closures do not inherit target features).
+/// Blocks filtered together: their sums are independent, so the processor overlaps them
+/// (one block alone waits on its own additions).
+const BLOCKS: usize = 4;
+
+/// dst[x..x + BLOCK] for each `x` of `starts`, over all taps. A function, not a closure,
+/// so that it is inlined into the AVX copy and compiled for it (closures do not inherit
+/// target features).
 #[inline(always)]
-fn convolve_block(src: &[f32], step: usize, kernel: &[f32], x: usize, dst: &mut [f32]) {
-    let mut acc = [0.0f32; BLOCK];
+fn convolve_blocks<const N: usize>(src: &[f32], step: usize, kernel: &[f32], starts: [usize; N], dst: &mut [f32]) {
+    let mut acc = [[0.0f32; BLOCK]; N];
     for (k, &kv) in kernel.iter().enumerate() {
-        let s = &src[x + k * step..x + k * step + BLOCK];
-        for j in 0..BLOCK {
-            acc[j] += kv * s[j];
+        for (a, &x) in acc.iter_mut().zip(&starts) {
+            let s = &src[x + k * step..x + k * step + BLOCK];
+            for j in 0..BLOCK {
+                a[j] += kv * s[j];
+            }
         }
     }
-    dst[x..x + BLOCK].copy_from_slice(&acc);
+    for (a, &x) in acc.iter().zip(&starts) {
+        dst[x..x + BLOCK].copy_from_slice(a);
+    }
 }
 
 #[inline(always)]
@@ -349,14 +364,19 @@ fn convolve_line_body(src: &[f32], step: usize, kernel: &[f32], dst: &mut [f32])
     let w = dst.len();
     if w >= BLOCK {
         let mut x = 0;
-        while x + BLOCK <= w {
-            convolve_block(src, step, kernel, x, dst);
-            x += BLOCK;
+        while x + BLOCKS * BLOCK <= w {
+            convolve_blocks(src, step, kernel, std::array::from_fn::<_, BLOCKS, _>(|b| x + b * BLOCK), dst);
+            x += BLOCKS * BLOCK;
         }
-        // The ragged end as one more block ending at the line's end: its overlap with the
-        // previous block is computed again, to the same values.
-        if x < w {
-            convolve_block(src, step, kernel, w - BLOCK, dst);
+        // The rest in at most BLOCKS blocks, the last ending at the line's end: its overlap
+        // with the one before is computed again, to the same values.
+        let last = w - BLOCK;
+        match (w - x).div_ceil(BLOCK) {
+            0 => {}
+            1 => convolve_blocks(src, step, kernel, [last], dst),
+            2 => convolve_blocks(src, step, kernel, [x, last], dst),
+            3 => convolve_blocks(src, step, kernel, [x, x + BLOCK, last], dst),
+            _ => convolve_blocks(src, step, kernel, [x, x + BLOCK, x + 2 * BLOCK, last], dst),
         }
         return;
     }
@@ -433,7 +453,8 @@ mod tests {
             }
             out
         };
-        for (w, h) in [(40, 31), (17, 5), (3, 50), (1, 1)] {
+        // Widths that leave every count of blocks after the groups, and lines narrower than one.
+        for (w, h) in [(40, 31), (17, 5), (3, 50), (1, 1), (16, 3), (64, 4), (113, 3), (130, 2), (200, 2)] {
             let img = random_plane(w, h);
             for f in GaborBank::default().filters {
                 let (hk, vk) = f.separable().unwrap();

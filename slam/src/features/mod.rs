@@ -275,18 +275,20 @@ fn raw_patch_buffer(image: &ImageRef, config: &FeatureConfig, rect: &PatchRect) 
     for (i, out) in rows.chunks_exact_mut(dims).enumerate() {
         let (c, r) = rect.patch(i);
         let (px0, py0) = (c as usize * l, r as usize * l);
-        for py in 0..l {
+        // Each pixel's values: r, g, b, then the Gabor magnitudes.
+        for (py, dst) in out.chunks_exact_mut(l * stride).enumerate() {
             let y = py0 + py;
             let rgb = &image.rgb[(y * w + px0) * 3..(y * w + px0 + l) * 3];
-            let ci = (y - y0) * rw + (px0 - x0);
-            let dst = &mut out[py * l * stride..(py + 1) * l * stride];
-            // Each pixel's values written in order: r, g, b, then the Gabor magnitudes.
-            for (px, (d, c)) in dst.chunks_exact_mut(stride).zip(rgb.chunks_exact(3)).enumerate() {
+            for (d, c) in dst.chunks_exact_mut(stride).zip(rgb.chunks_exact(3)) {
                 d[0] = c[0] as f32 * gr;
                 d[1] = c[1] as f32 * gg;
                 d[2] = c[2] as f32 * gb;
-                for ((v, resp), gk) in d[3..].iter_mut().zip(&responses).zip(&gain[3..]) {
-                    *v = resp.data[ci + px] * gk;
+            }
+            // A channel at a time, each response's row read in order.
+            let ci = (y - y0) * rw + (px0 - x0);
+            for (k, (resp, gk)) in responses.iter().zip(&gain[3..]).enumerate() {
+                for (d, v) in dst[3 + k..].iter_mut().step_by(stride).zip(&resp.data[ci..ci + l]) {
+                    *d = v * gk;
                 }
             }
         }

@@ -419,3 +419,35 @@ fn held_out_scores_need_a_sound_model_of_the_data_dimension() {
     broken.components.clear();
     assert!(matches!(broken.mean_log_predictive(&heldout), Err(GmmError::EmptyModel)));
 }
+
+/// Points four at a time get each point's own terms bit for bit, whichever instructions
+/// the processor offers, at dimensions that fit the offsets' stack buffer and past it.
+#[test]
+fn terms_of_four_points_at_once_equal_each_points_terms_bit_for_bit() {
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    for d in [1, 3, 14, 32, 33, 40] {
+        let components = (0..3)
+            .map(|k| {
+                let a = DMatrix::from_fn(d, d, |_, _| rng.random_range(-1.0..1.0));
+                Component {
+                    weight: [0.2, 0.3, 0.5][k],
+                    mean: DVector::from_fn(d, |_, _| rng.random_range(-5.0..5.0)),
+                    covariance: &a * a.transpose() + DMatrix::identity(d, d),
+                }
+            })
+            .collect();
+        let evaluator = GmmEvaluator::new(&Gmm { components }).unwrap();
+        let points: Vec<Vec<f64>> =
+            (0..4).map(|_| (0..d).map(|_| StandardNormal.sample(&mut rng)).collect::<Vec<f64>>()).collect();
+        let lanes: Vec<[f64; 4]> = (0..d).map(|j| std::array::from_fn(|l| points[l][j])).collect();
+        let mut together = vec![[0.0; 4]; 3];
+        evaluator.log_terms_lanes(&lanes, &mut together);
+        for (l, p) in points.iter().enumerate() {
+            let mut alone = [0.0; 3];
+            evaluator.log_terms(p, &mut alone);
+            for c in 0..3 {
+                assert_eq!(together[c][l].to_bits(), alone[c].to_bits(), "d {d}, point {l}, component {c}");
+            }
+        }
+    }
+}
