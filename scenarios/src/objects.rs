@@ -18,6 +18,9 @@ pub enum ObjectsError {
     Model(#[from] ModelError),
     #[error("{0}")]
     Object(String),
+    /// Several files of `objects/` could not be written (each was tried).
+    #[error("{} files of objects/ could not be written: {}", .0.len(), crate::run::join_errors(.0))]
+    Several(Vec<ObjectsError>),
 }
 
 fn file_err(file: &Path, message: impl ToString) -> ObjectsError {
@@ -31,8 +34,9 @@ pub struct ObjectModels {
     pub objects: Vec<(u32, ObjectModel)>,
 }
 
-/// Writes `objects/landmark_<id>.png` (mosaic) for each mapped object with a model, and
-/// `objects/models.json`. Returns the number of mosaics written.
+/// Writes `objects/landmark_<id>.png` (mosaic) for each mapped object with a model,
+/// `objects/models.json` and the appearance model. Returns the number of mosaics written.
+/// A file that cannot be written stops no other; every failure is reported.
 pub fn write_objects(dir: &Path, pipeline: &Pipeline) -> Result<usize, ObjectsError> {
     let Some(app) = pipeline.appearance() else { return Ok(0) };
     let out = dir.join("objects");
@@ -53,16 +57,24 @@ pub fn write_objects(dir: &Path, pipeline: &Pipeline) -> Result<usize, ObjectsEr
         })
         .collect();
     let mut written = 0;
+    let mut errors = Vec::new();
     for picture in pictures {
-        written += picture? as usize;
+        match picture {
+            Ok(drawn) => written += drawn as usize,
+            Err(e) => errors.push(e),
+        }
     }
     let models: Vec<_> = modelled.iter().map(|(lm, model)| (lm.id, (*model).clone())).collect();
     let file = out.join("models.json");
-    std::fs::write(&file, serde_json::to_string(&ObjectModels { format_version: 1, objects: models }).expect("JSON"))
-        .map_err(|e| file_err(&file, e))?;
+    let json = serde_json::to_string(&ObjectModels { format_version: 1, objects: models }).expect("JSON");
+    errors.extend(std::fs::write(&file, json).err().map(|e| file_err(&file, e)));
     // The appearance model too, so `objslam find` works from the run directory alone.
-    app.model.save(&out.join("appearance_model.json"))?;
-    Ok(written)
+    errors.extend(app.model.save(&out.join("appearance_model.json")).err().map(ObjectsError::from));
+    match errors.len() {
+        0 => Ok(written),
+        1 => Err(errors.remove(0)),
+        _ => Err(ObjectsError::Several(errors)),
+    }
 }
 
 /// Height of a mosaic picture's caption, pixels.

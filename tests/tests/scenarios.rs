@@ -204,13 +204,18 @@ fn run_writes_every_output() {
 }
 
 /// A file that cannot be written at a run's end is named in the error, and every other
-/// output is still written (they are written in groups at once).
+/// output is still written (they are written in groups at once); when several cannot be,
+/// each is named.
 #[test]
 fn an_output_that_cannot_be_written_is_named_and_the_others_are_kept() {
     let outputs = [
         "metrics.json",
+        "world.toml",
+        "sensors.json",
         "metadata.json",
         "trajectory_est.tum",
+        "trajectory_est_covariance.csv",
+        "trajectory_gt.tum",
         "decisions.jsonl",
         "landmarks.json",
         "map.png",
@@ -218,16 +223,19 @@ fn an_output_that_cannot_be_written_is_named_and_the_others_are_kept() {
     ];
     let (mut sc, base) = Scenario::load("laser_only").unwrap();
     sc.sim.max_duration_s = Some(10.0);
-    for blocked in ["metrics.json", "map.png", "run.mcap"] {
+    for blocked in [&["metrics.json"][..], &["map.png"], &["run.mcap"], &["landmarks.json", "run.mcap"]] {
         let dir = std::env::temp_dir().join(format!("objslam-outputs-fault-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
-        // A directory where the file should go.
-        std::fs::create_dir_all(dir.join(blocked)).unwrap();
+        // A directory where each blocked file should go.
+        for name in blocked {
+            std::fs::create_dir_all(dir.join(name)).unwrap();
+        }
         let err = run(&sc, &base, &RunOptions { seed: Some(3), out: Some(dir.clone()), ..Default::default() }, |_| {})
             .err()
-            .unwrap_or_else(|| panic!("{blocked} cannot be written"));
-        assert!(err.to_string().contains(blocked), "{blocked}: {err}");
-        for name in outputs.iter().filter(|n| **n != blocked) {
+            .unwrap_or_else(|| panic!("{blocked:?} cannot be written"));
+        let message = err.to_string();
+        assert!(blocked.iter().all(|name| message.contains(name)), "{blocked:?}: {message}");
+        for name in outputs.iter().filter(|n| !blocked.contains(n)) {
             assert!(std::fs::metadata(dir.join(name)).is_ok_and(|m| m.is_file() && m.len() > 0), "{name} lost");
         }
         let _ = std::fs::remove_dir_all(&dir);

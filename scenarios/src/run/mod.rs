@@ -65,10 +65,18 @@ pub enum RunError {
     Unrendered { what: &'static str, count: usize },
     #[error(transparent)]
     Objects(#[from] crate::objects::ObjectsError),
+    /// Several outputs at a run's end could not be written (each was tried).
+    #[error("{} outputs could not be written: {}", .0.len(), join_errors(.0))]
+    Outputs(Vec<RunError>),
     #[error(transparent)]
     Calibration(#[from] crate::calibrate::CalibrateError),
     #[error(transparent)]
     Ros2(#[from] crate::ros2::Ros2Error),
+}
+
+/// Errors' messages, one after another.
+pub(crate) fn join_errors(errors: &[impl std::fmt::Display]) -> String {
+    errors.iter().map(|e| e.to_string()).collect::<Vec<_>>().join("; ")
 }
 
 impl From<crate::partial_files::PartialFileError> for RunError {

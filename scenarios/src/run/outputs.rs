@@ -114,24 +114,27 @@ pub(super) struct FinishedRun<'a> {
 pub(super) fn write_outputs(out: &Path, run: &FinishedRun, streams: StreamedOutputs) -> Result<(), RunError> {
     streams.finish()?;
     // Three independent groups of files, written at once: a short run's end is otherwise
-    // one core's work. Each group finishes even if another fails; the first error (in
-    // this order) is returned.
-    let (texts, (objects, plots)) = rayon::join(
+    // one core's work. A file that cannot be written stops no other; every failure is
+    // reported.
+    let (mut errors, (objects, map_and_mcap)) = rayon::join(
         || write_texts(out, run),
         || rayon::join(|| crate::objects::write_objects(out, run.pipeline), || write_map_and_mcap(out, run)),
     );
-    texts?;
-    objects?;
-    plots
+    errors.extend(objects.err().map(RunError::from));
+    errors.extend(map_and_mcap);
+    match errors.len() {
+        0 => Ok(()),
+        1 => Err(errors.remove(0)),
+        _ => Err(RunError::Outputs(errors)),
+    }
 }
 
 /// metrics.json, the log's own files (world, sensors, collisions, metadata), the
-/// trajectories, decisions, solves and landmarks.
-fn write_texts(out: &Path, run: &FinishedRun) -> Result<(), RunError> {
+/// trajectories, decisions, solves and landmarks; the files that could not be written.
+fn write_texts(out: &Path, run: &FinishedRun) -> Vec<RunError> {
     let FinishedRun { world, pipeline, metrics, resolved, log, landmark_objects, sim_config, scoring } = *run;
     let (est, gt) = (&log.estimate, &log.truth);
     let solves = &log.solves;
-    // A file that cannot be written does not stop the others; the first error is returned.
     let errors = std::cell::RefCell::new(Vec::new());
     let write = |name: &str, text: &str| {
         let file = out.join(name);
@@ -229,11 +232,11 @@ fn write_texts(out: &Path, run: &FinishedRun) -> Result<(), RunError> {
         })
         .collect();
     write("landmarks.json", &serde_json::to_string_pretty(&landmarks).expect("JSON"));
-    errors.into_inner().into_iter().next().map_or(Ok(()), Err)
+    errors.into_inner()
 }
 
-/// map.png and run.mcap, each written even if the other cannot be.
-fn write_map_and_mcap(out: &Path, run: &FinishedRun) -> Result<(), RunError> {
+/// map.png and run.mcap, each written even if the other cannot be; their failures.
+fn write_map_and_mcap(out: &Path, run: &FinishedRun) -> Vec<RunError> {
     let FinishedRun { world, pipeline, metrics, log, landmark_objects, .. } = *run;
     let (est, gt, people_tracks) = (&log.estimate, &log.truth, &log.people_tracks);
     // The map picture: ground truth by class, landmarks with 2-sigma ellipses (red when
@@ -275,11 +278,8 @@ fn write_map_and_mcap(out: &Path, run: &FinishedRun) -> Result<(), RunError> {
         people_tracks: people_tracks.values().cloned().collect(),
         routes: false,
     };
-    let map = crate::plot::draw_map(world, &overlays, &out.join("map.png"));
-    // The recording is written even if the picture could not be.
-    let recording = write_mcap(out, run);
-    map?;
-    recording
+    let map = crate::plot::draw_map(world, &overlays, &out.join("map.png")).map_err(RunError::from);
+    [map, write_mcap(out, run)].into_iter().filter_map(Result::err).collect()
 }
 
 /// run.mcap: both paths and the final map, for Foxglove.

@@ -197,8 +197,8 @@ impl GmmEvaluator {
         self.log_terms_lanes_body(x, terms)
     }
 
-    /// The same loops compiled for AVX: four lanes of f64 fill one register, where the
-    /// baseline x86-64 target needs two. Without FMA every product and sum is rounded as
+    /// The same loops compiled for AVX: the classifier's four lanes of f64 fill one
+    /// register, where the baseline x86-64 target needs two. Without FMA every product and sum is rounded as
     /// in the baseline code, so the values are identical on every x86-64 processor.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx")]
@@ -210,8 +210,9 @@ impl GmmEvaluator {
     fn log_terms_lanes_body<const LANES: usize>(&self, x: &[[f64; LANES]], terms: &mut [[f64; LANES]]) {
         let d = self.dims;
         let packed = d * (d + 1) / 2;
-        // The point's offsets from a mean: on the stack for the usual dimensions.
-        let mut stack = [[0.0f64; LANES]; 32];
+        // The points' offsets from a mean: on the stack up to the dimension that
+        // `log_terms` keeps there too.
+        let mut stack = [[0.0f64; LANES]; 64];
         let mut heap = Vec::new();
         let diff: &mut [[f64; LANES]] = if d <= stack.len() {
             &mut stack[..d]

@@ -425,7 +425,7 @@ fn held_out_scores_need_a_sound_model_of_the_data_dimension() {
 #[test]
 fn terms_of_four_points_at_once_equal_each_points_terms_bit_for_bit() {
     let mut rng = ChaCha8Rng::seed_from_u64(5);
-    for d in [1, 3, 14, 32, 33, 40] {
+    for d in [1, 3, 14, 64, 65, 70] {
         let components = (0..3)
             .map(|k| {
                 let a = DMatrix::from_fn(d, d, |_, _| rng.random_range(-1.0..1.0));
