@@ -3,7 +3,7 @@
 
 use std::sync::{Arc, Mutex};
 
-use rand::SeedableRng;
+use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 use rayon::prelude::*;
@@ -108,6 +108,46 @@ fn mesh_data(m: &TriMesh) -> MeshData {
 /// A person's parts in the order [`PersonInstances`] names them.
 fn person_limbs(p: &PersonParts) -> [&MeshPart; 4] {
     [&p.left_leg, &p.right_leg, &p.body, &p.head]
+}
+
+/// Pixels in a run of the noise's own stream (see [`add_pixel_noise`]).
+const NOISE_RUN_PIXELS: usize = 32;
+
+/// Adds `normal` noise to every rendered value of `image`: to its regions, or all of it.
+/// Each run of [`NOISE_RUN_PIXELS`] pixels of a row draws from a stream of its own of
+/// `frame_noise`, whole, so a pixel's noise does not depend on which regions were rendered
+/// while the runs no region reaches cost nothing.
+fn add_pixel_noise(image: &mut render::Frame, normal: &Normal<f64>, frame_noise: ChaCha8Rng) {
+    let width = image.width as usize;
+    let runs_per_row = width.div_ceil(NOISE_RUN_PIXELS);
+    let whole = [render::Region { columns: (0, image.width), rows: (0, image.height) }];
+    let regions = image.regions.clone();
+    let regions = regions.as_deref().unwrap_or(&whole);
+    let mut values = [0.0; 3 * NOISE_RUN_PIXELS];
+    for row in 0..image.height {
+        for run in 0..runs_per_row {
+            let (u0, u1) = (run * NOISE_RUN_PIXELS, ((run + 1) * NOISE_RUN_PIXELS).min(width));
+            let in_run = |r: &&render::Region| {
+                (r.rows.0..r.rows.1).contains(&row) && (r.columns.0 as usize) < u1 && u0 < r.columns.1 as usize
+            };
+            if !regions.iter().any(|r| in_run(&r)) {
+                continue;
+            }
+            let mut stream = frame_noise.clone();
+            stream.set_stream((row as usize * runs_per_row + run) as u64);
+            stream.set_word_pos(0);
+            values.iter_mut().for_each(|e| *e = normal.sample(&mut stream));
+            for u in u0..u1 {
+                if !regions.iter().any(|r| r.contains(u as u32, row)) {
+                    continue;
+                }
+                let i = 3 * (row as usize * width + u);
+                for (v, e) in image.rgb[i..i + 3].iter_mut().zip(&values[3 * (u - u0)..]) {
+                    *v = (*v as f64 + e).round().clamp(0.0, 255.0) as u8;
+                }
+            }
+        }
+    }
 }
 
 fn texture_data(part: &MeshPart) -> TextureData {
@@ -241,15 +281,7 @@ impl CameraSensor {
         self.renderer.render_regions_into(&camera, &lighting, regions, &mut image)?;
         if self.config.noise_sigma > 0.0 {
             let n = Normal::new(0.0, self.config.noise_sigma).expect("finite sigma");
-            let (width, spans) = (image.width as usize, image.regions.clone());
-            for (i, v) in image.rgb.iter_mut().enumerate() {
-                // Drawn for every value, so the stream does not depend on the regions.
-                let e = n.sample(&mut self.rng);
-                let (u, row) = ((i / 3 % width) as u32, (i / 3 / width) as u32);
-                if spans.as_ref().is_none_or(|s| s.iter().any(|r| r.contains(u, row))) {
-                    *v = (*v as f64 + e).round().clamp(0.0, 255.0) as u8;
-                }
-            }
+            add_pixel_noise(&mut image, &n, ChaCha8Rng::from_seed(self.rng.random()));
         }
         Ok(CameraFrame { t, intrinsics: k, world_from_camera, image })
     }
@@ -270,5 +302,65 @@ impl CameraSensor {
         self.pose_people(people);
         let pose = self.config.world_from_camera(robot);
         self.render_regions_from(t, pose, regions)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use render::{Frame, Region};
+
+    /// A grey frame of `width` x `height`, rendered in `regions` (`None`: whole).
+    fn grey(width: u32, height: u32, regions: Option<Vec<Region>>) -> Frame {
+        let n = (width * height) as usize;
+        Frame {
+            width,
+            height,
+            rgb: vec![128; 3 * n],
+            instance: vec![0; n],
+            class: vec![0; n],
+            depth_m: vec![],
+            regions,
+        }
+    }
+
+    #[test]
+    fn pixel_noise_is_the_same_wherever_regions_are_rendered_and_only_there() {
+        let normal = Normal::new(0.0, 3.0).unwrap();
+        let key = ChaCha8Rng::seed_from_u64(7);
+        let mut whole = grey(100, 20, None);
+        add_pixel_noise(&mut whole, &normal, key.clone());
+        // Regions that start and end inside runs of the noise's streams.
+        let regions = vec![Region { columns: (5, 40), rows: (3, 9) }, Region { columns: (70, 100), rows: (0, 20) }];
+        let mut part = grey(100, 20, Some(regions.clone()));
+        add_pixel_noise(&mut part, &normal, key);
+        for v in 0..20 {
+            for u in 0..100 {
+                let i = 3 * (v * 100 + u) as usize;
+                let inside = regions.iter().any(|r| r.contains(u, v));
+                let want: &[u8] = if inside { &whole.rgb[i..i + 3] } else { &[128; 3] };
+                assert_eq!(&part.rgb[i..i + 3], want, "pixel ({u}, {v}), inside a region: {inside}");
+            }
+        }
+    }
+
+    #[test]
+    fn pixel_noise_has_its_spread_and_each_run_of_pixels_its_own_numbers() {
+        let sigma = 3.0;
+        let mut frame = grey(640, 48, None);
+        add_pixel_noise(&mut frame, &Normal::new(0.0, sigma).unwrap(), ChaCha8Rng::seed_from_u64(1));
+        let e: Vec<f64> = frame.rgb.iter().map(|&v| v as f64 - 128.0).collect();
+        let mean = e.iter().sum::<f64>() / e.len() as f64;
+        let sd = (e.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / e.len() as f64).sqrt();
+        // 92,160 values, rounded to integers (which adds a variance of 1/12).
+        let want = (sigma * sigma + 1.0 / 12.0f64).sqrt();
+        assert!(mean.abs() < 0.05 && (sd - want).abs() < 0.05, "mean {mean}, sd {sd}, want {want}");
+        // No two runs of the streams repeat each other's values.
+        let runs: Vec<&[f64]> = e.chunks(3 * NOISE_RUN_PIXELS).collect();
+        for (a, ra) in runs.iter().enumerate() {
+            for rb in &runs[a + 1..] {
+                assert_ne!(ra, rb, "two runs of pixels drew the same noise");
+            }
+        }
     }
 }
