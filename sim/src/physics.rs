@@ -307,6 +307,12 @@ impl PhysicsScene {
 }
 
 fn set_kinematic(pw: &mut PhysicsWorld, handle: RigidBodyHandle, pose: Pose, teleport: bool) {
+    // A body already headed where it is asked to go (a person standing before their walk
+    // or giving way) is left alone: borrowing it mutably marks it changed, and rapier then
+    // recomputes its colliders' bounds every step.
+    if !teleport && *pw.bodies[handle].next_position() == pose {
+        return;
+    }
     let body = &mut pw.bodies[handle];
     if teleport {
         body.set_position(pose, true);
