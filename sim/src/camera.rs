@@ -118,19 +118,19 @@ const NOISE_RUN_PIXELS: usize = 32;
 /// `frame_noise`, whole, so a pixel's noise does not depend on which regions were rendered
 /// while the runs no region reaches cost nothing.
 fn add_pixel_noise(image: &mut render::Frame, normal: &Normal<f64>, frame_noise: ChaCha8Rng) {
-    let width = image.width as usize;
-    let runs_per_row = width.div_ceil(NOISE_RUN_PIXELS);
-    let whole = [render::Region { columns: (0, image.width), rows: (0, image.height) }];
-    let regions = image.regions.clone();
+    let render::Frame { width, height, rgb, regions, .. } = image;
+    let whole = [render::Region::whole(*width, *height)];
     let regions = regions.as_deref().unwrap_or(&whole);
+    let width = *width as usize;
+    let runs_per_row = width.div_ceil(NOISE_RUN_PIXELS);
     let mut values = [0.0; 3 * NOISE_RUN_PIXELS];
-    for row in 0..image.height {
+    for row in 0..*height {
         for run in 0..runs_per_row {
             let (u0, u1) = (run * NOISE_RUN_PIXELS, ((run + 1) * NOISE_RUN_PIXELS).min(width));
-            let in_run = |r: &&render::Region| {
+            let reached = regions.iter().any(|r| {
                 (r.rows.0..r.rows.1).contains(&row) && (r.columns.0 as usize) < u1 && u0 < r.columns.1 as usize
-            };
-            if !regions.iter().any(|r| in_run(&r)) {
+            });
+            if !reached {
                 continue;
             }
             let mut stream = frame_noise.clone();
@@ -142,7 +142,7 @@ fn add_pixel_noise(image: &mut render::Frame, normal: &Normal<f64>, frame_noise:
                     continue;
                 }
                 let i = 3 * (row as usize * width + u);
-                for (v, e) in image.rgb[i..i + 3].iter_mut().zip(&values[3 * (u - u0)..]) {
+                for (v, e) in rgb[i..i + 3].iter_mut().zip(&values[3 * (u - u0)..]) {
                     *v = (*v as f64 + e).round().clamp(0.0, 255.0) as u8;
                 }
             }
