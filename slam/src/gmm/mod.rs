@@ -106,6 +106,10 @@ pub struct GmmEvaluator {
     whiten: Vec<f64>,
 }
 
+/// Dimensions up to which a point's offsets from a mean are kept on the stack (beyond, in
+/// a vector made for the call): the features are 10-20 dimensions.
+const STACK_DIMS: usize = 64;
+
 impl GmmEvaluator {
     pub fn new(g: &Gmm) -> Result<Self, GmmError> {
         if g.components.is_empty() {
@@ -155,7 +159,7 @@ impl GmmEvaluator {
     pub fn log_terms(&self, x: &[f64], terms: &mut [f64]) {
         let d = self.dims;
         let packed = d * (d + 1) / 2;
-        let mut diff = [0.0f64; 64];
+        let mut diff = [0.0f64; STACK_DIMS];
         let mut heap = Vec::new();
         let diff: &mut [f64] = if d <= diff.len() {
             &mut diff[..d]
@@ -198,8 +202,9 @@ impl GmmEvaluator {
     }
 
     /// The same loops compiled for AVX: the classifier's four lanes of f64 fill one
-    /// register, where the baseline x86-64 target needs two. Without FMA every product and sum is rounded as
-    /// in the baseline code, so the values are identical on every x86-64 processor.
+    /// register, where the baseline x86-64 target needs two. Without FMA every product and
+    /// sum is rounded as in the baseline code, so the values are identical on every x86-64
+    /// processor.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx")]
     unsafe fn log_terms_lanes_avx<const LANES: usize>(&self, x: &[[f64; LANES]], terms: &mut [[f64; LANES]]) {
@@ -210,9 +215,8 @@ impl GmmEvaluator {
     fn log_terms_lanes_body<const LANES: usize>(&self, x: &[[f64; LANES]], terms: &mut [[f64; LANES]]) {
         let d = self.dims;
         let packed = d * (d + 1) / 2;
-        // The points' offsets from a mean: on the stack up to the dimension that
-        // `log_terms` keeps there too.
-        let mut stack = [[0.0f64; LANES]; 64];
+        // The points' offsets from a mean.
+        let mut stack = [[0.0f64; LANES]; STACK_DIMS];
         let mut heap = Vec::new();
         let diff: &mut [[f64; LANES]] = if d <= stack.len() {
             &mut stack[..d]
