@@ -70,11 +70,7 @@ pub fn write_objects(dir: &Path, pipeline: &Pipeline) -> Result<usize, ObjectsEr
     errors.extend(std::fs::write(&file, json).err().map(|e| file_err(&file, e)));
     // The appearance model too, so `objslam find` works from the run directory alone.
     errors.extend(app.model.save(&out.join("appearance_model.json")).err().map(ObjectsError::from));
-    match errors.len() {
-        0 => Ok(written),
-        1 => Err(errors.remove(0)),
-        _ => Err(ObjectsError::Several(errors)),
-    }
+    crate::run::first_or_all(errors, ObjectsError::Several).map(|()| written)
 }
 
 /// Height of a mosaic picture's caption, pixels.

@@ -79,6 +79,16 @@ pub(crate) fn join_errors(errors: &[impl std::fmt::Display]) -> String {
     errors.iter().map(|e| e.to_string()).collect::<Vec<_>>().join("; ")
 }
 
+/// No error, the one error, or all of them made one by `several`: what a step that tries
+/// every file before reporting returns.
+pub(crate) fn first_or_all<E>(mut errors: Vec<E>, several: impl FnOnce(Vec<E>) -> E) -> Result<(), E> {
+    match errors.len() {
+        0 => Ok(()),
+        1 => Err(errors.remove(0)),
+        _ => Err(several(errors)),
+    }
+}
+
 impl From<crate::partial_files::PartialFileError> for RunError {
     fn from(e: crate::partial_files::PartialFileError) -> Self {
         RunError::Io { file: e.file, source: e.source }

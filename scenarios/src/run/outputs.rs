@@ -122,11 +122,7 @@ pub(super) fn write_outputs(out: &Path, run: &FinishedRun, streams: StreamedOutp
     );
     errors.extend(objects.err().map(RunError::from));
     errors.extend(map_and_mcap);
-    match errors.len() {
-        0 => Ok(()),
-        1 => Err(errors.remove(0)),
-        _ => Err(RunError::Outputs(errors)),
-    }
+    super::first_or_all(errors, RunError::Outputs)
 }
 
 /// metrics.json, the log's own files (world, sensors, collisions, metadata), the
