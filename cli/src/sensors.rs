@@ -13,6 +13,84 @@ pub(crate) enum RecordSource {
     Scenario(String),
 }
 
+/// What a recording needs, resolved from its source: the world and simulator, how a log
+/// of it is scored, and (for a scenario) what `objslam replay` of the log needs besides.
+struct RecordingPlan {
+    world: worlds::World,
+    config: sim::SimConfig,
+    sim_seed: u64,
+    scoring: scenarios::score::log::LogScoring,
+    /// A scenario's pipeline settings, carried by a log.
+    pipeline: Option<slam::pipeline::PipelineConfig>,
+    /// The calibration a run of the scenario is given, where the log has its camera.
+    calibration: Option<slam::calibration::Extrinsics>,
+    /// The appearance model a run of the scenario uses, where the log has its camera.
+    model: Option<slam::classifier::AppearanceModel>,
+}
+
+impl RecordingPlan {
+    fn resolve(
+        source: RecordSource,
+        seed: Option<u64>,
+        format: scenarios::record::RecordFormat,
+        no_camera: bool,
+    ) -> Result<Self> {
+        match source {
+            RecordSource::World { input, sim_config } => {
+                let seed = seed.unwrap_or(1);
+                let config = match sim_config {
+                    Some(path) => scenarios::scenario::read_sim_config(&path)?,
+                    None => sim::SimConfig::default(),
+                };
+                Ok(RecordingPlan {
+                    world: crate::world::load_world(&input, seed)?,
+                    config,
+                    sim_seed: seed,
+                    scoring: scenarios::score::log::LogScoring::of_world(),
+                    pipeline: None,
+                    calibration: None,
+                    model: None,
+                })
+            }
+            RecordSource::Scenario(name) => {
+                let (sc, base) = scenarios::scenario::Scenario::load(&name)?;
+                let seed = seed.unwrap_or(sc.seed);
+                let pipeline = scenarios::run::pipeline_config(&sc, None)?;
+                // A log's camera (its method's) comes with the calibration a run is given.
+                let logs_camera = format == scenarios::record::RecordFormat::Log
+                    && !no_camera
+                    && scenarios::record::logs_camera(&sc.sim, Some(&pipeline));
+                let calibration = logs_camera
+                    .then(|| scenarios::run::resolve_calibration(&sc, &base, seed))
+                    .transpose()?
+                    .map(|c| c.extrinsics);
+                // ... and with the appearance model a run uses (trained and cached if need
+                // be), so that `objslam replay` of the log needs nothing more.
+                let model = if logs_camera {
+                    let bar = progress::training(&name);
+                    let m = scenarios::run::resolve_appearance(&sc, &base, |stage, done, total| {
+                        progress::set_training(&bar, stage, done, total)
+                    })?;
+                    bar.finish_and_clear();
+                    Some(m)
+                } else {
+                    None
+                };
+                Ok(RecordingPlan {
+                    // The world and simulator seeds a run of this scenario and seed uses.
+                    world: sc.world(&base, seed)?,
+                    config: sc.sim.clone(),
+                    sim_seed: sim::derive_seed(seed, "sim"),
+                    scoring: scenarios::score::log::LogScoring::of_scenario(&sc, seed),
+                    pipeline: Some(pipeline),
+                    calibration,
+                    model,
+                })
+            }
+        }
+    }
+}
+
 /// `objslam record`.
 pub(crate) fn record(
     source: RecordSource,
@@ -22,53 +100,8 @@ pub(crate) fn record(
     no_camera: bool,
     out: &std::path::Path,
 ) -> Result<()> {
-    let (world, mut config, sim_seed, scoring, pipeline, calibration, model) = match source {
-        RecordSource::World { input, sim_config } => {
-            let seed = seed.unwrap_or(1);
-            let config = match sim_config {
-                Some(path) => scenarios::scenario::read_sim_config(&path)?,
-                None => sim::SimConfig::default(),
-            };
-            let world = crate::world::load_world(&input, seed)?;
-            (world, config, seed, scenarios::score::log::LogScoring::of_world(), None, None, None)
-        }
-        RecordSource::Scenario(name) => {
-            let (sc, base) = scenarios::scenario::Scenario::load(&name)?;
-            let seed = seed.unwrap_or(sc.seed);
-            // The world and simulator seeds a run of this scenario and seed uses.
-            let world = sc.world(&base, seed)?;
-            let pipeline = scenarios::run::pipeline_config(&sc, None)?;
-            // A log's camera (its method's) comes with the calibration a run is given.
-            let logs_camera = format == scenarios::record::RecordFormat::Log
-                && !no_camera
-                && scenarios::record::logs_camera(&sc.sim, Some(&pipeline));
-            let calibration = logs_camera
-                .then(|| scenarios::run::resolve_calibration(&sc, &base, seed))
-                .transpose()?
-                .map(|c| c.extrinsics);
-            // ... and with the appearance model a run uses (trained and cached if need be),
-            // so that `objslam replay` of the log needs nothing more.
-            let model = if logs_camera {
-                let bar = progress::training(&name);
-                let m = scenarios::run::resolve_appearance(&sc, &base, |stage, done, total| {
-                    progress::set_training(&bar, stage, done, total)
-                })?;
-                bar.finish_and_clear();
-                Some(m)
-            } else {
-                None
-            };
-            (
-                world,
-                sc.sim.clone(),
-                sim::derive_seed(seed, "sim"),
-                scenarios::score::log::LogScoring::of_scenario(&sc, seed),
-                Some(pipeline),
-                calibration,
-                model,
-            )
-        }
-    };
+    let RecordingPlan { world, mut config, sim_seed, scoring, pipeline, calibration, model } =
+        RecordingPlan::resolve(source, seed, format, no_camera)?;
     if let Some(d) = duration {
         anyhow::ensure!(d > 0.0 && d.is_finite(), "--duration must be a positive number of seconds, not {d}");
         config.max_duration_s = Some(d);
