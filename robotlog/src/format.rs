@@ -157,10 +157,12 @@ fn io(file: &Path) -> impl Fn(std::io::Error) -> LogError + '_ {
 
 fn read_manifest(file: &Path) -> Result<Manifest, LogError> {
     let text = fs::read_to_string(file).map_err(io(file))?;
-    let manifest: Manifest = toml::from_str(&text).map_err(|e| {
-        let line = e.span().map(|s| text[..s.start].matches('\n').count() as u64 + 1);
-        let problem = e.message().to_string();
-        match line {
+    let manifest: Manifest = toml_strict::from_str(&text).map_err(|e| {
+        let problem = match &e.key {
+            Some(key) => format!("{key}: {}", e.message),
+            None => e.message.clone(),
+        };
+        match e.line.map(|l| l as u64) {
             Some(line) => LogError::Line { file: file.to_path_buf(), line, problem },
             None => LogError::File { file: file.to_path_buf(), problem },
         }

@@ -160,6 +160,11 @@ fn malformed_files_are_errors_that_name_file_and_line() {
         ),
         (
             "manifest.toml",
+            "format_version = 1\n[vehicle]\nstart_pose = [0.0, 1.0, 2.0, 3.0]\n[sensor]\nx_m = 0\ny_m = 0\n",
+            "manifest.toml:3: vehicle.start_pose: 4 elements, more than it takes",
+        ),
+        (
+            "manifest.toml",
             "format_version = 1\n[vehicle]\nmotion = \"tank\"\n[sensor]\nx_m = 0\ny_m = 0\n",
             "vehicle.motion: must be \"odometry\" or \"ackermann\"",
         ),

@@ -139,9 +139,9 @@ pub fn resolve_config(
             problem: e.message().to_string(),
         })?;
         // A scenario-style file holds the keys under [pipeline]; a bare file at the top.
-        let table = match table.get("pipeline") {
-            Some(toml::Value::Table(t)) if table.len() == 1 => t.clone(),
-            _ => table,
+        let (table, under): (_, &[&str]) = match table.get("pipeline") {
+            Some(toml::Value::Table(t)) if table.len() == 1 => (t.clone(), &["pipeline"]),
+            _ => (table, &[]),
         };
         // Another motion model replaces the whole table: the two models' keys differ.
         let new_model = table.get("motion").and_then(|m| m.get("model")).cloned();
@@ -151,11 +151,15 @@ pub fn resolve_config(
             *motion = toml::Value::Table(toml::Table::new());
         }
         merge(&mut value, toml::Value::Table(table));
-        let config: PipelineConfig = value.clone().try_into().map_err(|e: toml::de::Error| ReplayError::Config {
-            file: file.clone(),
-            line: 1,
-            problem: e.message().to_string(),
-        })?;
+        let config: PipelineConfig =
+            toml_strict::from_value(value.clone(), &text, under).map_err(|e| ReplayError::Config {
+                file: file.clone(),
+                line: e.line.unwrap_or(1),
+                problem: match e.key {
+                    Some(key) => format!("{key}: {}", e.message),
+                    None => e.message,
+                },
+            })?;
         config.validate().map_err(|setting| ReplayError::Setting { file: file.clone(), setting })?;
     }
     let mut config: PipelineConfig = value.try_into().expect("checked above");

@@ -211,7 +211,7 @@ pub const DEFAULT_SCENARIO: &str = "paper_park";
 impl Scenario {
     /// Parses and checks scenario text; `file` names it in errors.
     pub fn parse(text: &str, file: &Path) -> Result<Scenario, ScenarioError> {
-        let mut s: Scenario = toml::from_str(text).map_err(|e| ScenarioError::Parse {
+        let mut s: Scenario = toml_strict::from_str(text).map_err(|e| ScenarioError::Parse {
             file: file.to_path_buf(),
             message: e.to_string().trim_end().to_string(),
         })?;
@@ -464,7 +464,7 @@ fn read_settings<T: serde::de::DeserializeOwned>(
 ) -> Result<T, ScenarioError> {
     let text =
         std::fs::read_to_string(file).map_err(|source| ScenarioError::Read { file: file.to_path_buf(), source })?;
-    let settings: T = toml::from_str(&text).map_err(|e| ScenarioError::Parse {
+    let settings: T = toml_strict::from_str(&text).map_err(|e| ScenarioError::Parse {
         file: file.to_path_buf(),
         message: e.to_string().trim_end().to_string(),
     })?;
@@ -613,6 +613,16 @@ mod tests {
             ("[pipeline.object_model]\nmosaic_patches = 400\n", "line 5: pipeline.object_model.mosaic_patches"),
             ("[pipeline.motion]\nmodl = \"ackermann\"\n", "unknown field `modl`"),
             ("[calibration]\nmode = \"ture\"\n", "line 5: calibration.mode: unknown mode \"ture\""),
+            // An array longer than its field, which toml alone would cut short.
+            (
+                "[sim.laser]\nmount_xyz_m = [0.16, 0.0, 0.4, 9.0]\n",
+                "line 5: sim.laser.mount_xyz_m: 4 elements, more than",
+            ),
+            ("[world.params]\ntree_radius_m = [0.1, 0.2, 0.3]\n", "line 5: world.params.tree_radius_m: 3 elements"),
+            (
+                "[pipeline]\ninitial_pose_sigma = [0.1, 0.1, 0.1, 0.1]\n",
+                "line 5: pipeline.initial_pose_sigma: 4 elements",
+            ),
         ] {
             let e = Scenario::parse(&format!("{base}{table}"), f).unwrap_err().to_string();
             assert!(e.contains(expect), "{table}: {e}");

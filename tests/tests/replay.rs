@@ -326,3 +326,25 @@ fn a_fault_found_mid_replay_names_its_row_and_leaves_earlier_outputs_whole() {
     assert_eq!(left, vec![std::ffi::OsString::from("trajectory_est.tum")], "no partial or new output");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// A settings file given to a replay (`--config`, or a log's `pipeline.toml`) is refused at
+/// the line of the key that is wrong, bare or under `[pipeline]`, arrays longer than their
+/// field included.
+#[test]
+fn a_replays_settings_file_is_refused_at_the_line_of_its_bad_key() {
+    let dir = temp_dir("settings");
+    std::fs::create_dir_all(&dir).unwrap();
+    let manifest = synthetic_park().manifest;
+    let file = dir.join("settings.toml");
+    for (text, expect) in [
+        ("# c\n# c\n[pipeline]\ngate_probability = 0.9\nbatch_updates = \"yes\"\n", ":5: batch_updates: invalid type"),
+        ("[pipeline]\n\ninitial_pose_sigma = [0.1, 0.1, 0.1, 0.1]\n", ":3: initial_pose_sigma: 4 elements, more than"),
+        ("\ninitial_pose_sigma = [0.1, 0.1, 0.1, 0.1]\n", ":2: initial_pose_sigma: 4 elements, more than"),
+        ("[pipeline.clustering]\n\nmin_pints = 3\n", ":3: clustering.min_pints: unknown field `min_pints`"),
+    ] {
+        std::fs::write(&file, text).unwrap();
+        let e = resolve_config(None, &manifest, None, Some(&file)).unwrap_err().to_string();
+        assert!(e.contains(&format!("settings.toml{expect}")), "{text}: {e}");
+    }
+    std::fs::remove_dir_all(&dir).ok();
+}

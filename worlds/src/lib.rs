@@ -34,7 +34,7 @@ pub const MAX_LAPS: u32 = 1000;
 /// Parses and validates world TOML text, and reads the objects' `mesh` files; `file` names
 /// the source in errors and resolves relative mesh paths.
 pub fn parse(text: &str, file: &Path) -> Result<World, WorldError> {
-    let mut world: World = toml::from_str(text)
+    let mut world: World = toml_strict::from_str(text)
         .map_err(|e| WorldError::Parse { file: file.to_path_buf(), message: e.to_string().trim_end().to_string() })?;
     let base = file.parent().unwrap_or(Path::new("."));
     let mut problems = validate::validate(&world, base);

@@ -196,3 +196,15 @@ fn bad_board_tilts_are_named() {
     let msg = message(&with_board(", roll_deg = 45.0, bottom_m = 0.0").replace("bottom_m = 0.3, ", ""));
     assert!(msg.contains("shape.roll_deg") && msg.contains("below the ground"), "{msg}");
 }
+
+#[test]
+fn an_array_longer_than_its_field_is_named_with_its_line() {
+    // toml alone would read the first three numbers and drop the fourth.
+    let text = good_text();
+    let at = text.find("colour = [").expect("a coloured object");
+    let end = at + text[at..].find(']').unwrap();
+    let bad = format!("{}, 0.5{}", &text[..end], &text[end..]);
+    let line = text[..at].matches('\n').count() + 1;
+    let msg = message(&bad);
+    assert!(msg.contains(&format!("line {line}: ")) && msg.contains("colour: 4 elements, more than it takes"), "{msg}");
+}
