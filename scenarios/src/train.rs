@@ -347,7 +347,11 @@ pub fn read_csv(path: &Path) -> Result<DMatrix<f64>, TrainError> {
 /// Fits a VB-GMM to a CSV file.
 pub fn gmm_fit_csv(path: &Path, options: &VbOptions) -> Result<VbGmm, TrainError> {
     let data = read_csv(path)?;
-    Ok(gmm::fit(&data, None, options)?)
+    gmm::fit(&data, None, options).map_err(|e| match e {
+        // A problem of the data is the file's.
+        gmm::GmmError::TooLarge { .. } | gmm::GmmError::NotFinite { .. } => file_err(path, e),
+        e => e.into(),
+    })
 }
 
 /// Reads a model written by `objslam gmm fit` and a CSV of held-out points; returns the mean

@@ -31,6 +31,10 @@ pub enum GmmError {
     NoData,
     #[error("data value at row {row}, column {column} is not a finite number")]
     NotFinite { row: usize, column: usize },
+    #[error(
+        "data values of column {column} (up to {largest:e} in size) are too large: their squares and distances overflow; rescale the data"
+    )]
+    TooLarge { column: usize, largest: f64 },
     #[error("dimension mismatch: expected {expected}, found {found}")]
     Dimension { expected: usize, found: usize },
     #[error("component {component}: a {rows}x{cols} covariance for a mean of {dims} dimensions")]

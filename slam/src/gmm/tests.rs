@@ -292,6 +292,14 @@ fn bad_data_and_options_are_clear_errors() {
     let mut data = DMatrix::from_element(10, 2, 1.0);
     data[(4, 1)] = f64::NAN;
     assert_eq!(fit(&data, None, &VbOptions::default()).unwrap_err(), GmmError::NotFinite { row: 4, column: 1 });
+    // Finite, but its square overflows: refused before any search (the k-means++ start
+    // drew from an infinite total and panicked).
+    let mut huge = DMatrix::from_row_slice(3, 2, &[1.0, 2.0, 1e155, 3.0, 4.0, 5.0]);
+    let e = fit(&huge, None, &VbOptions::default()).unwrap_err();
+    assert_eq!(e, GmmError::TooLarge { column: 0, largest: 1e155 });
+    assert!(e.to_string().contains("column 0") && e.to_string().contains("rescale"), "{e}");
+    huge[(1, 0)] = 1e150;
+    fit(&huge, None, &VbOptions::default()).expect("squares of 1e150 are finite");
     let ok = DMatrix::from_fn(10, 2, |i, j| (i + j) as f64);
     assert!(matches!(
         fit(&ok, None, &VbOptions { max_components: 0, ..Default::default() }),

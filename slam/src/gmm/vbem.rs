@@ -118,7 +118,9 @@ pub(crate) struct Stats {
     pub r_ln_r: Vec<f64>,
 }
 
-/// Validates a data matrix: at least one point, at least one dimension, all finite.
+/// Validates a data matrix: at least one point, at least one dimension, all finite, and
+/// small enough that the fit's sums of squares and squared distances between points stay
+/// finite (finite values near 1e155 square past f64's range).
 pub(crate) fn check_data(data: &DMatrix<f64>) -> Result<(), GmmError> {
     if data.nrows() == 0 || data.ncols() == 0 {
         return Err(GmmError::NoData);
@@ -126,6 +128,15 @@ pub(crate) fn check_data(data: &DMatrix<f64>) -> Result<(), GmmError> {
     if let Some(pos) = data.iter().position(|v| !v.is_finite()) {
         let n = data.nrows();
         return Err(GmmError::NotFinite { row: pos % n, column: pos / n });
+    }
+    let d = data.ncols() as f64;
+    for (column, values) in data.column_iter().enumerate() {
+        let sum_of_squares: f64 = values.iter().map(|v| v * v).sum();
+        let range = values.max() - values.min();
+        if !(sum_of_squares.is_finite() && (d * range * range).is_finite()) {
+            let largest = values.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            return Err(GmmError::TooLarge { column, largest });
+        }
     }
     Ok(())
 }
