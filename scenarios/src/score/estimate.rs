@@ -32,6 +32,10 @@ pub fn read_tum(file: &Path) -> Result<Vec<(f64, [f64; 3])>, ScoreError> {
         if values.iter().any(|v| !v.is_finite()) {
             return Err(invalid(file, Some(i + 1), "a value is not finite"));
         }
+        // Tools normalise what is near a unit quaternion; a zero one is no rotation at all.
+        if !((qx * qx + qy * qy + qz * qz + qw * qw).sqrt() > 1e-6) {
+            return Err(invalid(file, Some(i + 1), "the quaternion (qx qy qz qw) is zero: it gives no heading"));
+        }
         if let Some((last, _)) = poses.last()
             && t <= *last
         {
@@ -156,6 +160,43 @@ impl DecisionLine {
 struct FusionLine {
     t: f64,
     fusion: Fusion,
+}
+
+/// Refuses a map and associations that cannot be one system's: every landmark of a map was
+/// made from an observation associated with it (or kept when another was fused into it),
+/// so a mapped landmark that no association names means the files do not belong together
+/// (another run's, or ids renumbered in one of them). Associations may name landmarks the
+/// map lacks: systems drop tentative landmarks that were never confirmed.
+pub(super) fn check_map_is_associated(
+    map_file: &Path,
+    map: &[MapLandmark],
+    associations_file: &Path,
+    scans: &[ScanAssociations],
+) -> Result<(), ScoreError> {
+    let mut named = std::collections::HashSet::new();
+    for scan in scans {
+        match &scan.observations {
+            Observations::Beams(o) => named.extend(o.iter().filter_map(|o| o.landmark)),
+            Observations::Ids(o) => named.extend(o.iter().filter_map(|&(_, _, landmark)| landmark)),
+        }
+        named.extend(scan.fusions.iter().flat_map(|f| [f.kept, f.removed]));
+    }
+    let unnamed: Vec<u32> = map.iter().map(|l| l.id).filter(|id| !named.contains(id)).collect();
+    match unnamed.first() {
+        None => Ok(()),
+        Some(first) => Err(invalid(
+            map_file,
+            None,
+            format!(
+                "landmark {first}{} of the map is named by no association in {}: a mapped landmark comes from observations associated with it, so the two files are not one run's",
+                match unnamed.len() {
+                    1 => String::new(),
+                    n => format!(" (and {} more)", n - 1),
+                },
+                associations_file.display()
+            ),
+        )),
+    }
 }
 
 /// One entry of an associations file, before entries are grouped by scan.
@@ -489,6 +530,32 @@ mod tests {
         let poses = read_tum(&file).unwrap();
         assert_eq!(poses[0].1[0..2], [1.5, -2.0]);
         assert!((poses[0].1[2] - std::f64::consts::FRAC_PI_2).abs() < 1e-12);
+        std::fs::write(&file, "0 0 0 0 0 0 0 1\n1 0 0 0 0 0 0 0\n").unwrap();
+        let e = read_tum(&file).unwrap_err().to_string();
+        assert!(e.contains("bad.tum:2") && e.contains("quaternion") && e.contains("zero"), "{e}");
         std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn a_map_landmark_no_association_names_is_an_error_and_unmapped_ids_are_not() {
+        let scan = |t: f64, ids: Vec<Option<u32>>, fusions: Vec<Fusion>| ScanAssociations {
+            line: 1,
+            t,
+            observations: Observations::Ids(ids.into_iter().enumerate().map(|(k, l)| (1, k, l)).collect()),
+            fusions,
+        };
+        let scans = [
+            scan(0.1, vec![Some(0), Some(1), None], vec![]),
+            scan(0.2, vec![Some(7)], vec![Fusion { kept: 0, removed: 1 }]),
+        ];
+        let map = |ids: &[u32]| ids.iter().map(|&id| MapLandmark { id, position: [0.0; 2] }).collect::<Vec<_>>();
+        let (m, a) = (Path::new("map.json"), Path::new("assoc.jsonl"));
+        // 7 was never confirmed: associations may name landmarks the map lacks.
+        check_map_is_associated(m, &map(&[0]), a, &scans).unwrap();
+        let e = check_map_is_associated(m, &map(&[0, 100_000, 100_001]), a, &scans).unwrap_err().to_string();
+        assert!(
+            e.contains("map.json") && e.contains("landmark 100000 (and 1 more)") && e.contains("assoc.jsonl"),
+            "{e}"
+        );
     }
 }

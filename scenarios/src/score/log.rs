@@ -14,8 +14,8 @@ use serde::{Deserialize, Serialize};
 
 pub use super::estimate::read_tum;
 use super::estimate::{
-    Observations, ScanAssociations, beams_outside, read_associations, read_covariances, read_landmarks,
-    scan_observations,
+    Observations, ScanAssociations, beams_outside, check_map_is_associated, read_associations, read_covariances,
+    read_landmarks, scan_observations,
 };
 use super::scorer::{Fusion, RecallBasis, RunScorer, ScoredObservation, VisibilitySettings};
 use super::{AssociationCounts, MapContent};
@@ -397,6 +397,9 @@ pub fn score_log(log: &Path, estimate: &Estimate) -> Result<ScoredMetrics, Score
         Some(file) => Some(read_landmarks(file)?),
         None => None,
     };
+    if let (Some(map), Some(map_file), Some((file, scans))) = (&landmarks, &estimate.landmarks, &associations) {
+        check_map_is_associated(map_file, map, file, scans)?;
+    }
     let scored = scorer.finish(landmarks.as_deref().unwrap_or(&[]));
     let have_map = landmarks.is_some();
     let have_associations = associations.is_some();
