@@ -99,7 +99,11 @@ fn open_parts(dir: &Path) -> Result<OpenLog, LogError> {
                     problem: "scans.csv needs a [laser] table with the beams' geometry".into(),
                 });
             };
-            ObservationRows::Scans(ScanRows { rows: Rows::open(&scans, &[&["t", "..."]])?, laser: laser.clone() })
+            let rows = Rows::open(&scans, &[&["t", "..."]])?;
+            if rows.names.len() < 2 {
+                return Err(LogError::Line { file: scans, line: 1, problem: "no beam column after `t`".into() });
+            }
+            ObservationRows::Scans(ScanRows { rows, laser: laser.clone() })
         }
         (false, true) => ObservationRows::Detections(DetectionRows {
             rows: Rows::open(&detections, &[DETECTION_COLUMNS])?,
@@ -128,6 +132,11 @@ fn open_parts(dir: &Path) -> Result<OpenLog, LogError> {
             });
         }
         read_reference(&reference_file)?
+    } else if manifest.reference.is_some() {
+        return Err(LogError::File {
+            file: dir.join(MANIFEST),
+            problem: "a [reference] table, but no reference.csv holds the samples".into(),
+        });
     } else {
         Vec::new()
     };
@@ -185,10 +194,23 @@ struct Rows {
     names: Vec<String>,
     header: usize,
     previous_t: f64,
+    /// The first row, read when the file is opened (`None`: the file holds its header alone).
+    first: Option<csv::StringRecord>,
 }
 
 impl Rows {
+    /// Opens a file that must hold at least one row.
     fn open(file: &Path, expected: &[&[&str]]) -> Result<Rows, LogError> {
+        let rows = Rows::open_maybe_empty(file, expected)?;
+        if rows.first.is_none() {
+            return Err(LogError::File { file: file.to_path_buf(), problem: "a header and no row".into() });
+        }
+        Ok(rows)
+    }
+
+    /// Opens a file that may hold its header alone (`camera.csv` of a log too short for a
+    /// frame).
+    fn open_maybe_empty(file: &Path, expected: &[&[&str]]) -> Result<Rows, LogError> {
         let mut reader = csv::ReaderBuilder::new()
             .has_headers(true)
             .flexible(true)
@@ -213,17 +235,27 @@ impl Rows {
                     expected.iter().map(|h| format!("`{}`", h.join(","))).collect::<Vec<_>>().join(" or ")
                 ),
             })?;
-        Ok(Rows { file: file.to_path_buf(), reader, names: found, header, previous_t: f64::NEG_INFINITY })
+        if let Some(line) = blank_line_between_rows(file)? {
+            return Err(LogError::Line { file: file.to_path_buf(), line, problem: "a blank line between rows".into() });
+        }
+        let mut first = csv::StringRecord::new();
+        let first = reader.read_record(&mut first).map_err(|e| csv_error(file, e))?.then_some(first);
+        Ok(Rows { file: file.to_path_buf(), reader, names: found, header, previous_t: f64::NEG_INFINITY, first })
     }
 
     /// The next record and its line, with as many cells as the header.
     fn next_record(&mut self) -> Option<Result<(u64, csv::StringRecord), LogError>> {
-        let mut record = csv::StringRecord::new();
-        match self.reader.read_record(&mut record) {
-            Ok(false) => return None,
-            Ok(true) => {}
-            Err(e) => return Some(Err(csv_error(&self.file, e))),
-        }
+        let record = match self.first.take() {
+            Some(record) => record,
+            None => {
+                let mut record = csv::StringRecord::new();
+                match self.reader.read_record(&mut record) {
+                    Ok(false) => return None,
+                    Ok(true) => record,
+                    Err(e) => return Some(Err(csv_error(&self.file, e))),
+                }
+            }
+        };
         let line = record.position().map_or(0, |p| p.line());
         let columns = self.names.len();
         if record.len() != columns {
@@ -277,12 +309,32 @@ impl Rows {
     }
 }
 
+/// The first blank line of `file` that has a row after it: the CSV reader skips blank
+/// lines, so a row lost there would go unseen. Blank lines at the end are left alone.
+fn blank_line_between_rows(file: &Path) -> Result<Option<u64>, LogError> {
+    use std::io::BufRead;
+    let reader = std::io::BufReader::new(fs::File::open(file).map_err(io(file))?);
+    let mut blank = None;
+    for (k, line) in reader.split(b'\n').enumerate() {
+        if line.map_err(io(file))?.iter().all(u8::is_ascii_whitespace) {
+            blank = blank.or(Some(k as u64 + 1));
+        } else if blank.is_some() {
+            return Ok(blank);
+        }
+    }
+    Ok(None)
+}
+
 fn csv_error(file: &Path, e: csv::Error) -> LogError {
     let line = e.position().map(|p| p.line());
+    let problem = match e.kind() {
+        csv::ErrorKind::Utf8 { err, .. } => format!("field {} is not UTF-8 text", err.field() + 1),
+        _ => e.to_string(),
+    };
     match (e.into_kind(), line) {
         (csv::ErrorKind::Io(source), _) => LogError::Io { file: file.to_path_buf(), source },
-        (kind, Some(line)) => LogError::Line { file: file.to_path_buf(), line, problem: format!("{kind:?}") },
-        (kind, None) => LogError::File { file: file.to_path_buf(), problem: format!("{kind:?}") },
+        (_, Some(line)) => LogError::Line { file: file.to_path_buf(), line, problem },
+        (_, None) => LogError::File { file: file.to_path_buf(), problem },
     }
 }
 
@@ -434,7 +486,7 @@ const CAMERA_COLUMNS: &[&str] = &["t", "file"];
 /// `camera.csv`: `t,file` rows, the file relative to the log's directory (or absolute),
 /// each checked to exist; the images themselves are read when needed ([`read_frame`]).
 fn read_camera(file: &Path, dir: &Path) -> Result<Vec<CameraFrameFile>, LogError> {
-    let mut rows = Rows::open(file, &[CAMERA_COLUMNS])?;
+    let mut rows = Rows::open_maybe_empty(file, &[CAMERA_COLUMNS])?;
     let mut frames = Vec::new();
     while let Some(record) = rows.next_record() {
         let (line, record) = record?;
@@ -503,7 +555,22 @@ fn read_reference(file: &Path) -> Result<Vec<ReferenceSample>, LogError> {
 /// times, headings on all reference samples or none, finite numbers).
 pub fn write(dir: &Path, log: &Log) -> Result<(), LogError> {
     // What can be refused is refused before anything is written, and the manifest, without
-    // which nothing reads the directory as a log, is written last.
+    // which nothing reads the directory as a log, is written last. A log has motion and
+    // something seen: the reader refuses data files of a header alone.
+    let motion_messages = match &log.motion {
+        Motion::Increments(v) => v.len(),
+        Motion::Controls(v) => v.len(),
+    };
+    if motion_messages == 0 {
+        return Err(LogError::File { file: dir.join(ODOMETRY), problem: "no motion message to write".into() });
+    }
+    let (seen, file) = match &log.observations {
+        Observations::Scans(s) => (s.len(), SCANS),
+        Observations::Detections(s) => (s.iter().map(|s| s.detections.len()).sum(), DETECTIONS),
+    };
+    if seen == 0 {
+        return Err(LogError::File { file: dir.join(file), problem: "no scan or detection to write".into() });
+    }
     if let Observations::Scans(scans) = &log.observations {
         let beams = scans.first().map_or(0, |s| s.ranges.len());
         if let Some(s) = scans.iter().find(|s| s.ranges.len() != beams) {

@@ -145,6 +145,12 @@ fn malformed_files_are_errors_that_name_file_and_line() {
         ("odometry.csv", "t,dx,dy,dtheta\n0,abc,0,0\n", "odometry.csv:2: column `dx`: `abc` is not a number"),
         ("odometry.csv", "t,dx,dy,dtheta\n0,NaN,0,0\n", "odometry.csv:2: `dx` must be finite"),
         ("odometry.csv", "t,dx,dy,dtheta\n0,1,0\n", "odometry.csv:2: 3 columns, the header has 4"),
+        // A header alone, a blank line where a row was, bytes that are not text.
+        ("odometry.csv", "t,dx,dy,dtheta\n", "odometry.csv: a header and no row"),
+        ("odometry.csv", "t,dx,dy,dtheta\n0,1,0,0\n\n0.2,1,0,0\n", "odometry.csv:3: a blank line between rows"),
+        ("odometry.csv", "t,dx,dy,dtheta\n\n0,1,0,0\n", "odometry.csv:2: a blank line between rows"),
+        ("scans.csv", "t,r0\n", "scans.csv: a header and no row"),
+        ("scans.csv", "t\n0\n", "scans.csv:1: no beam column after `t`"),
         ("odometry.csv", "t,speed,steering\n0,1,0\n", "needs `t,dx,dy,dtheta` or `t,v,omega`"),
         ("scans.csv", "t,r0,r1\n0,1,NaN\n", "scans.csv:2: a range is NaN"),
         ("reference.csv", "t,x,y\n0,1,inf\n", "reference.csv:2: `y` must be finite"),
@@ -189,6 +195,36 @@ fn malformed_files_are_errors_that_name_file_and_line() {
         assert!(e.contains(expected), "{file} with {text:?}: {e}");
         assert!(e.contains(file), "{e} names the file");
     }
+}
+
+#[test]
+fn bytes_that_are_not_text_a_missing_reference_and_an_empty_log_are_errors() {
+    let d = dir("not-text");
+    let log = scan_log(vec![vec![1.0; 7], vec![2.0; 7]], vec![[0.1, 0.0, 0.0]; 3]);
+    robotlog::format::write(&d, &log).unwrap();
+    std::fs::write(d.join("odometry.csv"), b"t,dx,dy,dtheta\n0,1,0,0\n0.99,\xff\xfe,0,0\n").unwrap();
+    let e = robotlog::format::read(&d).unwrap_err().to_string();
+    assert!(e.contains("odometry.csv:3: field 2 is not UTF-8 text"), "{e}");
+    std::fs::remove_dir_all(&d).ok();
+    // The manifest says a reference is there; the file is not.
+    let d = dir("no-reference");
+    let mut with_reference = log.clone();
+    with_reference.manifest.reference = Some(Reference { kind: ReferenceKind::Gps, point: ReferencePoint::Sensor });
+    with_reference.reference = vec![ReferenceSample { t: 0.1, x: 5.0, y: 6.0, theta: None }];
+    robotlog::format::write(&d, &with_reference).unwrap();
+    std::fs::remove_file(d.join("reference.csv")).unwrap();
+    let e = robotlog::format::read(&d).unwrap_err().to_string();
+    assert!(e.contains("manifest.toml") && e.contains("no reference.csv"), "{e}");
+    std::fs::remove_dir_all(&d).ok();
+    // Nothing is written that would be refused on reading: no motion, nothing seen.
+    let d = dir("empty");
+    let no_motion = Log { motion: Motion::Increments(vec![]), ..log.clone() };
+    let e = robotlog::format::write(&d, &no_motion).unwrap_err().to_string();
+    assert!(e.contains("odometry.csv") && e.contains("no motion message"), "{e}");
+    let nothing_seen = Log { observations: Observations::Scans(vec![]), ..log };
+    let e = robotlog::format::write(&d, &nothing_seen).unwrap_err().to_string();
+    assert!(e.contains("scans.csv") && e.contains("no scan or detection"), "{e}");
+    assert!(!d.exists(), "nothing written");
 }
 
 /// A 4x3 camera looking forward from 0.1 m above the sensor: optical z along the sensor's
