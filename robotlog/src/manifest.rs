@@ -221,15 +221,18 @@ impl Manifest {
                 return Err((format!("sensor.{name}"), format!("must be finite, got {v}")));
             }
         }
-        for (name, v) in [
-            ("range_sigma_m", self.sensor.range_sigma_m),
-            ("range_sigma_per_m", self.sensor.range_sigma_per_m),
-            ("bearing_sigma_rad", self.sensor.bearing_sigma_rad),
+        // The filter divides by the noise at any range: the range and bearing terms must be
+        // positive; the per-metre term adds to the range term and may be zero.
+        for (name, v, zero_allowed) in [
+            ("range_sigma_m", self.sensor.range_sigma_m, false),
+            ("range_sigma_per_m", self.sensor.range_sigma_per_m, true),
+            ("bearing_sigma_rad", self.sensor.bearing_sigma_rad, false),
         ] {
             if let Some(v) = v
-                && !(v.is_finite() && v >= 0.0)
+                && !(v.is_finite() && (v > 0.0 || (zero_allowed && v == 0.0)))
             {
-                return Err((format!("sensor.{name}"), format!("must be finite and not negative, got {v}")));
+                let what = if zero_allowed { "finite and not negative" } else { "finite and positive" };
+                return Err((format!("sensor.{name}"), format!("must be {what}, got {v}")));
             }
         }
         if let Some(l) = &self.laser {

@@ -189,6 +189,11 @@ fn malformed_files_are_errors_that_name_file_and_line() {
             "format_version = 1\n[sensor]\nx_m = 0\ny_m = 0\nrange_sigma_m = nan\n",
             "sensor.range_sigma_m: must be finite",
         ),
+        (
+            "manifest.toml",
+            "format_version = 1\n[sensor]\nx_m = 0\ny_m = 0\nrange_sigma_m = 0.0\n",
+            "sensor.range_sigma_m: must be finite and positive, got 0",
+        ),
     ];
     for (file, text, expected) in cases {
         let e = error_with(file, text);

@@ -195,6 +195,11 @@ impl StudyPlan {
                 return Err(bad(format!("method {m:?} given twice")));
             }
         }
+        for (i, v) in self.vary.iter().enumerate() {
+            if self.vary[..i].iter().any(|w| w.param == v.param) {
+                return Err(bad(format!("--vary {} given twice (one --vary per parameter)", v.param)));
+            }
+        }
         let jobs = self
             .vary
             .iter()
@@ -272,6 +277,10 @@ fn set_path(node: &mut toml::Value, parts: &[&str], value: f64) -> Result<(), St
         let new = match table.get(parts[0]) {
             Some(toml::Value::Array(a)) if a.len() == 2 => {
                 toml::Value::Array(vec![toml::Value::Float(value), toml::Value::Float(value)])
+            }
+            // A whole-number setting takes whole numbers (to rounding in the range's steps).
+            Some(toml::Value::Integer(_)) if (value - value.round()).abs() > 1e-9 * value.abs().max(1.0) => {
+                return Err(format!("{} takes whole numbers, not {value}", parts[0]));
             }
             Some(toml::Value::Integer(_)) => toml::Value::Integer(value.round() as i64),
             Some(toml::Value::Float(_)) | None => toml::Value::Float(value),
@@ -1073,6 +1082,26 @@ mod tests {
         let s4 = apply_param(&s, "sim.odometry.k_dd", 0.3).unwrap();
         assert_eq!(s4.sim.odometry.a_dd, 0.3);
         assert_eq!(apply_param(&s, "sim.odometry.a_dd", 0.3).unwrap(), s4);
+        // A whole-number setting takes whole numbers only (1.5 was rounded to 2 before).
+        assert_eq!(apply_param(&s, "pipeline.confirm_observations", 3.0).unwrap().pipeline.confirm_observations, 3);
+        let e = apply_param(&s, "pipeline.confirm_observations", 1.5).unwrap_err().to_string();
+        assert!(e.contains("confirm_observations takes whole numbers, not 1.5"), "{e}");
+    }
+
+    #[test]
+    fn a_parameter_varied_twice_is_refused() {
+        let plan = StudyPlan {
+            scenario: "laser_only".into(),
+            base_seed: 1,
+            runs: 1,
+            methods: vec!["nn".into()],
+            vary: vec![
+                Vary::parse("sim.odometry.scale_sigma=0..0.05:2").unwrap(),
+                Vary::parse("sim.odometry.scale_sigma=0..0.1:2").unwrap(),
+            ],
+        };
+        let e = plan.check().unwrap_err().to_string();
+        assert!(e.contains("--vary sim.odometry.scale_sigma given twice"), "{e}");
     }
 
     #[test]

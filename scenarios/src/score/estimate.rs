@@ -303,9 +303,13 @@ fn read_association_lines(file: &Path) -> Result<Vec<(usize, f64, AssociationEnt
 
 fn csv_invalid(file: &Path, e: csv::Error) -> ScoreError {
     let line = e.position().map(|p| p.line() as usize);
+    let problem = match e.kind() {
+        csv::ErrorKind::Utf8 { err, .. } => format!("field {} is not UTF-8 text", err.field() + 1),
+        _ => e.to_string(),
+    };
     match e.into_kind() {
         csv::ErrorKind::Io(error) => ScoreError::Io { file: file.to_path_buf(), error },
-        kind => invalid(file, line, format!("{kind:?}")),
+        _ => invalid(file, line, problem),
     }
 }
 
@@ -533,6 +537,11 @@ mod tests {
         std::fs::write(&file, "0 0 0 0 0 0 0 1\n1 0 0 0 0 0 0 0\n").unwrap();
         let e = read_tum(&file).unwrap_err().to_string();
         assert!(e.contains("bad.tum:2") && e.contains("quaternion") && e.contains("zero"), "{e}");
+        // A CSV cell that is not text is said so, not dumped as the reader's error value.
+        let csv = dir.join("assoc.csv");
+        std::fs::write(&csv, b"t,observation,landmark\n0.1,0,3\n0.2,\xff,4\n").unwrap();
+        let e = read_associations(&csv).unwrap_err().to_string();
+        assert!(e.contains("assoc.csv:3") && e.contains("field 2 is not UTF-8 text"), "{e}");
         std::fs::remove_dir_all(&dir).ok();
     }
 
