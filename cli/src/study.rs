@@ -31,7 +31,20 @@ pub(crate) fn montecarlo(args: MontecarloArgs) -> Result<()> {
         let rows = mc::summarise(&plan, &runs);
         mc::write_summary(&plan, &rows, &out)?;
         print_summary(&rows);
-        println!("merged {} runs from {} directories into {}", runs.len(), dirs.len(), out.display());
+        let missing = mc::missing_runs(&plan, &runs);
+        println!(
+            "merged {} of the plan's {} runs from {} directories into {}",
+            runs.len(),
+            runs.len() + missing,
+            dirs.len(),
+            out.display()
+        );
+        if missing > 0 {
+            eprintln!(
+                "warning: {missing} planned runs are in none of the directories (a shard not given, or runs not done yet); the summary covers the {} merged",
+                runs.len()
+            );
+        }
         return Ok(());
     }
     if let Some(MontecarloCommand::Rerun { dir, job, out }) = args.command {

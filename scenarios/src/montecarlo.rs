@@ -872,6 +872,13 @@ pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<(StudyPlan, Vec<RunRecord>)
     Ok((plan, runs))
 }
 
+/// How many of `plan`'s runs are not among `runs` (a merge of some of a study's shards,
+/// or of a study not finished).
+pub fn missing_runs(plan: &StudyPlan, runs: &[RunRecord]) -> usize {
+    let present: std::collections::HashSet<&str> = runs.iter().map(|r| r.key.as_str()).collect();
+    jobs(plan).iter().filter(|j| !present.contains(j.key().as_str())).count()
+}
+
 /// One summary row: a method at one set of parameter values.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SummaryRow {

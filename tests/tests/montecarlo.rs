@@ -64,6 +64,12 @@ fn sharded_merged_study_equals_the_unsharded_one_and_resumes() {
     }
     let (merged_plan, merged) = mc::merge(&dirs, &root.join("merged")).unwrap();
     assert_eq!(merged_plan, plan);
+    assert_eq!(mc::missing_runs(&plan, &merged), 0);
+    // Two of the three shards: the third's runs are missing, and said to be.
+    let (_, two) = mc::merge(&dirs[..2], &root.join("merged-two")).unwrap();
+    let third = mc::jobs(&plan).iter().filter(|j| Shard { index: 2, count: 3 }.contains(j)).count();
+    assert!(third > 0 && two.len() + third == merged.len());
+    assert_eq!(mc::missing_runs(&plan, &two), third);
     assert_same(&comparable(&merged), &comparable(&whole));
     let a = mc::summarise(&plan, &whole);
     let b = mc::summarise(&plan, &merged);
