@@ -210,7 +210,9 @@ def table_of(text, prefix):
 def settings_cases(kind, text, file, command):
     cases = []
     for line, table, key, value in numeric_lines(text):
-        for bad in bad_values(table, key, value):
+        # An array one element longer than its field (toml's reader alone drops the extra).
+        longer = [value + [value[-1]]] if isinstance(value, list) else []
+        for bad in bad_values(table, key, value) + longer:
             cases.append(Case(kind, f"{table + '.' if table else ''}{key} = {toml_literal(bad)}",
                               [a.replace("FILE", file) for a in command], [os.path.basename(file), key],
                               {file: edited(text, line, key, bad)}))
@@ -315,7 +317,8 @@ def fixtures(binary, w):
     with open(os.path.join(w, "points.csv"), "w") as fh:
         fh.write("\n".join(rows) + "\n")
     sh(binary, ["gmm", "fit", "points.csv", "--out", "gmm.json", "--max-components", "4"], w)
-    sh(binary, ["record", "park", "--duration", "15", "--format", "log", "--out", "log"], w)
+    # Without camera frames: the robot-log cases replay with `nn`, which reads none.
+    sh(binary, ["record", "park", "--duration", "15", "--format", "log", "--no-camera", "--out", "log"], w)
     sh(binary, ["record", "park", "--duration", "15", "--out", "rec"], w)
     return f
 
@@ -462,6 +465,7 @@ def build_cases(binary, w, kinds):
         ("a ragged row", "x,y\n1,2\n3\n4,5\n"),
         ("an empty cell", "x,y\n1,2\n,3\n4,5\n"),
         ("1e400", "x,y\n1,2\n1e400,3\n4,5\n"),
+        ("1e200, whose square overflows", "x,y\n1,2\n1e200,3\n4,5\n"),
     ]:
         more.append(Case("csv", label, fit, ["data.csv"], {"probe/data.csv": text}))
     more += corrupt_file_cases("csv", read(w, "points.csv"), "probe/data.csv", fit)[2:]
@@ -509,6 +513,11 @@ def build_cases(binary, w, kinds):
     more.append(log_case("odometry short row", odo_name, "\n".join(odo[:5] + [odo[5].rsplit(",", 1)[0]] + odo[6:]) + "\n", "line"))
     more.append(log_case("odometry bad header", odo_name, "\n".join(["t,a,b,c"] + odo[1:]) + "\n", "header"))
     more.append(log_case("odometry empty", odo_name, "", None))
+    more.append(log_case("odometry header alone", odo_name, odo[0] + "\n", None))
+    more.append(log_case("odometry blank line", odo_name, "\n".join(odo[:4] + [""] + odo[5:]) + "\n", "line"))
+    more.append(log_case("odometry not UTF-8", odo_name, ("\n".join(odo[:4]) + "\n").encode() + b"0.99,\xff\xfe,0,0\n", "line"))
+    more.append(log_case("manifest start_pose of 4", "manifest.toml",
+                         re.sub(r"start_pose = \[([^\]]*)\]", r"start_pose = [\1, 0.0]", manifest), "start_pose"))
     if "scans.csv" in log_files:
         scans = log_files["scans.csv"].splitlines()
         cells = scans[3].split(",")
@@ -516,9 +525,12 @@ def build_cases(binary, w, kinds):
         more.append(log_case("scan NaN range", "scans.csv", "\n".join(scans[:3] + [",".join(cells)] + scans[4:]) + "\n", "line"))
         more.append(log_case("scan short row", "scans.csv", "\n".join(scans[:3] + [scans[3].rsplit(",", 5)[0]] + scans[4:]) + "\n", "line"))
         more.append(log_case("scans back in time", "scans.csv", "\n".join([scans[0], scans[2], scans[1]] + scans[3:]) + "\n", "line"))
+        more.append(log_case("scans header alone", "scans.csv", scans[0] + "\n", None))
+        more.append(log_case("scans without beams", "scans.csv", "\n".join(l.split(",")[0] for l in scans) + "\n", "line"))
     if "reference.csv" in log_files:
         ref = log_files["reference.csv"].splitlines()
         more.append(log_case("reference NaN", "reference.csv", "\n".join(ref[:3] + [re.sub(r"^([^,]*),[^,]*", r"\1,nan", ref[3])] + ref[4:]) + "\n", "line"))
+        more.append(log_case("reference table, no reference.csv", "reference.csv", None, "reference"))
     more.append(log_case("pipeline.toml bad gate", "pipeline.toml", "gate_probability = 2.0\n", "gate_probability"))
 
     # Estimates given to `objslam score`.
@@ -528,6 +540,7 @@ def build_cases(binary, w, kinds):
         ("NaN pose", "\n".join(tum[:3] + ["nan " + tum[3].split(" ", 1)[1]] + tum[4:]) + "\n"),
         ("times back", "\n".join([tum[2], tum[1], tum[0]] + tum[3:]) + "\n"),
         ("seven columns", "\n".join(" ".join(l.split()[:7]) for l in tum) + "\n"),
+        ("zero quaternion", "\n".join(tum[:3] + [" ".join(tum[3].split()[:4] + ["0", "0", "0", "0"])] + tum[4:]) + "\n"),
         ("text", "hello world\n"),
         ("empty", ""),
     ]:
@@ -557,6 +570,10 @@ def build_cases(binary, w, kinds):
         (["montecarlo", "laser_only", "--vary", "sim.nothing=0..1:3", "--methods", "nn", "--out", "probe/mc"], "sim.nothing"),
         (["montecarlo", "laser_only", "--methods", ",", "--out", "probe/mc"], "method"),
         (["montecarlo", "laser_only", "--shard", "5/2", "--out", "probe/mc"], "shard"),
+        (["montecarlo", "laser_only", "--methods", "nn", "--vary", "sim.odometry.scale_sigma=0..0.1:2",
+          "--vary", "sim.odometry.scale_sigma=0..0.2:2", "--out", "probe/mc"], "scale_sigma"),
+        (["montecarlo", "laser_only", "--methods", "nn", "--vary", "pipeline.confirm_observations=1.5..2.5:2",
+          "--out", "probe/mc"], "confirm_observations"),
         (["montecarlo", "laser_only", "--jobs", "0", "--out", "probe/mc"], "jobs"),
         (["calibrate", "calibration", "--poses", "1000000000", "--out", "probe/c.json"], "poses"),
         (["dataset", "--preset", "park", "--images", "1000000000", "--out", "probe/ds"], "images"),
