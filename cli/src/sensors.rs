@@ -55,6 +55,9 @@ impl RecordingPlan {
             RecordSource::Scenario(name) => {
                 let (sc, base) = scenarios::scenario::Scenario::load(&name)?;
                 let seed = seed.unwrap_or(sc.seed);
+                // The world and simulator seeds a run of this scenario and seed uses; the
+                // world first, so that a bad one is reported before any training.
+                let world = sc.world(&base, seed)?;
                 let pipeline = scenarios::run::pipeline_config(&sc, None)?;
                 // A log's camera (its method's) comes with the calibration a run is given.
                 let logs_camera = format == scenarios::record::RecordFormat::Log
@@ -77,8 +80,7 @@ impl RecordingPlan {
                     None
                 };
                 Ok(RecordingPlan {
-                    // The world and simulator seeds a run of this scenario and seed uses.
-                    world: sc.world(&base, seed)?,
+                    world,
                     config: sc.sim.clone(),
                     sim_seed: sim::derive_seed(seed, "sim"),
                     scoring: scenarios::score::log::LogScoring::of_scenario(&sc, seed),

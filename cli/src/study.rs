@@ -32,10 +32,10 @@ pub(crate) fn montecarlo(args: MontecarloArgs) -> Result<()> {
         mc::write_summary(&plan, &rows, &out)?;
         print_summary(&rows);
         let missing = mc::missing_runs(&plan, &runs);
+        let planned = mc::jobs(&plan).len();
         println!(
-            "merged {} of the plan's {} runs from {} directories into {}",
-            runs.len(),
-            runs.len() + missing,
+            "merged {} of the plan's {planned} runs from {} directories into {}",
+            planned - missing,
             dirs.len(),
             out.display()
         );

@@ -236,7 +236,11 @@ impl Rows {
                 ),
             })?;
         if let Some(line) = blank_line_between_rows(file)? {
-            return Err(LogError::Line { file: file.to_path_buf(), line, problem: "a blank line between rows".into() });
+            return Err(LogError::Line {
+                file: file.to_path_buf(),
+                line,
+                problem: "a blank line before the last row".into(),
+            });
         }
         let mut first = csv::StringRecord::new();
         let first = reader.read_record(&mut first).map_err(|e| csv_error(file, e))?.then_some(first);
@@ -309,8 +313,9 @@ impl Rows {
     }
 }
 
-/// The first blank line of `file` that has a row after it: the CSV reader skips blank
-/// lines, so a row lost there would go unseen. Blank lines at the end are left alone.
+/// The first blank line of `file` that has a line of text after it (before the header or
+/// between rows): the CSV reader skips blank lines, so a row lost there would go unseen.
+/// Blank lines at the end are left alone.
 fn blank_line_between_rows(file: &Path) -> Result<Option<u64>, LogError> {
     use std::io::BufRead;
     let reader = std::io::BufReader::new(fs::File::open(file).map_err(io(file))?);
@@ -570,6 +575,15 @@ pub fn write(dir: &Path, log: &Log) -> Result<(), LogError> {
     };
     if seen == 0 {
         return Err(LogError::File { file: dir.join(file), problem: "no scan or detection to write".into() });
+    }
+    if matches!(&log.observations, Observations::Scans(s) if s[0].ranges.is_empty()) {
+        return Err(LogError::File { file: dir.join(SCANS), problem: "scans of no beam".into() });
+    }
+    if log.manifest.reference.is_some() && log.reference.is_empty() {
+        return Err(LogError::File {
+            file: dir.join(REFERENCE),
+            problem: "a [reference] table in the manifest, but no reference sample to write".into(),
+        });
     }
     if let Observations::Scans(scans) = &log.observations {
         let beams = scans.first().map_or(0, |s| s.ranges.len());

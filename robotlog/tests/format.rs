@@ -147,8 +147,8 @@ fn malformed_files_are_errors_that_name_file_and_line() {
         ("odometry.csv", "t,dx,dy,dtheta\n0,1,0\n", "odometry.csv:2: 3 columns, the header has 4"),
         // A header alone, a blank line where a row was, bytes that are not text.
         ("odometry.csv", "t,dx,dy,dtheta\n", "odometry.csv: a header and no row"),
-        ("odometry.csv", "t,dx,dy,dtheta\n0,1,0,0\n\n0.2,1,0,0\n", "odometry.csv:3: a blank line between rows"),
-        ("odometry.csv", "t,dx,dy,dtheta\n\n0,1,0,0\n", "odometry.csv:2: a blank line between rows"),
+        ("odometry.csv", "t,dx,dy,dtheta\n0,1,0,0\n\n0.2,1,0,0\n", "odometry.csv:3: a blank line before the last row"),
+        ("odometry.csv", "t,dx,dy,dtheta\n\n0,1,0,0\n", "odometry.csv:2: a blank line before the last row"),
         ("scans.csv", "t,r0\n", "scans.csv: a header and no row"),
         ("scans.csv", "t\n0\n", "scans.csv:1: no beam column after `t`"),
         ("odometry.csv", "t,speed,steering\n0,1,0\n", "needs `t,dx,dy,dtheta` or `t,v,omega`"),
@@ -226,9 +226,16 @@ fn bytes_that_are_not_text_a_missing_reference_and_an_empty_log_are_errors() {
     let no_motion = Log { motion: Motion::Increments(vec![]), ..log.clone() };
     let e = robotlog::format::write(&d, &no_motion).unwrap_err().to_string();
     assert!(e.contains("odometry.csv") && e.contains("no motion message"), "{e}");
-    let nothing_seen = Log { observations: Observations::Scans(vec![]), ..log };
+    let nothing_seen = Log { observations: Observations::Scans(vec![]), ..log.clone() };
     let e = robotlog::format::write(&d, &nothing_seen).unwrap_err().to_string();
     assert!(e.contains("scans.csv") && e.contains("no scan or detection"), "{e}");
+    let no_beams = scan_log(vec![vec![], vec![]], vec![[0.1, 0.0, 0.0]; 3]);
+    let e = robotlog::format::write(&d, &no_beams).unwrap_err().to_string();
+    assert!(e.contains("scans.csv") && e.contains("no beam"), "{e}");
+    let no_samples = Log { reference: vec![], ..log };
+    assert!(no_samples.manifest.reference.is_some());
+    let e = robotlog::format::write(&d, &no_samples).unwrap_err().to_string();
+    assert!(e.contains("reference.csv") && e.contains("no reference sample"), "{e}");
     assert!(!d.exists(), "nothing written");
 }
 

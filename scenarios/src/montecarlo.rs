@@ -196,7 +196,7 @@ impl StudyPlan {
             }
         }
         for (i, v) in self.vary.iter().enumerate() {
-            if self.vary[..i].iter().any(|w| w.param == v.param) {
+            if self.vary[..i].iter().any(|w| todays_spelling(&w.param) == todays_spelling(&v.param)) {
                 return Err(bad(format!("--vary {} given twice (one --vary per parameter)", v.param)));
             }
         }
@@ -259,16 +259,20 @@ pub fn apply_param(scenario: &Scenario, path: &str, value: f64) -> Result<Scenar
         scenario.world.params = Some(Default::default());
     }
     let mut root = toml::Value::try_from(&scenario).map_err(|e| bad(e.to_string()))?;
-    // A key read under a former spelling is written under today's (studies planned with
-    // the former resume).
-    let former = path
-        .strip_prefix("sim.odometry.")
-        .and_then(|key| sim::OdometryConfig::FORMER_SPELLINGS.iter().find(|(old, _)| *old == key).map(|(_, new)| *new));
-    let path = former.map_or_else(|| path.to_string(), |new| format!("sim.odometry.{new}"));
+    let path = todays_spelling(path);
     let parts: Vec<&str> = path.split('.').collect();
     set_path(&mut root, &parts, value).map_err(&bad)?;
     let text = toml::to_string(&root).map_err(|e| bad(e.to_string()))?;
     Scenario::parse(&text, Path::new(&format!("{}[{path}={value}]", scenario.name))).map_err(|e| bad(e.to_string()))
+}
+
+/// A parameter's path under today's spelling: a key read under a former spelling is
+/// written under today's (studies planned with the former resume).
+fn todays_spelling(path: &str) -> String {
+    let former = path
+        .strip_prefix("sim.odometry.")
+        .and_then(|key| sim::OdometryConfig::FORMER_SPELLINGS.iter().find(|(old, _)| *old == key).map(|(_, new)| *new));
+    former.map_or_else(|| path.to_string(), |new| format!("sim.odometry.{new}"))
 }
 
 fn set_path(node: &mut toml::Value, parts: &[&str], value: f64) -> Result<(), String> {
@@ -875,7 +879,9 @@ pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<(StudyPlan, Vec<RunRecord>)
 /// How many of `plan`'s runs are not among `runs` (a merge of some of a study's shards,
 /// or of a study not finished).
 pub fn missing_runs(plan: &StudyPlan, runs: &[RunRecord]) -> usize {
-    let present: std::collections::HashSet<&str> = runs.iter().map(|r| r.key.as_str()).collect();
+    // A run recorded as retryable is to be run again: not done.
+    let present: std::collections::HashSet<&str> =
+        runs.iter().filter(|r| !r.retryable).map(|r| r.key.as_str()).collect();
     jobs(plan).iter().filter(|j| !present.contains(j.key().as_str())).count()
 }
 
@@ -1109,6 +1115,13 @@ mod tests {
         };
         let e = plan.check().unwrap_err().to_string();
         assert!(e.contains("--vary sim.odometry.scale_sigma given twice"), "{e}");
+        // Under a former spelling and today's, it is one parameter.
+        let vary = vec![
+            Vary::parse("sim.odometry.k_dd=0..0.1:2").unwrap(),
+            Vary::parse("sim.odometry.a_dd=0..0.2:2").unwrap(),
+        ];
+        let e = StudyPlan { vary, ..plan }.check().unwrap_err().to_string();
+        assert!(e.contains("--vary sim.odometry.a_dd given twice"), "{e}");
     }
 
     #[test]

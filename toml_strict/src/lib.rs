@@ -51,15 +51,33 @@ pub fn from_str<T: DeserializeOwned>(text: &str) -> Result<T, TomlError> {
         message: e.message().to_string(),
         rendered: Some(e.to_string()),
     })?;
-    // The text parsed above, so it parses as a table too.
-    let table: toml::Table = toml::from_str(text).map_err(|e| TomlError {
-        line: None,
+    // The text parsed above, so it parses as a document too.
+    let document = DeTable::parse(text).map_err(|e| TomlError {
+        line: e.span().map(|s| line_at(text, s.start)),
         key: None,
         message: e.message().to_string(),
         rendered: Some(e.to_string()),
     })?;
-    from_value::<T>(toml::Value::Table(table), text, &[])?;
+    from_value::<T>(value_of(&DeValue::Table(document.into_inner())), text, &[])?;
     Ok(first)
+}
+
+/// A parsed document as a `toml::Value`, for the second pass. An integer past i64 (which
+/// `toml::Value` cannot hold: `toml::Table` refuses such a text) can only be meant for a
+/// u64 field, whose value the first pass has read; 0 stands in for it, which every u64
+/// field takes, so only the arrays' lengths are judged again.
+fn value_of(v: &DeValue) -> toml::Value {
+    match v {
+        DeValue::String(s) => toml::Value::String(s.to_string()),
+        DeValue::Integer(i) => toml::Value::Integer(i64::from_str_radix(i.as_str(), i.radix()).unwrap_or(0)),
+        DeValue::Float(f) => toml::Value::Float(f.as_str().parse().unwrap_or(0.0)),
+        DeValue::Boolean(b) => toml::Value::Boolean(*b),
+        DeValue::Datetime(d) => toml::Value::Datetime(*d),
+        DeValue::Array(a) => toml::Value::Array(a.iter().map(|v| value_of(v.get_ref())).collect()),
+        DeValue::Table(t) => {
+            toml::Value::Table(t.iter().map(|(k, v)| (k.get_ref().to_string(), value_of(v.get_ref()))).collect())
+        }
+    }
 }
 
 /// Deserialises a `toml::Value` (which refuses extra array elements); a refusal is located
@@ -141,6 +159,8 @@ mod tests {
     struct Mount {
         xyz_m: [f64; 3],
         #[serde(default)]
+        seed: u64,
+        #[serde(default)]
         inner: Option<Inner>,
     }
 
@@ -174,7 +194,26 @@ mod tests {
         let text = "xyz_m = [1, 2]\n";
         assert_eq!(from_str::<Mount>(text).unwrap_err().line, Some(1));
         let m: Mount = from_str("xyz_m = [1, 2, 3.5]\n[inner]\npairs = [[1, 2]]\n").unwrap();
-        assert_eq!(m, Mount { xyz_m: [1.0, 2.0, 3.5], inner: Some(Inner { pairs: vec![[1, 2]] }) });
+        assert_eq!(m, Mount { xyz_m: [1.0, 2.0, 3.5], seed: 0, inner: Some(Inner { pairs: vec![[1, 2]] }) });
+        // A u64 past i64 (a seed), which toml::Value cannot hold, is read as toml reads it.
+        let m: Mount = from_str("seed = 18446744073709551615\nxyz_m = [1, 2, 3]\n").unwrap();
+        assert_eq!(m.seed, u64::MAX);
+        let e = from_str::<Mount>("seed = 9223372036854775808\nxyz_m = [1, 2, 3, 4]\n").unwrap_err();
+        assert_eq!((e.line, e.key.as_deref()), (Some(2), Some("xyz_m")), "{e}");
+        // Every kind of value passes the second reading.
+        #[derive(Debug, serde::Deserialize)]
+        #[allow(dead_code)]
+        struct Kinds {
+            s: String,
+            f: f64,
+            nan: f64,
+            b: bool,
+            d: toml::value::Datetime,
+            h: i64,
+        }
+        let k: Kinds =
+            from_str("s = \"x\"\nf = -1.5e3\nnan = nan\nb = true\nd = 1979-05-27T07:32:00Z\nh = 0xff\n").unwrap();
+        assert!(k.nan.is_nan() && k.h == 255);
     }
 
     #[test]

@@ -32,16 +32,20 @@ pub fn read_tum(file: &Path) -> Result<Vec<(f64, [f64; 3])>, ScoreError> {
         if values.iter().any(|v| !v.is_finite()) {
             return Err(invalid(file, Some(i + 1), "a value is not finite"));
         }
-        // Tools normalise what is near a unit quaternion; a zero one is no rotation at all.
-        if !((qx * qx + qy * qy + qz * qz + qw * qw).sqrt() > 1e-6) {
+        // A quaternion q stands for the rotation of q / |q| (as other tools read it); one
+        // already of unit length to rounding is used as written, so that a run's own file
+        // scores to the last bit. A zero one is no rotation at all.
+        let norm = (qx * qx + qy * qy + qz * qz + qw * qw).sqrt();
+        if !(norm > 1e-6) {
             return Err(invalid(file, Some(i + 1), "the quaternion (qx qy qz qw) is zero: it gives no heading"));
         }
+        let q = if (norm - 1.0).abs() > 1e-9 { [qx, qy, qz, qw].map(|v| v / norm) } else { [qx, qy, qz, qw] };
         if let Some((last, _)) = poses.last()
             && t <= *last
         {
             return Err(invalid(file, Some(i + 1), format!("timestamp {t} does not follow {last}")));
         }
-        poses.push((t, [x, y, super::scorer::yaw_of_quaternion([qx, qy, qz, qw])]));
+        poses.push((t, [x, y, super::scorer::yaw_of_quaternion(q)]));
     }
     if poses.is_empty() {
         return Err(invalid(file, None, "no pose"));
@@ -534,6 +538,9 @@ mod tests {
         let poses = read_tum(&file).unwrap();
         assert_eq!(poses[0].1[0..2], [1.5, -2.0]);
         assert!((poses[0].1[2] - std::f64::consts::FRAC_PI_2).abs() < 1e-12);
+        // A scaled quaternion is the rotation of its unit one.
+        std::fs::write(&file, "0 0 0 0 0 0 0.001 0.001\n").unwrap();
+        assert!((read_tum(&file).unwrap()[0].1[2] - std::f64::consts::FRAC_PI_2).abs() < 1e-12);
         std::fs::write(&file, "0 0 0 0 0 0 0 1\n1 0 0 0 0 0 0 0\n").unwrap();
         let e = read_tum(&file).unwrap_err().to_string();
         assert!(e.contains("bad.tum:2") && e.contains("quaternion") && e.contains("zero"), "{e}");

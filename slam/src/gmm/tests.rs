@@ -294,12 +294,19 @@ fn bad_data_and_options_are_clear_errors() {
     assert_eq!(fit(&data, None, &VbOptions::default()).unwrap_err(), GmmError::NotFinite { row: 4, column: 1 });
     // Finite, but its square overflows: refused before any search (the k-means++ start
     // drew from an infinite total and panicked).
-    let mut huge = DMatrix::from_row_slice(3, 2, &[1.0, 2.0, 1e155, 3.0, 4.0, 5.0]);
-    let e = fit(&huge, None, &VbOptions::default()).unwrap_err();
-    assert_eq!(e, GmmError::TooLarge { column: 0, largest: 1e155 });
-    assert!(e.to_string().contains("column 0") && e.to_string().contains("rescale"), "{e}");
-    huge[(1, 0)] = 1e150;
-    fit(&huge, None, &VbOptions::default()).expect("squares of 1e150 are finite");
+    // Both searches, the pruning one from k-means++ seeds.
+    for search in [Search::Grow, Search::Prune] {
+        let options = VbOptions { search, max_components: 3, ..Default::default() };
+        let mut huge = DMatrix::from_row_slice(3, 2, &[1.0, 2.0, 1e155, 3.0, 4.0, 5.0]);
+        let e = fit(&huge, None, &options).unwrap_err();
+        assert_eq!(e, GmmError::TooLarge { column: 0, largest: 1e155 });
+        assert!(e.to_string().contains("column 0") && e.to_string().contains("rescale"), "{e}");
+        huge[(1, 0)] = 1e150;
+        fit(&huge, None, &options).expect("squares of 1e150 are finite");
+        // Each square and each column's sum finite, the sum of all squared distances not.
+        let spread = DMatrix::from_column_slice(4, 1, &[-5e153, -5e153, 5e153, 5e153]);
+        assert!(matches!(fit(&spread, None, &options).unwrap_err(), GmmError::TooLarge { column: 0, .. }));
+    }
     let ok = DMatrix::from_fn(10, 2, |i, j| (i + j) as f64);
     assert!(matches!(
         fit(&ok, None, &VbOptions { max_components: 0, ..Default::default() }),

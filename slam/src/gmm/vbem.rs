@@ -119,8 +119,10 @@ pub(crate) struct Stats {
 }
 
 /// Validates a data matrix: at least one point, at least one dimension, all finite, and
-/// small enough that the fit's sums of squares and squared distances between points stay
-/// finite (finite values near 1e155 square past f64's range).
+/// small enough that the fit's sums stay finite: every point's squared distance to every
+/// other, summed over the points (k-means++ draws its seeds from such a sum), is at most
+/// N times the squared extent of the data's bounding box, and each column's sum of
+/// squares must be finite too. Values near 1e154 break this, fewer the more points.
 pub(crate) fn check_data(data: &DMatrix<f64>) -> Result<(), GmmError> {
     if data.nrows() == 0 || data.ncols() == 0 {
         return Err(GmmError::NoData);
@@ -129,11 +131,13 @@ pub(crate) fn check_data(data: &DMatrix<f64>) -> Result<(), GmmError> {
         let n = data.nrows();
         return Err(GmmError::NotFinite { row: pos % n, column: pos / n });
     }
-    let d = data.ncols() as f64;
+    let n = data.nrows() as f64;
+    let mut extent2 = 0.0;
     for (column, values) in data.column_iter().enumerate() {
         let sum_of_squares: f64 = values.iter().map(|v| v * v).sum();
         let range = values.max() - values.min();
-        if !(sum_of_squares.is_finite() && (d * range * range).is_finite()) {
+        extent2 += range * range;
+        if !(sum_of_squares.is_finite() && (n * extent2).is_finite()) {
             let largest = values.iter().fold(0.0f64, |m, v| m.max(v.abs()));
             return Err(GmmError::TooLarge { column, largest });
         }
