@@ -1,8 +1,10 @@
 //! Output files written line by line as a run or a replay goes, so that their size costs
 //! no memory. Each is written under a `.partial` name and renamed into place when the run
 //! has finished, so that a run that fails on the way leaves the directory's earlier
-//! outputs whole (its partial files are removed). A failure while the final outputs are
-//! written can still leave new files beside old ones.
+//! outputs whole (its partial files are removed). A run writes them in its unfinished
+//! directory, with its other outputs (see `run::outputs`); a replay writes them beside its
+//! earlier outputs, where a failure while its final outputs are written can still leave
+//! new files beside old ones.
 
 use std::fs::File;
 use std::io::{BufWriter, Write};

@@ -28,7 +28,7 @@ use crate::scenario::{Scenario, ScenarioError};
 use crate::score::scorer::{MapLandmark, RecallBasis, RunScorer, VisibilitySettings};
 use events::EventSource;
 use online::RunLoop;
-use outputs::{FinishedRun, clear_stale_outputs, write_outputs};
+use outputs::{FinishedRun, publish_outputs, start_unfinished, write_outputs};
 
 /// Errors of a run.
 #[derive(Debug, thiserror::Error)]
@@ -68,6 +68,10 @@ pub enum RunError {
     /// Several outputs at a run's end could not be written (each was tried).
     #[error("{} outputs could not be written: {}", .0.len(), join_errors(.0))]
     Outputs(Vec<RunError>),
+    /// A run's outputs could not all be written, so none replaced the directory's own: those
+    /// written are in `dir`, the earlier outputs are as they were.
+    #[error("{source}; the outputs written are in {}, and the directory's earlier outputs are unchanged", dir.display())]
+    Unpublished { dir: PathBuf, source: Box<RunError> },
     #[error(transparent)]
     Calibration(#[from] crate::calibrate::CalibrateError),
     #[error(transparent)]
@@ -375,7 +379,7 @@ pub fn run(
 
     // The loop.
     let streams = match &options.out {
-        Some(out) => Some(outputs::stream_outputs(out, sim_config.camera.enabled, camera_method)?),
+        Some(out) => Some(outputs::stream_outputs(&start_unfinished(out)?, sim_config.camera.enabled, camera_method)?),
         None => None,
     };
     let spent_frames = sim.camera_frame_pool();
@@ -472,9 +476,12 @@ pub fn run(
 
     // Write.
     if let Some(out) = &options.out {
-        clear_stale_outputs(out)?;
+        // Everything is written into the unfinished directory first and moved into `out`
+        // only when all of it was written: a run stopped or failing here leaves `out`'s
+        // earlier outputs whole, never a mix of two runs.
+        let unfinished = outputs::unfinished_dir(out);
         if let Some(report) = &calibration.report {
-            report.write(&out.join("calibration.json"))?;
+            report.write(&unfinished.join("calibration.json"))?;
         }
         let scoring = crate::score::log::LogScoring::of_run(scenario, seed, &config);
         let finished = FinishedRun {
@@ -487,7 +494,9 @@ pub fn run(
             sim_config: &sim_config,
             scoring: &scoring,
         };
-        write_outputs(out, &finished, streams.expect("a run with outputs streams them"))?;
+        write_outputs(&unfinished, &finished, streams.expect("a run with outputs streams them"))
+            .map_err(|e| RunError::Unpublished { dir: unfinished.clone(), source: Box::new(e) })?;
+        publish_outputs(&unfinished, out)?;
     }
     Ok(RunOutcome { metrics, resolved })
 }

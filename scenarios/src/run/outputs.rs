@@ -1,7 +1,7 @@
 //! The files a run writes: metrics, trajectories, the map, decisions, logs and plots.
 
 use std::collections::HashMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use serde_json::json;
 use slam::pipeline::Pipeline;
@@ -84,7 +84,7 @@ pub(super) fn stream_outputs(out: &Path, camera: bool, camera_method: bool) -> R
 /// this one's. The other outputs every run rewrites.
 const CONDITIONAL_OUTPUTS: [&str; 4] = ["calibration.json", "segmentation.jsonl", "objects", "trees_shown.jsonl"];
 
-pub(super) fn clear_stale_outputs(out: &Path) -> Result<(), RunError> {
+fn clear_stale_outputs(out: &Path) -> Result<(), RunError> {
     for name in CONDITIONAL_OUTPUTS {
         let path = out.join(name);
         let removed = if path.is_dir() { std::fs::remove_dir_all(&path) } else { std::fs::remove_file(&path) };
@@ -94,6 +94,56 @@ pub(super) fn clear_stale_outputs(out: &Path) -> Result<(), RunError> {
         }
     }
     Ok(())
+}
+
+/// Where a run into `out` writes its outputs until all of them are written.
+pub(super) fn unfinished_dir(out: &Path) -> PathBuf {
+    out.join(".unfinished")
+}
+
+/// Makes `out`'s unfinished directory anew (an earlier run stopped on the way may have
+/// left one) and returns it.
+pub(super) fn start_unfinished(out: &Path) -> Result<PathBuf, RunError> {
+    let dir = unfinished_dir(out);
+    match std::fs::remove_dir_all(&dir) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(RunError::Io { file: dir, source: e }),
+        _ => {}
+    }
+    std::fs::create_dir_all(&dir).map_err(|source| RunError::Io { file: dir.clone(), source })?;
+    Ok(dir)
+}
+
+/// Moves a finished run's outputs from `unfinished` into `out`, each replacing the file (or
+/// `objects/`) of the same name, after removing what an earlier run wrote that this one
+/// does not. A file that cannot be moved stops no other; every failure is reported, and
+/// what was not moved stays in `unfinished`.
+pub(super) fn publish_outputs(unfinished: &Path, out: &Path) -> Result<(), RunError> {
+    clear_stale_outputs(out)?;
+    fn io(file: &Path) -> impl FnOnce(std::io::Error) -> RunError + '_ {
+        move |source| RunError::Io { file: file.to_path_buf(), source }
+    }
+    let mut errors = Vec::new();
+    let entries = std::fs::read_dir(unfinished).map_err(io(unfinished))?;
+    for entry in entries {
+        let entry = entry.map_err(io(unfinished))?;
+        let (from, to) = (entry.path(), out.join(entry.file_name()));
+        let moved = if to.is_dir() && !from.is_dir() {
+            Err(std::io::Error::other(format!(
+                "a directory stands where the run's file goes (kept in {})",
+                from.display()
+            )))
+        } else {
+            if to.is_dir() {
+                std::fs::remove_dir_all(&to).map_err(io(&to))?;
+            }
+            std::fs::rename(&from, &to)
+        };
+        errors.extend(moved.err().map(|source| RunError::Io { file: to, source }));
+    }
+    if errors.is_empty() {
+        std::fs::remove_dir(unfinished).map_err(io(unfinished))?;
+    }
+    super::first_or_all(errors, RunError::Outputs)
 }
 
 /// What a finished run writes out.
@@ -303,4 +353,46 @@ fn write_mcap(out: &Path, run: &FinishedRun) -> Result<(), RunError> {
     )?;
     mcap.finish()?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn finished_outputs_replace_the_earlier_ones_whole_and_a_directory_in_the_way_is_named() {
+        let out = std::env::temp_dir().join(format!("objslam-publish-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&out);
+        // An earlier camera run's outputs, and a file of the user's.
+        std::fs::create_dir_all(out.join("objects")).unwrap();
+        for (name, text) in
+            [("metrics.json", "old"), ("segmentation.jsonl", "old"), ("objects/a.png", "old"), ("notes.txt", "mine")]
+        {
+            std::fs::write(out.join(name), text).unwrap();
+        }
+        // This run (no camera method): written whole into the unfinished directory first.
+        let unfinished = start_unfinished(&out).unwrap();
+        std::fs::write(unfinished.join("metrics.json"), "new").unwrap();
+        std::fs::write(unfinished.join("landmarks.json"), "new").unwrap();
+        assert_eq!(std::fs::read_to_string(out.join("metrics.json")).unwrap(), "old", "unchanged until published");
+        publish_outputs(&unfinished, &out).unwrap();
+        assert_eq!(std::fs::read_to_string(out.join("metrics.json")).unwrap(), "new");
+        assert_eq!(std::fs::read_to_string(out.join("landmarks.json")).unwrap(), "new");
+        assert!(
+            !out.join("segmentation.jsonl").exists() && !out.join("objects").exists(),
+            "an earlier run's own outputs go"
+        );
+        assert_eq!(std::fs::read_to_string(out.join("notes.txt")).unwrap(), "mine");
+        assert!(!unfinished.exists());
+        // A directory where a file goes: named, the other files moved, that one kept.
+        let unfinished = start_unfinished(&out).unwrap();
+        std::fs::create_dir_all(out.join("map.png")).unwrap();
+        std::fs::write(unfinished.join("map.png"), "picture").unwrap();
+        std::fs::write(unfinished.join("metrics.json"), "newer").unwrap();
+        let e = publish_outputs(&unfinished, &out).unwrap_err().to_string();
+        assert!(e.contains("map.png") && e.contains("a directory stands where"), "{e}");
+        assert_eq!(std::fs::read_to_string(out.join("metrics.json")).unwrap(), "newer");
+        assert_eq!(std::fs::read_to_string(unfinished.join("map.png")).unwrap(), "picture");
+        std::fs::remove_dir_all(&out).ok();
+    }
 }
