@@ -110,7 +110,7 @@ fn import(
     worlds::parse(&text, out).context("the world with the mesh added is not valid; nothing was written")?;
     std::fs::write(out, text).with_context(|| format!("{}: cannot write", out.display()))?;
     let added = w.objects.last().expect("just added");
-    eprintln!("added {} {id} at ({x}, {y}) with {:?} -> {}", class.name(), added.shape, out.display());
+    eprintln!("added {} {id} at ({x}, {y}), {} -> {}", class.name(), added.shape.describe(), out.display());
     Ok(())
 }
 

@@ -242,6 +242,20 @@ fn an_output_that_cannot_be_written_is_named_and_the_others_are_kept() {
     }
 }
 
+/// A bag in the run's own output directory is refused before anything is written (its
+/// files would sit among the run's, and the next run could not write its bag).
+#[test]
+fn a_bag_in_the_runs_output_directory_is_refused() {
+    let dir = std::env::temp_dir().join(format!("objslam-run-bag-out-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let (mut sc, base) = Scenario::load("laser_only").unwrap();
+    sc.sim.max_duration_s = Some(2.0);
+    let same = RunOptions { out: Some(dir.clone()), bag: Some(dir.join(".")), ..Default::default() };
+    let e = run(&sc, &base, &same, |_| {}).err().expect("refused").to_string();
+    assert!(e.contains("--bag") && e.contains("output directory"), "{e}");
+    assert!(!dir.exists(), "nothing written");
+}
+
 /// `objslam run --bag` writes the run's own sensor stream as a ROS 2 bag: a scan message
 /// per scan the pipeline took, whole camera frames, and the same metrics as without it.
 #[test]

@@ -276,6 +276,25 @@ impl BoardFrame {
 }
 
 impl Shape {
+    /// The shape in words, for people: its kind and sizes in metres.
+    pub fn describe(&self) -> String {
+        match *self {
+            Shape::Trunk { radius_m, height_m, canopy_radius_m, canopy_height_m } => format!(
+                "a trunk of radius {radius_m:.3} m and height {height_m:.2} m under a canopy of radius {canopy_radius_m:.2} m and height {canopy_height_m:.2} m"
+            ),
+            Shape::Palm { radius_m, height_m, crown_radius_m } => format!(
+                "a palm trunk of radius {radius_m:.3} m and height {height_m:.2} m under a crown of radius {crown_radius_m:.2} m"
+            ),
+            Shape::Post { radius_m, height_m } => {
+                format!("a post of radius {radius_m:.3} m and height {height_m:.2} m")
+            }
+            Shape::Wall { length_m, thickness_m, height_m } => {
+                format!("a wall {length_m:.2} m long, {thickness_m:.2} m thick and {height_m:.2} m high")
+            }
+            Shape::Board { width_m, height_m, .. } => format!("a board {width_m:.2} m wide and {height_m:.2} m high"),
+        }
+    }
+
     pub fn kind(&self) -> &'static str {
         match self {
             Shape::Trunk { .. } => "trunk",
@@ -624,6 +643,17 @@ impl World {
 mod tests {
     use super::*;
     use proptest::prelude::*;
+
+    #[test]
+    fn shapes_are_described_in_words() {
+        assert_eq!(
+            Shape::Post { radius_m: 0.1, height_m: 2.0 }.describe(),
+            "a post of radius 0.100 m and height 2.00 m"
+        );
+        let tree =
+            Shape::Trunk { radius_m: 1.0, height_m: 1.6666666666666667, canopy_radius_m: 1.0, canopy_height_m: 0.5 };
+        assert!(tree.describe().starts_with("a trunk of radius 1.000 m and height 1.67 m"), "{}", tree.describe());
+    }
 
     proptest! {
         /// The exact segment-to-rectangle distance agrees with a dense sampling of the

@@ -45,7 +45,7 @@ pub fn extent(mesh: &TriMesh) -> Result<MeshExtent, String> {
         }
     }
     if !(e.top_m > 0.0) {
-        return Err("the mesh has no vertex above the ground (z up, origin on the ground)".into());
+        return Err("the mesh has no vertex above the ground (glTF's +y is up, the origin on the ground)".into());
     }
     if in_base == 0 {
         return Err(format!(

@@ -72,6 +72,8 @@ pub enum RunError {
     /// written are in `dir`, the earlier outputs are as they were.
     #[error("{source}; the outputs written are in {}, and the directory's earlier outputs are unchanged", dir.display())]
     Unpublished { dir: PathBuf, source: Box<RunError> },
+    #[error("--bag {}: it is the run's output directory; a bag needs a directory of its own", .0.display())]
+    BagInOutputs(PathBuf),
     #[error(transparent)]
     Calibration(#[from] crate::calibrate::CalibrateError),
     #[error(transparent)]
@@ -373,6 +375,11 @@ pub fn run(
         render_only_read_regions(&mut sim, &pipeline, &scorer, &config, &sim_config);
     }
     let mut bag = match &options.bag {
+        // The bag's own files would sit among the run's, and the next run could not write
+        // its bag (a bag directory must be new or empty).
+        Some(dir) if options.out.as_ref().is_some_and(|out| same_path(out, dir)) => {
+            return Err(RunError::BagInOutputs(dir.clone()));
+        }
         Some(dir) => Some(crate::ros2::Ros2Recorder::create(dir, &sim_config)?),
         None => None,
     };
@@ -499,6 +506,13 @@ pub fn run(
         publish_outputs(&unfinished, out)?;
     }
     Ok(RunOutcome { metrics, resolved })
+}
+
+/// Whether two paths name the same place (made absolute, `.` and `..` resolved where they
+/// exist).
+fn same_path(a: &Path, b: &Path) -> bool {
+    let resolve = |p: &Path| p.canonicalize().or_else(|_| std::path::absolute(p)).unwrap_or_else(|_| p.to_path_buf());
+    resolve(a) == resolve(b)
 }
 
 /// The appearance model a camera method needs: the one given, or the scenario's (trained on
