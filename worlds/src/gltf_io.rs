@@ -166,8 +166,44 @@ fn glb_bytes(root: &Value, bin: &[u8]) -> Vec<u8> {
 /// Loads every triangle primitive of a glTF/.glb file into one z-up mesh, applying the
 /// node transforms. Errors are strings for embedding in [`WorldError`].
 pub fn import_mesh(path: &Path) -> Result<TriMesh, String> {
+    check_files(path)?;
     let (doc, buffers, _images) = gltf::import(path).map_err(|e| e.to_string())?;
     import_document(&doc, &buffers)
+}
+
+/// Refuses a mesh file, or a buffer it names, that is not a regular file (a device such
+/// as /dev/zero is read without end) or that is shorter than the buffer's `byteLength`.
+fn check_files(path: &Path) -> Result<(), String> {
+    let regular = |p: &Path| std::fs::metadata(p).map(|m| m.is_file().then_some(m.len()));
+    match regular(path) {
+        Ok(Some(_)) => {}
+        Ok(None) => return Err("not a regular file".into()),
+        Err(e) => return Err(e.to_string()),
+    }
+    // The JSON (or the .glb's JSON chunk) alone, to see which files its buffers name.
+    let gltf = gltf::Gltf::open(path).map_err(|e| e.to_string())?;
+    let base = path.parent().unwrap_or(Path::new("."));
+    for buffer in gltf.buffers() {
+        let gltf::buffer::Source::Uri(uri) = buffer.source() else { continue };
+        // Embedded data, or a percent-encoded name (which the importer decodes): left to it.
+        if uri.starts_with("data:") || uri.contains('%') {
+            continue;
+        }
+        let file = base.join(uri);
+        match regular(&file) {
+            Ok(Some(len)) if len >= buffer.length() as u64 => {}
+            Ok(Some(len)) => {
+                return Err(format!(
+                    "buffer {} ({uri}): the file holds {len} bytes, the buffer's byteLength says {}",
+                    buffer.index(),
+                    buffer.length()
+                ));
+            }
+            Ok(None) => return Err(format!("buffer {} ({uri}): not a regular file", buffer.index())),
+            Err(e) => return Err(format!("buffer {} ({uri}): {e}", buffer.index())),
+        }
+    }
+    Ok(())
 }
 
 /// Like [`import_mesh`] for bytes already in memory.
@@ -332,6 +368,26 @@ mod tests {
             assert!((lo[k] - ilo[k]).abs() < 1e-3 || k == 2, "min[{k}] {} vs {}", lo[k], ilo[k]);
             assert!((hi[k] - ihi[k]).abs() < 1e-3, "max[{k}] {} vs {}", hi[k], ihi[k]);
         }
+    }
+
+    #[test]
+    fn a_buffer_that_is_not_a_regular_file_or_shorter_than_declared_is_refused() {
+        let dir = std::env::temp_dir().join(format!("objslam-gltf-buffers-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("mesh.gltf");
+        let with_buffer = |uri: &str, length: usize| {
+            let doc = serde_json::json!({"asset": {"version": "2.0"}, "buffers": [{"uri": uri, "byteLength": length}]});
+            std::fs::write(&file, serde_json::to_vec(&doc).unwrap()).unwrap();
+            import_mesh(&file).unwrap_err()
+        };
+        // A device is read without end (it took memory until killed).
+        let e = with_buffer("/dev/zero", 1_000_000_000);
+        assert!(e.contains("buffer 0 (/dev/zero): not a regular file"), "{e}");
+        std::fs::write(dir.join("small.bin"), [0u8; 10]).unwrap();
+        let e = with_buffer("small.bin", 1000);
+        assert!(e.contains("holds 10 bytes") && e.contains("1000"), "{e}");
+        assert_eq!(import_mesh(&dir).unwrap_err(), "not a regular file");
+        std::fs::remove_dir_all(&dir).ok();
     }
 
     #[test]
