@@ -163,12 +163,19 @@ pub(crate) fn dataset(
         }
         (Some(_), Some(_)) => anyhow::bail!("give either --world or --preset"),
     };
+    // The camera is aimed at standing objects; people and leaves appear in the images and
+    // their masks where they are, but are not aimed at.
+    const AIMED: [&str; 5] = ["tree", "palm", "post", "wall", "checkerboard"];
     let classes = classes
         .split(',')
-        .map(|c| {
-            worlds::ObjectClass::from_name(c.trim()).ok_or_else(|| {
-                anyhow::anyhow!("unknown class {c:?}; classes: tree, palm, post, wall, person, checkerboard")
-            })
+        .map(|c| match worlds::ObjectClass::from_name(c.trim()) {
+            Some(class) if AIMED.contains(&c.trim()) => Ok(class),
+            Some(_) => Err(anyhow::anyhow!(
+                "--classes: {:?} is not aimed at (people and leaves are in the images and masks where they are); classes: {}",
+                c.trim(),
+                AIMED.join(", ")
+            )),
+            None => Err(anyhow::anyhow!("--classes: unknown class {c:?}; classes: {}", AIMED.join(", "))),
         })
         .collect::<Result<Vec<_>>>()?;
     let config = scenarios::dataset::DatasetConfig { images, seed, classes, patch_size, ..Default::default() };

@@ -21,6 +21,11 @@ fn negative_numbers_are_values_checked_like_any_other() {
         (vec!["run", "--seed", "-1"], "invalid value '-1' for '--seed <SEED>'"),
         (vec!["montecarlo", "laser_only", "--runs", "-3"], "invalid value '-3' for '--runs <RUNS>'"),
         (vec!["run", "--method", "bogus"], "invalid value 'bogus' for '--method <METHOD>'"),
+        (
+            vec!["dataset", "--images", "1", "--classes", "tree,person", "--out", out],
+            "--classes: \"person\" is not aimed at",
+        ),
+        (vec!["dataset", "--images", "1", "--classes", "oak", "--out", out], "--classes: unknown class \"oak\""),
         (vec!["montecarlo", "laser_only", "--methods", "nn, bogus", "--out", out], "unknown method \"bogus\""),
         (vec!["montecarlo", "rerun", out, "--job", "-1", "--out", out], "study.json"),
     ] {

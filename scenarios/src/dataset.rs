@@ -215,6 +215,7 @@ pub fn make_dataset(
             config.classes.iter().map(|c| c.name()).collect::<Vec<_>>()
         )));
     }
+    clear_earlier_images(out)?;
     for dir in ["images", "masks", "labels"] {
         std::fs::create_dir_all(out.join(dir)).map_err(|e| DatasetError::Io { file: out.join(dir), source: e })?;
     }
@@ -413,9 +414,51 @@ pub fn make_dataset(
     Ok(manifest)
 }
 
+/// Removes the per-image files an earlier dataset in `out` wrote (named from a six-digit
+/// image number), so that none is left beside this one's and read as its own: a dataset of
+/// fewer images written over one of more kept the surplus. Other files are left alone.
+fn clear_earlier_images(out: &Path) -> Result<(), DatasetError> {
+    let io = |file: &Path, e| DatasetError::Io { file: file.to_path_buf(), source: e };
+    for dir in ["images", "masks", "labels"] {
+        let dir = out.join(dir);
+        let entries = match std::fs::read_dir(&dir) {
+            Ok(entries) => entries,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => continue,
+            Err(e) => return Err(io(&dir, e)),
+        };
+        for entry in entries {
+            let path = entry.map_err(|e| io(&dir, e))?.path();
+            let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+            let numbered = name.len() > 6 && name.as_bytes()[..6].iter().all(u8::is_ascii_digit);
+            if numbered && path.is_file() {
+                std::fs::remove_file(&path).map_err(|e| io(&path, e))?;
+            }
+        }
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_earlier_datasets_image_files_are_removed_and_other_files_kept() {
+        let out = std::env::temp_dir().join(format!("objslam-dataset-clear-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&out);
+        for (dir, name) in [("images", "000005.png"), ("masks", "000005_class.png"), ("labels", "000005_patches.json")]
+        {
+            std::fs::create_dir_all(out.join(dir)).unwrap();
+            std::fs::write(out.join(dir).join(name), "earlier").unwrap();
+        }
+        std::fs::write(out.join("images/README.txt"), "mine").unwrap();
+        clear_earlier_images(&out).unwrap();
+        assert!(!out.join("images/000005.png").exists() && !out.join("masks/000005_class.png").exists());
+        assert!(!out.join("labels/000005_patches.json").exists());
+        assert!(out.join("images/README.txt").exists());
+        clear_earlier_images(&out.join("nowhere")).unwrap();
+        std::fs::remove_dir_all(&out).ok();
+    }
 
     #[test]
     fn rle_round_trips_column_major() {
