@@ -58,9 +58,12 @@ pub(crate) fn train(args: &crate::args::TrainArgs) -> Result<()> {
             s.true_positives + s.false_negatives,
             s.true_positives + s.false_negatives + s.false_positives + s.true_negatives
         ),
-        None => println!("  no held-out images (--heldout-every 0)"),
+        None if heldout_every == 0 => println!("  no held-out images (--heldout-every 0)"),
+        None => println!(
+            "  no held-out images: every {heldout_every}th image is held out, and the dataset has too few (--heldout-every)"
+        ),
     }
-    if heldout_every > 0 {
+    if t.heldout.is_some() {
         println!("  held-out patches called object, by true class: {}", class_shares(&classes));
     }
     if let Some(s) = &t.foliage_heldout {

@@ -21,6 +21,7 @@ fn negative_numbers_are_values_checked_like_any_other() {
         (vec!["run", "--seed", "-1"], "invalid value '-1' for '--seed <SEED>'"),
         (vec!["montecarlo", "laser_only", "--runs", "-3"], "invalid value '-3' for '--runs <RUNS>'"),
         (vec!["run", "--method", "bogus"], "invalid value 'bogus' for '--method <METHOD>'"),
+        (vec!["calibrate", "calibration", "--poses", "0", "--out", out], "--poses must be 1..10000, got 0"),
         (
             vec!["dataset", "--images", "1", "--classes", "tree,person", "--out", out],
             "--classes: \"person\" is not aimed at",

@@ -59,6 +59,9 @@ pub enum CalibrateError {
     File { file: PathBuf, field: String, message: String },
     #[error("{}: cannot write: {source}", file.display())]
     Write { file: PathBuf, source: std::io::Error },
+    /// The number of poses asked for in place of the scenario's.
+    #[error("--poses must be 1..10000, got {0}")]
+    Poses(usize),
 }
 
 /// The calibration session of a scenario (`[calibration.session]`).
@@ -479,9 +482,13 @@ pub fn run_session(
     poses: Option<usize>,
     images: Option<&Path>,
 ) -> Result<CalibrationReport, CalibrateError> {
-    let file = PathBuf::from(format!("{}.toml", scenario.name));
+    // The scenario's file, or its name when it is built in.
+    let file = PathBuf::from(scenario.describe());
     let mut config = scenario.calibration.session.clone();
     if let Some(p) = poses {
+        if !(1..=10_000).contains(&p) {
+            return Err(CalibrateError::Poses(p));
+        }
         config.poses = p;
     }
     config.check(&file, &scenario.sim)?;

@@ -19,7 +19,8 @@ pub fn from_json<T: serde::de::DeserializeOwned>(text: &str) -> Result<T, String
 
 fn describe_json_error(e: &serde_path_to_error::Error<serde_json::Error>) -> String {
     let path = e.path().to_string();
-    if path.is_empty() || path == "." { e.inner().to_string() } else { format!("{path}: {}", e.inner()) }
+    // `?`: serde_path_to_error knows no place (an error before the first key).
+    if path.is_empty() || path == "." || path == "?" { e.inner().to_string() } else { format!("{path}: {}", e.inner()) }
 }
 
 /// A setting that makes no sense.
@@ -67,5 +68,8 @@ mod json_tests {
         assert!(e.starts_with("inner.values[1]: invalid type: string"), "{e}");
         assert!(super::from_json::<Outer>(r#"{"inner": {"values": []}} trailing"#).is_err());
         assert_eq!(super::from_json::<Outer>(r#"{"inner": {"values": [2.5]}}"#).unwrap().inner.values, vec![2.5]);
+        // Cut short before its first key: no place to name, and no `?` for one.
+        let e = super::from_json::<Outer>("{").unwrap_err();
+        assert!(e.starts_with("EOF while parsing"), "{e}");
     }
 }
