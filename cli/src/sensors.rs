@@ -203,6 +203,10 @@ pub(crate) fn calibrate(
     out: &std::path::Path,
     images: Option<&std::path::Path>,
 ) -> Result<()> {
+    // Before the session's work, not after it.
+    if let Some(file) = out.parent().and_then(|d| d.ancestors().find(|a| a.is_file())) {
+        anyhow::bail!("--out {}: {} is a file, not a directory", out.display(), file.display());
+    }
     let (sc, base) = scenarios::scenario::Scenario::load(scenario)?;
     let seed = seed.unwrap_or(sc.seed);
     let started = std::time::Instant::now();

@@ -11,6 +11,9 @@ fn stderr_of(args: &[&str]) -> (bool, String) {
 #[test]
 fn negative_numbers_are_values_checked_like_any_other() {
     let out = std::env::temp_dir().join(format!("objslam-negative-{}", std::process::id()));
+    let a_file = std::env::temp_dir().join(format!("objslam-a-file-{}", std::process::id()));
+    std::fs::write(&a_file, "").unwrap();
+    let under_a_file = a_file.join("c.json").to_str().expect("a UTF-8 temporary path").to_string();
     let out = out.to_str().expect("a UTF-8 temporary path");
     for (args, expect) in [
         (
@@ -22,6 +25,7 @@ fn negative_numbers_are_values_checked_like_any_other() {
         (vec!["montecarlo", "laser_only", "--runs", "-3"], "invalid value '-3' for '--runs <RUNS>'"),
         (vec!["run", "--method", "bogus"], "invalid value 'bogus' for '--method <METHOD>'"),
         (vec!["calibrate", "calibration", "--poses", "0", "--out", out], "--poses must be 1..10000, got 0"),
+        (vec!["calibrate", "calibration", "--out", &under_a_file], "is a file, not a directory"),
         (
             vec!["dataset", "--images", "1", "--classes", "tree,person", "--out", out],
             "--classes: \"person\" is not aimed at",
@@ -35,6 +39,7 @@ fn negative_numbers_are_values_checked_like_any_other() {
         assert!(err.contains(expect), "{args:?}: {err}");
         assert!(!err.contains("unexpected argument"), "{args:?}: {err}");
     }
+    let _ = std::fs::remove_file(&a_file);
     assert!(!std::path::Path::new(out).exists(), "nothing was written");
 }
 

@@ -456,7 +456,14 @@ impl CalibrationReport {
 
     pub fn write(&self, path: &Path) -> Result<(), CalibrateError> {
         if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-            std::fs::create_dir_all(dir).map_err(|source| CalibrateError::Write { file: dir.to_path_buf(), source })?;
+            // Named as the file asked for: "File exists" of its folder alone misleads.
+            std::fs::create_dir_all(dir).map_err(|source| {
+                let source = match dir.ancestors().find(|a| a.is_file()) {
+                    Some(file) => std::io::Error::other(format!("{} is a file, not a directory", file.display())),
+                    None => source,
+                };
+                CalibrateError::Write { file: path.to_path_buf(), source }
+            })?;
         }
         std::fs::write(path, serde_json::to_string_pretty(self).expect("JSON") + "\n")
             .map_err(|source| CalibrateError::Write { file: path.to_path_buf(), source })
