@@ -235,7 +235,7 @@ impl Rows {
                     expected.iter().map(|h| format!("`{}`", h.join(","))).collect::<Vec<_>>().join(" or ")
                 ),
             })?;
-        if let Some(line) = blank_line_between_rows(file)? {
+        if let Some(line) = blank_line_before_last_row(file).map_err(io(file))? {
             return Err(LogError::Line {
                 file: file.to_path_buf(),
                 line,
@@ -313,15 +313,15 @@ impl Rows {
     }
 }
 
-/// The first blank line of `file` that has a line of text after it (before the header or
-/// between rows): the CSV reader skips blank lines, so a row lost there would go unseen.
-/// Blank lines at the end are left alone.
-fn blank_line_between_rows(file: &Path) -> Result<Option<u64>, LogError> {
+/// The first blank line (1-based) of CSV `file` that has a line of text after it (before
+/// the header or between rows): the `csv` reader skips blank lines, so a row lost there
+/// would go unseen. Blank lines at the end are left alone.
+pub fn blank_line_before_last_row(file: &Path) -> std::io::Result<Option<u64>> {
     use std::io::BufRead;
-    let reader = std::io::BufReader::new(fs::File::open(file).map_err(io(file))?);
+    let reader = std::io::BufReader::new(fs::File::open(file)?);
     let mut blank = None;
     for (k, line) in reader.split(b'\n').enumerate() {
-        if line.map_err(io(file))?.iter().all(u8::is_ascii_whitespace) {
+        if line?.iter().all(u8::is_ascii_whitespace) {
             blank = blank.or(Some(k as u64 + 1));
         } else if blank.is_some() {
             return Ok(blank);

@@ -322,6 +322,11 @@ type CsvRow = (usize, Vec<Option<f64>>);
 
 /// A CSV file's rows, and which of `headers` it has.
 fn read_csv_numbers(file: &Path, headers: &[&[&str]]) -> Result<(usize, Vec<CsvRow>), ScoreError> {
+    let blank = robotlog::format::blank_line_before_last_row(file)
+        .map_err(|error| ScoreError::Io { file: file.to_path_buf(), error })?;
+    if let Some(line) = blank {
+        return Err(invalid(file, Some(line as usize), "a blank line before the last row"));
+    }
     let mut reader = csv::ReaderBuilder::new()
         .has_headers(true)
         .trim(csv::Trim::All)
@@ -549,6 +554,10 @@ mod tests {
         std::fs::write(&csv, b"t,observation,landmark\n0.1,0,3\n0.2,\xff,4\n").unwrap();
         let e = read_associations(&csv).unwrap_err().to_string();
         assert!(e.contains("assoc.csv:3") && e.contains("field 2 is not UTF-8 text"), "{e}");
+        // A blank line where a row was is not skipped without a word.
+        std::fs::write(&csv, "t,observation,landmark\n0.1,0,3\n\n0.3,0,4\n").unwrap();
+        let e = read_associations(&csv).unwrap_err().to_string();
+        assert!(e.contains("assoc.csv:3") && e.contains("a blank line before the last row"), "{e}");
         std::fs::remove_dir_all(&dir).ok();
     }
 
