@@ -1,10 +1,10 @@
 //! Output files written line by line as a run or a replay goes, so that their size costs
-//! no memory. Each is written under a `.partial` name and renamed into place when the run
-//! has finished, so that a run that fails on the way leaves the directory's earlier
-//! outputs whole (its partial files are removed). A run writes them in its unfinished
-//! directory, with its other outputs (see `run::outputs`); a replay writes them beside its
-//! earlier outputs, where a failure while its final outputs are written can still leave
-//! new files beside old ones.
+//! no memory. Each is written under a `.partial` name and renamed when the run has
+//! finished, so that a run that fails on the way leaves no half-written file (its partial
+//! files are removed). A run or replay writes these, and its other outputs, in the output
+//! directory's unfinished directory ([`start_unfinished`]) and moves them all into place
+//! only when every one was written ([`publish`]): one stopped or failing on the way leaves
+//! the directory's earlier outputs whole, never a mix of two.
 
 use std::fs::File;
 use std::io::{BufWriter, Write};
@@ -76,6 +76,64 @@ impl<K> Drop for PartialFiles<K> {
             let _ = std::fs::remove_file(partial);
         }
     }
+}
+
+/// Where outputs into `out` wait until all of them are written.
+pub fn unfinished_dir(out: &Path) -> PathBuf {
+    out.join(".unfinished")
+}
+
+/// Makes `out`'s unfinished directory anew (one stopped on the way may have left one) and
+/// returns it.
+pub fn start_unfinished(out: &Path) -> Result<PathBuf, PartialFileError> {
+    let dir = unfinished_dir(out);
+    match std::fs::remove_dir_all(&dir) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(PartialFileError { file: dir, source: e }),
+        _ => {}
+    }
+    std::fs::create_dir_all(&dir).map_err(error(&dir))?;
+    Ok(dir)
+}
+
+/// Removes an unfinished directory that a failure left empty (one holding outputs is kept).
+pub fn abandon_unfinished(dir: &Path) {
+    let _ = std::fs::remove_dir(dir);
+}
+
+/// Moves finished outputs from `unfinished` into `out`, each replacing the file (or
+/// directory) of the same name, after removing the `stale` names (outputs an earlier one
+/// may hold that this one does not write). A file that cannot be moved stops no other;
+/// every failure is returned, and what was not moved stays in `unfinished`.
+pub fn publish(unfinished: &Path, out: &Path, stale: &[&str]) -> Result<(), Vec<PartialFileError>> {
+    fn one(file: &Path) -> impl FnOnce(std::io::Error) -> Vec<PartialFileError> + '_ {
+        move |source| vec![PartialFileError { file: file.to_path_buf(), source }]
+    }
+    for name in stale {
+        let path = out.join(name);
+        let removed = if path.is_dir() { std::fs::remove_dir_all(&path) } else { std::fs::remove_file(&path) };
+        match removed {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(one(&path)(e)),
+            _ => {}
+        }
+    }
+    let mut errors = Vec::new();
+    for entry in std::fs::read_dir(unfinished).map_err(one(unfinished))? {
+        let entry = entry.map_err(one(unfinished))?;
+        let (from, to) = (entry.path(), out.join(entry.file_name()));
+        let moved = if to.is_dir() && !from.is_dir() {
+            Err(std::io::Error::other(format!("a directory stands where the file goes (kept in {})", from.display())))
+        } else if to.is_dir() {
+            std::fs::remove_dir_all(&to).and_then(|()| std::fs::rename(&from, &to))
+        } else {
+            std::fs::rename(&from, &to)
+        };
+        errors.extend(moved.err().map(|source| PartialFileError { file: to, source }));
+    }
+    if errors.is_empty() {
+        std::fs::remove_dir(unfinished).map_err(one(unfinished))?;
+        return Ok(());
+    }
+    Err(errors)
 }
 
 #[cfg(test)]

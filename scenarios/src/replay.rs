@@ -36,6 +36,12 @@ pub enum ReplayError {
     Pipeline { t: f64, source: slam::pipeline::PipelineError },
     #[error("{}: {source}", file.display())]
     Io { file: PathBuf, source: std::io::Error },
+    /// The outputs could not all be written, so none replaced the directory's own.
+    #[error("{source}; the outputs written are in {}, and the directory's earlier outputs are unchanged", dir.display())]
+    Unpublished { dir: PathBuf, source: Box<ReplayError> },
+    /// Outputs that could not be moved into the output directory (each was tried).
+    #[error("{}", crate::run::join_errors(.0))]
+    Publish(Vec<crate::partial_files::PartialFileError>),
     #[error(transparent)]
     Plot(#[from] crate::plot::PlotError),
     #[error("method {method} segments camera images: the log has no camera (a [camera] table and camera.csv)")]
@@ -275,8 +281,22 @@ pub fn replay(
     appearance: Option<AppearanceModel>,
     out: Option<&Path>,
 ) -> Result<Replay, ReplayError> {
+    let result = replay_and_write(log.into(), config, appearance, out);
+    // A replay that failed leaves no empty unfinished directory behind.
+    if let (Err(_), Some(out)) = (&result, out) {
+        crate::partial_files::abandon_unfinished(&crate::partial_files::unfinished_dir(out));
+    }
+    result
+}
+
+fn replay_and_write(
+    log: LogStream,
+    config: PipelineConfig,
+    appearance: Option<AppearanceModel>,
+    out: Option<&Path>,
+) -> Result<Replay, ReplayError> {
     let started = Instant::now();
-    let mut log: LogStream = log.into();
+    let mut log = log;
     let first_motion = robotlog::stream::next_time(&mut log.motion, MotionMessage::time)?;
     let first_observation = robotlog::stream::next_time(&mut log.observations, ObservationMessage::time)?;
     // The log's first instant: its first motion message or scan.
@@ -306,7 +326,9 @@ pub fn replay(
     let mut pipeline = Pipeline::new(config.clone(), log.manifest.vehicle.start_pose, appearance)
         .map_err(|source| ReplayError::Pipeline { t: start, source })?
         .starting_at(start);
-    let mut streams = match out {
+    // Every output is written in the unfinished directory and moved into `out` when all are.
+    let unfinished = out.map(crate::partial_files::start_unfinished).transpose()?;
+    let mut streams = match &unfinished {
         Some(dir) => Some(PartialFiles::create(
             dir,
             &[(Stream::Trajectory, "trajectory_est.tum"), (Stream::Decisions, "decisions.jsonl")],
@@ -424,9 +446,11 @@ pub fn replay(
         peak_memory_mb: peak_memory_mb(),
     };
     let result = Replay { metrics, landmarks, config, path: path.points() };
-    if let (Some(dir), Some(streams)) = (out, streams) {
+    if let (Some(dir), Some(unfinished), Some(streams)) = (out, unfinished, streams) {
         streams.finish()?;
-        write_outputs(dir, &log.manifest, &log.reference, &result, &spikes)?;
+        write_outputs(&unfinished, &log.manifest, &log.reference, &result, &spikes)
+            .map_err(|e| ReplayError::Unpublished { dir: unfinished.clone(), source: Box::new(e) })?;
+        crate::partial_files::publish(&unfinished, dir, &[]).map_err(ReplayError::Publish)?;
     }
     Ok(result)
 }

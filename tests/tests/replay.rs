@@ -58,6 +58,7 @@ fn a_recorded_log_replays_to_the_runs_estimate() {
     assert_eq!(config, pipeline, "the log's pipeline.toml is the scenario's settings");
     let replayed = replay(log, config, None, Some(&dir.join("replay"))).unwrap();
     assert_same_estimate(&out, &dir.join("replay"), &replayed);
+    assert!(!dir.join("replay/.unfinished").exists(), "every output moved into place");
     // Scored against the log's ground truth, no alignment: the run's own ATE.
     let metrics: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("metrics.json")).unwrap()).unwrap();

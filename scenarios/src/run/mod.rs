@@ -339,6 +339,20 @@ pub fn run(
     scenario: &Scenario,
     base_dir: &Path,
     options: &RunOptions,
+    progress: impl FnMut(RunProgress),
+) -> Result<RunOutcome, RunError> {
+    let outcome = run_and_write(scenario, base_dir, options, progress);
+    // A run that failed leaves no empty unfinished directory behind.
+    if let (Err(_), Some(out)) = (&outcome, &options.out) {
+        crate::partial_files::abandon_unfinished(&outputs::unfinished_dir(out));
+    }
+    outcome
+}
+
+fn run_and_write(
+    scenario: &Scenario,
+    base_dir: &Path,
+    options: &RunOptions,
     mut progress: impl FnMut(RunProgress),
 ) -> Result<RunOutcome, RunError> {
     // Setup: the method and its model, the world, the calibration, the simulator.

@@ -80,70 +80,27 @@ pub(super) fn stream_outputs(out: &Path, camera: bool, camera_method: bool) -> R
 }
 
 /// Outputs that only some runs write (camera methods, estimated calibrations): removed from
-/// a reused output directory first, so none is left from an earlier run to be taken for
-/// this one's. The other outputs every run rewrites.
+/// a reused output directory when a run's outputs are moved in, so none is left from an
+/// earlier run to be taken for this one's. The other outputs every run rewrites.
 const CONDITIONAL_OUTPUTS: [&str; 4] = ["calibration.json", "segmentation.jsonl", "objects", "trees_shown.jsonl"];
-
-fn clear_stale_outputs(out: &Path) -> Result<(), RunError> {
-    for name in CONDITIONAL_OUTPUTS {
-        let path = out.join(name);
-        let removed = if path.is_dir() { std::fs::remove_dir_all(&path) } else { std::fs::remove_file(&path) };
-        match removed {
-            Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(RunError::Io { file: path, source: e }),
-            _ => {}
-        }
-    }
-    Ok(())
-}
 
 /// Where a run into `out` writes its outputs until all of them are written.
 pub(super) fn unfinished_dir(out: &Path) -> PathBuf {
-    out.join(".unfinished")
+    crate::partial_files::unfinished_dir(out)
 }
 
-/// Makes `out`'s unfinished directory anew (an earlier run stopped on the way may have
-/// left one) and returns it.
+/// Makes `out`'s unfinished directory anew and returns it.
 pub(super) fn start_unfinished(out: &Path) -> Result<PathBuf, RunError> {
-    let dir = unfinished_dir(out);
-    match std::fs::remove_dir_all(&dir) {
-        Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(RunError::Io { file: dir, source: e }),
-        _ => {}
-    }
-    std::fs::create_dir_all(&dir).map_err(|source| RunError::Io { file: dir.clone(), source })?;
-    Ok(dir)
+    Ok(crate::partial_files::start_unfinished(out)?)
 }
 
-/// Moves a finished run's outputs from `unfinished` into `out`, each replacing the file (or
-/// `objects/`) of the same name, after removing what an earlier run wrote that this one
-/// does not. A file that cannot be moved stops no other; every failure is reported, and
-/// what was not moved stays in `unfinished`.
+/// Moves a finished run's outputs from `unfinished` into `out` (see
+/// [`crate::partial_files::publish`]), after removing an earlier run's conditional ones.
 pub(super) fn publish_outputs(unfinished: &Path, out: &Path) -> Result<(), RunError> {
-    clear_stale_outputs(out)?;
-    fn io(file: &Path) -> impl FnOnce(std::io::Error) -> RunError + '_ {
-        move |source| RunError::Io { file: file.to_path_buf(), source }
-    }
-    let mut errors = Vec::new();
-    let entries = std::fs::read_dir(unfinished).map_err(io(unfinished))?;
-    for entry in entries {
-        let entry = entry.map_err(io(unfinished))?;
-        let (from, to) = (entry.path(), out.join(entry.file_name()));
-        let moved = if to.is_dir() && !from.is_dir() {
-            Err(std::io::Error::other(format!(
-                "a directory stands where the run's file goes (kept in {})",
-                from.display()
-            )))
-        } else {
-            if to.is_dir() {
-                std::fs::remove_dir_all(&to).map_err(io(&to))?;
-            }
-            std::fs::rename(&from, &to)
-        };
-        errors.extend(moved.err().map(|source| RunError::Io { file: to, source }));
-    }
-    if errors.is_empty() {
-        std::fs::remove_dir(unfinished).map_err(io(unfinished))?;
-    }
-    super::first_or_all(errors, RunError::Outputs)
+    crate::partial_files::publish(unfinished, out, &CONDITIONAL_OUTPUTS).map_err(|errors| {
+        let errors: Vec<RunError> = errors.into_iter().map(RunError::from).collect();
+        super::first_or_all(errors, RunError::Outputs).expect_err("publish fails with errors")
+    })
 }
 
 /// What a finished run writes out.
