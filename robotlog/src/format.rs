@@ -330,12 +330,18 @@ pub fn blank_line_before_last_row(file: &Path) -> std::io::Result<Option<u64>> {
     Ok(None)
 }
 
-fn csv_error(file: &Path, e: csv::Error) -> LogError {
-    let line = e.position().map(|p| p.line());
-    let problem = match e.kind() {
+/// What is wrong, in words, for a CSV reader's error (its UTF-8 error's own text is a
+/// debug dump of the reader's state).
+pub fn csv_problem(e: &csv::Error) -> String {
+    match e.kind() {
         csv::ErrorKind::Utf8 { err, .. } => format!("field {} is not UTF-8 text", err.field() + 1),
         _ => e.to_string(),
-    };
+    }
+}
+
+fn csv_error(file: &Path, e: csv::Error) -> LogError {
+    let line = e.position().map(|p| p.line());
+    let problem = csv_problem(&e);
     match (e.into_kind(), line) {
         (csv::ErrorKind::Io(source), _) => LogError::Io { file: file.to_path_buf(), source },
         (_, Some(line)) => LogError::Line { file: file.to_path_buf(), line, problem },

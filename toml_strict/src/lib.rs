@@ -127,9 +127,9 @@ fn key_of(segments: &[&Segment]) -> String {
 /// Where in `text` the value at `segments` is given: as deep along the path as the text
 /// goes (a key set only by an earlier file is located at its table, or not at all).
 fn span_of(text: &str, segments: &[&Segment]) -> Option<usize> {
-    let document = DeTable::parse(text).ok()?;
+    let root = DeValue::Table(DeTable::parse(text).ok()?.into_inner());
     let mut at = None;
-    let mut value: &DeValue = &DeValue::Table(document.get_ref().clone());
+    let mut value = &root;
     for s in segments {
         let next = match (s, value) {
             (Segment::Map { key }, DeValue::Table(t)) => {

@@ -24,11 +24,12 @@ use slam::classifier::AppearanceModel;
 use slam::pipeline::{Appearance, Pipeline, PipelineConfig};
 use slam::segmentation::{CameraGeometry, merge_regions};
 
+use crate::partial_files::{start_unfinished, unfinished_dir};
 use crate::scenario::{Scenario, ScenarioError};
 use crate::score::scorer::{MapLandmark, RecallBasis, RunScorer, VisibilitySettings};
 use events::EventSource;
 use online::RunLoop;
-use outputs::{FinishedRun, publish_outputs, start_unfinished, write_outputs};
+use outputs::{FinishedRun, publish_outputs, write_outputs};
 
 /// Errors of a run.
 #[derive(Debug, thiserror::Error)]
@@ -344,7 +345,7 @@ pub fn run(
     let outcome = run_and_write(scenario, base_dir, options, progress);
     // A run that failed leaves no empty unfinished directory behind.
     if let (Err(_), Some(out)) = (&outcome, &options.out) {
-        crate::partial_files::abandon_unfinished(&outputs::unfinished_dir(out));
+        crate::partial_files::abandon_unfinished(&unfinished_dir(out));
     }
     outcome
 }
@@ -500,7 +501,7 @@ fn run_and_write(
         // Everything is written into the unfinished directory first and moved into `out`
         // only when all of it was written: a run stopped or failing here leaves `out`'s
         // earlier outputs whole, never a mix of two runs.
-        let unfinished = outputs::unfinished_dir(out);
+        let unfinished = unfinished_dir(out);
         if let Some(report) = &calibration.report {
             report.write(&unfinished.join("calibration.json"))?;
         }

@@ -1,7 +1,7 @@
 //! The files a run writes: metrics, trajectories, the map, decisions, logs and plots.
 
 use std::collections::HashMap;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 use serde_json::json;
 use slam::pipeline::Pipeline;
@@ -83,16 +83,6 @@ pub(super) fn stream_outputs(out: &Path, camera: bool, camera_method: bool) -> R
 /// a reused output directory when a run's outputs are moved in, so none is left from an
 /// earlier run to be taken for this one's. The other outputs every run rewrites.
 const CONDITIONAL_OUTPUTS: [&str; 4] = ["calibration.json", "segmentation.jsonl", "objects", "trees_shown.jsonl"];
-
-/// Where a run into `out` writes its outputs until all of them are written.
-pub(super) fn unfinished_dir(out: &Path) -> PathBuf {
-    crate::partial_files::unfinished_dir(out)
-}
-
-/// Makes `out`'s unfinished directory anew and returns it.
-pub(super) fn start_unfinished(out: &Path) -> Result<PathBuf, RunError> {
-    Ok(crate::partial_files::start_unfinished(out)?)
-}
 
 /// Moves a finished run's outputs from `unfinished` into `out` (see
 /// [`crate::partial_files::publish`]), after removing an earlier run's conditional ones.
@@ -328,7 +318,7 @@ mod tests {
             std::fs::write(out.join(name), text).unwrap();
         }
         // This run (no camera method): written whole into the unfinished directory first.
-        let unfinished = start_unfinished(&out).unwrap();
+        let unfinished = crate::partial_files::start_unfinished(&out).unwrap();
         std::fs::write(unfinished.join("metrics.json"), "new").unwrap();
         std::fs::write(unfinished.join("landmarks.json"), "new").unwrap();
         assert_eq!(std::fs::read_to_string(out.join("metrics.json")).unwrap(), "old", "unchanged until published");
@@ -342,7 +332,7 @@ mod tests {
         assert_eq!(std::fs::read_to_string(out.join("notes.txt")).unwrap(), "mine");
         assert!(!unfinished.exists());
         // A directory where a file goes: named, the other files moved, that one kept.
-        let unfinished = start_unfinished(&out).unwrap();
+        let unfinished = crate::partial_files::start_unfinished(&out).unwrap();
         std::fs::create_dir_all(out.join("map.png")).unwrap();
         std::fs::write(unfinished.join("map.png"), "picture").unwrap();
         std::fs::write(unfinished.join("metrics.json"), "newer").unwrap();

@@ -307,10 +307,7 @@ fn read_association_lines(file: &Path) -> Result<Vec<(usize, f64, AssociationEnt
 
 fn csv_invalid(file: &Path, e: csv::Error) -> ScoreError {
     let line = e.position().map(|p| p.line() as usize);
-    let problem = match e.kind() {
-        csv::ErrorKind::Utf8 { err, .. } => format!("field {} is not UTF-8 text", err.field() + 1),
-        _ => e.to_string(),
-    };
+    let problem = robotlog::format::csv_problem(&e);
     match e.into_kind() {
         csv::ErrorKind::Io(error) => ScoreError::Io { file: file.to_path_buf(), error },
         _ => invalid(file, line, problem),
