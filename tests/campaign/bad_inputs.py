@@ -409,6 +409,29 @@ def build_cases(binary, w, kinds):
             "nodes": [{"children": [i + 1]} for i in range(200_000)] + [{}]}
     more.append(Case("gltf", "200,000 nested nodes", ["world", "check", "probe/meshed.toml"], ["mesh.glb"],
                      {"probe/mesh.glb": gltf_json_glb(deep), "probe/meshed.toml": meshed}))
+    # One triangle's accessors, each made wrong in turn.
+    triangle = struct.pack("<9f", 0, 0, 0, 1, 0, 0, 0, 0, -1) + struct.pack("<3I", 0, 1, 2)
+    for label, position, indices, names in [
+        ("POSITION of VEC2", {"type": "VEC2"}, {}, ["mesh.glb", "POSITION (accessor 0) is VEC2"]),
+        ("POSITION of unsigned bytes", {"componentType": 5121}, {}, ["mesh.glb", "POSITION (accessor 0)"]),
+        ("a billion positions", {"count": 1_000_000_000}, {}, ["mesh.glb", "accessor 0"]),
+        ("float indices", {}, {"componentType": 5126}, ["mesh.glb", "indices (accessor 1)"]),
+        ("two indices", {}, {"count": 2}, ["mesh.glb", "whole triangles"]),
+    ]:
+        doc = {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+               "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
+               "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+                              "min": [0, 0, -1], "max": [1, 0, 0], **position},
+                             {"bufferView": 1, "componentType": 5125, "count": 3, "type": "SCALAR", **indices}],
+               "bufferViews": [{"buffer": 0, "byteLength": 36}, {"buffer": 0, "byteOffset": 36, "byteLength": 12}],
+               "buffers": [{"byteLength": len(triangle)}]}
+        more.append(Case("gltf", label, ["world", "check", "probe/meshed.toml"], names,
+                         {"probe/mesh.glb": gltf_json_glb(doc, triangle), "probe/meshed.toml": meshed}))
+    for label, uri, names in [("buffer named %FF", "%FF.bin", ["mesh.glb", "%FF.bin"]),
+                              ("buffer named %2Fdev%2Fzero", "%2Fdev%2Fzero", ["mesh.glb", "not a regular file"])]:
+        doc = {"asset": {"version": "2.0"}, "buffers": [{"uri": uri, "byteLength": 1_000_000}]}
+        more.append(Case("gltf", label, ["world", "check", "probe/meshed.toml"], names,
+                         {"probe/mesh.glb": gltf_json_glb(doc), "probe/meshed.toml": meshed}))
 
     # Appearance models.
     model = json.loads(read(w, "model.json"))
@@ -614,10 +637,13 @@ def build_cases(binary, w, kinds):
     return [c for c in cases if wanted(c)], [c for c in controls if wanted(c)]
 
 
-def gltf_json_glb(doc):
+def gltf_json_glb(doc, bin_chunk=None):
     body = json.dumps(doc).encode()
     body += b" " * (-len(body) % 4)
     chunk = struct.pack("<II", len(body), 0x4E4F534A) + body
+    if bin_chunk is not None:
+        bin_chunk += b"\0" * (-len(bin_chunk) % 4)
+        chunk += struct.pack("<II", len(bin_chunk), 0x004E4942) + bin_chunk
     return struct.pack("<III", 0x46546C67, 2, 12 + len(chunk)) + chunk
 
 

@@ -8,6 +8,8 @@
 use std::io::Cursor;
 use std::path::Path;
 
+use gltf::accessor::{DataType, Dimensions};
+use gltf::mesh::Mode;
 use serde_json::{Value, json};
 
 use crate::description::World;
@@ -164,52 +166,64 @@ fn glb_bytes(root: &Value, bin: &[u8]) -> Vec<u8> {
 }
 
 /// Loads every triangle primitive of a glTF/.glb file into one z-up mesh, applying the
-/// node transforms. Errors are strings for embedding in [`WorldError`].
+/// node transforms. Errors are strings for embedding in [`WorldError`]. Only the buffers
+/// are read: images are neither read nor decoded (a world's look comes from its classes).
 pub fn import_mesh(path: &Path) -> Result<TriMesh, String> {
-    check_files(path)?;
-    let (doc, buffers, _images) = gltf::import(path).map_err(|e| e.to_string())?;
-    import_document(&doc, &buffers)
+    let gltf = open_checked(path)?;
+    let base = path.parent().unwrap_or(Path::new("."));
+    let buffers = gltf::import_buffers(&gltf.document, Some(base), gltf.blob).map_err(|e| e.to_string())?;
+    import_document(&gltf.document, &buffers)
 }
 
-/// Refuses a mesh file, or a buffer it names, that is not a regular file (a device such
-/// as /dev/zero is read without end) or that is shorter than the buffer's `byteLength`.
-fn check_files(path: &Path) -> Result<(), String> {
+/// Opens a glTF/.glb file after refusing one, or a buffer it names, that is not a regular
+/// file (a device such as /dev/zero is read without end) or that is shorter than the
+/// buffer's `byteLength`, and a buffer URI that does not decode to a file name (the
+/// importer panics on one).
+fn open_checked(path: &Path) -> Result<gltf::Gltf, String> {
     let regular = |p: &Path| std::fs::metadata(p).map(|m| m.is_file().then_some(m.len()));
     match regular(path) {
         Ok(Some(_)) => {}
         Ok(None) => return Err("not a regular file".into()),
         Err(e) => return Err(e.to_string()),
     }
-    // The JSON (or the .glb's JSON chunk) alone, to see which files its buffers name.
+    // The JSON (or the .glb's JSON chunk and its binary chunk).
     let gltf = gltf::Gltf::open(path).map_err(|e| e.to_string())?;
     let base = path.parent().unwrap_or(Path::new("."));
     for buffer in gltf.buffers() {
         let gltf::buffer::Source::Uri(uri) = buffer.source() else { continue };
-        // Embedded data, or a percent-encoded name (which the importer decodes): left to it.
-        if uri.starts_with("data:") || uri.contains('%') {
+        let named = || format!("buffer {} ({uri})", buffer.index());
+        // Resolved as the importer resolves it: `file:` names as written, other names
+        // relative to the glTF file, percent-decoded. Other schemes are its to refuse.
+        let file = if let Some(rest) = uri.strip_prefix("file://").or_else(|| uri.strip_prefix("file:")) {
+            std::path::PathBuf::from(rest)
+        } else if uri.contains(':') {
             continue;
-        }
-        let file = base.join(uri);
+        } else {
+            let decoded = urlencoding::decode(uri)
+                .map_err(|_| format!("{}: its percent-encoded name is not UTF-8 text", named()))?;
+            base.join(&*decoded)
+        };
         match regular(&file) {
             Ok(Some(len)) if len >= buffer.length() as u64 => {}
             Ok(Some(len)) => {
                 return Err(format!(
-                    "buffer {} ({uri}): the file holds {len} bytes, the buffer's byteLength says {}",
-                    buffer.index(),
+                    "{}: the file holds {len} bytes, the buffer's byteLength says {}",
+                    named(),
                     buffer.length()
                 ));
             }
-            Ok(None) => return Err(format!("buffer {} ({uri}): not a regular file", buffer.index())),
-            Err(e) => return Err(format!("buffer {} ({uri}): {e}", buffer.index())),
+            Ok(None) => return Err(format!("{}: not a regular file", named())),
+            Err(e) => return Err(format!("{}: {}: {e}", named(), file.display())),
         }
     }
-    Ok(())
+    Ok(gltf)
 }
 
-/// Like [`import_mesh`] for bytes already in memory.
+/// Like [`import_mesh`] for bytes already in memory (buffers must be embedded).
 pub fn import_mesh_slice(bytes: &[u8]) -> Result<TriMesh, String> {
-    let (doc, buffers, _images) = gltf::import_slice(bytes).map_err(|e| e.to_string())?;
-    import_document(&doc, &buffers)
+    let gltf = gltf::Gltf::from_slice(bytes).map_err(|e| e.to_string())?;
+    let buffers = gltf::import_buffers(&gltf.document, None, gltf.blob).map_err(|e| e.to_string())?;
+    import_document(&gltf.document, &buffers)
 }
 
 /// Imports a mesh for a world object, naming the world file in errors.
@@ -280,40 +294,190 @@ fn add_node_meshes(
     out: &mut TriMesh,
 ) -> Result<[[f32; 4]; 4], String> {
     let world = mat_mul(parent, node.transform().matrix());
-    if let Some(mesh) = node.mesh() {
-        for prim in mesh.primitives() {
-            if prim.mode() != gltf::mesh::Mode::Triangles {
-                continue;
-            }
-            let reader = prim.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
-            let positions: Vec<[f32; 3]> =
-                reader.read_positions().ok_or("a primitive has no POSITION attribute")?.collect();
-            let n = positions.len();
-            let normals: Vec<[f32; 3]> =
-                reader.read_normals().map(|r| r.collect()).unwrap_or_else(|| vec![[0.0, 0.0, 1.0]; n]);
-            let uvs: Vec<[f32; 2]> =
-                reader.read_tex_coords(0).map(|r| r.into_f32().collect()).unwrap_or_else(|| vec![[0.0, 0.0]; n]);
-            let indices: Vec<u32> = match reader.read_indices() {
-                Some(i) => i.into_u32().collect(),
-                None => (0..n as u32).collect(),
-            };
-            if let Some(bad) = indices.iter().find(|&&i| i as usize >= n) {
-                return Err(format!("index {bad} out of range for {n} vertices"));
-            }
-            let base = out.positions.len() as u32;
-            for (p, nrm) in positions.iter().zip(&normals) {
-                let tp: [f32; 3] =
-                    std::array::from_fn(|r| world[0][r] * p[0] + world[1][r] * p[1] + world[2][r] * p[2] + world[3][r]);
-                let tn: [f32; 3] =
-                    std::array::from_fn(|r| world[0][r] * nrm[0] + world[1][r] * nrm[1] + world[2][r] * nrm[2]);
-                out.positions.push(tp);
-                out.normals.push(tn);
-            }
-            out.uvs.extend(uvs);
-            out.indices.extend(indices.iter().map(|i| i + base));
+    if world.iter().flatten().any(|v| !v.is_finite()) {
+        return Err(format!("node {}: its transform is not finite", node.index()));
+    }
+    let Some(mesh) = node.mesh() else { return Ok(world) };
+    for prim in mesh.primitives() {
+        let at = || format!("mesh {} primitive {}", mesh.index(), prim.index());
+        // Points and lines have no surface for a laser or a camera to meet.
+        let mode = prim.mode();
+        if !matches!(mode, Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan) {
+            continue;
         }
+        let position =
+            prim.get(&gltf::Semantic::Positions).ok_or_else(|| format!("{}: no POSITION attribute", at()))?;
+        let n = check_accessor(&position, &format!("{}: POSITION", at()), Dimensions::Vec3, &[FLOAT], buffers)?;
+        let normal = prim.get(&gltf::Semantic::Normals);
+        if let Some(a) = &normal {
+            check_same_count(a, n, &format!("{}: NORMAL", at()), Dimensions::Vec3, &[FLOAT], buffers)?;
+        }
+        let uv = prim.get(&gltf::Semantic::TexCoords(0));
+        if let Some(a) = &uv {
+            check_same_count(a, n, &format!("{}: TEXCOORD_0", at()), Dimensions::Vec2, TEXCOORD_TYPES, buffers)?;
+        }
+        let reader = prim.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
+        let unread = |what: &str| format!("{}: its {what} accessor could not be read", at());
+        let positions: Vec<[f32; 3]> = reader.read_positions().ok_or_else(|| unread("POSITION"))?.collect();
+        let normals: Vec<[f32; 3]> = match normal {
+            Some(_) => reader.read_normals().ok_or_else(|| unread("NORMAL"))?.collect(),
+            None => vec![[0.0, 0.0, 1.0]; n],
+        };
+        let uvs: Vec<[f32; 2]> = match uv {
+            Some(_) => reader.read_tex_coords(0).ok_or_else(|| unread("TEXCOORD_0"))?.into_f32().collect(),
+            None => vec![[0.0, 0.0]; n],
+        };
+        let vertices: Vec<u32> = match prim.indices() {
+            Some(a) => {
+                check_accessor(&a, &format!("{}: indices", at()), Dimensions::Scalar, INDEX_TYPES, buffers)?;
+                reader.read_indices().ok_or_else(|| unread("indices"))?.into_u32().collect()
+            }
+            None => (0..n as u32).collect(),
+        };
+        if positions.len() != n || normals.len() != n || uvs.len() != n {
+            return Err(format!("{}: its attributes read {} positions for a count of {n}", at(), positions.len()));
+        }
+        if let Some(bad) = vertices.iter().find(|&&i| i as usize >= n) {
+            return Err(format!("{}: index {bad} out of range for {n} vertices", at()));
+        }
+        let indices = triangle_list(mode, &vertices).map_err(|e| format!("{}: {e}", at()))?;
+        let base = out.positions.len() as u32;
+        for (p, nrm) in positions.iter().zip(&normals) {
+            let tp: [f32; 3] =
+                std::array::from_fn(|r| world[0][r] * p[0] + world[1][r] * p[1] + world[2][r] * p[2] + world[3][r]);
+            if tp.iter().any(|v| !v.is_finite()) {
+                return Err(format!("{}: a position is not finite ({p:?})", at()));
+            }
+            let tn: [f32; 3] =
+                std::array::from_fn(|r| world[0][r] * nrm[0] + world[1][r] * nrm[1] + world[2][r] * nrm[2]);
+            if tn.iter().any(|v| !v.is_finite()) {
+                return Err(format!("{}: a normal is not finite ({nrm:?})", at()));
+            }
+            out.positions.push(tp);
+            out.normals.push(tn);
+        }
+        out.uvs.extend(uvs);
+        out.indices.extend(indices.iter().map(|i| i + base));
     }
     Ok(world)
+}
+
+/// Component types an attribute may have: the type, and whether it is normalized.
+type ComponentTypes = &'static [(DataType, bool)];
+const FLOAT: (DataType, bool) = (DataType::F32, false);
+const TEXCOORD_TYPES: ComponentTypes = &[FLOAT, (DataType::U8, true), (DataType::U16, true)];
+const INDEX_TYPES: ComponentTypes = &[(DataType::U8, false), (DataType::U16, false), (DataType::U32, false)];
+
+/// Checks that an accessor has a type glTF allows for `what` and that its elements lie
+/// inside its buffer view and the view inside its buffer; returns its count. The `gltf`
+/// crate's reader assumes all of it: it reads a VEC2 or byte accessor as three floats,
+/// reports data past a view's end as a missing attribute, and panics on float indices.
+fn check_accessor(
+    a: &gltf::Accessor,
+    what: &str,
+    dims: Dimensions,
+    types: ComponentTypes,
+    buffers: &[gltf::buffer::Data],
+) -> Result<usize, String> {
+    let named = format!("{what} (accessor {})", a.index());
+    let kind = (a.data_type(), a.normalized());
+    if a.dimensions() != dims || !types.contains(&kind) {
+        let allowed: Vec<String> = types.iter().map(|&t| component_name(t)).collect();
+        return Err(format!(
+            "{named} is {} of {}; glTF allows {} of {}",
+            dimensions_name(a.dimensions()),
+            component_name(kind),
+            dimensions_name(dims),
+            allowed.join(" or ")
+        ));
+    }
+    if a.sparse().is_some() {
+        return Err(format!("{named} is sparse, which objslam does not read: write its values out in a buffer view"));
+    }
+    let Some(view) = a.view() else {
+        return Err(format!("{named} has no bufferView (all its values would be zero)"));
+    };
+    let count = a.count();
+    if count == 0 {
+        return Err(format!("{named} has no elements (count 0)"));
+    }
+    let size = a.size();
+    let stride = view.stride().unwrap_or(size);
+    if stride < size {
+        return Err(format!(
+            "{named}: buffer view {}'s byteStride {stride} is less than an element's {size} bytes",
+            view.index()
+        ));
+    }
+    let buffer = view.buffer().index();
+    let data_len = buffers.get(buffer).map_or(0, |d| d.0.len());
+    if view.offset().checked_add(view.length()).is_none_or(|end| end > data_len) {
+        return Err(format!(
+            "buffer view {} (byteOffset {}, byteLength {}) runs past the end of buffer {buffer} ({data_len} bytes)",
+            view.index(),
+            view.offset(),
+            view.length()
+        ));
+    }
+    let end = (count - 1).checked_mul(stride).and_then(|b| b.checked_add(size)).and_then(|b| b.checked_add(a.offset()));
+    if end.is_none_or(|end| end > view.length()) {
+        return Err(format!(
+            "{named}: {count} elements of {size} bytes from byteOffset {} run past the end of buffer view {} ({} bytes)",
+            a.offset(),
+            view.index(),
+            view.length()
+        ));
+    }
+    Ok(count)
+}
+
+/// [`check_accessor`] for a vertex attribute beside POSITION, which must have as many
+/// elements as there are vertices.
+fn check_same_count(
+    a: &gltf::Accessor,
+    vertices: usize,
+    what: &str,
+    dims: Dimensions,
+    types: ComponentTypes,
+    buffers: &[gltf::buffer::Data],
+) -> Result<(), String> {
+    let count = check_accessor(a, what, dims, types, buffers)?;
+    if count != vertices {
+        return Err(format!("{what} (accessor {}) has {count} elements for {vertices} vertices", a.index()));
+    }
+    Ok(())
+}
+
+fn dimensions_name(d: Dimensions) -> String {
+    format!("{d:?}").to_uppercase()
+}
+
+fn component_name((t, normalized): (DataType, bool)) -> String {
+    let name = match t {
+        DataType::I8 => "signed byte",
+        DataType::U8 => "unsigned byte",
+        DataType::I16 => "signed short",
+        DataType::U16 => "unsigned short",
+        DataType::U32 => "unsigned int",
+        DataType::F32 => "float",
+    };
+    if normalized { format!("normalized {name}") } else { name.to_string() }
+}
+
+/// The vertex indices of a primitive's triangles, one triple each, from a list, strip or
+/// fan (glTF 2.0, section 3.7.2.1: strips alternate so that every triangle keeps the
+/// winding of the first).
+fn triangle_list(mode: Mode, v: &[u32]) -> Result<Vec<u32>, String> {
+    match mode {
+        Mode::Triangles if v.len().is_multiple_of(3) => Ok(v.to_vec()),
+        Mode::Triangles => Err(format!("{} vertex indices do not make whole triangles", v.len())),
+        _ if v.len() < 3 => Err(format!("a triangle strip or fan of {} vertices has no triangle", v.len())),
+        Mode::TriangleStrip => Ok((0..v.len() - 2)
+            .flat_map(|i| if i % 2 == 0 { [v[i], v[i + 1], v[i + 2]] } else { [v[i], v[i + 2], v[i + 1]] })
+            .collect()),
+        Mode::TriangleFan => Ok((0..v.len() - 2).flat_map(|i| [v[i + 1], v[i + 2], v[0]]).collect()),
+        _ => Err(format!("{mode:?} is not a triangle mode")),
+    }
 }
 
 #[cfg(test)]
@@ -387,7 +551,160 @@ mod tests {
         let e = with_buffer("small.bin", 1000);
         assert!(e.contains("holds 10 bytes") && e.contains("1000"), "{e}");
         assert_eq!(import_mesh(&dir).unwrap_err(), "not a regular file");
+        // Names are resolved as the importer resolves them: percent-decoded, or `file:`.
+        let e = with_buffer("%2Fdev%2Fzero", 1_000_000_000);
+        assert!(e.contains("buffer 0 (%2Fdev%2Fzero): not a regular file"), "{e}");
+        let e = with_buffer("file:///dev/zero", 1_000_000_000);
+        assert!(e.contains("buffer 0 (file:///dev/zero): not a regular file"), "{e}");
+        // The importer panicked on a name that decodes to bytes that are not UTF-8.
+        let e = with_buffer("%FF.bin", 10);
+        assert!(e.contains("buffer 0 (%FF.bin): its percent-encoded name is not UTF-8 text"), "{e}");
+        // Images are not read: one that names a missing file does not stop the mesh.
+        let triangle = f32_bytes([0.0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, -1.0].iter());
+        std::fs::write(dir.join("tri.bin"), triangle).unwrap();
+        let doc = serde_json::json!({
+            "asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+            "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+            "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0, 0, -1], "max": [1, 0, 0]}],
+            "bufferViews": [{"buffer": 0, "byteLength": 36}], "buffers": [{"uri": "tri.bin", "byteLength": 36}],
+            "images": [{"uri": "missing.png"}]
+        });
+        std::fs::write(&file, serde_json::to_vec(&doc).unwrap()).unwrap();
+        assert_eq!(import_mesh(&file).unwrap().indices, vec![0, 1, 2]);
         std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// A `.glb` with one mesh of one primitive over `bin`: accessors, views (into the one
+    /// buffer) and the primitive as given.
+    fn glb_with(
+        bin: &[u8],
+        views: serde_json::Value,
+        accessors: serde_json::Value,
+        primitive: serde_json::Value,
+    ) -> Vec<u8> {
+        let root = serde_json::json!({
+            "asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+            "meshes": [{"primitives": [primitive]}], "accessors": accessors, "bufferViews": views,
+            "buffers": [{"byteLength": bin.len()}]
+        });
+        glb_bytes(&root, bin)
+    }
+
+    /// Four vertices of a unit square in glTF's x-z plane (y up), as floats.
+    fn square() -> Vec<u8> {
+        f32_bytes([0.0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, -1.0, 1.0, 0.0, -1.0].iter())
+    }
+
+    fn positions(count: usize) -> serde_json::Value {
+        serde_json::json!({"bufferView": 0, "componentType": 5126, "count": count, "type": "VEC3", "min": [0, 0, -1], "max": [1, 0, 0]})
+    }
+
+    #[test]
+    fn attributes_of_a_type_gltf_does_not_allow_are_refused_by_name() {
+        let bin = square();
+        let view = serde_json::json!([{"buffer": 0, "byteLength": 48}]);
+        let vec2 = serde_json::json!([{"bufferView": 0, "componentType": 5126, "count": 6, "type": "VEC2", "min": [0, 0, 0], "max": [1, 1, 1]}]);
+        let e =
+            import_mesh_slice(&glb_with(&bin, view.clone(), vec2, serde_json::json!({"attributes": {"POSITION": 0}})))
+                .unwrap_err();
+        assert_eq!(e, "mesh 0 primitive 0: POSITION (accessor 0) is VEC2 of float; glTF allows VEC3 of float");
+        let bytes = serde_json::json!([{"bufferView": 0, "componentType": 5121, "count": 12, "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 1]}]);
+        let e =
+            import_mesh_slice(&glb_with(&bin, view.clone(), bytes, serde_json::json!({"attributes": {"POSITION": 0}})))
+                .unwrap_err();
+        assert!(e.ends_with("is VEC3 of unsigned byte; glTF allows VEC3 of float"), "{e}");
+        // Float indices made the reader panic.
+        let mut with_indices = bin.clone();
+        with_indices.extend(f32_bytes([0.0f32, 1.0, 2.0].iter()));
+        let views =
+            serde_json::json!([{"buffer": 0, "byteLength": 48}, {"buffer": 0, "byteOffset": 48, "byteLength": 12}]);
+        let accessors =
+            serde_json::json!([positions(4), {"bufferView": 1, "componentType": 5126, "count": 3, "type": "SCALAR"}]);
+        let e = import_mesh_slice(&glb_with(
+            &with_indices,
+            views,
+            accessors,
+            serde_json::json!({"attributes": {"POSITION": 0}, "indices": 1}),
+        ))
+        .unwrap_err();
+        assert!(e.contains("indices (accessor 1) is SCALAR of float; glTF allows SCALAR of unsigned byte or unsigned short or unsigned int"), "{e}");
+        // A normal per vertex, or none: three normals for four vertices once let an index
+        // point past the vertices kept.
+        let mut with_normals = bin.clone();
+        with_normals.extend(f32_bytes([0.0f32, 1.0, 0.0].repeat(3).iter()));
+        let views =
+            serde_json::json!([{"buffer": 0, "byteLength": 48}, {"buffer": 0, "byteOffset": 48, "byteLength": 36}]);
+        let accessors =
+            serde_json::json!([positions(4), {"bufferView": 1, "componentType": 5126, "count": 3, "type": "VEC3"}]);
+        let e = import_mesh_slice(&glb_with(
+            &with_normals,
+            views,
+            accessors,
+            serde_json::json!({"attributes": {"POSITION": 0, "NORMAL": 1}, "mode": 5}),
+        ))
+        .unwrap_err();
+        assert_eq!(e, "mesh 0 primitive 0: NORMAL (accessor 1) has 3 elements for 4 vertices");
+    }
+
+    #[test]
+    fn accessors_past_their_data_are_refused_not_read_as_missing() {
+        let bin = square();
+        let primitive = serde_json::json!({"attributes": {"POSITION": 0}, "mode": 5});
+        let view = serde_json::json!([{"buffer": 0, "byteLength": 48}]);
+        let e = import_mesh_slice(&glb_with(
+            &bin,
+            view.clone(),
+            serde_json::json!([positions(1_000_000_000)]),
+            primitive.clone(),
+        ))
+        .unwrap_err();
+        assert!(e.contains("POSITION (accessor 0): 1000000000 elements of 12 bytes from byteOffset 0 run past the end of buffer view 0 (48 bytes)"), "{e}");
+        let long_view = serde_json::json!([{"buffer": 0, "byteOffset": 4, "byteLength": 48}]);
+        let e = import_mesh_slice(&glb_with(&bin, long_view, serde_json::json!([positions(4)]), primitive.clone()))
+            .unwrap_err();
+        assert!(
+            e.contains("buffer view 0 (byteOffset 4, byteLength 48) runs past the end of buffer 0 (48 bytes)"),
+            "{e}"
+        );
+        let no_view = serde_json::json!([{"componentType": 5126, "count": 4, "type": "VEC3", "min": [0, 0, 0], "max": [0, 0, 0]}]);
+        // The glTF reader's validation refuses this one before the accessor checks.
+        let e = import_mesh_slice(&glb_with(&bin, view, no_view, primitive)).unwrap_err();
+        assert!(e.contains("bufferView"), "{e}");
+    }
+
+    #[test]
+    fn strips_and_fans_become_triangles_and_a_partial_triangle_is_refused() {
+        let bin = square();
+        let view = serde_json::json!([{"buffer": 0, "byteLength": 48}]);
+        let import = |mode: u32| {
+            import_mesh_slice(&glb_with(
+                &bin,
+                view.clone(),
+                serde_json::json!([positions(4)]),
+                serde_json::json!({"attributes": {"POSITION": 0}, "mode": mode}),
+            ))
+        };
+        // The strip's second triangle keeps the first's winding.
+        assert_eq!(import(5).unwrap().indices, vec![0, 1, 2, 1, 3, 2]);
+        assert_eq!(import(6).unwrap().indices, vec![1, 2, 0, 2, 3, 0]);
+        assert_eq!(import(4).unwrap_err(), "mesh 0 primitive 0: 4 vertex indices do not make whole triangles");
+        // Lines have no surface: with nothing else the file has no triangles.
+        assert_eq!(import(1).unwrap_err(), "the file has no triangle meshes");
+    }
+
+    #[test]
+    fn non_finite_positions_are_refused() {
+        let mut bin = square();
+        bin[0..4].copy_from_slice(&f32::NAN.to_le_bytes());
+        let view = serde_json::json!([{"buffer": 0, "byteLength": 48}]);
+        let e = import_mesh_slice(&glb_with(
+            &bin,
+            view,
+            serde_json::json!([positions(4)]),
+            serde_json::json!({"attributes": {"POSITION": 0}, "mode": 5}),
+        ))
+        .unwrap_err();
+        assert!(e.starts_with("mesh 0 primitive 0: a position is not finite"), "{e}");
     }
 
     #[test]
