@@ -228,7 +228,7 @@ pub(crate) struct TrainArgs {
     #[arg(long)]
     pub(crate) heldout_dataset: Vec<PathBuf>,
     /// Write the scores on the --heldout-dataset worlds to this JSON file.
-    #[arg(long)]
+    #[arg(long, requires = "heldout_dataset")]
     pub(crate) heldout_report: Option<PathBuf>,
     /// A patch is object when R = w_obj p_obj / (w_obj p_obj + w_bg p_bg) exceeds this.
     #[arg(long, default_value_t = 0.5, allow_negative_numbers = true)]

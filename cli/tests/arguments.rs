@@ -21,6 +21,11 @@ fn negative_numbers_are_values_checked_like_any_other() {
             "--duration must be a positive number of seconds, not -5",
         ),
         (vec!["train", "--dataset", out, "--out", out, "--threshold", "-1"], "--threshold must lie in [0, 1], got -1"),
+        // A report of nothing was written as `[]`.
+        (
+            vec!["train", "--dataset", out, "--out", out, "--heldout-report", out],
+            "the following required arguments were not provided:\n  --heldout-dataset <HELDOUT_DATASET>",
+        ),
         (vec!["run", "--seed", "-1"], "invalid value '-1' for '--seed <SEED>'"),
         (vec!["montecarlo", "laser_only", "--runs", "-3"], "invalid value '-3' for '--runs <RUNS>'"),
         (vec!["run", "--method", "bogus"], "invalid value 'bogus' for '--method <METHOD>'"),

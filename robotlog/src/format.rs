@@ -315,19 +315,41 @@ impl Rows {
 
 /// The first blank line (1-based) of CSV `file` that has a line of text after it (before
 /// the header or between rows): the `csv` reader skips blank lines, so a row lost there
-/// would go unseen. Blank lines at the end are left alone.
+/// would go unseen. Blank lines at the end are left alone. Lines end as the reader ends
+/// them: at `\n`, `\r\n` or a lone `\r`.
 pub fn blank_line_before_last_row(file: &Path) -> std::io::Result<Option<u64>> {
     use std::io::BufRead;
-    let reader = std::io::BufReader::new(fs::File::open(file)?);
+    let mut reader = std::io::BufReader::new(fs::File::open(file)?);
+    let (mut line, mut has_text, mut after_cr) = (1u64, false, false);
     let mut blank = None;
-    for (k, line) in reader.split(b'\n').enumerate() {
-        if line?.iter().all(u8::is_ascii_whitespace) {
-            blank = blank.or(Some(k as u64 + 1));
-        } else if blank.is_some() {
-            return Ok(blank);
+    loop {
+        let chunk = reader.fill_buf()?;
+        if chunk.is_empty() {
+            return Ok(None);
         }
+        for &b in chunk {
+            match b {
+                b'\n' if after_cr => after_cr = false,
+                b'\r' | b'\n' => {
+                    if !has_text {
+                        blank = blank.or(Some(line));
+                    }
+                    (line, has_text, after_cr) = (line + 1, false, b == b'\r');
+                }
+                _ => {
+                    after_cr = false;
+                    if !b.is_ascii_whitespace() {
+                        if blank.is_some() {
+                            return Ok(blank);
+                        }
+                        has_text = true;
+                    }
+                }
+            }
+        }
+        let n = chunk.len();
+        reader.consume(n);
     }
-    Ok(None)
 }
 
 /// What is wrong, in words, for a CSV reader's error (its UTF-8 error's own text is a

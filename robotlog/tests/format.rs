@@ -149,6 +149,9 @@ fn malformed_files_are_errors_that_name_file_and_line() {
         ("odometry.csv", "t,dx,dy,dtheta\n", "odometry.csv: a header and no row"),
         ("odometry.csv", "t,dx,dy,dtheta\n0,1,0,0\n\n0.2,1,0,0\n", "odometry.csv:3: a blank line before the last row"),
         ("odometry.csv", "t,dx,dy,dtheta\n\n0,1,0,0\n", "odometry.csv:2: a blank line before the last row"),
+        // Lines ended by a lone carriage return, or by CR LF, as the CSV reader ends them.
+        ("odometry.csv", "t,dx,dy,dtheta\r0,1,0,0\r\r0.2,1,0,0\r", "odometry.csv:3: a blank line before the last row"),
+        ("odometry.csv", "t,dx,dy,dtheta\r\n0,1,0,0\r\n\r\n0.2,1,0,0\r\n", "odometry.csv:3: a blank line"),
         ("scans.csv", "t,r0\n", "scans.csv: a header and no row"),
         ("scans.csv", "t\n0\n", "scans.csv:1: no beam column after `t`"),
         ("odometry.csv", "t,speed,steering\n0,1,0\n", "needs `t,dx,dy,dtheta` or `t,v,omega`"),

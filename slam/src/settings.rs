@@ -19,8 +19,34 @@ pub fn from_json<T: serde::de::DeserializeOwned>(text: &str) -> Result<T, String
 
 fn describe_json_error(e: &serde_path_to_error::Error<serde_json::Error>) -> String {
     let path = e.path().to_string();
+    let problem = in_json_words(&e.inner().to_string());
     // `?`: serde_path_to_error knows no place (an error before the first key).
-    if path.is_empty() || path == "." || path == "?" { e.inner().to_string() } else { format!("{path}: {}", e.inner()) }
+    if path.is_empty() || path == "." || path == "?" { problem } else { format!("{path}: {problem}") }
+}
+
+/// A serde error in JSON's words: serde names a table `map` or `struct Name` (a Rust type,
+/// meaningless to the file's author) and an array `sequence`.
+fn in_json_words(message: &str) -> String {
+    // An array where a table belongs is read as the table's fields in order, and a wrong
+    // count is "invalid length N, expected struct Name with M elements".
+    if message.starts_with("invalid length")
+        && let Some(at) = message.find("expected struct ")
+    {
+        let place = message.find(" at line ").map_or("", |p| &message[p..]);
+        if message[at..].contains(" with ") {
+            return format!("invalid type: an array, expected an object{place}");
+        }
+    }
+    let mut out = message.replace("invalid type: sequence", "invalid type: an array");
+    out = out.replace("invalid type: map", "invalid type: an object");
+    out = out.replace("expected a sequence", "expected an array");
+    while let Some(at) = out.find("expected struct ") {
+        let name_start = at + "expected struct ".len();
+        let name_len =
+            out[name_start..].find(|c: char| !(c.is_alphanumeric() || c == '_')).unwrap_or(out.len() - name_start);
+        out.replace_range(at..name_start + name_len, "expected an object");
+    }
+    out
 }
 
 /// A setting that makes no sense.
@@ -71,5 +97,15 @@ mod json_tests {
         // Cut short before its first key: no place to name, and no `?` for one.
         let e = super::from_json::<Outer>("{").unwrap_err();
         assert!(e.starts_with("EOF while parsing"), "{e}");
+    }
+
+    #[test]
+    fn json_errors_name_json_types_not_rust_ones() {
+        let e = super::from_json::<Outer>("[]").unwrap_err();
+        assert!(e.starts_with("invalid type: an array, expected an object"), "{e}");
+        let e = super::from_json::<Outer>(r#"{"inner": {"values": {}}}"#).unwrap_err();
+        assert!(e.starts_with("inner.values: invalid type: an object, expected an array"), "{e}");
+        let e = super::from_json::<Outer>(r#"{"inner": 3}"#).unwrap_err();
+        assert!(e.starts_with("inner: invalid type: integer `3`, expected an object"), "{e}");
     }
 }
