@@ -95,9 +95,14 @@ pub fn start_unfinished(out: &Path) -> Result<PathBuf, PartialFileError> {
     Ok(dir)
 }
 
-/// Removes an unfinished directory that a failure left empty (one holding outputs is kept).
-pub fn abandon_unfinished(dir: &Path) {
-    let _ = std::fs::remove_dir(dir);
+/// Passes `result` on; where it is a failure, removes `out`'s unfinished directory if the
+/// failure left it empty (one holding outputs is kept), so a failed command leaves no empty
+/// directory behind.
+pub fn abandon_if_failed<T, E>(out: Option<&Path>, result: Result<T, E>) -> Result<T, E> {
+    if let (Err(_), Some(out)) = (&result, out) {
+        let _ = std::fs::remove_dir(unfinished_dir(out));
+    }
+    result
 }
 
 /// Moves finished outputs from `unfinished` into `out`, each replacing the file (or

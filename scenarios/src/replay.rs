@@ -281,12 +281,7 @@ pub fn replay(
     appearance: Option<AppearanceModel>,
     out: Option<&Path>,
 ) -> Result<Replay, ReplayError> {
-    let result = replay_and_write(log.into(), config, appearance, out);
-    // A replay that failed leaves no empty unfinished directory behind.
-    if let (Err(_), Some(out)) = (&result, out) {
-        crate::partial_files::abandon_unfinished(&crate::partial_files::unfinished_dir(out));
-    }
-    result
+    crate::partial_files::abandon_if_failed(out, replay_and_write(log.into(), config, appearance, out))
 }
 
 fn replay_and_write(

@@ -62,14 +62,9 @@ impl FramePool {
         self.0.lock().unwrap_or_else(|p| p.into_inner()).pop().unwrap_or_default()
     }
 
-    /// How many frames wait for reuse.
-    pub fn len(&self) -> usize {
-        self.0.lock().unwrap_or_else(|p| p.into_inner()).len()
-    }
-
-    /// Whether none waits.
+    /// Whether no frame waits for reuse.
     pub fn is_empty(&self) -> bool {
-        self.len() == 0
+        self.0.lock().unwrap_or_else(|p| p.into_inner()).is_empty()
     }
 }
 

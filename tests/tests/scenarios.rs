@@ -317,6 +317,23 @@ fn combined_method_runs_end_to_end_with_camera_segmentation() {
         "metrics.json and metadata.json name the same renderer"
     );
     assert!(meta["appearance_model"].get("training_renderer").is_some());
+    // The mapped objects' models and pictures: a picture for each of some modelled
+    // landmarks, none for a landmark without a model, and the appearance model beside them.
+    let models: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("objects/models.json")).unwrap()).unwrap();
+    let modelled: Vec<u64> = models["objects"].as_array().unwrap().iter().map(|o| o[0].as_u64().unwrap()).collect();
+    assert!(!modelled.is_empty() && models["format_version"] == 1, "{models}");
+    let pictures: Vec<u64> = std::fs::read_dir(out.join("objects"))
+        .unwrap()
+        .filter_map(|e| {
+            let name = e.unwrap().file_name().into_string().unwrap();
+            name.strip_prefix("landmark_")?.strip_suffix(".png")?.parse().ok()
+        })
+        .collect();
+    assert!(!pictures.is_empty() && pictures.iter().all(|id| modelled.contains(id)), "{pictures:?} {modelled:?}");
+    let picture = image::open(out.join(format!("objects/landmark_{}.png", pictures[0]))).unwrap();
+    assert!(picture.width() > 0 && picture.height() > 48, "a caption and a picture");
+    slam::classifier::AppearanceModel::load(&out.join("objects/appearance_model.json")).unwrap();
     let _ = std::fs::remove_dir_all(&out);
 }
 

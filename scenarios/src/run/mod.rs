@@ -342,12 +342,10 @@ pub fn run(
     options: &RunOptions,
     progress: impl FnMut(RunProgress),
 ) -> Result<RunOutcome, RunError> {
-    let outcome = run_and_write(scenario, base_dir, options, progress);
-    // A run that failed leaves no empty unfinished directory behind.
-    if let (Err(_), Some(out)) = (&outcome, &options.out) {
-        crate::partial_files::abandon_unfinished(&unfinished_dir(out));
-    }
-    outcome
+    crate::partial_files::abandon_if_failed(
+        options.out.as_deref(),
+        run_and_write(scenario, base_dir, options, progress),
+    )
 }
 
 fn run_and_write(
