@@ -119,18 +119,17 @@ pub(crate) fn record(
             &world,
             &config,
             sim_seed,
-            pipeline.as_ref(),
-            calibration.as_ref(),
+            scenarios::record::LogSettings {
+                pipeline: pipeline.as_ref(),
+                calibration: calibration.as_ref(),
+                appearance_model: model.as_ref(),
+            },
             out,
             show,
         )?,
         _ => scenarios::record::record(&world, &config, sim_seed, &scoring, out, format, show)?,
     };
     bar.finish_and_clear();
-    // Only beside frames: a recording too short for one has no camera to segment.
-    if let Some(m) = model.as_ref().filter(|_| summary.camera_frames > 0) {
-        m.save(&out.join(scenarios::replay::APPEARANCE_MODEL_FILE))?;
-    }
     println!(
         "recorded {:.1} s in {:.2} s ({:.0}x real time): {} scans, {} odometry messages, {} camera frames, {} collisions -> {}",
         summary.sim_seconds,

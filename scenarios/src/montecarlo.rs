@@ -107,6 +107,91 @@ pub struct StudyPlan {
     pub vary: Vec<Vary>,
 }
 
+/// What a study's scenario was when the study began, kept in `study.json` beside the plan:
+/// a resumed study, a merge of its shards and a rerun of one of its jobs check that the
+/// scenario they read is still that one, so that no study mixes runs of two.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ScenarioPin {
+    /// The scenario file's absolute path (`<built-in>/NAME` for a built-in scenario), so
+    /// that a rerun from another directory reads the same file.
+    pub file: String,
+    /// SHA-256 of the scenario's settings and of the files they name: the world file (as
+    /// loaded, its glTF buffers too), the appearance model, the calibration.
+    pub sha256: String,
+}
+
+/// `study.json`: the plan, and the scenario it was begun with (studies begun before the
+/// scenario was recorded have none).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+struct StudyFile {
+    #[serde(flatten)]
+    plan: StudyPlan,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    scenario_pin: Option<ScenarioPin>,
+}
+
+/// Reads `file`, a `study.json`; `hint` is added to the message where it is not a plan.
+fn read_study_file(file: &Path, hint: &str) -> Result<StudyFile, StudyError> {
+    let bytes = std::fs::read(file).map_err(|e| StudyError::Io { file: file.into(), source: e })?;
+    serde_json::from_slice(&bytes)
+        .map_err(|e| StudyError::File { file: file.into(), message: format!("not a study plan ({e}){hint}") })
+}
+
+/// Loads the scenario `name_or_path` names (a file, else a built-in one) and pins it: where
+/// it was read from, and the digest of what its runs read.
+pub fn pin_scenario(name_or_path: &str) -> Result<(ScenarioPin, Scenario, PathBuf), StudyError> {
+    use sha2::{Digest, Sha256};
+    let (scenario, base_dir) = Scenario::load(name_or_path)?;
+    let path = Path::new(name_or_path);
+    let file = if path.exists() {
+        let absolute = std::fs::canonicalize(path).map_err(|e| StudyError::Io { file: path.into(), source: e })?;
+        absolute.display().to_string()
+    } else {
+        format!("<built-in>/{}", name_or_path.trim_end_matches(".toml"))
+    };
+    let mut digest = Sha256::new();
+    // Words for people only: a mended description changes no run.
+    let settings = Scenario { description: String::new(), ..scenario.clone() };
+    digest.update(serde_json::to_string(&settings).expect("a scenario is JSON").as_bytes());
+    if scenario.world.file.is_some() {
+        // As loaded, so that a glTF world's buffers count; a file world ignores the seed.
+        let world = scenario.world(&base_dir, 0)?;
+        digest.update(serde_json::to_string(&world).expect("a world is JSON").as_bytes());
+    }
+    let calibration_file = (!["true", "perturbed", "estimated"].contains(&scenario.calibration.mode.as_str()))
+        .then_some(scenario.calibration.mode.as_str());
+    for named in [scenario.appearance.model.as_deref(), calibration_file].into_iter().flatten() {
+        // One that cannot be read is the runs' error to report, in their own words.
+        match std::fs::read(base_dir.join(named)) {
+            Ok(bytes) => digest.update(Sha256::digest(&bytes)),
+            Err(e) => digest.update(format!("unreadable: {:?}", e.kind()).as_bytes()),
+        }
+    }
+    let sha256 = digest.finalize().iter().map(|b| format!("{b:02x}")).collect();
+    Ok((ScenarioPin { file, sha256 }, scenario, base_dir))
+}
+
+/// Loads the scenario of a study whose `study.json` is `plan_file`: from the file it was
+/// begun with where that was recorded (so that the study's directory, not the working
+/// directory, decides), checked to be unchanged.
+fn pinned_scenario(plan_file: &Path, study: &StudyFile) -> Result<(Scenario, PathBuf), StudyError> {
+    let Some(pin) = &study.scenario_pin else {
+        return Ok(Scenario::load(&study.plan.scenario)?);
+    };
+    let source = if pin.file.starts_with("<built-in>/") { study.plan.scenario.as_str() } else { pin.file.as_str() };
+    let (now, scenario, base_dir) = pin_scenario(source)?;
+    if now.sha256 != pin.sha256 {
+        return Err(StudyError::File {
+            file: plan_file.into(),
+            message: format!(
+                "the study's scenario {} has changed since the study began (its files or settings differ), so its runs would not be the study's",
+                pin.file
+            ),
+        });
+    }
+    Ok((scenario, base_dir))
+}
+
 /// The built-in study of the paper's argument on `paper_park`, as (name, plan) pairs: the
 /// association-failure rate of the combined method and the position-only baselines against
 /// odometry heading drift (the simulator's per-run heading bias, 0 to 5x its default:
@@ -517,32 +602,41 @@ pub fn run_study_with(
     let lock = std::fs::File::create(&lock_file).map_err(|e| StudyError::Io { file: lock_file.clone(), source: e })?;
     lock.try_lock().map_err(|_| StudyError::Locked { file: lock_file.clone() })?;
     let plan_file = out.join("study.json");
-    match std::fs::read(&plan_file) {
-        Ok(bytes) => {
-            let existing: StudyPlan = serde_json::from_slice(&bytes).map_err(|e| StudyError::File {
-                file: plan_file.clone(),
-                message: format!(
-                    "not a study plan ({e}); remove the directory, or this file if runs.jsonl is empty, to start again"
-                ),
-            })?;
-            if &existing != plan {
+    let (pin, base_scenario, base_dir) = pin_scenario(&plan.scenario)?;
+    match read_study_file(&plan_file, "; remove the directory, or this file if runs.jsonl is empty, to start again") {
+        Ok(existing) => {
+            // The scenario as typed may differ (another working directory) where the
+            // study recorded which one it began with: the digest below decides.
+            let typed_alike = existing.plan.scenario == plan.scenario || existing.scenario_pin.is_some();
+            let untyped = |p: &StudyPlan| StudyPlan { scenario: String::new(), ..p.clone() };
+            if !typed_alike || untyped(&existing.plan) != untyped(plan) {
                 return Err(StudyError::Mismatch {
                     dir: out.into(),
-                    message: format!("it was started as {}", serde_json::to_string(&existing).unwrap_or_default()),
+                    message: format!("it was started as {}", serde_json::to_string(&existing.plan).unwrap_or_default()),
+                });
+            }
+            if let Some(began) = existing.scenario_pin.filter(|began| began.sha256 != pin.sha256) {
+                return Err(StudyError::Mismatch {
+                    dir: out.into(),
+                    message: format!(
+                        "it began with scenario {}, and {} now reads {}, whose files or settings differ",
+                        began.file, plan.scenario, pin.file
+                    ),
                 });
             }
         }
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
-            write_atomically(&plan_file, &serde_json::to_string_pretty(plan).expect("JSON"))?
+        Err(StudyError::Io { source, .. }) if source.kind() == std::io::ErrorKind::NotFound => {
+            let study = StudyFile { plan: plan.clone(), scenario_pin: Some(pin) };
+            write_atomically(&plan_file, &serde_json::to_string_pretty(&study).expect("JSON"))?
         }
-        Err(e) => {
+        Err(StudyError::Io { source, .. }) => {
             return Err(StudyError::File {
                 file: plan_file.clone(),
-                message: format!("cannot read the study plan: {e}"),
+                message: format!("cannot read the study plan: {source}"),
             });
         }
+        Err(e) => return Err(e),
     }
-    let (base_scenario, base_dir) = Scenario::load(&plan.scenario)?;
     let models = StudyModels::new(&base_dir);
     let runs_file = out.join("runs.jsonl");
     let existing: Vec<RunRecord> = read_runs(&runs_file)?.into_iter().filter(|r| !r.retryable).collect();
@@ -784,12 +878,11 @@ fn differences_from_record(recorded: &serde_json::Value, new: &serde_json::Value
 /// is the job's index or its key, as `runs.jsonl` gives them (`job.index`, `key`).
 pub fn rerun(dir: &Path, job: &str, out: &Path) -> Result<Rerun, StudyError> {
     let plan_file = dir.join("study.json");
-    let bytes = std::fs::read(&plan_file).map_err(|e| StudyError::Io { file: plan_file.clone(), source: e })?;
-    let plan: StudyPlan = serde_json::from_slice(&bytes)
-        .map_err(|e| StudyError::File { file: plan_file.clone(), message: format!("not a study plan ({e})") })?;
+    let study = read_study_file(&plan_file, "")?;
+    let plan = &study.plan;
     plan.check()
         .map_err(|e| StudyError::File { file: plan_file.clone(), message: format!("not a plan that can run ({e})") })?;
-    let all = jobs(&plan);
+    let all = jobs(plan);
     if all.is_empty() {
         return Err(StudyError::File { file: plan_file, message: "this study has no jobs".into() });
     }
@@ -805,7 +898,7 @@ pub fn rerun(dir: &Path, job: &str, out: &Path) -> Result<Rerun, StudyError> {
             all.len().saturating_sub(1)
         ),
     })?;
-    let (base, base_dir) = Scenario::load(&plan.scenario)?;
+    let (base, base_dir) = pinned_scenario(&plan_file, &study)?;
     let (recorded, recorded_line) = recorded_run(&dir.join("runs.jsonl"), &job.key())?.unzip();
     let record = run_job_into(&base, &base_dir, &job, &StudyModels::new(&base_dir), Some(out));
     Ok(Rerun { job, record, recorded, recorded_line })
@@ -828,15 +921,16 @@ fn recorded_run(file: &Path, key: &str) -> Result<Option<(RunRecord, serde_json:
 
 /// Merges shard directories into `out`: runs de-duplicated by job and ordered by job index.
 pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<(StudyPlan, Vec<RunRecord>), StudyError> {
-    let mut plan: Option<StudyPlan> = None;
+    let mut plan: Option<StudyFile> = None;
     let mut by_key: BTreeMap<String, RunRecord> = BTreeMap::new();
     for d in dirs {
         let f = d.join("study.json");
-        let text = std::fs::read_to_string(&f).map_err(|e| StudyError::Io { file: f.clone(), source: e })?;
-        let p: StudyPlan =
-            serde_json::from_str(&text).map_err(|e| StudyError::File { file: f.clone(), message: e.to_string() })?;
+        let p = read_study_file(&f, "")?;
+        // Shards run on other machines read the scenario from other paths: the same
+        // study has the same plan and the same scenario digest.
+        let digest = |s: &StudyFile| s.scenario_pin.as_ref().map(|pin| pin.sha256.clone());
         match &plan {
-            Some(existing) if existing != &p => {
+            Some(existing) if existing.plan != p.plan || digest(existing) != digest(&p) => {
                 return Err(StudyError::Mismatch {
                     dir: d.clone(),
                     message: "shards of different studies cannot be merged".into(),
@@ -865,15 +959,15 @@ pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<(StudyPlan, Vec<RunRecord>)
             }
         }
     }
-    let plan =
+    let study =
         plan.ok_or_else(|| StudyError::File { file: out.into(), message: "no shard directories given".into() })?;
     let mut runs: Vec<RunRecord> = by_key.into_values().collect();
     runs.sort_by_key(|r| r.job.index);
     std::fs::create_dir_all(out).map_err(|e| StudyError::Io { file: out.into(), source: e })?;
-    write_atomically(&out.join("study.json"), &serde_json::to_string_pretty(&plan).expect("JSON"))?;
+    write_atomically(&out.join("study.json"), &serde_json::to_string_pretty(&study).expect("JSON"))?;
     let lines: String = runs.iter().map(|r| serde_json::to_string(r).expect("JSON") + "\n").collect();
     write_atomically(&out.join("runs.jsonl"), &lines)?;
-    Ok((plan, runs))
+    Ok((study.plan, runs))
 }
 
 /// How many of `plan`'s runs are not among `runs` (a merge of some of a study's shards,

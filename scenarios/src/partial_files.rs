@@ -78,13 +78,53 @@ impl<K> Drop for PartialFiles<K> {
     }
 }
 
+/// An output directory held by this process: while it lives, no other objslam command can
+/// hold the same directory, so two commands given one `--out` cannot mix their outputs in
+/// its unfinished directory. The operating system releases the hold when the process ends,
+/// however it ends, so a killed command leaves nothing to clear away.
+#[derive(Debug)]
+pub struct OutputLock {
+    _held: File,
+}
+
+/// Makes `out` if need be and holds it (see [`OutputLock`]); fails at once, naming `out`,
+/// where another command holds it.
+pub fn lock_output(out: &Path) -> Result<OutputLock, PartialFileError> {
+    std::fs::create_dir_all(out).map_err(error(out))?;
+    let held = open_lock(out).map_err(error(out))?;
+    match held.try_lock() {
+        Ok(()) => Ok(OutputLock { _held: held }),
+        Err(std::fs::TryLockError::WouldBlock) => Err(PartialFileError {
+            file: out.to_path_buf(),
+            source: std::io::Error::new(
+                std::io::ErrorKind::ResourceBusy,
+                "another objslam command is writing into this directory; wait for it to end or choose another",
+            ),
+        }),
+        Err(std::fs::TryLockError::Error(e)) => Err(error(out)(e)),
+    }
+}
+
+/// The file whose lock stands for `out`'s: the directory itself where the system can lock
+/// one (nothing is added to it), a hidden file in it elsewhere.
+#[cfg(unix)]
+fn open_lock(out: &Path) -> std::io::Result<File> {
+    File::open(out)
+}
+
+#[cfg(not(unix))]
+fn open_lock(out: &Path) -> std::io::Result<File> {
+    std::fs::OpenOptions::new().create(true).truncate(false).write(true).open(out.join(".objslam.lock"))
+}
+
 /// Where outputs into `out` wait until all of them are written.
 pub fn unfinished_dir(out: &Path) -> PathBuf {
     out.join(".unfinished")
 }
 
 /// Makes `out`'s unfinished directory anew (one stopped on the way may have left one) and
-/// returns it.
+/// returns it. The caller holds `out` ([`lock_output`]) until it has published or abandoned
+/// what it wrote there.
 pub fn start_unfinished(out: &Path) -> Result<PathBuf, PartialFileError> {
     let dir = unfinished_dir(out);
     match std::fs::remove_dir_all(&dir) {
@@ -144,6 +184,21 @@ pub fn publish(unfinished: &Path, out: &Path, stale: &[&str]) -> Result<(), Vec<
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_output_directory_is_held_by_one_command_at_a_time() {
+        let dir = std::env::temp_dir().join(format!("objslam-lock-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let held = lock_output(&dir).unwrap();
+        assert!(dir.is_dir(), "made if need be");
+        let e = lock_output(&dir).unwrap_err();
+        assert_eq!(e.file, dir);
+        assert!(e.to_string().contains("another objslam command"), "{e}");
+        drop(held);
+        let again = lock_output(&dir).unwrap();
+        drop(again);
+        std::fs::remove_dir_all(&dir).ok();
+    }
 
     #[test]
     fn partial_files_take_their_names_when_finished_and_vanish_when_the_output_fails() {

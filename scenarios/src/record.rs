@@ -38,6 +38,14 @@ pub enum RecordError {
     Log(#[from] robotlog::LogError),
     #[error("the camera stopped during the recording, so the log would lack its later frames: {0}")]
     CameraStopped(String),
+    #[error(transparent)]
+    Output(#[from] crate::partial_files::PartialFileError),
+    /// Files that could not be moved into the output directory (each was tried); the
+    /// recording's others are in place.
+    #[error("{}", crate::run::join_errors(.0))]
+    Publish(Vec<crate::partial_files::PartialFileError>),
+    #[error(transparent)]
+    Model(#[from] slam::classifier::ModelError),
 }
 
 /// What `objslam record` writes.
@@ -283,7 +291,9 @@ pub fn write_camera_frame(
 
 /// Records a run of `world` into `out` in `format`, the simulator seeded with `seed`.
 /// `scoring` says how `objslam score` is to score systems on a JSON-lines log. `progress`
-/// is called with (sim time, nominal duration) now and then.
+/// is called with (sim time, nominal duration) now and then. A JSON-lines log or robot log
+/// replaces what `out` held only when written whole (see [`staged`]); a ROS 2 bag needs a
+/// new or empty directory.
 pub fn record(
     world: &worlds::World,
     config: &SimConfig,
@@ -294,17 +304,19 @@ pub fn record(
     progress: impl FnMut(f64, f64),
 ) -> Result<RecordSummary, RecordError> {
     match format {
-        RecordFormat::Jsonl => record_jsonl(world, config, seed, scoring, out, progress),
+        RecordFormat::Jsonl => staged(out, |dir| record_jsonl(world, config, seed, scoring, dir, progress)),
         RecordFormat::Ros2 => record_ros2(world, config, seed, out, progress),
-        RecordFormat::Log => record_log(world, config, seed, None, None, out, progress),
+        RecordFormat::Log => record_log(world, config, seed, LogSettings::default(), out, progress),
     }
 }
 
-/// Removes the files of a robot log in `out`, so that what a recording leaves there, even
-/// one that fails on the way, is never an earlier log's data mixed with its own.
-fn remove_robot_log(out: &Path) -> Result<(), RecordError> {
+/// Files of a robot log that not every recording writes, removed from `out` when a
+/// recording's own are moved in, so that what `out` holds afterwards is never an earlier
+/// log's data mixed with the new one's (a JSON-lines log's images share `camera/` with a
+/// robot log's, so it clears them too).
+fn robot_log_files() -> [&'static str; 9] {
     use robotlog::format as f;
-    let names = [
+    [
         f::MANIFEST,
         f::ODOMETRY,
         f::SCANS,
@@ -314,17 +326,42 @@ fn remove_robot_log(out: &Path) -> Result<(), RecordError> {
         "camera",
         crate::replay::PIPELINE_FILE,
         crate::replay::APPEARANCE_MODEL_FILE,
-    ];
-    for stale in names.map(|n| out.join(n)) {
-        let removed = if stale.is_dir() { std::fs::remove_dir_all(&stale) } else { std::fs::remove_file(&stale) };
-        match removed {
-            Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
-                return Err(RecordError::Io { file: stale, source: e });
-            }
-            _ => {}
+    ]
+}
+
+/// Runs `write` on `out`'s unfinished directory, holding `out` against other commands, and
+/// moves what it wrote into `out` only when it succeeded: a recording stopped or failing on
+/// the way leaves `out`'s earlier recording whole. A failed recording's files are removed;
+/// where the move itself fails, they stay in the unfinished directory, which the error names.
+fn staged(
+    out: &Path,
+    write: impl FnOnce(&Path) -> Result<RecordSummary, RecordError>,
+) -> Result<RecordSummary, RecordError> {
+    use crate::partial_files as staging;
+    let _out = staging::lock_output(out)?;
+    let unfinished = staging::start_unfinished(out)?;
+    let summary = match write(&unfinished) {
+        Ok(summary) => summary,
+        Err(e) => {
+            let _ = std::fs::remove_dir_all(&unfinished);
+            return Err(e);
         }
-    }
-    Ok(())
+    };
+    staging::publish(&unfinished, out, &robot_log_files()).map_err(RecordError::Publish)?;
+    Ok(summary)
+}
+
+/// What a robot log recorded from a scenario carries beside the sensor data, so that
+/// `objslam replay` estimates what `objslam run` does.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct LogSettings<'a> {
+    /// The scenario's pipeline settings, written as `pipeline.toml`.
+    pub pipeline: Option<&'a slam::pipeline::PipelineConfig>,
+    /// The laser <- camera extrinsics the run gives its pipeline (the true ones if `None`).
+    pub calibration: Option<&'a slam::calibration::Extrinsics>,
+    /// The appearance model the run uses, written as `appearance_model.json` where the log
+    /// has camera frames.
+    pub appearance_model: Option<&'a slam::classifier::AppearanceModel>,
 }
 
 /// Whether [`record_log`] writes camera frames: where the camera is enabled and, for a
@@ -336,19 +373,28 @@ pub fn logs_camera(config: &SimConfig, pipeline: Option<&slam::pipeline::Pipelin
 /// The simulation's stream as a robot log in `out` (see [`robotlog::format`]): the noisy
 /// odometry, the raw laser scans, the camera's frames where the camera is enabled (for a
 /// scenario, where its method also reads them, as a run renders them), and the robot's
-/// true pose as the reference. The manifest gives the camera the laser <- camera
-/// extrinsics `calibration` (the true ones if `None`): what a run of the scenario gives its
-/// pipeline. With `pipeline` (a scenario's settings), `pipeline.toml` beside it holds them,
-/// so that `objslam replay` estimates what `objslam run` does.
+/// true pose as the reference, with the scenario's `settings` beside them. The log replaces
+/// what `out` held only when written whole.
 pub fn record_log(
     world: &worlds::World,
     config: &SimConfig,
     seed: u64,
-    pipeline: Option<&slam::pipeline::PipelineConfig>,
-    calibration: Option<&slam::calibration::Extrinsics>,
+    settings: LogSettings,
+    out: &Path,
+    progress: impl FnMut(f64, f64),
+) -> Result<RecordSummary, RecordError> {
+    staged(out, |dir| write_log(world, config, seed, settings, dir, progress))
+}
+
+fn write_log(
+    world: &worlds::World,
+    config: &SimConfig,
+    seed: u64,
+    settings: LogSettings,
     out: &Path,
     mut progress: impl FnMut(f64, f64),
 ) -> Result<RecordSummary, RecordError> {
+    let LogSettings { pipeline, calibration, appearance_model } = settings;
     let started = std::time::Instant::now();
     // A robot's camera gives colour: no depth is rendered. (The camera's noise is a stream
     // of its own: the other sensors' messages are the same with or without it.)
@@ -356,7 +402,6 @@ pub fn record_log(
     as_logged.camera.depth_image = false;
     as_logged.camera.enabled = logs_camera(config, pipeline);
     let config = &as_logged;
-    remove_robot_log(out)?;
     let mut sim = Simulation::new(world, config, seed)?;
     let nominal = config.max_duration_s.unwrap_or_else(|| sim.nominal_duration_s());
     let (mut increments, mut scans, mut reference, mut frames) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
@@ -446,6 +491,10 @@ pub fn record_log(
         std::fs::write(&file, format!("# The pipeline settings of the scenario this log was recorded from.\n{text}"))
             .map_err(|source| RecordError::Io { file, source })?;
     }
+    // Only beside frames: a recording too short for one has no camera to segment.
+    if let Some(m) = appearance_model.filter(|_| !log.camera.is_empty()) {
+        m.save(&out.join(crate::replay::APPEARANCE_MODEL_FILE))?;
+    }
     progress(sim.time(), nominal);
     Ok(RecordSummary {
         sim_seconds: sim.time(),
@@ -508,9 +557,6 @@ fn record_jsonl(
     out: &Path,
     mut progress: impl FnMut(f64, f64),
 ) -> Result<RecordSummary, RecordError> {
-    std::fs::create_dir_all(out).map_err(|source| RecordError::Io { file: out.to_path_buf(), source })?;
-    // Its images share `camera/` with a robot log's: an earlier log there would read them.
-    remove_robot_log(out)?;
     let started = std::time::Instant::now();
     let mut sim = Simulation::new(world, config, seed)?;
     let nominal = config.max_duration_s.unwrap_or_else(|| sim.nominal_duration_s());

@@ -281,6 +281,8 @@ pub fn replay(
     appearance: Option<AppearanceModel>,
     out: Option<&Path>,
 ) -> Result<Replay, ReplayError> {
+    // Held until the outputs are published or abandoned.
+    let _out = out.map(crate::partial_files::lock_output).transpose()?;
     crate::partial_files::abandon_if_failed(out, replay_and_write(log.into(), config, appearance, out))
 }
 
@@ -351,6 +353,8 @@ fn replay_and_write(
     let yaw = log.manifest.sensor.yaw_rad;
     let (mut detections, mut motion_messages, mut scans, mut end) = (0, 0, 0, start);
     let mut f = 0;
+    // The time of the trajectory's last pose.
+    let mut last_written: Option<f64> = None;
     let error = |t: f64| move |source| ReplayError::Pipeline { t, source };
     loop {
         // At equal times: motion, then the frame, then the scan.
@@ -416,8 +420,11 @@ fn replay_and_write(
         let pose = at_point(p.pose);
         reference.on_pose(p.t, [pose[0], pose[1]]);
         path.push([pose[0], pose[1]]);
-        if let Some(s) = &mut streams {
+        // One pose a time (a TUM file's times increase): at a time of motion and a scan,
+        // the pose after the motion, as `objslam run` writes it; the scan moves the next.
+        if let Some(s) = streams.as_mut().filter(|_| last_written.is_none_or(|t| t < p.t)) {
             s.write(Stream::Trajectory, &(crate::record::tum_line(p.t, pose[0], pose[1], pose[2]) + "\n"))?;
+            last_written = Some(p.t);
         }
     }
     let wall_seconds = started.elapsed().as_secs_f64();

@@ -135,6 +135,28 @@ fn sharded_merged_study_equals_the_unsharded_one_and_resumes() {
     let e = mc::merge(&[root.join("whole"), dirs[0].clone()], &root.join("merged2")).unwrap_err().to_string();
     assert!(e.contains("recorded differently"), "{e}");
 
+    // The study keeps which scenario it began with: once the scenario file changes, a
+    // resume and a rerun are refused rather than mix its runs with the study's.
+    let scenario_file = PathBuf::from(&plan.scenario);
+    let original = std::fs::read_to_string(&scenario_file).unwrap();
+    let study: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(root.join("whole/study.json")).unwrap()).unwrap();
+    let pinned = std::fs::canonicalize(&scenario_file).unwrap();
+    assert_eq!(study["scenario_pin"]["file"], pinned.to_string_lossy().as_ref(), "{study}");
+    assert_eq!(study["scenario_pin"]["sha256"].as_str().map(str::len), Some(64), "{study}");
+    let mut edited_scenario: scenarios::scenario::Scenario = toml::from_str(&original).unwrap();
+    edited_scenario.description = "words only".into();
+    std::fs::write(&scenario_file, toml::to_string(&edited_scenario).unwrap()).unwrap();
+    assert!(mc::run_study(&plan, Shard::all(), &root.join("whole"), |_| {}).is_ok(), "a description is no setting");
+    edited_scenario.sim.max_duration_s = Some(11.0);
+    std::fs::write(&scenario_file, toml::to_string(&edited_scenario).unwrap()).unwrap();
+    let e = mc::run_study(&plan, Shard::all(), &root.join("whole"), |_| {}).unwrap_err().to_string();
+    assert!(e.contains("different study") && e.contains("differ") && e.contains("laser_only_short.toml"), "{e}");
+    let e = mc::rerun(&root.join("whole"), "1", &root.join("rerun4")).err().expect("a changed scenario").to_string();
+    assert!(e.contains("study.json") && e.contains("has changed"), "{e}");
+    assert!(!root.join("rerun4").exists(), "nothing was run");
+    std::fs::write(&scenario_file, &original).unwrap();
+
     // A study.json that is not a plan (a torn first write of an older version) is refused
     // with what to do, not overwritten.
     let torn = root.join("torn");

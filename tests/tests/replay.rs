@@ -43,8 +43,7 @@ fn a_recorded_log_replays_to_the_runs_estimate() {
         &world,
         &sc.sim,
         sim::derive_seed(seed, "sim"),
-        Some(&pipeline),
-        None,
+        scenarios::record::LogSettings { pipeline: Some(&pipeline), ..Default::default() },
         &dir.join("log"),
         |_, _| {},
     )
@@ -72,11 +71,15 @@ fn a_recorded_log_replays_to_the_runs_estimate() {
 /// The replay in `replay_dir` estimated what the run in `run_dir` did: the same pose at
 /// each of the run's instants, and the same landmarks.
 fn assert_same_estimate(run_dir: &Path, replay_dir: &Path, replayed: &scenarios::replay::Replay) {
-    // The run writes a pose per odometry message; the replay one per input, the odometry
-    // first at equal times. Each of the run's poses is the replay's first at its instant.
+    // The run writes a pose per odometry message; the replay one per instant of input,
+    // after the odometry where a scan comes at the same time. Each of the run's poses is
+    // the replay's at its instant, and the replay's times increase, as TUM's must (so
+    // that `objslam score` and evo read it).
     let run_path = read_tum(&run_dir.join("trajectory_est.tum"));
     let replay_path = read_tum(&replay_dir.join("trajectory_est.tum"));
     assert!(run_path.len() > 100);
+    assert!(replay_path.windows(2).all(|w| w[0][0] < w[1][0]), "the replay's times increase");
+    scenarios::score::estimate::read_tum(&replay_dir.join("trajectory_est.tum")).expect("score reads it");
     let mut k = 0;
     for p in &run_path {
         while replay_path[k][0] < p[0] {
@@ -115,8 +118,11 @@ fn a_recorded_log_with_camera_frames_replays_to_the_combined_runs_estimate() {
         &world,
         &sc.sim,
         sim::derive_seed(seed, "sim"),
-        Some(&pipeline),
-        Some(&calibration),
+        scenarios::record::LogSettings {
+            pipeline: Some(&pipeline),
+            calibration: Some(&calibration),
+            appearance_model: None,
+        },
         &dir.join("log"),
         |_, _| {},
     )

@@ -285,5 +285,17 @@ fn inputs_that_do_not_fit_the_log_are_errors_naming_file_and_line() {
     std::fs::write(&lm, r#"[{"id": 4, "position": [1, 2]}, {"id": 4, "position": [3, 4]}]"#).unwrap();
     let e = error(Estimate { landmarks: Some(lm), ..estimate(&out, "x") });
     assert!(e.contains("lm.json") && e.contains("twice"), "{e}");
+
+    // A robot log and a ROS 2 bag are named for what they are, with what reads them.
+    let robot_log = dir.join("robot_log");
+    std::fs::create_dir_all(&robot_log).unwrap();
+    std::fs::write(robot_log.join(robotlog::format::MANIFEST), "").unwrap();
+    let e = score_log(&robot_log, &estimate(&out, "x")).expect_err("a robot log").to_string();
+    assert!(e.contains("robot_log") && e.contains("robot log") && e.contains("objslam replay"), "{e}");
+    let bag = dir.join("bag");
+    std::fs::create_dir_all(&bag).unwrap();
+    std::fs::write(bag.join("metadata.yaml"), "").unwrap();
+    let e = score_log(&bag, &estimate(&out, "x")).expect_err("a bag").to_string();
+    assert!(e.contains("ROS 2 bag") && e.contains("metadata.json"), "{e}");
     let _ = std::fs::remove_dir_all(&dir);
 }

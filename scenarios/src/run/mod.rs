@@ -342,6 +342,8 @@ pub fn run(
     options: &RunOptions,
     progress: impl FnMut(RunProgress),
 ) -> Result<RunOutcome, RunError> {
+    // Held until the outputs are published or abandoned.
+    let _out = options.out.as_deref().map(crate::partial_files::lock_output).transpose()?;
     crate::partial_files::abandon_if_failed(
         options.out.as_deref(),
         run_and_write(scenario, base_dir, options, progress),

@@ -164,6 +164,28 @@ fn field<T: serde::de::DeserializeOwned>(file: &Path, v: &serde_json::Value, pat
 
 fn read_metadata(log: &Path) -> Result<LogMetadata, ScoreError> {
     let file = log.join("metadata.json");
+    if !file.exists() {
+        // Other outputs of objslam that hold a log, named so the user knows what to use.
+        let other = if log.join(robotlog::format::MANIFEST).exists() {
+            Some(format!(
+                "a robot log ({}); `objslam replay` estimates on it and scores against its reference",
+                robotlog::format::MANIFEST
+            ))
+        } else if log.join("metadata.yaml").exists() {
+            Some("a ROS 2 bag (metadata.yaml); record the JSON-lines log beside it (`objslam record`, the default format) to score a system".into())
+        } else {
+            None
+        };
+        if let Some(other) = other {
+            return Err(invalid(
+                log,
+                None,
+                format!(
+                    "{other}. `--log` takes a JSON-lines log of `objslam record` or a run's directory, with their metadata.json"
+                ),
+            ));
+        }
+    }
     let v: serde_json::Value =
         serde_json::from_str(&read_text(&file)?).map_err(|e| invalid(&file, Some(e.line()), e.to_string()))?;
     let tool: String = field(&file, &v, "tool")?;

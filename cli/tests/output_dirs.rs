@@ -1,0 +1,146 @@
+//! Output directories as users meet them: one command writes into a directory at a time,
+//! a stopped command leaves the earlier outputs whole, and a study's directory (not the
+//! working directory) decides which scenario its jobs run.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::time::{Duration, Instant};
+
+fn temp_root(name: &str) -> PathBuf {
+    let root = std::env::temp_dir().join(format!("objslam-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+    std::fs::create_dir_all(&root).unwrap();
+    root
+}
+
+fn objslam(dir: &Path, args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_objslam")).current_dir(dir).args(args).output().unwrap()
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+/// Every file under `dir` but the unfinished directory, with its bytes.
+fn contents(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
+    let mut found = Vec::new();
+    let mut todo = vec![dir.to_path_buf()];
+    while let Some(d) = todo.pop() {
+        for entry in std::fs::read_dir(&d).unwrap() {
+            let path = entry.unwrap().path();
+            if path.file_name().is_some_and(|n| n == ".unfinished") {
+                continue;
+            }
+            if path.is_dir() {
+                todo.push(path);
+            } else {
+                found.push((path.strip_prefix(dir).unwrap().to_path_buf(), std::fs::read(&path).unwrap()));
+            }
+        }
+    }
+    found.sort();
+    found
+}
+
+#[test]
+fn a_directory_another_command_writes_into_is_refused() {
+    let root = temp_root("held-out");
+    let out = root.join("out");
+    let held = scenarios::partial_files::lock_output(&out).unwrap();
+    let out_arg = out.to_str().unwrap();
+    for args in [
+        vec!["run", "laser_only", "--out", out_arg],
+        vec!["record", "park", "--duration", "1", "--no-camera", "--out", out_arg],
+        vec!["record", "park", "--duration", "1", "--no-camera", "--format", "log", "--out", out_arg],
+    ] {
+        let o = objslam(&root, &args);
+        assert!(!o.status.success(), "{args:?} ran into a held directory");
+        let e = stderr(&o);
+        assert!(e.contains(out_arg) && e.contains("another objslam command is writing into this directory"), "{e}");
+        assert!(!e.contains("panicked"), "{e}");
+    }
+    let written: Vec<_> =
+        std::fs::read_dir(&out).unwrap().map(|e| e.unwrap().file_name()).filter(|n| n != ".objslam.lock").collect();
+    assert!(written.is_empty(), "nothing was written: {written:?}");
+    // Once the other command is done, the directory is free.
+    drop(held);
+    let log = root.join("log");
+    let log_arg = log.to_str().unwrap();
+    let o = objslam(&root, &["record", "park", "--duration", "1", "--no-camera", "--format", "log", "--out", log_arg]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    // A replay is held off as a run is.
+    let held = scenarios::partial_files::lock_output(&out).unwrap();
+    let o = objslam(&root, &["replay", log_arg, "--method", "nn", "--out", out_arg]);
+    assert!(!o.status.success() && stderr(&o).contains("another objslam command"), "{}", stderr(&o));
+    drop(held);
+    let o = objslam(&root, &["replay", log_arg, "--method", "nn", "--out", out_arg]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(out.join("trajectory_est.tum").is_file());
+    let _ = std::fs::remove_dir_all(&root);
+}
+
+#[cfg(unix)]
+#[test]
+fn a_killed_recording_leaves_the_earlier_one_whole() {
+    let root = temp_root("killed-record");
+    let out = root.join("rec");
+    let out_arg = out.to_str().unwrap();
+    let o = objslam(&root, &["record", "park", "--seed", "1", "--duration", "2", "--no-camera", "--out", out_arg]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let earlier = contents(&out);
+    assert!(earlier.iter().any(|(p, _)| p == Path::new("laser.jsonl")), "{:?}", earlier.len());
+
+    // A long recording with camera frames, killed once it has written some of its log.
+    let mut child = Command::new(env!("CARGO_BIN_EXE_objslam"))
+        .args(["record", "park", "--seed", "2", "--duration", "60", "--out", out_arg])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let started = Instant::now();
+    let writing = out.join(".unfinished/laser.jsonl");
+    while std::fs::metadata(&writing).map(|m| m.len()).unwrap_or(0) == 0 {
+        assert!(child.try_wait().unwrap().is_none(), "the recording ended before it could be stopped");
+        assert!(started.elapsed() < Duration::from_secs(120), "the recording wrote nothing in 2 minutes");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert!(child.try_wait().unwrap().is_none(), "the recording ended before it could be stopped");
+    child.kill().unwrap();
+    child.wait().unwrap();
+    assert_eq!(contents(&out), earlier, "the earlier recording is as it was");
+
+    // The next recording finds no trace of the killed one.
+    let o = objslam(&root, &["record", "park", "--seed", "3", "--duration", "2", "--no-camera", "--out", out_arg]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(!out.join(".unfinished").exists());
+    let now = contents(&out);
+    assert_eq!(now.iter().map(|(p, _)| p).collect::<Vec<_>>(), earlier.iter().map(|(p, _)| p).collect::<Vec<_>>());
+    assert_ne!(now, earlier, "another seed, another recording");
+    let _ = std::fs::remove_dir_all(&root);
+}
+
+#[test]
+fn a_study_reruns_its_jobs_from_any_directory() {
+    let root = temp_root("study-elsewhere");
+    let begun_in = root.join("scenarios");
+    std::fs::create_dir_all(&begun_in).unwrap();
+    let (mut sc, _) = scenarios::scenario::Scenario::load("laser_only").unwrap();
+    sc.name = "laser_only_short".into();
+    sc.sim.max_duration_s = Some(8.0);
+    sc.pass = Default::default();
+    sc.sim.camera.enabled = false;
+    std::fs::write(begun_in.join("short.toml"), toml::to_string(&sc).unwrap()).unwrap();
+    let o = objslam(&begun_in, &["montecarlo", "short.toml", "--runs", "1", "--methods", "nn", "--out", "../study"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    // From the study's parent, where no short.toml is: the study's own record decides.
+    let o = objslam(&root, &["montecarlo", "rerun", "study", "--job", "0", "--out", "rerun"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(root.join("rerun/metrics.json").is_file());
+    // A short.toml here is another scenario: resuming the study from here is refused.
+    sc.sim.max_duration_s = Some(7.0);
+    std::fs::write(root.join("short.toml"), toml::to_string(&sc).unwrap()).unwrap();
+    let o = objslam(&root, &["montecarlo", "short.toml", "--runs", "1", "--methods", "nn", "--out", "study"]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("differ"), "{}", stderr(&o));
+    let _ = std::fs::remove_dir_all(&root);
+}
