@@ -10,9 +10,21 @@ pub(crate) fn train(args: &crate::args::TrainArgs) -> Result<()> {
     let crate::args::TrainArgs { dataset, out, pca_dims, max_components, heldout_every, threshold, seed, .. } = args;
     let (dataset, out, heldout_every) = (dataset.as_path(), out.as_path(), *heldout_every);
     anyhow::ensure!((0.0..=1.0).contains(threshold), "--threshold must lie in [0, 1], got {threshold}");
-    // The other worlds' datasets are read before the training, not after it.
+    // The other worlds' datasets are read before the training, not after it, and must not
+    // be the training's own images: a held-out figure on them would measure nothing held out.
+    let trained_on = scenarios::train::read_manifest(dataset)?;
     for other in &args.heldout_dataset {
-        scenarios::train::read_manifest(other)?;
+        let held_out = scenarios::train::read_manifest(other)?;
+        let copy = (held_out.world == trained_on.world && held_out.seed == trained_on.seed).then_some("a copy of it");
+        if let Some(what) = crate::paths::same_file(other, dataset).then_some("it").or(copy) {
+            anyhow::bail!(
+                "--heldout-dataset {}: {what} is the training dataset {} ({}, seed {}); held-out images must come from another world",
+                other.display(),
+                dataset.display(),
+                trained_on.world,
+                trained_on.seed
+            );
+        }
     }
     let options = slam::classifier::TrainingOptions {
         pca_dims: *pca_dims,
@@ -129,6 +141,7 @@ fn class_shares(by_class: &scenarios::train::ClassTable) -> String {
 
 /// `objslam segment`.
 pub(crate) fn segment(model: &std::path::Path, image: &std::path::Path, out: &std::path::Path) -> Result<()> {
+    crate::paths::not_an_input("--out", out, &[("image", image), ("model", model)])?;
     let model = slam::classifier::AppearanceModel::load(model)?;
     let (objects, total) = scenarios::train::segment_image(&model, image, out)?;
     println!("{objects} of {total} patches classified as object -> {}", out.display());
@@ -137,6 +150,7 @@ pub(crate) fn segment(model: &std::path::Path, image: &std::path::Path, out: &st
 
 /// `objslam gmm fit`.
 pub(crate) fn gmm_fit(data: &std::path::Path, options: &slam::gmm::VbOptions, out: &std::path::Path) -> Result<()> {
+    crate::paths::not_an_input("--out", out, &[("data", data)])?;
     let started = std::time::Instant::now();
     let model = scenarios::train::gmm_fit_csv(data, options)?;
     let secs = started.elapsed().as_secs_f64();

@@ -3,6 +3,7 @@
 
 mod appearance;
 mod args;
+mod paths;
 mod progress;
 mod run;
 mod sensors;

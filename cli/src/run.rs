@@ -79,6 +79,14 @@ pub(crate) fn replay(log: Option<PathBuf>, options: ReplayArgs, dataset: Option<
 
 /// `objslam score`: a system's estimate against a recorded log or a run's outputs.
 pub(crate) fn score(args: ScoreArgs) -> Result<()> {
+    // The log's own metrics.json (a run's) would be replaced by the system's.
+    crate::paths::not_an_input("--out", &args.out, &[("log", &args.log)])?;
+    let metrics = args.out.join("metrics.json");
+    let inputs =
+        [Some(&args.trajectory), args.covariances.as_ref(), args.landmarks.as_ref(), args.associations.as_ref()];
+    for input in inputs.into_iter().flatten() {
+        crate::paths::not_an_input("--out", &metrics, &[("estimate file", input)])?;
+    }
     let estimate = scenarios::score::log::Estimate {
         trajectory: args.trajectory,
         covariances: args.covariances,

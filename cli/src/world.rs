@@ -38,6 +38,7 @@ pub(crate) fn world(cmd: WorldCommand) -> Result<()> {
             println!("  route    {:.1} m x {} laps", w.robot.route.length_m(), w.robot.laps);
         }
         WorldCommand::Export { file, out } => {
+            crate::paths::not_an_input("--out", &out, &[("world file", &file)])?;
             let w = worlds::load(&file)?;
             worlds::gltf_io::export_glb_file(&w, &out)?;
             eprintln!("wrote {}", out.display());
@@ -46,6 +47,7 @@ pub(crate) fn world(cmd: WorldCommand) -> Result<()> {
             import(&mesh, &world, &class, &at, yaw_deg, &out)?;
         }
         WorldCommand::Plot { file, out } => {
+            crate::paths::not_an_input("--out", &out, &[("world file", &file)])?;
             let w = worlds::load(&file)?;
             let title = format!("{} (seed {}): {:.0} m²", w.name, w.seed, w.ground.area_m2());
             scenarios::plot::draw_map(

@@ -144,3 +144,38 @@ fn a_study_reruns_its_jobs_from_any_directory() {
     assert!(stderr(&o).contains("differ"), "{}", stderr(&o));
     let _ = std::fs::remove_dir_all(&root);
 }
+
+#[test]
+fn an_output_that_is_an_input_is_refused_and_the_input_kept() {
+    let root = temp_root("out-is-in");
+    let world = root.join("w.toml");
+    let o = objslam(&root, &["world", "generate", "--preset", "park", "--out", "w.toml"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    std::fs::write(root.join("data.csv"), "x,y\n1,2\n3,4\n").unwrap();
+    std::fs::write(root.join("image.png"), "not read").unwrap();
+    std::fs::create_dir_all(root.join("run")).unwrap();
+    std::fs::write(root.join("run/metrics.json"), "{}").unwrap();
+    let o = objslam(&root, &["dataset", "--images", "1", "--out", "images"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = Command::new("cp").args(["-r", "images", "copy"]).current_dir(&root).output().unwrap();
+    assert!(o.status.success());
+    let before = contents(&root);
+    for (args, expect) in [
+        (vec!["world", "export", "w.toml", "--out", "./w.toml"], "the world file given"),
+        (vec!["world", "plot", "w.toml", "--out", "w.toml"], "the world file given"),
+        (vec!["world", "plot", "w.toml", "--out", "w.svg"], "w.svg: cannot draw plot: the map is drawn as PNG"),
+        (vec!["segment", "--model", "model.json", "image.png", "--out", "image.png"], "the image given"),
+        (vec!["gmm", "fit", "data.csv", "--out", "data.csv"], "the data given"),
+        (vec!["score", "--log", "run", "--trajectory", "t.tum", "--out", "run/"], "the log given"),
+        (vec!["score", "--log", "run", "--trajectory", "run/metrics.json", "--out", "run"], "the log given"),
+        (vec!["train", "--dataset", "images", "--heldout-dataset", "images/", "--out", "m.json"], "it is the training"),
+        (vec!["train", "--dataset", "images", "--heldout-dataset", "copy", "--out", "m.json"], "a copy of it"),
+    ] {
+        let o = objslam(&root, &args);
+        assert!(!o.status.success(), "{args:?} succeeded");
+        assert!(stderr(&o).contains(expect), "{args:?}: {}", stderr(&o));
+    }
+    assert_eq!(contents(&root), before, "every input is as it was; nothing was written");
+    assert!(world.is_file());
+    let _ = std::fs::remove_dir_all(&root);
+}

@@ -199,6 +199,9 @@ impl AppearanceSource {
         if let Some(file) = &self.model {
             return Ok(AppearanceModel::load(&base_dir.join(file))?);
         }
+        // Whenever the cache is used, not only when it trains: a cache whose models are
+        // all trained would otherwise keep a killed training's scratch for good.
+        remove_stale_scratch(dir);
         let path = dir.join(self.cache_key(camera));
         if path.exists() {
             return Ok(AppearanceModel::load(&path)?);
@@ -210,8 +213,10 @@ impl AppearanceSource {
             return Ok(AppearanceModel::load(&path)?);
         }
         std::fs::create_dir_all(dir).map_err(|e| AppearanceError::Io { file: dir.to_path_buf(), source: e })?;
-        remove_stale_scratch(dir);
         let scratch = dir.join(format!("training-{}-{}", std::process::id(), self.training_world_seed));
+        // Held while this training lives: the sign to other processes' cleaning that it is.
+        let _scratch_held = crate::partial_files::lock_output(&scratch)
+            .map_err(|e| AppearanceError::Io { file: e.file, source: e.source })?;
         let world = worlds::generate::preset(&self.training_preset, None, self.training_world_seed)?;
         let config = self.dataset_config(camera);
         crate::dataset::make_dataset(
@@ -233,28 +238,39 @@ impl AppearanceSource {
 }
 
 /// Removes what trainings killed midway left in the cache `dir`: their scratch datasets
-/// (`training-<pid>-<seed>/`, about 15 MB each) and half-written models (`.<pid>.<key>`),
+/// (`training-<pid>-<seed>/`, about 15 MB each), which a live training holds locked (the
+/// lock ends with its process, however it ends), and half-written models (`.<pid>.<key>`),
 /// where process `pid` no longer runs here and the file has not changed for an hour (a
 /// cache shared between machines may hold another machine's live training, whose pid
-/// means nothing here). Where that cannot be known (no `/proc`), nothing is removed.
+/// means nothing here; where that cannot be known, no `/proc`, they are kept).
 pub(crate) fn remove_stale_scratch(dir: &Path) {
     let Ok(entries) = std::fs::read_dir(dir) else { return };
     for entry in entries.flatten() {
         let name = entry.file_name().to_string_lossy().into_owned();
-        let pid = name
-            .strip_prefix("training-")
-            .or_else(|| name.strip_prefix('.'))
-            .and_then(|rest| rest.split(['-', '.']).next())
-            .and_then(|pid| pid.parse::<u32>().ok());
-        let Some(pid) = pid else { continue };
         let idle = entry.metadata().and_then(|m| m.modified()).ok().and_then(|t| t.elapsed().ok());
+        let path = entry.path();
+        if name.starts_with("training-") {
+            // A scratch made a moment ago may not be locked yet.
+            if idle.is_some_and(|d| d >= SCRATCH_UNLOCKED_GRACE)
+                && let Ok(_dead) = crate::partial_files::lock_output(&path)
+            {
+                let _ = std::fs::remove_dir_all(&path);
+            }
+            continue;
+        }
+        let pid =
+            name.strip_prefix('.').and_then(|rest| rest.split('.').next()).and_then(|pid| pid.parse::<u32>().ok());
+        let Some(pid) = pid else { continue };
         if pid == std::process::id() || !process_ended(pid) || idle.is_none_or(|d| d < SCRATCH_IDLE) {
             continue;
         }
-        let path = entry.path();
-        let _ = if path.is_dir() { std::fs::remove_dir_all(&path) } else { std::fs::remove_file(&path) };
+        let _ = std::fs::remove_file(&path);
     }
 }
+
+/// How old an unlocked scratch dataset must be to be removed: a training makes its
+/// directory and then locks it.
+const SCRATCH_UNLOCKED_GRACE: std::time::Duration = std::time::Duration::from_secs(60);
 
 /// How long a dead training's files stay untouched before they are removed.
 const SCRATCH_IDLE: std::time::Duration = std::time::Duration::from_secs(3600);
@@ -291,27 +307,31 @@ mod scratch_tests {
         let dir = std::env::temp_dir().join(format!("objslam-cache-scratch-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).unwrap();
-        // Pid 999999999 is above Linux's largest: no such process runs.
+        // A killed training's scratch: nobody holds it. Pid 999999999 is above Linux's
+        // largest: no such process runs.
         let dead_scratch = dir.join("training-999999999-1");
         std::fs::create_dir_all(dead_scratch.join("images")).unwrap();
         let dead_model = dir.join(".999999999.appearance-0123.json");
         std::fs::write(&dead_model, "{").unwrap();
-        let mine = dir.join(format!("training-{}-1", std::process::id()));
-        std::fs::create_dir_all(&mine).unwrap();
+        // A live training's, however old, is held.
+        let live = dir.join("training-999999997-1");
+        let held = crate::partial_files::lock_output(&live).unwrap();
         let model = dir.join("appearance-0123.json");
         std::fs::write(&model, "{}").unwrap();
-        // Another machine's live training: its pid means nothing here, and it is recent.
-        let recent = dir.join("training-999999998-1");
-        std::fs::create_dir_all(&recent).unwrap();
+        // One made a moment ago, not locked yet.
+        let new = dir.join("training-999999998-1");
+        std::fs::create_dir_all(&new).unwrap();
         let two_hours_ago = std::time::SystemTime::now() - std::time::Duration::from_secs(7200);
-        for old in [&dead_scratch, &dead_model] {
+        for old in [&dead_scratch, &dead_model, &live] {
             std::fs::File::open(old).unwrap().set_modified(two_hours_ago).unwrap();
         }
         remove_stale_scratch(&dir);
+        assert!(!dead_scratch.exists(), "a dead training's scratch is left");
         if Path::new("/proc/self").exists() {
-            assert!(!dead_scratch.exists() && !dead_model.exists(), "a dead training's files are left");
+            assert!(!dead_model.exists(), "a dead training's model is left");
         }
-        assert!(mine.exists() && model.exists() && recent.exists(), "a live training's scratch or a model was removed");
+        assert!(live.exists() && model.exists() && new.exists(), "a live training's scratch or a model was removed");
+        drop(held);
         let _ = std::fs::remove_dir_all(&dir);
     }
 }

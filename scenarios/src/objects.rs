@@ -150,10 +150,10 @@ pub fn find_similar(
     let text = std::fs::read_to_string(&file).map_err(|e| file_err(&file, e))?;
     let models: ObjectModels =
         slam::settings::from_json(&text).map_err(|e| file_err(&file, format!("not an objects/models.json: {e}")))?;
-    let rgb = image::open(example).map_err(|e| file_err(example, e))?.to_rgb8();
+    let rgb = crate::train::open_image_to_classify(example).map_err(|e| ObjectsError::Object(e.to_string()))?;
     let (w, h) = rgb.dimensions();
-    let image = ImageRef::new(w, h, rgb.as_raw()).map_err(ModelError::from)?;
-    let f = model.extractor.features(&image, None).map_err(ModelError::from)?;
+    let image = ImageRef::new(w, h, rgb.as_raw()).map_err(|e| file_err(example, e))?;
+    let f = model.extractor.features(&image, None).map_err(|e| file_err(example, e))?;
     let classifier = PatchClassifier::new(model).map_err(ModelError::from)?;
     let rows: Vec<usize> =
         classifier.classify(&f).into_iter().enumerate().filter(|(_, o)| *o).map(|(i, _)| i).collect();

@@ -108,6 +108,10 @@ fn thin_path(path: &[[f64; 2]], min_step: f64) -> Vec<(f64, f64)> {
 pub fn draw_map(world: &World, overlays: &Overlays, path: &Path) -> Result<(), PlotError> {
     register_fonts();
     let err = |e: &dyn std::fmt::Display| PlotError { file: path.to_path_buf(), message: e.to_string() };
+    // The encoder is chosen by the name; other formats' errors are the image crate's own.
+    if !path.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")) {
+        return Err(err(&"the map is drawn as PNG: give a file name ending in .png"));
+    }
     let (min, max) = (world.ground.min_m, world.ground.max_m);
     let margin = 1.0;
     let (x0, x1, y0, y1) = (min[0] - margin, max[0] + margin, min[1] - margin, max[1] + margin);

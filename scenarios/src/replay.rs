@@ -146,7 +146,18 @@ pub fn resolve_config(
         })?;
         // A scenario-style file holds the keys under [pipeline]; a bare file at the top.
         let (table, under): (_, &[&str]) = match table.get("pipeline") {
-            Some(toml::Value::Table(t)) if table.len() == 1 => (t.clone(), &["pipeline"]),
+            Some(toml::Value::Table(t)) => {
+                if let Some(other) = table.keys().find(|k| *k != "pipeline") {
+                    return Err(ReplayError::Config {
+                        file: file.clone(),
+                        line: toml_strict::line_of(&text, other).unwrap_or(1),
+                        problem: format!(
+                            "{other}: a replay reads pipeline settings only, so a file with [pipeline] may hold nothing else (a scenario's other tables describe its simulation)"
+                        ),
+                    });
+                }
+                (t.clone(), &["pipeline"])
+            }
             _ => (table, &[]),
         };
         // Another motion model replaces the whole table: the two models' keys differ.

@@ -125,8 +125,20 @@ pub fn train_from_dataset(
     Ok((model, classes))
 }
 
-/// Largest image `objslam segment` classifies: 16 megapixels, under 1 GB of features.
+/// Largest image `objslam segment` and `objslam find` classify: 16 megapixels, under 1 GB
+/// of features.
 pub const MAX_SEGMENT_PIXELS: u64 = 16_000_000;
+
+/// Reads an image whose patches are to be classified; one larger than
+/// [`MAX_SEGMENT_PIXELS`] is refused before it is decoded (features take about 50 bytes a
+/// pixel), naming the file.
+pub fn open_image_to_classify(path: &Path) -> Result<image::RgbImage, TrainError> {
+    let (w, h) = image::image_dimensions(path).map_err(|e| file_err(path, e))?;
+    if u64::from(w) * u64::from(h) > MAX_SEGMENT_PIXELS {
+        return Err(file_err(path, format!("{w}x{h} is more than {MAX_SEGMENT_PIXELS} pixels; crop or scale it down")));
+    }
+    Ok(image::open(path).map_err(|e| file_err(path, e))?.to_rgb8())
+}
 
 /// True class -> (patches, patches called object).
 pub type ClassTable = std::collections::BTreeMap<String, (usize, usize)>;
@@ -256,15 +268,7 @@ pub fn export_features(
 /// Classifies every patch of an image and draws the object patches over it (tinted, with
 /// their outlines). Returns (object patches, all patches).
 pub fn segment_image(model: &AppearanceModel, image_path: &Path, out: &Path) -> Result<(usize, usize), TrainError> {
-    // Features take about 50 bytes a pixel: refuse before decoding an image too large.
-    let (w, h) = image::image_dimensions(image_path).map_err(|e| file_err(image_path, e))?;
-    if u64::from(w) * u64::from(h) > MAX_SEGMENT_PIXELS {
-        return Err(file_err(
-            image_path,
-            format!("{w}x{h} is more than {MAX_SEGMENT_PIXELS} pixels; crop or scale it down"),
-        ));
-    }
-    let mut rgb = image::open(image_path).map_err(|e| file_err(image_path, e))?.to_rgb8();
+    let mut rgb = open_image_to_classify(image_path)?;
     let (w, h) = rgb.dimensions();
     let classifier = PatchClassifier::new(model).map_err(ModelError::from)?;
     let f = {

@@ -348,6 +348,11 @@ fn a_replays_settings_file_is_refused_at_the_line_of_its_bad_key() {
         ("[pipeline]\n\ninitial_pose_sigma = [0.1, 0.1, 0.1, 0.1]\n", ":3: initial_pose_sigma: 4 elements, more than"),
         ("\ninitial_pose_sigma = [0.1, 0.1, 0.1, 0.1]\n", ":2: initial_pose_sigma: 4 elements, more than"),
         ("[pipeline.clustering]\n\nmin_pints = 3\n", ":3: clustering.min_pints: unknown field `min_pints`"),
+        // A scenario's other tables are named where they stand, not [pipeline].
+        (
+            "[pipeline]\ngate_probability = 0.9\n\n[world]\npreset = \"park\"\n",
+            ":4: world: a replay reads pipeline settings only",
+        ),
     ] {
         std::fs::write(&file, text).unwrap();
         let e = resolve_config(None, &manifest, None, Some(&file)).unwrap_err().to_string();

@@ -98,6 +98,12 @@ pub fn from_value<T: DeserializeOwned>(value: toml::Value, text: &str, under: &[
     })
 }
 
+/// The 1-based line of `text` where its top-level key `key` is given (a table's header).
+pub fn line_of(text: &str, key: &str) -> Option<usize> {
+    let segment = Segment::Map { key: key.to_string() };
+    span_of(text, &[&segment]).map(|at| line_at(text, at))
+}
+
 /// toml's words for an array longer than its field, said plainly.
 fn plain_message(message: &str) -> String {
     match message.strip_prefix("invalid length ").and_then(|m| m.strip_suffix(", expected fewer elements in array")) {
