@@ -50,7 +50,7 @@ fn assert_reproduced(run_dir: &Path, scored: &scenarios::score::log::ScoredMetri
     let run: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(run_dir.join("metrics.json")).unwrap()).unwrap();
     let mut scored = serde_json::to_value(scored).unwrap();
-    for key in ["unchecked", "poses_scored", "recall_basis"] {
+    for key in ["unchecked", "poses_scored", "recall_basis", "trajectory_coverage", "warnings"] {
         scored.as_object_mut().unwrap().remove(key);
     }
     for key in METHOD_INTERNAL_MAP_KEYS {
@@ -209,8 +209,43 @@ fn inputs_that_do_not_fit_the_log_are_errors_naming_file_and_line() {
     // A pose after the log ends.
     let tum = bad.join("late.tum");
     std::fs::write(&tum, "0 0 0 0 0 0 0 1\n99 0 0 0 0 0 0 1\n").unwrap();
-    let e = error(Estimate { trajectory: tum, ..estimate(&out, "x") });
+    let e = error(Estimate { trajectory: tum.clone(), ..estimate(&out, "x") });
     assert!(e.contains("late.tum") && e.contains("pose 2") && e.contains("outside"), "{e}");
+
+    // A trajectory of the first few poses is scored, with how little of the log it covers;
+    // one off the plane is scored in the plane and said to be; a byte-order mark is read past.
+    let own = std::fs::read_to_string(out.join("trajectory_est.tum")).unwrap();
+    let poses: Vec<&str> = own.lines().filter(|l| !l.starts_with('#')).collect();
+    let trajectory_only = |trajectory: PathBuf| Estimate {
+        trajectory,
+        covariances: None,
+        landmarks: None,
+        associations: None,
+        ..estimate(&out, "x")
+    };
+    let whole = score_log(&log, &trajectory_only(out.join("trajectory_est.tum"))).unwrap();
+    assert_eq!((whole.trajectory_coverage, whole.warnings.len()), (1.0, 0), "{:?}", whole.warnings);
+    let first: String = poses[..10].iter().map(|l| format!("{l}\n")).collect();
+    std::fs::write(&tum, first).unwrap();
+    let m = score_log(&log, &trajectory_only(tum.clone())).unwrap();
+    assert!(m.trajectory_coverage > 0.0 && m.trajectory_coverage < 0.5, "{}", m.trajectory_coverage);
+    assert!(m.warnings.iter().any(|w| w.contains("the trajectory covers")), "{:?}", m.warnings);
+    // With the map and associations the criteria are checked: so little cannot pass.
+    let m = score_log(&log, &Estimate { trajectory: tum.clone(), covariances: None, ..estimate(&out, "x") }).unwrap();
+    assert_eq!(m.passed, Some(false), "{m:?}");
+    assert!(m.failures.iter().any(|f| f.contains("the trajectory covers") && f.contains("90.0%")), "{:?}", m.failures);
+    let lifted: String = poses
+        .iter()
+        .map(|l| {
+            let mut v: Vec<&str> = l.split_whitespace().collect();
+            v[3] = "0.5";
+            v.join(" ") + "\n"
+        })
+        .collect();
+    std::fs::write(&tum, format!("\u{feff}{lifted}")).unwrap();
+    let m = score_log(&log, &trajectory_only(tum.clone())).unwrap();
+    assert_eq!(m.ate_rmse_m, whole.ate_rmse_m, "z is not scored");
+    assert!(m.warnings.iter().any(|w| w.contains("leaves the plane") && w.contains("0.500 m")), "{:?}", m.warnings);
 
     // An observation past the scan's last beam, on line 2.
     let text = std::fs::read_to_string(out.join("associations.jsonl")).unwrap();

@@ -9,10 +9,29 @@ use serde::Deserialize;
 use super::log::{ScoreError, invalid, numbered_lines, read_text};
 use super::scorer::{Fusion, MapLandmark, ScoredObservation};
 
+/// Planar poses: (t, [x, y, yaw]).
+pub type PlanarPoses = Vec<(f64, [f64; 3])>;
+
 /// A TUM trajectory: (t, x, y, yaw) per pose, in file order.
-pub fn read_tum(file: &Path) -> Result<Vec<(f64, [f64; 3])>, ScoreError> {
-    let mut poses: Vec<(f64, [f64; 3])> = Vec::new();
-    for (i, line) in read_text(file)?.lines().enumerate() {
+pub fn read_tum(file: &Path) -> Result<PlanarPoses, ScoreError> {
+    Ok(read_tum_3d(file)?.0)
+}
+
+/// What of a TUM trajectory planar scoring leaves out: the largest height and tilt.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct OffPlane {
+    pub max_abs_z_m: f64,
+    /// The largest angle between the pose's up axis and the world's.
+    pub max_tilt_deg: f64,
+}
+
+/// A TUM trajectory as [`read_tum`] reads it, with what the plane leaves out of it.
+pub fn read_tum_3d(file: &Path) -> Result<(PlanarPoses, OffPlane), ScoreError> {
+    let mut poses: PlanarPoses = Vec::new();
+    let mut off_plane = OffPlane::default();
+    let text = read_text(file)?;
+    // A byte-order mark (some editors' UTF-8) is no part of the first number.
+    for (i, line) in text.strip_prefix('\u{feff}').unwrap_or(&text).lines().enumerate() {
         let line = line.trim();
         if line.is_empty() || line.starts_with('#') {
             continue;
@@ -22,7 +41,7 @@ pub fn read_tum(file: &Path) -> Result<Vec<(f64, [f64; 3])>, ScoreError> {
             .map(|w| w.parse::<f64>())
             .collect::<Result<_, _>>()
             .map_err(|e| invalid(file, Some(i + 1), format!("not a number: {e}")))?;
-        let [t, x, y, _z, qx, qy, qz, qw] = values[..] else {
+        let [t, x, y, z, qx, qy, qz, qw] = values[..] else {
             return Err(invalid(
                 file,
                 Some(i + 1),
@@ -46,11 +65,15 @@ pub fn read_tum(file: &Path) -> Result<Vec<(f64, [f64; 3])>, ScoreError> {
             return Err(invalid(file, Some(i + 1), format!("timestamp {t} does not follow {last}")));
         }
         poses.push((t, [x, y, super::scorer::yaw_of_quaternion(q)]));
+        // The body's z axis against the world's: cos(tilt) = 1 - 2 (qx² + qy²).
+        let tilt = (1.0 - 2.0 * (q[0] * q[0] + q[1] * q[1])).clamp(-1.0, 1.0).acos().to_degrees();
+        off_plane.max_abs_z_m = off_plane.max_abs_z_m.max(z.abs());
+        off_plane.max_tilt_deg = off_plane.max_tilt_deg.max(tilt);
     }
     if poses.is_empty() {
         return Err(invalid(file, None, "no pose"));
     }
-    Ok(poses)
+    Ok((poses, off_plane))
 }
 
 /// The columns of a covariance file: the pose covariance's lower triangle (x, y, heading;

@@ -136,7 +136,49 @@ pub struct ScoredMetrics {
     pub unchecked: Vec<String>,
     /// Poses of the trajectory scored (each against the truth at its time).
     pub poses_scored: usize,
+    /// The share of the log's true poses with a pose of the trajectory within
+    /// [`COVERAGE_WINDOW_S`]: a trajectory of a few poses scores a small ATE over little.
+    pub trajectory_coverage: f64,
+    /// What the user should know about these figures (a trajectory off the plane, one
+    /// that covers little of the log).
+    pub warnings: Vec<String>,
     pub recall_basis: RecallBasis,
+}
+
+/// How near in time a pose of the trajectory must be to a true pose to cover it.
+pub const COVERAGE_WINDOW_S: f64 = 1.0;
+
+/// The least coverage of the log by the trajectory with which a scenario's criteria can
+/// pass: an estimate of part of the route is not one of the route.
+pub const MIN_PASS_COVERAGE: f64 = 0.9;
+
+/// Height and tilt above which the trajectory is said to leave the plane (the scoring is
+/// planar: x, y and heading).
+const OFF_PLANE_Z_M: f64 = 0.1;
+const OFF_PLANE_TILT_DEG: f64 = 5.0;
+
+/// How a trajectory was scored: its poses, its coverage of the log, and what of it the
+/// plane leaves out.
+struct PoseScore {
+    poses: usize,
+    coverage: f64,
+    off_plane: super::estimate::OffPlane,
+}
+
+/// The share of `truth`'s times with one of `times` (increasing) within the window.
+fn coverage(truth: &[(f64, [f64; 3])], times: &[f64]) -> f64 {
+    let covered = truth
+        .iter()
+        .filter(|(t, _)| {
+            let k = times.partition_point(|s| s < t);
+            [k.checked_sub(1), Some(k)]
+                .into_iter()
+                .flatten()
+                .filter_map(|k| times.get(k))
+                .any(|s| (s - t).abs() <= COVERAGE_WINDOW_S)
+        })
+        .count();
+    covered as f64 / truth.len().max(1) as f64
 }
 
 /// The parts of a log's `metadata.json` that scoring reads.
@@ -405,7 +447,7 @@ pub fn score_log(log: &Path, estimate: &Estimate) -> Result<ScoredMetrics, Score
         .clone()
         .or_else(|| own_trajectory.then(|| log.join("trajectory_est_covariance.csv")).filter(|f| f.exists()));
     let truth = log.join(if is_run { "trajectory_gt.tum" } else { "ground_truth.tum" });
-    let poses = score_poses(&mut scorer, &truth, &estimate.trajectory, covariances.as_deref())?;
+    let pose_score = score_poses(&mut scorer, &truth, &estimate.trajectory, covariances.as_deref())?;
 
     let associations = match &estimate.associations {
         Some(file) => Some((file.as_path(), read_associations(file)?)),
@@ -448,11 +490,33 @@ pub fn score_log(log: &Path, estimate: &Estimate) -> Result<ScoredMetrics, Score
         passed: None,
         failures: vec![],
         unchecked: vec![],
-        poses_scored: poses,
+        poses_scored: pose_score.poses,
+        trajectory_coverage: pose_score.coverage,
+        warnings: vec![],
         recall_basis: basis,
     };
     if let Some(pass) = &meta.scoring.pass {
         check(pass, &mut metrics, &scored.map);
+    }
+    let share = |c: f64| format!("{:.1}%", 100.0 * c);
+    if pose_score.coverage < MIN_PASS_COVERAGE {
+        let words = format!(
+            "the trajectory covers {} of the log (true poses with one of its poses within {COVERAGE_WINDOW_S} s)",
+            share(pose_score.coverage)
+        );
+        if metrics.passed.is_some() {
+            metrics.failures.push(format!("{words}, less than the {} a pass needs", share(MIN_PASS_COVERAGE)));
+            metrics.passed = Some(false);
+        } else {
+            metrics.warnings.push(words);
+        }
+    }
+    let off = pose_score.off_plane;
+    if off.max_abs_z_m > OFF_PLANE_Z_M || off.max_tilt_deg > OFF_PLANE_TILT_DEG {
+        metrics.warnings.push(format!(
+            "the trajectory leaves the plane (|z| up to {:.3} m, tilt up to {:.1} deg); it is scored in x, y and heading only",
+            off.max_abs_z_m, off.max_tilt_deg
+        ));
     }
     Ok(metrics)
 }
@@ -464,9 +528,9 @@ fn score_poses(
     truth_file: &Path,
     trajectory_file: &Path,
     covariances_file: Option<&Path>,
-) -> Result<usize, ScoreError> {
+) -> Result<PoseScore, ScoreError> {
     let truth = read_tum(truth_file)?;
-    let trajectory = read_tum(trajectory_file)?;
+    let (trajectory, off_plane) = super::estimate::read_tum_3d(trajectory_file)?;
     let covariances = match covariances_file {
         Some(f) => read_covariances(f)?,
         None => vec![],
@@ -500,7 +564,8 @@ fn score_poses(
     if let Some((line, tc, _)) = covariances.get(next_covariance) {
         return Err(no_pose_at(*line, *tc));
     }
-    Ok(trajectory.len())
+    let times: Vec<f64> = trajectory.iter().map(|(t, _)| *t).collect();
+    Ok(PoseScore { poses: trajectory.len(), coverage: coverage(&truth, &times), off_plane })
 }
 
 /// The scans of the log, with their truth, the camera's evidence and the system's
@@ -712,6 +777,9 @@ pub fn summary_table(m: &ScoredMetrics) -> String {
     s.push_str(&format!("  collisions        {:>4}\n", m.collisions));
     for u in &m.unchecked {
         s.push_str(&format!("  not checked: {u}\n"));
+    }
+    for w in &m.warnings {
+        s.push_str(&format!("  warning: {w}\n"));
     }
     s.push_str(&match m.passed {
         Some(true) => "  PASSED\n".to_string(),
