@@ -96,7 +96,7 @@ pub(crate) fn score(args: ScoreArgs) -> Result<()> {
         recall_basis: args.recall_basis.map(Into::into),
     };
     let m = scenarios::score::log::score_log(&args.log, &estimate)?;
-    std::fs::create_dir_all(&args.out).with_context(|| format!("{}: cannot create", args.out.display()))?;
+    scenarios::partial_files::make_output_dir(&args.out)?;
     let file = args.out.join("metrics.json");
     std::fs::write(&file, serde_json::to_string_pretty(&m)? + "\n")
         .with_context(|| format!("{}: cannot write", file.display()))?;

@@ -130,7 +130,7 @@ fn generalisation(
         let seed = mc::generalisation::world_seed(split, i);
         drawn.push(serde_json::json!({ "index": i, "seed": seed, "params": params }));
     }
-    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    scenarios::partial_files::make_output_dir(out)?;
     mc::write_atomically(&out.join("worlds.json"), &serde_json::to_string_pretty(&drawn)?)?;
     for (name, plan) in &plans {
         println!("generalisation {name}: {worlds} {} worlds, {} runs", split.name(), mc::jobs(plan).len());

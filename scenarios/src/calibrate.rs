@@ -518,7 +518,8 @@ pub fn calibrate_stations(
     images: Option<&Path>,
 ) -> Result<CalibrationReport, CalibrateError> {
     if let Some(dir) = images {
-        std::fs::create_dir_all(dir).map_err(|source| CalibrateError::Write { file: dir.to_path_buf(), source })?;
+        crate::partial_files::make_output_dir(dir)
+            .map_err(|e| CalibrateError::Write { file: e.file, source: e.source })?;
     }
     let mut cam_config = sim_config.camera.clone();
     cam_config.enabled = true;

@@ -215,6 +215,7 @@ pub fn make_dataset(
             config.classes.iter().map(|c| c.name()).collect::<Vec<_>>()
         )));
     }
+    crate::partial_files::make_output_dir(out).map_err(|e| DatasetError::Io { file: e.file, source: e.source })?;
     clear_earlier_images(out)?;
     for dir in ["images", "masks", "labels"] {
         std::fs::create_dir_all(out.join(dir)).map_err(|e| DatasetError::Io { file: out.join(dir), source: e })?;

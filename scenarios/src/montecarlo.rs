@@ -596,7 +596,7 @@ pub fn run_study_with(
     progress: impl Fn(StudyProgress) + Sync,
 ) -> Result<Vec<RunRecord>, StudyError> {
     plan.check()?;
-    std::fs::create_dir_all(out).map_err(|e| StudyError::Io { file: out.into(), source: e })?;
+    crate::partial_files::make_output_dir(out).map_err(|e| StudyError::Io { file: e.file, source: e.source })?;
     // One study at a time per directory: the lock goes with the process, however it ends.
     let lock_file = out.join("study.lock");
     let lock = std::fs::File::create(&lock_file).map_err(|e| StudyError::Io { file: lock_file.clone(), source: e })?;
@@ -963,7 +963,7 @@ pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<(StudyPlan, Vec<RunRecord>)
         plan.ok_or_else(|| StudyError::File { file: out.into(), message: "no shard directories given".into() })?;
     let mut runs: Vec<RunRecord> = by_key.into_values().collect();
     runs.sort_by_key(|r| r.job.index);
-    std::fs::create_dir_all(out).map_err(|e| StudyError::Io { file: out.into(), source: e })?;
+    crate::partial_files::make_output_dir(out).map_err(|e| StudyError::Io { file: e.file, source: e.source })?;
     write_atomically(&out.join("study.json"), &serde_json::to_string_pretty(&study).expect("JSON"))?;
     let lines: String = runs.iter().map(|r| serde_json::to_string(r).expect("JSON") + "\n").collect();
     write_atomically(&out.join("runs.jsonl"), &lines)?;

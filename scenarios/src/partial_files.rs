@@ -90,7 +90,7 @@ pub struct OutputLock {
 /// Makes `out` if need be and holds it (see [`OutputLock`]); fails at once, naming `out`,
 /// where another command holds it.
 pub fn lock_output(out: &Path) -> Result<OutputLock, PartialFileError> {
-    std::fs::create_dir_all(out).map_err(error(out))?;
+    make_output_dir(out)?;
     let held = open_lock(out).map_err(error(out))?;
     match held.try_lock() {
         Ok(()) => Ok(OutputLock { _held: held }),
@@ -103,6 +103,36 @@ pub fn lock_output(out: &Path) -> Result<OutputLock, PartialFileError> {
         }),
         Err(std::fs::TryLockError::Error(e)) => Err(error(out)(e)),
     }
+}
+
+/// Makes the output directory `out` (and its parents) if need be; where it cannot, says
+/// what stands in the way (see [`not_a_directory`]).
+pub fn make_output_dir(out: &Path) -> Result<(), PartialFileError> {
+    std::fs::create_dir_all(out).map_err(|e| not_a_directory(out, e))
+}
+
+/// Why `out` could not be made a directory, in the user's terms: what stands in its way
+/// (a file, a link to nothing, a file among its parents), else the system's reason.
+fn not_a_directory(out: &Path, source: std::io::Error) -> PartialFileError {
+    let said = |message: String| PartialFileError {
+        file: out.to_path_buf(),
+        source: std::io::Error::new(source.kind(), message),
+    };
+    if let Ok(target) = std::fs::read_link(out)
+        && !out.exists()
+    {
+        return said(format!(
+            "is a link to {}, which does not exist; give a directory for the outputs",
+            target.display()
+        ));
+    }
+    if out.is_file() {
+        return said("is a file, not a directory; give a directory for the outputs".into());
+    }
+    if let Some(file) = out.ancestors().skip(1).find(|a| a.is_file()) {
+        return said(format!("{} is a file, so no directory can be made inside it", file.display()));
+    }
+    said(format!("cannot make the output directory: {source}"))
 }
 
 /// The file whose lock stands for `out`'s: the directory itself where the system can lock
@@ -127,11 +157,16 @@ pub fn unfinished_dir(out: &Path) -> PathBuf {
 /// what it wrote there.
 pub fn start_unfinished(out: &Path) -> Result<PathBuf, PartialFileError> {
     let dir = unfinished_dir(out);
+    // Named by the directory the user gave: the unfinished one is ours.
+    let cannot = |e: std::io::Error| PartialFileError {
+        file: out.to_path_buf(),
+        source: std::io::Error::new(e.kind(), format!("cannot write into the directory: {e}")),
+    };
     match std::fs::remove_dir_all(&dir) {
-        Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(PartialFileError { file: dir, source: e }),
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(cannot(e)),
         _ => {}
     }
-    std::fs::create_dir_all(&dir).map_err(error(&dir))?;
+    std::fs::create_dir_all(&dir).map_err(cannot)?;
     Ok(dir)
 }
 
@@ -197,6 +232,20 @@ mod tests {
         drop(held);
         let again = lock_output(&dir).unwrap();
         drop(again);
+        // What stands where the directory would go is named, not the system's "File exists".
+        let file = dir.join("a-file");
+        std::fs::write(&file, "").unwrap();
+        let e = lock_output(&file).unwrap_err().to_string();
+        assert!(e.contains("a-file: is a file, not a directory"), "{e}");
+        let e = lock_output(&file.join("sub")).unwrap_err().to_string();
+        assert!(e.contains("a-file is a file, so no directory can be made inside it"), "{e}");
+        #[cfg(unix)]
+        {
+            let link = dir.join("link");
+            std::os::unix::fs::symlink(dir.join("nowhere"), &link).unwrap();
+            let e = lock_output(&link).unwrap_err().to_string();
+            assert!(e.contains("is a link to") && e.contains("nowhere, which does not exist"), "{e}");
+        }
         std::fs::remove_dir_all(&dir).ok();
     }
 
