@@ -611,6 +611,25 @@ def build_cases(binary, w, kinds):
     ]:
         more.append(Case("arguments", " ".join(args[:4]), args, [flag]))
 
+    # Output paths: something standing where the directory goes, an output that is an input.
+    for args, names, files in [
+        (["run", "laser_only", "--out", "probe/afile"], ["probe/afile", "is a file"], {"probe/afile": ""}),
+        (["record", "park", "--duration", "1", "--out", "probe/afile/sub"], ["probe/afile", "is a file"],
+         {"probe/afile": ""}),
+        (["dataset", "--preset", "park", "--images", "1", "--out", "probe/afile"], ["probe/afile", "is a file"],
+         {"probe/afile": ""}),
+        (["montecarlo", "laser_only", "--runs", "1", "--methods", "nn", "--out", "probe/afile"],
+         ["probe/afile", "is a file"], {"probe/afile": ""}),
+        (["world", "export", "probe/w.toml", "--out", "probe/w.toml"], ["w.toml", "world file given"],
+         {"probe/w.toml": world}),
+        (["world", "plot", "probe/w.toml", "--out", "probe/w.svg"], ["w.svg", ".png"], {"probe/w.toml": world}),
+        (["gmm", "fit", "probe/p.csv", "--out", "probe/p.csv"], ["p.csv", "data given"],
+         {"probe/p.csv": read(w, "points.csv")}),
+        (["score", "--log", "rec", "--trajectory", os.path.join("rec", "ground_truth.tum"), "--out", "rec"],
+         ["rec", "log given"], {}),
+    ]:
+        more.append(Case("outputs", " ".join(args[:3]), args, names, files))
+
     # The unedited inputs, through the same commands: each must succeed.
     controls = [
         Case("scenario", "unedited", scenario_cmd[:2] + ["probe/scenario.toml"], [], {"probe/scenario.toml": defaults}),
