@@ -85,15 +85,28 @@ impl<K> Drop for PartialFiles<K> {
 #[derive(Debug)]
 pub struct OutputLock {
     _held: File,
+    /// The directory, where taking the hold made it.
+    made: Option<PathBuf>,
+}
+
+impl OutputLock {
+    /// Ends the hold of a command that failed: a directory the hold made goes again if the
+    /// command left it empty, so that a refused command leaves nothing behind.
+    pub fn release_failed(self) {
+        if let Some(dir) = &self.made {
+            let _ = std::fs::remove_dir(dir);
+        }
+    }
 }
 
 /// Makes `out` if need be and holds it (see [`OutputLock`]); fails at once, naming `out`,
 /// where another command holds it.
 pub fn lock_output(out: &Path) -> Result<OutputLock, PartialFileError> {
+    let made = (!out.exists()).then(|| out.to_path_buf());
     make_output_dir(out)?;
     let held = open_lock(out).map_err(error(out))?;
     match held.try_lock() {
-        Ok(()) => Ok(OutputLock { _held: held }),
+        Ok(()) => Ok(OutputLock { _held: held, made }),
         Err(std::fs::TryLockError::WouldBlock) => Err(PartialFileError {
             file: out.to_path_buf(),
             source: std::io::Error::new(
@@ -170,12 +183,16 @@ pub fn start_unfinished(out: &Path) -> Result<PathBuf, PartialFileError> {
     Ok(dir)
 }
 
-/// Passes `result` on; where it is a failure, removes `out`'s unfinished directory if the
-/// failure left it empty (one holding outputs is kept), so a failed command leaves no empty
-/// directory behind.
-pub fn abandon_if_failed<T, E>(out: Option<&Path>, result: Result<T, E>) -> Result<T, E> {
+/// Passes `result` on, ending the hold `lock` on `out`; where it is a failure, removes
+/// `out`'s unfinished directory if the failure left it empty (one holding outputs is kept),
+/// and `out` itself where the hold made it and it is empty, so a failed command leaves no
+/// empty directory behind.
+pub fn abandon_if_failed<T, E>(lock: Option<OutputLock>, out: Option<&Path>, result: Result<T, E>) -> Result<T, E> {
     if let (Err(_), Some(out)) = (&result, out) {
         let _ = std::fs::remove_dir(unfinished_dir(out));
+        if let Some(lock) = lock {
+            lock.release_failed();
+        }
     }
     result
 }

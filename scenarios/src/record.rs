@@ -338,16 +338,17 @@ fn staged(
     write: impl FnOnce(&Path) -> Result<RecordSummary, RecordError>,
 ) -> Result<RecordSummary, RecordError> {
     use crate::partial_files as staging;
-    let _out = staging::lock_output(out)?;
-    let unfinished = staging::start_unfinished(out)?;
-    let summary = match write(&unfinished) {
+    let lock = staging::lock_output(out)?;
+    let written = staging::start_unfinished(out).map_err(RecordError::from).and_then(|dir| write(&dir));
+    let summary = match written {
         Ok(summary) => summary,
         Err(e) => {
-            let _ = std::fs::remove_dir_all(&unfinished);
+            let _ = std::fs::remove_dir_all(staging::unfinished_dir(out));
+            lock.release_failed();
             return Err(e);
         }
     };
-    staging::publish(&unfinished, out, &robot_log_files()).map_err(RecordError::Publish)?;
+    staging::publish(&staging::unfinished_dir(out), out, &robot_log_files()).map_err(RecordError::Publish)?;
     Ok(summary)
 }
 

@@ -293,8 +293,8 @@ pub fn replay(
     out: Option<&Path>,
 ) -> Result<Replay, ReplayError> {
     // Held until the outputs are published or abandoned.
-    let _out = out.map(crate::partial_files::lock_output).transpose()?;
-    crate::partial_files::abandon_if_failed(out, replay_and_write(log.into(), config, appearance, out))
+    let lock = out.map(crate::partial_files::lock_output).transpose()?;
+    crate::partial_files::abandon_if_failed(lock, out, replay_and_write(log.into(), config, appearance, out))
 }
 
 fn replay_and_write(

@@ -343,8 +343,9 @@ pub fn run(
     progress: impl FnMut(RunProgress),
 ) -> Result<RunOutcome, RunError> {
     // Held until the outputs are published or abandoned.
-    let _out = options.out.as_deref().map(crate::partial_files::lock_output).transpose()?;
+    let lock = options.out.as_deref().map(crate::partial_files::lock_output).transpose()?;
     crate::partial_files::abandon_if_failed(
+        lock,
         options.out.as_deref(),
         run_and_write(scenario, base_dir, options, progress),
     )
