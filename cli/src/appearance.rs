@@ -16,7 +16,7 @@ pub(crate) fn train(args: &crate::args::TrainArgs) -> Result<()> {
     for other in &args.heldout_dataset {
         let held_out = scenarios::train::read_manifest(other)?;
         let copy = (held_out.world == trained_on.world && held_out.seed == trained_on.seed).then_some("a copy of it");
-        if let Some(what) = crate::paths::same_file(other, dataset).then_some("it").or(copy) {
+        if let Some(what) = scenarios::partial_files::same_path(other, dataset).then_some("it").or(copy) {
             anyhow::bail!(
                 "--heldout-dataset {}: {what} is the training dataset {} ({}, seed {}); held-out images must come from another world",
                 other.display(),

@@ -4,19 +4,11 @@ use std::path::Path;
 
 use anyhow::Result;
 
-/// Whether `a` and `b` name one existing file or directory, however each is spelled.
-pub(crate) fn same_file(a: &Path, b: &Path) -> bool {
-    match (std::fs::canonicalize(a), std::fs::canonicalize(b)) {
-        (Ok(a), Ok(b)) => a == b,
-        _ => false,
-    }
-}
-
 /// Refuses an output `out` (given as `flag`) that is one of the command's `inputs` (what
 /// each is, and its path): writing it would replace what the command reads with something
 /// else, and the input would be lost.
 pub(crate) fn not_an_input(flag: &str, out: &Path, inputs: &[(&str, &Path)]) -> Result<()> {
-    match inputs.iter().find(|(_, input)| same_file(out, input)) {
+    match inputs.iter().find(|(_, input)| scenarios::partial_files::same_path(out, input)) {
         Some((what, input)) => anyhow::bail!(
             "{flag} {}: it is the {what} given ({}); writing it would replace the input: choose another path",
             out.display(),

@@ -48,7 +48,7 @@ pub enum StudyError {
     Appearance(Box<crate::run::RunError>),
     #[error("{0}")]
     Worker(String),
-    #[error("{}: another study is running in this directory (it holds the lock); wait for it, or use another --out", file.display())]
+    #[error("{}: another study is running in this directory, or another objslam command writes into it; wait for it, or use another --out", file.display())]
     Locked { file: PathBuf },
     #[error("job {key}: {message}")]
     Job { key: String, message: String },
@@ -596,20 +596,24 @@ pub fn run_study_with(
     progress: impl Fn(StudyProgress) + Sync,
 ) -> Result<Vec<RunRecord>, StudyError> {
     plan.check()?;
-    crate::partial_files::make_output_dir(out).map_err(|e| StudyError::Io { file: e.file, source: e.source })?;
-    // One study at a time per directory: the lock goes with the process, however it ends.
-    let lock_file = out.join("study.lock");
-    let lock = std::fs::File::create(&lock_file).map_err(|e| StudyError::Io { file: lock_file.clone(), source: e })?;
-    lock.try_lock().map_err(|_| StudyError::Locked { file: lock_file.clone() })?;
+    // One study at a time per directory, as for any output directory: the hold goes with
+    // the process, however it ends.
+    let held = crate::partial_files::lock_output(out).map_err(|e| match e.source.kind() {
+        std::io::ErrorKind::ResourceBusy => StudyError::Locked { file: e.file },
+        _ => StudyError::Io { file: e.file, source: e.source },
+    })?;
     let plan_file = out.join("study.json");
     let (pin, base_scenario, base_dir) = pin_scenario(&plan.scenario)?;
     match read_study_file(&plan_file, "; remove the directory, or this file if runs.jsonl is empty, to start again") {
         Ok(existing) => {
-            // The scenario as typed may differ (another working directory) where the
-            // study recorded which one it began with: the digest below decides.
-            let typed_alike = existing.plan.scenario == plan.scenario || existing.scenario_pin.is_some();
+            // Where the study recorded the scenario it began with, the scenario may be typed
+            // otherwise (from another working directory): the digest below decides.
             let untyped = |p: &StudyPlan| StudyPlan { scenario: String::new(), ..p.clone() };
-            if !typed_alike || untyped(&existing.plan) != untyped(plan) {
+            let same_plan = match existing.scenario_pin {
+                Some(_) => untyped(&existing.plan) == untyped(plan),
+                None => existing.plan == *plan,
+            };
+            if !same_plan {
                 return Err(StudyError::Mismatch {
                     dir: out.into(),
                     message: format!("it was started as {}", serde_json::to_string(&existing.plan).unwrap_or_default()),
@@ -705,7 +709,7 @@ pub fn run_study_with(
     let keys: BTreeSet<String> = mine.iter().map(|j| j.key()).collect();
     let mut all: Vec<RunRecord> = existing.into_iter().filter(|r| keys.contains(&r.key)).chain(new).collect();
     all.sort_by_key(|r| r.job.index);
-    drop(lock);
+    drop(held);
     Ok(all)
 }
 
@@ -919,6 +923,12 @@ fn recorded_run(file: &Path, key: &str) -> Result<Option<(RunRecord, serde_json:
     Ok(Some((record, value)))
 }
 
+/// Shards run on other machines read the scenario from other paths: the same study has
+/// the same plan and the same scenario digest.
+fn digest(study: &StudyFile) -> Option<&str> {
+    study.scenario_pin.as_ref().map(|pin| pin.sha256.as_str())
+}
+
 /// Merges shard directories into `out`: runs de-duplicated by job and ordered by job index.
 pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<(StudyPlan, Vec<RunRecord>), StudyError> {
     let mut plan: Option<StudyFile> = None;
@@ -926,9 +936,6 @@ pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<(StudyPlan, Vec<RunRecord>)
     for d in dirs {
         let f = d.join("study.json");
         let p = read_study_file(&f, "")?;
-        // Shards run on other machines read the scenario from other paths: the same
-        // study has the same plan and the same scenario digest.
-        let digest = |s: &StudyFile| s.scenario_pin.as_ref().map(|pin| pin.sha256.clone());
         match &plan {
             Some(existing) if existing.plan != p.plan || digest(existing) != digest(&p) => {
                 return Err(StudyError::Mismatch {

@@ -160,6 +160,14 @@ fn open_lock(out: &Path) -> std::io::Result<File> {
     std::fs::OpenOptions::new().create(true).truncate(false).write(true).open(out.join(".objslam.lock"))
 }
 
+/// Whether two paths name the same place, however each is spelled (made absolute, links,
+/// `.` and `..` resolved where they exist): an output that is an input, a bag that is the
+/// run's output directory.
+pub fn same_path(a: &Path, b: &Path) -> bool {
+    let resolve = |p: &Path| p.canonicalize().or_else(|_| std::path::absolute(p)).unwrap_or_else(|_| p.to_path_buf());
+    resolve(a) == resolve(b)
+}
+
 /// Where outputs into `out` wait until all of them are written.
 pub fn unfinished_dir(out: &Path) -> PathBuf {
     out.join(".unfinished")

@@ -167,8 +167,7 @@ fn sharded_merged_study_equals_the_unsharded_one_and_resumes() {
     assert_eq!(std::fs::read(torn.join("study.json")).unwrap(), [0xff, 0xfe, 0x00]);
 
     // A second study in a directory a running one holds is refused.
-    let lock = std::fs::File::create(root.join("whole/study.lock")).unwrap();
-    lock.lock().unwrap();
+    let lock = scenarios::partial_files::lock_output(&root.join("whole")).unwrap();
     let e = mc::run_study(&plan, Shard::all(), &root.join("whole"), |_| {}).unwrap_err().to_string();
     assert!(e.contains("another study is running"), "{e}");
     drop(lock);

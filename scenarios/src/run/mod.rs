@@ -393,7 +393,7 @@ fn run_and_write(
     let mut bag = match &options.bag {
         // The bag's own files would sit among the run's, and the next run could not write
         // its bag (a bag directory must be new or empty).
-        Some(dir) if options.out.as_ref().is_some_and(|out| same_path(out, dir)) => {
+        Some(dir) if options.out.as_ref().is_some_and(|out| crate::partial_files::same_path(out, dir)) => {
             return Err(RunError::BagInOutputs(dir.clone()));
         }
         Some(dir) => Some(crate::ros2::Ros2Recorder::create(dir, &sim_config)?),
@@ -522,13 +522,6 @@ fn run_and_write(
         publish_outputs(&unfinished, out)?;
     }
     Ok(RunOutcome { metrics, resolved })
-}
-
-/// Whether two paths name the same place (made absolute, `.` and `..` resolved where they
-/// exist).
-fn same_path(a: &Path, b: &Path) -> bool {
-    let resolve = |p: &Path| p.canonicalize().or_else(|_| std::path::absolute(p)).unwrap_or_else(|_| p.to_path_buf());
-    resolve(a) == resolve(b)
 }
 
 /// The appearance model a camera method needs: the one given, or the scenario's (trained on

@@ -415,11 +415,6 @@ fn no_scan_at(file: &Path, line: usize, t: f64) -> ScoreError {
     invalid(file, Some(line), format!("no scan of the log at t = {t} s"))
 }
 
-/// Whether two paths name the same existing file.
-fn same_file(a: &Path, b: &Path) -> bool {
-    matches!((a.canonicalize(), b.canonicalize()), (Ok(a), Ok(b)) if a == b)
-}
-
 /// Scores `estimate` against the log in `log`: a log of `objslam record`, or the output
 /// directory of `objslam run`.
 pub fn score_log(log: &Path, estimate: &Estimate) -> Result<ScoredMetrics, ScoreError> {
@@ -441,7 +436,8 @@ pub fn score_log(log: &Path, estimate: &Estimate) -> Result<ScoredMetrics, Score
     let mut scorer = RunScorer::new(&world, camera.clone(), meta.scoring.visibility, basis);
 
     // A run's own trajectory: its covariances (and its method's name) come with it.
-    let own_trajectory = is_run && same_file(&estimate.trajectory, &log.join("trajectory_est.tum"));
+    let own_trajectory =
+        is_run && crate::partial_files::same_path(&estimate.trajectory, &log.join("trajectory_est.tum"));
     let covariances = estimate
         .covariances
         .clone()
