@@ -52,6 +52,7 @@ fn a_directory_another_command_writes_into_is_refused() {
         vec!["run", "laser_only", "--out", out_arg],
         vec!["record", "park", "--duration", "1", "--no-camera", "--out", out_arg],
         vec!["record", "park", "--duration", "1", "--no-camera", "--format", "log", "--out", out_arg],
+        vec!["record", "park", "--duration", "1", "--no-camera", "--format", "ros2", "--out", out_arg],
     ] {
         let o = objslam(&root, &args);
         assert!(!o.status.success(), "{args:?} ran into a held directory");
@@ -116,6 +117,53 @@ fn a_killed_recording_leaves_the_earlier_one_whole() {
     let now = contents(&out);
     assert_eq!(now.iter().map(|(p, _)| p).collect::<Vec<_>>(), earlier.iter().map(|(p, _)| p).collect::<Vec<_>>());
     assert_ne!(now, earlier, "another seed, another recording");
+    let _ = std::fs::remove_dir_all(&root);
+}
+
+/// A bag appears in its directory only once written whole: a killed recording leaves no
+/// half bag there (a reader would find an MCAP file and no `metadata.yaml`) and does not
+/// block the next recording into that directory.
+#[cfg(unix)]
+#[test]
+fn a_killed_bag_recording_leaves_no_half_bag_and_no_blocked_directory() {
+    let root = temp_root("killed-bag");
+    let out = root.join("bag");
+    let out_arg = out.to_str().unwrap();
+    let mut child = Command::new(env!("CARGO_BIN_EXE_objslam"))
+        .args(["record", "park", "--seed", "2", "--duration", "60", "--format", "ros2", "--out", out_arg])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let started = Instant::now();
+    let writing = out.join(".unfinished/bag_0.mcap");
+    while std::fs::metadata(&writing).map(|m| m.len()).unwrap_or(0) < 100_000 {
+        assert!(child.try_wait().unwrap().is_none(), "the recording ended before it could be stopped");
+        assert!(started.elapsed() < Duration::from_secs(120), "the recording wrote little in 2 minutes");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+    assert!(contents(&out).is_empty(), "only unfinished files: {:?}", contents(&out).len());
+
+    let o = objslam(
+        &root,
+        &["record", "park", "--seed", "3", "--duration", "2", "--no-camera", "--format", "ros2", "--out", out_arg],
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(!out.join(".unfinished").exists());
+    let mut names: Vec<_> = contents(&out).into_iter().map(|(p, _)| p).collect();
+    names.sort();
+    assert_eq!(names, [PathBuf::from("bag_0.mcap"), PathBuf::from("metadata.yaml")]);
+    let yaml = std::fs::read_to_string(out.join("metadata.yaml")).unwrap();
+    assert!(yaml.contains("bag_0.mcap"), "{yaml}");
+    // A bag is written once: a finished one is not written over.
+    let o = objslam(
+        &root,
+        &["record", "park", "--seed", "4", "--duration", "2", "--no-camera", "--format", "ros2", "--out", out_arg],
+    );
+    assert!(!o.status.success(), "recorded over a finished bag");
+    assert!(stderr(&o).contains(out_arg), "{}", stderr(&o));
     let _ = std::fs::remove_dir_all(&root);
 }
 

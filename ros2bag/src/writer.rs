@@ -66,6 +66,17 @@ impl BagWriter {
     /// and silently mixing with an older run's files would make a bag that misdescribes
     /// itself. The MCAP file is named after the directory (`<dir>_0.mcap`), as rosbag2 does.
     pub fn create(dir: &Path) -> Result<Self> {
+        let stem = dir
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .filter(|n| !n.is_empty())
+            .unwrap_or_else(|| "rosbag2".to_owned());
+        Self::create_named(dir, &stem)
+    }
+
+    /// Like [`BagWriter::create`], the MCAP file named `<stem>_0.mcap`: for a bag written
+    /// in a staging directory and moved to a directory named `stem` once finished.
+    pub fn create_named(dir: &Path, stem: &str) -> Result<Self> {
         let io = |action: &'static str, path: &Path| {
             let path = path.to_path_buf();
             move |source| Error::Io { path, action, source }
@@ -84,11 +95,6 @@ impl BagWriter {
             Err(e) => return Err(io("cannot inspect the bag directory", dir)(e)),
         }
 
-        let stem = dir
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .filter(|n| !n.is_empty())
-            .unwrap_or_else(|| "rosbag2".to_owned());
         let file_name = format!("{stem}_0.mcap");
         let mcap_path = dir.join(&file_name);
         // create_new: never truncate a file that appeared since the emptiness check.

@@ -293,7 +293,8 @@ pub fn write_camera_frame(
 /// `scoring` says how `objslam score` is to score systems on a JSON-lines log. `progress`
 /// is called with (sim time, nominal duration) now and then. A JSON-lines log or robot log
 /// replaces what `out` held only when written whole (see [`staged`]); a ROS 2 bag needs a
-/// new or empty directory.
+/// new or empty directory, and appears in it only when written whole
+/// ([`record_ros2_staged`]).
 pub fn record(
     world: &worlds::World,
     config: &SimConfig,
@@ -305,7 +306,7 @@ pub fn record(
 ) -> Result<RecordSummary, RecordError> {
     match format {
         RecordFormat::Jsonl => staged(out, |dir| record_jsonl(world, config, seed, scoring, dir, progress)),
-        RecordFormat::Ros2 => record_ros2(world, config, seed, out, progress),
+        RecordFormat::Ros2 => record_ros2_staged(world, config, seed, out, progress),
         RecordFormat::Log => record_log(world, config, seed, LogSettings::default(), out, progress),
     }
 }
@@ -509,18 +510,66 @@ fn write_log(
     })
 }
 
-/// The simulation's stream as a ROS 2 bag in `out` (see [`crate::ros2`]).
-fn record_ros2(
+/// A ROS 2 bag recorded into `out`'s unfinished directory, holding `out` against other
+/// commands, and moved into `out` only when finished (its MCAP file first, `metadata.yaml`
+/// last, which is what tells a reader the bag is whole). A bag is written once, so `out`
+/// must be new or empty, apart from the unfinished files of a recording that was stopped,
+/// which are cleared; a failed recording's files are removed.
+fn record_ros2_staged(
     world: &worlds::World,
     config: &SimConfig,
     seed: u64,
     out: &Path,
+    progress: impl FnMut(f64, f64),
+) -> Result<RecordSummary, RecordError> {
+    use crate::partial_files as staging;
+    let lock = staging::lock_output(out)?;
+    let unfinished = staging::unfinished_dir(out);
+    let listed = std::fs::read_dir(out).map_err(|source| staging::PartialFileError { file: out.into(), source })?;
+    if listed.flatten().any(|e| e.path() != unfinished && e.file_name() != ".objslam.lock") {
+        return Err(crate::ros2::Ros2Error::Bag {
+            dir: out.into(),
+            source: ros2bag::Error::DirectoryNotEmpty { path: out.into() },
+        }
+        .into());
+    }
+    let stem = out
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .filter(|n| !n.is_empty())
+        .unwrap_or_else(|| "rosbag2".to_owned());
+    let written = staging::start_unfinished(out)
+        .map_err(RecordError::from)
+        .and_then(|dir| record_ros2(world, config, seed, &dir, &stem, progress));
+    let summary = match written {
+        Ok(summary) => summary,
+        Err(e) => {
+            let _ = std::fs::remove_dir_all(&unfinished);
+            lock.release_failed();
+            return Err(e);
+        }
+    };
+    let mcap = format!("{stem}_0.mcap");
+    std::fs::rename(unfinished.join(&mcap), out.join(&mcap))
+        .map_err(|source| RecordError::Publish(vec![staging::PartialFileError { file: out.join(&mcap), source }]))?;
+    staging::publish(&unfinished, out, &[]).map_err(RecordError::Publish)?;
+    Ok(summary)
+}
+
+/// The simulation's stream as a ROS 2 bag in `dir`, its MCAP file named `<stem>_0.mcap`
+/// (see [`crate::ros2`]).
+fn record_ros2(
+    world: &worlds::World,
+    config: &SimConfig,
+    seed: u64,
+    dir: &Path,
+    stem: &str,
     mut progress: impl FnMut(f64, f64),
 ) -> Result<RecordSummary, RecordError> {
     let started = std::time::Instant::now();
     let mut sim = Simulation::new(world, config, seed)?;
     let nominal = config.max_duration_s.unwrap_or_else(|| sim.nominal_duration_s());
-    let mut bag = crate::ros2::Ros2Recorder::create(out, config)?;
+    let mut bag = crate::ros2::Ros2Recorder::create_named(dir, stem, config)?;
     let (mut scans, mut odometry, mut camera_frames) = (0, 0, 0);
     let mut last_progress = -1.0;
     while let Some(event) = sim.next_event() {

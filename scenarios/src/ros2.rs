@@ -63,7 +63,17 @@ impl Ros2Recorder {
     /// Starts a bag in `dir` (which must be empty or absent) for a simulator with `config`.
     pub fn create(dir: &Path, config: &SimConfig) -> Result<Self, Ros2Error> {
         let err = |source| Ros2Error::Bag { dir: dir.to_path_buf(), source };
-        let bag = BagWriter::create(dir).map_err(err)?;
+        Self::with_writer(dir, BagWriter::create(dir).map_err(err)?, config)
+    }
+
+    /// Like [`Ros2Recorder::create`], the MCAP file named `<stem>_0.mcap` (a bag staged
+    /// elsewhere before it moves to a directory named `stem`).
+    pub fn create_named(dir: &Path, stem: &str, config: &SimConfig) -> Result<Self, Ros2Error> {
+        let err = |source| Ros2Error::Bag { dir: dir.to_path_buf(), source };
+        Self::with_writer(dir, BagWriter::create_named(dir, stem).map_err(err)?, config)
+    }
+
+    fn with_writer(dir: &Path, bag: BagWriter, config: &SimConfig) -> Result<Self, Ros2Error> {
         let [lx, ly, lz] = config.laser.mount_xyz_m;
         let base_from_laser = Transform {
             translation: Vector3 { x: lx, y: ly, z: lz },
