@@ -25,7 +25,7 @@ import json
 import sys
 from pathlib import Path
 
-from rosbags.highlevel import AnyReader
+from rosbags.highlevel import AnyReader, AnyReaderError
 from rosbags.typesys import Stores, get_typestore
 
 POSE_TYPES = {
@@ -80,6 +80,17 @@ def main():
     a = p.parse_args()
     frames = set(a.frames.split(","))
     a.out.mkdir(parents=True, exist_ok=True)
+    try:
+        convert(a, frames)
+    except (AnyReaderError, OSError) as e:
+        # A bag cut short (a recorder killed before it wrote the MCAP's end) or missing
+        # its metadata.yaml: one line naming the bag, not a traceback.
+        hint = " (a recording cut short can be mended with `ros2 bag reindex`)" if "magic" in str(e) else ""
+        fail(f"{a.bag}: cannot read the bag: {e}{hint}")
+
+
+def convert(a, frames):
+    """Writes the estimate's files from the bag `a.bag`."""
     with AnyReader([a.bag], default_typestore=get_typestore(Stores.ROS2_HUMBLE)) as reader:
         poses, covariances = [], []
         for msgtype, m in messages(reader, a.trajectory_topic, POSE_TYPES):

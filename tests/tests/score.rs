@@ -161,12 +161,15 @@ fn score_reproduces_a_position_only_run_bit_for_bit() {
     assert!(run["false_landmarks"].as_u64().unwrap() > 0, "the baseline maps look-alikes within 40 s: {run}");
     assert_eq!(scored.map.as_ref().unwrap().trees_in_view, None);
 
-    // A trajectory alone: the trajectory's figures, and no verdict on the map's criteria.
+    // A trajectory alone: the trajectory's figures, the criteria on the pose and route
+    // judged as with the map, and no verdict on the map's criteria.
     let alone = Estimate { landmarks: None, associations: None, covariances: None, ..estimate(&out, "jcbb") };
     let scored_alone = score_log(&log, &alone).unwrap();
     assert_eq!(scored_alone.ate_rmse_m.to_bits(), scored.ate_rmse_m.to_bits());
     assert!(scored_alone.map.is_none() && scored_alone.associations.is_none());
-    assert!(scored_alone.passed.is_none() && !scored_alone.unchecked.is_empty());
+    assert!(!scored_alone.unchecked.is_empty(), "{scored_alone:?}");
+    assert!(scored_alone.failures.iter().all(|f| scored.failures.contains(f)), "{scored_alone:?}");
+    assert_eq!(scored_alone.passed, (!scored_alone.failures.is_empty()).then_some(false));
     assert!(scored_alone.anees.is_nan(), "no covariances given: no ANEES");
 
     let own = assert_run_directory_reproduces_itself(&out);
@@ -185,6 +188,17 @@ fn score_reproduces_a_camera_run_with_its_trees_in_view() {
     let map = scored.map.unwrap();
     assert!(map.trees_in_view.is_some_and(|n| n >= 1), "{map:?}");
     assert!(map.trees_laser_seen > map.trees_in_view.unwrap(), "{map:?}");
+    // A record log whose camera index is gone or cut: an error, not a recall on other evidence.
+    let index = log.join("camera.jsonl");
+    let frames = std::fs::read_to_string(&index).unwrap();
+    let cut: String = frames.lines().take(3).map(|l| format!("{l}\n")).collect();
+    std::fs::write(&index, cut).unwrap();
+    let e = score_log(&log, &estimate(&out, "combined")).expect_err("a cut camera index").to_string();
+    assert!(e.contains("camera.jsonl") && e.contains("3 frames") && e.contains("summary.camera_frames"), "{e}");
+    std::fs::remove_file(&index).unwrap();
+    let e = score_log(&log, &estimate(&out, "combined")).expect_err("no camera index").to_string();
+    assert!(e.contains("camera.jsonl") && e.contains("no frame"), "{e}");
+    std::fs::write(&index, frames).unwrap();
     // Without its images: the beams its frames showed on their trees (trees_shown.jsonl).
     assert!(!out.join("camera.jsonl").exists());
     let own = assert_run_directory_reproduces_itself(&out);
@@ -227,10 +241,11 @@ fn inputs_that_do_not_fit_the_log_are_errors_naming_file_and_line() {
     assert_eq!((whole.trajectory_coverage, whole.warnings.len()), (1.0, 0), "{:?}", whole.warnings);
     let first: String = poses[..10].iter().map(|l| format!("{l}\n")).collect();
     std::fs::write(&tum, first).unwrap();
+    // The pose criteria are checked with or without the map: so little cannot pass.
     let m = score_log(&log, &trajectory_only(tum.clone())).unwrap();
     assert!(m.trajectory_coverage > 0.0 && m.trajectory_coverage < 0.5, "{}", m.trajectory_coverage);
-    assert!(m.warnings.iter().any(|w| w.contains("the trajectory covers")), "{:?}", m.warnings);
-    // With the map and associations the criteria are checked: so little cannot pass.
+    assert_eq!(m.passed, Some(false), "{m:?}");
+    assert!(m.failures.iter().any(|f| f.contains("the trajectory covers") && f.contains("90.0%")), "{:?}", m.failures);
     let m = score_log(&log, &Estimate { trajectory: tum.clone(), covariances: None, ..estimate(&out, "x") }).unwrap();
     assert_eq!(m.passed, Some(false), "{m:?}");
     assert!(m.failures.iter().any(|f| f.contains("the trajectory covers") && f.contains("90.0%")), "{:?}", m.failures);
@@ -257,6 +272,30 @@ fn inputs_that_do_not_fit_the_log_are_errors_naming_file_and_line() {
     std::fs::write(&assoc, lines.join("\n")).unwrap();
     let e = error(Estimate { associations: Some(assoc.clone()), ..estimate(&out, "x") });
     assert!(e.contains("assoc.jsonl:2") && e.contains("300..=400"), "{e}");
+
+    // Observations of one scan that share a beam: a beam is one observation's at most.
+    v["observations"] = serde_json::json!([
+        {"first_beam": 296, "last_beam": 303, "landmark": 1},
+        {"first_beam": 297, "last_beam": 303, "landmark": 1}
+    ]);
+    lines[1] = v.to_string();
+    std::fs::write(&assoc, lines.join("\n")).unwrap();
+    let e = error(Estimate { associations: Some(assoc.clone()), ..estimate(&out, "x") });
+    assert!(e.contains("assoc.jsonl:2") && e.contains("overlap"), "{e}");
+    v["observations"] = serde_json::json!([{"first_beam": 303, "last_beam": 296, "landmark": 1}]);
+    lines[1] = v.to_string();
+    std::fs::write(&assoc, lines.join("\n")).unwrap();
+    let e = error(Estimate { associations: Some(assoc.clone()), ..estimate(&out, "x") });
+    assert!(e.contains("assoc.jsonl:2") && e.contains("comes after the last"), "{e}");
+
+    // A fusion of landmarks that no association has made.
+    v["observations"] = serde_json::json!([]);
+    v["fusions"] = serde_json::json!([{"kept": 999, "removed": 998}]);
+    lines[1] = v.to_string();
+    std::fs::write(&assoc, lines.join("\n")).unwrap();
+    let e = error(Estimate { associations: Some(assoc.clone()), ..estimate(&out, "x") });
+    assert!(e.contains("assoc.jsonl:2") && e.contains("landmark 999 is fused before"), "{e}");
+    v.as_object_mut().unwrap().remove("fusions");
 
     // A scan time the log does not have.
     v["t"] = serde_json::json!(0.05);
@@ -314,6 +353,16 @@ fn inputs_that_do_not_fit_the_log_are_errors_naming_file_and_line() {
     std::fs::write(&cov, "t,xx,xy,xtheta,yy,ytheta,thetatheta\n0.0123,1,0,0,1,0,1\n").unwrap();
     let e = error(Estimate { covariances: Some(cov), ..estimate(&out, "x") });
     assert!(e.contains("cov.csv:2") && e.contains("no pose"), "{e}");
+
+    // Covariances of which none is positive definite: no ANEES, and a warning that says so.
+    let first_pose_t = poses[0].split_whitespace().next().unwrap();
+    let negative = bad.join("negative.csv");
+    std::fs::write(&negative, format!("t,xx,xy,xtheta,yy,ytheta,thetatheta\n{first_pose_t},-1,0,0,-1,0,-1\n")).unwrap();
+    let m =
+        score_log(&log, &Estimate { covariances: Some(negative), ..trajectory_only(out.join("trajectory_est.tum")) })
+            .unwrap();
+    assert!(m.anees.is_nan(), "{}", m.anees);
+    assert!(m.warnings.iter().any(|w| w.contains("no ANEES") && w.contains("negative.csv")), "{:?}", m.warnings);
 
     // The same landmark twice.
     let lm = bad.join("lm.json");

@@ -452,7 +452,10 @@ pub(super) fn read_landmarks(file: &Path) -> Result<Vec<MapLandmark>, ScoreError
 
 /// Why beams `first..=last` are no observation of `scan`, if they are not.
 pub(super) fn beams_outside(first: usize, last: usize, scan: &sim::LaserScan) -> Option<String> {
-    (first > last || last >= scan.ranges.len())
+    if first > last {
+        return Some(format!("beams {first}..={last}: the first beam comes after the last"));
+    }
+    (last >= scan.ranges.len())
         .then(|| format!("beams {first}..={last} are not within the scan's {} beams", scan.ranges.len()))
 }
 
@@ -469,6 +472,20 @@ pub(super) fn scan_observations(
         Observations::Beams(all) => {
             if let Some(problem) = all.iter().find_map(|o| beams_outside(o.first_beam, o.last_beam, scan)) {
                 return Err(invalid(file, Some(a.line), problem));
+            }
+            // One beam is one return, so it belongs to one observation at most: a scan's
+            // observations listed twice, or overlapping, would count associations twice.
+            let mut spans: Vec<(usize, usize)> = all.iter().map(|o| (o.first_beam, o.last_beam)).collect();
+            spans.sort_unstable();
+            if let Some(w) = spans.windows(2).find(|w| w[1].0 <= w[0].1) {
+                return Err(invalid(
+                    file,
+                    Some(a.line),
+                    format!(
+                        "beams {}..={} and {}..={} overlap: a beam belongs to one observation of a scan at most",
+                        w[0].0, w[0].1, w[1].0, w[1].1
+                    ),
+                ));
             }
             Ok(all.clone())
         }

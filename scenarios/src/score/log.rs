@@ -190,6 +190,9 @@ struct LogMetadata {
     scoring: LogScoring,
     /// For the output directory of `objslam run`: the method it ran.
     run_method: Option<String>,
+    /// For a log of `objslam record`: the camera frames it wrote (absent in logs from
+    /// before the summary said).
+    camera_frames: Option<usize>,
 }
 
 pub(super) fn read_text(file: &Path) -> Result<String, ScoreError> {
@@ -256,6 +259,7 @@ fn read_metadata(log: &Path) -> Result<LogMetadata, ScoreError> {
         sim_seconds: field(&file, &v, "summary.sim_seconds")?,
         scoring,
         run_method,
+        camera_frames: v.pointer("/summary/camera_frames").and_then(|n| n.as_u64()).map(|n| n as usize),
     })
 }
 
@@ -311,6 +315,24 @@ fn read_frames(log: &Path) -> Result<Vec<LogFrame>, ScoreError> {
 fn read_camera_truth(log: &Path, meta: &LogMetadata) -> Result<CameraTruth, ScoreError> {
     if meta.run_method.is_none() {
         let frames = read_frames(log)?;
+        // A missing or cut camera index would score `trees_in_view` on fewer frames, or
+        // the recall on the laser alone, without a word.
+        if let Some(written) = meta.camera_frames
+            && written != frames.len()
+        {
+            return Err(invalid(
+                &log.join("camera.jsonl"),
+                None,
+                format!(
+                    "{} where metadata.json's summary.camera_frames says the recording wrote {written}: the camera index is missing or cut, so the trees in view cannot be counted",
+                    match frames.len() {
+                        0 => "no frame".to_string(),
+                        1 => "1 frame".to_string(),
+                        n => format!("{n} frames"),
+                    }
+                ),
+            ));
+        }
         return Ok(if frames.is_empty() { CameraTruth::None } else { CameraTruth::Frames(frames) });
     }
     if !meta.sim.camera.enabled {
@@ -500,12 +522,22 @@ pub fn score_log(log: &Path, estimate: &Estimate) -> Result<ScoredMetrics, Score
             "the trajectory covers {} of the log (true poses with one of its poses within {COVERAGE_WINDOW_S} s)",
             share(pose_score.coverage)
         );
-        if metrics.passed.is_some() {
+        // Whatever else is unchecked, the pose criteria are judged, and so little of the
+        // log cannot pass them.
+        if meta.scoring.pass.is_some() {
             metrics.failures.push(format!("{words}, less than the {} a pass needs", share(MIN_PASS_COVERAGE)));
             metrics.passed = Some(false);
         } else {
             metrics.warnings.push(words);
         }
+    }
+    if let Some(file) = &covariances
+        && !metrics.anees.is_finite()
+    {
+        metrics.warnings.push(format!(
+            "no ANEES: no covariance in {} is positive definite at a pose of the trajectory",
+            file.display()
+        ));
     }
     let off = pose_score.off_plane;
     if off.max_abs_z_m > OFF_PLANE_Z_M || off.max_tilt_deg > OFF_PLANE_TILT_DEG {
@@ -586,6 +618,8 @@ fn score_scans(
     let same_instant_s = 0.5 / meta.sim.physics_rate_hz;
     let (mut next_association, mut next_frame, mut merged) = (0usize, 0usize, 0usize);
     let mut fused_away = std::collections::HashSet::new();
+    // Landmarks that an association has named so far.
+    let mut named = std::collections::HashSet::new();
     let mut last_t = f64::NEG_INFINITY;
     for (n, line) in numbered_lines(&laser_text) {
         let scan: sim::LaserScan =
@@ -625,16 +659,25 @@ fn score_scans(
         let (observations, fusions): (Vec<ScoredObservation>, &[Fusion]) = match associations {
             Some((file, scans)) => match entry_at(scans, &mut next_association, |a| a.t, scan.t, 1e-6) {
                 Ok(Some(a)) => {
+                    let observations = scan_observations(file, a, &scan, &log_observations, &observations_file)?;
+                    named.extend(observations.iter().filter_map(|o| o.landmark));
+                    // A fusion joins two landmarks that exist: both were made from
+                    // associated observations (this scan's included), neither fused away.
                     for f in &a.fusions {
-                        if !fused_away.insert(f.removed) {
-                            return Err(invalid(
-                                file,
-                                Some(a.line),
-                                format!("landmark {} is fused away a second time", f.removed),
-                            ));
+                        let problem = if !fused_away.insert(f.removed) {
+                            Some(format!("landmark {} is fused away a second time", f.removed))
+                        } else if fused_away.contains(&f.kept) {
+                            Some(format!("landmark {} is kept by a fusion after it was fused away", f.kept))
+                        } else {
+                            [f.kept, f.removed].into_iter().find(|id| !named.contains(id)).map(|id| {
+                                format!("landmark {id} is fused before any observation was associated with it")
+                            })
+                        };
+                        if let Some(problem) = problem {
+                            return Err(invalid(file, Some(a.line), problem));
                         }
                     }
-                    (scan_observations(file, a, &scan, &log_observations, &observations_file)?, &a.fusions)
+                    (observations, &a.fusions)
                 }
                 Ok(None) => (vec![], &[]),
                 Err(a) => return Err(no_scan_at(file, a.line, a.t)),
@@ -703,23 +746,46 @@ fn score_scans(
 }
 
 /// Checks the criteria these inputs can check; the others are listed as unchecked and
-/// leave `passed` null.
+/// leave `passed` null, unless a criterion that was checked fails. A trajectory alone
+/// still answers the criteria on the pose (ATE, collisions, the route completed), and
+/// landmarks without associations the landmark RMSE: a poor trajectory is never left
+/// unjudged because no map came with it.
 fn check(pass: &PassCriteria, m: &mut ScoredMetrics, map: &MapContent) {
     let mut unchecked = Vec::new();
     if pass.max_calibration_rotation_error_deg.is_some() || pass.max_calibration_translation_error_m.is_some() {
         unchecked.push("calibration errors (a system's extrinsics are not an input)".to_string());
     }
-    let (Some(associations), Some(duplicates), Some(false_landmarks)) =
-        (&m.associations, m.duplicate_landmarks, m.false_landmarks)
-    else {
-        unchecked.push("map and association criteria (needs --landmarks and --associations)".to_string());
-        m.unchecked = unchecked;
-        return;
+    let (checked, figures) = match (&m.associations, m.duplicate_landmarks, m.false_landmarks) {
+        (Some(associations), Some(duplicates), Some(false_landmarks)) => {
+            (pass.clone(), (associations.wrong, false_landmarks, duplicates))
+        }
+        _ => {
+            let map_criteria = pass.max_wrong_associations.is_some()
+                || pass.max_false_landmarks.is_some()
+                || pass.min_false_landmarks.is_some()
+                || pass.max_duplicate_landmarks.is_some()
+                || pass.min_tree_recall.is_some();
+            if map_criteria {
+                unchecked.push("map and association criteria (needs --landmarks and --associations)".to_string());
+            }
+            let landmarks_given = m.landmarks.is_some();
+            if pass.max_landmark_rmse_m.is_some() && !landmarks_given {
+                unchecked.push("landmark RMSE (needs --landmarks)".to_string());
+            }
+            let pose_only = PassCriteria {
+                max_ate_rmse_m: pass.max_ate_rmse_m,
+                max_collisions: pass.max_collisions,
+                max_landmark_rmse_m: pass.max_landmark_rmse_m.filter(|_| landmarks_given),
+                ..PassCriteria::default()
+            };
+            (pose_only, (0, 0, 0))
+        }
     };
+    let (wrong_associations, false_landmarks, duplicate_landmarks) = figures;
     let figures = crate::run::PassFigures {
-        wrong_associations: associations.wrong,
+        wrong_associations,
         false_landmarks,
-        duplicate_landmarks: duplicates,
+        duplicate_landmarks,
         map,
         ate_rmse_m: m.ate_rmse_m,
         landmark_rmse_m: m.landmark_rmse_m,
@@ -727,11 +793,8 @@ fn check(pass: &PassCriteria, m: &mut ScoredMetrics, map: &MapContent) {
         calibration: None,
         route_completed: m.route_completed,
     };
-    m.failures = crate::run::check_pass(pass, &figures);
-    m.passed = unchecked.is_empty().then_some(m.failures.is_empty());
-    if !m.failures.is_empty() {
-        m.passed = Some(false);
-    }
+    m.failures = crate::run::check_pass(&checked, &figures);
+    m.passed = if !m.failures.is_empty() { Some(false) } else { unchecked.is_empty().then_some(true) };
     m.unchecked = unchecked;
 }
 
