@@ -510,11 +510,8 @@ fn write_log(
     })
 }
 
-/// A ROS 2 bag recorded into `out`'s unfinished directory, holding `out` against other
-/// commands, and moved into `out` only when finished (its MCAP file first, `metadata.yaml`
-/// last, which is what tells a reader the bag is whole). A bag is written once, so `out`
-/// must be new or empty, apart from the unfinished files of a recording that was stopped,
-/// which are cleared; a failed recording's files are removed.
+/// A ROS 2 bag recorded into `out` (see [`crate::ros2::StagedBag`]: staged, and moved in
+/// only when whole).
 fn record_ros2_staged(
     world: &worlds::World,
     config: &SimConfig,
@@ -522,54 +519,23 @@ fn record_ros2_staged(
     out: &Path,
     progress: impl FnMut(f64, f64),
 ) -> Result<RecordSummary, RecordError> {
-    use crate::partial_files as staging;
-    let lock = staging::lock_output(out)?;
-    let unfinished = staging::unfinished_dir(out);
-    let listed = std::fs::read_dir(out).map_err(|source| staging::PartialFileError { file: out.into(), source })?;
-    if listed.flatten().any(|e| e.path() != unfinished && e.file_name() != ".objslam.lock") {
-        return Err(crate::ros2::Ros2Error::Bag {
-            dir: out.into(),
-            source: ros2bag::Error::DirectoryNotEmpty { path: out.into() },
-        }
-        .into());
-    }
-    let stem = out
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .filter(|n| !n.is_empty())
-        .unwrap_or_else(|| "rosbag2".to_owned());
-    let written = staging::start_unfinished(out)
-        .map_err(RecordError::from)
-        .and_then(|dir| record_ros2(world, config, seed, &dir, &stem, progress));
-    let summary = match written {
-        Ok(summary) => summary,
-        Err(e) => {
-            let _ = std::fs::remove_dir_all(&unfinished);
-            lock.release_failed();
-            return Err(e);
-        }
-    };
-    let mcap = format!("{stem}_0.mcap");
-    std::fs::rename(unfinished.join(&mcap), out.join(&mcap))
-        .map_err(|source| RecordError::Publish(vec![staging::PartialFileError { file: out.join(&mcap), source }]))?;
-    staging::publish(&unfinished, out, &[]).map_err(RecordError::Publish)?;
+    let mut bag = crate::ros2::StagedBag::create(out, config)?;
+    let summary = record_ros2(world, config, seed, &mut bag, progress)?;
+    bag.finish()?;
     Ok(summary)
 }
 
-/// The simulation's stream as a ROS 2 bag in `dir`, its MCAP file named `<stem>_0.mcap`
-/// (see [`crate::ros2`]).
+/// The simulation's stream written to `bag` (see [`crate::ros2`]).
 fn record_ros2(
     world: &worlds::World,
     config: &SimConfig,
     seed: u64,
-    dir: &Path,
-    stem: &str,
+    bag: &mut crate::ros2::StagedBag,
     mut progress: impl FnMut(f64, f64),
 ) -> Result<RecordSummary, RecordError> {
     let started = std::time::Instant::now();
     let mut sim = Simulation::new(world, config, seed)?;
     let nominal = config.max_duration_s.unwrap_or_else(|| sim.nominal_duration_s());
-    let mut bag = crate::ros2::Ros2Recorder::create_named(dir, stem, config)?;
     let (mut scans, mut odometry, mut camera_frames) = (0, 0, 0);
     let mut last_progress = -1.0;
     while let Some(event) = sim.next_event() {
@@ -585,7 +551,6 @@ fn record_ros2(
             last_progress = t;
         }
     }
-    bag.finish()?;
     progress(sim.time(), nominal);
     Ok(RecordSummary {
         sim_seconds: sim.time(),

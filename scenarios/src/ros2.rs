@@ -13,7 +13,7 @@
 //!
 //! Times are simulated seconds from 0.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use ros2bag::{
     BagWriter, CameraInfo, Header, Image, LaserScan, Odometry, PoseStamped, Quaternion, TfMessage, Time, Transform,
@@ -21,11 +21,81 @@ use ros2bag::{
 };
 use sim::{SensorEvent, SimConfig};
 
+use crate::partial_files as staging;
+
 /// Errors while writing a bag.
 #[derive(Debug, thiserror::Error)]
 pub enum Ros2Error {
     #[error("ROS 2 bag {}: {source}", dir.display())]
     Bag { dir: std::path::PathBuf, source: ros2bag::Error },
+    #[error(transparent)]
+    Output(#[from] staging::PartialFileError),
+    #[error("{}", crate::run::join_errors(.0))]
+    Publish(Vec<staging::PartialFileError>),
+}
+
+/// A ROS 2 bag recorded into `out`'s unfinished directory, holding `out` against other
+/// commands, and moved into `out` only when finished (its MCAP file first, `metadata.yaml`
+/// last, which is what tells a reader the bag is whole). A bag is written once, so `out`
+/// must be new or empty, apart from the unfinished files of a recording that was stopped,
+/// which are cleared. One dropped unfinished (a failed run or recording) removes its files,
+/// so no half bag blocks the directory.
+pub struct StagedBag {
+    recorder: Option<Ros2Recorder>,
+    lock: Option<staging::OutputLock>,
+    out: PathBuf,
+    stem: String,
+}
+
+impl StagedBag {
+    pub fn create(out: &Path, config: &SimConfig) -> Result<Self, Ros2Error> {
+        let lock = staging::lock_output(out)?;
+        let unfinished = staging::unfinished_dir(out);
+        let listed = std::fs::read_dir(out).map_err(|source| staging::PartialFileError { file: out.into(), source })?;
+        if listed.flatten().any(|e| e.path() != unfinished && e.file_name() != ".objslam.lock") {
+            return Err(Ros2Error::Bag {
+                dir: out.into(),
+                source: ros2bag::Error::DirectoryNotEmpty { path: out.into() },
+            });
+        }
+        let stem = out
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .filter(|n| !n.is_empty())
+            .unwrap_or_else(|| "rosbag2".to_owned());
+        let mut staged = StagedBag { recorder: None, lock: Some(lock), out: out.to_path_buf(), stem };
+        let dir = staging::start_unfinished(out)?;
+        staged.recorder = Some(Ros2Recorder::create_named(&dir, &staged.stem, config)?);
+        Ok(staged)
+    }
+
+    /// Writes one simulator event to the bag.
+    pub fn write(&mut self, event: &SensorEvent) -> Result<(), Ros2Error> {
+        self.recorder.as_mut().expect("a staged bag has its recorder until finished").write(event)
+    }
+
+    /// Closes the bag and moves it into its directory.
+    pub fn finish(mut self) -> Result<(), Ros2Error> {
+        self.recorder.take().expect("a staged bag has its recorder until finished").finish()?;
+        // Closed whole: from here a failure to move a file in keeps what was not moved.
+        let _lock = self.lock.take();
+        let unfinished = staging::unfinished_dir(&self.out);
+        let mcap = format!("{}_0.mcap", self.stem);
+        std::fs::rename(unfinished.join(&mcap), self.out.join(&mcap)).map_err(|source| {
+            Ros2Error::Publish(vec![staging::PartialFileError { file: self.out.join(&mcap), source }])
+        })?;
+        staging::publish(&unfinished, &self.out, &[]).map_err(Ros2Error::Publish)
+    }
+}
+
+impl Drop for StagedBag {
+    fn drop(&mut self) {
+        // Not finished (or failing to move in): the recording failed, and leaves nothing.
+        if let Some(lock) = self.lock.take() {
+            let _ = std::fs::remove_dir_all(staging::unfinished_dir(&self.out));
+            lock.release_failed();
+        }
+    }
 }
 
 /// Writes a simulation's events to a ROS 2 bag.
@@ -60,14 +130,9 @@ fn planar_pose(x: f64, y: f64, theta: f64) -> ros2bag::Pose {
 }
 
 impl Ros2Recorder {
-    /// Starts a bag in `dir` (which must be empty or absent) for a simulator with `config`.
-    pub fn create(dir: &Path, config: &SimConfig) -> Result<Self, Ros2Error> {
-        let err = |source| Ros2Error::Bag { dir: dir.to_path_buf(), source };
-        Self::with_writer(dir, BagWriter::create(dir).map_err(err)?, config)
-    }
-
-    /// Like [`Ros2Recorder::create`], the MCAP file named `<stem>_0.mcap` (a bag staged
-    /// elsewhere before it moves to a directory named `stem`).
+    /// Starts a bag in `dir` (which must be empty or absent) for a simulator with `config`,
+    /// its MCAP file named `<stem>_0.mcap` (a bag staged elsewhere before it moves to a
+    /// directory named `stem`; see [`StagedBag`]).
     pub fn create_named(dir: &Path, stem: &str, config: &SimConfig) -> Result<Self, Ros2Error> {
         let err = |source| Ros2Error::Bag { dir: dir.to_path_buf(), source };
         Self::with_writer(dir, BagWriter::create_named(dir, stem).map_err(err)?, config)

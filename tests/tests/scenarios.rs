@@ -256,6 +256,33 @@ fn a_bag_in_the_runs_output_directory_is_refused() {
     assert!(!dir.exists(), "nothing written");
 }
 
+/// A run's bag is staged like `record --format ros2`'s: a bag directory holding only a
+/// stopped recording's unfinished files takes the new bag, which appears whole; a finished
+/// bag is never written over, and the run refused for it leaves it as it was.
+#[test]
+fn a_runs_bag_appears_only_whole_and_is_written_once() {
+    let root = std::env::temp_dir().join(format!("objslam-run-bag-staged-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+    let (mut sc, base) = Scenario::load("laser_only").unwrap();
+    sc.sim.max_duration_s = Some(2.0);
+    let bag = root.join("bag");
+    std::fs::create_dir_all(bag.join(".unfinished")).unwrap();
+    std::fs::write(bag.join(".unfinished/bag_0.mcap"), b"half a bag").unwrap();
+    let options = RunOptions { bag: Some(bag.clone()), ..Default::default() };
+    run(&sc, &base, &options, |_| {}).unwrap();
+    let mut names: Vec<String> =
+        std::fs::read_dir(&bag).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    names.sort();
+    assert_eq!(names, ["bag_0.mcap", "metadata.yaml"]);
+    let written = std::fs::read(bag.join("bag_0.mcap")).unwrap();
+    assert!(written.len() > 1000, "{} bytes", written.len());
+    let e = run(&sc, &base, &options, |_| {}).err().expect("a bag is written once").to_string();
+    assert!(e.contains("bag"), "{e}");
+    assert_eq!(std::fs::read(bag.join("bag_0.mcap")).unwrap(), written);
+    assert!(!bag.join(".unfinished").exists());
+    let _ = std::fs::remove_dir_all(&root);
+}
+
 /// `objslam run --bag` writes the run's own sensor stream as a ROS 2 bag: a scan message
 /// per scan the pipeline took, whole camera frames, and the same metrics as without it.
 #[test]

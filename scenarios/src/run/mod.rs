@@ -396,7 +396,8 @@ fn run_and_write(
         Some(dir) if options.out.as_ref().is_some_and(|out| crate::partial_files::same_path(out, dir)) => {
             return Err(RunError::BagInOutputs(dir.clone()));
         }
-        Some(dir) => Some(crate::ros2::Ros2Recorder::create(dir, &sim_config)?),
+        // Staged like `record --format ros2`: a failed or stopped run leaves no half bag.
+        Some(dir) => Some(crate::ros2::StagedBag::create(dir, &sim_config)?),
         None => None,
     };
 
