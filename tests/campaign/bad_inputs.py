@@ -578,6 +578,26 @@ def build_cases(binary, w, kinds):
     ]:
         more.append(Case("estimate", label, lm, ["lm.json"] + ([field] if field else []), {"probe/lm.json": text}))
 
+    # Associations given by beams, and a record log whose camera index was cut.
+    t0 = json.loads(read(w, os.path.join("rec", "laser.jsonl")).splitlines()[0])["t"]
+    assoc = ["score", "--log", "rec", "--trajectory", os.path.join("rec", "ground_truth.tum"),
+             "--associations", "probe/assoc.jsonl", "--out", "probe/score"]
+    for label, line, field in [
+        ("observations sharing beams",
+         {"t": t0, "observations": [{"first_beam": 0, "last_beam": 5, "landmark": 1},
+                                    {"first_beam": 3, "last_beam": 8, "landmark": 2}]}, "overlap"),
+        ("beams reversed", {"t": t0, "observations": [{"first_beam": 8, "last_beam": 3, "landmark": 1}]}, "after the last"),
+        ("fusion of landmarks never made", {"t": t0, "observations": [], "fusions": [{"kept": 1, "removed": 2}]},
+         "fused before"),
+    ]:
+        more.append(Case("estimate", label, assoc, ["assoc.jsonl", field], {"probe/assoc.jsonl": json.dumps(line) + "\n"}))
+    cut = {os.path.join("probe", "reccut", n): read(w, os.path.join("rec", n), binary=True)
+           for n in os.listdir(os.path.join(w, "rec")) if os.path.isfile(os.path.join(w, "rec", n)) and n != "camera.jsonl"}
+    cut["probe/reccut/camera.jsonl"] = "\n".join(read(w, os.path.join("rec", "camera.jsonl")).splitlines()[:2]) + "\n"
+    more.append(Case("estimate", "camera index cut",
+                     ["score", "--log", "probe/reccut", "--trajectory", os.path.join("rec", "ground_truth.tum"),
+                      "--out", "probe/score"], ["camera.jsonl", "camera_frames"], cut))
+
     # Monte Carlo study directories.
     study = ["montecarlo", "laser_only", "--runs", "1", "--methods", "nn", "--jobs", "1", "--out", "probe/study"]
     more.append(Case("study", "study.json not JSON", study, ["study.json"], {"probe/study/study.json": "not json"}))
