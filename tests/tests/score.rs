@@ -208,6 +208,11 @@ fn score_reproduces_a_camera_run_with_its_trees_in_view() {
     let own = Estimate { method: None, recall_basis: None, ..estimate(&out, "combined") };
     let e = score_log(&out, &own).expect_err("no trees_shown.jsonl").to_string();
     assert!(e.contains("trees_shown.jsonl"), "{e}");
+    // Cut to its first line, it would count fewer trees in view than the run did.
+    let shown = std::fs::read_to_string(dir.join("moved.jsonl")).unwrap();
+    std::fs::write(out.join("trees_shown.jsonl"), shown.lines().next().unwrap().to_string() + "\n").unwrap();
+    let e = score_log(&out, &own).expect_err("a cut trees_shown.jsonl").to_string();
+    assert!(e.contains("trees_shown.jsonl") && e.contains("map.trees_in_view"), "{e}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -25,6 +25,11 @@ pub struct OffPlane {
     pub max_tilt_deg: f64,
 }
 
+/// The largest coordinate a pose may have (m): a million km, far past any coordinate on
+/// Earth (UTM northings stay below 1e7 m), so a larger one is a unit or column mistake, and
+/// errors of poses within it square without overflow.
+const MAX_POSITION_M: f64 = 1e9;
+
 /// A TUM trajectory as [`read_tum`] reads it, with what the plane leaves out of it.
 pub fn read_tum_3d(file: &Path) -> Result<(PlanarPoses, OffPlane), ScoreError> {
     let mut poses: PlanarPoses = Vec::new();
@@ -50,6 +55,13 @@ pub fn read_tum_3d(file: &Path) -> Result<(PlanarPoses, OffPlane), ScoreError> {
         };
         if values.iter().any(|v| !v.is_finite()) {
             return Err(invalid(file, Some(i + 1), "a value is not finite"));
+        }
+        if let Some(v) = [x, y, z].into_iter().find(|v| v.abs() > MAX_POSITION_M) {
+            return Err(invalid(
+                file,
+                Some(i + 1),
+                format!("a position of {v:e} m: beyond any place on Earth (a unit or column mistake?)"),
+            ));
         }
         // A quaternion q stands for the rotation of q / |q| (as other tools read it); one
         // already of unit length to rounding is used as written, so that a run's own file
@@ -436,7 +448,9 @@ pub(super) fn read_landmarks(file: &Path) -> Result<Vec<MapLandmark>, ScoreError
             })
             .collect::<Result<_, _>>()?
     } else {
-        slam::settings::from_json(&read_text(file)?).map_err(|e| invalid(file, None, e))?
+        // A byte-order mark (some editors' UTF-8) is read past, as in TUM and CSV files.
+        let text = read_text(file)?;
+        slam::settings::from_json(text.strip_prefix('\u{feff}').unwrap_or(&text)).map_err(|e| invalid(file, None, e))?
     };
     let mut seen = std::collections::HashSet::new();
     for l in &landmarks {
@@ -586,6 +600,14 @@ mod tests {
         std::fs::write(&file, "0 0 0 0 0 0 0 1\n1 0 0 0 0 0 0 0\n").unwrap();
         let e = read_tum(&file).unwrap_err().to_string();
         assert!(e.contains("bad.tum:2") && e.contains("quaternion") && e.contains("zero"), "{e}");
+        // A position whose errors would overflow: no ATE of infinity.
+        std::fs::write(&file, "0 0 0 0 0 0 0 1\n1 1e300 0 0 0 0 0 1\n").unwrap();
+        let e = read_tum(&file).unwrap_err().to_string();
+        assert!(e.contains("bad.tum:2") && e.contains("beyond any place on Earth"), "{e}");
+        // A map in JSON is read past a byte-order mark, as TUM and CSV files are.
+        let map = dir.join("map.json");
+        std::fs::write(&map, "\u{feff}[{\"id\": 1, \"position\": [1.0, 2.0]}]").unwrap();
+        assert_eq!(read_landmarks(&map).unwrap()[0].position, [1.0, 2.0]);
         // A CSV cell that is not text is said so, not dumped as the reader's error value.
         let csv = dir.join("assoc.csv");
         std::fs::write(&csv, b"t,observation,landmark\n0.1,0,3\n0.2,\xff,4\n").unwrap();

@@ -361,6 +361,38 @@ fn read_camera_truth(log: &Path, meta: &LogMetadata) -> Result<CameraTruth, Scor
     Ok(CameraTruth::Shown(shown))
 }
 
+/// Refuses a run directory whose ground truth no longer gives the trees its run counted:
+/// the denominators come from the truth alone, whatever the method, so they must be the
+/// run's own. A cut `trees_shown.jsonl` (it has lines only for scans that showed a tree,
+/// so its length proves nothing) or laser truth would otherwise score another recall.
+fn check_trees_to_map(log: &Path, map: &MapContent) -> Result<(), ScoreError> {
+    let file = log.join("metrics.json");
+    // A run stopped before it wrote its metrics has no count to hold the truth to.
+    let Ok(text) = std::fs::read_to_string(&file) else { return Ok(()) };
+    let v: serde_json::Value =
+        serde_json::from_str(&text).map_err(|e| invalid(&file, Some(e.line()), e.to_string()))?;
+    let counted = |key: &str| v.pointer(&format!("/map/{key}")).and_then(|n| n.as_u64()).map(|n| n as usize);
+    let mismatch = match (counted("trees_in_view"), counted("trees_laser_seen")) {
+        (Some(run), _) if map.trees_in_view != Some(run) => {
+            Some(("trees_in_view", run, map.trees_in_view.unwrap_or(0), TREES_SHOWN))
+        }
+        (_, Some(run)) if map.trees_laser_seen != run => {
+            Some(("trees_laser_seen", run, map.trees_laser_seen, "laser_truth.jsonl"))
+        }
+        _ => None,
+    };
+    match mismatch {
+        None => Ok(()),
+        Some((key, run, now, source)) => Err(invalid(
+            &log.join(source),
+            None,
+            format!(
+                "gives {now} for map.{key} where the run counted {run} (metrics.json): the run's ground truth was changed or cut"
+            ),
+        )),
+    }
+}
+
 /// A run's ground-truth camera evidence (see [`CameraTruth::Shown`]).
 const TREES_SHOWN: &str = "trees_shown.jsonl";
 
@@ -483,6 +515,9 @@ pub fn score_log(log: &Path, estimate: &Estimate) -> Result<ScoredMetrics, Score
         check_map_is_associated(map_file, map, file, scans)?;
     }
     let scored = scorer.finish(landmarks.as_deref().unwrap_or(&[]));
+    if is_run {
+        check_trees_to_map(log, &scored.map)?;
+    }
     let have_map = landmarks.is_some();
     let have_associations = associations.is_some();
     // A run's own trajectory is scored under the run's method's name.
@@ -809,7 +844,12 @@ pub fn summary_table(m: &ScoredMetrics) -> String {
         m.sim_seconds
     );
     s.push_str(&format!("  ATE RMSE          {:>8.3} m\n", m.ate_rmse_m));
-    s.push_str(&format!("  RPE RMSE          {:>8.3} m over {:.0} s\n", m.rpe_rmse_m, super::scorer::RPE_DELTA_S));
+    if m.rpe_rmse_m.is_finite() {
+        s.push_str(&format!("  RPE RMSE          {:>8.3} m over {:.0} s\n", m.rpe_rmse_m, super::scorer::RPE_DELTA_S));
+    } else {
+        // As metrics.json's null says: the trajectory has no two poses that far apart.
+        s.push_str(&format!("  RPE RMSE          undefined (no poses {:.0} s apart)\n", super::scorer::RPE_DELTA_S));
+    }
     if m.anees.is_finite() {
         s.push_str(&format!("  ANEES             {:>8.2} (pose, 3 dof: consistent near 3)\n", m.anees));
     }
