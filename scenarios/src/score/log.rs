@@ -368,7 +368,10 @@ fn read_camera_truth(log: &Path, meta: &LogMetadata) -> Result<CameraTruth, Scor
 fn check_trees_to_map(log: &Path, map: &MapContent) -> Result<(), ScoreError> {
     let file = log.join("metrics.json");
     // A run stopped before it wrote its metrics has no count to hold the truth to.
-    let Ok(text) = std::fs::read_to_string(&file) else { return Ok(()) };
+    let text = match std::fs::read_to_string(&file) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
+        read => read.map_err(|error| ScoreError::Io { file: file.clone(), error })?,
+    };
     let v: serde_json::Value =
         serde_json::from_str(&text).map_err(|e| invalid(&file, Some(e.line()), e.to_string()))?;
     let counted = |key: &str| v.pointer(&format!("/map/{key}")).and_then(|n| n.as_u64()).map(|n| n as usize);
