@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 
 use slam::messages::{Control, Detection, LaserScan, OdometryIncrement};
 
-use crate::stream::{LogStream, MotionMessage, ObservationMessage};
+use crate::stream::{LogStream, MotionMessage, ObservationMessage, Reread, Rows as RowsOf};
 use crate::{CameraFrameFile, DetectionScan, Log, LogError, Manifest, Motion, Observations, ReferenceSample, RgbImage};
 
 pub const MANIFEST: &str = "manifest.toml";
@@ -38,12 +38,14 @@ pub fn read(dir: &Path) -> Result<Log, LogError> {
         ObservationRows::Scans(rows) => Observations::Scans(rows.collect::<Result<_, _>>()?),
         ObservationRows::Detections(rows) => Observations::Detections(rows.collect::<Result<_, _>>()?),
     };
-    Ok(Log { manifest: parts.manifest, motion, observations, reference: parts.reference, camera: parts.camera })
+    let (reference, camera) = (parts.reference.collect()?, parts.camera.collect()?);
+    Ok(Log { manifest: parts.manifest, motion, observations, reference, camera })
 }
 
 /// Opens the log in `dir` to be read as it is replayed: the manifest, the reference and
-/// the camera's frame list are read and checked now; the motion and the observations a
-/// message at a time, a fault in them arriving as an error in the message's place.
+/// the camera's frame list are read and checked now (the last two read again when a replay
+/// needs them: see [`Reread`]); the motion and the observations a message at a time, a
+/// fault in them arriving as an error in the message's place.
 pub fn open(dir: &Path) -> Result<LogStream, LogError> {
     let parts = open_parts(dir)?;
     let motion: Box<dyn Iterator<Item = Result<MotionMessage, LogError>>> = Box::new(until_error(parts.motion));
@@ -78,8 +80,8 @@ struct OpenLog {
     manifest: Manifest,
     motion: MotionRows,
     observations: ObservationRows,
-    reference: Vec<ReferenceSample>,
-    camera: Vec<CameraFrameFile>,
+    reference: Reread<ReferenceSample>,
+    camera: Reread<CameraFrameFile>,
 }
 
 enum ObservationRows {
@@ -131,18 +133,18 @@ fn open_parts(dir: &Path) -> Result<OpenLog, LogError> {
                 problem: "reference.csv is there but no [reference] table says what it holds".into(),
             });
         }
-        read_reference(&reference_file)?
+        Reread::checked(&reference_file, reference_rows)?
     } else if manifest.reference.is_some() {
         return Err(LogError::File {
             file: dir.join(MANIFEST),
             problem: "a [reference] table, but no reference.csv holds the samples".into(),
         });
     } else {
-        Vec::new()
+        Reread::in_memory(Vec::new())
     };
     let camera_file = dir.join(CAMERA);
     let camera = match (camera_file.exists(), &manifest.camera) {
-        (true, Some(_)) => read_camera(&camera_file, dir)?,
+        (true, Some(_)) => Reread::checked(&camera_file, camera_rows)?,
         (true, None) => {
             return Err(LogError::File {
                 file: dir.join(MANIFEST),
@@ -155,7 +157,7 @@ fn open_parts(dir: &Path) -> Result<OpenLog, LogError> {
                 problem: "a [camera] table, but no camera.csv lists its frames".into(),
             });
         }
-        (false, None) => Vec::new(),
+        (false, None) => Reread::in_memory(Vec::new()),
     };
     Ok(OpenLog { manifest, motion, observations, reference, camera })
 }
@@ -518,23 +520,26 @@ const CAMERA_COLUMNS: &[&str] = &["t", "file"];
 
 /// `camera.csv`: `t,file` rows, the file relative to the log's directory (or absolute),
 /// each checked to exist; the images themselves are read when needed ([`read_frame`]).
-fn read_camera(file: &Path, dir: &Path) -> Result<Vec<CameraFrameFile>, LogError> {
+/// The frames `camera.csv` lists, each image file's path joined to the log's directory
+/// and checked to be there.
+fn camera_rows(file: &Path) -> Result<RowsOf<CameraFrameFile>, LogError> {
+    let dir = file.parent().unwrap_or(Path::new("")).to_path_buf();
     let mut rows = Rows::open_maybe_empty(file, &[CAMERA_COLUMNS])?;
-    let mut frames = Vec::new();
-    while let Some(record) = rows.next_record() {
-        let (line, record) = record?;
-        let t = rows.number(line, &record, 0)?;
-        let t = rows.time(line, t)?;
-        if record[1].is_empty() {
-            return Err(rows.problem(line, "`file` is empty"));
-        }
-        let image = dir.join(&record[1]);
-        if !image.is_file() {
-            return Err(rows.problem(line, format!("no image file {}", image.display())));
-        }
-        frames.push(CameraFrameFile { t, file: image });
-    }
-    Ok(frames)
+    let frames = std::iter::from_fn(move || {
+        Some(rows.next_record()?.and_then(|(line, record)| {
+            let t = rows.number(line, &record, 0)?;
+            let t = rows.time(line, t)?;
+            if record[1].is_empty() {
+                return Err(rows.problem(line, "`file` is empty"));
+            }
+            let image = dir.join(&record[1]);
+            if !image.is_file() {
+                return Err(rows.problem(line, format!("no image file {}", image.display())));
+            }
+            Ok(CameraFrameFile { t, file: image })
+        }))
+    });
+    Ok(Box::new(until_error(frames)))
 }
 
 /// Reads one camera frame as 8-bit RGB (PNG or JPEG; grey and alpha are converted),
@@ -569,17 +574,17 @@ pub fn write_frame(dir: &Path, index: usize, t: f64, image: &RgbImage) -> Result
     Ok(CameraFrameFile { t, file: relative })
 }
 
-fn read_reference(file: &Path) -> Result<Vec<ReferenceSample>, LogError> {
+fn reference_rows(file: &Path) -> Result<RowsOf<ReferenceSample>, LogError> {
     let mut rows = Rows::open(file, &[&["t", "x", "y"], &["t", "x", "y", "theta"]])?;
-    let mut out = Vec::new();
-    while let Some(row) = rows.next_row() {
-        let (line, t, row) = row?;
-        let x = rows.finite(line, &row, 1, "x")?;
-        let y = rows.finite(line, &row, 2, "y")?;
-        let theta = if rows.header == 1 { Some(rows.finite(line, &row, 3, "theta")?) } else { None };
-        out.push(ReferenceSample { t, x, y, theta });
-    }
-    Ok(out)
+    let samples = std::iter::from_fn(move || {
+        Some(rows.next_row()?.and_then(|(line, t, row)| {
+            let x = rows.finite(line, &row, 1, "x")?;
+            let y = rows.finite(line, &row, 2, "y")?;
+            let theta = if rows.header == 1 { Some(rows.finite(line, &row, 3, "theta")?) } else { None };
+            Ok(ReferenceSample { t, x, y, theta })
+        }))
+    });
+    Ok(Box::new(until_error(samples)))
 }
 
 /// Writes `log` into `dir` (created if missing). Numbers are written in full precision:

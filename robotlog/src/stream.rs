@@ -1,6 +1,10 @@
-//! A log read as it is replayed: the manifest, the reference and the list of camera frames
-//! in memory, the motion and the range sensor's scans one message at a time, so that a
-//! replay's memory does not grow with the log's data ([`crate::format::open`]).
+//! A log read as it is replayed: the manifest in memory, the motion and the range sensor's
+//! scans one message at a time, the reference and the list of camera frames read again
+//! from their files for each pass over them, so that a replay's memory does not grow with
+//! the log's length ([`crate::format::open`]).
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use slam::messages::{Control, LaserScan, OdometryIncrement};
 
@@ -57,14 +61,75 @@ impl ObservationMessage {
 /// Messages in time order. A file's fault comes as an error in the place of the message it
 /// is found in (a detection scan's rows are read up to the next scan's first), and ends
 /// the messages.
-pub type Messages<T> = std::iter::Peekable<Box<dyn Iterator<Item = Result<T, LogError>>>>;
+pub type Messages<T> = std::iter::Peekable<Rows<T>>;
+
+/// Rows read one at a time; a fault comes in the place of the row it is found in and ends
+/// them.
+pub type Rows<T> = Box<dyn Iterator<Item = Result<T, LogError>>>;
+
+/// Rows of a log that a replay passes over more than once (the reference: once to find the
+/// GPS's spikes, again as the poses come; the camera's frame list: checked when the log is
+/// opened, then followed). From a file they are checked whole when the log is opened and
+/// read afresh for each pass, so that their number costs no memory; a log made in memory
+/// keeps them there.
+pub struct Reread<T> {
+    len: usize,
+    source: RereadSource<T>,
+}
+
+enum RereadSource<T> {
+    Memory(Arc<Vec<T>>),
+    File { file: PathBuf, read: fn(&Path) -> Result<Rows<T>, LogError> },
+}
+
+impl<T: Clone + 'static> Reread<T> {
+    pub fn in_memory(rows: Vec<T>) -> Self {
+        Reread { len: rows.len(), source: RereadSource::Memory(Arc::new(rows)) }
+    }
+
+    /// The rows of `file` as `read` reads them, all read once now to check them and count
+    /// them.
+    pub(crate) fn checked(file: &Path, read: fn(&Path) -> Result<Rows<T>, LogError>) -> Result<Self, LogError> {
+        let mut len = 0;
+        for row in read(file)? {
+            row?;
+            len += 1;
+        }
+        Ok(Reread { len, source: RereadSource::File { file: file.to_path_buf(), read } })
+    }
+
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// The rows from the first. A file changed since it was checked gives what it holds
+    /// now, its faults as errors.
+    pub fn rows(&self) -> Result<Rows<T>, LogError> {
+        match &self.source {
+            RereadSource::Memory(rows) => {
+                let rows = Arc::clone(rows);
+                Ok(Box::new((0..rows.len()).map(move |k| Ok(rows[k].clone()))))
+            }
+            RereadSource::File { file, read } => read(file),
+        }
+    }
+
+    /// All rows in memory.
+    pub fn collect(&self) -> Result<Vec<T>, LogError> {
+        self.rows()?.collect()
+    }
+}
 
 /// A log whose motion and observations are read as they are taken.
 pub struct LogStream {
     pub manifest: Manifest,
-    /// Ground truth or GPS, whole: scoring needs all of it from the start.
-    pub reference: Vec<ReferenceSample>,
-    pub camera: Vec<CameraFrameFile>,
+    /// Ground truth or GPS.
+    pub reference: Reread<ReferenceSample>,
+    pub camera: Reread<CameraFrameFile>,
     pub motion: Messages<MotionMessage>,
     pub observations: Messages<ObservationMessage>,
 }
@@ -95,8 +160,8 @@ impl From<Log> for LogStream {
         };
         LogStream {
             manifest: log.manifest,
-            reference: log.reference,
-            camera: log.camera,
+            reference: Reread::in_memory(log.reference),
+            camera: Reread::in_memory(log.camera),
             motion: motion.peekable(),
             observations: observations.peekable(),
         }

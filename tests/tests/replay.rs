@@ -58,6 +58,14 @@ fn a_recorded_log_replays_to_the_runs_estimate() {
     let replayed = replay(log, config, None, Some(&dir.join("replay"))).unwrap();
     assert_same_estimate(&out, &dir.join("replay"), &replayed);
     assert!(!dir.join("replay/.unfinished").exists(), "every output moved into place");
+    let mut written: Vec<String> = std::fs::read_dir(dir.join("replay"))
+        .unwrap()
+        .map(|f| f.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    written.sort();
+    let expected =
+        ["decisions.jsonl", "landmarks.json", "map.png", "metadata.json", "metrics.json", "trajectory_est.tum"];
+    assert_eq!(written, expected, "the outputs, and no file the scoring kept on the way");
     // Scored against the log's ground truth, no alignment: the run's own ATE.
     let metrics: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("metrics.json")).unwrap()).unwrap();

@@ -9,11 +9,18 @@
 //! frame, after the rigid 2-D motion (rotation and translation, no scale) that best fits
 //! the estimate to it, once GPS spikes are removed (see [`gps_spikes`]).
 
+mod reference;
+
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+pub use reference::{
+    GPS_SPIKE_MAX_FIXES, GPS_SPIKE_SPEED_MPS, GpsSpikeFinder, ReferenceScore, gps_spikes, rigid_alignment,
+};
+use reference::{PairStore, ReferencePairs, score_reference};
+
 use robotlog::stream::{LogStream, MotionMessage, ObservationMessage};
-use robotlog::{Manifest, ReferenceKind, ReferencePoint, ReferenceSample};
+use robotlog::{Manifest, ReferenceKind, ReferencePoint};
 use serde::Serialize;
 use serde_json::json;
 use slam::association::{AssociationDecision, AssociationMethod, Choice};
@@ -70,11 +77,6 @@ pub const PIPELINE_FILE: &str = "pipeline.toml";
 /// `objslam record --format log` of a scenario whose method reads the camera writes the
 /// model its run uses), taken when `objslam replay` is given none.
 pub const APPEARANCE_MODEL_FILE: &str = "appearance_model.json";
-
-/// Highest speed a GPS fix may imply from both its neighbours before it is taken for a
-/// spike (m/s): far above what a vehicle in a park drives (Victoria Park's car: 6.6 m/s
-/// at most), far below the spikes' hundreds of m/s.
-pub const GPS_SPIKE_SPEED_MPS: f64 = 15.0;
 
 /// The settings a replay starts from, before the log's `pipeline.toml` and `--config`:
 /// the pipeline's defaults with the log's vehicle and sensor, and the rules a real sensor
@@ -222,24 +224,6 @@ pub struct Nis {
     pub within_95: f64,
 }
 
-/// The estimate against the log's reference.
-#[derive(Debug, Clone, Serialize)]
-pub struct ReferenceScore {
-    pub kind: ReferenceKind,
-    pub point: ReferencePoint,
-    pub samples: usize,
-    /// GPS fixes dropped as spikes (see [`gps_spikes`]), decided from the GPS alone.
-    pub spikes_removed: usize,
-    /// Samples inside the estimate's time span, scored.
-    pub samples_scored: usize,
-    /// "rigid 2-D" (GPS) or "none" (ground truth in the estimate's frame).
-    pub alignment: String,
-    pub alignment_rotation_rad: f64,
-    pub alignment_translation_m: [f64; 2],
-    pub ate_rmse_m: f64,
-    pub ate_max_m: f64,
-}
-
 /// What `metrics.json` of a replay holds (docs/guide/real-logs.md).
 #[derive(Debug, Clone, Serialize)]
 pub struct ReplayMetrics {
@@ -330,7 +314,10 @@ fn replay_and_write(
     let (appearance, camera) = camera.unzip();
     let (appearance, model_provenance) = appearance.unzip();
     // Frames only reach the methods that read them.
-    let frames: &[robotlog::CameraFrameFile] = if camera.is_some() { &log.camera } else { &[] };
+    let (mut frames, camera_frames): (robotlog::stream::Messages<robotlog::CameraFrameFile>, usize) = match camera {
+        Some(_) => (log.camera.rows()?.peekable(), log.camera.len()),
+        None => (robotlog::stream::Rows::peekable(Box::new(std::iter::empty())), 0),
+    };
     let mut pipeline = Pipeline::new(config.clone(), log.manifest.vehicle.start_pose, appearance)
         .map_err(|source| ReplayError::Pipeline { t: start, source })?
         .starting_at(start);
@@ -355,22 +342,40 @@ fn replay_and_write(
             [p[0] + c * mount[0] - s * mount[1], p[1] + s * mount[0] + c * mount[1], p[2]]
         }
     };
-    let spikes = reference_spikes(&log.manifest, &log.reference);
-    let scored: &[ReferenceSample] = if log.manifest.reference.is_some() { &log.reference } else { &[] };
-    let mut reference = ReferencePairs::new(scored, &spikes);
+    // The reference is read twice: now for its spikes, then as the poses reach it.
+    let scored = log.manifest.reference.as_ref().filter(|_| !log.reference.is_empty());
+    let spikes = match scored {
+        Some(r) if r.kind == ReferenceKind::Gps => {
+            let mut finder = GpsSpikeFinder::new(GPS_SPIKE_SPEED_MPS);
+            for sample in log.reference.rows()? {
+                finder.push(sample?);
+            }
+            finder.finish()
+        }
+        _ => Vec::new(),
+    };
+    let spikes_removed = spikes.len();
+    let pairs = match &unfinished {
+        Some(dir) => PairStore::on_disk(&dir.join(PAIRS_FILE))?,
+        None => PairStore::in_memory(),
+    };
+    let samples = match scored {
+        Some(_) => log.reference.rows()?,
+        None => Box::new(std::iter::empty()),
+    };
+    let mut reference = ReferencePairs::new(samples, spikes, pairs);
     let mut path = ThinnedPath::default();
     let mut nis = NisSums::default();
     let mut scan_ms = ScanTimeHistogram::default();
     let yaw = log.manifest.sensor.yaw_rad;
     let (mut detections, mut motion_messages, mut scans, mut end) = (0, 0, 0, start);
-    let mut f = 0;
     // The time of the trajectory's last pose.
     let mut last_written: Option<f64> = None;
     let error = |t: f64| move |source| ReplayError::Pipeline { t, source };
     loop {
         // At equal times: motion, then the frame, then the scan.
         let tm = robotlog::stream::next_time(&mut log.motion, MotionMessage::time)?;
-        let tf = frames.get(f).map(|frame| frame.t);
+        let tf = robotlog::stream::next_time(&mut frames, |frame| frame.t)?;
         let to = robotlog::stream::next_time(&mut log.observations, ObservationMessage::time)?;
         if tm.is_none() && tf.is_none() && to.is_none() {
             break;
@@ -391,9 +396,9 @@ fn replay_and_write(
             end = end.max(t);
         } else if let (Some(tf), true) = (tf, first(tf, to)) {
             let camera = camera.expect("frames only with a camera");
-            let image = robotlog::format::read_frame(&frames[f], camera)?;
+            let Some(Ok(frame)) = frames.next() else { unreachable!("peeked a frame") };
+            let image = robotlog::format::read_frame(&frame, camera)?;
             pipeline.on_image(tf, image.width, image.height, image.rgb).map_err(error(tf))?;
-            f += 1;
             // A frame moves no pose: nothing to write.
             continue;
         } else {
@@ -429,7 +434,7 @@ fn replay_and_write(
         }
         let p = pipeline.pose();
         let pose = at_point(p.pose);
-        reference.on_pose(p.t, [pose[0], pose[1]]);
+        reference.on_pose(p.t, [pose[0], pose[1]])?;
         path.push([pose[0], pose[1]]);
         // One pose a time (a TUM file's times increase): at a time of motion and a scan,
         // the pose after the motion, as `objslam run` writes it; the scan moves the next.
@@ -438,6 +443,7 @@ fn replay_and_write(
             last_written = Some(p.t);
         }
     }
+    let mut paired = reference.finish()?;
     let wall_seconds = started.elapsed().as_secs_f64();
     let log_seconds = end - start;
     let landmarks = pipeline.mapped_landmarks();
@@ -448,25 +454,34 @@ fn replay_and_write(
         motion_messages,
         scans,
         detections,
-        camera_frames: frames.len(),
+        camera_frames,
         appearance_model: model_provenance,
         landmarks: landmarks.len(),
-        reference: score_reference(&log.manifest, &log.reference, &reference.pairs, spikes.len()),
+        reference: match scored {
+            Some(r) => Some(score_reference(r.kind, r.point, log.reference.len(), spikes_removed, &mut paired.pairs)?),
+            None => None,
+        },
         nis: nis.finish(),
         time_per_scan_ms: scan_ms.finish(),
         wall_seconds,
         real_time_factor: log_seconds / wall_seconds.max(1e-9),
         peak_memory_mb: peak_memory_mb(),
     };
+    // The pairs' file goes before the outputs are published.
+    drop(paired.pairs);
     let result = Replay { metrics, landmarks, config, path: path.points() };
     if let (Some(dir), Some(unfinished), Some(streams)) = (out, unfinished, streams) {
         streams.finish()?;
-        write_outputs(&unfinished, &log.manifest, &log.reference, &result, &spikes)
+        write_outputs(&unfinished, &log.manifest, (&paired.drawn, &paired.dropped), &result)
             .map_err(|e| ReplayError::Unpublished { dir: unfinished.clone(), source: Box::new(e) })?;
         crate::partial_files::publish(&unfinished, dir, &[]).map_err(ReplayError::Publish)?;
     }
     Ok(result)
 }
+
+/// The file in a replay's unfinished directory that holds the (estimate, reference) pairs
+/// until they are scored (removed before the outputs are published).
+const PAIRS_FILE: &str = "reference_pairs.scratch";
 
 /// Most points of the path kept for the map picture.
 const MAP_PATH_POINTS: usize = 20_000;
@@ -515,44 +530,6 @@ impl ThinnedPath {
             self.kept.push(p);
         }
         self.kept
-    }
-}
-
-/// The reference samples scored (spikes left out) paired, as the poses come, with the
-/// estimate at their times: linear between the last pose before and the first at or after.
-struct ReferencePairs<'a> {
-    samples: Vec<&'a ReferenceSample>,
-    next: usize,
-    last_pose: Option<(f64, [f64; 2])>,
-    /// (estimate, reference) per sample scored.
-    pairs: Vec<([f64; 2], [f64; 2])>,
-}
-
-impl<'a> ReferencePairs<'a> {
-    fn new(samples: &'a [ReferenceSample], spikes: &[usize]) -> Self {
-        debug_assert!(samples.windows(2).all(|w| w[0].t <= w[1].t), "readers sort the reference by time");
-        let samples =
-            samples.iter().enumerate().filter(|(k, _)| spikes.binary_search(k).is_err()).map(|(_, s)| s).collect();
-        ReferencePairs { samples, next: 0, last_pose: None, pairs: Vec::new() }
-    }
-
-    fn on_pose(&mut self, t: f64, p: [f64; 2]) {
-        while let Some(s) = self.samples.get(self.next).filter(|s| s.t <= t) {
-            match self.last_pose {
-                // Before the first pose, only a sample at its very time is scored.
-                None => {
-                    if s.t == t {
-                        self.pairs.push((p, [s.x, s.y]));
-                    }
-                }
-                Some((t0, p0)) => {
-                    let a = if t > t0 { (s.t - t0) / (t - t0) } else { 1.0 };
-                    self.pairs.push(([p0[0] + a * (p[0] - p0[0]), p0[1] + a * (p[1] - p0[1])], [s.x, s.y]));
-                }
-            }
-            self.next += 1;
-        }
-        self.last_pose = Some((t, p));
     }
 }
 
@@ -648,138 +625,13 @@ fn peak_memory_mb() -> Option<f64> {
     Some(kb / 1024.0)
 }
 
-/// Most consecutive GPS fixes one spike may hold.
-pub const GPS_SPIKE_MAX_FIXES: usize = 3;
-
-/// Indices of GPS fixes that are spikes, decided from the GPS alone, never from the
-/// estimate being scored, for a vehicle that stays under `max_speed` (m/s). A spike is a
-/// run of 1 to [`GPS_SPIKE_MAX_FIXES`] fixes, each reached from the last fix kept before
-/// the run and left to the fix after it at more than `max_speed`, while those two agree
-/// with each other. Then, at either end of the log, where one neighbour is missing, a
-/// single fix is a spike when the two kept fixes on its one side agree (more fixes there
-/// may as well be where the GPS went on to).
-pub fn gps_spikes(samples: &[ReferenceSample], max_speed: f64) -> Vec<usize> {
-    let speed = |a: usize, b: usize| {
-        let (a, b) = (&samples[a], &samples[b]);
-        (b.x - a.x).hypot(b.y - a.y) / (b.t - a.t).abs().max(1e-3)
-    };
-    let n = samples.len();
-    let mut spike = vec![false; n];
-    // Inside the log: the fix before a run is the last one kept, never a dropped spike.
-    let mut before = 0;
-    let mut i = 1;
-    while i + 1 < n {
-        let found = (1..=GPS_SPIKE_MAX_FIXES).map(|len| i + len - 1).take_while(|&j| j + 1 < n).find(|&j| {
-            let after = j + 1;
-            (i..=j).all(|k| speed(k, before) > max_speed && speed(k, after) > max_speed)
-                && speed(before, after) <= max_speed
-        });
-        match found {
-            Some(j) => {
-                spike[i..=j].iter_mut().for_each(|s| *s = true);
-                i = j + 1;
-            }
-            None => {
-                before = i;
-                i += 1;
-            }
-        }
-    }
-    // The ends, against the two nearest kept fixes on their one side.
-    let kept: Vec<usize> = (0..n).filter(|&k| !spike[k]).collect();
-    if kept.len() >= 3 {
-        for (end, a, b) in
-            [(kept[0], kept[1], kept[2]), (kept[kept.len() - 1], kept[kept.len() - 2], kept[kept.len() - 3])]
-        {
-            if (end == 0 || end == n - 1)
-                && speed(end, a) > max_speed
-                && speed(end, b) > max_speed
-                && speed(a, b) <= max_speed
-            {
-                spike[end] = true;
-            }
-        }
-    }
-    (0..n).filter(|&k| spike[k]).collect()
-}
-
-/// The rotation and translation that best map `from` onto `to` (least squares, 2-D, no
-/// scale): `to ≈ R(theta) from + t`.
-pub fn rigid_alignment(from: &[[f64; 2]], to: &[[f64; 2]]) -> (f64, [f64; 2]) {
-    let n = from.len().max(1) as f64;
-    let mean = |v: &[[f64; 2]]| {
-        let s = v.iter().fold([0.0, 0.0], |a, p| [a[0] + p[0], a[1] + p[1]]);
-        [s[0] / n, s[1] / n]
-    };
-    let (mf, mt) = (mean(from), mean(to));
-    let (mut sxx, mut sxy) = (0.0, 0.0);
-    for (f, t) in from.iter().zip(to) {
-        let (fx, fy, tx, ty) = (f[0] - mf[0], f[1] - mf[1], t[0] - mt[0], t[1] - mt[1]);
-        sxx += fx * tx + fy * ty;
-        sxy += fx * ty - fy * tx;
-    }
-    let theta = sxy.atan2(sxx);
-    let (s, c) = theta.sin_cos();
-    (theta, [mt[0] - (c * mf[0] - s * mf[1]), mt[1] - (s * mf[0] + c * mf[1])])
-}
-
-/// The GPS fixes scoring leaves out (none for ground truth or without a reference).
-fn reference_spikes(manifest: &Manifest, reference: &[ReferenceSample]) -> Vec<usize> {
-    match &manifest.reference {
-        Some(r) if r.kind == ReferenceKind::Gps => gps_spikes(reference, GPS_SPIKE_SPEED_MPS),
-        _ => Vec::new(),
-    }
-}
-
-/// The estimate against the reference, from the (estimate, reference) pairs of the samples
-/// scored: aligned by a rigid 2-D fit for GPS, as it is for ground truth.
-fn score_reference(
-    manifest: &Manifest,
-    reference: &[ReferenceSample],
-    pairs: &[([f64; 2], [f64; 2])],
-    spikes: usize,
-) -> Option<ReferenceScore> {
-    let r = manifest.reference.as_ref()?;
-    if reference.is_empty() {
-        return None;
-    }
-    let (est, truth): (Vec<[f64; 2]>, Vec<[f64; 2]>) = pairs.iter().copied().unzip();
-    let (theta, t) = match r.kind {
-        ReferenceKind::Gps => rigid_alignment(&est, &truth),
-        ReferenceKind::GroundTruth => (0.0, [0.0, 0.0]),
-    };
-    let (s, c) = theta.sin_cos();
-    let errors: Vec<f64> = est
-        .iter()
-        .zip(&truth)
-        .map(|(e, g)| (c * e[0] - s * e[1] + t[0] - g[0]).hypot(s * e[0] + c * e[1] + t[1] - g[1]))
-        .collect();
-    let n = errors.len();
-    Some(ReferenceScore {
-        kind: r.kind,
-        point: r.point,
-        samples: reference.len(),
-        spikes_removed: spikes,
-        samples_scored: n,
-        alignment: match r.kind {
-            ReferenceKind::Gps => "rigid 2-D".into(),
-            ReferenceKind::GroundTruth => "none".into(),
-        },
-        alignment_rotation_rad: theta,
-        alignment_translation_m: t,
-        ate_rmse_m: if n > 0 { (errors.iter().map(|e| e * e).sum::<f64>() / n as f64).sqrt() } else { f64::NAN },
-        ate_max_m: errors.iter().copied().fold(0.0, f64::max),
-    })
-}
-
 /// Writes a replay's outputs into `out` beside the streamed ones: `metrics.json`,
 /// `metadata.json` (the resolved settings), `landmarks.json` and `map.png`.
 fn write_outputs(
     out: &Path,
     manifest: &Manifest,
-    reference_samples: &[ReferenceSample],
+    (reference, dropped): (&[[f64; 2]], &[[f64; 2]]),
     replay: &Replay,
-    spikes: &[usize],
 ) -> Result<(), ReplayError> {
     let write = |name: &str, text: String| {
         let file = out.join(name);
@@ -809,10 +661,6 @@ fn write_outputs(
     let path: Vec<[f64; 2]> = replay.path.iter().map(|p| moved(*p)).collect();
     let marks: Vec<[f64; 2]> = replay.landmarks.iter().map(|l| moved(l.position)).collect();
     // The fixes scoring dropped as spikes are drawn as such, the others as the reference.
-    let (mut reference, mut dropped) = (Vec::new(), Vec::new());
-    for (k, r) in reference_samples.iter().enumerate() {
-        if spikes.binary_search(&k).is_ok() { &mut dropped } else { &mut reference }.push([r.x, r.y]);
-    }
     let title = format!(
         "{}: {} ({} landmarks{})",
         if manifest.name.is_empty() { "log" } else { &manifest.name },
@@ -820,7 +668,7 @@ fn write_outputs(
         marks.len(),
         replay.metrics.reference.as_ref().map_or(String::new(), |r| format!(", ATE {:.2} m", r.ate_rmse_m))
     );
-    crate::plot::draw_replay_map(&title, &path, &reference, &dropped, &marks, &out.join("map.png"))?;
+    crate::plot::draw_replay_map(&title, &path, reference, dropped, &marks, &out.join("map.png"))?;
     Ok(())
 }
 
@@ -857,79 +705,6 @@ pub fn summary(m: &ReplayMetrics) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn rigid_alignment_recovers_a_rotation_and_translation() {
-        let from: Vec<[f64; 2]> = (0..20).map(|k| [k as f64, (k as f64 * 0.3).sin() * 4.0]).collect();
-        let (s, c) = 0.7f64.sin_cos();
-        let to: Vec<[f64; 2]> = from.iter().map(|p| [c * p[0] - s * p[1] + 5.0, s * p[0] + c * p[1] - 2.0]).collect();
-        let (theta, t) = rigid_alignment(&from, &to);
-        assert!((theta - 0.7).abs() < 1e-12 && (t[0] - 5.0).abs() < 1e-9 && (t[1] + 2.0).abs() < 1e-9);
-    }
-
-    #[test]
-    fn gps_spikes_are_found_from_the_gps_alone() {
-        let mut samples: Vec<ReferenceSample> =
-            (0..10).map(|k| ReferenceSample { t: k as f64, x: 3.0 * k as f64, y: 0.0, theta: None }).collect();
-        samples[4].y = 137.0;
-        assert_eq!(gps_spikes(&samples, GPS_SPIKE_SPEED_MPS), vec![4]);
-        // A jump that stays (a re-acquired fix in a new place) is not a spike.
-        for s in &mut samples[7..] {
-            s.x += 100.0;
-        }
-        assert_eq!(gps_spikes(&samples, GPS_SPIKE_SPEED_MPS), vec![4]);
-        // Two and three fixes in a row, and one at either end.
-        let mut samples: Vec<ReferenceSample> =
-            (0..30).map(|k| ReferenceSample { t: k as f64, x: 3.0 * k as f64, y: 0.0, theta: None }).collect();
-        for k in [0, 8, 9, 20, 21, 22, 29] {
-            samples[k].y = 90.0 + k as f64;
-        }
-        assert_eq!(gps_spikes(&samples, GPS_SPIKE_SPEED_MPS), vec![0, 8, 9, 20, 21, 22, 29]);
-        // Two at an end may be where the GPS went on to: not dropped.
-        samples[28].y = 118.0;
-        assert_eq!(gps_spikes(&samples, GPS_SPIKE_SPEED_MPS), vec![0, 8, 9, 20, 21, 22]);
-        samples[28].y = 0.0;
-        // Four in a row, off from both neighbours, are not a spike but a place the GPS
-        // stayed; three there would be.
-        for s in &mut samples[12..16] {
-            s.y = 150.0;
-        }
-        assert_eq!(gps_spikes(&samples, GPS_SPIKE_SPEED_MPS), vec![0, 8, 9, 20, 21, 22, 29]);
-        samples[15].y = 0.0;
-        assert_eq!(gps_spikes(&samples, GPS_SPIKE_SPEED_MPS), vec![0, 8, 9, 12, 13, 14, 20, 21, 22, 29]);
-        // A spike next to the start, and real fixes between two spikes at one false place,
-        // are judged against kept fixes: the real ones stay.
-        let mut samples: Vec<ReferenceSample> =
-            (0..12).map(|k| ReferenceSample { t: k as f64, x: 3.0 * k as f64, y: 0.0, theta: None }).collect();
-        for k in [1, 2, 6, 8] {
-            samples[k].y = 200.0;
-        }
-        assert_eq!(gps_spikes(&samples, GPS_SPIKE_SPEED_MPS), vec![1, 2, 6, 8]);
-    }
-
-    /// The estimate paired with each reference sample as the poses come: interpolated
-    /// between the poses around it, at the first pose only at its very time, never after
-    /// the last pose.
-    #[test]
-    fn reference_samples_pair_with_the_estimate_interpolated_inside_it_only() {
-        let samples: Vec<ReferenceSample> =
-            [0.5, 1.0, 1.5, 2.5].iter().map(|&t| ReferenceSample { t, x: 10.0 * t, y: 0.0, theta: None }).collect();
-        let mut pairs = ReferencePairs::new(&samples, &[]);
-        pairs.on_pose(1.0, [0.0, 0.0]);
-        pairs.on_pose(2.0, [2.0, 4.0]);
-        assert_eq!(pairs.pairs, vec![([0.0, 0.0], [10.0, 0.0]), ([1.0, 2.0], [15.0, 0.0])]);
-        // Two poses at one time: the first of them ends the interval; a sample before the
-        // first pose is dropped.
-        let mut twice = ReferencePairs::new(&samples, &[]);
-        twice.on_pose(1.0, [0.0, 0.0]);
-        twice.on_pose(1.5, [1.0, 0.0]);
-        twice.on_pose(1.5, [9.0, 9.0]);
-        assert_eq!(twice.pairs, vec![([0.0, 0.0], [10.0, 0.0]), ([1.0, 0.0], [15.0, 0.0])]);
-        let mut skipping = ReferencePairs::new(&samples, &[1]);
-        skipping.on_pose(1.0, [0.0, 0.0]);
-        skipping.on_pose(2.0, [2.0, 4.0]);
-        assert_eq!(skipping.pairs, vec![([1.0, 2.0], [15.0, 0.0])], "a spike is not scored");
-    }
 
     #[test]
     fn the_map_path_stays_bounded_and_keeps_its_ends() {
