@@ -144,6 +144,41 @@ pub struct PassCriteria {
     pub max_calibration_translation_error_m: Option<f64>,
 }
 
+impl PassCriteria {
+    /// What a system's estimate without the map and the associations (a trajectory, with
+    /// or without `landmarks`) can be judged on, and whether criteria needing the map and
+    /// the associations were left out. Every field is named, so a new criterion must be
+    /// placed here.
+    pub fn for_trajectory(&self, landmarks: bool) -> (PassCriteria, bool) {
+        let PassCriteria {
+            max_wrong_associations,
+            max_false_landmarks,
+            min_false_landmarks,
+            max_duplicate_landmarks,
+            min_tree_recall,
+            max_ate_rmse_m,
+            max_landmark_rmse_m,
+            max_collisions,
+            max_calibration_rotation_error_deg,
+            max_calibration_translation_error_m,
+        } = *self;
+        let needs_map = max_wrong_associations.is_some()
+            || max_false_landmarks.is_some()
+            || min_false_landmarks.is_some()
+            || max_duplicate_landmarks.is_some()
+            || min_tree_recall.is_some();
+        let judged = PassCriteria {
+            max_ate_rmse_m,
+            max_collisions,
+            max_landmark_rmse_m: max_landmark_rmse_m.filter(|_| landmarks),
+            max_calibration_rotation_error_deg,
+            max_calibration_translation_error_m,
+            ..PassCriteria::default()
+        };
+        (judged, needs_map)
+    }
+}
+
 /// Where a scenario was read from (`<built-in>/<name>.toml` for the library's; empty for
 /// one built in code): named in errors found after reading, and not part of what the
 /// scenario says, so two scenarios with the same settings are equal wherever they came from.

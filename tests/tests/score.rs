@@ -266,6 +266,20 @@ fn inputs_that_do_not_fit_the_log_are_errors_naming_file_and_line() {
     let m = score_log(&log, &trajectory_only(tum.clone())).unwrap();
     assert_eq!(m.ate_rmse_m, whole.ate_rmse_m, "z is not scored");
     assert!(m.warnings.iter().any(|w| w.contains("leaves the plane") && w.contains("0.500 m")), "{:?}", m.warnings);
+    // A trajectory with a 2 s hole in it: the RPE's pairs over the hole are said to be longer.
+    let t0: f64 = poses[0].split_whitespace().next().unwrap().parse().unwrap();
+    let holed: String = poses
+        .iter()
+        .filter(|l| {
+            let t: f64 = l.split_whitespace().next().unwrap().parse().unwrap();
+            !(t0 + 2.0..t0 + 4.0).contains(&t)
+        })
+        .map(|l| format!("{l}\n"))
+        .collect();
+    std::fs::write(&tum, holed).unwrap();
+    let m = score_log(&log, &trajectory_only(tum.clone())).unwrap();
+    assert!(m.rpe_rmse_m.is_finite(), "{m:?}");
+    assert!(m.warnings.iter().any(|w| w.contains("RPE") && w.contains("gaps in the trajectory")), "{:?}", m.warnings);
 
     // An observation past the scan's last beam, on line 2.
     let text = std::fs::read_to_string(out.join("associations.jsonl")).unwrap();

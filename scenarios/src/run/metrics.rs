@@ -271,6 +271,12 @@ pub fn check_pass(p: &crate::scenario::PassCriteria, m: &PassFigures) -> Vec<Str
     f
 }
 
+/// A figure with no bound (an ANEES from a covariance near singular can be 1e300) with
+/// `decimals` places, in scientific form from a million on so that it stays one word.
+pub fn unbounded_figure(v: f64, decimals: usize) -> String {
+    if v.abs() < 1e6 { format!("{v:.decimals$}") } else { format!("{v:.3e}") }
+}
+
 /// Short summary table for the terminal.
 pub fn summary_table(m: &Metrics) -> String {
     let mut s = String::new();
@@ -306,7 +312,7 @@ pub fn summary_table(m: &Metrics) -> String {
     if let Some(r) = m.landmark_rmse_m {
         s.push_str(&format!("  landmark RMSE     {r:>8.3} m\n"));
     }
-    s.push_str(&format!("  ANEES             {:>8.2}\n", m.anees));
+    s.push_str(&format!("  ANEES             {:>8}\n", unbounded_figure(m.anees, 2)));
     if let Some(c) = m.calibration.as_ref().filter(|c| c.mode != "true") {
         s.push_str(&format!(
             "  calibration       {} extrinsics off by {:.3} deg, {:.4} m\n",
@@ -330,6 +336,14 @@ pub fn summary_table(m: &Metrics) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_unbounded_figure_stays_one_short_word() {
+        assert_eq!(unbounded_figure(1.23456, 2), "1.23");
+        assert_eq!(unbounded_figure(-2.5e300, 2), "-2.500e300");
+        assert_eq!(unbounded_figure(999_999.0, 1), "999999.0");
+        assert_eq!(unbounded_figure(f64::NAN, 2), "NaN");
+    }
 
     /// An RMSE over no landmark is undefined and fails its bound, as a recall over no tree
     /// does.

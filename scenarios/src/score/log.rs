@@ -163,6 +163,8 @@ struct PoseScore {
     poses: usize,
     coverage: f64,
     off_plane: super::estimate::OffPlane,
+    /// The RPE's pose pairs, and how many of them span a gap (see `rpe_pairs_over_gaps`).
+    rpe_pairs: (usize, usize),
 }
 
 /// The share of `truth`'s times with one of `times` (increasing) within the window.
@@ -577,6 +579,14 @@ pub fn score_log(log: &Path, estimate: &Estimate) -> Result<ScoredMetrics, Score
             file.display()
         ));
     }
+    let (pairs, over_gaps) = pose_score.rpe_pairs;
+    if over_gaps > 0 {
+        metrics.warnings.push(format!(
+            "{over_gaps} of the RPE's {pairs} pose pairs span more than {:.1} s (gaps in the trajectory): the RPE there is over a longer time than {:.0} s",
+            super::scorer::RPE_GAP_FACTOR * super::scorer::RPE_DELTA_S,
+            super::scorer::RPE_DELTA_S
+        ));
+    }
     let off = pose_score.off_plane;
     if off.max_abs_z_m > OFF_PLANE_Z_M || off.max_tilt_deg > OFF_PLANE_TILT_DEG {
         metrics.warnings.push(format!(
@@ -631,7 +641,8 @@ fn score_poses(
         return Err(no_pose_at(*line, *tc));
     }
     let times: Vec<f64> = trajectory.iter().map(|(t, _)| *t).collect();
-    Ok(PoseScore { poses: trajectory.len(), coverage: coverage(&truth, &times), off_plane })
+    let rpe_pairs = super::scorer::rpe_pairs_over_gaps(&times, super::scorer::RPE_DELTA_S);
+    Ok(PoseScore { poses: trajectory.len(), coverage: coverage(&truth, &times), off_plane, rpe_pairs })
 }
 
 /// The scans of the log, with their truth, the camera's evidence and the system's
@@ -798,25 +809,15 @@ fn check(pass: &PassCriteria, m: &mut ScoredMetrics, map: &MapContent) {
             (pass.clone(), (associations.wrong, false_landmarks, duplicates))
         }
         _ => {
-            let map_criteria = pass.max_wrong_associations.is_some()
-                || pass.max_false_landmarks.is_some()
-                || pass.min_false_landmarks.is_some()
-                || pass.max_duplicate_landmarks.is_some()
-                || pass.min_tree_recall.is_some();
-            if map_criteria {
+            let landmarks_given = m.landmarks.is_some();
+            let (judged, needs_map) = pass.for_trajectory(landmarks_given);
+            if needs_map {
                 unchecked.push("map and association criteria (needs --landmarks and --associations)".to_string());
             }
-            let landmarks_given = m.landmarks.is_some();
             if pass.max_landmark_rmse_m.is_some() && !landmarks_given {
                 unchecked.push("landmark RMSE (needs --landmarks)".to_string());
             }
-            let pose_only = PassCriteria {
-                max_ate_rmse_m: pass.max_ate_rmse_m,
-                max_collisions: pass.max_collisions,
-                max_landmark_rmse_m: pass.max_landmark_rmse_m.filter(|_| landmarks_given),
-                ..PassCriteria::default()
-            };
-            (pose_only, (0, 0, 0))
+            (judged, (0, 0, 0))
         }
     };
     let (wrong_associations, false_landmarks, duplicate_landmarks) = figures;
@@ -854,7 +855,8 @@ pub fn summary_table(m: &ScoredMetrics) -> String {
         s.push_str(&format!("  RPE RMSE          undefined (no poses {:.0} s apart)\n", super::scorer::RPE_DELTA_S));
     }
     if m.anees.is_finite() {
-        s.push_str(&format!("  ANEES             {:>8.2} (pose, 3 dof: consistent near 3)\n", m.anees));
+        let anees = crate::run::unbounded_figure(m.anees, 2);
+        s.push_str(&format!("  ANEES             {anees:>8} (pose, 3 dof: consistent near 3)\n"));
     }
     if let Some(map) = &m.map {
         let recall = map.tree_recall.map_or("undefined".to_string(), |r| format!("{:.0}%", 100.0 * r));

@@ -130,20 +130,35 @@ pub fn rpe_rmse(times: &[f64], estimate: &[[f64; 3]], truth: &[[f64; 3]], delta_
         [c * dx + s * dy, -s * dx + c * dy]
     };
     let (mut sum, mut n) = (0.0, 0usize);
-    let mut j = 0;
-    for i in 0..times.len() {
-        j = j.max(i);
-        while j < times.len() && times[j] < times[i] + delta_s - RPE_TIME_TOLERANCE_S {
-            j += 1;
-        }
-        if j == times.len() {
-            break;
-        }
+    for (i, j) in rpe_pairs(times, delta_s) {
         let (e, g) = (motion(&estimate[i], &estimate[j]), motion(&truth[i], &truth[j]));
         sum += (e[0] - g[0]).powi(2) + (e[1] - g[1]).powi(2);
         n += 1;
     }
     if n == 0 { f64::NAN } else { (sum / n as f64).sqrt() }
+}
+
+/// The pose pairs (i, j) of [`rpe_rmse`]: each pose and the first at least `delta_s` after it.
+pub fn rpe_pairs(times: &[f64], delta_s: f64) -> impl Iterator<Item = (usize, usize)> + '_ {
+    let mut j = 0;
+    (0..times.len()).map_while(move |i| {
+        j = j.max(i);
+        while j < times.len() && times[j] < times[i] + delta_s - RPE_TIME_TOLERANCE_S {
+            j += 1;
+        }
+        (j < times.len()).then_some((i, j))
+    })
+}
+
+/// A pair of [`rpe_pairs`] spans more than this many times the interval where the
+/// trajectory has a gap: the RPE there measures drift over a longer time.
+pub const RPE_GAP_FACTOR: f64 = 1.5;
+
+/// How many of the RPE's pairs there are, and how many of them span more than
+/// [`RPE_GAP_FACTOR`] times `delta_s`.
+pub fn rpe_pairs_over_gaps(times: &[f64], delta_s: f64) -> (usize, usize) {
+    rpe_pairs(times, delta_s)
+        .fold((0, 0), |(n, long), (i, j)| (n + 1, long + usize::from(times[j] - times[i] > RPE_GAP_FACTOR * delta_s)))
 }
 
 /// Which object a run of beams truly belongs to: the most frequent instance id among them
@@ -398,6 +413,11 @@ mod tests {
         let stretched: Vec<[f64; 3]> = truth.iter().map(|p| [1.1 * p[0], 0.0, 0.0]).collect();
         assert!((rpe_rmse(&times, &stretched, &truth, 1.0) - 0.1).abs() < 1e-9);
         assert!(rpe_rmse(&times[..5], &stretched[..5], &truth[..5], 1.0).is_nan(), "no pair 1 s apart");
+        // Pairs over a gap in the poses are counted apart: they span more than 1.5 s.
+        assert_eq!(rpe_pairs_over_gaps(&times, 1.0).1, 0);
+        let gappy: Vec<f64> = times.iter().copied().filter(|t| !(2.0..2.8).contains(t)).collect();
+        let (pairs, long) = rpe_pairs_over_gaps(&gappy, 1.0);
+        assert!(long > 0 && long < pairs, "{long} of {pairs}");
     }
 
     #[test]
