@@ -3,7 +3,9 @@
 //!
 //! - `/scan` (`sensor_msgs/msg/LaserScan`, frame `laser`; no return is +inf, REP-117);
 //! - `/odom` (`nav_msgs/msg/Odometry`, `odom` -> `base_link`): the noisy wheel odometry,
-//!   integrated from the start pose at the origin of `odom`;
+//!   integrated from the start pose at the origin of `odom`, with the covariances its
+//!   error model gives (`sim::odometry::increment_covariance`, propagated for the pose;
+//!   z, roll and pitch unmeasured);
 //! - `/tf` (`odom` -> `base_link`, from that odometry) and `/tf_static` (`base_link` ->
 //!   `laser`, `base_link` -> `camera_optical`, latched);
 //! - `/camera/image_raw` (`sensor_msgs/msg/Image`, `rgb8`) and `/camera/camera_info`;
@@ -98,13 +100,54 @@ impl Drop for StagedBag {
     }
 }
 
+/// The wheel odometry integrated in the `odom` frame, with its covariance.
+struct OdomTrack {
+    /// x, y, theta.
+    pose: [f64; 3],
+    covariance: [[f64; 3]; 3],
+    config: sim::config::OdometryConfig,
+    last_t: Option<f64>,
+}
+
+impl OdomTrack {
+    fn new(config: &sim::config::OdometryConfig) -> Self {
+        OdomTrack { pose: [0.0; 3], covariance: [[0.0; 3]; 3], config: config.clone(), last_t: None }
+    }
+
+    /// The `/odom` message after increment `o`: the pose integrated with its covariance
+    /// propagated, and the velocity over the time since the previous increment with the
+    /// increment's covariance over that time squared (unknown, before there is one).
+    fn message(&mut self, o: &sim::Odometry) -> Result<Odometry, ros2bag::Error> {
+        let q = sim::odometry::increment_covariance(&self.config, o.dx, o.dy, o.dtheta);
+        self.covariance = sim::odometry::propagate_pose_covariance(&self.covariance, self.pose[2], (o.dx, o.dy), &q);
+        self.pose = crate::record::integrate_odometry(self.pose, o);
+        let dt = self.last_t.map(|p| o.t - p).filter(|d| *d > 0.0);
+        self.last_t = Some(o.t);
+        let [x, y, th] = self.pose;
+        let mut odom = Odometry {
+            header: Header::new(stamp(o.t)?, "odom"),
+            child_frame_id: "base_link".into(),
+            ..Default::default()
+        };
+        odom.pose.pose = planar_pose(x, y, th);
+        odom.pose.covariance = planar_covariance(&self.covariance, 1.0);
+        match dt {
+            Some(dt) => {
+                odom.twist.twist.linear = Vector3 { x: o.dx / dt, y: o.dy / dt, z: 0.0 };
+                odom.twist.twist.angular = Vector3 { x: 0.0, y: 0.0, z: o.dtheta / dt };
+                odom.twist.covariance = planar_covariance(&q, 1.0 / (dt * dt));
+            }
+            None => (0..6).for_each(|k| odom.twist.covariance[7 * k] = UNMEASURED_VARIANCE),
+        }
+        Ok(odom)
+    }
+}
+
 /// Writes a simulation's events to a ROS 2 bag.
 pub struct Ros2Recorder {
     bag: BagWriter,
     dir: std::path::PathBuf,
-    /// The odometry integrated in the `odom` frame: x, y, theta.
-    odom: [f64; 3],
-    last_odometry_t: Option<f64>,
+    odom: OdomTrack,
     static_written: bool,
     base_from_laser: Transform,
     base_from_camera: Transform,
@@ -123,6 +166,26 @@ fn stamp(t: f64) -> Result<Time, ros2bag::Error> {
 
 fn nanos(t: f64) -> u64 {
     (t.max(0.0) * 1e9).round() as u64
+}
+
+/// Variance given to z, roll and pitch, which planar odometry does not measure (the large
+/// value ROS drivers of planar robots give them, so that fusing nodes ignore them).
+pub const UNMEASURED_VARIANCE: f64 = 1e6;
+
+/// A 6x6 row-major ROS covariance (x, y, z, roll, pitch, yaw) from a planar one over
+/// (x, y, yaw) times `scale`, with [`UNMEASURED_VARIANCE`] for the rest.
+fn planar_covariance(c: &[[f64; 3]; 3], scale: f64) -> [f64; 36] {
+    let mut out = [0.0; 36];
+    let at = [0, 1, 5];
+    for (i, &r) in at.iter().enumerate() {
+        for (j, &k) in at.iter().enumerate() {
+            out[6 * r + k] = c[i][j] * scale;
+        }
+    }
+    for k in [2, 3, 4] {
+        out[6 * k + k] = UNMEASURED_VARIANCE;
+    }
+    out
 }
 
 fn planar_pose(x: f64, y: f64, theta: f64) -> ros2bag::Pose {
@@ -150,8 +213,7 @@ impl Ros2Recorder {
         Ok(Ros2Recorder {
             bag,
             dir: dir.to_path_buf(),
-            odom: [0.0; 3],
-            last_odometry_t: None,
+            odom: OdomTrack::new(&config.odometry),
             static_written: false,
             base_from_laser,
             base_from_camera,
@@ -184,24 +246,16 @@ impl Ros2Recorder {
         }
         match event {
             SensorEvent::Odometry { odometry: o, truth } => {
-                self.odom = crate::record::integrate_odometry(self.odom, o);
-                let dt = self.last_odometry_t.map(|p| o.t - p).filter(|d| *d > 0.0);
-                self.last_odometry_t = Some(o.t);
-                let [x, y, th] = self.odom;
-                let header = Header::new(stamp(o.t)?, "odom");
-                let pose = planar_pose(x, y, th);
-                let mut odom =
-                    Odometry { header: header.clone(), child_frame_id: "base_link".into(), ..Default::default() };
-                odom.pose.pose = pose;
-                if let Some(dt) = dt {
-                    odom.twist.twist.linear = Vector3 { x: o.dx / dt, y: o.dy / dt, z: 0.0 };
-                    odom.twist.twist.angular = Vector3 { x: 0.0, y: 0.0, z: o.dtheta / dt };
-                }
+                let odom = self.odom.message(o)?;
                 self.bag.write("/odom", nanos(o.t), &odom)?;
+                let p = odom.pose.pose;
                 let tf = TransformStamped {
-                    header,
+                    header: odom.header,
                     child_frame_id: "base_link".into(),
-                    transform: Transform { translation: Vector3 { x, y, z: 0.0 }, rotation: pose.orientation },
+                    transform: Transform {
+                        translation: Vector3 { x: p.position.x, y: p.position.y, z: 0.0 },
+                        rotation: p.orientation,
+                    },
                 };
                 self.bag.write("/tf", nanos(o.t), &TfMessage { transforms: vec![tf] })?;
                 let r = truth.robot;
@@ -261,5 +315,37 @@ impl Ros2Recorder {
             self.bag.write("/ground_truth/path", t.as_nanos().max(0) as u64, &path).map_err(err)?;
         }
         self.bag.finish().map_err(err)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `/odom` carries the error model's covariances: the pose's growing as the robot
+    /// drives, the velocity's that of one increment over its time, z, roll and pitch
+    /// unmeasured, and an unknown velocity before the second increment.
+    #[test]
+    fn odometry_messages_carry_the_error_models_covariances() {
+        let config = sim::config::OdometryConfig::default();
+        let mut track = OdomTrack::new(&config);
+        let step = |k: usize| sim::Odometry { t: 0.05 * k as f64, dx: 0.04, dy: 0.0, dtheta: 0.01 };
+        let first = track.message(&step(0)).unwrap();
+        assert_eq!(first.twist.covariance[0], UNMEASURED_VARIANCE, "no velocity before a second increment");
+        let mut variances = vec![first.pose.covariance[0]];
+        let mut last = first;
+        for k in 1..40 {
+            last = track.message(&step(k)).unwrap();
+            variances.push(last.pose.covariance[0]);
+        }
+        assert!(variances.windows(2).all(|w| w[1] > w[0]), "the pose's x variance grows: {variances:?}");
+        let c = &last.pose.covariance;
+        assert!(c[7] > 0.0 && c[35] > 0.0, "y and yaw: {c:?}");
+        assert_eq!([c[14], c[21], c[28]], [UNMEASURED_VARIANCE; 3]);
+        assert!((0..6).all(|i| (0..6).all(|j| c[6 * i + j] == c[6 * j + i])), "symmetric");
+        let q = sim::odometry::increment_covariance(&config, 0.04, 0.0, 0.01);
+        let t = &last.twist.covariance;
+        assert!((t[0] - q[0][0] / 0.0025).abs() < 1e-12 * t[0] && (t[35] - q[2][2] / 0.0025).abs() < 1e-12 * t[35]);
+        assert_eq!(t[14], UNMEASURED_VARIANCE);
     }
 }
