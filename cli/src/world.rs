@@ -67,6 +67,13 @@ pub(crate) fn load_world(input: &str, seed: u64) -> Result<worlds::World> {
     if !path.exists() && worlds::generate::PRESETS.contains(&input) {
         return Ok(worlds::generate::preset(input, None, seed)?);
     }
+    // A scenario's name where a world goes: say how to give a scenario.
+    if !path.exists() && scenarios::scenario::LIBRARY.iter().any(|(n, _)| *n == input.trim_end_matches(".toml")) {
+        anyhow::bail!(
+            "{input} is a scenario, not a world file or a preset ({}): give it as `--scenario {input}`",
+            worlds::generate::PRESETS.join(", ")
+        );
+    }
     Ok(worlds::load(path)?)
 }
 

@@ -27,6 +27,8 @@ fn negative_numbers_are_values_checked_like_any_other() {
             "the following required arguments were not provided:\n  --heldout-dataset <HELDOUT_DATASET>",
         ),
         (vec!["run", "--seed", "-1"], "invalid value '-1' for '--seed <SEED>'"),
+        // A scenario's name where a world goes: the error says how to give one.
+        (vec!["record", "paper_park", "--out", out], "paper_park is a scenario, not a world file or a preset (park"),
         (vec!["montecarlo", "laser_only", "--runs", "-3"], "invalid value '-3' for '--runs <RUNS>'"),
         (vec!["run", "--method", "bogus"], "invalid value 'bogus' for '--method <METHOD>'"),
         (vec!["calibrate", "calibration", "--poses", "0", "--out", out], "--poses must be 1..10000, got 0"),
