@@ -107,6 +107,14 @@ fn open_parts(dir: &Path) -> Result<OpenLog, LogError> {
             }
             ObservationRows::Scans(ScanRows { rows, laser: laser.clone() })
         }
+        (false, true) if manifest.laser.is_some() => {
+            return Err(LogError::File {
+                file: dir.join(MANIFEST),
+                problem:
+                    "a [laser] table describes scans.csv's beams, but this log holds detections.csv: remove the table"
+                        .into(),
+            });
+        }
         (false, true) => ObservationRows::Detections(DetectionRows {
             rows: Rows::open(&detections, &[DETECTION_COLUMNS])?,
             pending: None,
@@ -185,6 +193,15 @@ fn read_manifest(file: &Path) -> Result<Manifest, LogError> {
     Ok(manifest)
 }
 
+/// `text` cut to its first `max` characters, marked where cut (an error quotes a line that
+/// may be megabytes long).
+fn shortened(text: &str, max: usize) -> String {
+    match text.char_indices().nth(max) {
+        Some((at, _)) => format!("{}...", &text[..at]),
+        None => text.to_string(),
+    }
+}
+
 /// A row: its line in the file, its time (column 0) and its values, empty cells `None`.
 type Row = (u64, f64, Vec<Option<f64>>);
 
@@ -213,6 +230,10 @@ impl Rows {
     /// Opens a file that may hold its header alone (`camera.csv` of a log too short for a
     /// frame).
     fn open_maybe_empty(file: &Path, expected: &[&[&str]]) -> Result<Rows, LogError> {
+        // A pipe or a device would block or never end.
+        if !fs::metadata(file).map_err(io(file))?.is_file() {
+            return Err(LogError::File { file: file.to_path_buf(), problem: "not a regular file".into() });
+        }
         let mut reader = csv::ReaderBuilder::new()
             .has_headers(true)
             .flexible(true)
@@ -233,7 +254,7 @@ impl Rows {
                 line: 1,
                 problem: format!(
                     "header `{}`; expected {}",
-                    found.join(","),
+                    shortened(&found.join(","), 200),
                     expected.iter().map(|h| format!("`{}`", h.join(","))).collect::<Vec<_>>().join(" or ")
                 ),
             })?;
@@ -574,12 +595,19 @@ pub fn write_frame(dir: &Path, index: usize, t: f64, image: &RgbImage) -> Result
     Ok(CameraFrameFile { t, file: relative })
 }
 
+/// Largest reference coordinate taken (m): beyond any map on Earth (UTM northings are under
+/// 1e7), and far enough below f64's range that squared errors cannot overflow.
+pub const MAX_COORDINATE_M: f64 = 1e9;
+
 fn reference_rows(file: &Path) -> Result<RowsOf<ReferenceSample>, LogError> {
     let mut rows = Rows::open(file, &[&["t", "x", "y"], &["t", "x", "y", "theta"]])?;
     let samples = std::iter::from_fn(move || {
         Some(rows.next_row()?.and_then(|(line, t, row)| {
             let x = rows.finite(line, &row, 1, "x")?;
             let y = rows.finite(line, &row, 2, "y")?;
+            if x.abs().max(y.abs()) > MAX_COORDINATE_M {
+                return Err(rows.problem(line, format!("({x:.3e}, {y:.3e}) lies beyond {MAX_COORDINATE_M:e} m")));
+            }
             let theta = if rows.header == 1 { Some(rows.finite(line, &row, 3, "theta")?) } else { None };
             Ok(ReferenceSample { t, x, y, theta })
         }))
@@ -631,6 +659,12 @@ pub fn write(dir: &Path, log: &Log) -> Result<(), LogError> {
         return Err(LogError::File {
             file: dir.join(MANIFEST),
             problem: "camera frames but no [camera] table to describe the camera".into(),
+        });
+    }
+    if matches!(log.observations, Observations::Detections(_)) && log.manifest.laser.is_some() {
+        return Err(LogError::File {
+            file: dir.join(MANIFEST),
+            problem: "a [laser] table describes scans' beams, and this log holds detections".into(),
         });
     }
     let manifest = toml::to_string(&log.manifest)

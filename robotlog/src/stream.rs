@@ -79,7 +79,34 @@ pub struct Reread<T> {
 
 enum RereadSource<T> {
     Memory(Arc<Vec<T>>),
-    File { file: PathBuf, read: fn(&Path) -> Result<Rows<T>, LogError> },
+    File { file: PathBuf, read: fn(&Path) -> Result<Rows<T>, LogError>, stamp: FileStamp },
+}
+
+/// What tells a file changed: its length, modification time and (on Unix) inode.
+#[derive(Debug, Clone, PartialEq)]
+struct FileStamp {
+    len: u64,
+    modified: Option<std::time::SystemTime>,
+    inode: Option<u64>,
+}
+
+impl FileStamp {
+    fn of(file: &Path) -> Result<FileStamp, LogError> {
+        let m = std::fs::metadata(file).map_err(|source| LogError::Io { file: file.to_path_buf(), source })?;
+        #[cfg(unix)]
+        let inode = Some(std::os::unix::fs::MetadataExt::ino(&m));
+        #[cfg(not(unix))]
+        let inode = None;
+        Ok(FileStamp { len: m.len(), modified: m.modified().ok(), inode })
+    }
+}
+
+/// The error for a file that changed between two readings of it.
+fn changed(file: &Path) -> LogError {
+    LogError::File {
+        file: file.to_path_buf(),
+        problem: "changed after the log was opened (a replay reads it again as it goes): replay a log that nothing is writing".into(),
+    }
 }
 
 impl<T: Clone + 'static> Reread<T> {
@@ -90,12 +117,16 @@ impl<T: Clone + 'static> Reread<T> {
     /// The rows of `file` as `read` reads them, all read once now to check them and count
     /// them.
     pub(crate) fn checked(file: &Path, read: fn(&Path) -> Result<Rows<T>, LogError>) -> Result<Self, LogError> {
+        let stamp = FileStamp::of(file)?;
         let mut len = 0;
         for row in read(file)? {
-            row?;
+            row.map_err(|e| if FileStamp::of(file).ok().as_ref() == Some(&stamp) { e } else { changed(file) })?;
             len += 1;
         }
-        Ok(Reread { len, source: RereadSource::File { file: file.to_path_buf(), read } })
+        if FileStamp::of(file)? != stamp {
+            return Err(changed(file));
+        }
+        Ok(Reread { len, source: RereadSource::File { file: file.to_path_buf(), read, stamp } })
     }
 
     pub fn len(&self) -> usize {
@@ -106,15 +137,42 @@ impl<T: Clone + 'static> Reread<T> {
         self.len == 0
     }
 
-    /// The rows from the first. A file changed since it was checked gives what it holds
-    /// now, its faults as errors.
+    /// The rows from the first. A file that changed since it was checked is an error: at
+    /// the start, in the place of a row that no longer reads, or after the last row.
     pub fn rows(&self) -> Result<Rows<T>, LogError> {
         match &self.source {
             RereadSource::Memory(rows) => {
                 let rows = Arc::clone(rows);
                 Ok(Box::new((0..rows.len()).map(move |k| Ok(rows[k].clone()))))
             }
-            RereadSource::File { file, read } => read(file),
+            RereadSource::File { file, read, stamp } => {
+                if FileStamp::of(file)? != *stamp {
+                    return Err(changed(file));
+                }
+                let mut inner = read(file)?;
+                let (file, stamp, len) = (file.clone(), stamp.clone(), self.len);
+                let same = move |file: &Path| FileStamp::of(file).ok().as_ref() == Some(&stamp);
+                let (mut count, mut done) = (0, false);
+                Ok(Box::new(std::iter::from_fn(move || {
+                    if done {
+                        return None;
+                    }
+                    match inner.next() {
+                        Some(Ok(row)) => {
+                            count += 1;
+                            Some(Ok(row))
+                        }
+                        Some(Err(e)) => {
+                            done = true;
+                            Some(Err(if same(&file) { e } else { changed(&file) }))
+                        }
+                        None => {
+                            done = true;
+                            (count != len || !same(&file)).then(|| Err(changed(&file)))
+                        }
+                    }
+                })))
+            }
         }
     }
 

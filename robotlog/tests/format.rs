@@ -406,6 +406,87 @@ fn missing_or_doubled_observation_files_are_errors() {
     std::fs::remove_dir_all(&d).ok();
 }
 
+/// A reference or frame list read again as a replay goes, changed since the log was
+/// opened (cut, grown, replaced), is an error naming it, never what it now holds.
+#[test]
+fn a_reread_file_changed_after_opening_is_an_error() {
+    let d = dir("reread");
+    let mut log = scan_log(vec![vec![1.0; 7], vec![2.0; 7]], vec![[0.1, 0.0, 0.0]; 3]);
+    log.manifest.reference = Some(Reference { kind: ReferenceKind::GroundTruth, point: ReferencePoint::Vehicle });
+    log.reference = (0..50).map(|k| ReferenceSample { t: 0.01 * k as f64, x: k as f64, y: 0.0, theta: None }).collect();
+    robotlog::format::write(&d, &log).unwrap();
+    let file = d.join("reference.csv");
+    let whole = std::fs::read_to_string(&file).unwrap();
+    let read_all = |stream: &robotlog::stream::LogStream| -> Result<usize, LogError> {
+        let mut n = 0;
+        for row in stream.reference.rows()? {
+            row?;
+            n += 1;
+        }
+        Ok(n)
+    };
+    let stream = robotlog::format::open(&d).unwrap();
+    assert_eq!((stream.reference.len(), read_all(&stream).unwrap(), read_all(&stream).unwrap()), (50, 50, 50));
+    let cut: String = whole.lines().take(30).map(|l| format!("{l}\n")).collect();
+    let grown = format!("{whole}0.5,50,0\n");
+    for changed in [cut, grown] {
+        let stream = robotlog::format::open(&d).unwrap();
+        std::fs::write(&file, &changed).unwrap();
+        let e = read_all(&stream).unwrap_err().to_string();
+        assert!(e.contains("reference.csv") && e.contains("changed after the log was opened"), "{e}");
+        std::fs::write(&file, &whole).unwrap();
+    }
+    // Replaced by another file of the same bytes: another file all the same.
+    let stream = robotlog::format::open(&d).unwrap();
+    std::fs::write(d.join("other.csv"), &whole).unwrap();
+    std::fs::rename(d.join("other.csv"), &file).unwrap();
+    assert!(read_all(&stream).unwrap_err().to_string().contains("changed after the log was opened"));
+    std::fs::remove_dir_all(&d).ok();
+}
+
+/// A data file that is not a regular file (a device, a pipe) is refused before it is read:
+/// it could block or never end. A reference beyond 1e9 m is refused, and a [laser] table
+/// in a log of detections.
+#[test]
+fn devices_far_references_and_a_laser_table_without_scans_are_errors() {
+    let d = dir("device");
+    let mut log = scan_log(vec![vec![1.0; 7], vec![2.0; 7]], vec![[0.1, 0.0, 0.0]; 3]);
+    log.manifest.reference = Some(Reference { kind: ReferenceKind::Gps, point: ReferencePoint::Vehicle });
+    log.reference = vec![ReferenceSample { t: 0.0, x: 1.0, y: 2.0, theta: None }];
+    robotlog::format::write(&d, &log).unwrap();
+    std::fs::remove_file(d.join("reference.csv")).unwrap();
+    #[cfg(unix)]
+    {
+        std::os::unix::fs::symlink("/dev/zero", d.join("reference.csv")).unwrap();
+        let e = robotlog::format::open(&d).err().expect("refused").to_string();
+        assert!(e.contains("reference.csv") && e.contains("not a regular file"), "{e}");
+        std::fs::remove_file(d.join("reference.csv")).unwrap();
+    }
+    std::fs::write(d.join("reference.csv"), "t,x,y\n0,1e300,2\n").unwrap();
+    let e = robotlog::format::open(&d).err().expect("refused").to_string();
+    assert!(e.contains("reference.csv:2") && e.contains("beyond 1e9 m"), "{e}");
+    std::fs::remove_dir_all(&d).ok();
+
+    let mut detections = scan_log(vec![vec![1.0; 7]], vec![[0.1, 0.0, 0.0]]);
+    detections.observations = Observations::Detections(vec![DetectionScan {
+        t: 0.1,
+        detections: vec![Detection { range_m: 3.0, bearing_rad: 0.1, diameter_m: None }],
+    }]);
+    let e = robotlog::format::write(&d, &detections).unwrap_err().to_string();
+    assert!(e.contains("manifest.toml") && e.contains("[laser] table"), "{e}");
+    detections.manifest.laser = None;
+    robotlog::format::write(&d, &detections).unwrap();
+    let text = std::fs::read_to_string(d.join("manifest.toml")).unwrap();
+    std::fs::write(
+        d.join("manifest.toml"),
+        text + "\n[laser]\nangle_min_rad = -1.5\nangle_increment_rad = 0.5\nrange_min_m = 0.1\nrange_max_m = 30.0\n",
+    )
+    .unwrap();
+    let e = robotlog::format::read(&d).unwrap_err().to_string();
+    assert!(e.contains("manifest.toml") && e.contains("[laser] table describes scans.csv"), "{e}");
+    std::fs::remove_dir_all(&d).ok();
+}
+
 #[test]
 fn victoria_park_files_that_are_not_mat_files_are_errors() {
     let d = dir("vp-bad");

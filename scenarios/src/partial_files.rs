@@ -207,11 +207,33 @@ pub fn abandon_if_failed<T, E>(lock: Option<OutputLock>, out: Option<&Path>, res
 
 /// Moves finished outputs from `unfinished` into `out`, each replacing the file (or
 /// directory) of the same name, after removing the `stale` names (outputs an earlier one
-/// may hold that this one does not write). A file that cannot be moved stops no other;
-/// every failure is returned, and what was not moved stays in `unfinished`.
+/// may hold that this one does not write). A directory standing where a file goes is
+/// refused before anything is moved or removed; past that, a file that cannot be moved
+/// stops no other. Every failure is returned, and what was not moved stays in `unfinished`.
 pub fn publish(unfinished: &Path, out: &Path, stale: &[&str]) -> Result<(), Vec<PartialFileError>> {
     fn one(file: &Path) -> impl FnOnce(std::io::Error) -> Vec<PartialFileError> + '_ {
         move |source| vec![PartialFileError { file: file.to_path_buf(), source }]
+    }
+    let mut entries = Vec::new();
+    for entry in std::fs::read_dir(unfinished).map_err(one(unfinished))? {
+        let entry = entry.map_err(one(unfinished))?;
+        entries.push((entry.path(), out.join(entry.file_name())));
+    }
+    // A directory where a file goes is found before anything moves, so that the outputs
+    // stay all old rather than half new.
+    let blocked: Vec<PartialFileError> = entries
+        .iter()
+        .filter(|(from, to)| to.is_dir() && !from.is_dir())
+        .map(|(_, to)| PartialFileError {
+            file: to.clone(),
+            source: std::io::Error::other(format!(
+                "a directory stands where the file goes (the new outputs are kept in {}, and none was moved)",
+                unfinished.display()
+            )),
+        })
+        .collect();
+    if !blocked.is_empty() {
+        return Err(blocked);
     }
     for name in stale {
         let path = out.join(name);
@@ -222,12 +244,8 @@ pub fn publish(unfinished: &Path, out: &Path, stale: &[&str]) -> Result<(), Vec<
         }
     }
     let mut errors = Vec::new();
-    for entry in std::fs::read_dir(unfinished).map_err(one(unfinished))? {
-        let entry = entry.map_err(one(unfinished))?;
-        let (from, to) = (entry.path(), out.join(entry.file_name()));
-        let moved = if to.is_dir() && !from.is_dir() {
-            Err(std::io::Error::other(format!("a directory stands where the file goes (kept in {})", from.display())))
-        } else if to.is_dir() {
+    for (from, to) in entries {
+        let moved = if to.is_dir() {
             std::fs::remove_dir_all(&to).and_then(|()| std::fs::rename(&from, &to))
         } else {
             std::fs::rename(&from, &to)

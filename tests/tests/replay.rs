@@ -309,7 +309,64 @@ fn victoria_park_form_is_read_and_mapped_with_the_car_model() {
     assert!(m.landmarks > 60 && m.landmarks < 200, "{} landmarks", m.landmarks);
     let path = read_tum(&dir.join("replay/trajectory_est.tum"));
     assert!(path.len() > 1000 && path.iter().all(|p| p.iter().all(|v| v.is_finite())));
+    // The ATE is the trajectory file's: each fix kept against the written path
+    // interpolated at its time (never past the path's ends), after the rigid fit.
+    let spikes = scenarios::replay::gps_spikes(&log.reference, scenarios::replay::GPS_SPIKE_SPEED_MPS);
+    let (mut est, mut gps) = (Vec::new(), Vec::new());
+    for s in log.reference.iter().enumerate().filter(|(k, _)| !spikes.contains(k)).map(|(_, s)| s) {
+        let Some(i) = path.iter().position(|p| p[0] >= s.t) else { continue };
+        let at = if path[i][0] == s.t {
+            [path[i][1], path[i][2]]
+        } else if i > 0 {
+            let (a, b) = (path[i - 1], path[i]);
+            let f = (s.t - a[0]) / (b[0] - a[0]);
+            [a[1] + f * (b[1] - a[1]), a[2] + f * (b[2] - a[2])]
+        } else {
+            continue;
+        };
+        est.push(at);
+        gps.push([s.x, s.y]);
+    }
+    assert_eq!(est.len(), reference.samples_scored);
+    let (theta, t) = scenarios::replay::rigid_alignment(&est, &gps);
+    let (sn, cs) = theta.sin_cos();
+    let squares: f64 = est
+        .iter()
+        .zip(&gps)
+        .map(|(e, g)| (cs * e[0] - sn * e[1] + t[0] - g[0]).powi(2) + (sn * e[0] + cs * e[1] + t[1] - g[1]).powi(2))
+        .sum();
+    let from_file = (squares / est.len() as f64).sqrt();
+    assert!((from_file - reference.ate_rmse_m).abs() < 1e-5, "{from_file} against {}", reference.ate_rmse_m);
     std::fs::remove_dir_all(&dir).ok();
+}
+
+/// A reference that the estimate's time span does not reach, or too few GPS fixes for a
+/// rigid fit to leave an error, gives an undefined ATE (null), never a perfect one.
+#[test]
+fn too_little_reference_gives_an_undefined_ate() {
+    let mut log = synthetic_park();
+    log.manifest.reference = Some(robotlog::manifest::Reference {
+        kind: robotlog::ReferenceKind::Gps,
+        point: robotlog::ReferencePoint::Sensor,
+    });
+    log.manifest.vehicle.wheelbase_m = Some(2.83);
+    log.manifest.vehicle.encoder_offset_m = Some(0.76);
+    let config = resolve_config(None, &log.manifest, Some(AssociationMethod::Nn), None).unwrap();
+    let mut late = log.clone();
+    late.reference.iter_mut().for_each(|r| r.t += 10_000.0);
+    let mut two = log.clone();
+    two.reference.truncate(2);
+    for (case, log, scored) in [("late", late, 0), ("two fixes", two, 2)] {
+        let m = replay(log, config.clone(), None, None).unwrap().metrics;
+        let r = m.reference.as_ref().unwrap();
+        assert_eq!(r.samples_scored, scored, "{case}");
+        let json = serde_json::to_value(r).unwrap();
+        for key in ["ate_rmse_m", "ate_max_m", "alignment_rotation_rad"] {
+            assert!(json[key].is_null(), "{case}: {key} is {}", json[key]);
+        }
+        let line = scenarios::replay::summary(&m);
+        assert!(line.contains("ATE undefined"), "{case}: {line}");
+    }
 }
 
 #[test]

@@ -203,9 +203,10 @@ fn run_writes_every_output() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// A file that cannot be written at a run's end is named in the error, and every other
-/// output is still written (they are written in groups at once); when several cannot be,
-/// each is named.
+/// A file that cannot be moved into place at a run's end (a directory stands there) is
+/// named in the error, and when several cannot be, each is; nothing is moved then, so the
+/// directory never holds a mix of two runs, and every output waits, whole, in
+/// `.unfinished/`.
 #[test]
 fn an_output_that_cannot_be_written_is_named_and_the_others_are_kept() {
     let outputs = [
@@ -235,8 +236,10 @@ fn an_output_that_cannot_be_written_is_named_and_the_others_are_kept() {
             .unwrap_or_else(|| panic!("{blocked:?} cannot be written"));
         let message = err.to_string();
         assert!(blocked.iter().all(|name| message.contains(name)), "{blocked:?}: {message}");
-        for name in outputs.iter().filter(|n| !blocked.contains(n)) {
-            assert!(std::fs::metadata(dir.join(name)).is_ok_and(|m| m.is_file() && m.len() > 0), "{name} lost");
+        for name in outputs {
+            let kept = dir.join(".unfinished").join(name);
+            assert!(std::fs::metadata(&kept).is_ok_and(|m| m.is_file() && m.len() > 0), "{name} lost");
+            assert!(blocked.contains(&name) || !dir.join(name).exists(), "{name} moved beside a blocked output");
         }
         let _ = std::fs::remove_dir_all(&dir);
     }

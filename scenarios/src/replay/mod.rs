@@ -15,7 +15,8 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 pub use reference::{
-    GPS_SPIKE_MAX_FIXES, GPS_SPIKE_SPEED_MPS, GpsSpikeFinder, ReferenceScore, gps_spikes, rigid_alignment,
+    GPS_SPIKE_MAX_FIXES, GPS_SPIKE_SPEED_MPS, GpsSpikeFinder, MIN_ALIGNED_SAMPLES, ReferenceScore, gps_spikes,
+    rigid_alignment,
 };
 use reference::{PairStore, ReferencePairs, score_reference};
 
@@ -369,7 +370,7 @@ fn replay_and_write(
     let mut scan_ms = ScanTimeHistogram::default();
     let yaw = log.manifest.sensor.yaw_rad;
     let (mut detections, mut motion_messages, mut scans, mut end) = (0, 0, 0, start);
-    // The time of the trajectory's last pose.
+    // The time of the trajectory's last pose (written to its file where there is one).
     let mut last_written: Option<f64> = None;
     let error = |t: f64| move |source| ReplayError::Pipeline { t, source };
     loop {
@@ -434,12 +435,16 @@ fn replay_and_write(
         }
         let p = pipeline.pose();
         let pose = at_point(p.pose);
-        reference.on_pose(p.t, [pose[0], pose[1]])?;
-        path.push([pose[0], pose[1]]);
         // One pose a time (a TUM file's times increase): at a time of motion and a scan,
         // the pose after the motion, as `objslam run` writes it; the scan moves the next.
-        if let Some(s) = streams.as_mut().filter(|_| last_written.is_none_or(|t| t < p.t)) {
-            s.write(Stream::Trajectory, &(crate::record::tum_line(p.t, pose[0], pose[1], pose[2]) + "\n"))?;
+        // The reference is scored against the poses written, so that the ATE is the
+        // trajectory file's.
+        if last_written.is_none_or(|t| t < p.t) {
+            reference.on_pose(p.t, [pose[0], pose[1]])?;
+            path.push([pose[0], pose[1]]);
+            if let Some(s) = &mut streams {
+                s.write(Stream::Trajectory, &(crate::record::tum_line(p.t, pose[0], pose[1], pose[2]) + "\n"))?;
+            }
             last_written = Some(p.t);
         }
     }
@@ -650,11 +655,13 @@ fn write_outputs(
         .expect("JSON"),
     )?;
     write("landmarks.json", serde_json::to_string_pretty(&replay.landmarks).expect("JSON"))?;
-    // The map in the reference's frame: the estimate moved by the alignment.
+    // The map in the reference's frame: the estimate moved by the alignment (as it is
+    // where no alignment could be fitted).
     let (theta, t) = replay
         .metrics
         .reference
         .as_ref()
+        .filter(|r| r.alignment_rotation_rad.is_finite())
         .map_or((0.0, [0.0, 0.0]), |r| (r.alignment_rotation_rad, r.alignment_translation_m));
     let (s, c) = theta.sin_cos();
     let moved = |p: [f64; 2]| [c * p[0] - s * p[1] + t[0], s * p[0] + c * p[1] + t[1]];
@@ -666,7 +673,12 @@ fn write_outputs(
         if manifest.name.is_empty() { "log" } else { &manifest.name },
         replay.metrics.method,
         marks.len(),
-        replay.metrics.reference.as_ref().map_or(String::new(), |r| format!(", ATE {:.2} m", r.ate_rmse_m))
+        replay
+            .metrics
+            .reference
+            .as_ref()
+            .filter(|r| r.ate_rmse_m.is_finite())
+            .map_or(String::new(), |r| format!(", ATE {:.2} m", r.ate_rmse_m))
     );
     crate::plot::draw_replay_map(&title, &path, reference, dropped, &marks, &out.join("map.png"))?;
     Ok(())
@@ -675,9 +687,15 @@ fn write_outputs(
 /// One line for the terminal.
 pub fn summary(m: &ReplayMetrics) -> String {
     let reference = m.reference.as_ref().map_or("no reference to score against".to_string(), |r| {
+        let ate = if r.ate_rmse_m.is_finite() {
+            format!("ATE {:.3} m", r.ate_rmse_m)
+        } else if r.samples_scored == 0 {
+            "ATE undefined: no reference sample within the estimate's time span".to_string()
+        } else {
+            format!("ATE undefined: a rigid fit needs {MIN_ALIGNED_SAMPLES} samples")
+        };
         format!(
-            "ATE {:.3} m against {} ({} of {} samples, {} spikes removed, alignment {})",
-            r.ate_rmse_m,
+            "{ate} against {} ({} of {} samples, {} spikes removed, alignment {})",
             match r.kind {
                 ReferenceKind::Gps => "GPS",
                 ReferenceKind::GroundTruth => "ground truth",

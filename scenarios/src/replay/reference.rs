@@ -386,6 +386,32 @@ pub(super) fn score_reference(
     spikes: usize,
     pairs: &mut PairStore,
 ) -> Result<ReferenceScore, ReplayError> {
+    let n = pairs.len();
+    let alignment = match kind {
+        ReferenceKind::Gps => "rigid 2-D".to_string(),
+        ReferenceKind::GroundTruth => "none".to_string(),
+    };
+    let score = |theta: f64, t: [f64; 2], ate_rmse_m: f64, ate_max_m: f64| ReferenceScore {
+        kind,
+        point,
+        samples,
+        spikes_removed: spikes,
+        samples_scored: n,
+        alignment: alignment.clone(),
+        alignment_rotation_rad: theta,
+        alignment_translation_m: t,
+        ate_rmse_m,
+        ate_max_m,
+    };
+    // Nothing scored, or too few for a rigid fit to leave an error to measure: undefined,
+    // written as null, never a perfect score.
+    let fewest = match kind {
+        ReferenceKind::Gps => MIN_ALIGNED_SAMPLES,
+        ReferenceKind::GroundTruth => 1,
+    };
+    if n < fewest {
+        return Ok(score(f64::NAN, [f64::NAN; 2], f64::NAN, f64::NAN));
+    }
     let (theta, t) = match kind {
         ReferenceKind::Gps => pairs.rigid_alignment()?,
         ReferenceKind::GroundTruth => (0.0, [0.0, 0.0]),
@@ -397,23 +423,13 @@ pub(super) fn score_reference(
         squares += error * error;
         max = max.max(error);
     })?;
-    let n = pairs.len();
-    Ok(ReferenceScore {
-        kind,
-        point,
-        samples,
-        spikes_removed: spikes,
-        samples_scored: n,
-        alignment: match kind {
-            ReferenceKind::Gps => "rigid 2-D".into(),
-            ReferenceKind::GroundTruth => "none".into(),
-        },
-        alignment_rotation_rad: theta,
-        alignment_translation_m: t,
-        ate_rmse_m: if n > 0 { (squares / n as f64).sqrt() } else { f64::NAN },
-        ate_max_m: max,
-    })
+    Ok(score(theta, t, (squares / n as f64).sqrt(), max))
 }
+
+/// Fewest GPS samples scored for an ATE after a rigid fit, which takes three degrees of
+/// freedom from their 2n coordinates: one sample fits exactly whatever the estimate, two
+/// leave only their distance apart; from three, at least as many are left as the fit took.
+pub const MIN_ALIGNED_SAMPLES: usize = 3;
 
 #[cfg(test)]
 mod tests {

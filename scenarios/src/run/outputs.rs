@@ -331,14 +331,16 @@ mod tests {
         );
         assert_eq!(std::fs::read_to_string(out.join("notes.txt")).unwrap(), "mine");
         assert!(!unfinished.exists());
-        // A directory where a file goes: named, the other files moved, that one kept.
+        // A directory where a file goes: named before anything moves, so the outputs stay
+        // the earlier run's, all of them.
         let unfinished = crate::partial_files::start_unfinished(&out).unwrap();
         std::fs::create_dir_all(out.join("map.png")).unwrap();
         std::fs::write(unfinished.join("map.png"), "picture").unwrap();
         std::fs::write(unfinished.join("metrics.json"), "newer").unwrap();
         let e = publish_outputs(&unfinished, &out).unwrap_err().to_string();
         assert!(e.contains("map.png") && e.contains("a directory stands where"), "{e}");
-        assert_eq!(std::fs::read_to_string(out.join("metrics.json")).unwrap(), "newer");
+        assert_eq!(std::fs::read_to_string(out.join("metrics.json")).unwrap(), "new");
+        assert_eq!(std::fs::read_to_string(unfinished.join("metrics.json")).unwrap(), "newer");
         assert_eq!(std::fs::read_to_string(unfinished.join("map.png")).unwrap(), "picture");
         std::fs::remove_dir_all(&out).ok();
     }
