@@ -26,6 +26,40 @@ pub fn register_fonts() {
     });
 }
 
+/// A picture being drawn in memory.
+type Canvas<'a> = DrawingArea<BitMapBackend<'a>, plotters::coord::Shift>;
+
+/// Draws a `size` picture with `draw` in memory and writes it to `file` as a PNG, under a
+/// `.partial` name renamed when whole: a write that fails (a full disk) leaves no cut
+/// picture under the file's name, and its error is the system's, named by the file.
+fn write_png(
+    file: &Path,
+    (width, height): (u32, u32),
+    draw: impl FnOnce(Canvas<'_>) -> Result<(), String>,
+) -> Result<(), PlotError> {
+    let fail = |message: String| PlotError { file: file.to_path_buf(), message };
+    let mut pixels = vec![0u8; width as usize * height as usize * 3];
+    draw(BitMapBackend::with_buffer(&mut pixels, (width, height)).into_drawing_area()).map_err(fail)?;
+    let mut partial = file.as_os_str().to_owned();
+    partial.push(".partial");
+    let partial = std::path::PathBuf::from(partial);
+    let written = image::save_buffer_with_format(
+        &partial,
+        &pixels,
+        width,
+        height,
+        image::ExtendedColorType::Rgb8,
+        image::ImageFormat::Png,
+    )
+    .map_err(|e| e.to_string())
+    .and_then(|()| std::fs::rename(&partial, file).map_err(|e| e.to_string()));
+    if let Err(message) = written {
+        let _ = std::fs::remove_file(&partial);
+        return Err(fail(message));
+    }
+    Ok(())
+}
+
 /// Colour of each class in maps.
 pub fn class_colour(class: ObjectClass) -> RGBColor {
     match class {
@@ -118,167 +152,174 @@ pub fn draw_map(world: &World, overlays: &Overlays, path: &Path) -> Result<(), P
     let map_w = 1200u32;
     let plot_w = map_w - 90;
     let height_px = (((plot_w as f64) * (y1 - y0) / (x1 - x0)) as u32 + 130).max(420);
-    let root = BitMapBackend::new(path, (map_w + LEGEND_W, height_px)).into_drawing_area();
-    root.fill(&WHITE).map_err(|e| err(&e))?;
-    let (map_area, legend_area) = root.split_horizontally(map_w);
-    let mut chart = ChartBuilder::on(&map_area)
-        .caption(&overlays.title, ("sans-serif", 22).into_font())
-        .margin(15)
-        .x_label_area_size(35)
-        .y_label_area_size(45)
-        .build_cartesian_2d(x0..x1, y0..y1)
-        .map_err(|e| err(&e))?;
-    chart
-        .configure_mesh()
-        .x_desc("x (m)")
-        .y_desc("y (m)")
-        .light_line_style(WHITE.mix(0.0))
-        .label_style(("sans-serif", 13))
-        .draw()
-        .map_err(|e| err(&e))?;
-    let px_per_m = plot_w as f64 / (x1 - x0) * 0.97;
-    let mut legend: Vec<(String, Swatch)> = Vec::new();
-
-    chart
-        .draw_series(std::iter::once(Rectangle::new(
-            [(min[0], min[1]), (max[0], max[1])],
-            class_colour(ObjectClass::Ground).filled(),
-        )))
-        .map_err(|e| err(&e))?;
-
-    // Canopies first (faint), then footprints.
-    let canopy = class_colour(ObjectClass::Tree);
-    for o in &world.objects {
-        if let Shape::Trunk { canopy_radius_m, .. } = o.shape {
-            let r = (canopy_radius_m * px_per_m) as i32;
-            chart
-                .draw_series(std::iter::once(Circle::new((o.pose.x, o.pose.y), r, canopy.mix(0.12).filled())))
-                .map_err(|e| err(&e))?;
-        }
-    }
-    let mut classes_drawn = std::collections::BTreeSet::new();
-    for o in &world.objects {
-        let colour = class_colour(o.class);
-        let fp = o.shape.footprint(&o.pose);
-        let series: Vec<DynElement<'static, BitMapBackend, (f64, f64)>> = match fp {
-            worlds::Footprint::Circle { centre, radius } => {
-                vec![
-                    Circle::new((centre[0], centre[1]), ((radius * px_per_m) as i32).max(3), colour.filled())
-                        .into_dyn(),
-                ]
-            }
-            worlds::Footprint::Rect { .. } => {
-                let c = fp.corners();
-                vec![Polygon::new(c.iter().map(|p| (p[0], p[1])).collect::<Vec<_>>(), colour.filled()).into_dyn()]
-            }
-        };
-        chart.draw_series(series).map_err(|e| err(&e))?;
-        classes_drawn.insert(o.class);
-    }
-    for class in &classes_drawn {
-        let name = match class {
-            ObjectClass::Tree => "tree trunk".to_string(),
-            other => other.name().to_string(),
-        };
-        let swatch = if *class == ObjectClass::Wall {
-            Swatch::Bar(class_colour(*class))
-        } else {
-            Swatch::Disc(class_colour(*class))
-        };
-        legend.push((name, swatch));
-        if *class == ObjectClass::Tree {
-            legend.push(("tree canopy".into(), Swatch::Faint(canopy, 0.12)));
-        }
-    }
-
-    if overlays.routes {
-        let mut pts: Vec<(f64, f64)> = world.robot.route.waypoints.iter().map(|p| (p[0], p[1])).collect();
-        if world.robot.route.looping {
-            pts.push(pts[0]);
-        }
-        chart.draw_series(LineSeries::new(pts, BLUE.stroke_width(2))).map_err(|e| err(&e))?;
-        legend.push((format!("robot route ({} laps)", world.robot.laps), Swatch::Line(BLUE, 2)));
-        let s = world.robot.start;
-        let (dx, dy) = (s.yaw_rad().cos() * 1.0, s.yaw_rad().sin() * 1.0);
+    write_png(path, (map_w + LEGEND_W, height_px), |root| {
+        let err = |e: &dyn std::fmt::Display| e.to_string();
+        root.fill(&WHITE).map_err(|e| err(&e))?;
+        let (map_area, legend_area) = root.split_horizontally(map_w);
+        let mut chart = ChartBuilder::on(&map_area)
+            .caption(&overlays.title, ("sans-serif", 22).into_font())
+            .margin(15)
+            .x_label_area_size(35)
+            .y_label_area_size(45)
+            .build_cartesian_2d(x0..x1, y0..y1)
+            .map_err(|e| err(&e))?;
         chart
-            .draw_series(std::iter::once(PathElement::new(
-                vec![(s.x, s.y), (s.x + dx, s.y + dy)],
-                BLUE.stroke_width(4),
+            .configure_mesh()
+            .x_desc("x (m)")
+            .y_desc("y (m)")
+            .light_line_style(WHITE.mix(0.0))
+            .label_style(("sans-serif", 13))
+            .draw()
+            .map_err(|e| err(&e))?;
+        let px_per_m = plot_w as f64 / (x1 - x0) * 0.97;
+        let mut legend: Vec<(String, Swatch)> = Vec::new();
+
+        chart
+            .draw_series(std::iter::once(Rectangle::new(
+                [(min[0], min[1]), (max[0], max[1])],
+                class_colour(ObjectClass::Ground).filled(),
             )))
             .map_err(|e| err(&e))?;
-        for p in &world.people {
-            let mut pts: Vec<(f64, f64)> = p.route.waypoints.iter().map(|w| (w[0], w[1])).collect();
-            if p.route.looping && pts.len() > 2 {
+
+        // Canopies first (faint), then footprints.
+        let canopy = class_colour(ObjectClass::Tree);
+        for o in &world.objects {
+            if let Shape::Trunk { canopy_radius_m, .. } = o.shape {
+                let r = (canopy_radius_m * px_per_m) as i32;
+                chart
+                    .draw_series(std::iter::once(Circle::new((o.pose.x, o.pose.y), r, canopy.mix(0.12).filled())))
+                    .map_err(|e| err(&e))?;
+            }
+        }
+        let mut classes_drawn = std::collections::BTreeSet::new();
+        for o in &world.objects {
+            let colour = class_colour(o.class);
+            let fp = o.shape.footprint(&o.pose);
+            let series: Vec<DynElement<'static, BitMapBackend, (f64, f64)>> = match fp {
+                worlds::Footprint::Circle { centre, radius } => {
+                    vec![
+                        Circle::new((centre[0], centre[1]), ((radius * px_per_m) as i32).max(3), colour.filled())
+                            .into_dyn(),
+                    ]
+                }
+                worlds::Footprint::Rect { .. } => {
+                    let c = fp.corners();
+                    vec![Polygon::new(c.iter().map(|p| (p[0], p[1])).collect::<Vec<_>>(), colour.filled()).into_dyn()]
+                }
+            };
+            chart.draw_series(series).map_err(|e| err(&e))?;
+            classes_drawn.insert(o.class);
+        }
+        for class in &classes_drawn {
+            let name = match class {
+                ObjectClass::Tree => "tree trunk".to_string(),
+                other => other.name().to_string(),
+            };
+            let swatch = if *class == ObjectClass::Wall {
+                Swatch::Bar(class_colour(*class))
+            } else {
+                Swatch::Disc(class_colour(*class))
+            };
+            legend.push((name, swatch));
+            if *class == ObjectClass::Tree {
+                legend.push(("tree canopy".into(), Swatch::Faint(canopy, 0.12)));
+            }
+        }
+
+        if overlays.routes {
+            let mut pts: Vec<(f64, f64)> = world.robot.route.waypoints.iter().map(|p| (p[0], p[1])).collect();
+            if world.robot.route.looping {
                 pts.push(pts[0]);
             }
-            let colour = class_colour(ObjectClass::Person);
-            chart.draw_series(DashedLineSeries::new(pts, 6, 4, colour.stroke_width(2))).map_err(|e| err(&e))?;
+            chart.draw_series(LineSeries::new(pts, BLUE.stroke_width(2))).map_err(|e| err(&e))?;
+            legend.push((format!("robot route ({} laps)", world.robot.laps), Swatch::Line(BLUE, 2)));
+            let s = world.robot.start;
+            let (dx, dy) = (s.yaw_rad().cos() * 1.0, s.yaw_rad().sin() * 1.0);
+            chart
+                .draw_series(std::iter::once(PathElement::new(
+                    vec![(s.x, s.y), (s.x + dx, s.y + dy)],
+                    BLUE.stroke_width(4),
+                )))
+                .map_err(|e| err(&e))?;
+            for p in &world.people {
+                let mut pts: Vec<(f64, f64)> = p.route.waypoints.iter().map(|w| (w[0], w[1])).collect();
+                if p.route.looping && pts.len() > 2 {
+                    pts.push(pts[0]);
+                }
+                let colour = class_colour(ObjectClass::Person);
+                chart.draw_series(DashedLineSeries::new(pts, 6, 4, colour.stroke_width(2))).map_err(|e| err(&e))?;
+            }
+            if !world.people.is_empty() {
+                legend.push(("person's walk".into(), Swatch::Dashed(class_colour(ObjectClass::Person))));
+            }
         }
-        if !world.people.is_empty() {
-            legend.push(("person's walk".into(), Swatch::Dashed(class_colour(ObjectClass::Person))));
+        let min_step = 2.0 / px_per_m;
+        let person = class_colour(ObjectClass::Person);
+        for track in &overlays.people_tracks {
+            chart.draw_series(LineSeries::new(thin_path(track, min_step), person.mix(0.35))).map_err(|e| err(&e))?;
         }
-    }
-    let min_step = 2.0 / px_per_m;
-    let person = class_colour(ObjectClass::Person);
-    for track in &overlays.people_tracks {
-        chart.draw_series(LineSeries::new(thin_path(track, min_step), person.mix(0.35))).map_err(|e| err(&e))?;
-    }
-    if overlays.people_tracks.iter().any(|t| t.len() > 1) {
-        legend.push(("person's track".into(), Swatch::Line(person, 1)));
-    }
-    // Drawn as 1-pixel lines side by side: plotters leaves out the parts of a line wider
-    // than a pixel that run (nearly) straight up or down.
-    let px = 1.0 / px_per_m;
-    for (name, colour, path) in &overlays.trajectories {
-        let pts = thin_path(path, min_step);
-        for (ox, oy) in [(0.0, 0.0), (px, 0.0), (0.0, px), (px, px)] {
-            let shifted = pts.iter().map(|(x, y)| (x + ox, y + oy));
-            chart.draw_series(LineSeries::new(shifted, colour.stroke_width(1))).map_err(|e| err(&e))?;
+        if overlays.people_tracks.iter().any(|t| t.len() > 1) {
+            legend.push(("person's track".into(), Swatch::Line(person, 1)));
         }
-        legend.push((name.clone(), Swatch::Line(*colour, 2)));
-    }
-    for lm in &overlays.landmarks {
-        let colour = if lm.flagged { RED } else { BLACK };
-        let ellipse = sigma_ellipse(lm.position, lm.covariance, 2.0, 48);
-        chart.draw_series(std::iter::once(PathElement::new(ellipse, colour.stroke_width(2)))).map_err(|e| err(&e))?;
+        // Drawn as 1-pixel lines side by side: plotters leaves out the parts of a line wider
+        // than a pixel that run (nearly) straight up or down.
+        let px = 1.0 / px_per_m;
+        for (name, colour, path) in &overlays.trajectories {
+            let pts = thin_path(path, min_step);
+            for (ox, oy) in [(0.0, 0.0), (px, 0.0), (0.0, px), (px, px)] {
+                let shifted = pts.iter().map(|(x, y)| (x + ox, y + oy));
+                chart.draw_series(LineSeries::new(shifted, colour.stroke_width(1))).map_err(|e| err(&e))?;
+            }
+            legend.push((name.clone(), Swatch::Line(*colour, 2)));
+        }
+        for lm in &overlays.landmarks {
+            let colour = if lm.flagged { RED } else { BLACK };
+            let ellipse = sigma_ellipse(lm.position, lm.covariance, 2.0, 48);
+            chart
+                .draw_series(std::iter::once(PathElement::new(ellipse, colour.stroke_width(2))))
+                .map_err(|e| err(&e))?;
+            chart
+                .draw_series(std::iter::once(Cross::new((lm.position[0], lm.position[1]), 5, colour.stroke_width(2))))
+                .map_err(|e| err(&e))?;
+            chart
+                .draw_series(std::iter::once(Text::new(
+                    lm.label.clone(),
+                    (lm.position[0] + 0.3, lm.position[1] + 0.3),
+                    ("sans-serif", 12).into_font(),
+                )))
+                .map_err(|e| err(&e))?;
+        }
+        if !overlays.landmarks.is_empty() {
+            legend.push(("landmark, 2σ ellipse".into(), Swatch::Landmark(BLACK)));
+            legend.push(("landmark on no tree".into(), Swatch::Landmark(RED)));
+        }
+
+        // Scale bar: 5 m in the lower left corner of the ground.
+        let bar = 5.0;
+        let (bx, by) = (min[0] + 0.5, min[1] - 0.5);
         chart
-            .draw_series(std::iter::once(Cross::new((lm.position[0], lm.position[1]), 5, colour.stroke_width(2))))
+            .draw_series(std::iter::once(PathElement::new(vec![(bx, by), (bx + bar, by)], BLACK.stroke_width(4))))
             .map_err(|e| err(&e))?;
+        for t in [bx, bx + bar] {
+            chart
+                .draw_series(std::iter::once(PathElement::new(
+                    vec![(t, by - 0.2), (t, by + 0.2)],
+                    BLACK.stroke_width(2),
+                )))
+                .map_err(|e| err(&e))?;
+        }
         chart
             .draw_series(std::iter::once(Text::new(
-                lm.label.clone(),
-                (lm.position[0] + 0.3, lm.position[1] + 0.3),
-                ("sans-serif", 12).into_font(),
+                format!("{bar:.0} m"),
+                (bx + bar + 0.3, by + 0.25),
+                ("sans-serif", 15).into_font(),
             )))
             .map_err(|e| err(&e))?;
-    }
-    if !overlays.landmarks.is_empty() {
-        legend.push(("landmark, 2σ ellipse".into(), Swatch::Landmark(BLACK)));
-        legend.push(("landmark on no tree".into(), Swatch::Landmark(RED)));
-    }
 
-    // Scale bar: 5 m in the lower left corner of the ground.
-    let bar = 5.0;
-    let (bx, by) = (min[0] + 0.5, min[1] - 0.5);
-    chart
-        .draw_series(std::iter::once(PathElement::new(vec![(bx, by), (bx + bar, by)], BLACK.stroke_width(4))))
-        .map_err(|e| err(&e))?;
-    for t in [bx, bx + bar] {
-        chart
-            .draw_series(std::iter::once(PathElement::new(vec![(t, by - 0.2), (t, by + 0.2)], BLACK.stroke_width(2))))
-            .map_err(|e| err(&e))?;
-    }
-    chart
-        .draw_series(std::iter::once(Text::new(
-            format!("{bar:.0} m"),
-            (bx + bar + 0.3, by + 0.25),
-            ("sans-serif", 15).into_font(),
-        )))
-        .map_err(|e| err(&e))?;
-
-    draw_legend(&legend_area, &legend).map_err(|e| err(&e))?;
-    root.present().map_err(|e| err(&e))?;
-    Ok(())
+        draw_legend(&legend_area, &legend).map_err(|e| err(&e))?;
+        root.present().map_err(|e| err(&e))?;
+        Ok(())
+    })
 }
 
 /// The legend panel: one row per entry, its swatch then its name.
@@ -377,8 +418,7 @@ pub fn cost_plot(
     png: &Path,
 ) -> Result<(), PlotError> {
     register_fonts();
-    let root = BitMapBackend::new(png, (STUDY_PLOT_W + LEGEND_W, 600)).into_drawing_area();
-    draw_costs(root, title, x_desc, y_desc, series).map_err(|message| PlotError { file: png.to_path_buf(), message })
+    write_png(png, (STUDY_PLOT_W + LEGEND_W, 600), |root| draw_costs(root, title, x_desc, y_desc, series))
 }
 
 fn draw_costs<DB: DrawingBackend>(
@@ -439,8 +479,7 @@ pub fn failure_rate_plot(
 ) -> Result<(), PlotError> {
     register_fonts();
     let size = (STUDY_PLOT_W + LEGEND_W, 600);
-    draw_failure_rate(BitMapBackend::new(png, size).into_drawing_area(), plan, rows)
-        .map_err(|message| PlotError { file: png.to_path_buf(), message })?;
+    write_png(png, size, |root| draw_failure_rate(root, plan, rows))?;
     draw_failure_rate(SVGBackend::new(svg, size).into_drawing_area(), plan, rows)
         .map_err(|message| PlotError { file: svg.to_path_buf(), message })?;
     Ok(())
@@ -533,13 +572,7 @@ pub fn generalisation_plot(
     png: &Path,
 ) -> Result<(), PlotError> {
     register_fonts();
-    draw_generalisation(
-        BitMapBackend::new(png, (STUDY_PLOT_W + LEGEND_W, 600)).into_drawing_area(),
-        report,
-        combined,
-        jcbb,
-    )
-    .map_err(|message| PlotError { file: png.to_path_buf(), message })
+    write_png(png, (STUDY_PLOT_W + LEGEND_W, 600), |root| draw_generalisation(root, report, combined, jcbb))
 }
 
 fn draw_generalisation<DB: DrawingBackend>(
@@ -619,9 +652,8 @@ pub fn draw_replay_map(
     // Equal scales on both axes: a map, not a chart.
     let span = (x1 - x0).max(y1 - y0).max(1.0) * 1.05;
     let (cx, cy) = (0.5 * (x0 + x1), 0.5 * (y0 + y1));
-    let draw = || -> Result<(), String> {
+    write_png(file, (1000, 1000), |root| {
         let e = |x: &dyn std::fmt::Display| x.to_string();
-        let root = BitMapBackend::new(file, (1000, 1000)).into_drawing_area();
         root.fill(&WHITE).map_err(|x| e(&x))?;
         let mut chart = ChartBuilder::on(&root)
             .caption(title, ("sans-serif", 20))
@@ -673,13 +705,32 @@ pub fn draw_replay_map(
             .draw()
             .map_err(|x| e(&x))?;
         root.present().map_err(|x| e(&x))
-    };
-    draw().map_err(|message| PlotError { file: file.to_path_buf(), message })
+    })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A picture that cannot be written leaves no file of its own, cut or partial, and says
+    /// why in the system's words.
+    #[test]
+    fn a_picture_that_cannot_be_written_leaves_nothing_behind() {
+        let dir = std::env::temp_dir().join(format!("objslam-plot-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let file = dir.join("map.png");
+        std::fs::create_dir_all(&file).unwrap();
+        let path = [[0.0, 0.0], [1.0, 1.0]];
+        let e = draw_replay_map("t", &path, &path, &[], &path, &file).unwrap_err();
+        assert_eq!(e.file, file);
+        assert!(!e.message.contains("Error("), "no debug dump: {}", e.message);
+        let left: Vec<_> = std::fs::read_dir(&dir).unwrap().map(|f| f.unwrap().file_name()).collect();
+        assert_eq!(left, vec![std::ffi::OsString::from("map.png")], "no partial picture");
+        std::fs::remove_dir_all(&file).unwrap();
+        draw_replay_map("t", &path, &path, &[], &path, &file).unwrap();
+        assert_eq!(image::open(&file).unwrap().to_rgb8().dimensions(), (1000, 1000));
+        std::fs::remove_dir_all(&dir).ok();
+    }
 
     #[test]
     fn axes_are_finite_whatever_the_values() {
