@@ -7,7 +7,7 @@
 use std::io::Write;
 use std::path::Path;
 
-use scenarios::train::{load_image, read_manifest};
+use scenarios::train::{load_image, majority_class, read_manifest};
 use slam::classifier::AppearanceModel;
 use slam::features::ImageRef;
 
@@ -32,13 +32,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let (cols, _) = image.grid(l);
         for k in 0..f.z.nrows() {
             let (c, r) = f.rect.patch(k);
-            let mut counts = [0usize; 256];
-            for y in r * l..(r + 1) * l {
-                for x in c * l..(c + 1) * l {
-                    counts[class.get_pixel(x, y)[0] as usize] += 1;
-                }
-            }
-            let id = (0..256).max_by_key(|&i| counts[i]).unwrap_or(0);
+            let id = majority_class(&class, c, r, l);
             let z: Vec<String> = f.z.row(k).iter().map(|v| format!("{v}")).collect();
             writeln!(out, "{i},{c},{r},{},{},{id}", z.join(","), img.fractions[(r * cols + c) as usize])?;
         }

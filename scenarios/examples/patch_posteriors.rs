@@ -6,7 +6,7 @@
 use std::io::Write;
 use std::path::Path;
 
-use scenarios::train::{load_image, read_manifest};
+use scenarios::train::{load_image, majority_class, read_manifest};
 use slam::classifier::{AppearanceModel, PatchClassifier};
 use slam::features::ImageRef;
 
@@ -30,13 +30,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let (cols, _) = image.grid(l);
         for (k, p) in classifier.posteriors(&f).iter().enumerate() {
             let (c, r) = f.rect.patch(k);
-            let mut counts = [0usize; 256];
-            for y in r * l..(r + 1) * l {
-                for x in c * l..(c + 1) * l {
-                    counts[class.get_pixel(x, y)[0] as usize] += 1;
-                }
-            }
-            let id = (0..256).max_by_key(|&i| counts[i]).unwrap_or(0);
+            let id = majority_class(&class, c, r, l);
             let foliage = classifier.foliage_probability(f.z.row(k).transpose().as_slice()).unwrap_or(0.0);
             writeln!(out, "{i},{c},{r},{p},{foliage},{},{id}", img.fractions[(r * cols + c) as usize])?;
         }

@@ -213,13 +213,7 @@ fn score_images(
         for (k, predicted) in classifier.classify(&f).into_iter().enumerate() {
             let (c, r) = f.rect.patch(k);
             scores.add(predicted, img.fractions[(r * cols + c) as usize] as f64 >= label_fraction);
-            let mut counts = [0usize; 256];
-            for y in r * l..(r + 1) * l {
-                for x in c * l..(c + 1) * l {
-                    counts[class.get_pixel(x, y)[0] as usize] += 1;
-                }
-            }
-            let id = (0..256).max_by_key(|&i| counts[i]).unwrap_or(0) as u8;
+            let id = majority_class(&class, c, r, l);
             let name = worlds::ObjectClass::from_id(id).map_or_else(
                 || if id == 0 { "sky".to_string() } else { format!("class {id}") },
                 |c| c.name().to_string(),
@@ -230,6 +224,18 @@ fn score_images(
         }
     }
     Ok((scores, out))
+}
+
+/// The class id most of patch (`col`, `row`)'s pixels have in a class mask of `l`-pixel
+/// patches (the highest id among equals).
+pub fn majority_class(class: &image::GrayImage, col: u32, row: u32, l: u32) -> u8 {
+    let mut counts = [0usize; 256];
+    for y in row * l..(row + 1) * l {
+        for x in col * l..(col + 1) * l {
+            counts[class.get_pixel(x, y)[0] as usize] += 1;
+        }
+    }
+    (0..256).max_by_key(|&i| counts[i]).unwrap_or(0) as u8
 }
 
 /// Writes every patch's feature row with its label fraction and label to a CSV file.
