@@ -10,14 +10,16 @@ use crate::progress;
 /// `objslam montecarlo`: a study of a scenario, or one of the subcommands.
 pub(crate) fn montecarlo(args: MontecarloArgs) -> Result<()> {
     use scenarios::montecarlo as mc;
+    const MAX_RUN_TIMEOUT_S: f64 = 3.2e7;
     let workers = if args.in_process {
         mc::Workers::Threads
     } else {
         let count = args.jobs.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
         anyhow::ensure!(count > 0, "--jobs must be at least 1");
+        // A year at most: beyond what a Duration holds the conversion would fail.
         anyhow::ensure!(
-            args.run_timeout.is_finite() && args.run_timeout >= 0.0,
-            "--run-timeout must be a number of seconds, 0 or more (0: no limit), not {}",
+            args.run_timeout.is_finite() && (0.0..=MAX_RUN_TIMEOUT_S).contains(&args.run_timeout),
+            "--run-timeout must be a number of seconds from 0 (no limit) to {MAX_RUN_TIMEOUT_S:e}, not {}",
             args.run_timeout
         );
         mc::Workers::Processes {

@@ -284,6 +284,13 @@ impl StudyPlan {
             if self.vary[..i].iter().any(|w| todays_spelling(&w.param) == todays_spelling(&v.param)) {
                 return Err(bad(format!("--vary {} given twice (one --vary per parameter)", v.param)));
             }
+            // Jobs are known by their values: two equal ones would be one job run twice.
+            if let Some(x) = v.values.iter().enumerate().find_map(|(k, x)| v.values[..k].contains(x).then_some(x)) {
+                return Err(bad(format!(
+                    "--vary {}: the value {x} comes twice (a range of one value takes :1)",
+                    v.param
+                )));
+            }
         }
         let jobs = self
             .vary
@@ -370,6 +377,10 @@ fn set_path(node: &mut toml::Value, parts: &[&str], value: f64) -> Result<(), St
             // A whole-number setting takes whole numbers (to rounding in the range's steps).
             Some(toml::Value::Integer(_)) if (value - value.round()).abs() > 1e-9 * value.abs().max(1.0) => {
                 return Err(format!("{} takes whole numbers, not {value}", parts[0]));
+            }
+            // Past i64 the conversion would saturate: every such value the same setting.
+            Some(toml::Value::Integer(_)) if !(value.round().abs() < 9.2e18) => {
+                return Err(format!("{} takes whole numbers within 9.2e18, not {value}", parts[0]));
             }
             Some(toml::Value::Integer(_)) => toml::Value::Integer(value.round() as i64),
             Some(toml::Value::Float(_)) | None => toml::Value::Float(value),
@@ -598,10 +609,7 @@ pub fn run_study_with(
     plan.check()?;
     // One study at a time per directory, as for any output directory: the hold goes with
     // the process, however it ends.
-    let held = crate::partial_files::lock_output(out).map_err(|e| match e.source.kind() {
-        std::io::ErrorKind::ResourceBusy => StudyError::Locked { file: e.file },
-        _ => StudyError::Io { file: e.file, source: e.source },
-    })?;
+    let held = hold(out)?;
     let plan_file = out.join("study.json");
     let (pin, base_scenario, base_dir) = pin_scenario(&plan.scenario)?;
     match read_study_file(&plan_file, "; remove the directory, or this file if runs.jsonl is empty, to start again") {
@@ -630,6 +638,14 @@ pub fn run_study_with(
             }
         }
         Err(StudyError::Io { source, .. }) if source.kind() == std::io::ErrorKind::NotFound => {
+            // Runs left without their plan are another study's as far as anyone can tell.
+            if has_runs(&out.join("runs.jsonl"))? {
+                return Err(StudyError::File {
+                    file: out.join("runs.jsonl"),
+                    message: "runs of a study whose study.json is gone: move them away or use a new --out directory"
+                        .into(),
+                });
+            }
             let study = StudyFile { plan: plan.clone(), scenario_pin: Some(pin) };
             write_atomically(&plan_file, &serde_json::to_string_pretty(&study).expect("JSON"))?
         }
@@ -643,7 +659,7 @@ pub fn run_study_with(
     }
     let models = StudyModels::new(&base_dir);
     let runs_file = out.join("runs.jsonl");
-    let existing: Vec<RunRecord> = read_runs(&runs_file)?.into_iter().filter(|r| !r.retryable).collect();
+    let existing: Vec<RunRecord> = read_runs_of(&runs_file, plan)?.into_iter().filter(|r| !r.retryable).collect();
     let done: BTreeSet<String> = existing.iter().map(|r| r.key.clone()).collect();
     let mine: Vec<Job> = jobs(plan).into_iter().filter(|j| shard.contains(j)).collect();
     let todo: Vec<&Job> = mine.iter().filter(|j| !done.contains(&j.key())).collect();
@@ -930,22 +946,42 @@ fn digest(study: &StudyFile) -> Option<&str> {
 }
 
 /// Merges shard directories into `out`: runs de-duplicated by job and ordered by job index.
+/// `out` is held as a study holds it; one that already holds this study's runs has them
+/// merged too, and one that holds another study's (or runs without a plan) is refused.
 pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<(StudyPlan, Vec<RunRecord>), StudyError> {
+    let _held = hold(out)?;
+    let mut dirs = dirs.to_vec();
+    let out_plan = out.join("study.json");
+    if out_plan.exists() {
+        if !dirs.iter().any(|d| crate::partial_files::same_path(d, out)) {
+            dirs.push(out.to_path_buf());
+        }
+    } else if has_runs(&out.join("runs.jsonl"))? {
+        return Err(StudyError::File {
+            file: out.join("runs.jsonl"),
+            message: "runs without a study.json beside them: move them away or merge into a new directory".into(),
+        });
+    }
     let mut plan: Option<StudyFile> = None;
     let mut by_key: BTreeMap<String, RunRecord> = BTreeMap::new();
-    for d in dirs {
+    for d in &dirs {
         let f = d.join("study.json");
         let p = read_study_file(&f, "")?;
         match &plan {
-            Some(existing) if existing.plan != p.plan || digest(existing) != digest(&p) => {
+            Some(existing) if !same_study(existing, &p) => {
+                let what = if crate::partial_files::same_path(d, out) { "the output directory" } else { "this shard" };
                 return Err(StudyError::Mismatch {
                     dir: d.clone(),
-                    message: "shards of different studies cannot be merged".into(),
+                    message: format!(
+                        "{what} holds another study than {}; shards of different studies cannot be merged",
+                        dirs[0].display()
+                    ),
                 });
             }
             _ => plan = Some(p),
         }
-        for r in read_runs(&d.join("runs.jsonl"))? {
+        let study = plan.as_ref().expect("set above");
+        for r in read_runs_of(&d.join("runs.jsonl"), &study.plan)? {
             match by_key.get(&r.key) {
                 None => {
                     by_key.insert(r.key.clone(), r);
@@ -970,11 +1006,63 @@ pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<(StudyPlan, Vec<RunRecord>)
         plan.ok_or_else(|| StudyError::File { file: out.into(), message: "no shard directories given".into() })?;
     let mut runs: Vec<RunRecord> = by_key.into_values().collect();
     runs.sort_by_key(|r| r.job.index);
-    crate::partial_files::make_output_dir(out).map_err(|e| StudyError::Io { file: e.file, source: e.source })?;
     write_atomically(&out.join("study.json"), &serde_json::to_string_pretty(&study).expect("JSON"))?;
     let lines: String = runs.iter().map(|r| serde_json::to_string(r).expect("JSON") + "\n").collect();
     write_atomically(&out.join("runs.jsonl"), &lines)?;
     Ok((study.plan, runs))
+}
+
+/// Whether two `study.json`s are of one study: the same plan (the scenario as typed apart,
+/// where both pinned the scenario they began with) and the same scenario digest.
+fn same_study(a: &StudyFile, b: &StudyFile) -> bool {
+    let untyped = |p: &StudyPlan| StudyPlan { scenario: String::new(), ..p.clone() };
+    let plans = match (&a.scenario_pin, &b.scenario_pin) {
+        (Some(_), Some(_)) => untyped(&a.plan) == untyped(&b.plan),
+        _ => a.plan == b.plan,
+    };
+    plans && digest(a) == digest(b)
+}
+
+/// Holds `out` for one command, as every command writing there does.
+fn hold(out: &Path) -> Result<crate::partial_files::OutputLock, StudyError> {
+    crate::partial_files::lock_output(out).map_err(|e| match e.source.kind() {
+        std::io::ErrorKind::ResourceBusy => StudyError::Locked { file: e.file },
+        _ => StudyError::Io { file: e.file, source: e.source },
+    })
+}
+
+/// Whether `runs.jsonl` at `path` holds a line of text.
+fn has_runs(path: &Path) -> Result<bool, StudyError> {
+    match std::fs::read(path) {
+        Ok(bytes) => Ok(bytes.iter().any(|b| !b.is_ascii_whitespace())),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(false),
+        Err(e) => Err(StudyError::Io { file: path.into(), source: e }),
+    }
+}
+
+/// [`read_runs`], each record checked to be one of `plan`'s jobs as the plan makes it: a
+/// record of another study (another scenario or seed, or a job the plan does not have) is
+/// an error naming its line.
+pub fn read_runs_of(path: &Path, plan: &StudyPlan) -> Result<Vec<RunRecord>, StudyError> {
+    let planned: BTreeMap<String, Job> = jobs(plan).into_iter().map(|j| (j.key(), j)).collect();
+    let records = one_record_per_job(path, read_run_lines(path)?)?;
+    for (line, r) in &records {
+        let problem = match planned.get(&r.key) {
+            None => format!("job {} is not one of this study's jobs", r.key),
+            Some(job) if *job != r.job => format!(
+                "job {} is recorded as {}, where this study plans {}",
+                r.key,
+                serde_json::to_string(&r.job).unwrap_or_default(),
+                serde_json::to_string(job).unwrap_or_default()
+            ),
+            Some(_) => continue,
+        };
+        return Err(StudyError::File {
+            file: path.into(),
+            message: format!("line {line}: {problem}: a record of another study; remove it, or use a new directory"),
+        });
+    }
+    Ok(records.into_iter().map(|(_, r)| r).collect())
 }
 
 /// How many of `plan`'s runs are not among `runs` (a merge of some of a study's shards,
@@ -1200,6 +1288,9 @@ mod tests {
         assert_eq!(apply_param(&s, "pipeline.confirm_observations", 3.0).unwrap().pipeline.confirm_observations, 3);
         let e = apply_param(&s, "pipeline.confirm_observations", 1.5).unwrap_err().to_string();
         assert!(e.contains("confirm_observations takes whole numbers, not 1.5"), "{e}");
+        // Past i64 every value would be the same setting.
+        let e = apply_param(&s, "world.seed", 1e19).unwrap_err().to_string();
+        assert!(e.contains("within 9.2e18"), "{e}");
     }
 
     #[test]

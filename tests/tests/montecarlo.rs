@@ -218,3 +218,55 @@ fn bad_jobs_fail_the_study_before_any_run() {
     }
     let _ = std::fs::remove_dir_all(&root);
 }
+
+/// A study's runs are never mixed with another study's nor lost to one: a merge into a
+/// directory of another study is refused, into a held one waits for nobody, runs left
+/// without their plan are not taken up by a new study, a record of another plan is named,
+/// and a plan whose values repeat is refused before it runs.
+#[test]
+fn studies_of_different_plans_are_never_mixed() {
+    let root: PathBuf = std::env::temp_dir().join(format!("objslam-mc-mix-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+    let scenario = short_scenario(&root);
+    let plan = |seed: u64| StudyPlan {
+        scenario: scenario.clone(),
+        base_seed: seed,
+        runs: 1,
+        methods: vec!["nn".into()],
+        vary: vec![],
+    };
+    let (a, b) = (root.join("a"), root.join("b"));
+    let kept = mc::run_study(&plan(3), Shard::all(), &a, |_| {}).unwrap();
+    mc::run_study(&plan(5), Shard::all(), &b, |_| {}).unwrap();
+    let runs_of_a = std::fs::read_to_string(a.join("runs.jsonl")).unwrap();
+
+    let e = mc::merge(std::slice::from_ref(&b), &a).unwrap_err().to_string();
+    assert!(e.contains("holds another study"), "{e}");
+    assert_eq!(std::fs::read_to_string(a.join("runs.jsonl")).unwrap(), runs_of_a, "the study's runs are kept");
+    // Merged into itself (its own directory as the output), a study keeps its runs.
+    let (_, merged) = mc::merge(std::slice::from_ref(&a), &a).unwrap();
+    assert_same(&comparable(&merged), &comparable(&kept));
+
+    let held = scenarios::partial_files::lock_output(&a).unwrap();
+    let e = mc::merge(std::slice::from_ref(&a), &a).unwrap_err().to_string();
+    assert!(e.contains("another study is running in this directory"), "{e}");
+    drop(held);
+
+    // A record of another plan (another seed) is named by its line, on resume and merge.
+    let foreign = std::fs::read_to_string(b.join("runs.jsonl")).unwrap();
+    std::fs::write(a.join("runs.jsonl"), &foreign).unwrap();
+    for e in [
+        mc::run_study(&plan(3), Shard::all(), &a, |_| {}).unwrap_err().to_string(),
+        mc::merge(std::slice::from_ref(&a), &root.join("c")).unwrap_err().to_string(),
+    ] {
+        assert!(e.contains("runs.jsonl") && e.contains("line 1") && e.contains("another study"), "{e}");
+    }
+    // Runs left without their plan are not taken as a new study's.
+    std::fs::remove_file(a.join("study.json")).unwrap();
+    let e = mc::run_study(&plan(5), Shard::all(), &a, |_| {}).unwrap_err().to_string();
+    assert!(e.contains("study.json is gone"), "{e}");
+
+    let repeated = StudyPlan { vary: vec![Vary::parse("sim.odometry.scale_sigma=0.01..0.01:3").unwrap()], ..plan(3) };
+    assert!(repeated.check().unwrap_err().to_string().contains("comes twice"));
+    std::fs::remove_dir_all(&root).ok();
+}
