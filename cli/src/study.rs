@@ -173,18 +173,28 @@ fn run_plan(
     let rows = mc::summarise(plan, &records);
     mc::write_summary(plan, &rows, out)?;
     print_summary(&rows);
-    let errors = records.iter().filter(|r| r.error.is_some()).count();
+    let (retry, finished): (Vec<_>, Vec<_>) = records.iter().partition(|r| r.retryable);
+    let errors = finished.iter().filter(|r| r.error.is_some()).count();
     println!(
         "{} runs ({} with errors) in {:.1} s; shard {}/{}; results in {}",
-        records.len(),
+        finished.len(),
         errors,
         bar.elapsed_s(),
         shard.index,
         shard.count,
         out.display()
     );
-    if let Some(e) = records.iter().find_map(|r| r.error.as_ref()) {
+    if let Some(e) = finished.iter().find_map(|r| r.error.as_ref()) {
         println!("first error: {e}");
+    }
+    // Runs whose worker died are not results: the study is not finished until they are.
+    if let Some(first) = retry.first() {
+        anyhow::bail!(
+            "{} runs to retry, their worker having died or timed out (first: job {}: {}); the summary leaves them out: run the same command again to retry them",
+            retry.len(),
+            first.key,
+            first.error.as_deref().unwrap_or("no message")
+        );
     }
     Ok(())
 }

@@ -1099,11 +1099,13 @@ pub struct SummaryRow {
     pub min_tree_recall: f64,
 }
 
-/// Summarises runs per method and parameter values, in plan order.
+/// Summarises runs per method and parameter values, in plan order. Runs recorded as
+/// retryable (their worker died or timed out) are not figures of the method: left out,
+/// to be run again.
 pub fn summarise(plan: &StudyPlan, runs: &[RunRecord]) -> Vec<SummaryRow> {
     let mut groups: BTreeMap<(usize, String), Vec<&RunRecord>> = BTreeMap::new();
     let all = jobs(plan);
-    for r in runs {
+    for r in runs.iter().filter(|r| !r.retryable) {
         // Group by the index of the job's first run in the plan, which orders groups as
         // the plan does.
         let first = r.job.index - r.job.run;
@@ -1328,5 +1330,22 @@ mod tests {
         let runs = read_runs(&f).unwrap();
         assert_eq!(runs.len(), 1);
         assert_eq!(std::fs::read_to_string(&f).unwrap(), format!("{line}\n"));
+    }
+
+    /// A run whose worker died is to be run again, not a figure: the summary leaves it out.
+    #[test]
+    fn retryable_runs_are_not_summarised() {
+        let plan = StudyPlan { scenario: "x".into(), base_seed: 1, runs: 2, methods: vec!["nn".into()], vary: vec![] };
+        let all = jobs(&plan);
+        let record = |k: usize, retryable: bool| RunRecord {
+            key: all[k].key(),
+            job: all[k].clone(),
+            metrics: None,
+            error: Some("x".into()),
+            retryable,
+        };
+        let rows = summarise(&plan, &[record(0, false), record(1, true)]);
+        assert_eq!((rows.len(), rows[0].runs, rows[0].errors), (1, 1, 1));
+        assert_eq!(missing_runs(&plan, &[record(0, false), record(1, true)]), 1);
     }
 }
