@@ -646,7 +646,7 @@ pub fn run_study_with(
                         .into(),
                 });
             }
-            let study = StudyFile { plan: plan.clone(), scenario_pin: Some(pin) };
+            let study = StudyFile { plan: plan.clone(), scenario_pin: Some(pin.clone()) };
             write_atomically(&plan_file, &serde_json::to_string_pretty(&study).expect("JSON"))?
         }
         Err(StudyError::Io { source, .. }) => {
@@ -715,7 +715,9 @@ pub fn run_study_with(
             })
             .collect(),
         Workers::Processes { exe, count, run_timeout } => {
-            workers::run_in_processes(plan, &todo, exe, *count, *run_timeout, &record_finished)?
+            // Workers load the scenario themselves: they are told which one the study pinned.
+            let start = StudyFile { plan: plan.clone(), scenario_pin: Some(pin.clone()) };
+            workers::run_in_processes(&start, &todo, exe, *count, *run_timeout, &record_finished)?
         }
     };
     let (count, message) = append_failures.into_inner().unwrap_or_else(|p| p.into_inner());

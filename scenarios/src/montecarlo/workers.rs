@@ -16,8 +16,7 @@ use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
-use super::{Job, RunRecord, StudyError, StudyModels, StudyPlan, run_job};
-use crate::scenario::Scenario;
+use super::{Job, RunRecord, StudyError, StudyFile, StudyModels, run_job};
 
 /// Lines of a failed child's stderr kept for its run's error.
 const STDERR_TAIL_LINES: usize = 12;
@@ -29,9 +28,17 @@ pub fn serve_worker(input: impl BufRead, mut output: impl Write) -> Result<(), S
     exit_when_orphaned();
     let mut lines = input.lines();
     let Some(first) = lines.next() else { return Ok(()) };
-    let plan: StudyPlan = serde_json::from_str(&first.map_err(|e| protocol(e.to_string()))?)
+    let start: StudyFile = serde_json::from_str(&first.map_err(|e| protocol(e.to_string()))?)
         .map_err(|e| protocol(format!("the first line is not a study plan: {e}")))?;
-    let (base, base_dir) = Scenario::load(&plan.scenario)?;
+    let (pin, base, base_dir) = super::pin_scenario(&start.plan.scenario)?;
+    // The scenario file edited while the study runs would give this worker's runs another
+    // scenario than the study's.
+    if let Some(began) = start.scenario_pin.filter(|began| began.sha256 != pin.sha256) {
+        return Err(protocol(format!(
+            "the study began with scenario {}, and {} now reads {}, whose files or settings differ: restore it, or start a new study",
+            began.file, start.plan.scenario, pin.file
+        )));
+    }
     // The parent resolved every model first, so these load cached ones.
     let models = StudyModels::new(&base_dir);
     // Runs go on a rayon thread, so they simulate inline rather than on a thread of their
@@ -77,7 +84,7 @@ struct WorkerProcess {
 }
 
 impl WorkerProcess {
-    fn spawn(exe: &Path, plan: &StudyPlan) -> std::io::Result<Self> {
+    fn spawn(exe: &Path, start: &StudyFile) -> std::io::Result<Self> {
         let mut command = Command::new(exe);
         command.arg("montecarlo-worker").stdin(Stdio::piped()).stdout(Stdio::piped()).stderr(Stdio::piped());
         // Each child is one of the workers sharing the cores: one thread of its own, and
@@ -112,7 +119,7 @@ impl WorkerProcess {
                 t.push_back(line);
             }
         });
-        writeln!(stdin, "{}", serde_json::to_string(plan).expect("JSON"))?;
+        writeln!(stdin, "{}", serde_json::to_string(start).expect("JSON"))?;
         Ok(WorkerProcess { child, stdin, answers, stdout_reader, stderr_tail, stderr_reader })
     }
 
@@ -169,7 +176,7 @@ fn error_record(job: &Job, error: String) -> RunRecord {
 /// it arrives; a child that takes longer than `run_timeout` over a run is killed and the
 /// run recorded as retryable. Fails only when no child can be started at all.
 pub(super) fn run_in_processes(
-    plan: &StudyPlan,
+    start: &StudyFile,
     todo: &[&Job],
     exe: &Path,
     count: usize,
@@ -182,7 +189,7 @@ pub(super) fn run_in_processes(
     let mut workers = Vec::new();
     for _ in 0..count.clamp(1, todo.len()) {
         workers.push(
-            WorkerProcess::spawn(exe, plan)
+            WorkerProcess::spawn(exe, start)
                 .map_err(|e| StudyError::Worker(format!("cannot start {} montecarlo-worker: {e}", exe.display())))?,
         );
     }
@@ -196,7 +203,7 @@ pub(super) fn run_in_processes(
                 loop {
                     let Some(job) = queue.lock().unwrap_or_else(|p| p.into_inner()).pop_front() else { break };
                     if worker.is_none() {
-                        worker = WorkerProcess::spawn(exe, plan).ok();
+                        worker = WorkerProcess::spawn(exe, start).ok();
                     }
                     let record = match worker.as_mut().map(|w| w.run(job, run_timeout)) {
                         Some(Ok(record)) => record,
@@ -216,4 +223,34 @@ pub(super) fn run_in_processes(
         }
     });
     Ok(records.into_inner().unwrap_or_else(|p| p.into_inner()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::montecarlo::{ScenarioPin, StudyPlan};
+
+    /// A worker whose scenario no longer is the one the study pinned (the file edited
+    /// while the study runs) refuses to run, rather than run another scenario's jobs.
+    #[test]
+    fn a_worker_refuses_a_scenario_changed_since_the_study_began() {
+        let plan = StudyPlan {
+            scenario: "laser_only".into(),
+            base_seed: 1,
+            runs: 1,
+            methods: vec!["nn".into()],
+            vary: vec![],
+        };
+        let (pin, _, _) = super::super::pin_scenario("laser_only").unwrap();
+        let start = |sha256: &str| {
+            let pin = ScenarioPin { file: pin.file.clone(), sha256: sha256.into() };
+            serde_json::to_string(&StudyFile { plan: plan.clone(), scenario_pin: Some(pin) }).unwrap() + "\n"
+        };
+        let mut answers = Vec::new();
+        let e = serve_worker(start("0000").as_bytes(), &mut answers).unwrap_err().to_string();
+        assert!(e.contains("whose files or settings differ"), "{e}");
+        // The pinned scenario itself: the worker starts and, given no job, ends.
+        serve_worker(start(&pin.sha256).as_bytes(), &mut answers).unwrap();
+        assert!(answers.is_empty());
+    }
 }
