@@ -43,8 +43,8 @@ pub(crate) fn montecarlo(args: MontecarloArgs) -> Result<()> {
         );
         if missing > 0 {
             eprintln!(
-                "warning: {missing} planned runs are in none of the directories (a shard not given, or runs not done yet); the summary covers the {} merged",
-                runs.len()
+                "warning: {missing} planned runs are in none of the directories (a shard not given, or runs not done yet, or to be retried); the summary covers the {} merged",
+                planned - missing
             );
         }
         return Ok(());

@@ -345,6 +345,11 @@ pub fn apply_param(scenario: &Scenario, path: &str, value: f64) -> Result<Scenar
         return generalisation::with_world(scenario, split, value);
     }
     let bad = |message: String| StudyError::Vary { spec: format!("{path}={value}"), message };
+    // Each run's seed comes from the study's --seed and the run's index: a varied one
+    // would change nothing.
+    if path == "seed" {
+        return Err(bad("each run's seed is derived from --seed and the run; vary world.seed, or a setting".into()));
+    }
     // Spell out the generator's defaults so a parameter the scenario left out has its type.
     let mut scenario = scenario.clone();
     if path.starts_with("world.params.") && scenario.world.params.is_none() && scenario.world.preset.is_some() {
@@ -431,22 +436,32 @@ impl Shard {
                 .transpose()
         };
         if let Some(id) = num("SLURM_ARRAY_TASK_ID")? {
+            let bad = |message: String| StudyError::Shard { spec: format!("SLURM_ARRAY_TASK_ID={id}"), message };
             let min = num("SLURM_ARRAY_TASK_MIN")?.unwrap_or(0);
-            let n = num("SLURM_ARRAY_TASK_COUNT")?.or(count).ok_or_else(|| StudyError::Shard {
-                spec: "SLURM_ARRAY_TASK_ID".into(),
-                message: "no SLURM_ARRAY_TASK_COUNT and no --shard-count".into(),
-            })?;
-            let spec = format!("{}/{n}", id.saturating_sub(min));
-            return Shard::parse(&spec).map(Some);
+            // A stepped array (--array=0-8:2) numbers its tasks min, min + step, ...
+            let step = num("SLURM_ARRAY_TASK_STEP")?.unwrap_or(1).max(1);
+            let n = num("SLURM_ARRAY_TASK_COUNT")?
+                .or(count)
+                .ok_or_else(|| bad("no SLURM_ARRAY_TASK_COUNT and no --shard-count".into()))?;
+            if id < min || (id - min) % step != 0 {
+                return Err(bad(format!("not a task of the array from SLURM_ARRAY_TASK_MIN={min} in steps of {step}")));
+            }
+            return Shard::parse(&format!("{}/{n}", (id - min) / step)).map(Some);
         }
         if let Some(id) = num("JOB_COMPLETION_INDEX")? {
             let n = count.ok_or_else(|| StudyError::Shard {
                 spec: "JOB_COMPLETION_INDEX".into(),
-                message:
-                    "Kubernetes does not say how many indexes there are: pass --shard-count (the Job's completions)"
-                        .into(),
+                message: format!(
+                    "Kubernetes does not say how many indexes there are: give --shard {id}/N (N the Job's completions), or --shard-count N for a study of one scenario"
+                ),
             })?;
             return Shard::parse(&format!("{id}/{n}")).map(Some);
+        }
+        if let Some(n) = count {
+            return Err(StudyError::Shard {
+                spec: format!("--shard-count {n}"),
+                message: "goes with a scheduler's index (JOB_COMPLETION_INDEX or SLURM_ARRAY_TASK_ID), and there is none: give --shard K/N".into(),
+            });
         }
         Ok(None)
     }
@@ -1273,6 +1288,19 @@ mod tests {
         assert!(Shard::from_env(env(&[("JOB_COMPLETION_INDEX", "2")]), None).is_err());
         assert_eq!(Shard::from_env(env(&[]), None).unwrap(), None);
         assert!(Shard::parse("3/3").is_err());
+        // A stepped array (--array=0-4:2: tasks 0, 2, 4) gives shards 0, 1, 2 of 3.
+        const STEPPED: &[(&str, &str)] =
+            &[("SLURM_ARRAY_TASK_ID", "4"), ("SLURM_ARRAY_TASK_STEP", "2"), ("SLURM_ARRAY_TASK_COUNT", "3")];
+        assert_eq!(Shard::from_env(env(STEPPED), None).unwrap(), Some(Shard { index: 2, count: 3 }));
+        // A task below the array's first, or between its steps, and a count with no index.
+        const BELOW: &[(&str, &str)] =
+            &[("SLURM_ARRAY_TASK_ID", "0"), ("SLURM_ARRAY_TASK_MIN", "1"), ("SLURM_ARRAY_TASK_COUNT", "8")];
+        assert!(Shard::from_env(env(BELOW), None).is_err());
+        const BETWEEN: &[(&str, &str)] =
+            &[("SLURM_ARRAY_TASK_ID", "3"), ("SLURM_ARRAY_TASK_STEP", "2"), ("SLURM_ARRAY_TASK_COUNT", "3")];
+        assert!(Shard::from_env(env(BETWEEN), None).is_err());
+        let e = Shard::from_env(env(&[]), Some(2)).unwrap_err().to_string();
+        assert!(e.contains("--shard-count 2") && e.contains("give --shard K/N"), "{e}");
     }
 
     #[test]
@@ -1295,6 +1323,7 @@ mod tests {
         // Past i64 every value would be the same setting.
         let e = apply_param(&s, "world.seed", 1e19).unwrap_err().to_string();
         assert!(e.contains("within 9.2e18"), "{e}");
+        assert!(apply_param(&s, "seed", 2.0).unwrap_err().to_string().contains("vary world.seed"));
     }
 
     #[test]
