@@ -531,8 +531,14 @@ fn complete_lines(path: &Path) -> Result<(String, bool), StudyError> {
     let length = bytes.len();
     bytes.truncate(bytes.iter().rposition(|&b| b == b'\n').map_or(0, |i| i + 1));
     let torn = bytes.len() != length;
-    let text = String::from_utf8(bytes)
-        .map_err(|e| StudyError::File { file: path.into(), message: format!("not UTF-8 text ({e})") })?;
+    let text = String::from_utf8(bytes).map_err(|e| {
+        let valid = e.utf8_error().valid_up_to();
+        let line = e.as_bytes()[..valid].iter().filter(|&&b| b == b'\n').count() + 1;
+        StudyError::File {
+            file: path.into(),
+            message: format!("line {line}: not UTF-8 text; remove the line to go on"),
+        }
+    })?;
     Ok((text, torn))
 }
 
@@ -937,6 +943,8 @@ pub fn rerun(dir: &Path, job: &str, out: &Path) -> Result<Rerun, StudyError> {
     })?;
     let (base, base_dir) = pinned_scenario(&plan_file, &study)?;
     let (recorded, recorded_line) = recorded_run(&dir.join("runs.jsonl"), &job.key())?.unzip();
+    // A directory another command holds is refused here, not reported as the run failing.
+    drop(hold(out)?);
     let record = run_job_into(&base, &base_dir, &job, &StudyModels::new(&base_dir), Some(out));
     Ok(Rerun { job, record, recorded, recorded_line })
 }
@@ -1361,6 +1369,10 @@ mod tests {
         let runs = read_runs(&f).unwrap();
         assert_eq!(runs.len(), 1);
         assert_eq!(std::fs::read_to_string(&f).unwrap(), format!("{line}\n"));
+        // Bytes that are not text are named by their line.
+        std::fs::write(&f, [format!("{line}\n{line}\n").as_bytes(), b"\xff\xfe\n"].concat()).unwrap();
+        let e = read_runs(&f).unwrap_err().to_string();
+        assert!(e.contains("line 3: not UTF-8 text"), "{e}");
     }
 
     /// A run whose worker died is to be run again, not a figure: the summary leaves it out.

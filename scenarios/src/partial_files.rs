@@ -183,6 +183,14 @@ pub fn start_unfinished(out: &Path) -> Result<PathBuf, PartialFileError> {
         file: out.to_path_buf(),
         source: std::io::Error::new(e.kind(), format!("cannot write into the directory: {e}")),
     };
+    // A file where the unfinished directory goes is named: nothing else would say what is
+    // in the way.
+    if dir.symlink_metadata().is_ok_and(|m| !m.is_dir()) {
+        return Err(PartialFileError {
+            file: dir.clone(),
+            source: std::io::Error::other("a file stands where unfinished outputs are written: remove it"),
+        });
+    }
     match std::fs::remove_dir_all(&dir) {
         Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(cannot(e)),
         _ => {}
@@ -289,6 +297,19 @@ mod tests {
             let e = lock_output(&link).unwrap_err().to_string();
             assert!(e.contains("is a link to") && e.contains("nowhere, which does not exist"), "{e}");
         }
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// A file where the unfinished directory goes is named, not the output directory.
+    #[test]
+    fn a_file_in_the_unfinished_directorys_place_is_named() {
+        let dir = std::env::temp_dir().join(format!("objslam-unfinished-file-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::write(unfinished_dir(&dir), "mine").unwrap();
+        let e = start_unfinished(&dir).unwrap_err().to_string();
+        assert!(e.contains(".unfinished") && e.contains("a file stands where"), "{e}");
+        assert_eq!(std::fs::read_to_string(unfinished_dir(&dir)).unwrap(), "mine", "left as it was");
         std::fs::remove_dir_all(&dir).ok();
     }
 

@@ -250,6 +250,9 @@ fn studies_of_different_plans_are_never_mixed() {
     let held = scenarios::partial_files::lock_output(&a).unwrap();
     let e = mc::merge(std::slice::from_ref(&a), &a).unwrap_err().to_string();
     assert!(e.contains("another study is running in this directory"), "{e}");
+    // A rerun into a held directory is refused before it runs.
+    let e = mc::rerun(&a, "0", &a).err().expect("refused").to_string();
+    assert!(e.contains("another study is running in this directory"), "{e}");
     drop(held);
 
     // A record of another plan (another seed) is named by its line, on resume and merge.
