@@ -16,7 +16,8 @@ pub(crate) fn montecarlo(args: MontecarloArgs) -> Result<()> {
     } else {
         let count = args.jobs.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
         anyhow::ensure!(count > 0, "--jobs must be at least 1");
-        // A year at most: beyond what a Duration holds the conversion would fail.
+        // A year at most: longer is no limit at all, and far past it (1.8e19 s) the
+        // conversion to a Duration would fail.
         anyhow::ensure!(
             args.run_timeout.is_finite() && (0.0..=MAX_RUN_TIMEOUT_S).contains(&args.run_timeout),
             "--run-timeout must be a number of seconds from 0 (no limit) to {MAX_RUN_TIMEOUT_S:e}, not {}",
@@ -57,11 +58,12 @@ pub(crate) fn montecarlo(args: MontecarloArgs) -> Result<()> {
             Some(s) => mc::Shard::parse(s)?,
             None => mc::Shard::from_env(|k| std::env::var(k).ok(), None)?.unwrap_or(mc::Shard::all()),
         };
+        let mut retry = Retry::default();
         for (name, plan) in mc::builtin_study(runs, seed) {
             println!("study {name}: {} = {:?}", plan.vary[0].param, plan.vary[0].values);
-            run_plan(&plan, shard, &out.join(name), &workers)?;
+            retry.add(run_plan(&plan, shard, &out.join(name), &workers)?);
         }
-        return Ok(());
+        return retry.into_result();
     }
     if let Some(MontecarloCommand::Generalisation { split, runs, seed, shard, out }) = args.command {
         let split = match split {
@@ -99,7 +101,7 @@ pub(crate) fn montecarlo(args: MontecarloArgs) -> Result<()> {
     let plan = mc::StudyPlan { scenario: scenario.clone(), base_seed: args.seed, runs: args.runs, methods, vary };
     plan.check()?;
     let out = args.out.unwrap_or_else(|| PathBuf::from(format!("runs/montecarlo-{}-{}", sc.name, args.seed)));
-    run_plan(&plan, shard, &out, &workers)
+    run_plan(&plan, shard, &out, &workers)?.into_result()
 }
 
 /// `objslam montecarlo generalisation`: runs (or resumes) its two studies, then writes and
@@ -134,10 +136,13 @@ fn generalisation(
     }
     scenarios::partial_files::make_output_dir(out)?;
     mc::write_atomically(&out.join("worlds.json"), &serde_json::to_string_pretty(&drawn)?)?;
+    let mut retry = Retry::default();
     for (name, plan) in &plans {
         println!("generalisation {name}: {worlds} {} worlds, {} runs", split.name(), mc::jobs(plan).len());
-        run_plan(plan, shard, &out.join(name), workers)?;
+        retry.add(run_plan(plan, shard, &out.join(name), workers)?);
     }
+    // The report would leave the runs to retry out: they come first.
+    retry.into_result()?;
     if shard != mc::Shard::all() {
         println!(
             "shard {}/{} done; the report needs every shard: merge each of {}/combined and {}/jcbb with `objslam montecarlo merge`, then rerun this command on the merged directory",
@@ -159,13 +164,39 @@ fn generalisation(
     Ok(())
 }
 
-/// Runs (or resumes) one study with a progress bar, then writes and prints its summary.
+/// Runs whose worker died or timed out, over one or more studies: not results, so the
+/// command ends with an error saying how to retry them once every study has run.
+#[derive(Default)]
+struct Retry {
+    runs: usize,
+    first: Option<String>,
+}
+
+impl Retry {
+    fn add(&mut self, other: Retry) {
+        self.runs += other.runs;
+        self.first = self.first.take().or(other.first);
+    }
+
+    fn into_result(self) -> Result<()> {
+        match self.first {
+            None => Ok(()),
+            Some(first) => anyhow::bail!(
+                "{} runs to retry, their worker having died, timed out or refused (first: {first}); the summaries leave them out: run the same command again to retry them",
+                self.runs
+            ),
+        }
+    }
+}
+
+/// Runs (or resumes) one study with a progress bar, then writes and prints its summary;
+/// returns the runs to retry.
 fn run_plan(
     plan: &scenarios::montecarlo::StudyPlan,
     shard: scenarios::montecarlo::Shard,
     out: &std::path::Path,
     workers: &scenarios::montecarlo::Workers,
-) -> Result<()> {
+) -> Result<Retry> {
     use scenarios::montecarlo as mc;
     let bar = progress::StudyBar::new();
     let records = mc::run_study_with(plan, shard, out, workers, |p| bar.show(p))?;
@@ -188,15 +219,10 @@ fn run_plan(
         println!("first error: {e}");
     }
     // Runs whose worker died are not results: the study is not finished until they are.
-    if let Some(first) = retry.first() {
-        anyhow::bail!(
-            "{} runs to retry, their worker having died or timed out (first: job {}: {}); the summary leaves them out: run the same command again to retry them",
-            retry.len(),
-            first.key,
-            first.error.as_deref().unwrap_or("no message")
-        );
-    }
-    Ok(())
+    Ok(Retry {
+        runs: retry.len(),
+        first: retry.first().map(|r| format!("job {}: {}", r.key, r.error.as_deref().unwrap_or("no message"))),
+    })
 }
 
 fn print_summary(rows: &[scenarios::montecarlo::SummaryRow]) {

@@ -174,7 +174,18 @@ fn io(file: &Path) -> impl Fn(std::io::Error) -> LogError + '_ {
     move |source| LogError::Io { file: file.to_path_buf(), source }
 }
 
+/// Refuses what is not a regular file (a link to one is): a pipe or a device would block
+/// or never end.
+fn regular_file(file: &Path) -> Result<(), LogError> {
+    if fs::metadata(file).map_err(io(file))?.is_file() {
+        Ok(())
+    } else {
+        Err(LogError::File { file: file.to_path_buf(), problem: "not a regular file".into() })
+    }
+}
+
 fn read_manifest(file: &Path) -> Result<Manifest, LogError> {
+    regular_file(file)?;
     let text = fs::read_to_string(file).map_err(io(file))?;
     let manifest: Manifest = toml_strict::from_str(&text).map_err(|e| {
         let problem = match &e.key {
@@ -230,10 +241,7 @@ impl Rows {
     /// Opens a file that may hold its header alone (`camera.csv` of a log too short for a
     /// frame).
     fn open_maybe_empty(file: &Path, expected: &[&[&str]]) -> Result<Rows, LogError> {
-        // A pipe or a device would block or never end.
-        if !fs::metadata(file).map_err(io(file))?.is_file() {
-            return Err(LogError::File { file: file.to_path_buf(), problem: "not a regular file".into() });
-        }
+        regular_file(file)?;
         let mut reader = csv::ReaderBuilder::new()
             .has_headers(true)
             .flexible(true)
@@ -541,8 +549,6 @@ const CAMERA_COLUMNS: &[&str] = &["t", "file"];
 
 /// `camera.csv`: `t,file` rows, the file relative to the log's directory (or absolute),
 /// each checked to exist; the images themselves are read when needed ([`read_frame`]).
-/// The frames `camera.csv` lists, each image file's path joined to the log's directory
-/// and checked to be there.
 fn camera_rows(file: &Path) -> Result<RowsOf<CameraFrameFile>, LogError> {
     let dir = file.parent().unwrap_or(Path::new("")).to_path_buf();
     let mut rows = Rows::open_maybe_empty(file, &[CAMERA_COLUMNS])?;
@@ -659,6 +665,12 @@ pub fn write(dir: &Path, log: &Log) -> Result<(), LogError> {
         return Err(LogError::File {
             file: dir.join(MANIFEST),
             problem: "camera frames but no [camera] table to describe the camera".into(),
+        });
+    }
+    if let Some(r) = log.reference.iter().find(|r| r.x.abs().max(r.y.abs()) > MAX_COORDINATE_M) {
+        return Err(LogError::File {
+            file: dir.join(REFERENCE),
+            problem: format!("the sample at t = {} s lies beyond {MAX_COORDINATE_M:e} m", r.t),
         });
     }
     if matches!(log.observations, Observations::Detections(_)) && log.manifest.laser.is_some() {

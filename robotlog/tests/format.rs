@@ -441,6 +441,28 @@ fn a_reread_file_changed_after_opening_is_an_error() {
     std::fs::write(d.join("other.csv"), &whole).unwrap();
     std::fs::rename(d.join("other.csv"), &file).unwrap();
     assert!(read_all(&stream).unwrap_err().to_string().contains("changed after the log was opened"));
+    // Changed while a pass reads it: grown after its first rows were read, the pass ends
+    // in the error; cut, the row the reader meets no more is called a change, not bad.
+    for edit in ["grow", "cut"] {
+        std::fs::write(&file, &whole).unwrap();
+        let stream = robotlog::format::open(&d).unwrap();
+        let mut rows = stream.reference.rows().unwrap();
+        for _ in 0..5 {
+            rows.next().unwrap().unwrap();
+        }
+        let text = match edit {
+            "grow" => format!("{whole}0.5,50,0\n"),
+            _ => whole.lines().take(3).map(|l| format!("{l}\n")).collect(),
+        };
+        std::fs::OpenOptions::new().write(true).truncate(true).open(&file).unwrap();
+        std::fs::write(&file, text).unwrap();
+        let e = rows.find_map(Result::err).expect("the change is found").to_string();
+        assert!(e.contains("changed after the log was opened"), "{edit}: {e}");
+    }
+    // Gone: changed as well, not a bare I/O error.
+    let stream = robotlog::format::open(&d).unwrap();
+    std::fs::remove_file(&file).unwrap();
+    assert!(read_all(&stream).unwrap_err().to_string().contains("changed after the log was opened"));
     std::fs::remove_dir_all(&d).ok();
 }
 

@@ -635,14 +635,7 @@ pub fn run_study_with(
     let (pin, base_scenario, base_dir) = pin_scenario(&plan.scenario)?;
     match read_study_file(&plan_file, "; remove the directory, or this file if runs.jsonl is empty, to start again") {
         Ok(existing) => {
-            // Where the study recorded the scenario it began with, the scenario may be typed
-            // otherwise (from another working directory): the digest below decides.
-            let untyped = |p: &StudyPlan| StudyPlan { scenario: String::new(), ..p.clone() };
-            let same_plan = match existing.scenario_pin {
-                Some(_) => untyped(&existing.plan) == untyped(plan),
-                None => existing.plan == *plan,
-            };
-            if !same_plan {
+            if !same_plan(&existing, plan) {
                 return Err(StudyError::Mismatch {
                     dir: out.into(),
                     message: format!("it was started as {}", serde_json::to_string(&existing.plan).unwrap_or_default()),
@@ -680,7 +673,8 @@ pub fn run_study_with(
     }
     let models = StudyModels::new(&base_dir);
     let runs_file = out.join("runs.jsonl");
-    let existing: Vec<RunRecord> = read_runs_of(&runs_file, plan)?.into_iter().filter(|r| !r.retryable).collect();
+    let existing: Vec<RunRecord> =
+        read_runs_of(&runs_file, plan, Repair::TornLastLine)?.into_iter().filter(|r| !r.retryable).collect();
     let done: BTreeSet<String> = existing.iter().map(|r| r.key.clone()).collect();
     let mine: Vec<Job> = jobs(plan).into_iter().filter(|j| shard.contains(j)).collect();
     let todo: Vec<&Job> = mine.iter().filter(|j| !done.contains(&j.key())).collect();
@@ -974,7 +968,17 @@ fn digest(study: &StudyFile) -> Option<&str> {
 /// `out` is held as a study holds it; one that already holds this study's runs has them
 /// merged too, and one that holds another study's (or runs without a plan) is refused.
 pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<(StudyPlan, Vec<RunRecord>), StudyError> {
-    let _held = hold(out)?;
+    let held = hold(out)?;
+    let merged = merge_held(dirs, out);
+    // A refused merge leaves no directory it made.
+    if merged.is_err() {
+        held.release_failed();
+    }
+    merged
+}
+
+/// [`merge`] once `out` is held.
+fn merge_held(dirs: &[PathBuf], out: &Path) -> Result<(StudyPlan, Vec<RunRecord>), StudyError> {
     let mut dirs = dirs.to_vec();
     let out_plan = out.join("study.json");
     if out_plan.exists() {
@@ -1006,7 +1010,8 @@ pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<(StudyPlan, Vec<RunRecord>)
             _ => plan = Some(p),
         }
         let study = plan.as_ref().expect("set above");
-        for r in read_runs_of(&d.join("runs.jsonl"), &study.plan)? {
+        // A shard's study may still be appending: its file is read, never repaired.
+        for r in read_runs_of(&d.join("runs.jsonl"), &study.plan, Repair::No)? {
             match by_key.get(&r.key) {
                 None => {
                     by_key.insert(r.key.clone(), r);
@@ -1037,15 +1042,21 @@ pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<(StudyPlan, Vec<RunRecord>)
     Ok((study.plan, runs))
 }
 
-/// Whether two `study.json`s are of one study: the same plan (the scenario as typed apart,
-/// where both pinned the scenario they began with) and the same scenario digest.
+/// Whether two `study.json`s are of one study: the same plan ([`same_plan`]) and the same
+/// scenario digest.
 fn same_study(a: &StudyFile, b: &StudyFile) -> bool {
+    same_plan(a, &b.plan) && b.scenario_pin.is_some() == a.scenario_pin.is_some() && digest(a) == digest(b)
+}
+
+/// Whether `plan` is the plan of `study`: where the study pinned the scenario it began
+/// with, the scenario may be typed otherwise (from another working directory), and the
+/// digest decides; without a pin, the plans must be equal as typed.
+fn same_plan(study: &StudyFile, plan: &StudyPlan) -> bool {
     let untyped = |p: &StudyPlan| StudyPlan { scenario: String::new(), ..p.clone() };
-    let plans = match (&a.scenario_pin, &b.scenario_pin) {
-        (Some(_), Some(_)) => untyped(&a.plan) == untyped(&b.plan),
-        _ => a.plan == b.plan,
-    };
-    plans && digest(a) == digest(b)
+    match study.scenario_pin {
+        Some(_) => untyped(&study.plan) == untyped(plan),
+        None => study.plan == *plan,
+    }
 }
 
 /// Holds `out` for one command, as every command writing there does.
@@ -1065,12 +1076,24 @@ fn has_runs(path: &Path) -> Result<bool, StudyError> {
     }
 }
 
+/// Whether reading `runs.jsonl` cuts a torn last line off the file: only a study holding
+/// its directory may (another's may be writing that line).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Repair {
+    TornLastLine,
+    No,
+}
+
 /// [`read_runs`], each record checked to be one of `plan`'s jobs as the plan makes it: a
 /// record of another study (another scenario or seed, or a job the plan does not have) is
 /// an error naming its line.
-pub fn read_runs_of(path: &Path, plan: &StudyPlan) -> Result<Vec<RunRecord>, StudyError> {
+pub fn read_runs_of(path: &Path, plan: &StudyPlan, repair: Repair) -> Result<Vec<RunRecord>, StudyError> {
     let planned: BTreeMap<String, Job> = jobs(plan).into_iter().map(|j| (j.key(), j)).collect();
-    let records = one_record_per_job(path, read_run_lines(path)?)?;
+    let lines = match repair {
+        Repair::TornLastLine => read_run_lines(path)?,
+        Repair::No => parse_run_lines(path, &complete_lines(path)?.0)?,
+    };
+    let records = one_record_per_job(path, lines)?;
     for (line, r) in &records {
         let problem = match planned.get(&r.key) {
             None => format!("job {} is not one of this study's jobs", r.key),

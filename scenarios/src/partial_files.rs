@@ -188,7 +188,7 @@ pub fn start_unfinished(out: &Path) -> Result<PathBuf, PartialFileError> {
     if dir.symlink_metadata().is_ok_and(|m| !m.is_dir()) {
         return Err(PartialFileError {
             file: dir.clone(),
-            source: std::io::Error::other("a file stands where unfinished outputs are written: remove it"),
+            source: std::io::Error::other("a file or link stands where unfinished outputs are written: remove it"),
         });
     }
     match std::fs::remove_dir_all(&dir) {
@@ -308,7 +308,7 @@ mod tests {
         std::fs::create_dir_all(&dir).unwrap();
         std::fs::write(unfinished_dir(&dir), "mine").unwrap();
         let e = start_unfinished(&dir).unwrap_err().to_string();
-        assert!(e.contains(".unfinished") && e.contains("a file stands where"), "{e}");
+        assert!(e.contains(".unfinished") && e.contains("a file or link stands where"), "{e}");
         assert_eq!(std::fs::read_to_string(unfinished_dir(&dir)).unwrap(), "mine", "left as it was");
         std::fs::remove_dir_all(&dir).ok();
     }

@@ -52,6 +52,8 @@ fn write_png(
         image::ImageFormat::Png,
     )
     .map_err(|e| e.to_string())
+    // On disk before it takes the name (a full disk can show only when the data is written).
+    .and_then(|()| std::fs::File::open(&partial).and_then(|f| f.sync_all()).map_err(|e| e.to_string()))
     .and_then(|()| std::fs::rename(&partial, file).map_err(|e| e.to_string()));
     if let Err(message) = written {
         let _ = std::fs::remove_file(&partial);

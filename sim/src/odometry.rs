@@ -106,8 +106,9 @@ mod tests {
     use super::*;
 
     /// The covariance propagated increment by increment matches the spread of the poses
-    /// that many runs of the model integrate, per-step noise and per-run errors alike, over
-    /// a drive short enough for the per-run errors to act like one step's.
+    /// that many runs of the model integrate, with the per-step noise alone (per-run errors
+    /// hold for a whole run, which a per-step covariance does not describe; see
+    /// `one_increments_covariance_matches_the_model_with_its_per_run_errors`).
     #[test]
     fn propagated_covariance_matches_the_spread_of_integrated_poses() {
         let config =
@@ -151,6 +152,37 @@ mod tests {
             }
         }
         assert!(p[0][0] > 0.0 && p[1][1] > 0.0 && p[2][2] > 0.0);
+    }
+
+    /// Over one increment the per-run errors are drawn once, as the covariance takes them:
+    /// the spread of one measured step over many runs of the full default model matches it.
+    #[test]
+    fn one_increments_covariance_matches_the_model_with_its_per_run_errors() {
+        let config = OdometryConfig::default();
+        let (from, to) = (Pose2D { x: 0.0, y: 0.0, theta: 0.0 }, Pose2D { x: 0.3, y: 0.05, theta: 0.2 });
+        let runs = 20_000;
+        let steps: Vec<[f64; 3]> = (0..runs as u64)
+            .map(|seed| {
+                let mut model = OdometryModel::new(&config, seed);
+                model.measure(0.0, from);
+                let o = model.measure(0.05, to);
+                [o.dx, o.dy, o.dtheta]
+            })
+            .collect();
+        let (dx, dy, dth) = from.between(&to);
+        let q = increment_covariance(&config, dx, dy, dth);
+        let mean: [f64; 3] = std::array::from_fn(|i| steps.iter().map(|e| e[i]).sum::<f64>() / runs as f64);
+        for i in 0..3 {
+            for j in 0..3 {
+                let sample = steps.iter().map(|e| (e[i] - mean[i]) * (e[j] - mean[j])).sum::<f64>() / (runs - 1) as f64;
+                let scale = (q[i][i] * q[j][j]).sqrt();
+                assert!(
+                    (sample - q[i][j]).abs() < 0.05 * scale,
+                    "({i}, {j}): sample {sample:.3e}, model {:.3e}",
+                    q[i][j]
+                );
+            }
+        }
     }
 
     #[test]

@@ -264,6 +264,7 @@ fn studies_of_different_plans_are_never_mixed() {
     ] {
         assert!(e.contains("runs.jsonl") && e.contains("line 1") && e.contains("another study"), "{e}");
     }
+    assert!(!root.join("c").exists(), "a refused merge leaves no directory it made");
     // Runs left without their plan are not taken as a new study's.
     std::fs::remove_file(a.join("study.json")).unwrap();
     let e = mc::run_study(&plan(5), Shard::all(), &a, |_| {}).unwrap_err().to_string();

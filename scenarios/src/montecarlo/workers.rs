@@ -33,7 +33,7 @@ pub fn serve_worker(input: impl BufRead, mut output: impl Write) -> Result<(), S
     let (pin, base, base_dir) = super::pin_scenario(&start.plan.scenario)?;
     // The scenario file edited while the study runs would give this worker's runs another
     // scenario than the study's.
-    if let Some(began) = start.scenario_pin.filter(|began| began.sha256 != pin.sha256) {
+    if let Some(began) = start.scenario_pin.as_ref().filter(|began| began.sha256 != pin.sha256) {
         return Err(protocol(format!(
             "the study began with scenario {}, and {} now reads {}, whose files or settings differ: restore it, or start a new study",
             began.file, start.plan.scenario, pin.file
@@ -195,14 +195,27 @@ pub(super) fn run_in_processes(
     }
     let queue = Mutex::new(todo.iter().copied().collect::<VecDeque<&Job>>());
     let records = Mutex::new(Vec::new());
+    // Set when the scenario no longer is the study's: no job more is given out.
+    let changed: Mutex<Option<StudyError>> = Mutex::new(None);
     std::thread::scope(|scope| {
         for first in workers {
-            let (queue, records) = (&queue, &records);
+            let (queue, records, changed) = (&queue, &records, &changed);
             scope.spawn(move || {
                 let mut worker = Some(first);
                 loop {
+                    if changed.lock().unwrap_or_else(|p| p.into_inner()).is_some() {
+                        break;
+                    }
                     let Some(job) = queue.lock().unwrap_or_else(|p| p.into_inner()).pop_front() else { break };
                     if worker.is_none() {
+                        // A worker died: before another starts, the scenario is checked here
+                        // once, so that a changed one stops the study instead of failing
+                        // every job in a new worker.
+                        if let Err(e) = check_pin(start) {
+                            queue.lock().unwrap_or_else(|p| p.into_inner()).push_front(job);
+                            changed.lock().unwrap_or_else(|p| p.into_inner()).get_or_insert(e);
+                            break;
+                        }
                         worker = WorkerProcess::spawn(exe, start).ok();
                     }
                     let record = match worker.as_mut().map(|w| w.run(job, run_timeout)) {
@@ -222,7 +235,27 @@ pub(super) fn run_in_processes(
             });
         }
     });
-    Ok(records.into_inner().unwrap_or_else(|p| p.into_inner()))
+    let records = records.into_inner().unwrap_or_else(|p| p.into_inner());
+    match changed.into_inner().unwrap_or_else(|p| p.into_inner()) {
+        // The finished runs are on file already; the error says why the rest did not run.
+        Some(e) => Err(e),
+        None => Ok(records),
+    }
+}
+
+/// Whether the scenario the study names still is the one it pinned when it began.
+fn check_pin(start: &StudyFile) -> Result<(), StudyError> {
+    let (pin, _, _) = super::pin_scenario(&start.plan.scenario)?;
+    match &start.scenario_pin {
+        Some(began) if began.sha256 != pin.sha256 => Err(StudyError::File {
+            file: std::path::PathBuf::from(&pin.file),
+            message: format!(
+                "its files or settings changed since the study began with {} (a worker that had died was not restarted); the finished runs are kept: restore the scenario and run the same command again, or start a new study",
+                began.file
+            ),
+        }),
+        _ => Ok(()),
+    }
 }
 
 #[cfg(test)]
