@@ -31,6 +31,9 @@ pub use workers::serve_worker;
 pub enum StudyError {
     #[error("--vary {spec:?}: {message} (expected PARAM=A..B:STEPS, e.g. sim.odometry.scale_sigma=0.0..0.05:6)")]
     Vary { spec: String, message: String },
+    /// A `--vary` well written whose value the scenario cannot take.
+    #[error("--vary {spec:?}: {message}")]
+    VaryValue { spec: String, message: String },
     #[error("--shard {spec:?}: {message} (expected K/N with 0 <= K < N)")]
     Shard { spec: String, message: String },
     #[error("{}: {message}", file.display())]
@@ -344,7 +347,7 @@ pub fn apply_param(scenario: &Scenario, path: &str, value: f64) -> Result<Scenar
     if let Some(split) = generalisation::Split::of_param(path) {
         return generalisation::with_world(scenario, split, value);
     }
-    let bad = |message: String| StudyError::Vary { spec: format!("{path}={value}"), message };
+    let bad = |message: String| StudyError::VaryValue { spec: format!("{path}={value}"), message };
     // Each run's seed comes from the study's --seed and the run's index: a varied one
     // would change nothing.
     if path == "seed" {
@@ -1353,7 +1356,7 @@ mod tests {
         assert!(e.contains("confirm_observations takes whole numbers, not 1.5"), "{e}");
         // Past i64 every value would be the same setting.
         let e = apply_param(&s, "world.seed", 1e19).unwrap_err().to_string();
-        assert!(e.contains("within 9.2e18"), "{e}");
+        assert!(e.contains("within 9.2e18") && !e.contains("expected PARAM"), "a value, not the syntax: {e}");
         assert!(apply_param(&s, "seed", 2.0).unwrap_err().to_string().contains("vary world.seed"));
     }
 

@@ -144,7 +144,7 @@ fn draw(rng: &mut ChaCha8Rng) -> ParkParams {
 /// `scenario` with its world replaced by world `index` of `split`.
 pub fn with_world(scenario: &Scenario, split: Split, index: f64) -> Result<Scenario, StudyError> {
     if !(index >= 0.0 && index.fract() == 0.0 && index < 1e9) {
-        return Err(StudyError::Vary {
+        return Err(StudyError::VaryValue {
             spec: format!("{}={index}", split.world_param()),
             message: "a world index is a whole number from 0".into(),
         });
