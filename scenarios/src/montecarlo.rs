@@ -6,7 +6,8 @@
 //! numbers make the comparison sharper), so a study gives the same results however it is
 //! split into shards. Each finished run is appended to `runs.jsonl` as one line written in
 //! one call; a study started again skips the jobs already there, and a truncated last line
-//! (a killed process) is dropped.
+//! (a killed process) is dropped. Once its runs are done the file is put in job order, so
+//! that it does not depend on how many workers ran them.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::fs::OpenOptions;
@@ -573,6 +574,22 @@ pub fn write_atomically(file: &Path, text: &str) -> Result<(), StudyError> {
     std::fs::rename(&tmp, file).map_err(io)
 }
 
+/// Rewrites `runs.jsonl` at `path` with its lines in job order (a job's lines keeping
+/// their order), where they are not already: runs are appended as they finish, in an order
+/// that depends on how many workers ran them, and a study's files are to be the same
+/// whatever ran it. Done by the study that holds the directory, after its last append.
+fn put_in_job_order(path: &Path) -> Result<(), StudyError> {
+    let (text, _) = complete_lines(path)?;
+    let records = parse_run_lines(path, &text)?;
+    let lines: Vec<&str> = text.lines().filter(|l| !l.trim().is_empty()).collect();
+    let mut order: Vec<(usize, &str)> = records.iter().map(|(_, r)| r.job.index).zip(lines).collect();
+    if order.is_sorted_by_key(|(index, _)| *index) {
+        return Ok(());
+    }
+    order.sort_by_key(|(index, _)| *index);
+    write_atomically(path, &order.iter().map(|(_, line)| format!("{line}\n")).collect::<String>())
+}
+
 /// Appends one record as a whole line and syncs it; on failure the file is cut back to its
 /// length before the write, so no torn line is left for the next record to join.
 fn append_record(f: &mut std::fs::File, record: &RunRecord) -> std::io::Result<()> {
@@ -742,6 +759,7 @@ pub fn run_study_with(
     if count > 0 {
         return Err(StudyError::Append { file: runs_file, count, message });
     }
+    put_in_job_order(&runs_file)?;
     let keys: BTreeSet<String> = mine.iter().map(|j| j.key()).collect();
     let mut all: Vec<RunRecord> = existing.into_iter().filter(|r| keys.contains(&r.key)).chain(new).collect();
     all.sort_by_key(|r| r.job.index);
@@ -1399,6 +1417,30 @@ mod tests {
         std::fs::write(&f, [format!("{line}\n{line}\n").as_bytes(), b"\xff\xfe\n"].concat()).unwrap();
         let e = read_runs(&f).unwrap_err().to_string();
         assert!(e.contains("line 3: not UTF-8 text"), "{e}");
+    }
+
+    /// Records appended as runs finished are put in job order, a job's lines in the order
+    /// they were written (a retried run after its retryable record), byte for byte.
+    #[test]
+    fn finished_runs_file_is_put_in_job_order() {
+        let dir = std::env::temp_dir().join(format!("objslam-mc-order-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let f = dir.join("runs.jsonl");
+        let line = |index: usize, error: &str, retryable: bool| {
+            let job = Job { index, method: "nn".into(), params: vec![], run: index, seed: 1 };
+            let rec = RunRecord { key: job.key(), job, metrics: None, error: Some(error.into()), retryable };
+            serde_json::to_string(&rec).unwrap() + "\n"
+        };
+        let (a, b1, b2, c) = (line(0, "a", false), line(1, "died", true), line(1, "b", false), line(2, "c", false));
+        std::fs::write(&f, [c.as_str(), b1.as_str(), a.as_str(), b2.as_str()].concat()).unwrap();
+        put_in_job_order(&f).unwrap();
+        assert_eq!(std::fs::read_to_string(&f).unwrap(), [a.as_str(), b1.as_str(), b2.as_str(), c.as_str()].concat());
+        assert!(!f.with_extension("tmp").exists());
+        // A file in order is left as it is.
+        let modified = std::fs::metadata(&f).unwrap().modified().unwrap();
+        put_in_job_order(&f).unwrap();
+        assert_eq!(std::fs::metadata(&f).unwrap().modified().unwrap(), modified);
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     /// A run whose worker died is to be run again, not a figure: the summary leaves it out.
