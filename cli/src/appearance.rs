@@ -154,7 +154,16 @@ pub(crate) fn gmm_fit(data: &std::path::Path, options: &slam::gmm::VbOptions, ou
     let started = std::time::Instant::now();
     let model = scenarios::train::gmm_fit_csv(data, options)?;
     let secs = started.elapsed().as_secs_f64();
-    std::fs::write(out, serde_json::to_string_pretty(&model)?).with_context(|| format!("writing {}", out.display()))?;
+    // The mixture, and how it was fitted (`gmm score` reads the mixture and passes over
+    // `fit`): the same data and `fit.options` fit the same model again.
+    let mut file = serde_json::to_value(&model)?;
+    file["fit"] = serde_json::json!({
+        "tool": "objslam gmm fit",
+        "version": env!("CARGO_PKG_VERSION"),
+        "data": data.display().to_string(),
+        "options": options,
+    });
+    std::fs::write(out, serde_json::to_string_pretty(&file)?).with_context(|| format!("writing {}", out.display()))?;
     println!("{} points x {} dimensions, fitted in {secs:.2} s", model.points, model.dims());
     println!(
         "  lower bound: {:.6} nats (full PRML 10.70 bound on ln p(X), all constant terms included; {:.6} per point)",

@@ -123,6 +123,7 @@ pub(crate) fn record(
                 pipeline: pipeline.as_ref(),
                 calibration: calibration.as_ref(),
                 appearance_model: model.as_ref(),
+                scoring: Some(&scoring),
             },
             out,
             show,

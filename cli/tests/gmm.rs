@@ -50,6 +50,11 @@ fn both_searches_fit_the_same_mixture_and_score_it_on_held_out_points() {
         assert!(fit.status.success(), "{search}: {}", String::from_utf8_lossy(&fit.stderr));
         let fitted: slam::gmm::VbGmm = serde_json::from_str(&std::fs::read_to_string(&model).unwrap()).unwrap();
         assert_eq!(fitted.effective_components(0.02), 2, "{search}");
+        // The file says how it was fitted: the same data and options fit it again.
+        let file: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&model).unwrap()).unwrap();
+        let options: slam::gmm::VbOptions = serde_json::from_value(file["fit"]["options"].clone()).unwrap();
+        assert_eq!(file["fit"]["data"], path(&train));
+        assert_eq!(scenarios::train::gmm_fit_csv(&train, &options).unwrap(), fitted, "{search}");
         let score = objslam(&["gmm", "score", path(&model), path(&heldout)]);
         assert!(score.status.success(), "{search}: {}", String::from_utf8_lossy(&score.stderr));
         let printed = score_of(&score.stdout);

@@ -243,6 +243,21 @@ impl BagWriter {
         Ok(())
     }
 
+    /// Attaches a file to the MCAP (an attachment record, logged at time 0): data that
+    /// belongs with the bag but is not a message, such as how it was made. ROS 2 players
+    /// pass over attachments; MCAP tools list and extract them.
+    pub fn attach(&mut self, name: &str, media_type: &str, data: &[u8]) -> Result<()> {
+        let mcap = self.mcap.as_mut().ok_or(Error::Finished)?;
+        let attachment = mcap::Attachment {
+            log_time: 0,
+            create_time: 0,
+            name: name.to_owned(),
+            media_type: media_type.to_owned(),
+            data: std::borrow::Cow::Borrowed(data),
+        };
+        mcap.attach(&attachment).map_err(|source| Error::Mcap { path: self.mcap_path.clone(), source })
+    }
+
     /// Closes the MCAP file and writes `metadata.yaml`. The bag is complete only after this.
     pub fn finish(mut self) -> Result<()> {
         self.finish_inner()

@@ -306,8 +306,10 @@ pub fn record(
 ) -> Result<RecordSummary, RecordError> {
     match format {
         RecordFormat::Jsonl => staged(out, |dir| record_jsonl(world, config, seed, scoring, dir, progress)),
-        RecordFormat::Ros2 => record_ros2_staged(world, config, seed, out, progress),
-        RecordFormat::Log => record_log(world, config, seed, LogSettings::default(), out, progress),
+        RecordFormat::Ros2 => record_ros2_staged(world, config, seed, scoring, out, progress),
+        RecordFormat::Log => {
+            record_log(world, config, seed, LogSettings { scoring: Some(scoring), ..Default::default() }, out, progress)
+        }
     }
 }
 
@@ -315,7 +317,7 @@ pub fn record(
 /// recording's own are moved in, so that what `out` holds afterwards is never an earlier
 /// log's data mixed with the new one's (a JSON-lines log's images share `camera/` with a
 /// robot log's, so it clears them too).
-fn robot_log_files() -> [&'static str; 9] {
+fn robot_log_files() -> [&'static str; 11] {
     use robotlog::format as f;
     [
         f::MANIFEST,
@@ -327,6 +329,8 @@ fn robot_log_files() -> [&'static str; 9] {
         "camera",
         crate::replay::PIPELINE_FILE,
         crate::replay::APPEARANCE_MODEL_FILE,
+        RECORDING_FILE,
+        "world.toml",
     ]
 }
 
@@ -364,6 +368,33 @@ pub struct LogSettings<'a> {
     /// The appearance model the run uses, written as `appearance_model.json` where the log
     /// has camera frames.
     pub appearance_model: Option<&'a slam::classifier::AppearanceModel>,
+    /// The scenario and run seed it was recorded for, written into `recording.json`.
+    pub scoring: Option<&'a crate::score::log::LogScoring>,
+}
+
+/// A robot log's record of how it was made (see [`provenance`]).
+pub const RECORDING_FILE: &str = "recording.json";
+
+/// How a recording was made, enough to make it again: the command (`tool`), the simulator seed, the world's name
+/// and seed, the simulator settings and the scenario with its run seed (`scoring`). A
+/// JSON-lines log's `metadata.json` holds it with a summary; a robot log has it as
+/// `recording.json` and a ROS 2 bag as an MCAP attachment of that name, each without the
+/// summary's wall clock, so that the same recording gives the same bytes.
+pub fn provenance(
+    tool: &str,
+    world: &worlds::World,
+    config: &SimConfig,
+    seed: u64,
+    scoring: Option<&crate::score::log::LogScoring>,
+) -> serde_json::Value {
+    json!({
+        "tool": tool,
+        "version": env!("CARGO_PKG_VERSION"),
+        "seed": seed,
+        "world": {"name": world.name, "seed": world.seed},
+        "sim_config": config,
+        "scoring": scoring,
+    })
 }
 
 /// Whether [`record_log`] writes camera frames: where the camera is enabled and, for a
@@ -396,7 +427,7 @@ fn write_log(
     out: &Path,
     mut progress: impl FnMut(f64, f64),
 ) -> Result<RecordSummary, RecordError> {
-    let LogSettings { pipeline, calibration, appearance_model } = settings;
+    let LogSettings { pipeline, calibration, appearance_model, scoring } = settings;
     let started = std::time::Instant::now();
     // A robot's camera gives colour: no depth is rendered. (The camera's noise is a stream
     // of its own: the other sensors' messages are the same with or without it.)
@@ -486,6 +517,16 @@ fn write_log(
         camera: frames,
     };
     robotlog::format::write(out, &log)?;
+    let write = |name: &str, text: String| {
+        let file = out.join(name);
+        std::fs::write(&file, text).map_err(|source| RecordError::Io { file, source })
+    };
+    // The settings as recorded (camera as logged), not as asked for.
+    write(
+        RECORDING_FILE,
+        serde_json::to_string_pretty(&provenance("objslam record", world, config, seed, scoring)).expect("JSON"),
+    )?;
+    write("world.toml", world.to_toml())?;
     if let Some(p) = pipeline {
         let file = out.join(crate::replay::PIPELINE_FILE);
         let text =
@@ -516,10 +557,12 @@ fn record_ros2_staged(
     world: &worlds::World,
     config: &SimConfig,
     seed: u64,
+    scoring: &crate::score::log::LogScoring,
     out: &Path,
     progress: impl FnMut(f64, f64),
 ) -> Result<RecordSummary, RecordError> {
     let mut bag = crate::ros2::StagedBag::create(out, config)?;
+    bag.attach_provenance(&provenance("objslam record", world, config, seed, Some(scoring)), world)?;
     let summary = record_ros2(world, config, seed, &mut bag, progress)?;
     bag.finish()?;
     Ok(summary)
@@ -721,18 +764,8 @@ fn record_jsonl(
         collisions: sim.collisions().len(),
         route_completed: sim.route_progress() > 0.99,
     };
-    write_file(
-        "metadata.json",
-        serde_json::to_string_pretty(&json!({
-            "tool": "objslam record",
-            "version": env!("CARGO_PKG_VERSION"),
-            "seed": seed,
-            "world": {"name": world.name, "seed": world.seed},
-            "sim_config": config,
-            "summary": summary,
-            "scoring": scoring,
-        }))
-        .expect("JSON"),
-    )?;
+    let mut metadata = provenance("objslam record", world, config, seed, Some(scoring));
+    metadata["summary"] = json!(summary);
+    write_file("metadata.json", serde_json::to_string_pretty(&metadata).expect("JSON"))?;
     Ok(summary)
 }

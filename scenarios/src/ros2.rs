@@ -71,6 +71,21 @@ impl StagedBag {
         Ok(staged)
     }
 
+    /// Attaches how the bag was made (see [`crate::record::provenance`]) and its world, as
+    /// MCAP attachments `recording.json` and `world.toml` (`mcap list attachments` lists
+    /// them; ROS 2 players pass over them).
+    pub fn attach_provenance(
+        &mut self,
+        provenance: &serde_json::Value,
+        world: &worlds::World,
+    ) -> Result<(), Ros2Error> {
+        let recorder = self.recorder.as_mut().expect("a staged bag has its recorder until finished");
+        let err = |source| Ros2Error::Bag { dir: recorder.dir.clone(), source };
+        let json = serde_json::to_string_pretty(provenance).expect("JSON");
+        recorder.bag.attach(crate::record::RECORDING_FILE, "application/json", json.as_bytes()).map_err(err)?;
+        recorder.bag.attach("world.toml", "application/toml", world.to_toml().as_bytes()).map_err(err)
+    }
+
     /// Writes one simulator event to the bag.
     pub fn write(&mut self, event: &SensorEvent) -> Result<(), Ros2Error> {
         self.recorder.as_mut().expect("a staged bag has its recorder until finished").write(event)

@@ -197,6 +197,19 @@ fn a_ros2_bag_holds_what_the_json_lines_hold_in_standard_messages() {
     );
     let bytes = std::fs::read(bag.join("bag_0.mcap")).unwrap();
     let summary_section = mcap::read::Summary::read(&bytes).unwrap().expect("an MCAP summary");
+    // How it was made travels as attachments: the same as the JSON-lines log's metadata,
+    // its wall-clock summary apart, and the world.
+    let attachment = |name: &str| {
+        let index = summary_section.attachment_indexes.iter().find(|a| a.name == name).expect(name);
+        mcap::read::attachment(&bytes, index).unwrap().data.into_owned()
+    };
+    let recording: serde_json::Value = serde_json::from_slice(&attachment("recording.json")).unwrap();
+    let mut metadata_json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(root.join("jsonl/metadata.json")).unwrap()).unwrap();
+    metadata_json.as_object_mut().unwrap().remove("summary");
+    assert_eq!(recording, metadata_json);
+    assert_eq!(recording["seed"], 4);
+    assert_eq!(String::from_utf8(attachment("world.toml")).unwrap(), world.to_toml());
     let mut topics: BTreeMap<String, (String, String)> = BTreeMap::new();
     for c in summary_section.channels.values() {
         let schema = c.schema.as_ref().expect("schema");

@@ -39,15 +39,26 @@ fn a_recorded_log_replays_to_the_runs_estimate() {
     let seed = 3;
     let world = sc.world(&base, seed).unwrap();
     let pipeline = scenarios::run::pipeline_config(&sc, None).unwrap();
+    let scoring = scenarios::score::log::LogScoring::of_scenario(&sc, seed);
     scenarios::record::record_log(
         &world,
         &sc.sim,
         sim::derive_seed(seed, "sim"),
-        scenarios::record::LogSettings { pipeline: Some(&pipeline), ..Default::default() },
+        scenarios::record::LogSettings { pipeline: Some(&pipeline), scoring: Some(&scoring), ..Default::default() },
         &dir.join("log"),
         |_, _| {},
     )
     .unwrap();
+    // How the log was made, enough to make it again.
+    let recording: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("log/recording.json")).unwrap()).unwrap();
+    assert_eq!(recording["seed"], sim::derive_seed(seed, "sim"));
+    assert_eq!(
+        (recording["scoring"]["scenario"].as_str(), recording["scoring"]["run_seed"].as_u64()),
+        (Some("laser_only"), Some(seed))
+    );
+    assert_eq!(recording["sim_config"]["max_duration_s"], 30.0);
+    assert_eq!(std::fs::read_to_string(dir.join("log/world.toml")).unwrap(), world.to_toml());
     let out = dir.join("run");
     run(&sc, &base, &RunOptions { seed: Some(seed), out: Some(out.clone()), ..Default::default() }, |_| {}).unwrap();
 
@@ -130,6 +141,7 @@ fn a_recorded_log_with_camera_frames_replays_to_the_combined_runs_estimate() {
             pipeline: Some(&pipeline),
             calibration: Some(&calibration),
             appearance_model: None,
+            scoring: None,
         },
         &dir.join("log"),
         |_, _| {},

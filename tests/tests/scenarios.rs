@@ -138,6 +138,32 @@ fn frames_that_later_scans_may_read_are_rendered_whole() {
     }
 }
 
+/// The scenario `metadata.json` records is the run's, command-line seed and method written
+/// in: run alone, it gives the same run.
+#[test]
+fn recorded_scenario_runs_the_run_again() {
+    let dir = std::env::temp_dir().join(format!("objslam-as-run-{}", std::process::id()));
+    let (mut sc, base) = Scenario::load("laser_only").unwrap();
+    sc.sim.max_duration_s = Some(20.0);
+    let options = RunOptions {
+        seed: Some(3),
+        method: Some(slam::association::AssociationMethod::Nn),
+        out: Some(dir.clone()),
+        ..Default::default()
+    };
+    let first = run(&sc, &base, &options, |_| {}).unwrap().metrics;
+    let meta: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("metadata.json")).unwrap()).unwrap();
+    let recorded: Scenario = serde_json::from_value(meta["configuration"]["scenario"].clone()).unwrap();
+    assert_eq!((recorded.seed, recorded.pipeline.method), (3, slam::association::AssociationMethod::Nn));
+    let again = run(&recorded, &base, &RunOptions::default(), |_| {}).unwrap().metrics;
+    let figures =
+        |m: &scenarios::run::Metrics| (m.seed, m.method.clone(), m.ate_rmse_m, m.landmarks, m.associations.total);
+    assert_eq!(figures(&again), figures(&first));
+    assert_ne!(first.seed, sc.seed, "the test must override the scenario's seed");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// Every output file of `objslam run` is written and parses.
 #[test]
 fn run_writes_every_output() {

@@ -397,7 +397,16 @@ fn run_and_write(
             return Err(RunError::BagInOutputs(dir.clone()));
         }
         // Staged like `record --format ros2`: a failed or stopped run leaves no half bag.
-        Some(dir) => Some(crate::ros2::StagedBag::create(dir, &sim_config)?),
+        Some(dir) => {
+            let mut bag = crate::ros2::StagedBag::create(dir, &sim_config)?;
+            let scoring = crate::score::log::LogScoring::of_run(scenario, seed, &config);
+            let sim_seed = sim::derive_seed(seed, "sim");
+            bag.attach_provenance(
+                &crate::record::provenance("objslam run", &world, &sim_config, sim_seed, Some(&scoring)),
+                &world,
+            )?;
+            Some(bag)
+        }
         None => None,
     };
 
@@ -486,8 +495,13 @@ fn run_and_write(
     };
     metrics.failures = check_pass(&scenario.pass, &metrics.pass_figures());
     metrics.passed = metrics.failures.is_empty();
+    // The scenario with the command line's seed and method written in, so that it alone
+    // runs this run again.
+    let mut as_run = scenario.clone();
+    as_run.seed = seed;
+    as_run.pipeline.method = config.method;
     let resolved = json!({
-        "scenario": scenario,
+        "scenario": as_run,
         "seed": seed,
         "sim_seed": sim::derive_seed(seed, "sim"),
         "world": world,
