@@ -1,9 +1,9 @@
 //! Wheel odometry with an error model: systematic per-run errors plus per-step noise that
 //! grows with distance and turn (see [`crate::config::OdometryConfig`]).
 
-use rand::SeedableRng;
+use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use rand_distr::{Distribution, Normal};
+use rand_distr::StandardNormal;
 
 use crate::config::OdometryConfig;
 use crate::messages::{Odometry, Pose2D};
@@ -62,8 +62,13 @@ pub struct OdometryModel {
     last_truth: Option<Pose2D>,
 }
 
+/// A draw of N(0, sigma²), taken from the stream even when `sigma` is 0: the draws after it
+/// are then the same whatever the spreads, so a study that varies a spread down to 0 keeps
+/// its common random numbers. (The same value as `Normal::new(0, sigma).sample` for
+/// positive `sigma`.)
 fn gaussian(rng: &mut ChaCha8Rng, sigma: f64) -> f64 {
-    if sigma > 0.0 { Normal::new(0.0, sigma).expect("sigma is finite and positive").sample(rng) } else { 0.0 }
+    let z: f64 = rng.sample(StandardNormal);
+    0.0 + sigma * z
 }
 
 impl OdometryModel {
@@ -92,8 +97,14 @@ impl OdometryModel {
         let c = &self.config;
         let sigma_d = (c.a_dd * d * d + c.a_da * dth * dth).sqrt();
         let sigma_a = (c.a_ad * d * d + c.a_aa * dth * dth).sqrt();
-        let nd = gaussian(&mut self.rng, sigma_d);
-        let na = gaussian(&mut self.rng, sigma_a);
+        // A robot standing still reads no motion and takes no draw (the same for every
+        // spread: whether it moved is the true path's); one that moved takes both draws,
+        // whatever the spreads.
+        let (nd, na) = if d > 0.0 || dth != 0.0 {
+            (gaussian(&mut self.rng, sigma_d), gaussian(&mut self.rng, sigma_a))
+        } else {
+            (0.0, 0.0)
+        };
         let scale = 1.0 + self.scale_error;
         let (mdx, mdy) = if d > 0.0 { (dx * scale + nd * dx / d, dy * scale + nd * dy / d) } else { (0.0, 0.0) };
         let mdth = dth * (1.0 + self.turn_scale_error) + self.heading_bias_rad_per_m * d + na;
@@ -104,6 +115,29 @@ impl OdometryModel {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A spread set to 0 leaves every other error as it was (common random numbers across a
+    /// study's values): its draw is still taken from the stream.
+    #[test]
+    fn a_spread_of_zero_leaves_the_other_errors_alone() {
+        let drive = |config: &OdometryConfig| {
+            let mut model = OdometryModel::new(config, 7);
+            let mut p = Pose2D { x: 0.0, y: 0.0, theta: 0.0 };
+            let mut turns = Vec::new();
+            for _ in 0..20 {
+                p = p.compose(0.05, 0.0, 0.01);
+                turns.push(model.measure(0.0, p).dtheta);
+            }
+            (model.turn_scale_error, model.heading_bias_rad_per_m, turns)
+        };
+        let all = drive(&OdometryConfig::default());
+        let no_scale = drive(&OdometryConfig { scale_sigma: 0.0, ..Default::default() });
+        assert_eq!(no_scale, all, "the per-run scale's spread moved the turn errors");
+        // No noise along the travel: the turn's per-step noise is the same draw.
+        let no_travel_noise = drive(&OdometryConfig { a_dd: 0.0, a_da: 0.0, ..Default::default() });
+        assert_eq!(no_travel_noise, all, "the travel's per-step spread moved the turn's noise");
+        assert_ne!(drive(&OdometryConfig { a_aa: 0.0, a_ad: 0.0, ..Default::default() }).2, all.2);
+    }
 
     /// The covariance propagated increment by increment matches the spread of the poses
     /// that many runs of the model integrate, with the per-step noise alone (per-run errors
