@@ -10,6 +10,7 @@ pub(crate) fn train(args: &crate::args::TrainArgs) -> Result<()> {
     let crate::args::TrainArgs { dataset, out, pca_dims, max_components, heldout_every, threshold, seed, .. } = args;
     let (dataset, out, heldout_every) = (dataset.as_path(), out.as_path(), *heldout_every);
     anyhow::ensure!((0.0..=1.0).contains(threshold), "--threshold must lie in [0, 1], got {threshold}");
+    crate::paths::writable_file("--out", out)?;
     // The other worlds' datasets are read before the training, not after it, and must not
     // be the training's own images: a held-out figure on them would measure nothing held out.
     let trained_on = scenarios::train::read_manifest(dataset)?;
@@ -151,6 +152,7 @@ pub(crate) fn segment(model: &std::path::Path, image: &std::path::Path, out: &st
 /// `objslam gmm fit`.
 pub(crate) fn gmm_fit(data: &std::path::Path, options: &slam::gmm::VbOptions, out: &std::path::Path) -> Result<()> {
     crate::paths::not_an_input("--out", out, &[("data", data)])?;
+    crate::paths::writable_file("--out", out)?;
     let started = std::time::Instant::now();
     let model = scenarios::train::gmm_fit_csv(data, options)?;
     let secs = started.elapsed().as_secs_f64();

@@ -442,7 +442,8 @@ pub(crate) enum WorldCommand {
     },
     /// Add a glTF/.glb mesh to a world as an object: the camera renders the mesh, and a
     /// shape fitted to it (trunk or post as wide as its lowest metre, as tall as the mesh)
-    /// is the collider the laser sees. The mesh stands on its origin, z up, in metres.
+    /// is the collider the laser sees. The mesh stands on its origin, in metres, with
+    /// glTF's up (+y) turned to the world's z.
     Import {
         mesh: PathBuf,
         /// The world file to add it to.

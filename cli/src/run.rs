@@ -43,6 +43,28 @@ pub(crate) fn run_scenario(
     Ok(())
 }
 
+/// Refuses a `LOG` that is not a robot log's directory, saying what it is where that is
+/// another output of objslam (a file, a JSON-lines log, a ROS 2 bag), rather than naming a
+/// `manifest.toml` that was never there.
+fn check_robot_log_dir(dir: &std::path::Path) -> Result<()> {
+    let problem = if !dir.exists() {
+        "no such directory"
+    } else if !dir.is_dir() {
+        "not a directory: a robot log is a directory holding manifest.toml (docs/reference/robot-log.md)"
+    } else if dir.join(robotlog::format::MANIFEST).exists() {
+        return Ok(());
+    } else if dir.join("metadata.json").exists() {
+        "a JSON-lines log of `objslam record` or a run's directory, which `objslam score --log` reads; \
+         `objslam record --format log` writes a robot log for `objslam replay`"
+    } else if dir.join("metadata.yaml").exists() {
+        "a ROS 2 bag; `objslam replay` reads a robot log (docs/reference/robot-log.md), which \
+         `objslam record --format log` writes"
+    } else {
+        return Ok(()); // The reader names the missing manifest.toml.
+    };
+    anyhow::bail!("{}: {problem}", dir.display())
+}
+
 /// `objslam replay`: a robot log, or a published data set.
 pub(crate) fn replay(log: Option<PathBuf>, options: ReplayArgs, dataset: Option<ReplayDataset>) -> Result<()> {
     let (log_dir, log, options): (_, robotlog::stream::LogStream, _) = match (dataset, log) {
@@ -50,6 +72,7 @@ pub(crate) fn replay(log: Option<PathBuf>, options: ReplayArgs, dataset: Option<
             (None, robotlog::victoria_park::read(&data)?.into(), options)
         }
         (None, Some(dir)) => {
+            check_robot_log_dir(&dir)?;
             let log = robotlog::format::open(&dir)?;
             (Some(dir), log, options)
         }

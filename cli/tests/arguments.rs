@@ -126,3 +126,44 @@ fn a_scenarios_log_carries_its_camera_unless_told_not_to_and_camera_replays_need
     }
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// A log of the wrong kind, or a file where a log directory goes, is named for what it is.
+#[test]
+fn a_log_of_another_kind_is_named_for_what_it_is() {
+    let root = std::env::temp_dir().join(format!("objslam-log-kinds-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+    for (dir, file) in [("jsonl", "metadata.json"), ("bag", "metadata.yaml")] {
+        std::fs::create_dir_all(root.join(dir)).unwrap();
+        std::fs::write(root.join(dir).join(file), "").unwrap();
+    }
+    std::fs::write(root.join("a.tum"), "").unwrap();
+    let p = |name: &str| root.join(name).to_str().expect("a UTF-8 temporary path").to_string();
+    let out = p("out");
+    for (args, expect) in [
+        (vec!["replay".to_string(), p("jsonl"), "--out".into(), out.clone()], "a JSON-lines log of `objslam record`"),
+        (
+            vec!["replay".into(), p("bag"), "--out".into(), out.clone()],
+            "a ROS 2 bag; `objslam replay` reads a robot log",
+        ),
+        (vec!["replay".into(), p("a.tum"), "--out".into(), out.clone()], "a.tum: not a directory"),
+        (vec!["replay".into(), p("nowhere"), "--out".into(), out.clone()], "nowhere: no such directory"),
+        (
+            vec![
+                "score".into(),
+                "--log".into(),
+                p("a.tum"),
+                "--trajectory".into(),
+                p("a.tum"),
+                "--out".into(),
+                out.clone(),
+            ],
+            "a.tum: not a directory: `--log` takes the directory",
+        ),
+    ] {
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let (ok, e) = stderr_of(&args);
+        assert!(!ok && e.contains(expect), "{args:?}: {e}");
+    }
+    assert!(!root.join("out").exists());
+    let _ = std::fs::remove_dir_all(&root);
+}

@@ -218,6 +218,10 @@ fn an_output_that_is_an_input_is_refused_and_the_input_kept() {
         (vec!["score", "--log", "run", "--trajectory", "run/metrics.json", "--out", "run"], "the log given"),
         (vec!["train", "--dataset", "images", "--heldout-dataset", "images/", "--out", "m.json"], "it is the training"),
         (vec!["train", "--dataset", "images", "--heldout-dataset", "copy", "--out", "m.json"], "a copy of it"),
+        // Refused before training, not when the model is saved.
+        (vec!["train", "--dataset", "images", "--out", "run"], "--out run: is a directory"),
+        (vec!["train", "--dataset", "images", "--out", "nowhere/m.json"], "the directory nowhere does not exist"),
+        (vec!["gmm", "fit", "data.csv", "--out", "run"], "--out run: is a directory"),
     ] {
         let o = objslam(&root, &args);
         assert!(!o.status.success(), "{args:?} succeeded");

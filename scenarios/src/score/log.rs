@@ -210,6 +210,14 @@ fn field<T: serde::de::DeserializeOwned>(file: &Path, v: &serde_json::Value, pat
 }
 
 fn read_metadata(log: &Path) -> Result<LogMetadata, ScoreError> {
+    if !log.is_dir() {
+        let what = if log.exists() { "not a directory" } else { "no such directory" };
+        return Err(invalid(
+            log,
+            None,
+            format!("{what}: `--log` takes the directory of a JSON-lines log of `objslam record` or of a run"),
+        ));
+    }
     let file = log.join("metadata.json");
     if !file.exists() {
         // Other outputs of objslam that hold a log, named so the user knows what to use.
