@@ -197,9 +197,27 @@ pub(crate) fn find(
     model: Option<&std::path::Path>,
     top: usize,
 ) -> Result<()> {
-    let model_path =
-        model.map(std::path::Path::to_path_buf).unwrap_or_else(|| run.join("objects").join("appearance_model.json"));
+    let runs_model = run.join("objects").join("appearance_model.json");
+    if !run.join("objects").join("models.json").is_file() {
+        anyhow::bail!(
+            "{}: no objects/models.json: give the directory of an `objslam run` of a camera method (position-only methods describe no object's appearance)",
+            run.display()
+        );
+    }
+    let model_path = model.map(std::path::Path::to_path_buf).unwrap_or_else(|| runs_model.clone());
     let model = slam::classifier::AppearanceModel::load(&model_path)?;
+    // The run's object models live in its model's feature space (its PCA): another
+    // model's features would be compared with them as if they were the same numbers.
+    if model_path != runs_model && runs_model.is_file() {
+        let own = slam::classifier::AppearanceModel::load(&runs_model)?;
+        if own.extractor != model.extractor {
+            anyhow::bail!(
+                "--model {}: not the model whose features describe the run's objects ({}): the KL divergences would compare numbers of two feature spaces; leave --model out",
+                model_path.display(),
+                runs_model.display()
+            );
+        }
+    }
     let dims = slam::object_model::ObjectModelConfig::default().appearance_dims;
     let ranked = scenarios::objects::find_similar(run, &model, image, dims)?;
     println!("mapped objects most like {} (appearance KL, nats):", image.display());
