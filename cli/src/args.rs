@@ -30,6 +30,8 @@ pub(crate) enum Command {
         /// A scenario file or built-in name (paper_park, posts_near_trees, crowd,
         /// long_loop, laser_only, calibration, city_park).
         scenario: Option<String>,
+        /// Run seed (default: the scenario's): the simulator's noise, and the world where the
+        /// scenario gives no world seed.
         #[arg(long, allow_negative_numbers = true)]
         seed: Option<u64>,
         /// Association method (default: the scenario's, combined unless it says otherwise).
@@ -67,6 +69,7 @@ pub(crate) enum Command {
         /// Patch side L in pixels.
         #[arg(long, default_value_t = 9, allow_negative_numbers = true)]
         patch_size: u32,
+        /// The dataset's directory (images, masks, patch labels, manifest, COCO annotations).
         #[arg(long)]
         out: PathBuf,
     },
@@ -101,6 +104,7 @@ pub(crate) enum Command {
         /// method reads them; rendering them is most of a recording's time.
         #[arg(long)]
         no_camera: bool,
+        /// The log's directory.
         #[arg(long)]
         out: PathBuf,
     },
@@ -129,6 +133,7 @@ pub(crate) enum Command {
         /// Session seed (default: the scenario's seed).
         #[arg(long, allow_negative_numbers = true)]
         seed: Option<u64>,
+        /// Where to write the calibration (JSON: the estimate and its errors).
         #[arg(long, default_value = "calibration.json")]
         out: PathBuf,
         /// Write each pose's camera image here, detected corners marked.
@@ -143,6 +148,7 @@ pub(crate) enum Command {
         #[arg(long)]
         model: PathBuf,
         image: PathBuf,
+        /// The picture to write (PNG), the object patches drawn over the image.
         #[arg(long)]
         out: PathBuf,
     },
@@ -207,8 +213,10 @@ pub(crate) struct ScoreArgs {
 /// `objslam train`'s arguments.
 #[derive(clap::Args)]
 pub(crate) struct TrainArgs {
+    /// A directory `objslam dataset` wrote.
     #[arg(long)]
     pub(crate) dataset: PathBuf,
+    /// Where to write the model (JSON).
     #[arg(long)]
     pub(crate) out: PathBuf,
     /// Also write every patch's feature row and label to this CSV file.
@@ -233,6 +241,7 @@ pub(crate) struct TrainArgs {
     /// A patch is object when R = w_obj p_obj / (w_obj p_obj + w_bg p_bg) exceeds this.
     #[arg(long, default_value_t = 0.5, allow_negative_numbers = true)]
     pub(crate) threshold: f64,
+    /// Seed of the training's sampling of patches and of its mixtures' starts.
     #[arg(long, default_value_t = 1, allow_negative_numbers = true)]
     pub(crate) seed: u64,
     /// Fit posts, palms, walls and people (the distractors) with their own mixture, apart
@@ -288,7 +297,9 @@ pub(crate) enum GmmCommand {
     /// Fit a VB-GMM (searching for the number of components up to --max-components, or
     /// fixed K).
     Fit {
+        /// A CSV of numbers, one point a row (a header row is skipped).
         data: PathBuf,
+        /// Most components the search may keep (exactly this many with --fixed-k).
         #[arg(long, default_value_t = 10, allow_negative_numbers = true)]
         max_components: usize,
         /// Use exactly --max-components components instead of searching.
@@ -302,6 +313,7 @@ pub(crate) enum GmmCommand {
         /// Seed of the k-means++ start (`--fixed-k` and `--search prune`).
         #[arg(long, default_value_t = 0, allow_negative_numbers = true)]
         seed: u64,
+        /// Where to write the model (JSON: the mixture, and under `fit` how it was fitted).
         #[arg(long)]
         out: PathBuf,
     },
@@ -338,6 +350,7 @@ pub(crate) struct MontecarloArgs {
     /// Number of shards when the index comes from JOB_COMPLETION_INDEX.
     #[arg(long, allow_negative_numbers = true)]
     pub(crate) shard_count: Option<usize>,
+    /// The study's directory (default runs/montecarlo-<scenario>-<seed>).
     #[arg(long)]
     pub(crate) out: Option<PathBuf>,
     /// Runs at a time, each in its own worker process (default: one per core).
@@ -348,16 +361,18 @@ pub(crate) struct MontecarloArgs {
     #[arg(long, global = true)]
     pub(crate) in_process: bool,
     /// Seconds a worker process may spend on one run before it is killed and the run
-    /// recorded as retryable (resuming the study runs it again); 0: no limit.
-    #[arg(long, global = true, default_value_t = 1800.0, allow_negative_numbers = true)]
-    pub(crate) run_timeout: f64,
+    /// recorded as retryable (resuming the study runs it again); 0: no limit (default 1800).
+    #[arg(long, global = true, allow_negative_numbers = true)]
+    pub(crate) run_timeout: Option<f64>,
 }
 
 #[derive(Subcommand)]
 pub(crate) enum MontecarloCommand {
     /// Merge shard directories into one study.
     Merge {
+        /// The shards' directories (each with the same study's study.json).
         dirs: Vec<PathBuf>,
+        /// The merged study's directory (may be one of the shards').
         #[arg(long)]
         out: PathBuf,
     },
@@ -381,11 +396,13 @@ pub(crate) enum MontecarloCommand {
         /// Runs per method and parameter value.
         #[arg(long, default_value_t = 10, allow_negative_numbers = true)]
         runs: usize,
+        /// Base seed: run r gets a seed derived from (seed, r).
         #[arg(long, default_value_t = 1, allow_negative_numbers = true)]
         seed: u64,
         /// Run only slice K of N of each sub-study (0-based).
         #[arg(long)]
         shard: Option<String>,
+        /// The study's directory (its sub-studies in DIR/odometry and DIR/post_distance).
         #[arg(long, default_value = "runs/study")]
         out: PathBuf,
     },
@@ -406,6 +423,7 @@ pub(crate) enum MontecarloCommand {
         /// Run only slice K of N of each of the two studies (0-based).
         #[arg(long)]
         shard: Option<String>,
+        /// The benchmark's directory (DIR/combined, DIR/jcbb, DIR/worlds.json).
         #[arg(long, default_value = "runs/generalisation")]
         out: PathBuf,
     },
@@ -429,6 +447,7 @@ pub(crate) enum WorldCommand {
         /// TOML file of generator parameters (see `worlds::generate::ParkParams`).
         #[arg(long)]
         params: Option<PathBuf>,
+        /// The world file to write (TOML).
         #[arg(long)]
         out: Option<PathBuf>,
     },
@@ -437,6 +456,7 @@ pub(crate) enum WorldCommand {
     /// Export a world as one glTF 2.0 binary (.glb).
     Export {
         file: PathBuf,
+        /// The .glb file to write.
         #[arg(long)]
         out: PathBuf,
     },
@@ -465,6 +485,7 @@ pub(crate) enum WorldCommand {
     /// Draw a top view of a world, coloured by class, with routes and a scale bar.
     Plot {
         file: PathBuf,
+        /// The picture to write (PNG).
         #[arg(long)]
         out: PathBuf,
     },
@@ -486,6 +507,7 @@ pub(crate) struct ReplayArgs {
     /// replay's defaults and the log's own `pipeline.toml`.
     #[arg(long)]
     pub(crate) config: Option<PathBuf>,
+    /// The output directory (what `objslam run` writes, where it applies).
     #[arg(long, required = true)]
     pub(crate) out: Option<PathBuf>,
 }
@@ -497,11 +519,46 @@ pub(crate) enum ReplayDataset {
     /// files: `VictoriaParkSinSincronizar.mat` (tree detections), or `aa3_dr.mat` with
     /// `aa3_lsr2.mat`; and `aa3_gpsx.mat` for GPS.
     VictoriaPark {
+        /// The directory holding the published files, as published.
         #[arg(long)]
         data: PathBuf,
         #[command(flatten)]
-        options: ReplayArgs,
+        options: DetectionReplayArgs,
     },
+}
+
+/// A replay of a data set of laser detections, without a camera: the position-only methods.
+#[derive(clap::Args, Debug)]
+pub(crate) struct DetectionReplayArgs {
+    /// Association method (default: `nn`).
+    #[arg(long, value_enum)]
+    pub(crate) method: Option<PositionMethodArg>,
+    /// A TOML file of pipeline settings (`[pipeline]` keys, as in a scenario) over the
+    /// replay's defaults.
+    #[arg(long)]
+    pub(crate) config: Option<PathBuf>,
+    /// The output directory (what `objslam run` writes, where it applies).
+    #[arg(long, required = true)]
+    pub(crate) out: Option<PathBuf>,
+}
+
+/// The association methods that need no camera.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub(crate) enum PositionMethodArg {
+    /// Nearest neighbour with a chi-square gate.
+    Nn,
+    /// Joint compatibility branch and bound.
+    Jcbb,
+}
+
+impl From<DetectionReplayArgs> for ReplayArgs {
+    fn from(a: DetectionReplayArgs) -> Self {
+        let method = a.method.map(|m| match m {
+            PositionMethodArg::Nn => MethodArg::Nn,
+            PositionMethodArg::Jcbb => MethodArg::Jcbb,
+        });
+        ReplayArgs { method, appearance_model: None, config: a.config, out: a.out }
+    }
 }
 
 /// `--method` and `--methods`: the association methods.

@@ -69,7 +69,7 @@ fn check_robot_log_dir(dir: &std::path::Path) -> Result<()> {
 pub(crate) fn replay(log: Option<PathBuf>, options: ReplayArgs, dataset: Option<ReplayDataset>) -> Result<()> {
     let (log_dir, log, options): (_, robotlog::stream::LogStream, _) = match (dataset, log) {
         (Some(ReplayDataset::VictoriaPark { data, options }), _) => {
-            (None, robotlog::victoria_park::read(&data)?.into(), options)
+            (None, robotlog::victoria_park::read(&data)?.into(), options.into())
         }
         (None, Some(dir)) => {
             check_robot_log_dir(&dir)?;

@@ -11,6 +11,24 @@ use crate::progress;
 pub(crate) fn montecarlo(args: MontecarloArgs) -> Result<()> {
     use scenarios::montecarlo as mc;
     const MAX_RUN_TIMEOUT_S: f64 = 3.2e7;
+    const DEFAULT_RUN_TIMEOUT_S: f64 = 1800.0;
+    // Merging and rerunning run no study: settings of how a study runs would be ignored.
+    if matches!(args.command, Some(MontecarloCommand::Merge { .. } | MontecarloCommand::Rerun { .. })) {
+        let given = [
+            args.jobs.map(|_| "--jobs"),
+            args.in_process.then_some("--in-process"),
+            args.run_timeout.map(|_| "--run-timeout"),
+        ];
+        if let Some(flag) = given.into_iter().flatten().next() {
+            anyhow::bail!("{flag} says how a study's runs are run; `montecarlo merge` and `rerun` run no study");
+        }
+    }
+    if args.in_process && args.run_timeout.is_some() {
+        anyhow::bail!(
+            "--run-timeout limits worker processes, and --in-process runs on threads, which cannot be killed"
+        );
+    }
+    let run_timeout = args.run_timeout.unwrap_or(DEFAULT_RUN_TIMEOUT_S);
     let workers = if args.in_process {
         mc::Workers::Threads
     } else {
@@ -19,14 +37,13 @@ pub(crate) fn montecarlo(args: MontecarloArgs) -> Result<()> {
         // A year at most: longer is no limit at all, and far past it (1.8e19 s) the
         // conversion to a Duration would fail.
         anyhow::ensure!(
-            args.run_timeout.is_finite() && (0.0..=MAX_RUN_TIMEOUT_S).contains(&args.run_timeout),
-            "--run-timeout must be a number of seconds from 0 (no limit) to {MAX_RUN_TIMEOUT_S:e}, not {}",
-            args.run_timeout
+            run_timeout.is_finite() && (0.0..=MAX_RUN_TIMEOUT_S).contains(&run_timeout),
+            "--run-timeout must be a number of seconds from 0 (no limit) to {MAX_RUN_TIMEOUT_S:e}, not {run_timeout}"
         );
         mc::Workers::Processes {
             exe: std::env::current_exe().context("cannot find the objslam executable to start worker processes")?,
             count,
-            run_timeout: (args.run_timeout > 0.0).then(|| std::time::Duration::from_secs_f64(args.run_timeout)),
+            run_timeout: (run_timeout > 0.0).then(|| std::time::Duration::from_secs_f64(run_timeout)),
         }
     };
     if let Some(MontecarloCommand::Merge { dirs, out }) = args.command {

@@ -74,6 +74,13 @@ pub(crate) fn load_world(input: &str, seed: u64) -> Result<worlds::World> {
             worlds::generate::PRESETS.join(", ")
         );
     }
+    // A bare word that names no file: most likely a preset misspelt.
+    if !path.exists() && path.extension().is_none() && path.components().count() == 1 {
+        anyhow::bail!(
+            "{input}: no such world file, and not a preset ({}) or a scenario (give a scenario as `--scenario NAME`)",
+            worlds::generate::PRESETS.join(", ")
+        );
+    }
     Ok(worlds::load(path)?)
 }
 

@@ -29,9 +29,15 @@ fn negative_numbers_are_values_checked_like_any_other() {
         (vec!["run", "--seed", "-1"], "invalid value '-1' for '--seed <SEED>'"),
         // A scenario's name where a world goes: the error says how to give one.
         (vec!["record", "paper_park", "--out", out], "paper_park is a scenario, not a world file or a preset (park"),
+        (vec!["record", "forest", "--out", out], "forest: no such world file, and not a preset (park"),
+        // Settings of how a study runs, where no study runs.
+        (vec!["montecarlo", "merge", out, "--out", out, "--jobs", "3"], "--jobs says how a study's runs are run"),
+        (vec!["montecarlo", "rerun", out, "--job", "0", "--out", out, "--in-process"], "--in-process says how"),
+        (vec!["montecarlo", "laser_only", "--in-process", "--run-timeout", "60", "--out", out], "--run-timeout limits"),
         (vec!["montecarlo", "laser_only", "--runs", "-3"], "invalid value '-3' for '--runs <RUNS>'"),
         (vec!["run", "--method", "bogus"], "invalid value 'bogus' for '--method <METHOD>'"),
-        (vec!["calibrate", "calibration", "--poses", "0", "--out", out], "--poses must be 1..10000, got 0"),
+        (vec!["calibrate", "calibration", "--poses", "0", "--out", out], "--poses must be 5..10000"),
+        (vec!["calibrate", "calibration", "--poses", "4", "--out", out], "needs at least 5 board poses), got 4"),
         (vec!["calibrate", "calibration", "--out", &under_a_file], "is a file, not a directory"),
         (
             vec!["dataset", "--images", "1", "--classes", "tree,person", "--out", out],
@@ -147,6 +153,23 @@ fn a_log_of_another_kind_is_named_for_what_it_is() {
         ),
         (vec!["replay".into(), p("a.tum"), "--out".into(), out.clone()], "a.tum: not a directory"),
         (vec!["replay".into(), p("nowhere"), "--out".into(), out.clone()], "nowhere: no such directory"),
+        (
+            vec!["replay".into(), "victoria-park".into(), "--data".into(), p("nowhere"), "--out".into(), out.clone()],
+            "nowhere: no such directory: give the directory that holds the data set's files",
+        ),
+        (
+            vec![
+                "replay".into(),
+                "victoria-park".into(),
+                "--data".into(),
+                p("a.tum"),
+                "--method".into(),
+                "combined".into(),
+                "--out".into(),
+                out.clone(),
+            ],
+            "invalid value 'combined' for '--method <METHOD>'",
+        ),
         (
             vec![
                 "score".into(),

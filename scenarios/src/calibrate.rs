@@ -60,7 +60,7 @@ pub enum CalibrateError {
     #[error("{}: cannot write: {source}", file.display())]
     Write { file: PathBuf, source: std::io::Error },
     /// The number of poses asked for in place of the scenario's.
-    #[error("--poses must be 1..10000, got {0}")]
+    #[error("--poses must be 5..10000 (a calibration needs at least 5 board poses), got {0}")]
     Poses(usize),
 }
 
@@ -493,7 +493,7 @@ pub fn run_session(
     let file = PathBuf::from(scenario.describe());
     let mut config = scenario.calibration.session.clone();
     if let Some(p) = poses {
-        if !(1..=10_000).contains(&p) {
+        if !(5..=10_000).contains(&p) {
             return Err(CalibrateError::Poses(p));
         }
         config.poses = p;

@@ -203,7 +203,7 @@ pub fn make_dataset(
     }
     if config.patch_size == 0 || config.patch_size > config.camera.width.min(config.camera.height) {
         return Err(DatasetError::Config(format!(
-            "patch size {} does not fit a {}x{} image",
+            "--patch-size {} does not fit a {}x{} image (give 1 to the image's shorter side)",
             config.patch_size, config.camera.width, config.camera.height
         )));
     }

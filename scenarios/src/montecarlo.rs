@@ -37,6 +37,10 @@ pub enum StudyError {
     VaryValue { spec: String, message: String },
     #[error("--shard {spec:?}: {message} (expected K/N with 0 <= K < N)")]
     Shard { spec: String, message: String },
+    /// A shard a scheduler's environment (or `--shard-count`) gave: `spec` says which
+    /// variables or flag, since the user typed no `--shard`.
+    #[error("{spec}: {message}")]
+    ShardEnv { spec: String, message: String },
     #[error("{}: {message}", file.display())]
     File { file: PathBuf, message: String },
     #[error("{}: {source}", file.display())]
@@ -56,6 +60,9 @@ pub enum StudyError {
     Locked { file: PathBuf },
     #[error("job {key}: {message}")]
     Job { key: String, message: String },
+    /// A plan that cannot run, before any job is made.
+    #[error("{0}")]
+    Plan(String),
     #[error("{}: {count} finished runs could not be appended ({message}); they are not in the file: run the same command again to redo them", file.display())]
     Append { file: PathBuf, count: usize, message: String },
 }
@@ -269,7 +276,7 @@ impl StudyPlan {
     /// Whether the plan can run: runs and methods given, methods known and not repeated,
     /// and not more jobs than [`MAX_JOBS`] (checked before any is made).
     pub fn check(&self) -> Result<(), StudyError> {
-        let bad = |message: String| StudyError::Job { key: "study plan".into(), message };
+        let bad = |message: String| StudyError::Plan(message);
         if self.runs == 0 {
             return Err(bad("--runs must be at least 1".into()));
         }
@@ -359,8 +366,14 @@ pub fn apply_param(scenario: &Scenario, path: &str, value: f64) -> Result<Scenar
     if path.starts_with("world.params.") && scenario.world.params.is_none() && scenario.world.preset.is_some() {
         scenario.world.params = Some(Default::default());
     }
-    let mut root = toml::Value::try_from(&scenario).map_err(|e| bad(e.to_string()))?;
     let path = todays_spelling(path);
+    if !Scenario::is_setting(&path) {
+        return Err(StudyError::VaryValue {
+            spec: path,
+            message: "no such setting (`objslam config defaults` prints every setting of a scenario)".into(),
+        });
+    }
+    let mut root = toml::Value::try_from(&scenario).map_err(|e| bad(e.to_string()))?;
     let parts: Vec<&str> = path.split('.').collect();
     set_path(&mut root, &parts, value).map_err(&bad)?;
     let text = toml::to_string(&root).map_err(|e| bad(e.to_string()))?;
@@ -432,37 +445,49 @@ impl Shard {
         let num = |name: &str| -> Result<Option<usize>, StudyError> {
             env(name)
                 .map(|v| {
-                    v.trim().parse::<usize>().map_err(|_| StudyError::Shard {
+                    v.trim().parse::<usize>().map_err(|_| StudyError::ShardEnv {
                         spec: format!("{name}={v}"),
                         message: "not a whole number".into(),
                     })
                 })
                 .transpose()
         };
+        let shard = |index: usize, count: usize, spec: String| {
+            if index < count {
+                Ok(Some(Shard { index, count }))
+            } else {
+                let message = match count {
+                    0 => "no shards to run (a count of 0)".to_string(),
+                    _ => format!("makes shard {index} of {count}, and shards are numbered 0 to {}", count - 1),
+                };
+                Err(StudyError::ShardEnv { spec, message })
+            }
+        };
         if let Some(id) = num("SLURM_ARRAY_TASK_ID")? {
-            let bad = |message: String| StudyError::Shard { spec: format!("SLURM_ARRAY_TASK_ID={id}"), message };
+            let bad = |message: String| StudyError::ShardEnv { spec: format!("SLURM_ARRAY_TASK_ID={id}"), message };
             let min = num("SLURM_ARRAY_TASK_MIN")?.unwrap_or(0);
             // A stepped array (--array=0-8:2) numbers its tasks min, min + step, ...
             let step = num("SLURM_ARRAY_TASK_STEP")?.unwrap_or(1).max(1);
-            let n = num("SLURM_ARRAY_TASK_COUNT")?
-                .or(count)
-                .ok_or_else(|| bad("no SLURM_ARRAY_TASK_COUNT and no --shard-count".into()))?;
+            let from_env = num("SLURM_ARRAY_TASK_COUNT")?;
+            let n = from_env.or(count).ok_or_else(|| bad("no SLURM_ARRAY_TASK_COUNT and no --shard-count".into()))?;
             if id < min || (id - min) % step != 0 {
                 return Err(bad(format!("not a task of the array from SLURM_ARRAY_TASK_MIN={min} in steps of {step}")));
             }
-            return Shard::parse(&format!("{}/{n}", (id - min) / step)).map(Some);
+            let of =
+                if from_env.is_some() { format!("SLURM_ARRAY_TASK_COUNT={n}") } else { format!("--shard-count {n}") };
+            return shard((id - min) / step, n, format!("SLURM_ARRAY_TASK_ID={id} with {of}"));
         }
         if let Some(id) = num("JOB_COMPLETION_INDEX")? {
-            let n = count.ok_or_else(|| StudyError::Shard {
-                spec: "JOB_COMPLETION_INDEX".into(),
+            let n = count.ok_or_else(|| StudyError::ShardEnv {
+                spec: format!("JOB_COMPLETION_INDEX={id}"),
                 message: format!(
                     "Kubernetes does not say how many indexes there are: give --shard {id}/N (N the Job's completions), or --shard-count N for a study of one scenario"
                 ),
             })?;
-            return Shard::parse(&format!("{id}/{n}")).map(Some);
+            return shard(id, n, format!("JOB_COMPLETION_INDEX={id} with --shard-count {n}"));
         }
         if let Some(n) = count {
-            return Err(StudyError::Shard {
+            return Err(StudyError::ShardEnv {
                 spec: format!("--shard-count {n}"),
                 message: "goes with a scheduler's index (JOB_COMPLETION_INDEX or SLURM_ARRAY_TASK_ID), and there is none: give --shard K/N".into(),
             });
@@ -1353,6 +1378,19 @@ mod tests {
         assert!(Shard::from_env(env(BETWEEN), None).is_err());
         let e = Shard::from_env(env(&[]), Some(2)).unwrap_err().to_string();
         assert!(e.contains("--shard-count 2") && e.contains("give --shard K/N"), "{e}");
+        // A task beyond the count is named by the variables that gave it, not as a --shard
+        // the user did not type.
+        let e = Shard::from_env(env(&[("SLURM_ARRAY_TASK_ID", "3"), ("SLURM_ARRAY_TASK_COUNT", "2")]), None)
+            .unwrap_err()
+            .to_string();
+        assert_eq!(
+            e,
+            "SLURM_ARRAY_TASK_ID=3 with SLURM_ARRAY_TASK_COUNT=2: makes shard 3 of 2, and shards are numbered 0 to 1"
+        );
+        let e = Shard::from_env(env(&[("JOB_COMPLETION_INDEX", "5")]), Some(5)).unwrap_err().to_string();
+        assert!(e.starts_with("JOB_COMPLETION_INDEX=5 with --shard-count 5: makes shard 5 of 5"), "{e}");
+        let e = Shard::from_env(env(&[("JOB_COMPLETION_INDEX", "0")]), Some(0)).unwrap_err().to_string();
+        assert!(e.contains("no shards to run") && !e.contains("--shard \""), "{e}");
     }
 
     #[test]
@@ -1363,6 +1401,11 @@ mod tests {
         let s3 = apply_param(&s, "world.params.post_distance_m", 1.25).unwrap();
         assert_eq!(s3.world.params.unwrap().post_distance_m, [1.25, 1.25]);
         assert!(apply_param(&s, "sim.laser.rate_hz", -1.0).is_err());
+        let e = apply_param(&s, "foo.bar", 1.0).unwrap_err().to_string();
+        assert_eq!(
+            e,
+            "--vary \"foo.bar\": no such setting (`objslam config defaults` prints every setting of a scenario)"
+        );
         assert!(apply_param(&s, "name.x", 1.0).is_err());
         // A coefficient varied under its former spelling sets today's.
         let s4 = apply_param(&s, "sim.odometry.k_dd", 0.3).unwrap();

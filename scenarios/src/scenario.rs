@@ -481,6 +481,11 @@ impl Scenario {
         }
     }
 
+    /// Whether `path` (dotted, `sim.odometry.a_dd`) is a setting a scenario file can hold.
+    pub fn is_setting(path: &str) -> bool {
+        keys::KEYS.iter().any(|(p, _)| *p == path)
+    }
+
     /// [`Scenario::with_defaults`] as TOML (what `objslam config defaults` prints), each
     /// table and key after a comment saying what it means, and the keys that have no
     /// default (the pass criteria among them) commented out with an example value; or only

@@ -430,6 +430,12 @@ fn a_replays_settings_file_is_refused_at_the_line_of_its_bad_key() {
             "[pipeline]\ngate_probability = 0.9\n\n[world]\npreset = \"park\"\n",
             ":4: world: a replay reads pipeline settings only",
         ),
+        // A motion model that cannot read the log's motion, before the replay starts.
+        (
+            "[pipeline.motion]\nmodel = \"odometry\"\n",
+            ":2: pipeline.motion.model = \"odometry\" cannot read this log's motion: its manifest.toml says vehicle.motion = \"ackermann\" (speed and steering controls)",
+        ),
+        ("\n[motion]\nmodel = \"odometry\"\n", ":3: pipeline.motion.model = \"odometry\" cannot read"),
     ] {
         std::fs::write(&file, text).unwrap();
         let e = resolve_config(None, &manifest, None, Some(&file)).unwrap_err().to_string();

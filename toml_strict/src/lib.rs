@@ -104,6 +104,13 @@ pub fn line_of(text: &str, key: &str) -> Option<usize> {
     span_of(text, &[&segment]).map(|at| line_at(text, at))
 }
 
+/// The 1-based line of `text` where the key at `path` (`["pipeline", "motion", "model"]`)
+/// is given, or as deep along the path as the text goes (the table's header).
+pub fn line_of_path(text: &str, path: &[&str]) -> Option<usize> {
+    let segments: Vec<Segment> = path.iter().map(|k| Segment::Map { key: k.to_string() }).collect();
+    span_of(text, &segments.iter().collect::<Vec<_>>()).map(|at| line_at(text, at))
+}
+
 /// toml's words for an array longer than its field, said plainly.
 fn plain_message(message: &str) -> String {
     match message.strip_prefix("invalid length ").and_then(|m| m.strip_suffix(", expected fewer elements in array")) {

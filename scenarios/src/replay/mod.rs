@@ -133,6 +133,9 @@ pub fn resolve_config(
         line: 1,
         problem: format!("the settings it gives cannot be written: {e}"),
     })?;
+    // Where the motion model was last set: a model that cannot read the log's motion is
+    // that file's error, found before the replay starts.
+    let mut motion_set_in: Option<(PathBuf, usize)> = None;
     let mut files = Vec::new();
     if let Some(dir) = log_dir
         && dir.join(PIPELINE_FILE).exists()
@@ -165,6 +168,10 @@ pub fn resolve_config(
         };
         // Another motion model replaces the whole table: the two models' keys differ.
         let new_model = table.get("motion").and_then(|m| m.get("model")).cloned();
+        if new_model.is_some() {
+            let at: Vec<&str> = under.iter().copied().chain(["motion", "model"]).collect();
+            motion_set_in = Some((file.clone(), toml_strict::line_of_path(&text, &at).unwrap_or(1)));
+        }
         if let (Some(new), Some(motion)) = (new_model, value.get_mut("motion"))
             && motion.get("model") != Some(&new)
         {
@@ -183,6 +190,24 @@ pub fn resolve_config(
         config.validate().map_err(|setting| ReplayError::Setting { file: file.clone(), setting })?;
     }
     let mut config: PipelineConfig = value.try_into().expect("checked above");
+    let car_log = manifest.vehicle.motion == "ackermann";
+    if let Some((file, line)) = motion_set_in.filter(|_| matches!(config.motion, MotionConfig::Ackermann(_)) != car_log)
+    {
+        return Err(ReplayError::Config {
+            file,
+            line,
+            problem: format!(
+                "pipeline.motion.model = \"{}\" cannot read this log's motion: its manifest.toml says vehicle.motion = \"{}\" ({}); leave the model out to use the log's",
+                config.motion.name(),
+                manifest.vehicle.motion,
+                if car_log {
+                    "speed and steering controls"
+                } else {
+                    "odometry increments or a differential drive's controls"
+                }
+            ),
+        });
+    }
     if let Some(m) = method {
         config.method = m;
     }
