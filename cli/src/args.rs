@@ -59,8 +59,10 @@ pub(crate) enum Command {
         /// ... or a generator preset (its world seed is --seed).
         #[arg(long)]
         preset: Option<String>,
+        /// Images to render, each aimed at an object from a random viewpoint.
         #[arg(long, default_value_t = 100, allow_negative_numbers = true)]
         images: usize,
+        /// Seed of the viewpoints (and of the preset's world).
         #[arg(long, default_value_t = 1, allow_negative_numbers = true)]
         seed: u64,
         /// Comma-separated classes labelled positive.
@@ -145,8 +147,10 @@ pub(crate) enum Command {
     Train(TrainArgs),
     /// Classify an image's patches with a model and draw the object patches over it.
     Segment {
+        /// The appearance model (JSON, as `objslam train` writes).
         #[arg(long)]
         model: PathBuf,
+        /// The image to classify (PNG or JPEG).
         image: PathBuf,
         /// The picture to write (PNG), the object patches drawn over the image.
         #[arg(long)]
@@ -158,6 +162,7 @@ pub(crate) enum Command {
         /// A run directory written by `objslam run` (its objects/ holds the models).
         #[arg(long)]
         run: PathBuf,
+        /// An example image of the object sought (its object patches are compared).
         image: PathBuf,
         /// Appearance model (default: the one the run used, objects/appearance_model.json).
         #[arg(long)]
@@ -259,7 +264,10 @@ pub(crate) enum ConfigCommand {
     /// Print the complete default scenario as TOML, from the code's defaults, each key after
     /// a comment saying what it means (or one table of it and those below it, e.g.
     /// `pipeline.evidence`).
-    Defaults { table: Option<String> },
+    Defaults {
+        /// One table, as a dotted path (`pipeline.evidence`); default: every table.
+        table: Option<String>,
+    },
     /// Check a scenario without running it: every setting, the method's needs, the world, a
     /// calibration file, an appearance model file and the pipeline built from them, as a
     /// run checks them before its first step. Exits with an error naming the file, line and
@@ -319,7 +327,12 @@ pub(crate) enum GmmCommand {
     },
     /// Print a fitted model's mean held-out log-likelihood per point on a CSV (the
     /// posterior predictive density), to compare models fitted to the same data.
-    Score { model: PathBuf, data: PathBuf },
+    Score {
+        /// A model file `objslam gmm fit` wrote.
+        model: PathBuf,
+        /// A CSV of held-out points, with the model's number of columns.
+        data: PathBuf,
+    },
 }
 
 #[derive(clap::Args)]
@@ -440,8 +453,10 @@ pub(crate) enum SplitArg {
 pub(crate) enum WorldCommand {
     /// Generate a world from a preset; TOML to stdout unless --out is given.
     Generate {
+        /// The generator (park).
         #[arg(long, default_value = "park")]
         preset: String,
+        /// World seed: the same preset, parameters and seed give the same world.
         #[arg(long, default_value_t = 1, allow_negative_numbers = true)]
         seed: u64,
         /// TOML file of generator parameters (see `worlds::generate::ParkParams`).
@@ -452,9 +467,13 @@ pub(crate) enum WorldCommand {
         out: Option<PathBuf>,
     },
     /// Validate a world file; prints a summary or every problem found.
-    Check { file: PathBuf },
+    Check {
+        /// The world file (TOML).
+        file: PathBuf,
+    },
     /// Export a world as one glTF 2.0 binary (.glb).
     Export {
+        /// The world file (TOML).
         file: PathBuf,
         /// The .glb file to write.
         #[arg(long)]
@@ -465,6 +484,7 @@ pub(crate) enum WorldCommand {
     /// is the collider the laser sees. The mesh stands on its origin, in metres, with
     /// glTF's up (+y) turned to the world's z.
     Import {
+        /// The glTF/.glb file.
         mesh: PathBuf,
         /// The world file to add it to.
         #[arg(long)]
@@ -484,6 +504,7 @@ pub(crate) enum WorldCommand {
     },
     /// Draw a top view of a world, coloured by class, with routes and a scale bar.
     Plot {
+        /// The world file (TOML).
         file: PathBuf,
         /// The picture to write (PNG).
         #[arg(long)]
