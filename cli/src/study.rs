@@ -54,9 +54,9 @@ pub(crate) fn montecarlo(args: MontecarloArgs) -> Result<()> {
         let missing = mc::missing_runs(&plan, &runs);
         let planned = mc::jobs(&plan).len();
         println!(
-            "merged {} of the plan's {planned} runs from {} directories into {}",
+            "merged {} of the plan's {planned} runs from {} into {}",
             planned - missing,
-            dirs.len(),
+            count(dirs.len(), "directory", "directories"),
             out.display()
         );
         if missing > 0 {
@@ -155,7 +155,12 @@ fn generalisation(
     mc::write_atomically(&out.join("worlds.json"), &serde_json::to_string_pretty(&drawn)?)?;
     let mut retry = Retry::default();
     for (name, plan) in &plans {
-        println!("generalisation {name}: {worlds} {} worlds, {} runs", split.name(), mc::jobs(plan).len());
+        println!(
+            "generalisation {name}: {} {}, {}",
+            worlds,
+            if worlds == 1 { format!("{} world", split.name()) } else { format!("{} worlds", split.name()) },
+            count(mc::jobs(plan).len(), "run", "runs")
+        );
         retry.add(run_plan(plan, shard, &out.join(name), workers)?);
     }
     // The report would leave the runs to retry out: they come first.
@@ -224,8 +229,8 @@ fn run_plan(
     let (retry, finished): (Vec<_>, Vec<_>) = records.iter().partition(|r| r.retryable);
     let errors = finished.iter().filter(|r| r.error.is_some()).count();
     println!(
-        "{} runs ({} with errors) in {:.1} s; shard {}/{}; results in {}",
-        finished.len(),
+        "{} ({} with errors) in {:.1} s; shard {}/{}; results in {}",
+        count(finished.len(), "run", "runs"),
         errors,
         bar.elapsed_s(),
         shard.index,
@@ -242,22 +247,38 @@ fn run_plan(
     })
 }
 
+/// A parameter's value as short as it reads: `1`, `0.5`, `0.002` (`1.000e-7` where six
+/// decimals would show nothing).
+fn short_number(v: f64) -> String {
+    let fixed = format!("{v:.6}");
+    let trimmed = fixed.trim_end_matches('0').trim_end_matches('.');
+    if v != 0.0 && (trimmed == "0" || trimmed == "-0") { format!("{v:.3e}") } else { trimmed.to_string() }
+}
+
+/// Counted words: `1 run`, `2 runs`.
+fn count(n: usize, one: &str, many: &str) -> String {
+    format!("{n} {}", if n == 1 { one } else { many })
+}
+
 fn print_summary(rows: &[scenarios::montecarlo::SummaryRow]) {
     println!(
         "{:<12} {:<32} {:>5} {:>8} {:>16} {:>8} {:>8} {:>8} {:>12}",
         "method", "parameters", "runs", "fail", "95% CI", "wrong", "false", "ATE m", "recall (min)"
     );
     for r in rows {
-        let params: Vec<String> =
-            r.params.iter().map(|(p, v)| format!("{}={v:.3}", p.rsplit('.').next().unwrap_or(p))).collect();
+        let params: Vec<String> = r
+            .params
+            .iter()
+            .map(|(p, v)| format!("{}={}", p.rsplit('.').next().unwrap_or(p), short_number(*v)))
+            .collect();
+        let ci = format!("{:.1}-{:.1}%", 100.0 * r.failure_rate_ci95.0, 100.0 * r.failure_rate_ci95.1);
         println!(
-            "{:<12} {:<32} {:>5} {:>7.1}% {:>7.1}-{:<7.1}% {:>8.2} {:>8.2} {:>8.3} {:>5.2} ({:.2})",
+            "{:<12} {:<32} {:>5} {:>7.1}% {:>16} {:>8.2} {:>8.2} {:>8.3} {:>5.2} ({:.2})",
             r.method,
             params.join(" "),
             r.runs,
             100.0 * r.failure_rate,
-            100.0 * r.failure_rate_ci95.0,
-            100.0 * r.failure_rate_ci95.1,
+            ci,
             r.mean_wrong_associations,
             r.mean_false_landmarks,
             r.mean_ate_rmse_m,

@@ -184,6 +184,11 @@ fn a_study_reruns_its_jobs_from_any_directory() {
     let o = objslam(&root, &["montecarlo", "rerun", "study", "--job", "0", "--out", "rerun"]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(root.join("rerun/metrics.json").is_file());
+    // By its key, written as in runs.jsonl (no parameters: `;;`) or without the empty part.
+    for key in ["method=nn;;run=0", "method=nn;run=0"] {
+        let o = objslam(&root, &["montecarlo", "rerun", "study", "--job", key, "--out", "rerun-key"]);
+        assert!(o.status.success(), "{key}: {}", stderr(&o));
+    }
     // A short.toml here is another scenario: resuming the study from here is refused.
     sc.sim.max_duration_s = Some(7.0);
     std::fs::write(root.join("short.toml"), toml::to_string(&sc).unwrap()).unwrap();

@@ -971,7 +971,9 @@ pub fn rerun(dir: &Path, job: &str, out: &Path) -> Result<Rerun, StudyError> {
     }
     let job = match job.trim().parse::<usize>() {
         Ok(index) => all.get(index),
-        Err(_) => all.iter().find(|j| j.key() == job),
+        // A study without --vary keys its jobs `method=nn;;run=0` (no parameters between):
+        // the key typed without the empty part is the same job.
+        Err(_) => all.iter().find(|j| j.key() == job || j.key().replace(";;", ";") == job.trim()),
     }
     .cloned()
     .ok_or_else(|| StudyError::File {

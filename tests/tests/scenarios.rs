@@ -702,3 +702,20 @@ fn object_pictures_show_the_patches_as_seen_beside_their_reconstruction() {
     }
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A file a scenario names that cannot be read is reported with the scenario and the key
+/// that named it.
+#[test]
+fn a_missing_file_a_scenario_names_is_reported_with_its_key() {
+    let (mut sc, base) = Scenario::load("paper_park").unwrap();
+    sc.appearance.model = Some("nowhere_model.json".into());
+    let e = run(&sc, &base, &RunOptions::default(), |_| {}).err().expect("refused").to_string();
+    assert!(e.starts_with("<built-in>/paper_park.toml: appearance.model: ") && e.contains("nowhere_model.json"), "{e}");
+    let (mut sc, base) = Scenario::load("laser_only").unwrap();
+    sc.calibration.mode = "nowhere_calibration.json".into();
+    let e = run(&sc, &base, &RunOptions::default(), |_| {}).err().expect("refused").to_string();
+    assert!(
+        e.starts_with("<built-in>/laser_only.toml: calibration: ") && e.contains("nowhere_calibration.json"),
+        "{e}"
+    );
+}

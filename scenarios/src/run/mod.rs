@@ -44,6 +44,10 @@ pub enum RunError {
     Pipeline { scenario: String, setting: slam::settings::InvalidSetting },
     #[error("method {method}: {message}")]
     Method { method: String, message: String },
+    /// A file a scenario's setting names could not be used: the scenario and the key say
+    /// where it was named.
+    #[error("{scenario}: {key}: {message}")]
+    NamedFile { scenario: String, key: &'static str, message: String },
     #[error(
         "{scenario}: sim.laser.mount_yaw_deg = {yaw}: the pipeline's range-bearing model has no mounting yaw, so runs need a forward-facing laser (0)"
     )]
@@ -140,7 +144,11 @@ pub fn resolve_calibration(scenario: &Scenario, base_dir: &Path, seed: u64) -> R
         }
         path => {
             let file = base_dir.join(path);
-            let e = crate::calibrate::load_extrinsics(&file)?;
+            let e = crate::calibrate::load_extrinsics(&file).map_err(|e| RunError::NamedFile {
+                scenario: scenario.describe(),
+                key: "calibration",
+                message: e.to_string(),
+            })?;
             ("file", Some(file), e, None)
         }
     };
@@ -254,7 +262,14 @@ pub fn resolve_appearance(
     base_dir: &Path,
     progress: impl Fn(&str, usize, usize),
 ) -> Result<AppearanceModel, RunError> {
-    Ok(scenario.appearance.resolve(base_dir, &scenario.sim.camera, progress)?)
+    scenario.appearance.resolve(base_dir, &scenario.sim.camera, progress).map_err(|e| {
+        match &scenario.appearance.model {
+            Some(_) => {
+                RunError::NamedFile { scenario: scenario.describe(), key: "appearance.model", message: e.to_string() }
+            }
+            None => e.into(),
+        }
+    })
 }
 
 /// What [`preflight`] found: a scenario a run would start on.
