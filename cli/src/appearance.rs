@@ -11,6 +11,11 @@ pub(crate) fn train(args: &crate::args::TrainArgs) -> Result<()> {
     let (dataset, out, heldout_every) = (dataset.as_path(), out.as_path(), *heldout_every);
     anyhow::ensure!((0.0..=1.0).contains(threshold), "--threshold must lie in [0, 1], got {threshold}");
     crate::paths::writable_file("--out", out)?;
+    for (flag, file) in [("--export-features", &args.export_features), ("--heldout-report", &args.heldout_report)] {
+        if let Some(file) = file {
+            crate::paths::writable_file(flag, file)?;
+        }
+    }
     // The other worlds' datasets are read before the training, not after it, and must not
     // be the training's own images: a held-out figure on them would measure nothing held out.
     let trained_on = scenarios::train::read_manifest(dataset)?;
@@ -159,10 +164,14 @@ pub(crate) fn gmm_fit(data: &std::path::Path, options: &slam::gmm::VbOptions, ou
     // The mixture, and how it was fitted (`gmm score` reads the mixture and passes over
     // `fit`): the same data and `fit.options` fit the same model again.
     let mut file = serde_json::to_value(&model)?;
+    let bytes = std::fs::read(data).with_context(|| format!("reading {}", data.display()))?;
+    let digest: String = <sha2::Sha256 as sha2::Digest>::digest(&bytes).iter().map(|b| format!("{b:02x}")).collect();
     file["fit"] = serde_json::json!({
         "tool": "objslam gmm fit",
         "version": env!("CARGO_PKG_VERSION"),
         "data": data.display().to_string(),
+        "data_absolute": std::fs::canonicalize(data).map(|p| p.display().to_string()).ok(),
+        "data_sha256": digest,
         "options": options,
     });
     std::fs::write(out, serde_json::to_string_pretty(&file)?).with_context(|| format!("writing {}", out.display()))?;

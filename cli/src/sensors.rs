@@ -102,6 +102,15 @@ pub(crate) fn record(
     no_camera: bool,
     out: &std::path::Path,
 ) -> Result<()> {
+    // A JSON-lines log and a robot log write the world they simulated as OUT/world.toml:
+    // where that is the world file given, it would be replaced (its comments lost).
+    if let RecordSource::World { input, .. } = &source
+        && format != scenarios::record::RecordFormat::Ros2
+    {
+        let given = std::path::Path::new(input);
+        crate::paths::not_an_input("--out", &out.join("world.toml"), &[("world file", given)])
+            .map_err(|_| anyhow::anyhow!("--out {}: the recording writes world.toml there, which is the world file given ({}); record into another directory", out.display(), given.display()))?;
+    }
     let RecordingPlan { world, mut config, sim_seed, scoring, pipeline, calibration, model } =
         RecordingPlan::resolve(source, seed, format, no_camera)?;
     if let Some(d) = duration {

@@ -54,6 +54,11 @@ fn both_searches_fit_the_same_mixture_and_score_it_on_held_out_points() {
         let file: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&model).unwrap()).unwrap();
         let options: slam::gmm::VbOptions = serde_json::from_value(file["fit"]["options"].clone()).unwrap();
         assert_eq!(file["fit"]["data"], path(&train));
+        let digest: String = <sha2::Sha256 as sha2::Digest>::digest(std::fs::read(&train).unwrap())
+            .iter()
+            .map(|b| format!("{b:02x}"))
+            .collect();
+        assert_eq!(file["fit"]["data_sha256"], digest.as_str());
         assert_eq!(scenarios::train::gmm_fit_csv(&train, &options).unwrap(), fitted, "{search}");
         let score = objslam(&["gmm", "score", path(&model), path(&heldout)]);
         assert!(score.status.success(), "{search}: {}", String::from_utf8_lossy(&score.stderr));

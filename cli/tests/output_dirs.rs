@@ -204,6 +204,7 @@ fn an_output_that_is_an_input_is_refused_and_the_input_kept() {
     let world = root.join("w.toml");
     let o = objslam(&root, &["world", "generate", "--preset", "park", "--out", "w.toml"]);
     assert!(o.status.success(), "{}", stderr(&o));
+    std::fs::copy(&world, root.join("world.toml")).unwrap();
     std::fs::write(root.join("data.csv"), "x,y\n1,2\n3,4\n").unwrap();
     std::fs::write(root.join("image.png"), "not read").unwrap();
     std::fs::create_dir_all(root.join("run")).unwrap();
@@ -215,6 +216,9 @@ fn an_output_that_is_an_input_is_refused_and_the_input_kept() {
     let before = contents(&root);
     for (args, expect) in [
         (vec!["world", "export", "w.toml", "--out", "./w.toml"], "the world file given"),
+        // A recording writes OUT/world.toml: not over the world file it simulates.
+        (vec!["record", "world.toml", "--duration", "1", "--out", "."], "the recording writes world.toml there"),
+        (vec!["record", "./world.toml", "--format", "log", "--out", "./"], "which is the world file given"),
         (vec!["world", "plot", "w.toml", "--out", "w.toml"], "the world file given"),
         (vec!["world", "plot", "w.toml", "--out", "w.svg"], "w.svg: cannot draw plot: the map is drawn as PNG"),
         (vec!["segment", "--model", "model.json", "image.png", "--out", "image.png"], "the image given"),
@@ -226,6 +230,10 @@ fn an_output_that_is_an_input_is_refused_and_the_input_kept() {
         // Refused before training, not when the model is saved.
         (vec!["train", "--dataset", "images", "--out", "run"], "--out run: is a directory"),
         (vec!["train", "--dataset", "images", "--out", "nowhere/m.json"], "the directory nowhere does not exist"),
+        (
+            vec!["train", "--dataset", "images", "--export-features", "run", "--out", "m.json"],
+            "--export-features run: is a",
+        ),
         (vec!["gmm", "fit", "data.csv", "--out", "run"], "--out run: is a directory"),
     ] {
         let o = objslam(&root, &args);

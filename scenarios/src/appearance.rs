@@ -163,9 +163,16 @@ impl AppearanceSource {
             distractors: *distractors,
             context: *context,
         };
-        let text =
-            serde_json::to_string(&(MODEL_FORMAT_VERSION, key, self.dataset_config(camera), self.training_options()))
-                .expect("JSON");
+        let (dataset, training) = (self.dataset_config(camera), self.training_options());
+        // A noisy camera's images changed when a spread of 0 began to take its draw (the
+        // exposure's, the pixel noise's seed): models trained on them before are not
+        // reused. Noiseless cameras keep their keys.
+        let text = if camera.noise_sigma > 0.0 || camera.exposure_sigma > 0.0 {
+            serde_json::to_string(&(MODEL_FORMAT_VERSION, key, dataset, training, "camera noise streams 2"))
+        } else {
+            serde_json::to_string(&(MODEL_FORMAT_VERSION, key, dataset, training))
+        }
+        .expect("JSON");
         let digest = Sha256::digest(text.as_bytes());
         format!("appearance-{}.json", digest.iter().take(8).map(|b| format!("{b:02x}")).collect::<String>())
     }

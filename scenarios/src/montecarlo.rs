@@ -373,11 +373,18 @@ pub fn apply_param(scenario: &Scenario, path: &str, value: f64) -> Result<Scenar
             message: "no such setting (`objslam config defaults` prints every setting of a scenario)".into(),
         });
     }
-    let mut root = toml::Value::try_from(&scenario).map_err(|e| bad(e.to_string()))?;
+    let root = toml::Value::try_from(&scenario).map_err(|e| bad(e.to_string()))?;
     let parts: Vec<&str> = path.split('.').collect();
-    set_path(&mut root, &parts, value).map_err(&bad)?;
-    let text = toml::to_string(&root).map_err(|e| bad(e.to_string()))?;
-    Scenario::parse(&text, Path::new(&format!("{}[{path}={value}]", scenario.name))).map_err(|e| bad(e.to_string()))
+    let with = |new_integer: bool| {
+        let mut root = root.clone();
+        set_path(&mut root, &parts, value, new_integer).map_err(&bad)?;
+        let text = toml::to_string(&root).map_err(|e| bad(e.to_string()))?;
+        Scenario::parse(&text, Path::new(&format!("{}[{path}={value}]", scenario.name))).map_err(|e| bad(e.to_string()))
+    };
+    // A setting the scenario leaves out has no type to follow: a number, unless only a
+    // whole one will do (a count the scenario did not set).
+    with(false)
+        .or_else(|e| if value.fract() == 0.0 && value.abs() < 9.2e18 { with(true).map_err(|_| e) } else { Err(e) })
 }
 
 /// A parameter's path under today's spelling: a key read under a former spelling is
@@ -389,7 +396,9 @@ fn todays_spelling(path: &str) -> String {
     former.map_or_else(|| path.to_string(), |new| format!("sim.odometry.{new}"))
 }
 
-fn set_path(node: &mut toml::Value, parts: &[&str], value: f64) -> Result<(), String> {
+/// Sets the number at `parts` to `value`, in the type of the value there; one not there
+/// is added as a float, or as an integer with `new_integer`.
+fn set_path(node: &mut toml::Value, parts: &[&str], value: f64, new_integer: bool) -> Result<(), String> {
     let table = node.as_table_mut().ok_or_else(|| format!("{} is not a table", parts[0]))?;
     if parts.len() == 1 {
         let new = match table.get(parts[0]) {
@@ -405,6 +414,7 @@ fn set_path(node: &mut toml::Value, parts: &[&str], value: f64) -> Result<(), St
                 return Err(format!("{} takes whole numbers within 9.2e18, not {value}", parts[0]));
             }
             Some(toml::Value::Integer(_)) => toml::Value::Integer(value.round() as i64),
+            None if new_integer => toml::Value::Integer(value as i64),
             Some(toml::Value::Float(_)) | None => toml::Value::Float(value),
             Some(other) => return Err(format!("{} is a {}, not a number", parts[0], other.type_str())),
         };
@@ -412,7 +422,7 @@ fn set_path(node: &mut toml::Value, parts: &[&str], value: f64) -> Result<(), St
         return Ok(());
     }
     let child = table.entry(parts[0].to_string()).or_insert_with(|| toml::Value::Table(Default::default()));
-    set_path(child, &parts[1..], value).map_err(|m| format!("{}.{m}", parts[0]))
+    set_path(child, &parts[1..], value, new_integer).map_err(|m| format!("{}.{m}", parts[0]))
 }
 
 /// Which slice of the jobs this process runs.
@@ -784,7 +794,15 @@ pub fn run_study_with(
     if count > 0 {
         return Err(StudyError::Append { file: runs_file, count, message });
     }
-    put_in_job_order(&runs_file)?;
+    // The append handle goes before its file is replaced. A failure here loses nothing:
+    // every run is on file, in the order the runs finished.
+    drop(file);
+    put_in_job_order(&runs_file).map_err(|e| StudyError::File {
+        file: runs_file.clone(),
+        message: format!(
+            "every run is recorded here, in the order the runs finished, but putting them in job order failed ({e}); run the same command again to finish"
+        ),
+    })?;
     let keys: BTreeSet<String> = mine.iter().map(|j| j.key()).collect();
     let mut all: Vec<RunRecord> = existing.into_iter().filter(|r| keys.contains(&r.key)).chain(new).collect();
     all.sort_by_key(|r| r.job.index);
@@ -1403,6 +1421,9 @@ mod tests {
         let s3 = apply_param(&s, "world.params.post_distance_m", 1.25).unwrap();
         assert_eq!(s3.world.params.unwrap().post_distance_m, [1.25, 1.25]);
         assert!(apply_param(&s, "sim.laser.rate_hz", -1.0).is_err());
+        // A whole-number setting the scenario leaves out takes a whole number.
+        assert_eq!(apply_param(&s, "pass.max_false_landmarks", 2.0).unwrap().pass.max_false_landmarks, Some(2));
+        assert!(apply_param(&s, "pass.max_false_landmarks", 2.5).is_err());
         let e = apply_param(&s, "foo.bar", 1.0).unwrap_err().to_string();
         assert_eq!(
             e,
@@ -1481,10 +1502,19 @@ mod tests {
         put_in_job_order(&f).unwrap();
         assert_eq!(std::fs::read_to_string(&f).unwrap(), [a.as_str(), b1.as_str(), b2.as_str(), c.as_str()].concat());
         assert!(!f.with_extension("tmp").exists());
-        // A file in order is left as it is.
-        let modified = std::fs::metadata(&f).unwrap().modified().unwrap();
-        put_in_job_order(&f).unwrap();
-        assert_eq!(std::fs::metadata(&f).unwrap().modified().unwrap(), modified);
+        // A file in order is left as it is: not replaced (a rewrite is a rename, which
+        // gives the path another inode).
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::MetadataExt;
+            let inode = std::fs::metadata(&f).unwrap().ino();
+            put_in_job_order(&f).unwrap();
+            assert_eq!(std::fs::metadata(&f).unwrap().ino(), inode, "a file in order was rewritten");
+            std::fs::write(&f, [c.as_str(), a.as_str()].concat()).unwrap();
+            let inode = std::fs::metadata(&f).unwrap().ino();
+            put_in_job_order(&f).unwrap();
+            assert_ne!(std::fs::metadata(&f).unwrap().ino(), inode, "the check above could not fail");
+        }
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

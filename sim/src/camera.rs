@@ -268,9 +268,11 @@ impl CameraSensor {
             far_m: 500.0,
         };
         let mut lighting = self.lighting;
-        // Drawn whatever the spread, so that the pixel noise after it is the same stream
-        // when a study varies the exposure's spread down to 0 (common random numbers).
+        // Both draws are taken whatever the spreads, so that the frames after this one get
+        // the same streams when a study varies either spread down to 0 (common random
+        // numbers).
         let z: f64 = self.rng.sample(StandardNormal);
+        let noise_seed: [u8; 32] = self.rng.random();
         if self.config.exposure_sigma > 0.0 {
             lighting.exposure *= ((1.0 + self.config.exposure_sigma * z) as f32).max(0.1);
         }
@@ -278,7 +280,7 @@ impl CameraSensor {
         self.renderer.render_regions_into(&camera, &lighting, regions, &mut image)?;
         if self.config.noise_sigma > 0.0 {
             let n = Normal::new(0.0, self.config.noise_sigma).expect("finite sigma");
-            add_pixel_noise(&mut image, &n, ChaCha8Rng::from_seed(self.rng.random()));
+            add_pixel_noise(&mut image, &n, ChaCha8Rng::from_seed(noise_seed));
         }
         Ok(CameraFrame { t, intrinsics: k, world_from_camera, image })
     }

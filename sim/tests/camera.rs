@@ -384,15 +384,15 @@ fn an_objects_mesh_file_is_what_the_camera_renders_and_its_shape_what_the_laser_
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// The exposure's draw is taken whatever its spread, so a spread of 0 leaves the pixel
-/// noise after it the same (common random numbers across a study's values): a spread too
-/// small to change the exposure's f32 gives the same images as none.
+/// The exposure's and the pixel noise's draws are taken whatever their spreads, so a
+/// spread of 0 leaves the other's stream the same (common random numbers across a study's
+/// values): a spread too small to change an image gives the same images as none.
 #[test]
-fn an_exposure_spread_of_zero_leaves_the_pixel_noise_alone() {
+fn a_camera_spread_of_zero_leaves_the_other_noise_alone() {
     let world = worlds::generate::park(&Default::default(), 2006).unwrap();
-    let images = |exposure_sigma: f64| {
+    let images = |exposure_sigma: f64, noise_sigma: f64| {
         let mut config = SimConfig { max_duration_s: Some(0.6), ..Default::default() };
-        config.camera.noise_sigma = 2.0;
+        config.camera.noise_sigma = noise_sigma;
         config.camera.exposure_sigma = exposure_sigma;
         let mut s = Simulation::new(&world, &config, 5).unwrap();
         let mut out = Vec::new();
@@ -403,7 +403,9 @@ fn an_exposure_spread_of_zero_leaves_the_pixel_noise_alone() {
         }
         out
     };
-    let none = images(0.0);
-    assert!(none.len() >= 2);
-    assert!(images(1e-12) == none, "the pixel noise moved with the exposure's spread");
+    let no_exposure = images(0.0, 2.0);
+    assert!(no_exposure.len() >= 2);
+    assert!(images(1e-12, 2.0) == no_exposure, "the pixel noise moved with the exposure's spread");
+    let no_noise = images(0.2, 0.0);
+    assert!(images(0.2, 1e-12) == no_noise, "the exposures moved with the pixel noise's spread");
 }
