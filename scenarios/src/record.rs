@@ -313,11 +313,12 @@ pub fn record(
     }
 }
 
-/// Files of a robot log that not every recording writes, removed from `out` when a
-/// recording's own are moved in, so that what `out` holds afterwards is never an earlier
-/// log's data mixed with the new one's (a JSON-lines log's images share `camera/` with a
-/// robot log's, so it clears them too).
-fn robot_log_files() -> [&'static str; 11] {
+/// Files of either kind of log, those of a robot log and those of a JSON-lines log, that
+/// not every recording writes: removed from `out` when a recording's own are moved in, so
+/// that what `out` holds afterwards is never an earlier log's data mixed with the new
+/// one's. The two kinds share names (`camera/`, `world.toml`), so a recording of one kind
+/// clears the other's files too: a directory holds one recording.
+fn recording_files() -> [&'static str; 21] {
     use robotlog::format as f;
     [
         f::MANIFEST,
@@ -331,6 +332,16 @@ fn robot_log_files() -> [&'static str; 11] {
         crate::replay::APPEARANCE_MODEL_FILE,
         RECORDING_FILE,
         "world.toml",
+        "sensors.json",
+        "laser.jsonl",
+        "laser_truth.jsonl",
+        "observations.jsonl",
+        "odometry.jsonl",
+        "ground_truth.tum",
+        "run.mcap",
+        "camera.jsonl",
+        "collisions.jsonl",
+        "metadata.json",
     ]
 }
 
@@ -353,7 +364,7 @@ fn staged(
             return Err(e);
         }
     };
-    staging::publish(&staging::unfinished_dir(out), out, &robot_log_files()).map_err(RecordError::Publish)?;
+    staging::publish(&staging::unfinished_dir(out), out, &recording_files()).map_err(RecordError::Publish)?;
     Ok(summary)
 }
 

@@ -336,3 +336,31 @@ fn a_camera_without_depth_records_frames_without_a_depth_image() {
     assert_eq!(depth_pngs, 0);
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A directory holds one recording: a robot log recorded over a JSON-lines log (they share
+/// `world.toml` and `camera/`) leaves none of the other's files, and the other way round.
+#[test]
+fn a_recording_over_another_kind_of_log_leaves_none_of_its_files() {
+    use scenarios::record::{RecordFormat, record};
+    let dir = std::env::temp_dir().join(format!("objslam-record-kinds-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let world = worlds::generate::park(&Default::default(), 2).unwrap();
+    let config = sim::SimConfig { max_duration_s: Some(1.0), ..Default::default() };
+    let scoring = scenarios::score::log::LogScoring::of_world();
+    let names = || {
+        let mut n: Vec<String> =
+            std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+        n.sort();
+        n
+    };
+    record(&world, &config, 4, &scoring, &dir, RecordFormat::Jsonl, |_, _| {}).unwrap();
+    let jsonl = names();
+    assert!(jsonl.contains(&"laser.jsonl".to_string()) && jsonl.contains(&"metadata.json".to_string()), "{jsonl:?}");
+    record(&world, &config, 4, &scoring, &dir, RecordFormat::Log, |_, _| {}).unwrap();
+    let log = names();
+    assert!(log.contains(&"manifest.toml".to_string()), "{log:?}");
+    assert!(!log.iter().any(|n| n.ends_with(".jsonl") || n == "metadata.json" || n == "run.mcap"), "{log:?}");
+    record(&world, &config, 4, &scoring, &dir, RecordFormat::Jsonl, |_, _| {}).unwrap();
+    assert_eq!(names(), jsonl, "the robot log's files are gone again");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
