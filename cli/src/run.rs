@@ -43,17 +43,14 @@ pub(crate) fn run_scenario(
     Ok(())
 }
 
-/// Refuses a `LOG` that is not a robot log's directory, saying what it is where that is
-/// another output of objslam (a file, a JSON-lines log, a ROS 2 bag), rather than naming a
-/// `manifest.toml` that was never there.
+/// Refuses a `LOG` directory that holds another output of objslam (a JSON-lines log, a
+/// ROS 2 bag), saying what it is, rather than naming a `manifest.toml` that was never
+/// there. (A file or a missing directory is the log reader's to refuse.)
 fn check_robot_log_dir(dir: &std::path::Path) -> Result<()> {
-    let problem = if !dir.exists() {
-        "no such directory"
-    } else if !dir.is_dir() {
-        "not a directory: a robot log is a directory holding manifest.toml (docs/reference/robot-log.md)"
-    } else if dir.join(robotlog::format::MANIFEST).exists() {
+    if !dir.is_dir() || dir.join(robotlog::format::MANIFEST).exists() {
         return Ok(());
-    } else if dir.join("metadata.json").exists() {
+    }
+    let problem = if dir.join("metadata.json").exists() {
         "a JSON-lines log of `objslam record` or a run's directory, which `objslam score --log` reads; \
          `objslam record --format log` writes a robot log for `objslam replay`"
     } else if dir.join("metadata.yaml").exists() {

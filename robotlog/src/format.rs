@@ -89,7 +89,18 @@ enum ObservationRows {
     Detections(DetectionRows),
 }
 
+/// Refuses a `dir` that is no directory, saying which: a log (or a data set as published)
+/// is a directory of files, and a file named inside it would hide what is wrong.
+pub(crate) fn check_dir(dir: &Path, what: &str) -> Result<(), LogError> {
+    if dir.is_dir() {
+        return Ok(());
+    }
+    let problem = if dir.exists() { "not a directory" } else { "no such directory" };
+    Err(LogError::File { file: dir.to_path_buf(), problem: format!("{problem}: {what}") })
+}
+
 fn open_parts(dir: &Path) -> Result<OpenLog, LogError> {
+    check_dir(dir, "a robot log is a directory holding manifest.toml (docs/reference/robot-log.md)")?;
     let manifest = read_manifest(&dir.join(MANIFEST))?;
     let motion = open_motion(&dir.join(ODOMETRY), &manifest)?;
     let (scans, detections) = (dir.join(SCANS), dir.join(DETECTIONS));

@@ -41,13 +41,7 @@ pub const LASER_Y_M: f64 = 0.5;
 
 /// Reads the data set in `dir` (either form, see the module documentation).
 pub fn read(dir: &Path) -> Result<Log, LogError> {
-    if !dir.is_dir() {
-        let problem = if dir.exists() { "not a directory" } else { "no such directory" };
-        return Err(LogError::File {
-            file: dir.to_path_buf(),
-            problem: format!("{problem}: give the directory that holds the data set's files"),
-        });
-    }
+    crate::format::check_dir(dir, "give the directory that holds the data set's files")?;
     let (motion, observations) = if dir.join(DETECTIONS_FILE).exists() {
         read_detections_form(&dir.join(DETECTIONS_FILE))?
     } else if dir.join(DEAD_RECKONING_FILE).exists() && dir.join(LASER_FILE).exists() {

@@ -402,7 +402,8 @@ fn missing_or_doubled_observation_files_are_errors() {
     std::fs::remove_file(d.join("detections.csv")).unwrap();
     std::fs::remove_file(d.join("scans.csv")).unwrap();
     assert!(matches!(robotlog::format::read(&d), Err(LogError::Missing { .. })));
-    assert!(matches!(robotlog::format::read(Path::new("/nonexistent/log")), Err(LogError::Io { .. })));
+    assert!(matches!(robotlog::format::read(Path::new("/nonexistent/log")),
+        Err(LogError::File { problem, .. }) if problem.starts_with("no such directory")));
     std::fs::remove_dir_all(&d).ok();
 }
 
@@ -558,4 +559,25 @@ fn victoria_park_originals_are_read_as_controls_and_raw_scans() {
     assert!(scans[1].valid(179));
     assert!(log.reference.is_empty() && log.manifest.reference.is_none());
     std::fs::remove_dir_all(&d).ok();
+}
+
+/// A log given as a file, or as a directory that is not there, is refused as such (not as a
+/// `manifest.toml` missing inside it), by the robot-log reader and the Victoria Park one.
+#[test]
+fn a_log_that_is_no_directory_is_refused_as_such() {
+    let root = dir("not-a-dir");
+    std::fs::create_dir_all(&root).unwrap();
+    let file = root.join("log.csv");
+    std::fs::write(&file, "t\n").unwrap();
+    let nowhere = root.join("nowhere");
+    for (path, expect) in
+        [(&file, "log.csv: not a directory: a robot log is a directory"), (&nowhere, "nowhere: no such directory")]
+    {
+        let e = robotlog::format::open(path).err().expect("refused").to_string();
+        assert!(e.contains(expect), "{e}");
+        assert!(robotlog::format::read(path).unwrap_err().to_string().contains(expect));
+    }
+    let e = robotlog::victoria_park::read(&file).unwrap_err().to_string();
+    assert!(e.contains("log.csv: not a directory: give the directory that holds the data set's files"), "{e}");
+    std::fs::remove_dir_all(&root).unwrap();
 }
