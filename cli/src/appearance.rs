@@ -159,13 +159,11 @@ pub(crate) fn gmm_fit(data: &std::path::Path, options: &slam::gmm::VbOptions, ou
     crate::paths::not_an_input("--out", out, &[("data", data)])?;
     crate::paths::writable_file("--out", out)?;
     let started = std::time::Instant::now();
-    let model = scenarios::train::gmm_fit_csv(data, options)?;
+    let (model, digest) = scenarios::train::gmm_fit_csv(data, options)?;
     let secs = started.elapsed().as_secs_f64();
     // The mixture, and how it was fitted (`gmm score` reads the mixture and passes over
     // `fit`): the same data and `fit.options` fit the same model again.
     let mut file = serde_json::to_value(&model)?;
-    let bytes = std::fs::read(data).with_context(|| format!("reading {}", data.display()))?;
-    let digest: String = <sha2::Sha256 as sha2::Digest>::digest(&bytes).iter().map(|b| format!("{b:02x}")).collect();
     file["fit"] = serde_json::json!({
         "tool": "objslam gmm fit",
         "version": env!("CARGO_PKG_VERSION"),

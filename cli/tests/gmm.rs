@@ -59,7 +59,7 @@ fn both_searches_fit_the_same_mixture_and_score_it_on_held_out_points() {
             .map(|b| format!("{b:02x}"))
             .collect();
         assert_eq!(file["fit"]["data_sha256"], digest.as_str());
-        assert_eq!(scenarios::train::gmm_fit_csv(&train, &options).unwrap(), fitted, "{search}");
+        assert_eq!(scenarios::train::gmm_fit_csv(&train, &options).unwrap(), (fitted.clone(), digest), "{search}");
         let score = objslam(&["gmm", "score", path(&model), path(&heldout)]);
         assert!(score.status.success(), "{search}: {}", String::from_utf8_lossy(&score.stderr));
         let printed = score_of(&score.stdout);

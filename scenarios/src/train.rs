@@ -306,7 +306,21 @@ pub fn segment_image(model: &AppearanceModel, image_path: &Path, out: &Path) -> 
 
 /// Reads a numeric CSV (an optional header row of non-numbers; blank lines skipped).
 pub fn read_csv(path: &Path) -> Result<DMatrix<f64>, TrainError> {
-    let text = std::fs::read_to_string(path).map_err(|e| file_err(path, e))?;
+    Ok(read_csv_with_digest(path)?.0)
+}
+
+/// [`read_csv`], with the SHA-256 (hex) of the bytes it parsed: read once, so the digest a
+/// fitted model records is that of the data it was fitted to, even if the file changes.
+pub fn read_csv_with_digest(path: &Path) -> Result<(DMatrix<f64>, String), TrainError> {
+    use sha2::{Digest, Sha256};
+    let bytes = std::fs::read(path).map_err(|e| file_err(path, e))?;
+    let digest = Sha256::digest(&bytes).iter().map(|b| format!("{b:02x}")).collect();
+    let text = String::from_utf8(bytes).map_err(|e| file_err(path, format!("not UTF-8 text ({e})")))?;
+    Ok((parse_csv(path, &text)?, digest))
+}
+
+/// Parses `text`, the contents of the numeric CSV `path` (named in errors).
+fn parse_csv(path: &Path, text: &str) -> Result<DMatrix<f64>, TrainError> {
     let mut values = Vec::new();
     let mut cols = None;
     let mut rows = 0;
@@ -354,14 +368,16 @@ pub fn read_csv(path: &Path) -> Result<DMatrix<f64>, TrainError> {
     Ok(DMatrix::from_row_slice(rows, cols, &values))
 }
 
-/// Fits a VB-GMM to a CSV file.
-pub fn gmm_fit_csv(path: &Path, options: &VbOptions) -> Result<VbGmm, TrainError> {
-    let data = read_csv(path)?;
-    gmm::fit(&data, None, options).map_err(|e| match e {
+/// Fits a VB-GMM to a CSV file; returns it with the SHA-256 (hex) of the bytes it was
+/// fitted to.
+pub fn gmm_fit_csv(path: &Path, options: &VbOptions) -> Result<(VbGmm, String), TrainError> {
+    let (data, digest) = read_csv_with_digest(path)?;
+    let model = gmm::fit(&data, None, options).map_err(|e| match e {
         // A problem of the data is the file's.
         gmm::GmmError::TooLarge { .. } | gmm::GmmError::NotFinite { .. } => file_err(path, e),
         e => e.into(),
-    })
+    })?;
+    Ok((model, digest))
 }
 
 /// Reads a model written by `objslam gmm fit` and a CSV of held-out points; returns the mean
