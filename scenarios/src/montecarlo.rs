@@ -442,10 +442,19 @@ impl Shard {
         let (k, n) = spec.split_once('/').ok_or_else(|| bad("missing '/'"))?;
         let index: usize = k.trim().parse().map_err(|_| bad("K is not a whole number"))?;
         let count: usize = n.trim().parse().map_err(|_| bad("N is not a whole number"))?;
-        if count == 0 || index >= count {
-            return Err(bad("needs 0 <= K < N"));
+        Shard::numbered(index, count).map_err(|m| bad(&m))
+    }
+
+    /// Shard `index` of `count`, or why there is none (the one bounds check of
+    /// [`Shard::parse`] and [`Shard::from_env`]).
+    fn numbered(index: usize, count: usize) -> Result<Shard, String> {
+        match count {
+            0 => Err("no shards to run (a count of 0)".into()),
+            _ if index >= count => {
+                Err(format!("makes shard {index} of {count}, and shards are numbered 0 to {}", count - 1))
+            }
+            _ => Ok(Shard { index, count }),
         }
-        Ok(Shard { index, count })
     }
 
     /// The shard from a batch scheduler's environment: Slurm job arrays
@@ -463,15 +472,7 @@ impl Shard {
                 .transpose()
         };
         let shard = |index: usize, count: usize, spec: String| {
-            if index < count {
-                Ok(Some(Shard { index, count }))
-            } else {
-                let message = match count {
-                    0 => "no shards to run (a count of 0)".to_string(),
-                    _ => format!("makes shard {index} of {count}, and shards are numbered 0 to {}", count - 1),
-                };
-                Err(StudyError::ShardEnv { spec, message })
-            }
+            Shard::numbered(index, count).map(Some).map_err(|message| StudyError::ShardEnv { spec, message })
         };
         if let Some(id) = num("SLURM_ARRAY_TASK_ID")? {
             let bad = |message: String| StudyError::ShardEnv { spec: format!("SLURM_ARRAY_TASK_ID={id}"), message };
@@ -1384,7 +1385,12 @@ mod tests {
         );
         assert!(Shard::from_env(env(&[("JOB_COMPLETION_INDEX", "2")]), None).is_err());
         assert_eq!(Shard::from_env(env(&[]), None).unwrap(), None);
-        assert!(Shard::parse("3/3").is_err());
+        // Both forms say the same of a shard out of bounds.
+        let e = Shard::parse("3/3").unwrap_err().to_string();
+        assert!(e.contains("makes shard 3 of 3, and shards are numbered 0 to 2"), "{e}");
+        assert!(Shard::parse("0/0").unwrap_err().to_string().contains("a count of 0"));
+        let e = Shard::from_env(env(&[("JOB_COMPLETION_INDEX", "3")]), Some(3)).unwrap_err().to_string();
+        assert!(e.contains("makes shard 3 of 3, and shards are numbered 0 to 2"), "{e}");
         // A stepped array (--array=0-4:2: tasks 0, 2, 4) gives shards 0, 1, 2 of 3.
         const STEPPED: &[(&str, &str)] =
             &[("SLURM_ARRAY_TASK_ID", "4"), ("SLURM_ARRAY_TASK_STEP", "2"), ("SLURM_ARRAY_TASK_COUNT", "3")];
