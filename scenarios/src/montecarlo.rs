@@ -131,6 +131,19 @@ pub struct ScenarioPin {
     pub sha256: String,
 }
 
+impl ScenarioPin {
+    /// `None` where `now` (the scenario `named` reads today) is the one this pin was taken
+    /// of; else the words of what changed, for each caller to wrap with its own remedy.
+    pub(crate) fn changed_to(&self, named: &str, now: &ScenarioPin) -> Option<String> {
+        (self.sha256 != now.sha256).then(|| {
+            format!(
+                "the study began with scenario {}, and {named} now reads {}, whose files or settings differ",
+                self.file, now.file
+            )
+        })
+    }
+}
+
 /// `study.json`: the plan, and the scenario it was begun with (studies begun before the
 /// scenario was recorded have none).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -191,13 +204,10 @@ fn pinned_scenario(plan_file: &Path, study: &StudyFile) -> Result<(Scenario, Pat
     };
     let source = if pin.file.starts_with("<built-in>/") { study.plan.scenario.as_str() } else { pin.file.as_str() };
     let (now, scenario, base_dir) = pin_scenario(source)?;
-    if now.sha256 != pin.sha256 {
+    if let Some(changed) = pin.changed_to(source, &now) {
         return Err(StudyError::File {
             file: plan_file.into(),
-            message: format!(
-                "the study's scenario {} has changed since the study began (its files or settings differ), so its runs would not be the study's",
-                pin.file
-            ),
+            message: format!("{changed}, so its runs would not be the study's"),
         });
     }
     Ok((scenario, base_dir))
@@ -697,14 +707,8 @@ pub fn run_study_with(
                     message: format!("it was started as {}", serde_json::to_string(&existing.plan).unwrap_or_default()),
                 });
             }
-            if let Some(began) = existing.scenario_pin.filter(|began| began.sha256 != pin.sha256) {
-                return Err(StudyError::Mismatch {
-                    dir: out.into(),
-                    message: format!(
-                        "it began with scenario {}, and {} now reads {}, whose files or settings differ",
-                        began.file, plan.scenario, pin.file
-                    ),
-                });
+            if let Some(changed) = existing.scenario_pin.and_then(|began| began.changed_to(&plan.scenario, &pin)) {
+                return Err(StudyError::Mismatch { dir: out.into(), message: changed });
             }
         }
         Err(StudyError::Io { source, .. }) if source.kind() == std::io::ErrorKind::NotFound => {

@@ -33,11 +33,8 @@ pub fn serve_worker(input: impl BufRead, mut output: impl Write) -> Result<(), S
     let (pin, base, base_dir) = super::pin_scenario(&start.plan.scenario)?;
     // The scenario file edited while the study runs would give this worker's runs another
     // scenario than the study's.
-    if let Some(began) = start.scenario_pin.as_ref().filter(|began| began.sha256 != pin.sha256) {
-        return Err(protocol(format!(
-            "the study began with scenario {}, and {} now reads {}, whose files or settings differ: restore it, or start a new study",
-            began.file, start.plan.scenario, pin.file
-        )));
+    if let Some(changed) = start.scenario_pin.as_ref().and_then(|began| began.changed_to(&start.plan.scenario, &pin)) {
+        return Err(protocol(format!("{changed}: restore it, or start a new study")));
     }
     // The parent resolved every model first, so these load cached ones.
     let models = StudyModels::new(&base_dir);
@@ -246,15 +243,14 @@ pub(super) fn run_in_processes(
 /// Whether the scenario the study names still is the one it pinned when it began.
 fn check_pin(start: &StudyFile) -> Result<(), StudyError> {
     let (pin, _, _) = super::pin_scenario(&start.plan.scenario)?;
-    match &start.scenario_pin {
-        Some(began) if began.sha256 != pin.sha256 => Err(StudyError::File {
+    match start.scenario_pin.as_ref().and_then(|began| began.changed_to(&start.plan.scenario, &pin)) {
+        Some(changed) => Err(StudyError::File {
             file: std::path::PathBuf::from(&pin.file),
             message: format!(
-                "its files or settings changed since the study began with {} (a worker that had died was not restarted); the finished runs are kept: restore the scenario and run the same command again, or start a new study",
-                began.file
+                "{changed} (a worker that had died was not restarted); the finished runs are kept: restore the scenario and run the same command again, or start a new study"
             ),
         }),
-        _ => Ok(()),
+        None => Ok(()),
     }
 }
 
@@ -285,5 +281,10 @@ mod tests {
         // The pinned scenario itself: the worker starts and, given no job, ends.
         serve_worker(start(&pin.sha256).as_bytes(), &mut answers).unwrap();
         assert!(answers.is_empty());
+        // The parent's check before it replaces a worker that died says the same.
+        let study = |sha256: &str| serde_json::from_str::<StudyFile>(&start(sha256)).unwrap();
+        let e = check_pin(&study("0000")).unwrap_err().to_string();
+        assert!(e.contains("whose files or settings differ") && e.contains("finished runs are kept"), "{e}");
+        check_pin(&study(&pin.sha256)).unwrap();
     }
 }
