@@ -7,9 +7,8 @@
 use std::io::Write;
 use std::path::Path;
 
-use scenarios::train::{load_image, majority_class, read_manifest};
+use scenarios::train::{image_patches, read_manifest};
 use slam::classifier::AppearanceModel;
-use slam::features::ImageRef;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().collect();
@@ -19,22 +18,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let model = AppearanceModel::load(Path::new(model))?;
     let dir = Path::new(dataset);
     let manifest = read_manifest(dir)?;
-    let l = model.extractor.config.patch_size;
     let d = model.extractor.dims();
     let mut out = std::io::BufWriter::new(std::fs::File::create(out)?);
     let names: Vec<String> = (0..d).map(|k| format!("z{k}")).collect();
     writeln!(out, "image,col,row,{},fraction,class", names.join(","))?;
-    for i in 0..manifest.images.len() {
-        let img = load_image(dir, &manifest, i)?;
-        let class = image::open(dir.join(&manifest.images[i].class))?.to_luma8();
-        let image = ImageRef::new(img.width, img.height, &img.rgb)?;
-        let f = model.extractor.features(&image, None)?;
-        let (cols, _) = image.grid(l);
-        for k in 0..f.z.nrows() {
-            let (c, r) = f.rect.patch(k);
-            let id = majority_class(&class, c, r, l);
-            let z: Vec<String> = f.z.row(k).iter().map(|v| format!("{v}")).collect();
-            writeln!(out, "{i},{c},{r},{},{},{id}", z.join(","), img.fractions[(r * cols + c) as usize])?;
+    for patches in image_patches(dir, &manifest, &model.extractor, 0..manifest.images.len()) {
+        let p = patches?;
+        for (k, &(c, r)) in p.cells.iter().enumerate() {
+            let z: Vec<String> = p.features.z.row(k).iter().map(|v| format!("{v}")).collect();
+            writeln!(out, "{},{c},{r},{},{},{}", p.index, z.join(","), p.fractions[k], p.classes[k])?;
         }
     }
     Ok(())

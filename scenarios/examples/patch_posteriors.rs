@@ -6,9 +6,8 @@
 use std::io::Write;
 use std::path::Path;
 
-use scenarios::train::{load_image, majority_class, read_manifest};
+use scenarios::train::{image_patches, read_manifest};
 use slam::classifier::{AppearanceModel, PatchClassifier};
-use slam::features::ImageRef;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().collect();
@@ -19,20 +18,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let dir = Path::new(dataset);
     let manifest = read_manifest(dir)?;
     let classifier = PatchClassifier::new(&model)?;
-    let l = model.extractor.config.patch_size;
     let mut out = std::io::BufWriter::new(std::fs::File::create(out)?);
     writeln!(out, "image,col,row,posterior,foliage_p,fraction,class")?;
-    for i in 0..manifest.images.len() {
-        let img = load_image(dir, &manifest, i)?;
-        let class = image::open(dir.join(&manifest.images[i].class))?.to_luma8();
-        let image = ImageRef::new(img.width, img.height, &img.rgb)?;
-        let f = model.extractor.features(&image, None)?;
-        let (cols, _) = image.grid(l);
-        for (k, p) in classifier.posteriors(&f).iter().enumerate() {
-            let (c, r) = f.rect.patch(k);
-            let id = majority_class(&class, c, r, l);
-            let foliage = classifier.foliage_probability(f.z.row(k).transpose().as_slice()).unwrap_or(0.0);
-            writeln!(out, "{i},{c},{r},{p},{foliage},{},{id}", img.fractions[(r * cols + c) as usize])?;
+    for patches in image_patches(dir, &manifest, &model.extractor, 0..manifest.images.len()) {
+        let p = patches?;
+        for (k, posterior) in classifier.posteriors(&p.features).iter().enumerate() {
+            let (c, r) = p.cells[k];
+            let foliage = classifier.foliage_probability(p.features.z.row(k).transpose().as_slice()).unwrap_or(0.0);
+            writeln!(out, "{},{c},{r},{posterior},{foliage},{},{}", p.index, p.fractions[k], p.classes[k])?;
         }
     }
     Ok(())

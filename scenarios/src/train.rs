@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use nalgebra::DMatrix;
 use slam::classifier::{self, AppearanceModel, LabelledImage, ModelError, PatchClassifier, TrainingOptions};
-use slam::features::{ImageRef, feature_names};
+use slam::features::{FeatureExtractor, ImageRef, PatchFeatures, feature_names};
 use slam::gmm::{self, VbGmm, VbOptions};
 
 use crate::dataset::{Manifest, PatchLabels};
@@ -42,6 +42,15 @@ pub fn read_manifest(dir: &Path) -> Result<Manifest, TrainError> {
 
 /// Loads image `i` of a dataset with its patch labels.
 pub fn load_image(dir: &Path, manifest: &Manifest, i: usize) -> Result<LabelledImage, TrainError> {
+    Ok(load_image_and_class(dir, manifest, i)?.0)
+}
+
+/// [`load_image`], with the image's class mask.
+fn load_image_and_class(
+    dir: &Path,
+    manifest: &Manifest,
+    i: usize,
+) -> Result<(LabelledImage, image::GrayImage), TrainError> {
     let entry = &manifest.images[i];
     let img_path = dir.join(&entry.image);
     let rgb = image::open(&img_path).map_err(|e| file_err(&img_path, e))?.to_rgb8();
@@ -80,7 +89,43 @@ pub fn load_image(dir: &Path, manifest: &Manifest, i: usize) -> Result<LabelledI
     let distractor_ids: Vec<u8> =
         DISTRACTORS.iter().filter(|c| !manifest.classes.contains(c)).map(|c| c.id()).collect();
     let distractors = crate::dataset::patch_labels(class.as_raw(), w, h, labels.patch_size, &distractor_ids).fractions;
-    Ok(LabelledImage { width: w, height: h, rgb: rgb.into_raw(), fractions: labels.fractions, foliage, distractors })
+    let image =
+        LabelledImage { width: w, height: h, rgb: rgb.into_raw(), fractions: labels.fractions, foliage, distractors };
+    Ok((image, class))
+}
+
+/// A dataset image's patches under a model's feature extractor, with what each patch is:
+/// the rows that exports of patch features and posteriors write.
+pub struct ImagePatches {
+    /// The image's place in the manifest.
+    pub index: usize,
+    pub features: PatchFeatures,
+    /// Per feature row: the patch's (column, row) in the image's grid.
+    pub cells: Vec<(u32, u32)>,
+    /// Per feature row: the patch's object label fraction.
+    pub fractions: Vec<f32>,
+    /// Per feature row: the class id most of the patch's pixels have ([`majority_class`]).
+    pub classes: Vec<u8>,
+}
+
+/// Images `ids` of the dataset in `dir` (its `manifest`), in that order, as [`ImagePatches`].
+pub fn image_patches<'a>(
+    dir: &'a Path,
+    manifest: &'a Manifest,
+    extractor: &'a FeatureExtractor,
+    ids: impl IntoIterator<Item = usize> + 'a,
+) -> impl Iterator<Item = Result<ImagePatches, TrainError>> + 'a {
+    ids.into_iter().map(move |index| {
+        let (img, class) = load_image_and_class(dir, manifest, index)?;
+        let image = ImageRef::new(img.width, img.height, &img.rgb).map_err(ModelError::from)?;
+        let features = extractor.features(&image, None).map_err(ModelError::from)?;
+        let l = extractor.config.patch_size;
+        let (cols, _) = image.grid(l);
+        let cells: Vec<(u32, u32)> = (0..features.z.nrows()).map(|k| features.rect.patch(k)).collect();
+        let fractions = cells.iter().map(|&(c, r)| img.fractions[(r * cols + c) as usize]).collect();
+        let classes = cells.iter().map(|&(c, r)| majority_class(&class, c, r, l)).collect();
+        Ok(ImagePatches { index, features, cells, fractions, classes })
+    })
 }
 
 fn model_error(e: TrainError) -> ModelError {
@@ -193,27 +238,13 @@ fn score_images(
     label_fraction: f64,
 ) -> Result<(classifier::PatchScores, ClassTable), TrainError> {
     let classifier = PatchClassifier::new(model).map_err(ModelError::from)?;
-    let l = model.extractor.config.patch_size;
     let mut scores = classifier::PatchScores::default();
     let mut out = ClassTable::default();
-    for &i in ids {
-        let img = load_image(dir, manifest, i)?;
-        let class_path = dir.join(&manifest.images[i].class);
-        let class = image::open(&class_path).map_err(|e| file_err(&class_path, e))?.to_luma8();
-        if class.dimensions() != (img.width, img.height) {
-            let (cw, ch) = class.dimensions();
-            return Err(file_err(
-                &class_path,
-                format!("the class mask is {cw}x{ch}, its image {}x{}", img.width, img.height),
-            ));
-        }
-        let image = ImageRef::new(img.width, img.height, &img.rgb).map_err(ModelError::from)?;
-        let f = model.extractor.features(&image, None).map_err(ModelError::from)?;
-        let (cols, _) = image.grid(l);
-        for (k, predicted) in classifier.classify(&f).into_iter().enumerate() {
-            let (c, r) = f.rect.patch(k);
-            scores.add(predicted, img.fractions[(r * cols + c) as usize] as f64 >= label_fraction);
-            let id = majority_class(&class, c, r, l);
+    for patches in image_patches(dir, manifest, &model.extractor, ids.iter().copied()) {
+        let p = patches?;
+        for (k, predicted) in classifier.classify(&p.features).into_iter().enumerate() {
+            scores.add(predicted, p.fractions[k] as f64 >= label_fraction);
+            let id = p.classes[k];
             let name = worlds::ObjectClass::from_id(id).map_or_else(
                 || if id == 0 { "sky".to_string() } else { format!("class {id}") },
                 |c| c.name().to_string(),
@@ -251,19 +282,13 @@ pub fn export_features(
     let names = feature_names(model.extractor.pca.dims());
     let io = |e: std::io::Error| file_err(out, e);
     writeln!(w, "image,col,row,{},fraction,label", names.join(",")).map_err(io)?;
-    let l = model.extractor.config.patch_size;
     let mut rows = 0;
-    for i in 0..manifest.images.len() {
-        let img = load_image(dir, &manifest, i)?;
-        let image = ImageRef::new(img.width, img.height, &img.rgb).map_err(ModelError::from)?;
-        let f = model.extractor.features(&image, None).map_err(ModelError::from)?;
-        let (cols, _) = image.grid(l);
-        for k in 0..f.z.nrows() {
-            let (c, r) = f.rect.patch(k);
-            let frac = img.fractions[(r * cols + c) as usize];
-            let values: Vec<String> = f.z.row(k).iter().map(|v| format!("{v}")).collect();
-            writeln!(w, "{i},{c},{r},{},{frac},{}", values.join(","), (frac as f64 >= label_fraction) as u8)
-                .map_err(io)?;
+    for patches in image_patches(dir, &manifest, &model.extractor, 0..manifest.images.len()) {
+        let p = patches?;
+        for (k, (&(c, r), &frac)) in p.cells.iter().zip(&p.fractions).enumerate() {
+            let values: Vec<String> = p.features.z.row(k).iter().map(|v| format!("{v}")).collect();
+            let label = (frac as f64 >= label_fraction) as u8;
+            writeln!(w, "{},{c},{r},{},{frac},{label}", p.index, values.join(",")).map_err(io)?;
             rows += 1;
         }
     }

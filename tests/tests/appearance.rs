@@ -43,6 +43,28 @@ fn tree_patches_are_found_on_held_out_rendered_images() {
     // object); the guard only says the model still finds trees in a world it never saw.
     assert!(w.f1 >= 0.5, "another world's F1 {:.3} (precision {:.3}, recall {:.3})", w.f1, w.precision, w.recall);
 
+    // The patches the exports write: image by image, the labels of load_image and the
+    // class mask's majority at each patch's cell, in the feature rows' order.
+    let manifest = scenarios::train::read_manifest(&other).unwrap();
+    let exported = other.join("features.csv");
+    let rows = scenarios::train::export_features(&other, &model, options.label_fraction, &exported).unwrap();
+    let patches: Vec<_> =
+        scenarios::train::image_patches(&other, &manifest, &model.extractor, [4, 1]).map(Result::unwrap).collect();
+    assert_eq!(patches.iter().map(|p| p.index).collect::<Vec<_>>(), [4, 1]);
+    let l = model.extractor.config.patch_size;
+    for p in &patches {
+        let img = scenarios::train::load_image(&other, &manifest, p.index).unwrap();
+        let class = image::open(other.join(&manifest.images[p.index].class)).unwrap().to_luma8();
+        let cols = img.width / l;
+        assert_eq!(p.cells.len(), p.features.z.nrows());
+        for (k, &(c, r)) in p.cells.iter().enumerate() {
+            assert_eq!(p.fractions[k], img.fractions[(r * cols + c) as usize]);
+            assert_eq!(p.classes[k], scenarios::train::majority_class(&class, c, r, l));
+        }
+    }
+    let lines = std::fs::read_to_string(&exported).unwrap().lines().count();
+    assert_eq!((rows, lines), (6 * patches[0].cells.len(), rows + 1), "one row a patch of each image, and a header");
+
     // The distractors (posts, palms, walls, people) fitted apart from the rest of the
     // background (`distractors`, off by default): without that, the other world's posts
     // are mostly called object.
