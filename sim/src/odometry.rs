@@ -173,18 +173,7 @@ mod tests {
             let (dx, dy, dth) = w[0].between(&w[1]);
             p = propagate_pose_covariance(&p, w[0].theta, (dx, dy), &increment_covariance(&config, dx, dy, dth));
         }
-        let mean: [f64; 3] = std::array::from_fn(|i| ends.iter().map(|e| e[i]).sum::<f64>() / runs as f64);
-        for i in 0..3 {
-            for j in 0..3 {
-                let sample = ends.iter().map(|e| (e[i] - mean[i]) * (e[j] - mean[j])).sum::<f64>() / (runs - 1) as f64;
-                let scale = (p[i][i] * p[j][j]).sqrt();
-                assert!(
-                    (sample - p[i][j]).abs() < 0.1 * scale,
-                    "({i}, {j}): sample {sample:.3e}, propagated {:.3e}",
-                    p[i][j]
-                );
-            }
-        }
+        assert_sample_covariance(&ends, &p, 0.1);
         assert!(p[0][0] > 0.0 && p[1][1] > 0.0 && p[2][2] > 0.0);
     }
 
@@ -205,15 +194,22 @@ mod tests {
             .collect();
         let (dx, dy, dth) = from.between(&to);
         let q = increment_covariance(&config, dx, dy, dth);
-        let mean: [f64; 3] = std::array::from_fn(|i| steps.iter().map(|e| e[i]).sum::<f64>() / runs as f64);
+        assert_sample_covariance(&steps, &q, 0.05);
+    }
+
+    /// Each entry of the sample covariance of `samples` is within `tolerance` of
+    /// sqrt(model_ii model_jj) of `model`'s.
+    fn assert_sample_covariance(samples: &[[f64; 3]], model: &[[f64; 3]; 3], tolerance: f64) {
+        let n = samples.len() as f64;
+        let mean: [f64; 3] = std::array::from_fn(|i| samples.iter().map(|e| e[i]).sum::<f64>() / n);
         for i in 0..3 {
             for j in 0..3 {
-                let sample = steps.iter().map(|e| (e[i] - mean[i]) * (e[j] - mean[j])).sum::<f64>() / (runs - 1) as f64;
-                let scale = (q[i][i] * q[j][j]).sqrt();
+                let sample = samples.iter().map(|e| (e[i] - mean[i]) * (e[j] - mean[j])).sum::<f64>() / (n - 1.0);
+                let scale = (model[i][i] * model[j][j]).sqrt();
                 assert!(
-                    (sample - q[i][j]).abs() < 0.05 * scale,
+                    (sample - model[i][j]).abs() < tolerance * scale,
                     "({i}, {j}): sample {sample:.3e}, model {:.3e}",
-                    q[i][j]
+                    model[i][j]
                 );
             }
         }
