@@ -161,17 +161,10 @@ pub(crate) fn gmm_fit(data: &std::path::Path, options: &slam::gmm::VbOptions, ou
     let started = std::time::Instant::now();
     let (model, digest) = scenarios::train::gmm_fit_csv(data, options)?;
     let secs = started.elapsed().as_secs_f64();
-    // The mixture, and how it was fitted (`gmm score` reads the mixture and passes over
-    // `fit`): the same data and `fit.options` fit the same model again.
+    // The mixture, and how it was fitted (`gmm score` scores the mixture and checks `fit`
+    // is whole): the same data and `fit.options` fit the same model again.
     let mut file = serde_json::to_value(&model)?;
-    file["fit"] = serde_json::json!({
-        "tool": "objslam gmm fit",
-        "version": env!("CARGO_PKG_VERSION"),
-        "data": data.display().to_string(),
-        "data_absolute": std::fs::canonicalize(data).map(|p| p.display().to_string()).ok(),
-        "data_sha256": digest,
-        "options": options,
-    });
+    file["fit"] = serde_json::to_value(scenarios::train::GmmFitRecord::new(data, digest, options))?;
     std::fs::write(out, serde_json::to_string_pretty(&file)?).with_context(|| format!("writing {}", out.display()))?;
     println!("{} points x {} dimensions, fitted in {secs:.2} s", model.points, model.dims());
     println!(

@@ -86,6 +86,20 @@ fn both_searches_fit_the_same_mixture_and_score_it_on_held_out_points() {
     let out = objslam(&["gmm", "score", path(&broken), path(&heldout)]);
     let e = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && e.contains("broken.json") && e.contains("nu"), "{e}");
+    // A damaged record of how the model was fitted is refused too, not passed over.
+    for (key, bad, named) in [
+        ("data_sha256", serde_json::json!(12345), "fit.data_sha256"),
+        ("data_sha256", serde_json::json!("abc"), "fit.data_sha256"),
+        ("options", serde_json::json!({"max_components": "x"}), "fit.options.max_components"),
+        ("surprise", serde_json::json!(1), "surprise"),
+    ] {
+        let mut json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&model).unwrap()).unwrap();
+        json["fit"][key] = bad;
+        std::fs::write(&broken, json.to_string()).unwrap();
+        let out = objslam(&["gmm", "score", path(&broken), path(&heldout)]);
+        let e = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && e.contains("broken.json") && e.contains(named), "{key}: {e}");
+    }
     std::fs::write(&broken, "{\"not\": \"a model\"}").unwrap();
     let out = objslam(&["gmm", "score", path(&broken), path(&heldout)]);
     let e = String::from_utf8_lossy(&out.stderr);

@@ -405,6 +405,54 @@ pub fn gmm_fit_csv(path: &Path, options: &VbOptions) -> Result<(VbGmm, String), 
     Ok((model, digest))
 }
 
+/// How `objslam gmm fit` fitted a model, kept in the model file under `fit`: the same data
+/// and options fit the same model again. Read back only to check it, so that a damaged
+/// record is not passed over as if it said how the model was made.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GmmFitRecord {
+    /// "objslam gmm fit".
+    pub tool: String,
+    /// The objslam version that fitted it.
+    pub version: String,
+    /// The data file as given on the command line.
+    pub data: String,
+    /// The data file's absolute path (null where it could not be resolved).
+    pub data_absolute: Option<String>,
+    /// SHA-256 (hex) of the bytes fitted.
+    pub data_sha256: String,
+    pub options: VbOptions,
+}
+
+impl GmmFitRecord {
+    pub fn new(data: &Path, data_sha256: String, options: &VbOptions) -> GmmFitRecord {
+        GmmFitRecord {
+            tool: "objslam gmm fit".into(),
+            version: env!("CARGO_PKG_VERSION").into(),
+            data: data.display().to_string(),
+            data_absolute: std::fs::canonicalize(data).ok().map(|p| p.display().to_string()),
+            data_sha256,
+            options: options.clone(),
+        }
+    }
+
+    /// Reads the `fit` record of a model file's text, if it has one.
+    fn of_model(text: &str) -> Result<Option<GmmFitRecord>, String> {
+        #[derive(serde::Deserialize)]
+        struct FitOnly {
+            #[serde(default)]
+            fit: Option<GmmFitRecord>,
+        }
+        let fit = slam::settings::from_json::<FitOnly>(text)?.fit;
+        if let Some(f) = &fit
+            && !(f.data_sha256.len() == 64 && f.data_sha256.bytes().all(|b| b.is_ascii_hexdigit()))
+        {
+            return Err(format!("fit.data_sha256: {:?} is not a SHA-256 (64 hex digits)", f.data_sha256));
+        }
+        Ok(fit)
+    }
+}
+
 /// Reads a model written by `objslam gmm fit` and a CSV of held-out points; returns the mean
 /// posterior predictive log-likelihood per point ([`VbGmm::mean_log_predictive`]) and the
 /// number of points.
@@ -413,6 +461,7 @@ pub fn gmm_score_csv(model: &Path, path: &Path) -> Result<(f64, usize), TrainErr
     let fitted: VbGmm =
         slam::settings::from_json(&text).map_err(|e| file_err(model, format!("not an objslam gmm fit model: {e}")))?;
     fitted.check().map_err(|e| file_err(model, e))?;
+    GmmFitRecord::of_model(&text).map_err(|e| file_err(model, e))?;
     let data = read_csv(path)?;
     if data.ncols() != fitted.dims() {
         return Err(file_err(
