@@ -100,6 +100,15 @@ fn both_searches_fit_the_same_mixture_and_score_it_on_held_out_points() {
         let e = String::from_utf8_lossy(&out.stderr);
         assert!(!out.status.success() && e.contains("broken.json") && e.contains(named), "{key}: {e}");
     }
+    // A record from before the digest was kept is whole.
+    let mut json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&model).unwrap()).unwrap();
+    let fit = json["fit"].as_object_mut().unwrap();
+    fit.remove("data_sha256");
+    fit.remove("data_absolute");
+    let older = dir.join("older.json");
+    std::fs::write(&older, json.to_string()).unwrap();
+    let out = objslam(&["gmm", "score", path(&older), path(&heldout)]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     std::fs::write(&broken, "{\"not\": \"a model\"}").unwrap();
     let out = objslam(&["gmm", "score", path(&broken), path(&heldout)]);
     let e = String::from_utf8_lossy(&out.stderr);

@@ -136,10 +136,17 @@ impl ScenarioPin {
     /// of; else the words of what changed, for each caller to wrap with its own remedy.
     pub(crate) fn changed_to(&self, named: &str, now: &ScenarioPin) -> Option<String> {
         (self.sha256 != now.sha256).then(|| {
-            format!(
-                "the study began with scenario {}, and {named} now reads {}, whose files or settings differ",
-                self.file, now.file
-            )
+            if now.file == self.file {
+                format!(
+                    "the study's scenario {} has changed since the study began (its files or settings differ)",
+                    self.file
+                )
+            } else {
+                format!(
+                    "the study began with scenario {}, and {named} now reads {}, whose files or settings differ",
+                    self.file, now.file
+                )
+            }
         })
     }
 }

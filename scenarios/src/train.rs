@@ -95,7 +95,7 @@ fn load_image_and_class(
 }
 
 /// A dataset image's patches under a model's feature extractor, with what each patch is:
-/// the rows that exports of patch features and posteriors write.
+/// what held-out scoring classifies and the exports of patch features and posteriors write.
 pub struct ImagePatches {
     /// The image's place in the manifest.
     pub index: usize,
@@ -120,7 +120,17 @@ pub fn image_patches<'a>(
         let image = ImageRef::new(img.width, img.height, &img.rgb).map_err(ModelError::from)?;
         let features = extractor.features(&image, None).map_err(ModelError::from)?;
         let l = extractor.config.patch_size;
-        let (cols, _) = image.grid(l);
+        let (cols, rows) = image.grid(l);
+        if img.fractions.len() != (cols * rows) as usize {
+            let labels = dir.join(&manifest.images[index].patches);
+            return Err(file_err(
+                &labels,
+                format!(
+                    "its patches are not the model's {l} px patches ({} labels for a {cols}x{rows} grid)",
+                    img.fractions.len()
+                ),
+            ));
+        }
         let cells: Vec<(u32, u32)> = (0..features.z.nrows()).map(|k| features.rect.patch(k)).collect();
         let fractions = cells.iter().map(|&(c, r)| img.fractions[(r * cols + c) as usize]).collect();
         let classes = cells.iter().map(|&(c, r)| majority_class(&class, c, r, l)).collect();
@@ -340,7 +350,11 @@ pub fn read_csv_with_digest(path: &Path) -> Result<(DMatrix<f64>, String), Train
     use sha2::{Digest, Sha256};
     let bytes = std::fs::read(path).map_err(|e| file_err(path, e))?;
     let digest = Sha256::digest(&bytes).iter().map(|b| format!("{b:02x}")).collect();
-    let text = String::from_utf8(bytes).map_err(|e| file_err(path, format!("not UTF-8 text ({e})")))?;
+    let text = String::from_utf8(bytes).map_err(|e| {
+        let valid = &e.as_bytes()[..e.utf8_error().valid_up_to()];
+        let line = valid.iter().filter(|&&b| b == b'\n').count() + 1;
+        TrainError::Csv { file: path.into(), line, message: "not UTF-8 text".into() }
+    })?;
     Ok((parse_csv(path, &text)?, digest))
 }
 
@@ -417,15 +431,20 @@ pub struct GmmFitRecord {
     pub version: String,
     /// The data file as given on the command line.
     pub data: String,
-    /// The data file's absolute path (null where it could not be resolved).
+    /// The data file's absolute path (null where it could not be resolved; absent from
+    /// files of versions before it was recorded).
+    #[serde(default)]
     pub data_absolute: Option<String>,
-    /// SHA-256 (hex) of the bytes fitted.
-    pub data_sha256: String,
+    /// SHA-256 (hex) of the bytes fitted (absent from files of versions before it was
+    /// recorded).
+    #[serde(default)]
+    pub data_sha256: Option<String>,
     pub options: VbOptions,
 }
 
 impl GmmFitRecord {
     pub fn new(data: &Path, data_sha256: String, options: &VbOptions) -> GmmFitRecord {
+        let data_sha256 = Some(data_sha256);
         GmmFitRecord {
             tool: "objslam gmm fit".into(),
             version: env!("CARGO_PKG_VERSION").into(),
@@ -444,10 +463,10 @@ impl GmmFitRecord {
             fit: Option<GmmFitRecord>,
         }
         let fit = slam::settings::from_json::<FitOnly>(text)?.fit;
-        if let Some(f) = &fit
-            && !(f.data_sha256.len() == 64 && f.data_sha256.bytes().all(|b| b.is_ascii_hexdigit()))
+        if let Some(digest) = fit.as_ref().and_then(|f| f.data_sha256.as_ref())
+            && !(digest.len() == 64 && digest.bytes().all(|b| b.is_ascii_hexdigit()))
         {
-            return Err(format!("fit.data_sha256: {:?} is not a SHA-256 (64 hex digits)", f.data_sha256));
+            return Err(format!("fit.data_sha256: {digest:?} is not a SHA-256 (64 hex digits)"));
         }
         Ok(fit)
     }
@@ -470,4 +489,30 @@ pub fn gmm_score_csv(model: &Path, path: &Path) -> Result<(f64, usize), TrainErr
         ));
     }
     Ok((fitted.mean_log_predictive(&data)?, data.nrows()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A CSV's errors name its line: bytes that are not UTF-8 as well as fields that are
+    /// not numbers; a good file gives its values and the digest of its bytes.
+    #[test]
+    fn csv_errors_name_the_line() {
+        let dir = std::env::temp_dir().join(format!("objslam-train-csv-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let file = dir.join("points.csv");
+        std::fs::write(&file, b"x,y\n1,2\n3,\xff\n").unwrap();
+        let e = read_csv(&file).unwrap_err().to_string();
+        assert!(e.contains("points.csv: line 3: not UTF-8 text"), "{e}");
+        std::fs::write(&file, "x,y\n1,2\n3,four\n").unwrap();
+        let e = read_csv(&file).unwrap_err().to_string();
+        assert!(e.contains("points.csv: line 3: field 2"), "{e}");
+        std::fs::write(&file, "x,y\n1,2\n3,4\n").unwrap();
+        let (values, digest) = read_csv_with_digest(&file).unwrap();
+        assert_eq!(values, DMatrix::from_row_slice(2, 2, &[1.0, 2.0, 3.0, 4.0]));
+        // sha256sum of "x,y\n1,2\n3,4\n".
+        assert_eq!(digest, "2a2b86e74ffd5e6a9b75e52a105cf9d02920837179f8e8961aa15411d380f7a3");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 }

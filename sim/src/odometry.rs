@@ -197,8 +197,8 @@ mod tests {
         assert_sample_covariance(&steps, &q, 0.05);
     }
 
-    /// Each entry of the sample covariance of `samples` is within `tolerance` of
-    /// sqrt(model_ii model_jj) of `model`'s.
+    /// Each entry (i, j) of the sample covariance of `samples` is within
+    /// `tolerance` x sqrt(model_ii model_jj) of `model`'s.
     fn assert_sample_covariance(samples: &[[f64; 3]], model: &[[f64; 3]; 3], tolerance: f64) {
         let n = samples.len() as f64;
         let mean: [f64; 3] = std::array::from_fn(|i| samples.iter().map(|e| e[i]).sum::<f64>() / n);

@@ -58,12 +58,23 @@ fn tree_patches_are_found_on_held_out_rendered_images() {
         let cols = img.width / l;
         assert_eq!(p.cells.len(), p.features.z.nrows());
         for (k, &(c, r)) in p.cells.iter().enumerate() {
+            assert_eq!(p.features.index(c, r), Some(k), "cell ({c}, {r}) is feature row {k}'s");
             assert_eq!(p.fractions[k], img.fractions[(r * cols + c) as usize]);
             assert_eq!(p.classes[k], scenarios::train::majority_class(&class, c, r, l));
         }
     }
-    let lines = std::fs::read_to_string(&exported).unwrap().lines().count();
-    assert_eq!((rows, lines), (6 * patches[0].cells.len(), rows + 1), "one row a patch of each image, and a header");
+    let text = std::fs::read_to_string(&exported).unwrap();
+    let lines: Vec<&str> = text.lines().collect();
+    let per_image = patches[0].cells.len();
+    assert_eq!((rows, lines.len()), (6 * per_image, rows + 1), "one row a patch of each image, and a header");
+    // Image 1's rows: its cells and fractions, in the feature rows' order.
+    let p = &patches[1];
+    for (k, line) in lines[1 + per_image..1 + 2 * per_image].iter().enumerate() {
+        let fields: Vec<&str> = line.split(',').collect();
+        let (c, r) = p.cells[k];
+        assert_eq!(fields[..3], [p.index.to_string(), c.to_string(), r.to_string()], "row {k}");
+        assert_eq!(fields[fields.len() - 2].parse::<f32>().unwrap(), p.fractions[k], "row {k}");
+    }
 
     // The distractors (posts, palms, walls, people) fitted apart from the rest of the
     // background (`distractors`, off by default): without that, the other world's posts

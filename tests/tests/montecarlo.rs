@@ -153,7 +153,7 @@ fn sharded_merged_study_equals_the_unsharded_one_and_resumes() {
     let e = mc::run_study(&plan, Shard::all(), &root.join("whole"), |_| {}).unwrap_err().to_string();
     assert!(e.contains("different study") && e.contains("differ") && e.contains("laser_only_short.toml"), "{e}");
     let e = mc::rerun(&root.join("whole"), "1", &root.join("rerun4")).err().expect("a changed scenario").to_string();
-    assert!(e.contains("study.json") && e.contains("whose files or settings differ"), "{e}");
+    assert!(e.contains("study.json") && e.contains("has changed since the study began"), "{e}");
     assert!(!root.join("rerun4").exists(), "nothing was run");
     std::fs::write(&scenario_file, &original).unwrap();
 

@@ -277,14 +277,14 @@ mod tests {
         };
         let mut answers = Vec::new();
         let e = serve_worker(start("0000").as_bytes(), &mut answers).unwrap_err().to_string();
-        assert!(e.contains("whose files or settings differ"), "{e}");
+        assert!(e.contains("files or settings differ"), "{e}");
         // The pinned scenario itself: the worker starts and, given no job, ends.
         serve_worker(start(&pin.sha256).as_bytes(), &mut answers).unwrap();
         assert!(answers.is_empty());
         // The parent's check before it replaces a worker that died says the same.
         let study = |sha256: &str| serde_json::from_str::<StudyFile>(&start(sha256)).unwrap();
         let e = check_pin(&study("0000")).unwrap_err().to_string();
-        assert!(e.contains("whose files or settings differ") && e.contains("finished runs are kept"), "{e}");
+        assert!(e.contains("files or settings differ") && e.contains("finished runs are kept"), "{e}");
         check_pin(&study(&pin.sha256)).unwrap();
     }
 }
