@@ -401,6 +401,10 @@ pub(crate) enum MontecarloCommand {
         /// Where the run's outputs go.
         #[arg(long)]
         out: PathBuf,
+        /// Where the study's scenario file is now, if it was moved since the study began
+        /// (it must be the same scenario: its settings and files are checked).
+        #[arg(long)]
+        scenario: Option<String>,
     },
     /// The built-in study of the paper's argument on paper_park: failure rate of combined,
     /// nn and jcbb against odometry heading drift (DIR/odometry) and against post-to-tree

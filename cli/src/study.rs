@@ -67,8 +67,8 @@ pub(crate) fn montecarlo(args: MontecarloArgs) -> Result<()> {
         }
         return Ok(());
     }
-    if let Some(MontecarloCommand::Rerun { dir, job, out }) = args.command {
-        return rerun(&dir, &job, &out);
+    if let Some(MontecarloCommand::Rerun { dir, job, out, scenario }) = args.command {
+        return rerun(&dir, &job, &out, scenario.as_deref());
     }
     if let Some(MontecarloCommand::Study { runs, seed, shard, out }) = args.command {
         let shard = match &shard {
@@ -289,8 +289,8 @@ fn print_summary(rows: &[scenarios::montecarlo::SummaryRow]) {
 }
 
 /// `objslam montecarlo rerun`: one job again, with its outputs, against the study's record.
-fn rerun(dir: &std::path::Path, job: &str, out: &std::path::Path) -> Result<()> {
-    let rerun = scenarios::montecarlo::rerun(dir, job, out)?;
+fn rerun(dir: &std::path::Path, job: &str, out: &std::path::Path, scenario: Option<&str>) -> Result<()> {
+    let rerun = scenarios::montecarlo::rerun(dir, job, out, scenario)?;
     println!("job {} ({}), seed {}", rerun.job.index, rerun.job.key(), rerun.job.seed);
     let failed = match (&rerun.record.metrics, &rerun.record.error) {
         (Some(m), _) => {

@@ -204,12 +204,31 @@ pub fn pin_scenario(name_or_path: &str) -> Result<(ScenarioPin, Scenario, PathBu
 
 /// Loads the scenario of a study whose `study.json` is `plan_file`: from the file it was
 /// begun with where that was recorded (so that the study's directory, not the working
-/// directory, decides), checked to be unchanged.
-fn pinned_scenario(plan_file: &Path, study: &StudyFile) -> Result<(Scenario, PathBuf), StudyError> {
+/// directory, decides), or from `moved_to` where the user says it went, checked to be
+/// unchanged.
+fn pinned_scenario(
+    plan_file: &Path,
+    study: &StudyFile,
+    moved_to: Option<&str>,
+) -> Result<(Scenario, PathBuf), StudyError> {
     let Some(pin) = &study.scenario_pin else {
-        return Ok(Scenario::load(&study.plan.scenario)?);
+        return Ok(Scenario::load(moved_to.unwrap_or(&study.plan.scenario))?);
     };
-    let source = if pin.file.starts_with("<built-in>/") { study.plan.scenario.as_str() } else { pin.file.as_str() };
+    let built_in = pin.file.starts_with("<built-in>/");
+    let source = match moved_to {
+        Some(file) => file,
+        None if built_in => study.plan.scenario.as_str(),
+        None if !Path::new(&pin.file).exists() => {
+            return Err(StudyError::File {
+                file: plan_file.into(),
+                message: format!(
+                    "the study's scenario {} is not there any more: give where it is now with --scenario FILE",
+                    pin.file
+                ),
+            });
+        }
+        None => pin.file.as_str(),
+    };
     let (now, scenario, base_dir) = pin_scenario(source)?;
     if let Some(changed) = pin.changed_to(source, &now) {
         return Err(StudyError::File {
@@ -989,7 +1008,9 @@ fn differences_from_record(recorded: &serde_json::Value, new: &serde_json::Value
 /// Runs a job of the study in `dir` (its `study.json`) again, writing every output of
 /// `objslam run` into `out`, so that a run a study found failing can be looked into. `job`
 /// is the job's index or its key, as `runs.jsonl` gives them (`job.index`, `key`).
-pub fn rerun(dir: &Path, job: &str, out: &Path) -> Result<Rerun, StudyError> {
+/// `scenario` is where the study's scenario file is now, if it moved since the study began
+/// (it must still be the same scenario).
+pub fn rerun(dir: &Path, job: &str, out: &Path, scenario: Option<&str>) -> Result<Rerun, StudyError> {
     let plan_file = dir.join("study.json");
     let study = read_study_file(&plan_file, "")?;
     let plan = &study.plan;
@@ -1013,7 +1034,7 @@ pub fn rerun(dir: &Path, job: &str, out: &Path) -> Result<Rerun, StudyError> {
             all.len().saturating_sub(1)
         ),
     })?;
-    let (base, base_dir) = pinned_scenario(&plan_file, &study)?;
+    let (base, base_dir) = pinned_scenario(&plan_file, &study, scenario)?;
     let (recorded, recorded_line) = recorded_run(&dir.join("runs.jsonl"), &job.key())?.unzip();
     // A directory another command holds is refused here, not reported as the run failing.
     drop(hold(out)?);

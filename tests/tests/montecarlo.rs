@@ -113,7 +113,7 @@ fn sharded_merged_study_equals_the_unsharded_one_and_resumes() {
     assert!(e.contains("runs.jsonl") && e.contains(&format!("lines {first_line} and 19")), "{e}");
     // Any job runs again with its outputs and repeats its record, found by index or key;
     // a record that the run does not repeat is told apart.
-    let rerun = mc::rerun(&root.join("whole"), "1", &root.join("rerun")).unwrap();
+    let rerun = mc::rerun(&root.join("whole"), "1", &root.join("rerun"), None).unwrap();
     assert_eq!((rerun.job.index, rerun.repeats_record()), (1, Some(true)));
     for f in ["trajectory_est.tum", "metrics.json", "metadata.json", "landmarks.json"] {
         assert!(root.join("rerun").join(f).is_file(), "{f} missing");
@@ -121,15 +121,15 @@ fn sharded_merged_study_equals_the_unsharded_one_and_resumes() {
     let edited = root.join("edited");
     std::fs::create_dir_all(&edited).unwrap();
     std::fs::copy(root.join("whole/study.json"), edited.join("study.json")).unwrap();
-    let rerun = mc::rerun(&edited, &changed.key, &root.join("rerun2")).unwrap();
+    let rerun = mc::rerun(&edited, &changed.key, &root.join("rerun2"), None).unwrap();
     assert_eq!((rerun.job.key(), rerun.repeats_record()), (changed.key.clone(), None), "no record yet");
     // The study's file may hold blank lines and a line being written, which stays as it is.
     let runs = format!("\n{}\n{{\"key\":\"torn", serde_json::to_string(&changed).unwrap());
     std::fs::write(edited.join("runs.jsonl"), &runs).unwrap();
-    let rerun = mc::rerun(&edited, &changed.key, &root.join("rerun2")).unwrap();
+    let rerun = mc::rerun(&edited, &changed.key, &root.join("rerun2"), None).unwrap();
     assert_eq!((rerun.repeats_record(), rerun.differences()), (Some(false), vec!["metrics.ate_rmse_m".to_string()]));
     assert_eq!(std::fs::read_to_string(edited.join("runs.jsonl")).unwrap(), runs);
-    let e = mc::rerun(&edited, "18", &root.join("rerun3")).err().expect("no job 18").to_string();
+    let e = mc::rerun(&edited, "18", &root.join("rerun3"), None).err().expect("no job 18").to_string();
     assert!(e.contains("study.json") && e.contains("0 to 17"), "{e}");
     std::fs::write(dirs[0].join("runs.jsonl"), format!("{}\n", serde_json::to_string(&changed).unwrap())).unwrap();
     let e = mc::merge(&[root.join("whole"), dirs[0].clone()], &root.join("merged2")).unwrap_err().to_string();
@@ -152,9 +152,26 @@ fn sharded_merged_study_equals_the_unsharded_one_and_resumes() {
     std::fs::write(&scenario_file, toml::to_string(&edited_scenario).unwrap()).unwrap();
     let e = mc::run_study(&plan, Shard::all(), &root.join("whole"), |_| {}).unwrap_err().to_string();
     assert!(e.contains("different study") && e.contains("differ") && e.contains("laser_only_short.toml"), "{e}");
-    let e = mc::rerun(&root.join("whole"), "1", &root.join("rerun4")).err().expect("a changed scenario").to_string();
+    let e =
+        mc::rerun(&root.join("whole"), "1", &root.join("rerun4"), None).err().expect("a changed scenario").to_string();
     assert!(e.contains("study.json") && e.contains("has changed since the study began"), "{e}");
     assert!(!root.join("rerun4").exists(), "nothing was run");
+    std::fs::write(&scenario_file, &original).unwrap();
+
+    // A scenario file moved since the study began: a rerun says so, and takes its new place
+    // with --scenario, the same scenario checked.
+    let moved = root.join("moved.toml");
+    std::fs::rename(&scenario_file, &moved).unwrap();
+    let e = mc::rerun(&root.join("whole"), "1", &root.join("rerun5"), None).err().expect("moved").to_string();
+    assert!(e.contains("study.json") && e.contains("not there any more") && e.contains("--scenario"), "{e}");
+    let again = mc::rerun(&root.join("whole"), "1", &root.join("rerun5"), Some(&moved.to_string_lossy())).unwrap();
+    assert_eq!(again.repeats_record(), Some(true), "the moved scenario repeats the study's run");
+    std::fs::write(&moved, toml::to_string(&edited_scenario).unwrap()).unwrap();
+    let e = mc::rerun(&root.join("whole"), "1", &root.join("rerun6"), Some(&moved.to_string_lossy()))
+        .err()
+        .expect("another scenario")
+        .to_string();
+    assert!(e.contains("files or settings differ"), "{e}");
     std::fs::write(&scenario_file, &original).unwrap();
 
     // A study.json that is not a plan (a torn first write of an older version) is refused
@@ -251,7 +268,7 @@ fn studies_of_different_plans_are_never_mixed() {
     let e = mc::merge(std::slice::from_ref(&a), &a).unwrap_err().to_string();
     assert!(e.contains("another study is running in this directory"), "{e}");
     // A rerun into a held directory is refused before it runs.
-    let e = mc::rerun(&a, "0", &a).err().expect("refused").to_string();
+    let e = mc::rerun(&a, "0", &a, None).err().expect("refused").to_string();
     assert!(e.contains("another study is running in this directory"), "{e}");
     drop(held);
 
