@@ -402,7 +402,8 @@ pub(crate) enum MontecarloCommand {
         #[arg(long)]
         out: PathBuf,
         /// Where the study's scenario file is now, if it was moved since the study began
-        /// (it must be the same scenario: its settings and files are checked).
+        /// (it must be the same scenario: its settings and files are checked, so files it
+        /// names by relative path must move with it to the same places beside it).
         #[arg(long)]
         scenario: Option<String>,
     },

@@ -92,6 +92,7 @@ fn both_searches_fit_the_same_mixture_and_score_it_on_held_out_points() {
         ("data_sha256", serde_json::json!("abc"), "fit.data_sha256"),
         ("options", serde_json::json!({"max_components": "x"}), "fit.options.max_components"),
         ("surprise", serde_json::json!(1), "surprise"),
+        ("data_sha256", serde_json::Value::Null, "fit.data_sha256: null"),
     ] {
         let mut json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&model).unwrap()).unwrap();
         json["fit"][key] = bad;
@@ -109,6 +110,12 @@ fn both_searches_fit_the_same_mixture_and_score_it_on_held_out_points() {
     std::fs::write(&older, json.to_string()).unwrap();
     let out = objslam(&["gmm", "score", path(&older), path(&heldout)]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    // ... but one of the two without the other is not.
+    json["fit"]["data_absolute"] = serde_json::json!("/data/points.csv");
+    std::fs::write(&broken, json.to_string()).unwrap();
+    let out = objslam(&["gmm", "score", path(&broken), path(&heldout)]);
+    let e = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && e.contains("broken.json") && e.contains("come together"), "{e}");
     std::fs::write(&broken, "{\"not\": \"a model\"}").unwrap();
     let out = objslam(&["gmm", "score", path(&broken), path(&heldout)]);
     let e = String::from_utf8_lossy(&out.stderr);

@@ -174,11 +174,12 @@ pub fn pin_scenario(name_or_path: &str) -> Result<(ScenarioPin, Scenario, PathBu
     use sha2::{Digest, Sha256};
     let (scenario, base_dir) = Scenario::load(name_or_path)?;
     let path = Path::new(name_or_path);
-    let file = if path.exists() {
+    let built_in = name_or_path.strip_prefix("<built-in>/");
+    let file = if built_in.is_none() && path.exists() {
         let absolute = std::fs::canonicalize(path).map_err(|e| StudyError::Io { file: path.into(), source: e })?;
         absolute.display().to_string()
     } else {
-        format!("<built-in>/{}", name_or_path.trim_end_matches(".toml"))
+        format!("<built-in>/{}", built_in.unwrap_or(name_or_path).trim_end_matches(".toml"))
     };
     let mut digest = Sha256::new();
     // Words for people only: a mended description changes no run.
@@ -212,12 +213,22 @@ fn pinned_scenario(
     moved_to: Option<&str>,
 ) -> Result<(Scenario, PathBuf), StudyError> {
     let Some(pin) = &study.scenario_pin else {
-        return Ok(Scenario::load(moved_to.unwrap_or(&study.plan.scenario))?);
+        if moved_to.is_some() {
+            return Err(StudyError::File {
+                file: plan_file.into(),
+                message: "this study began before studies recorded their scenario, so a --scenario given cannot be checked to be its own: rerun from the directory it began in, without --scenario".into(),
+            });
+        }
+        return Scenario::load(&study.plan.scenario).map_err(|e| StudyError::File {
+            file: plan_file.into(),
+            message: format!("{e} (this study began before studies recorded their scenario: its scenario is read from the working directory, so rerun from the directory it began in)"),
+        });
     };
     let built_in = pin.file.starts_with("<built-in>/");
     let source = match moved_to {
         Some(file) => file,
-        None if built_in => study.plan.scenario.as_str(),
+        // The built-in itself, not a file of its name in the working directory.
+        None if built_in => pin.file.as_str(),
         None if !Path::new(&pin.file).exists() => {
             return Err(StudyError::File {
                 file: plan_file.into(),
@@ -231,9 +242,15 @@ fn pinned_scenario(
     };
     let (now, scenario, base_dir) = pin_scenario(source)?;
     if let Some(changed) = pin.changed_to(source, &now) {
+        let remedy = match moved_to {
+            Some(_) => {
+                "give the study's own scenario file to --scenario, with the files it names by relative path moved with it to the same places beside it"
+            }
+            None => "restore it, or give a copy of the study's own scenario with --scenario FILE",
+        };
         return Err(StudyError::File {
             file: plan_file.into(),
-            message: format!("{changed}, so its runs would not be the study's"),
+            message: format!("{changed}, so its runs would not be the study's: {remedy}"),
         });
     }
     Ok((scenario, base_dir))

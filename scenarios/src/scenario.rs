@@ -263,13 +263,16 @@ impl Scenario {
     /// Loads a scenario by file path or built-in name. Returns it with its base directory.
     pub fn load(name_or_path: &str) -> Result<(Scenario, PathBuf), ScenarioError> {
         let path = Path::new(name_or_path);
-        if path.exists() {
+        // `<built-in>/NAME` (as a study pins a built-in scenario) is the built-in alone,
+        // whatever files the working directory holds.
+        let explicit = name_or_path.strip_prefix("<built-in>/");
+        if explicit.is_none() && path.exists() {
             let text = std::fs::read_to_string(path)
                 .map_err(|source| ScenarioError::Read { file: path.to_path_buf(), source })?;
             let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
             return Ok((Scenario::parse(&text, path)?, base));
         }
-        let key = name_or_path.trim_end_matches(".toml");
+        let key = explicit.unwrap_or(name_or_path).trim_end_matches(".toml");
         match LIBRARY.iter().find(|(n, _)| *n == key) {
             Some((n, text)) => {
                 Ok((Scenario::parse(text, Path::new(&format!("<built-in>/{n}.toml")))?, PathBuf::from(".")))
@@ -568,7 +571,10 @@ mod tests {
             let (s, base) = Scenario::load(name).unwrap();
             assert_eq!(&s.name, name);
             s.world(&base, s.seed).unwrap();
+            // `<built-in>/NAME`, as a study pins it, is the same scenario.
+            assert_eq!(Scenario::load(&format!("<built-in>/{name}")).unwrap().0, s);
         }
+        assert!(matches!(Scenario::load("<built-in>/no_such"), Err(ScenarioError::Unknown { .. })));
     }
 
     /// city_park is the size it says: ten times paper_park's ground, with its objects.

@@ -45,12 +45,12 @@ pub fn load_image(dir: &Path, manifest: &Manifest, i: usize) -> Result<LabelledI
     Ok(load_image_and_class(dir, manifest, i)?.0)
 }
 
-/// [`load_image`], with the image's class mask.
+/// [`load_image`], with the image's class mask and the size (px) of its labels' patches.
 fn load_image_and_class(
     dir: &Path,
     manifest: &Manifest,
     i: usize,
-) -> Result<(LabelledImage, image::GrayImage), TrainError> {
+) -> Result<(LabelledImage, image::GrayImage, u32), TrainError> {
     let entry = &manifest.images[i];
     let img_path = dir.join(&entry.image);
     let rgb = image::open(&img_path).map_err(|e| file_err(&img_path, e))?.to_rgb8();
@@ -60,6 +60,15 @@ fn load_image_and_class(
     let (w, h) = rgb.dimensions();
     if labels.patch_size == 0 {
         return Err(file_err(&labels_path, "patch_size: must be at least 1 pixel"));
+    }
+    if labels.patch_size != manifest.patch_size {
+        return Err(file_err(
+            &labels_path,
+            format!(
+                "patch_size: {} px, and the dataset's dataset.json says {} px: the file is another dataset's",
+                labels.patch_size, manifest.patch_size
+            ),
+        ));
     }
     if labels.cols != w / labels.patch_size
         || labels.rows != h / labels.patch_size
@@ -91,7 +100,7 @@ fn load_image_and_class(
     let distractors = crate::dataset::patch_labels(class.as_raw(), w, h, labels.patch_size, &distractor_ids).fractions;
     let image =
         LabelledImage { width: w, height: h, rgb: rgb.into_raw(), fractions: labels.fractions, foliage, distractors };
-    Ok((image, class))
+    Ok((image, class, labels.patch_size))
 }
 
 /// A dataset image's patches under a model's feature extractor, with what each patch is:
@@ -116,21 +125,20 @@ pub fn image_patches<'a>(
     ids: impl IntoIterator<Item = usize> + 'a,
 ) -> impl Iterator<Item = Result<ImagePatches, TrainError>> + 'a {
     ids.into_iter().map(move |index| {
-        let (img, class) = load_image_and_class(dir, manifest, index)?;
+        let (img, class, labels_patch_size) = load_image_and_class(dir, manifest, index)?;
         let image = ImageRef::new(img.width, img.height, &img.rgb).map_err(ModelError::from)?;
         let features = extractor.features(&image, None).map_err(ModelError::from)?;
         let l = extractor.config.patch_size;
-        let (cols, rows) = image.grid(l);
-        if img.fractions.len() != (cols * rows) as usize {
+        if labels_patch_size != l {
             let labels = dir.join(&manifest.images[index].patches);
             return Err(file_err(
                 &labels,
                 format!(
-                    "its patches are not the model's {l} px patches ({} labels for a {cols}x{rows} grid)",
-                    img.fractions.len()
+                    "labels of {labels_patch_size} px patches, and the model's patches are {l} px: label the images again with the model's patch size (objslam dataset --patch-size {l})"
                 ),
             ));
         }
+        let (cols, _) = image.grid(l);
         let cells: Vec<(u32, u32)> = (0..features.z.nrows()).map(|k| features.rect.patch(k)).collect();
         let fractions = cells.iter().map(|&(c, r)| img.fractions[(r * cols + c) as usize]).collect();
         let classes = cells.iter().map(|&(c, r)| majority_class(&class, c, r, l)).collect();
@@ -463,6 +471,23 @@ impl GmmFitRecord {
             fit: Option<GmmFitRecord>,
         }
         let fit = slam::settings::from_json::<FitOnly>(text)?.fit;
+        // What the types let through: `gmm fit` writes no null, and wrote the digest and
+        // the absolute path together from the version that first kept them.
+        let raw: serde_json::Value = serde_json::from_str(text).map_err(|e| e.to_string())?;
+        match raw.get("fit") {
+            Some(serde_json::Value::Null) => {
+                return Err("fit: null, where the record of how the model was fitted belongs".into());
+            }
+            Some(serde_json::Value::Object(record)) => {
+                if record.get("data_sha256").is_some_and(serde_json::Value::is_null) {
+                    return Err("fit.data_sha256: null, where a SHA-256 (64 hex digits) belongs".into());
+                }
+                if record.contains_key("data_sha256") != record.contains_key("data_absolute") {
+                    return Err("fit: data_sha256 and data_absolute come together (both, or neither in files of versions before them): the record is damaged".into());
+                }
+            }
+            _ => {}
+        }
         if let Some(digest) = fit.as_ref().and_then(|f| f.data_sha256.as_ref())
             && !(digest.len() == 64 && digest.bytes().all(|b| b.is_ascii_hexdigit()))
         {

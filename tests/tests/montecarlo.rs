@@ -171,8 +171,17 @@ fn sharded_merged_study_equals_the_unsharded_one_and_resumes() {
         .err()
         .expect("another scenario")
         .to_string();
-    assert!(e.contains("files or settings differ"), "{e}");
+    assert!(e.contains("files or settings differ") && e.contains("give the study's own scenario file"), "{e}");
     std::fs::write(&scenario_file, &original).unwrap();
+    // A study begun before studies recorded their scenario cannot check a --scenario.
+    let unpinned = root.join("unpinned");
+    std::fs::create_dir_all(&unpinned).unwrap();
+    let mut study: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(root.join("whole/study.json")).unwrap()).unwrap();
+    study.as_object_mut().unwrap().remove("scenario_pin");
+    std::fs::write(unpinned.join("study.json"), study.to_string()).unwrap();
+    let e = mc::rerun(&unpinned, "1", &root.join("rerun7"), Some(&moved.to_string_lossy())).err().expect("unchecked");
+    assert!(e.to_string().contains("cannot be checked"), "{e}");
 
     // A study.json that is not a plan (a torn first write of an older version) is refused
     // with what to do, not overwritten.
