@@ -22,7 +22,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut out = std::io::BufWriter::new(std::fs::File::create(out)?);
     let names: Vec<String> = (0..d).map(|k| format!("z{k}")).collect();
     writeln!(out, "image,col,row,{},fraction,class", names.join(","))?;
-    for patches in image_patches(dir, &manifest, &model.extractor, 0..manifest.images.len()) {
+    for patches in image_patches(dir, &manifest, &model.extractor, 0..manifest.images.len())? {
         let p = patches?;
         for (k, &(c, r)) in p.cells.iter().enumerate() {
             let z: Vec<String> = p.features.z.row(k).iter().map(|v| format!("{v}")).collect();

@@ -20,7 +20,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let classifier = PatchClassifier::new(&model)?;
     let mut out = std::io::BufWriter::new(std::fs::File::create(out)?);
     writeln!(out, "image,col,row,posterior,foliage_p,fraction,class")?;
-    for patches in image_patches(dir, &manifest, &model.extractor, 0..manifest.images.len()) {
+    for patches in image_patches(dir, &manifest, &model.extractor, 0..manifest.images.len())? {
         let p = patches?;
         for (k, posterior) in classifier.posteriors(&p.features).iter().enumerate() {
             let (c, r) = p.cells[k];

@@ -20,7 +20,7 @@ use serde::{Deserialize, Serialize};
 use slam::association::AssociationMethod;
 
 use crate::run::{Metrics, RunOptions};
-use crate::scenario::Scenario;
+use crate::scenario::{BUILT_IN_PREFIX, Scenario};
 use crate::score::wilson_interval;
 
 pub mod generalisation;
@@ -174,12 +174,12 @@ pub fn pin_scenario(name_or_path: &str) -> Result<(ScenarioPin, Scenario, PathBu
     use sha2::{Digest, Sha256};
     let (scenario, base_dir) = Scenario::load(name_or_path)?;
     let path = Path::new(name_or_path);
-    let built_in = name_or_path.strip_prefix("<built-in>/");
+    let built_in = name_or_path.strip_prefix(BUILT_IN_PREFIX);
     let file = if built_in.is_none() && path.exists() {
         let absolute = std::fs::canonicalize(path).map_err(|e| StudyError::Io { file: path.into(), source: e })?;
         absolute.display().to_string()
     } else {
-        format!("<built-in>/{}", built_in.unwrap_or(name_or_path).trim_end_matches(".toml"))
+        format!("{BUILT_IN_PREFIX}{}", built_in.unwrap_or(name_or_path).trim_end_matches(".toml"))
     };
     let mut digest = Sha256::new();
     // Words for people only: a mended description changes no run.
@@ -224,7 +224,7 @@ fn pinned_scenario(
             message: format!("{e} (this study began before studies recorded their scenario: its scenario is read from the working directory, so rerun from the directory it began in)"),
         });
     };
-    let built_in = pin.file.starts_with("<built-in>/");
+    let built_in = pin.file.starts_with(BUILT_IN_PREFIX);
     let source = match moved_to {
         Some(file) => file,
         // The built-in itself, not a file of its name in the working directory.

@@ -191,6 +191,11 @@ impl PartialEq for SourceFile {
     }
 }
 
+/// What names a built-in scenario as such (`<built-in>/paper_park`): errors give built-ins
+/// this place, a study pins them by it, and [`Scenario::load`] reads it as the built-in
+/// alone, whatever files the working directory holds.
+pub const BUILT_IN_PREFIX: &str = "<built-in>/";
+
 /// A scenario file.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -265,7 +270,7 @@ impl Scenario {
         let path = Path::new(name_or_path);
         // `<built-in>/NAME` (as a study pins a built-in scenario) is the built-in alone,
         // whatever files the working directory holds.
-        let explicit = name_or_path.strip_prefix("<built-in>/");
+        let explicit = name_or_path.strip_prefix(BUILT_IN_PREFIX);
         if explicit.is_none() && path.exists() {
             let text = std::fs::read_to_string(path)
                 .map_err(|source| ScenarioError::Read { file: path.to_path_buf(), source })?;
@@ -275,7 +280,7 @@ impl Scenario {
         let key = explicit.unwrap_or(name_or_path).trim_end_matches(".toml");
         match LIBRARY.iter().find(|(n, _)| *n == key) {
             Some((n, text)) => {
-                Ok((Scenario::parse(text, Path::new(&format!("<built-in>/{n}.toml")))?, PathBuf::from(".")))
+                Ok((Scenario::parse(text, Path::new(&format!("{BUILT_IN_PREFIX}{n}.toml")))?, PathBuf::from(".")))
             }
             None => Err(ScenarioError::Unknown {
                 name: name_or_path.into(),

@@ -45,12 +45,22 @@ pub fn load_image(dir: &Path, manifest: &Manifest, i: usize) -> Result<LabelledI
     Ok(load_image_and_class(dir, manifest, i)?.0)
 }
 
-/// [`load_image`], with the image's class mask and the size (px) of its labels' patches.
+/// Refuses the dataset in `dir` (its `manifest`) where its patches are not `l` px, the
+/// model's: every label it holds would describe other patches. (Each labels file is
+/// checked against the manifest as it is read, by [`load_image`].)
+fn check_patch_size(dir: &Path, manifest: &Manifest, l: u32) -> Result<(), TrainError> {
+    if manifest.patch_size == l {
+        return Ok(());
+    }
+    Err(file_err(&dir.join("dataset.json"), format!("patch_size is {}, the model uses {l}", manifest.patch_size)))
+}
+
+/// [`load_image`], with the image's class mask.
 fn load_image_and_class(
     dir: &Path,
     manifest: &Manifest,
     i: usize,
-) -> Result<(LabelledImage, image::GrayImage, u32), TrainError> {
+) -> Result<(LabelledImage, image::GrayImage), TrainError> {
     let entry = &manifest.images[i];
     let img_path = dir.join(&entry.image);
     let rgb = image::open(&img_path).map_err(|e| file_err(&img_path, e))?.to_rgb8();
@@ -100,7 +110,7 @@ fn load_image_and_class(
     let distractors = crate::dataset::patch_labels(class.as_raw(), w, h, labels.patch_size, &distractor_ids).fractions;
     let image =
         LabelledImage { width: w, height: h, rgb: rgb.into_raw(), fractions: labels.fractions, foliage, distractors };
-    Ok((image, class, labels.patch_size))
+    Ok((image, class))
 }
 
 /// A dataset image's patches under a model's feature extractor, with what each patch is:
@@ -117,33 +127,26 @@ pub struct ImagePatches {
     pub classes: Vec<u8>,
 }
 
-/// Images `ids` of the dataset in `dir` (its `manifest`), in that order, as [`ImagePatches`].
+/// Images `ids` of the dataset in `dir` (its `manifest`), in that order, as [`ImagePatches`];
+/// refused at once where the dataset's patches are not the extractor's.
 pub fn image_patches<'a>(
     dir: &'a Path,
     manifest: &'a Manifest,
     extractor: &'a FeatureExtractor,
     ids: impl IntoIterator<Item = usize> + 'a,
-) -> impl Iterator<Item = Result<ImagePatches, TrainError>> + 'a {
-    ids.into_iter().map(move |index| {
-        let (img, class, labels_patch_size) = load_image_and_class(dir, manifest, index)?;
+) -> Result<impl Iterator<Item = Result<ImagePatches, TrainError>> + 'a, TrainError> {
+    let l = extractor.config.patch_size;
+    check_patch_size(dir, manifest, l)?;
+    Ok(ids.into_iter().map(move |index| {
+        let (img, class) = load_image_and_class(dir, manifest, index)?;
         let image = ImageRef::new(img.width, img.height, &img.rgb).map_err(ModelError::from)?;
         let features = extractor.features(&image, None).map_err(ModelError::from)?;
-        let l = extractor.config.patch_size;
-        if labels_patch_size != l {
-            let labels = dir.join(&manifest.images[index].patches);
-            return Err(file_err(
-                &labels,
-                format!(
-                    "labels of {labels_patch_size} px patches, and the model's patches are {l} px: label the images again with the model's patch size (objslam dataset --patch-size {l})"
-                ),
-            ));
-        }
         let (cols, _) = image.grid(l);
         let cells: Vec<(u32, u32)> = (0..features.z.nrows()).map(|k| features.rect.patch(k)).collect();
         let fractions = cells.iter().map(|&(c, r)| img.fractions[(r * cols + c) as usize]).collect();
         let classes = cells.iter().map(|&(c, r)| majority_class(&class, c, r, l)).collect();
         Ok(ImagePatches { index, features, cells, fractions, classes })
-    })
+    }))
 }
 
 fn model_error(e: TrainError) -> ModelError {
@@ -164,12 +167,7 @@ pub fn train_from_dataset(
     progress: impl Fn(&str, usize, usize),
 ) -> Result<(AppearanceModel, ClassTable), TrainError> {
     let manifest = read_manifest(dir)?;
-    if manifest.patch_size != options.features.patch_size {
-        return Err(file_err(
-            &dir.join("dataset.json"),
-            format!("patch_size is {}, the model uses {}", manifest.patch_size, options.features.patch_size),
-        ));
-    }
+    check_patch_size(dir, &manifest, options.features.patch_size)?;
     let (train_ids, test_ids): (Vec<usize>, Vec<usize>) =
         (0..manifest.images.len()).partition(|i| heldout_every == 0 || i % heldout_every != heldout_every - 1);
     let load = |k: usize| load_image(dir, &manifest, train_ids[k]).map_err(model_error);
@@ -225,12 +223,6 @@ pub struct HeldoutWorld {
 /// model generalises), with the training's rule for which patches are object.
 pub fn score_on_dataset(dir: &Path, model: &AppearanceModel, label_fraction: f64) -> Result<HeldoutWorld, TrainError> {
     let manifest = read_manifest(dir)?;
-    if manifest.patch_size != model.extractor.config.patch_size {
-        return Err(file_err(
-            &dir.join("dataset.json"),
-            format!("patch_size is {}, the model uses {}", manifest.patch_size, model.extractor.config.patch_size),
-        ));
-    }
     let n = manifest.images.len();
     let ids: Vec<usize> = (0..n).collect();
     let (scores, by_class) = score_images(dir, &manifest, model, &ids, label_fraction)?;
@@ -258,7 +250,7 @@ fn score_images(
     let classifier = PatchClassifier::new(model).map_err(ModelError::from)?;
     let mut scores = classifier::PatchScores::default();
     let mut out = ClassTable::default();
-    for patches in image_patches(dir, manifest, &model.extractor, ids.iter().copied()) {
+    for patches in image_patches(dir, manifest, &model.extractor, ids.iter().copied())? {
         let p = patches?;
         for (k, predicted) in classifier.classify(&p.features).into_iter().enumerate() {
             scores.add(predicted, p.fractions[k] as f64 >= label_fraction);
@@ -301,7 +293,7 @@ pub fn export_features(
     let io = |e: std::io::Error| file_err(out, e);
     writeln!(w, "image,col,row,{},fraction,label", names.join(",")).map_err(io)?;
     let mut rows = 0;
-    for patches in image_patches(dir, &manifest, &model.extractor, 0..manifest.images.len()) {
+    for patches in image_patches(dir, &manifest, &model.extractor, 0..manifest.images.len())? {
         let p = patches?;
         for (k, (&(c, r), &frac)) in p.cells.iter().zip(&p.fractions).enumerate() {
             let values: Vec<String> = p.features.z.row(k).iter().map(|v| format!("{v}")).collect();

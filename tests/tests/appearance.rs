@@ -48,8 +48,10 @@ fn tree_patches_are_found_on_held_out_rendered_images() {
     let manifest = scenarios::train::read_manifest(&other).unwrap();
     let exported = other.join("features.csv");
     let rows = scenarios::train::export_features(&other, &model, options.label_fraction, &exported).unwrap();
-    let patches: Vec<_> =
-        scenarios::train::image_patches(&other, &manifest, &model.extractor, [4, 1]).map(Result::unwrap).collect();
+    let patches: Vec<_> = scenarios::train::image_patches(&other, &manifest, &model.extractor, [4, 1])
+        .unwrap()
+        .map(Result::unwrap)
+        .collect();
     assert_eq!(patches.iter().map(|p| p.index).collect::<Vec<_>>(), [4, 1]);
     let l = model.extractor.config.patch_size;
     for p in &patches {
