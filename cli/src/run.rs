@@ -1,6 +1,7 @@
 //! `objslam run`, `replay` and `score`: the commands that score a run and write its
 //! metrics.json.
 
+use scenarios::files;
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
@@ -50,7 +51,7 @@ fn check_robot_log_dir(dir: &std::path::Path) -> Result<()> {
     if !dir.is_dir() || dir.join(robotlog::format::MANIFEST).exists() {
         return Ok(());
     }
-    let problem = if dir.join("metadata.json").exists() {
+    let problem = if dir.join(files::METADATA).exists() {
         "a JSON-lines log of `objslam record` or a run's directory, which `objslam score --log` reads; \
          `objslam record --format log` writes a robot log for `objslam replay`"
     } else if dir.join("metadata.yaml").exists() {
@@ -101,7 +102,7 @@ pub(crate) fn replay(log: Option<PathBuf>, options: ReplayArgs, dataset: Option<
 pub(crate) fn score(args: ScoreArgs) -> Result<()> {
     // The log's own metrics.json (a run's) would be replaced by the system's.
     crate::paths::not_an_input("--out", &args.out, &[("log", &args.log)])?;
-    let metrics = args.out.join("metrics.json");
+    let metrics = args.out.join(files::METRICS);
     let inputs =
         [Some(&args.trajectory), args.covariances.as_ref(), args.landmarks.as_ref(), args.associations.as_ref()];
     for input in inputs.into_iter().flatten() {
@@ -117,7 +118,7 @@ pub(crate) fn score(args: ScoreArgs) -> Result<()> {
     };
     let m = scenarios::score::log::score_log(&args.log, &estimate)?;
     scenarios::partial_files::make_output_dir(&args.out)?;
-    let file = args.out.join("metrics.json");
+    let file = args.out.join(files::METRICS);
     std::fs::write(&file, serde_json::to_string_pretty(&m)? + "\n")
         .with_context(|| format!("{}: cannot write", file.display()))?;
     print!("{}", scenarios::score::log::summary_table(&m));

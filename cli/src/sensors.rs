@@ -1,6 +1,7 @@
 //! `objslam record`, `dataset` and `calibrate`: the simulator's sensor data for other
 //! systems, training images, and the laser-camera calibration session.
 
+use scenarios::files;
 use std::path::PathBuf;
 
 use anyhow::Result;
@@ -108,7 +109,7 @@ pub(crate) fn record(
         && format != scenarios::record::RecordFormat::Ros2
     {
         let given = std::path::Path::new(input);
-        crate::paths::not_an_input("--out", &out.join("world.toml"), &[("world file", given)])
+        crate::paths::not_an_input("--out", &out.join(files::WORLD), &[("world file", given)])
             .map_err(|_| anyhow::anyhow!("--out {}: the recording writes world.toml there, which is the world file given ({}); record into another directory", out.display(), given.display()))?;
     }
     let RecordingPlan { world, mut config, sim_seed, scoring, pipeline, calibration, model } =

@@ -6,6 +6,7 @@
 //! patch covered by the wanted classes), K and the camera pose; `dataset.json` lists them
 //! and `annotations.json` holds COCO instance annotations with RLE masks.
 
+use crate::files;
 use std::path::{Path, PathBuf};
 
 use rand::{RngExt, SeedableRng};
@@ -410,8 +411,8 @@ pub fn make_dataset(
         "annotations.json",
         &json!({"info": {"description": format!("objslam dataset of {world_name}"), "version": "1.0"}, "images": coco_images, "annotations": coco_annotations, "categories": categories}),
     )?;
-    std::fs::write(out.join("world.toml"), world.to_toml())
-        .map_err(|e| DatasetError::Io { file: out.join("world.toml"), source: e })?;
+    std::fs::write(out.join(files::WORLD), world.to_toml())
+        .map_err(|e| DatasetError::Io { file: out.join(files::WORLD), source: e })?;
     Ok(manifest)
 }
 

@@ -13,6 +13,7 @@
 pub mod appearance;
 pub mod calibrate;
 pub mod dataset;
+pub mod files;
 pub mod foxglove;
 pub mod montecarlo;
 pub mod objects;

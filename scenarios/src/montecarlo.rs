@@ -173,13 +173,15 @@ fn read_study_file(file: &Path, hint: &str) -> Result<StudyFile, StudyError> {
 pub fn pin_scenario(name_or_path: &str) -> Result<(ScenarioPin, Scenario, PathBuf), StudyError> {
     use sha2::{Digest, Sha256};
     let (scenario, base_dir) = Scenario::load(name_or_path)?;
-    let path = Path::new(name_or_path);
-    let built_in = name_or_path.strip_prefix(BUILT_IN_PREFIX);
-    let file = if built_in.is_none() && path.exists() {
-        let absolute = std::fs::canonicalize(path).map_err(|e| StudyError::Io { file: path.into(), source: e })?;
-        absolute.display().to_string()
-    } else {
-        format!("{BUILT_IN_PREFIX}{}", built_in.unwrap_or(name_or_path).trim_end_matches(".toml"))
+    let file = match scenario.built_in() {
+        Some(name) => format!("{BUILT_IN_PREFIX}{name}"),
+        None => {
+            let path = &scenario.source.0;
+            std::fs::canonicalize(path)
+                .map_err(|e| StudyError::Io { file: path.clone(), source: e })?
+                .display()
+                .to_string()
+        }
     };
     let mut digest = Sha256::new();
     // Words for people only: a mended description changes no run.

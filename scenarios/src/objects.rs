@@ -39,7 +39,7 @@ pub struct ObjectModels {
 /// A file that cannot be written stops no other; every failure is reported.
 pub fn write_objects(dir: &Path, pipeline: &Pipeline) -> Result<usize, ObjectsError> {
     let Some(app) = pipeline.appearance() else { return Ok(0) };
-    let out = dir.join("objects");
+    let out = dir.join(crate::files::OBJECTS_DIR);
     std::fs::create_dir_all(&out).map_err(|e| file_err(&out, e))?;
     let landmarks = pipeline.mapped_landmarks();
     let modelled: Vec<_> =
@@ -146,7 +146,7 @@ pub fn find_similar(
     example: &Path,
     appearance_dims: usize,
 ) -> Result<Vec<(u32, f64)>, ObjectsError> {
-    let file = run_dir.join("objects").join("models.json");
+    let file = run_dir.join(crate::files::OBJECTS_DIR).join("models.json");
     let text = std::fs::read_to_string(&file).map_err(|e| file_err(&file, e))?;
     let models: ObjectModels =
         slam::settings::from_json(&text).map_err(|e| file_err(&file, format!("not an objects/models.json: {e}")))?;

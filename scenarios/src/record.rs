@@ -14,6 +14,7 @@
 //!   `/tf` is odom -> base_link from the noisy odometry, `/odom` its poses, `/tf_static`
 //!   base_link -> laser and camera_optical; the truth is on `/ground_truth/*` only.
 
+use crate::files;
 use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
@@ -327,21 +328,21 @@ fn recording_files() -> [&'static str; 21] {
         f::DETECTIONS,
         f::REFERENCE,
         f::CAMERA,
-        "camera",
+        files::CAMERA_DIR,
         crate::replay::PIPELINE_FILE,
         crate::replay::APPEARANCE_MODEL_FILE,
         RECORDING_FILE,
-        "world.toml",
-        "sensors.json",
-        "laser.jsonl",
-        "laser_truth.jsonl",
-        "observations.jsonl",
-        "odometry.jsonl",
-        "ground_truth.tum",
-        "run.mcap",
-        "camera.jsonl",
-        "collisions.jsonl",
-        "metadata.json",
+        files::WORLD,
+        files::SENSORS,
+        files::LASER,
+        files::LASER_TRUTH,
+        files::OBSERVATIONS,
+        files::ODOMETRY,
+        files::GROUND_TRUTH,
+        files::MCAP,
+        files::CAMERA_LOG,
+        files::COLLISIONS,
+        files::METADATA,
     ]
 }
 
@@ -537,7 +538,7 @@ fn write_log(
         RECORDING_FILE,
         serde_json::to_string_pretty(&provenance("objslam record", world, config, seed, scoring)).expect("JSON"),
     )?;
-    write("world.toml", world.to_toml())?;
+    write(files::WORLD, world.to_toml())?;
     if let Some(p) = pipeline {
         let file = out.join(crate::replay::PIPELINE_FILE);
         let text =
@@ -634,18 +635,18 @@ fn record_jsonl(
         let file = out.join(name);
         std::fs::write(&file, text).map_err(|source| RecordError::Io { file, source })
     };
-    write_file("world.toml", world.to_toml())?;
-    write_file("sensors.json", serde_json::to_string_pretty(&sensors_json(config)).expect("JSON"))?;
+    write_file(files::WORLD, world.to_toml())?;
+    write_file(files::SENSORS, serde_json::to_string_pretty(&sensors_json(config)).expect("JSON"))?;
 
-    let mut laser = Out::create(out, "laser.jsonl")?;
-    let mut laser_truth = Out::create(out, "laser_truth.jsonl")?;
-    let mut observations = Out::create(out, "observations.jsonl")?;
-    let mut odometry = Out::create(out, "odometry.jsonl")?;
-    let mut tum = Out::create(out, "ground_truth.tum")?;
+    let mut laser = Out::create(out, files::LASER)?;
+    let mut laser_truth = Out::create(out, files::LASER_TRUTH)?;
+    let mut observations = Out::create(out, files::OBSERVATIONS)?;
+    let mut odometry = Out::create(out, files::ODOMETRY)?;
+    let mut tum = Out::create(out, files::GROUND_TRUTH)?;
     tum.line("# objslam ground truth: robot base pose in the world frame; timestamp tx ty tz qx qy qz qw")?;
-    let mut mcap = McapWriter::create(&out.join("run.mcap"))?;
-    let mut camera_log = Out::create(out, "camera.jsonl")?;
-    let camera_dir = out.join("camera");
+    let mut mcap = McapWriter::create(&out.join(files::MCAP))?;
+    let mut camera_log = Out::create(out, files::CAMERA_LOG)?;
+    let camera_dir = out.join(files::CAMERA_DIR);
     if config.camera.enabled {
         std::fs::create_dir_all(&camera_dir).map_err(|source| RecordError::Io { file: camera_dir.clone(), source })?;
     }
@@ -756,7 +757,7 @@ fn record_jsonl(
         }
     }
     progress(sim.time(), nominal);
-    let mut collisions = Out::create(out, "collisions.jsonl")?;
+    let mut collisions = Out::create(out, files::COLLISIONS)?;
     for c in sim.collisions() {
         collisions.line(&collision_line(c))?;
     }
@@ -777,6 +778,6 @@ fn record_jsonl(
     };
     let mut metadata = provenance("objslam record", world, config, seed, Some(scoring));
     metadata["summary"] = json!(summary);
-    write_file("metadata.json", serde_json::to_string_pretty(&metadata).expect("JSON"))?;
+    write_file(files::METADATA, serde_json::to_string_pretty(&metadata).expect("JSON"))?;
     Ok(summary)
 }

@@ -15,6 +15,7 @@
 //!
 //! Times are simulated seconds from 0.
 
+use crate::files;
 use std::path::{Path, PathBuf};
 
 use ros2bag::{
@@ -83,7 +84,7 @@ impl StagedBag {
         let err = |source| Ros2Error::Bag { dir: recorder.dir.clone(), source };
         let json = serde_json::to_string_pretty(provenance).expect("JSON");
         recorder.bag.attach(crate::record::RECORDING_FILE, "application/json", json.as_bytes()).map_err(err)?;
-        recorder.bag.attach("world.toml", "application/toml", world.to_toml().as_bytes()).map_err(err)
+        recorder.bag.attach(files::WORLD, "application/toml", world.to_toml().as_bytes()).map_err(err)
     }
 
     /// Writes one simulator event to the bag.

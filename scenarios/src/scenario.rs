@@ -289,6 +289,12 @@ impl Scenario {
         }
     }
 
+    /// The name of the built-in scenario this is, where [`Scenario::load`] read it from the
+    /// library rather than from a file.
+    pub fn built_in(&self) -> Option<&str> {
+        self.source.0.to_str()?.strip_prefix(BUILT_IN_PREFIX)?.strip_suffix(".toml")
+    }
+
     fn check(&self, file: &Path) -> Result<(), ScenarioError> {
         let bad = |field: &str, message: String| {
             Err(ScenarioError::Invalid { file: file.to_path_buf(), line: None, field: field.into(), message })
@@ -578,7 +584,13 @@ mod tests {
             s.world(&base, s.seed).unwrap();
             // `<built-in>/NAME`, as a study pins it, is the same scenario.
             assert_eq!(Scenario::load(&format!("<built-in>/{name}")).unwrap().0, s);
+            assert_eq!(s.built_in(), Some(*name));
         }
+        let file = std::env::temp_dir().join(format!("objslam-built-in-{}.toml", std::process::id()));
+        std::fs::write(&file, LIBRARY[0].1).unwrap();
+        let from_file = Scenario::load(file.to_str().unwrap()).unwrap().0;
+        std::fs::remove_file(&file).unwrap();
+        assert_eq!(from_file.built_in(), None, "read from a file, though its text is a built-in's");
         assert!(matches!(Scenario::load("<built-in>/no_such"), Err(ScenarioError::Unknown { .. })));
     }
 

@@ -244,12 +244,10 @@ pub(super) fn run_in_processes(
 fn check_pin(start: &StudyFile) -> Result<(), StudyError> {
     let (pin, _, _) = super::pin_scenario(&start.plan.scenario)?;
     match start.scenario_pin.as_ref().and_then(|began| began.changed_to(&start.plan.scenario, &pin)) {
-        Some(changed) => Err(StudyError::File {
-            file: std::path::PathBuf::from(&pin.file),
-            message: format!(
-                "{changed} (a worker that had died was not restarted); the finished runs are kept: restore the scenario and run the same command again, or start a new study"
-            ),
-        }),
+        // The words of what changed name the scenario's file already.
+        Some(changed) => Err(StudyError::Plan(format!(
+            "{changed} (a worker that had died was not restarted); the finished runs are kept: restore the scenario and run the same command again, or start a new study"
+        ))),
         None => Ok(()),
     }
 }
@@ -285,6 +283,7 @@ mod tests {
         let study = |sha256: &str| serde_json::from_str::<StudyFile>(&start(sha256)).unwrap();
         let e = check_pin(&study("0000")).unwrap_err().to_string();
         assert!(e.contains("files or settings differ") && e.contains("finished runs are kept"), "{e}");
+        assert_eq!(e.matches(&pin.file).count(), 1, "the scenario named once: {e}");
         check_pin(&study(&pin.sha256)).unwrap();
     }
 }

@@ -11,6 +11,7 @@
 
 mod reference;
 
+use crate::files;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -352,7 +353,7 @@ fn replay_and_write(
     let mut streams = match &unfinished {
         Some(dir) => Some(PartialFiles::create(
             dir,
-            &[(Stream::Trajectory, "trajectory_est.tum"), (Stream::Decisions, "decisions.jsonl")],
+            &[(Stream::Trajectory, files::TRAJECTORY_EST), (Stream::Decisions, files::DECISIONS)],
         )?),
         None => None,
     };
@@ -667,9 +668,9 @@ fn write_outputs(
         let file = out.join(name);
         std::fs::write(&file, text).map_err(|source| ReplayError::Io { file, source })
     };
-    write("metrics.json", serde_json::to_string_pretty(&replay.metrics).expect("JSON"))?;
+    write(files::METRICS, serde_json::to_string_pretty(&replay.metrics).expect("JSON"))?;
     write(
-        "metadata.json",
+        files::METADATA,
         serde_json::to_string_pretty(&json!({
             "tool": "objslam replay",
             "version": env!("CARGO_PKG_VERSION"),
@@ -679,7 +680,7 @@ fn write_outputs(
         }))
         .expect("JSON"),
     )?;
-    write("landmarks.json", serde_json::to_string_pretty(&replay.landmarks).expect("JSON"))?;
+    write(files::LANDMARKS, serde_json::to_string_pretty(&replay.landmarks).expect("JSON"))?;
     // The map in the reference's frame: the estimate moved by the alignment (as it is
     // where no alignment could be fitted).
     let (theta, t) = replay

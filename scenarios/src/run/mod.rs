@@ -14,6 +14,7 @@ mod outputs;
 
 pub use metrics::*;
 
+use crate::files;
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
@@ -534,7 +535,7 @@ fn run_and_write(
         // earlier outputs whole, never a mix of two runs.
         let unfinished = unfinished_dir(out);
         if let Some(report) = &calibration.report {
-            report.write(&unfinished.join("calibration.json"))?;
+            report.write(&unfinished.join(files::CALIBRATION))?;
         }
         let scoring = crate::score::log::LogScoring::of_run(scenario, seed, &config);
         let finished = FinishedRun {

@@ -1,5 +1,6 @@
 //! The files a run writes: metrics, trajectories, the map, decisions, logs and plots.
 
+use crate::files;
 use std::collections::HashMap;
 use std::path::Path;
 
@@ -64,17 +65,17 @@ pub(super) type StreamedOutputs = PartialFiles<Stream>;
 /// Opens the streams of a run with or without a camera and a camera method.
 pub(super) fn stream_outputs(out: &Path, camera: bool, camera_method: bool) -> Result<StreamedOutputs, RunError> {
     let mut streams = vec![
-        (Stream::Laser, "laser.jsonl"),
-        (Stream::LaserTruth, "laser_truth.jsonl"),
-        (Stream::Odometry, "odometry.jsonl"),
-        (Stream::Observations, "observations.jsonl"),
-        (Stream::Associations, "associations.jsonl"),
+        (Stream::Laser, files::LASER),
+        (Stream::LaserTruth, files::LASER_TRUTH),
+        (Stream::Odometry, files::ODOMETRY),
+        (Stream::Observations, files::OBSERVATIONS),
+        (Stream::Associations, files::ASSOCIATIONS),
     ];
     if camera {
-        streams.push((Stream::TreesShown, "trees_shown.jsonl"));
+        streams.push((Stream::TreesShown, files::TREES_SHOWN));
     }
     if camera_method {
-        streams.push((Stream::Segmentation, "segmentation.jsonl"));
+        streams.push((Stream::Segmentation, files::SEGMENTATION));
     }
     Ok(PartialFiles::create(out, &streams)?)
 }
@@ -82,7 +83,8 @@ pub(super) fn stream_outputs(out: &Path, camera: bool, camera_method: bool) -> R
 /// Outputs that only some runs write (camera methods, estimated calibrations): removed from
 /// a reused output directory when a run's outputs are moved in, so none is left from an
 /// earlier run to be taken for this one's. The other outputs every run rewrites.
-const CONDITIONAL_OUTPUTS: [&str; 4] = ["calibration.json", "segmentation.jsonl", "objects", "trees_shown.jsonl"];
+const CONDITIONAL_OUTPUTS: [&str; 4] =
+    [files::CALIBRATION, files::SEGMENTATION, files::OBJECTS_DIR, files::TREES_SHOWN];
 
 /// Moves a finished run's outputs from `unfinished` into `out` (see
 /// [`crate::partial_files::publish`]), after removing an earlier run's conditional ones.
@@ -135,14 +137,14 @@ fn write_texts(out: &Path, run: &FinishedRun) -> Vec<RunError> {
             errors.borrow_mut().push(RunError::Io { file, source });
         }
     };
-    write("metrics.json", &serde_json::to_string_pretty(metrics).expect("JSON"));
+    write(files::METRICS, &serde_json::to_string_pretty(metrics).expect("JSON"));
     // The directory is also a sensor log with its truth, which `objslam score --log` reads
     // (the same files as `objslam record` writes, camera images aside).
-    write("world.toml", &world.to_toml());
-    write("sensors.json", &serde_json::to_string_pretty(&crate::record::sensors_json(sim_config)).expect("JSON"));
-    write("collisions.jsonl", &log.collisions);
+    write(files::WORLD, &world.to_toml());
+    write(files::SENSORS, &serde_json::to_string_pretty(&crate::record::sensors_json(sim_config)).expect("JSON"));
+    write(files::COLLISIONS, &log.collisions);
     write(
-        "metadata.json",
+        files::METADATA,
         &serde_json::to_string_pretty(&json!({
             "tool": "objslam run",
             "version": env!("CARGO_PKG_VERSION"),
@@ -164,14 +166,14 @@ fn write_texts(out: &Path, run: &FinishedRun) -> Vec<RunError> {
         }
         s
     };
-    write("trajectory_est.tum", &tum(est));
+    write(files::TRAJECTORY_EST, &tum(est));
     let mut covariances = crate::score::estimate::covariance_header() + "\n";
     for ((t, _), p) in est.iter().zip(&log.covariances) {
         covariances.push_str(&crate::score::estimate::covariance_line(*t, p));
         covariances.push('\n');
     }
     write("trajectory_est_covariance.csv", &covariances);
-    write("trajectory_gt.tum", &tum(gt));
+    write(files::TRAJECTORY_GT, &tum(gt));
     // Each decision with the ground truth beside it: the observation's true object and the
     // true object of every candidate landmark. After a scan's decisions, the fusions made
     // after that scan: `{"t": .., "fusion": {"kept": .., "removed": ..}}`.
@@ -196,11 +198,11 @@ fn write_texts(out: &Path, run: &FinishedRun) -> Vec<RunError> {
     for f in fusions {
         decisions.push_str(&fusion_line(f));
     }
-    write("decisions.jsonl", &decisions);
+    write(files::DECISIONS, &decisions);
     // Each solve of the smoother (combined method): what it solved and how far the cost
     // fell, or why it failed (the filter then carried on as it was).
     write(
-        "relinearisations.jsonl",
+        files::RELINEARISATIONS,
         &solves
             .iter()
             .map(|(t, solve)| {
@@ -224,7 +226,7 @@ fn write_texts(out: &Path, run: &FinishedRun) -> Vec<RunError> {
             v
         })
         .collect();
-    write("landmarks.json", &serde_json::to_string_pretty(&landmarks).expect("JSON"));
+    write(files::LANDMARKS, &serde_json::to_string_pretty(&landmarks).expect("JSON"));
     errors.into_inner()
 }
 
@@ -280,7 +282,7 @@ fn write_mcap(out: &Path, run: &FinishedRun) -> Result<(), RunError> {
     let FinishedRun { pipeline, log, .. } = *run;
     let (est, gt) = (&log.estimate, &log.truth);
 
-    let mut mcap = crate::foxglove::McapWriter::create(&out.join("run.mcap"))?;
+    let mut mcap = crate::foxglove::McapWriter::create(&out.join(files::MCAP))?;
     for ((t, e), (_, g)) in est.iter().zip(gt) {
         use crate::foxglove::{pose_json, timestamp, yaw_quaternion};
         mcap.write("/estimate/pose", "foxglove.PosesInFrame", *t, &json!({"timestamp": timestamp(*t), "frame_id": "world", "poses": [pose_json(e[0], e[1], 0.0, yaw_quaternion(e[2]))]}))?;

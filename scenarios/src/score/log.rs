@@ -8,6 +8,7 @@
 //! insides carry (segmentation scores, relinearisations, calibration) are not scored.
 //! Docs: docs/guide/scoring.md.
 
+use crate::files;
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
@@ -218,7 +219,7 @@ fn read_metadata(log: &Path) -> Result<LogMetadata, ScoreError> {
             format!("{what}: `--log` takes the directory of a JSON-lines log of `objslam record` or of a run"),
         ));
     }
-    let file = log.join("metadata.json");
+    let file = log.join(files::METADATA);
     if !file.exists() {
         // Other outputs of objslam that hold a log, named so the user knows what to use.
         let other = if log.join(robotlog::format::MANIFEST).exists() {
@@ -305,7 +306,7 @@ enum CameraTruth {
 }
 
 fn read_frames(log: &Path) -> Result<Vec<LogFrame>, ScoreError> {
-    let file = log.join("camera.jsonl");
+    let file = log.join(files::CAMERA_LOG);
     if !file.exists() {
         return Ok(vec![]);
     }
@@ -331,7 +332,7 @@ fn read_camera_truth(log: &Path, meta: &LogMetadata) -> Result<CameraTruth, Scor
             && written != frames.len()
         {
             return Err(invalid(
-                &log.join("camera.jsonl"),
+                &log.join(files::CAMERA_LOG),
                 None,
                 format!(
                     "{} where metadata.json's summary.camera_frames says the recording wrote {written}: the camera index is missing or cut, so the trees in view cannot be counted",
@@ -354,7 +355,7 @@ fn read_camera_truth(log: &Path, meta: &LogMetadata) -> Result<CameraTruth, Scor
         t: f64,
         beams: Vec<usize>,
     }
-    let file = log.join(TREES_SHOWN);
+    let file = log.join(files::TREES_SHOWN);
     let mut shown: Vec<(usize, f64, Vec<usize>)> = Vec::new();
     for (n, line) in numbered_lines(&read_text(&file)?) {
         let s: ShownLine = serde_json::from_str(line).map_err(|e| invalid(&file, Some(n), e.to_string()))?;
@@ -376,7 +377,7 @@ fn read_camera_truth(log: &Path, meta: &LogMetadata) -> Result<CameraTruth, Scor
 /// run's own. A cut `trees_shown.jsonl` (it has lines only for scans that showed a tree,
 /// so its length proves nothing) or laser truth would otherwise score another recall.
 fn check_trees_to_map(log: &Path, map: &MapContent) -> Result<(), ScoreError> {
-    let file = log.join("metrics.json");
+    let file = log.join(files::METRICS);
     // A run stopped before it wrote its metrics has no count to hold the truth to.
     let text = match std::fs::read_to_string(&file) {
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
@@ -387,10 +388,10 @@ fn check_trees_to_map(log: &Path, map: &MapContent) -> Result<(), ScoreError> {
     let counted = |key: &str| v.pointer(&format!("/map/{key}")).and_then(|n| n.as_u64()).map(|n| n as usize);
     let mismatch = match (counted("trees_in_view"), counted("trees_laser_seen")) {
         (Some(run), _) if map.trees_in_view != Some(run) => {
-            Some(("trees_in_view", run, map.trees_in_view.unwrap_or(0), TREES_SHOWN))
+            Some(("trees_in_view", run, map.trees_in_view.unwrap_or(0), files::TREES_SHOWN))
         }
         (_, Some(run)) if map.trees_laser_seen != run => {
-            Some(("trees_laser_seen", run, map.trees_laser_seen, "laser_truth.jsonl"))
+            Some(("trees_laser_seen", run, map.trees_laser_seen, files::LASER_TRUTH))
         }
         _ => None,
     };
@@ -405,9 +406,6 @@ fn check_trees_to_map(log: &Path, map: &MapContent) -> Result<(), ScoreError> {
         )),
     }
 }
-
-/// A run's ground-truth camera evidence (see [`CameraTruth::Shown`]).
-const TREES_SHOWN: &str = "trees_shown.jsonl";
 
 fn read_instance(file: &Path, width: u32, height: u32) -> Result<Vec<u16>, ScoreError> {
     let img = image::open(file).map_err(|e| invalid(file, None, e.to_string()))?;
@@ -487,7 +485,7 @@ fn no_scan_at(file: &Path, line: usize, t: f64) -> ScoreError {
 pub fn score_log(log: &Path, estimate: &Estimate) -> Result<ScoredMetrics, ScoreError> {
     let meta = read_metadata(log)?;
     let is_run = meta.run_method.is_some();
-    let world = worlds::load(&log.join("world.toml"))?;
+    let world = worlds::load(&log.join(files::WORLD))?;
     let camera_truth = read_camera_truth(log, &meta)?;
     let has_camera = !matches!(camera_truth, CameraTruth::None);
     let basis = estimate.recall_basis.unwrap_or(if has_camera { RecallBasis::InView } else { RecallBasis::LaserSeen });
@@ -495,7 +493,7 @@ pub fn score_log(log: &Path, estimate: &Estimate) -> Result<ScoredMetrics, Score
         has_camera.then(|| crate::run::camera_geometry(&meta.sim, &crate::calibrate::true_extrinsics(&meta.sim)));
     if basis == RecallBasis::InView && camera.is_none() {
         return Err(invalid(
-            &log.join(if is_run { "metadata.json" } else { "camera.jsonl" }),
+            &log.join(if is_run { files::METADATA } else { files::CAMERA_LOG }),
             None,
             "no camera: the recall of trees in view needs one (--recall-basis laser-seen)",
         ));
@@ -504,12 +502,12 @@ pub fn score_log(log: &Path, estimate: &Estimate) -> Result<ScoredMetrics, Score
 
     // A run's own trajectory: its covariances (and its method's name) come with it.
     let own_trajectory =
-        is_run && crate::partial_files::same_path(&estimate.trajectory, &log.join("trajectory_est.tum"));
+        is_run && crate::partial_files::same_path(&estimate.trajectory, &log.join(files::TRAJECTORY_EST));
     let covariances = estimate
         .covariances
         .clone()
         .or_else(|| own_trajectory.then(|| log.join("trajectory_est_covariance.csv")).filter(|f| f.exists()));
-    let truth = log.join(if is_run { "trajectory_gt.tum" } else { "ground_truth.tum" });
+    let truth = log.join(if is_run { files::TRAJECTORY_GT } else { files::GROUND_TRUTH });
     let pose_score = score_poses(&mut scorer, &truth, &estimate.trajectory, covariances.as_deref())?;
 
     let associations = match &estimate.associations {
@@ -519,7 +517,7 @@ pub fn score_log(log: &Path, estimate: &Estimate) -> Result<ScoredMetrics, Score
     let associations_given = associations.as_ref().map(|(f, a)| (*f, &a[..]));
     let merged = score_scans(log, &meta, &mut scorer, &camera_truth, camera.as_ref(), associations_given)?;
 
-    let collisions = numbered_lines(&read_text(&log.join("collisions.jsonl"))?).count();
+    let collisions = numbered_lines(&read_text(&log.join(files::COLLISIONS))?).count();
     let landmarks = match &estimate.landmarks {
         Some(file) => Some(read_landmarks(file)?),
         None => None,
@@ -665,13 +663,13 @@ fn score_scans(
 ) -> Result<usize, ScoreError> {
     // Observations given by id need the log's observations (read with the scans).
     let by_id = associations.is_some_and(|(_, a)| a.iter().any(|s| matches!(s.observations, Observations::Ids(_))));
-    let observations_file = log.join("observations.jsonl");
+    let observations_file = log.join(files::OBSERVATIONS);
     let observations_text = if by_id { Some(read_text(&observations_file)?) } else { None };
     let mut observation_lines = observations_text.as_deref().map(numbered_lines);
-    let (laser_file, truth_file) = (log.join("laser.jsonl"), log.join("laser_truth.jsonl"));
+    let (laser_file, truth_file) = (log.join(files::LASER), log.join(files::LASER_TRUTH));
     let (laser_text, truth_text) = (read_text(&laser_file)?, read_text(&truth_file)?);
     let mut truth_lines = numbered_lines(&truth_text);
-    let shown_file = log.join(TREES_SHOWN);
+    let shown_file = log.join(files::TREES_SHOWN);
     let same_instant_s = 0.5 / meta.sim.physics_rate_hz;
     let (mut next_association, mut next_frame, mut merged) = (0usize, 0usize, 0usize);
     let mut fused_away = std::collections::HashSet::new();

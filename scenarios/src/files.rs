@@ -1,0 +1,51 @@
+//! The names of the files a simulated run or recording writes (docs/guide/runs-and-metrics.md
+//! and docs/guide/simulator.md list them), in one place: `objslam record`, `objslam run` and
+//! `objslam replay` write them and `objslam score` reads them, so a name changed in one
+//! would otherwise break the others quietly. Users' scripts read these names: keep them.
+
+/// The world the run simulated, as a world file.
+pub const WORLD: &str = "world.toml";
+/// The sensors' mounting and noise.
+pub const SENSORS: &str = "sensors.json";
+/// What the run was: scenario, seed, resolved configuration, versions.
+pub const METADATA: &str = "metadata.json";
+/// A run's scores.
+pub const METRICS: &str = "metrics.json";
+/// Laser scans, one JSON line each.
+pub const LASER: &str = "laser.jsonl";
+/// Each beam's ground truth: what it hit and the true range.
+pub const LASER_TRUTH: &str = "laser_truth.jsonl";
+/// Object observations from the ground truth.
+pub const OBSERVATIONS: &str = "observations.jsonl";
+/// Odometry messages.
+pub const ODOMETRY: &str = "odometry.jsonl";
+/// Camera frames: times, poses and the image files.
+pub const CAMERA_LOG: &str = "camera.jsonl";
+/// The directory of a recording's camera images.
+pub const CAMERA_DIR: &str = "camera";
+/// The robot's collisions.
+pub const COLLISIONS: &str = "collisions.jsonl";
+/// A recording's true trajectory (TUM).
+pub const GROUND_TRUTH: &str = "ground_truth.tum";
+/// A run's true trajectory (TUM).
+pub const TRAJECTORY_GT: &str = "trajectory_gt.tum";
+/// The method's estimated trajectory (TUM).
+pub const TRAJECTORY_EST: &str = "trajectory_est.tum";
+/// The method's map.
+pub const LANDMARKS: &str = "landmarks.json";
+/// The method's association of each observation.
+pub const ASSOCIATIONS: &str = "associations.jsonl";
+/// The pipeline's decisions (associations, new landmarks, merges, retractions).
+pub const DECISIONS: &str = "decisions.jsonl";
+/// The smoother's relinearisations.
+pub const RELINEARISATIONS: &str = "relinearisations.jsonl";
+/// The beams whose pixel showed their tree: the camera's part of `map.trees_in_view`.
+pub const TREES_SHOWN: &str = "trees_shown.jsonl";
+/// Each cluster's segmentation.
+pub const SEGMENTATION: &str = "segmentation.jsonl";
+/// The laser-camera calibration's result.
+pub const CALIBRATION: &str = "calibration.json";
+/// The object models' pictures.
+pub const OBJECTS_DIR: &str = "objects";
+/// Every stream in one MCAP file, for Foxglove.
+pub const MCAP: &str = "run.mcap";
