@@ -466,3 +466,21 @@ fn terms_of_four_points_at_once_equal_each_points_terms_bit_for_bit() {
         }
     }
 }
+
+/// The m-step's Z^T Z is the operator's product bit for bit, at every shape (the kernel's
+/// and the small-matrix loop's), so fitted models do not change with it.
+#[test]
+fn the_gram_matrix_is_the_transposed_product_bit_for_bit() {
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    for (n, d) in [(1, 1), (3, 7), (7, 3), (6, 6), (5, 20), (20, 5), (257, 13), (2000, 20), (20_000, 10)] {
+        let z = DMatrix::from_fn(n, d, |_, _| {
+            let v: f64 = StandardNormal.sample(&mut rng);
+            v * 1e3 + 0.1
+        });
+        let expected = z.transpose() * &z;
+        let got = vbem::gram(&z);
+        assert_eq!(got.shape(), (d, d));
+        let same = got.iter().zip(expected.iter()).all(|(a, b)| a.to_bits() == b.to_bits());
+        assert!(same, "{n} x {d}: differs from z^T z");
+    }
+}
