@@ -2,6 +2,7 @@
 //! what it finds.
 
 use anyhow::{Context, Result};
+use scenarios::files;
 
 use crate::progress;
 
@@ -197,8 +198,8 @@ pub(crate) fn find(
     model: Option<&std::path::Path>,
     top: usize,
 ) -> Result<()> {
-    let runs_model = run.join("objects").join("appearance_model.json");
-    if !run.join("objects").join("models.json").is_file() {
+    let runs_model = run.join(files::OBJECTS_DIR).join(scenarios::replay::APPEARANCE_MODEL_FILE);
+    if !run.join(files::OBJECTS_DIR).join(files::OBJECT_MODELS).is_file() {
         anyhow::bail!(
             "{}: no objects/models.json: give the directory of an `objslam run` of a camera method (position-only methods describe no object's appearance)",
             run.display()
@@ -224,7 +225,7 @@ pub(crate) fn find(
     for (id, kl) in ranked.iter().take(top) {
         println!(
             "  landmark {id:>4}  KL {kl:>10.2}  {}",
-            run.join("objects").join(format!("landmark_{id}.png")).display()
+            run.join(files::OBJECTS_DIR).join(format!("landmark_{id}.png")).display()
         );
     }
     Ok(())

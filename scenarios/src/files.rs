@@ -31,6 +31,8 @@ pub const GROUND_TRUTH: &str = "ground_truth.tum";
 pub const TRAJECTORY_GT: &str = "trajectory_gt.tum";
 /// The method's estimated trajectory (TUM).
 pub const TRAJECTORY_EST: &str = "trajectory_est.tum";
+/// The estimated pose's covariance at each pose of [`TRAJECTORY_EST`].
+pub const TRAJECTORY_EST_COVARIANCE: &str = "trajectory_est_covariance.csv";
 /// The method's map.
 pub const LANDMARKS: &str = "landmarks.json";
 /// The method's association of each observation.
@@ -45,7 +47,10 @@ pub const TREES_SHOWN: &str = "trees_shown.jsonl";
 pub const SEGMENTATION: &str = "segmentation.jsonl";
 /// The laser-camera calibration's result.
 pub const CALIBRATION: &str = "calibration.json";
-/// The object models' pictures.
+/// The object models: their pictures, [`OBJECT_MODELS`] and the appearance model they
+/// were made with ([`crate::replay::APPEARANCE_MODEL_FILE`]).
 pub const OBJECTS_DIR: &str = "objects";
+/// The mapped objects' appearance models, in [`OBJECTS_DIR`].
+pub const OBJECT_MODELS: &str = "models.json";
 /// Every stream in one MCAP file, for Foxglove.
 pub const MCAP: &str = "run.mcap";

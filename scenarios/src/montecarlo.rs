@@ -60,7 +60,7 @@ pub enum StudyError {
     Locked { file: PathBuf },
     #[error("job {key}: {message}")]
     Job { key: String, message: String },
-    /// A plan that cannot run, before any job is made.
+    /// A plan that cannot run, or a study that cannot go on (its scenario changed).
     #[error("{0}")]
     Plan(String),
     #[error("{}: {count} finished runs could not be appended ({message}); they are not in the file: run the same command again to redo them", file.display())]

@@ -65,11 +65,11 @@ pub fn write_objects(dir: &Path, pipeline: &Pipeline) -> Result<usize, ObjectsEr
         }
     }
     let models: Vec<_> = modelled.iter().map(|(lm, model)| (lm.id, (*model).clone())).collect();
-    let file = out.join("models.json");
+    let file = out.join(crate::files::OBJECT_MODELS);
     let json = serde_json::to_string(&ObjectModels { format_version: 1, objects: models }).expect("JSON");
     errors.extend(std::fs::write(&file, json).err().map(|e| file_err(&file, e)));
     // The appearance model too, so `objslam find` works from the run directory alone.
-    errors.extend(app.model.save(&out.join("appearance_model.json")).err().map(ObjectsError::from));
+    errors.extend(app.model.save(&out.join(crate::replay::APPEARANCE_MODEL_FILE)).err().map(ObjectsError::from));
     crate::run::first_or_all(errors, ObjectsError::Several).map(|()| written)
 }
 
@@ -146,7 +146,7 @@ pub fn find_similar(
     example: &Path,
     appearance_dims: usize,
 ) -> Result<Vec<(u32, f64)>, ObjectsError> {
-    let file = run_dir.join(crate::files::OBJECTS_DIR).join("models.json");
+    let file = run_dir.join(crate::files::OBJECTS_DIR).join(crate::files::OBJECT_MODELS);
     let text = std::fs::read_to_string(&file).map_err(|e| file_err(&file, e))?;
     let models: ObjectModels =
         slam::settings::from_json(&text).map_err(|e| file_err(&file, format!("not an objects/models.json: {e}")))?;

@@ -172,7 +172,7 @@ fn write_texts(out: &Path, run: &FinishedRun) -> Vec<RunError> {
         covariances.push_str(&crate::score::estimate::covariance_line(*t, p));
         covariances.push('\n');
     }
-    write("trajectory_est_covariance.csv", &covariances);
+    write(files::TRAJECTORY_EST_COVARIANCE, &covariances);
     write(files::TRAJECTORY_GT, &tum(gt));
     // Each decision with the ground truth beside it: the observation's true object and the
     // true object of every candidate landmark. After a scan's decisions, the fusions made

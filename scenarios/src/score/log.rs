@@ -506,7 +506,7 @@ pub fn score_log(log: &Path, estimate: &Estimate) -> Result<ScoredMetrics, Score
     let covariances = estimate
         .covariances
         .clone()
-        .or_else(|| own_trajectory.then(|| log.join("trajectory_est_covariance.csv")).filter(|f| f.exists()));
+        .or_else(|| own_trajectory.then(|| log.join(files::TRAJECTORY_EST_COVARIANCE)).filter(|f| f.exists()));
     let truth = log.join(if is_run { files::TRAJECTORY_GT } else { files::GROUND_TRUTH });
     let pose_score = score_poses(&mut scorer, &truth, &estimate.trajectory, covariances.as_deref())?;
 

@@ -217,11 +217,12 @@ fn m_step_component(data: &DMatrix<f64>, r: &DMatrix<f64>, prior: &VbPrior, kk: 
     (posterior(prior, nk, &xbar, &s), nk, xbar, s, r_ln_r)
 }
 
-/// Z^T Z, bit for bit what `z.transpose() * &z` gives, without the transposed copy (a
-/// fifth of training's time): above 5 rows and columns nalgebra 0.35 multiplies through
-/// matrixmultiply's blocked kernel, which packs its operands whatever their strides, so
-/// handing it Z's own storage read as Z^T sums the same numbers in the same order. Below,
-/// the operator itself (its small-matrix loop would misread a strided view).
+/// Z^T Z, bit for bit what `z.transpose() * &z` gives, without the transposed copy (with
+/// the weighting around it, under a fifth of training's time): above 5 rows and columns
+/// nalgebra 0.35 multiplies through matrixmultiply's blocked kernel, which packs its
+/// operands whatever their strides, so handing it Z's own storage read as Z^T sums the
+/// same numbers in the same order. Below, the operator itself, whose small-matrix loop
+/// sums in another order.
 pub(crate) fn gram(z: &DMatrix<f64>) -> DMatrix<f64> {
     let (n, d) = z.shape();
     if n <= 5 || d <= 5 {
