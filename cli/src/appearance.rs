@@ -198,7 +198,7 @@ pub(crate) fn find(
     model: Option<&std::path::Path>,
     top: usize,
 ) -> Result<()> {
-    let runs_model = run.join(files::OBJECTS_DIR).join(scenarios::replay::APPEARANCE_MODEL_FILE);
+    let runs_model = run.join(files::OBJECTS_DIR).join(files::APPEARANCE_MODEL);
     if !run.join(files::OBJECTS_DIR).join(files::OBJECT_MODELS).is_file() {
         anyhow::bail!(
             "{}: no objects/models.json: give the directory of an `objslam run` of a camera method (position-only methods describe no object's appearance)",

@@ -83,7 +83,7 @@ pub(crate) fn replay(log: Option<PathBuf>, options: ReplayArgs, dataset: Option<
     // The model given, else the log's own for a camera method.
     let beside_log = log_dir
         .as_ref()
-        .map(|d| d.join(scenarios::replay::APPEARANCE_MODEL_FILE))
+        .map(|d| d.join(files::APPEARANCE_MODEL))
         .filter(|f| config.method.uses_appearance() && f.is_file());
     let appearance = match options.appearance_model.as_ref().or(beside_log.as_ref()) {
         Some(file) => {

@@ -48,9 +48,19 @@ pub const SEGMENTATION: &str = "segmentation.jsonl";
 /// The laser-camera calibration's result.
 pub const CALIBRATION: &str = "calibration.json";
 /// The object models: their pictures, [`OBJECT_MODELS`] and the appearance model they
-/// were made with ([`crate::replay::APPEARANCE_MODEL_FILE`]).
+/// were made with ([`APPEARANCE_MODEL`]).
 pub const OBJECTS_DIR: &str = "objects";
 /// The mapped objects' appearance models, in [`OBJECTS_DIR`].
 pub const OBJECT_MODELS: &str = "models.json";
+/// A robot log's record of how it was made (see [`crate::record::provenance`]).
+pub const RECORDING: &str = "recording.json";
+/// The pipeline settings a robot log's producer recommends, beside its data (optional;
+/// `objslam record --format log` writes the scenario's).
+pub const PIPELINE: &str = "pipeline.toml";
+/// An appearance model: the one a robot log's producer recommends for the camera methods
+/// (optional; `objslam record --format log` of a scenario whose method reads the camera
+/// writes the model its run uses), taken when `objslam replay` is given none; and the one
+/// a run's object models were made with, in [`OBJECTS_DIR`].
+pub const APPEARANCE_MODEL: &str = "appearance_model.json";
 /// Every stream in one MCAP file, for Foxglove.
 pub const MCAP: &str = "run.mcap";

@@ -329,9 +329,9 @@ fn recording_files() -> [&'static str; 21] {
         f::REFERENCE,
         f::CAMERA,
         files::CAMERA_DIR,
-        crate::replay::PIPELINE_FILE,
-        crate::replay::APPEARANCE_MODEL_FILE,
-        RECORDING_FILE,
+        files::PIPELINE,
+        files::APPEARANCE_MODEL,
+        files::RECORDING,
         files::WORLD,
         files::SENSORS,
         files::LASER,
@@ -383,9 +383,6 @@ pub struct LogSettings<'a> {
     /// The scenario and run seed it was recorded for, written into `recording.json`.
     pub scoring: Option<&'a crate::score::log::LogScoring>,
 }
-
-/// A robot log's record of how it was made (see [`provenance`]).
-pub const RECORDING_FILE: &str = "recording.json";
 
 /// How a recording was made, enough to make it again: the command (`tool`), the simulator seed, the world's name
 /// and seed, the simulator settings and the scenario with its run seed (`scoring`). A
@@ -535,12 +532,12 @@ fn write_log(
     };
     // The settings as recorded (camera as logged), not as asked for.
     write(
-        RECORDING_FILE,
+        files::RECORDING,
         serde_json::to_string_pretty(&provenance("objslam record", world, config, seed, scoring)).expect("JSON"),
     )?;
     write(files::WORLD, world.to_toml())?;
     if let Some(p) = pipeline {
-        let file = out.join(crate::replay::PIPELINE_FILE);
+        let file = out.join(files::PIPELINE);
         let text =
             toml::to_string(p).map_err(|e| RecordError::Io { file: file.clone(), source: std::io::Error::other(e) })?;
         std::fs::write(&file, format!("# The pipeline settings of the scenario this log was recorded from.\n{text}"))
@@ -548,7 +545,7 @@ fn write_log(
     }
     // Only beside frames: a recording too short for one has no camera to segment.
     if let Some(m) = appearance_model.filter(|_| !log.camera.is_empty()) {
-        m.save(&out.join(crate::replay::APPEARANCE_MODEL_FILE))?;
+        m.save(&out.join(files::APPEARANCE_MODEL))?;
     }
     progress(sim.time(), nominal);
     Ok(RecordSummary {

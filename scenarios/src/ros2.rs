@@ -83,7 +83,7 @@ impl StagedBag {
         let recorder = self.recorder.as_mut().expect("a staged bag has its recorder until finished");
         let err = |source| Ros2Error::Bag { dir: recorder.dir.clone(), source };
         let json = serde_json::to_string_pretty(provenance).expect("JSON");
-        recorder.bag.attach(crate::record::RECORDING_FILE, "application/json", json.as_bytes()).map_err(err)?;
+        recorder.bag.attach(files::RECORDING, "application/json", json.as_bytes()).map_err(err)?;
         recorder.bag.attach(files::WORLD, "application/toml", world.to_toml().as_bytes()).map_err(err)
     }
 

@@ -71,15 +71,6 @@ impl From<crate::partial_files::PartialFileError> for ReplayError {
     }
 }
 
-/// The pipeline settings a log's producer recommends, beside its data (optional; `objslam
-/// record --format log` writes the scenario's).
-pub const PIPELINE_FILE: &str = "pipeline.toml";
-
-/// The appearance model a log's producer recommends for the camera methods (optional;
-/// `objslam record --format log` of a scenario whose method reads the camera writes the
-/// model its run uses), taken when `objslam replay` is given none.
-pub const APPEARANCE_MODEL_FILE: &str = "appearance_model.json";
-
 /// The settings a replay starts from, before the log's `pipeline.toml` and `--config`:
 /// the pipeline's defaults with the log's vehicle and sensor, and the rules a real sensor
 /// at tens of metres needs (a landmark confirmed by three sightings within five seconds,
@@ -139,9 +130,9 @@ pub fn resolve_config(
     let mut motion_set_in: Option<(PathBuf, usize)> = None;
     let mut files = Vec::new();
     if let Some(dir) = log_dir
-        && dir.join(PIPELINE_FILE).exists()
+        && dir.join(files::PIPELINE).exists()
     {
-        files.push(dir.join(PIPELINE_FILE));
+        files.push(dir.join(files::PIPELINE));
     }
     files.extend(overrides.map(Path::to_path_buf));
     for file in &files {
