@@ -109,7 +109,7 @@ fn a_scenarios_log_carries_its_camera_unless_told_not_to_and_camera_replays_need
     let (ok, err) = stderr_of(&["replay", with.to_str().unwrap(), "--out", replay_out.to_str().unwrap()]);
     assert!(!ok && err.contains("--appearance-model FILE"), "{err}");
     let (ok, err) = stderr_of(&["replay", without.to_str().unwrap(), "--out", replay_out.to_str().unwrap()]);
-    assert!(!ok && err.contains("the log has no camera"), "{err}");
+    assert!(!ok && err.contains("the log has no camera") && err.contains("--method nn"), "{err}");
     let missing = dir.join("no-model.json");
     let (ok, err) = stderr_of(&[
         "replay",
@@ -188,5 +188,27 @@ fn a_log_of_another_kind_is_named_for_what_it_is() {
         assert!(!ok && e.contains(expect), "{args:?}: {e}");
     }
     assert!(!root.join("out").exists());
+    let _ = std::fs::remove_dir_all(&root);
+}
+
+/// A published data set file cut short makes the parser, a third-party crate, panic: the
+/// user reads one clean error naming the file, and no crash report above it.
+#[test]
+fn a_cut_mat_file_is_an_error_without_a_crash_report() {
+    let root = std::env::temp_dir().join(format!("objslam-cut-mat-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+    let data = root.join("vp");
+    std::fs::create_dir_all(&data).unwrap();
+    // A level-5 MAT-file header (116 bytes of text, then version and endianness fields cut).
+    let mut header = b"MATLAB 5.0 MAT-file, cut short".to_vec();
+    header.resize(116, b' ');
+    header.extend([0u8; 11]);
+    std::fs::write(data.join("aa3_dr.mat"), header).unwrap();
+    std::fs::write(data.join("aa3_lsr2.mat"), b"").unwrap();
+    let out = root.join("out");
+    let args = ["replay", "victoria-park", "--data", data.to_str().unwrap(), "--out", out.to_str().unwrap()];
+    let (ok, e) = stderr_of(&args);
+    assert!(!ok && e.contains("aa3_dr.mat") && e.contains("not a readable MAT-file"), "{e}");
+    assert!(!e.contains("panicked"), "{e}");
     let _ = std::fs::remove_dir_all(&root);
 }

@@ -244,3 +244,25 @@ fn an_output_that_is_an_input_is_refused_and_the_input_kept() {
     assert!(world.is_file());
     let _ = std::fs::remove_dir_all(&root);
 }
+
+#[test]
+fn a_recording_never_replaces_a_ros2_bag() {
+    // A bag is often a real robot's data: a log or JSON-lines recording into its directory
+    // is refused, and the bag stays as it was.
+    let root = temp_root("keeps-bag");
+    let bag = root.join("bag");
+    let bag_arg = bag.to_str().unwrap();
+    let o = objslam(&root, &["record", "park", "--duration", "1", "--no-camera", "--format", "ros2", "--out", bag_arg]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let before = contents(&bag);
+    for format in ["log", "jsonl"] {
+        let args = ["record", "park", "--duration", "1", "--no-camera", "--format", format, "--out", bag_arg];
+        let o = objslam(&root, &args);
+        assert!(!o.status.success(), "{format} replaced a bag");
+        let e = stderr(&o);
+        assert!(e.contains(bag_arg) && e.contains("holds a ROS 2 bag (metadata.yaml)"), "{e}");
+        assert!(!e.contains("panicked"), "{e}");
+        assert_eq!(contents(&bag), before, "the bag is untouched");
+    }
+    let _ = std::fs::remove_dir_all(&root);
+}

@@ -448,10 +448,14 @@ impl Iterator for MotionRows {
         };
         let names = [INCREMENTS, DIFFERENTIAL, ACKERMANN][self.rows.header];
         let v: Result<Vec<f64>, _> = (1..names.len()).map(|k| self.rows.finite(line, &row, k, names[k])).collect();
-        Some(v.map(|v| match self.rows.header {
+        let message = v.map(|v| match self.rows.header {
             0 => MotionMessage::Increment(OdometryIncrement { t, dx: v[0], dy: v[1], dtheta: v[2] }),
             1 => MotionMessage::Control { t, control: Control::Differential { v: v[0], omega: v[1] } },
             _ => MotionMessage::Control { t, control: Control::Ackermann { speed: v[0], steering: v[1] } },
+        });
+        Some(message.and_then(|m| match m.impossibility() {
+            Some(problem) => Err(self.rows.problem(line, problem)),
+            None => Ok(m),
         }))
     }
 }

@@ -236,11 +236,22 @@ impl Manifest {
             }
         }
         if let Some(l) = &self.laser {
-            if !l.angle_min_rad.is_finite() {
-                return Err(("laser.angle_min_rad".into(), format!("must be finite, got {}", l.angle_min_rad)));
+            // Beyond a turn either way an angle is a unit mistake (degrees for radians).
+            let turn = std::f64::consts::TAU;
+            if !(l.angle_min_rad.is_finite() && l.angle_min_rad.abs() <= turn) {
+                return Err((
+                    "laser.angle_min_rad".into(),
+                    format!("must be finite and within a turn (radians), got {}", l.angle_min_rad),
+                ));
             }
-            if !(l.angle_increment_rad.is_finite() && l.angle_increment_rad != 0.0) {
-                return Err(("laser.angle_increment_rad".into(), "must be finite and not zero".into()));
+            if !(l.angle_increment_rad.is_finite()
+                && l.angle_increment_rad != 0.0
+                && l.angle_increment_rad.abs() <= turn)
+            {
+                return Err((
+                    "laser.angle_increment_rad".into(),
+                    format!("must be finite, not zero and within a turn (radians), got {}", l.angle_increment_rad),
+                ));
             }
             if !(l.range_min_m.is_finite() && l.range_min_m >= 0.0) {
                 return Err((

@@ -17,7 +17,34 @@ pub enum MotionMessage {
     Control { t: f64, control: Control },
 }
 
+/// The fastest speed a vehicle's odometry may report (m/s): the speed of sound in air. No
+/// ground robot's wheels read more; a larger value is corrupt data, and a large enough one
+/// overflows the filter's variances.
+pub const MAX_SPEED_M_S: f64 = 343.0;
+
 impl MotionMessage {
+    /// What makes this message impossible, if anything: a speed beyond [`MAX_SPEED_M_S`],
+    /// a step beyond [`crate::format::MAX_COORDINATE_M`], or steering at or past a right
+    /// angle, where a car's turning geometry (tan of the angle) has no value.
+    pub fn impossibility(&self) -> Option<String> {
+        let too_fast = |name: &str, v: f64| {
+            (v.abs() > MAX_SPEED_M_S).then(|| format!("{name} {v:e} m/s is beyond {MAX_SPEED_M_S} m/s"))
+        };
+        match *self {
+            MotionMessage::Increment(o) => {
+                let max = crate::format::MAX_COORDINATE_M;
+                (o.dx.abs().max(o.dy.abs()) > max)
+                    .then(|| format!("a step of ({:e}, {:e}) m is beyond {max:e} m", o.dx, o.dy))
+            }
+            MotionMessage::Control { control: Control::Differential { v, .. }, .. } => too_fast("speed", v),
+            MotionMessage::Control { control: Control::Ackermann { speed, steering }, .. } => too_fast("speed", speed)
+                .or_else(|| {
+                    (steering.abs() >= std::f64::consts::FRAC_PI_2)
+                        .then(|| format!("steering {steering} rad is at or past a right angle"))
+                }),
+        }
+    }
+
     /// The increment, if this is one.
     pub fn into_increment(self) -> Option<OdometryIncrement> {
         match self {

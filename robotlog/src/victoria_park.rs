@@ -24,6 +24,7 @@ use matrw::{MatFile, MatVariable};
 use slam::messages::{Control, Detection, LaserScan};
 
 use crate::manifest::{LaserGeometry, Reference, ReferenceKind, ReferencePoint, Sensor, Vehicle};
+use crate::stream::MotionMessage;
 use crate::{DetectionScan, Log, LogError, Manifest, Motion, Observations, ReferenceSample};
 
 pub const DETECTIONS_FILE: &str = "VictoriaParkSinSincronizar.mat";
@@ -87,21 +88,58 @@ pub fn read(dir: &Path) -> Result<Log, LogError> {
     Ok(Log { manifest, motion, observations, reference, camera: Vec::new() })
 }
 
+std::thread_local! {
+    /// Set while this thread runs the MAT-file parser (see [`load`]).
+    static PARSING: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
 /// Loads a MAT-file. A corrupt file must be an error, not a crash: the parser is a
-/// third-party crate, so a panic inside it is caught and reported as such.
+/// third-party crate, so a panic inside it is caught and reported as such, and the panic
+/// hook stays silent for it (a user would otherwise read a crash report above the error).
 fn load(file: &Path) -> Result<MatFile, LogError> {
+    static QUIET_HOOK: std::sync::Once = std::sync::Once::new();
+    QUIET_HOOK.call_once(|| {
+        let previous = std::panic::take_hook();
+        std::panic::set_hook(Box::new(move |info| {
+            if !PARSING.with(std::cell::Cell::get) {
+                previous(info);
+            }
+        }));
+    });
     let bytes = std::fs::read(file).map_err(|source| LogError::Io { file: file.to_path_buf(), source })?;
+    PARSING.with(|p| p.set(true));
     let parsed = std::panic::catch_unwind(|| matrw::load_matfile_from_u8(&bytes));
+    PARSING.with(|p| p.set(false));
     match parsed {
         Ok(Ok(mat)) => Ok(mat),
-        Ok(Err(e)) => {
-            Err(LogError::File { file: file.to_path_buf(), problem: format!("not a readable MAT-file: {e}") })
-        }
+        Ok(Err(e)) => Err(LogError::File {
+            file: file.to_path_buf(),
+            problem: format!("not a readable MAT-file: {}", plain_text(&e.to_string())),
+        }),
         Err(_) => Err(LogError::File {
             file: file.to_path_buf(),
             problem: "not a readable MAT-file (the parser failed)".into(),
         }),
     }
+}
+
+/// The parser's message without its terminal colour codes, on one line.
+fn plain_text(message: &str) -> String {
+    let mut out = String::with_capacity(message.len());
+    let mut chars = message.chars();
+    while let Some(c) = chars.next() {
+        if c == '\u{1b}' {
+            // An escape sequence `ESC [ ... letter`.
+            for c in chars.by_ref() {
+                if c.is_ascii_alphabetic() {
+                    break;
+                }
+            }
+        } else {
+            out.push(if c == '\n' { ' ' } else { c });
+        }
+    }
+    out.split_whitespace().collect::<Vec<_>>().join(" ")
 }
 
 /// A numeric variable as f64, whatever its stored type.
@@ -138,6 +176,9 @@ fn vector(mat: &MatFile, file: &Path, name: &str) -> Result<Vec<f64>, LogError> 
 }
 
 fn check_times(file: &Path, name: &str, t: &[f64]) -> Result<(), LogError> {
+    if t.is_empty() {
+        return Err(LogError::File { file: file.to_path_buf(), problem: format!("`{name}` is empty") });
+    }
     if let Some(k) = t.iter().position(|v| !v.is_finite()) {
         return Err(LogError::File {
             file: file.to_path_buf(),
@@ -171,9 +212,14 @@ fn controls(file: &Path, time_s: &[f64], speed: &[f64], steering: &[f64]) -> Res
     if let Some(k) = (0..time_s.len()).find(|&k| !(speed[k].is_finite() && steering[k].is_finite())) {
         return Err(LogError::File { file: file.to_path_buf(), problem: format!("control {} is not finite", k + 1) });
     }
-    Ok(Motion::Controls(
-        (0..time_s.len()).map(|k| (time_s[k], Control::Ackermann { speed: speed[k], steering: steering[k] })).collect(),
-    ))
+    let controls: Vec<(f64, Control)> =
+        (0..time_s.len()).map(|k| (time_s[k], Control::Ackermann { speed: speed[k], steering: steering[k] })).collect();
+    for (k, &(t, control)) in controls.iter().enumerate() {
+        if let Some(problem) = (MotionMessage::Control { t, control }).impossibility() {
+            return Err(LogError::File { file: file.to_path_buf(), problem: format!("control {}: {problem}", k + 1) });
+        }
+    }
+    Ok(Motion::Controls(controls))
 }
 
 fn read_detections_form(file: &Path) -> Result<(Motion, Observations), LogError> {
@@ -211,12 +257,16 @@ fn read_detections_form(file: &Path) -> Result<(Motion, Observations), LogError>
                 problem: format!("`zt` cell {} is not a numeric matrix", k + 1),
             });
         };
-        let values = numbers(cell).unwrap_or_default();
+        let values = numbers(cell).ok_or_else(|| LogError::File {
+            file: file.to_path_buf(),
+            problem: format!("`zt` cell {} holds values of a type that is not a number", k + 1),
+        })?;
         let dim = cell.dim();
+        // A scan that saw no tree (an empty cell) gives the filter nothing to do.
         if values.is_empty() {
             continue;
         }
-        if dim.first() != Some(&3) || !values.len().is_multiple_of(3) {
+        if dim.len() != 2 || dim[0] != 3 || !values.len().is_multiple_of(3) {
             return Err(LogError::File {
                 file: file.to_path_buf(),
                 problem: format!("`zt` cell {} is {dim:?}; expected 3 x N (range; bearing; diameter)", k + 1),
@@ -257,6 +307,17 @@ fn read_laser(file: &Path) -> Result<Observations, LogError> {
         });
     }
     let n = times.len();
+    if let Some(i) = ranges.iter().position(|cm| !(cm.is_finite() && *cm >= 0.0)) {
+        return Err(LogError::File {
+            file: file.to_path_buf(),
+            problem: format!(
+                "`LASER` row {}, beam {} is {}: ranges are centimetres, not negative",
+                i % n + 1,
+                i / n + 1,
+                ranges[i]
+            ),
+        });
+    }
     let scans = times
         .iter()
         .enumerate()
@@ -289,6 +350,13 @@ fn read_gps(file: &Path) -> Result<Vec<ReferenceSample>, LogError> {
         });
     }
     check_times(file, "timeGps", &t)?;
+    let max = crate::format::MAX_COORDINATE_M;
+    if let Some(k) = (0..t.len()).find(|&k| x[k].abs().max(y[k].abs()) > max) {
+        return Err(LogError::File {
+            file: file.to_path_buf(),
+            problem: format!("fix {} ({:.3e}, {:.3e}) lies beyond {max:e} m", k + 1, x[k], y[k]),
+        });
+    }
     Ok((0..t.len())
         .filter(|&k| x[k].is_finite() && y[k].is_finite())
         .map(|k| ReferenceSample { t: t[k] / 1000.0, x: x[k], y: y[k], theta: None })

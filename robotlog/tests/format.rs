@@ -152,6 +152,9 @@ fn malformed_files_are_errors_that_name_file_and_line() {
         // Lines ended by a lone carriage return, or by CR LF, as the CSV reader ends them.
         ("odometry.csv", "t,dx,dy,dtheta\r0,1,0,0\r\r0.2,1,0,0\r", "odometry.csv:3: a blank line before the last row"),
         ("odometry.csv", "t,dx,dy,dtheta\r\n0,1,0,0\r\n\r\n0.2,1,0,0\r\n", "odometry.csv:3: a blank line"),
+        // Values no odometry gives: corrupt data, which would overflow the filter.
+        ("odometry.csv", "t,dx,dy,dtheta\n0,1e300,0,0\n", "odometry.csv:2: a step of (1e300, 0e0) m is beyond 1e9 m"),
+        ("odometry.csv", "t,v,omega\n0,0.5,0\n0.1,-1000,0\n", "odometry.csv:3: speed -1e3 m/s is beyond 343 m/s"),
         ("scans.csv", "t,r0\n", "scans.csv: a header and no row"),
         ("scans.csv", "t\n0\n", "scans.csv:1: no beam column after `t`"),
         ("odometry.csv", "t,speed,steering\n0,1,0\n", "needs `t,dx,dy,dtheta` or `t,v,omega`"),
@@ -196,6 +199,11 @@ fn malformed_files_are_errors_that_name_file_and_line() {
             "manifest.toml",
             "format_version = 1\n[sensor]\nx_m = 0\ny_m = 0\nrange_sigma_m = 0.0\n",
             "sensor.range_sigma_m: must be finite and positive, got 0",
+        ),
+        (
+            "manifest.toml",
+            "format_version = 1\n[sensor]\nx_m = 0\ny_m = 0\n[laser]\nangle_min_rad = -90.0\nangle_increment_rad = 0.5\nrange_min_m = 0.1\nrange_max_m = 30.0\n",
+            "laser.angle_min_rad: must be finite and within a turn (radians), got -90",
         ),
     ];
     for (file, text, expected) in cases {
@@ -518,6 +526,61 @@ fn victoria_park_files_that_are_not_mat_files_are_errors() {
     std::fs::write(d.join("VictoriaParkSinSincronizar.mat"), b"MATLAB 5.0 MAT-file, not really").unwrap();
     let e = robotlog::victoria_park::read(&d).unwrap_err().to_string();
     assert!(e.contains("VictoriaParkSinSincronizar.mat") && e.contains("not a readable MAT-file"), "{e}");
+    std::fs::remove_dir_all(&d).ok();
+}
+
+/// Published files with values no car or laser gives are refused, naming the file and
+/// the element, rather than replayed into a diverging filter.
+#[test]
+fn victoria_park_values_that_cannot_be_are_errors() {
+    use matrw::{MatFile, MatVariable, NumericArray};
+    let d = dir("vp-values");
+    let numeric =
+        |dim: Vec<usize>, v: matrw::MatlabType| MatVariable::NumericArray(NumericArray::new(dim, v, None).unwrap());
+    let write_dr = |times: Vec<f64>| {
+        let n = times.len();
+        let mut dr = MatFile::new();
+        dr.insert("time", numeric(vec![n, 1], times.into()));
+        dr.insert("speed", numeric(vec![n, 1], vec![2.0f64; n].into()));
+        dr.insert("steering", numeric(vec![n, 1], vec![0.0f64; n].into()));
+        matrw::save_matfile_v7(d.join("aa3_dr.mat").to_str().unwrap(), dr, true).unwrap();
+    };
+    let write_lsr = |first_beam_cm: f64| {
+        let mut ranges = vec![1000.0f64; 2 * 361];
+        ranges[1] = first_beam_cm;
+        let mut lsr = MatFile::new();
+        lsr.insert("TLsr", numeric(vec![2, 1], vec![1010.0f64, 1220.0].into()));
+        lsr.insert("LASER", numeric(vec![2, 361], ranges.into()));
+        matrw::save_matfile_v7(d.join("aa3_lsr2.mat").to_str().unwrap(), lsr, true).unwrap();
+    };
+    let error = || robotlog::victoria_park::read(&d).unwrap_err().to_string();
+    std::fs::create_dir_all(&d).unwrap();
+    write_dr(vec![1000.0, 1025.0]);
+    write_lsr(f64::NAN);
+    let e = error();
+    assert!(e.contains("aa3_lsr2.mat") && e.contains("`LASER` row 2, beam 1 is NaN"), "{e}");
+    write_lsr(-5.0);
+    assert!(error().contains("row 2, beam 1 is -5"), "{}", error());
+    write_lsr(1000.0);
+    write_dr(Vec::new());
+    let e = error();
+    assert!(e.contains("aa3_dr.mat") && e.contains("`time` is empty"), "{e}");
+    write_dr(vec![1000.0, 1025.0]);
+    let mut dr = MatFile::new();
+    dr.insert("time", numeric(vec![2, 1], vec![1000.0f64, 1025.0].into()));
+    dr.insert("speed", numeric(vec![2, 1], vec![2.0f64, 1e300].into()));
+    dr.insert("steering", numeric(vec![2, 1], vec![0.0f64, 0.0].into()));
+    matrw::save_matfile_v7(d.join("aa3_dr.mat").to_str().unwrap(), dr, true).unwrap();
+    let e = error();
+    assert!(e.contains("aa3_dr.mat") && e.contains("control 2: speed 1e300 m/s is beyond 343 m/s"), "{e}");
+    write_dr(vec![1000.0, 1025.0]);
+    let mut gps = MatFile::new();
+    gps.insert("timeGps", numeric(vec![2, 1], vec![1000.0f64, 1200.0].into()));
+    gps.insert("Lo_m", numeric(vec![2, 1], vec![1.0f64, 1e12].into()));
+    gps.insert("La_m", numeric(vec![2, 1], vec![1.0f64, 2.0].into()));
+    matrw::save_matfile_v7(d.join("aa3_gpsx.mat").to_str().unwrap(), gps, true).unwrap();
+    let e = error();
+    assert!(e.contains("aa3_gpsx.mat") && e.contains("fix 2 (1.000e12, 2.000e0) lies beyond 1e9 m"), "{e}");
     std::fs::remove_dir_all(&d).ok();
 }
 

@@ -47,6 +47,14 @@ pub enum RecordError {
     Publish(Vec<crate::partial_files::PartialFileError>),
     #[error(transparent)]
     Model(#[from] slam::classifier::ModelError),
+    /// A ROS 2 bag is often data brought from elsewhere (a real robot's): a recording of
+    /// another kind replaces an earlier one's files, but never removes a bag.
+    #[error(
+        "{} holds a ROS 2 bag ({}): a directory holds one recording, and a bag is not replaced; record into another directory or remove the bag first",
+        dir.display(),
+        ros2bag::METADATA_FILE
+    )]
+    HoldsBag { dir: PathBuf },
 }
 
 /// What `objslam record` writes.
@@ -356,6 +364,10 @@ fn staged(
 ) -> Result<RecordSummary, RecordError> {
     use crate::partial_files as staging;
     let lock = staging::lock_output(out)?;
+    if out.join(ros2bag::METADATA_FILE).exists() {
+        lock.release_failed();
+        return Err(RecordError::HoldsBag { dir: out.to_path_buf() });
+    }
     let written = staging::start_unfinished(out).map_err(RecordError::from).and_then(|dir| write(&dir));
     let summary = match written {
         Ok(summary) => summary,

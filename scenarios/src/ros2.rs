@@ -7,7 +7,7 @@
 //!   error model gives (`sim::odometry::increment_covariance`, propagated for the pose;
 //!   z, roll and pitch unmeasured);
 //! - `/tf` (`odom` -> `base_link`, from that odometry) and `/tf_static` (`base_link` ->
-//!   `laser`, `base_link` -> `camera_optical`, latched);
+//!   `laser`, `base_link` -> `camera_optical` where the camera is on, latched);
 //! - `/camera/image_raw` (`sensor_msgs/msg/Image`, `rgb8`) and `/camera/camera_info`;
 //! - `/ground_truth/pose` (`geometry_msgs/msg/PoseStamped` in frame `world`) and, at the
 //!   end, `/ground_truth/path`: on topics of their own and never on `/tf`, so the truth
@@ -166,7 +166,8 @@ pub struct Ros2Recorder {
     odom: OdomTrack,
     static_written: bool,
     base_from_laser: Transform,
-    base_from_camera: Transform,
+    /// `None` where the camera is off.
+    base_from_camera: Option<Transform>,
     truth_path: Vec<PoseStamped>,
 }
 
@@ -223,9 +224,11 @@ impl Ros2Recorder {
             translation: Vector3 { x: lx, y: ly, z: lz },
             rotation: Quaternion::from_yaw(config.laser.mount_yaw_deg.to_radians()),
         };
-        let c = config.camera.base_from_camera();
-        let base_from_camera =
-            Transform { translation: Vector3 { x: c.t[0], y: c.t[1], z: c.t[2] }, rotation: quaternion(&c.r) };
+        // A frame for a camera that records nothing would tell tools there is one.
+        let base_from_camera = config.camera.enabled.then(|| {
+            let c = config.camera.base_from_camera();
+            Transform { translation: Vector3 { x: c.t[0], y: c.t[1], z: c.t[2] }, rotation: quaternion(&c.r) }
+        });
         Ok(Ros2Recorder {
             bag,
             dir: dir.to_path_buf(),
@@ -251,13 +254,15 @@ impl Ros2Recorder {
         if !self.static_written {
             self.static_written = true;
             let header = Header::new(stamp(t)?, "base_link");
-            let transforms = [("laser", self.base_from_laser), ("camera_optical", self.base_from_camera)]
+            let camera = self.base_from_camera.map(|c| ("camera_optical", c));
+            let transforms = std::iter::once(("laser", self.base_from_laser))
+                .chain(camera)
                 .map(|(child, transform)| TransformStamped {
                     header: header.clone(),
                     child_frame_id: child.into(),
                     transform,
                 })
-                .to_vec();
+                .collect();
             self.bag.write("/tf_static", nanos(t), &TfMessage { transforms })?;
         }
         match event {

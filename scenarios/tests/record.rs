@@ -312,6 +312,39 @@ fn a_ros2_bag_holds_what_the_json_lines_hold_in_standard_messages() {
 
 /// A camera that renders no depth records its frames without a depth image (it panicked
 /// on the empty depth buffer).
+/// Without a camera a bag names no camera frame: tools would look for images that are not
+/// there.
+#[test]
+fn a_bag_without_a_camera_has_no_camera_frame() {
+    let root = std::env::temp_dir().join(format!("objslam-record-ros2-nocam-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+    let world = worlds::generate::park(&Default::default(), 2).unwrap();
+    let mut config = sim::SimConfig { max_duration_s: Some(1.0), ..Default::default() };
+    config.camera.enabled = false;
+    let bag = root.join("bag");
+    use scenarios::record::{RecordFormat, record};
+    record(&world, &config, 4, &scenarios::score::log::LogScoring::of_world(), &bag, RecordFormat::Ros2, |_, _| {})
+        .unwrap();
+    let bytes = std::fs::read(bag.join("bag_0.mcap")).unwrap();
+    let mut static_frames = Vec::new();
+    for m in mcap::MessageStream::new(&bytes).unwrap() {
+        let m = m.unwrap();
+        assert!(!m.channel.topic.starts_with("/camera"), "{}", m.channel.topic);
+        if m.channel.topic == "/tf_static" {
+            let mut r = Cdr::new(&m.data);
+            for _ in 0..r.u32() {
+                let (_, parent) = r.header();
+                static_frames.push((parent, r.string()));
+                (0..7).for_each(|_| {
+                    r.f64();
+                });
+            }
+        }
+    }
+    assert_eq!(static_frames, vec![("base_link".to_string(), "laser".to_string())]);
+    let _ = std::fs::remove_dir_all(&root);
+}
+
 #[test]
 fn a_camera_without_depth_records_frames_without_a_depth_image() {
     let dir = std::env::temp_dir().join(format!("objslam-record-nodepth-{}", std::process::id()));

@@ -411,6 +411,24 @@ fn a_fault_found_mid_replay_names_its_row_and_leaves_earlier_outputs_whole() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// A log whose motion stops while its sensors go on (an odometry file cut short) is
+/// refused, not replayed as a vehicle standing still.
+#[test]
+fn motion_cut_short_is_refused() {
+    let mut log = synthetic_park();
+    log.manifest.vehicle.wheelbase_m = Some(2.83);
+    let config = resolve_config(None, &log.manifest, Some(AssociationMethod::Nn), None).unwrap();
+    let last_scan = match &log.observations {
+        Observations::Detections(d) => d.last().unwrap().t,
+        Observations::Scans(s) => s.last().unwrap().t,
+    };
+    let Motion::Controls(controls) = &mut log.motion else { panic!("a car's controls") };
+    controls.retain(|(t, _)| *t < last_scan - 5.0);
+    let motion_end = controls.last().unwrap().0;
+    let e = replay(log, config, None, None).err().expect("cut motion is refused").to_string();
+    assert!(e.contains(&format!("the motion ends at t = {motion_end} s while observations go on")), "{e}");
+}
+
 /// A settings file given to a replay (`--config`, or a log's `pipeline.toml`) is refused at
 /// the line of the key that is wrong, bare or under `[pipeline]`, arrays longer than their
 /// field included.

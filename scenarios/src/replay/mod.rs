@@ -32,6 +32,10 @@ use slam::pipeline::{Appearance, Pipeline, PipelineConfig};
 
 use crate::partial_files::PartialFiles;
 
+/// The longest an observation may come after the log's last motion message (s): see
+/// [`ReplayError::MotionEnded`].
+const MOTION_GAP_S: f64 = 1.0;
+
 /// Errors of a replay.
 #[derive(Debug, thiserror::Error)]
 pub enum ReplayError {
@@ -53,10 +57,20 @@ pub enum ReplayError {
     Publish(Vec<crate::partial_files::PartialFileError>),
     #[error(transparent)]
     Plot(#[from] crate::plot::PlotError),
-    #[error("method {method} segments camera images: the log has no camera (a [camera] table and camera.csv)")]
+    #[error(
+        "method {method} segments camera images: the log has no camera (a [camera] table and camera.csv); replay it with a method that needs none (--method nn or --method jcbb)"
+    )]
     NoCamera { method: &'static str },
-    #[error("method {method} segments camera images: the log's camera.csv lists no frame")]
+    #[error(
+        "method {method} segments camera images: the log's camera.csv lists no frame; replay it with a method that needs none (--method nn or --method jcbb)"
+    )]
     NoFrames { method: &'static str },
+    /// Motion that stops while the sensors go on is a cut file, not a vehicle standing
+    /// still: odometry comes at tens of hertz, so a second without it is no jitter.
+    #[error(
+        "the motion ends at t = {motion_end} s while observations go on to t = {t} s: a log's motion must cover what it saw (is the odometry file cut short?)"
+    )]
+    MotionEnded { motion_end: f64, t: f64 },
     #[error(
         "method {method} needs an appearance model (`objslam replay --appearance-model FILE`, from `objslam train`, or the log's own appearance_model.json); `--method nn` or `jcbb` needs none"
     )]
@@ -387,6 +401,7 @@ fn replay_and_write(
     let mut scan_ms = ScanTimeHistogram::default();
     let yaw = log.manifest.sensor.yaw_rad;
     let (mut detections, mut motion_messages, mut scans, mut end) = (0, 0, 0, start);
+    let mut motion_end = start;
     // The time of the trajectory's last pose (written to its file where there is one).
     let mut last_written: Option<f64> = None;
     let error = |t: f64| move |source| ReplayError::Pipeline { t, source };
@@ -412,6 +427,7 @@ fn replay_and_write(
             }
             motion_messages += 1;
             end = end.max(t);
+            motion_end = t;
         } else if let (Some(tf), true) = (tf, first(tf, to)) {
             let camera = camera.expect("frames only with a camera");
             let Some(Ok(frame)) = frames.next() else { unreachable!("peeked a frame") };
@@ -422,6 +438,9 @@ fn replay_and_write(
         } else {
             let Some(Ok(message)) = log.observations.next() else { unreachable!("peeked a message") };
             let t = message.time();
+            if tm.is_none() && motion_messages > 0 && t > motion_end + MOTION_GAP_S {
+                return Err(ReplayError::MotionEnded { motion_end, t });
+            }
             let tick = Instant::now();
             let report = match message {
                 // Beams in the vehicle's frame: the laser may look sideways.

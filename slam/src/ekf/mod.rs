@@ -129,6 +129,13 @@ impl Ekf {
         }
     }
 
+    /// Whether every number of the state and every variance is finite. An input far
+    /// outside what the models describe overflows them, and nothing estimated afterwards
+    /// means anything.
+    pub fn is_finite(&self) -> bool {
+        self.x.iter().all(|v| v.is_finite()) && (0..self.p.nrows()).all(|i| self.p[(i, i)].is_finite())
+    }
+
     pub fn landmark_count(&self) -> usize {
         (self.x.len() - self.vehicle_dims) / 2
     }

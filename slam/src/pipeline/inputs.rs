@@ -15,7 +15,7 @@ impl Pipeline {
             return Err(PipelineError::MotionInput { model: self.config.motion.name(), input: "odometry increments" });
         }
         self.predict([o.dx, o.dy, o.dtheta], o.t);
-        Ok(())
+        self.check_state(o.t)
     }
 
     /// A control (speeds, or speed and steering) that holds from `t` until the next input:
@@ -45,7 +45,7 @@ impl Pipeline {
         self.t = t;
         self.record_pose();
         self.control = Some((t, control));
-        Ok(())
+        self.check_state(t)
     }
 
     /// Moves the filter on to `t` with the control held since the previous input (nothing
@@ -100,7 +100,9 @@ impl Pipeline {
         self.advance_to(t);
         let clusters: Vec<Cluster> = detections.iter().enumerate().map(|(k, d)| d.as_cluster(k)).collect();
         let keep = vec![true; clusters.len()];
-        Ok(self.observe_positions(t, clusters, &keep, "unknown"))
+        let report = self.observe_positions(t, clusters, &keep, "unknown");
+        self.check_state(t)?;
+        Ok(report)
     }
 
     /// Processes a scan. Position-only methods: every size-compatible cluster is an
@@ -110,11 +112,14 @@ impl Pipeline {
         self.check_time("scan", scan.t)?;
         self.advance_to(scan.t);
         let clusters = cluster(scan, &self.config.clustering);
-        if self.config.method.uses_appearance() {
-            return Ok(self.on_scan_with_appearance(scan, clusters));
-        }
-        let keep = vec![true; clusters.len()];
-        Ok(self.observe_positions(scan.t, clusters, &keep, "unknown"))
+        let report = if self.config.method.uses_appearance() {
+            self.on_scan_with_appearance(scan, clusters)
+        } else {
+            let keep = vec![true; clusters.len()];
+            self.observe_positions(scan.t, clusters, &keep, "unknown")
+        };
+        self.check_state(scan.t)?;
+        Ok(report)
     }
 
     /// Stores a camera image (8-bit RGB, row-major) for the next scans to segment, and
@@ -257,6 +262,24 @@ mod tests {
         let r = 2.0 / std::f64::consts::PI;
         let [x, y, th] = robot.pose().pose;
         assert!((x - r).abs() < 1e-9 && (y - r).abs() < 1e-9 && (th - std::f64::consts::FRAC_PI_2).abs() < 1e-9);
+    }
+
+    #[test]
+    fn an_input_that_overflows_the_filter_is_refused_and_so_is_everything_after_it() {
+        // A finite but absurd increment: its noise's variance overflows.
+        let mut p =
+            Pipeline::new(PipelineConfig { method: AssociationMethod::Nn, ..Default::default() }, [0.0; 3], None)
+                .unwrap();
+        p.on_odometry(&OdometryIncrement { t: 0.1, dx: 0.1, dy: 0.0, dtheta: 0.0 }).unwrap();
+        let absurd = OdometryIncrement { t: 0.2, dx: 1e300, dy: 0.0, dtheta: 0.0 };
+        let err = p.on_odometry(&absurd).unwrap_err();
+        assert!(matches!(err, PipelineError::Diverged { t: 0.2 }), "{err}");
+        assert!(err.to_string().contains("stopped being finite at t = 0.2 s"), "{err}");
+        assert!(!p.ekf.is_finite());
+        // Sticky: sane inputs later are refused, naming the same instant.
+        let sane = OdometryIncrement { t: 0.3, dx: 0.1, dy: 0.0, dtheta: 0.0 };
+        assert!(matches!(p.on_odometry(&sane), Err(PipelineError::Diverged { t: 0.2 })));
+        assert!(matches!(p.on_detections(0.4, &[]), Err(PipelineError::Diverged { t: 0.2 })));
     }
 
     #[test]

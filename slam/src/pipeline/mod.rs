@@ -101,6 +101,8 @@ pub struct Pipeline {
     relinearised_at: f64,
     /// The latest control and the time it was given: it holds until the next input.
     control: Option<(f64, Control)>,
+    /// When the filter's state stopped being finite: every later input is refused.
+    diverged_at: Option<f64>,
 }
 
 /// Errors of the online pipeline.
@@ -122,6 +124,13 @@ pub enum PipelineError {
     DetectionsNeedPositionMethod(&'static str),
     #[error("{given} object flags for {clusters} clusters")]
     ObjectFlags { given: usize, clusters: usize },
+    /// An input far outside what the motion and sensor models describe (a speed of 1e300
+    /// m/s, finite but absurd) overflowed the filter: nothing estimated after it means
+    /// anything, so this input and every later one are refused.
+    #[error(
+        "the filter's estimate stopped being finite at t = {t} s (an input far outside what the motion and sensor models describe); nothing after it can be estimated"
+    )]
+    Diverged { t: f64 },
 }
 
 impl Pipeline {
@@ -184,6 +193,7 @@ impl Pipeline {
             history,
             relinearisations: Vec::new(),
             relinearised_at: 0.0,
+            diverged_at: None,
             control: None,
         };
         p.record_pose();
@@ -204,8 +214,12 @@ impl Pipeline {
         self.t
     }
 
-    /// Refuses an input stamped before the previous one.
+    /// Refuses an input stamped before the previous one, and any input once the filter
+    /// has diverged.
     fn check_time(&self, input: &'static str, t: f64) -> Result<(), PipelineError> {
+        if let Some(at) = self.diverged_at {
+            return Err(PipelineError::Diverged { t: at });
+        }
         if !t.is_finite() {
             return Err(PipelineError::NonFinite { input, t });
         }
@@ -213,6 +227,18 @@ impl Pipeline {
             return Err(PipelineError::TimeReversed { input, t, previous: self.t });
         }
         Ok(())
+    }
+
+    /// Refuses to go on once the filter's state is no longer finite (see
+    /// [`PipelineError::Diverged`]); `t` is the input that made it so.
+    fn check_state(&mut self, t: f64) -> Result<(), PipelineError> {
+        if self.diverged_at.is_none() && !self.ekf.is_finite() {
+            self.diverged_at = Some(t);
+        }
+        match self.diverged_at {
+            Some(at) => Err(PipelineError::Diverged { t: at }),
+            None => Ok(()),
+        }
     }
 
     /// The report of the scan at `t`: its observations and what it did, handed over.

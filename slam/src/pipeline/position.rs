@@ -34,7 +34,9 @@ impl Pipeline {
         }
         self.check_time("scan", t)?;
         self.advance_to(t);
-        Ok(self.observe_positions(t, clusters, is_object, class))
+        let report = self.observe_positions(t, clusters, is_object, class);
+        self.check_state(t)?;
+        Ok(report)
     }
 
     /// Position-only association and the filter's update for one scan's clusters.
