@@ -74,13 +74,22 @@ impl PatchScores {
     }
     /// TP / (TP + FP); 1 when nothing was predicted positive.
     pub fn precision(&self) -> f64 {
-        let p = self.true_positives + self.false_positives;
-        if p == 0 { 1.0 } else { self.true_positives as f64 / p as f64 }
+        self.defined_precision().unwrap_or(1.0)
     }
     /// TP / (TP + FN); 1 when there was nothing to find.
     pub fn recall(&self) -> f64 {
+        self.defined_recall().unwrap_or(1.0)
+    }
+    /// TP / (TP + FP); `None` when nothing was predicted positive: a run that classified
+    /// nothing has no precision, not a perfect one.
+    pub fn defined_precision(&self) -> Option<f64> {
+        let p = self.true_positives + self.false_positives;
+        (p > 0).then(|| self.true_positives as f64 / p as f64)
+    }
+    /// TP / (TP + FN); `None` when there was nothing to find.
+    pub fn defined_recall(&self) -> Option<f64> {
         let p = self.true_positives + self.false_negatives;
-        if p == 0 { 1.0 } else { self.true_positives as f64 / p as f64 }
+        (p > 0).then(|| self.true_positives as f64 / p as f64)
     }
     pub fn f1(&self) -> f64 {
         let (p, r) = (self.precision(), self.recall());
@@ -941,5 +950,19 @@ mod tests {
         }
         assert!((s.precision() - 2.0 / 3.0).abs() < 1e-12 && (s.recall() - 2.0 / 3.0).abs() < 1e-12);
         assert!((s.f1() - 2.0 / 3.0).abs() < 1e-12);
+        assert_eq!((s.defined_precision(), s.defined_recall()), (Some(s.precision()), Some(s.recall())));
+    }
+
+    /// Regression: with nothing classified, precision and recall came out perfect (1).
+    #[test]
+    fn precision_and_recall_over_no_patch_are_undefined() {
+        let none = PatchScores::default();
+        assert_eq!((none.defined_precision(), none.defined_recall()), (None, None));
+        let negatives = PatchScores { true_negatives: 5, ..Default::default() };
+        assert_eq!((negatives.defined_precision(), negatives.defined_recall()), (None, None));
+        let missed = PatchScores { false_negatives: 2, ..Default::default() };
+        assert_eq!((missed.defined_precision(), missed.defined_recall()), (None, Some(0.0)));
+        let wrong = PatchScores { false_positives: 2, ..Default::default() };
+        assert_eq!((wrong.defined_precision(), wrong.defined_recall()), (Some(0.0), None));
     }
 }

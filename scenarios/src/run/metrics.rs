@@ -3,6 +3,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use crate::score::scorer::RecallBasis;
 use crate::score::{AssociationCounts, MapContent};
 
 /// Segmentation quality against the rendered masks (absent without a camera).
@@ -10,6 +11,14 @@ use crate::score::{AssociationCounts, MapContent};
 pub struct SegmentationScore {
     pub precision: Option<f64>,
     pub recall: Option<f64>,
+}
+
+impl SegmentationScore {
+    /// The scores of a camera method's patches: each null where undefined (no patch called
+    /// tree, or none was tree), as in a run too short to classify any, not a perfect 1.
+    pub fn of(patches: &slam::classifier::PatchScores) -> Self {
+        SegmentationScore { precision: patches.defined_precision(), recall: patches.defined_recall() }
+    }
 }
 
 /// Everything `metrics.json` holds. Field meanings: docs/guide/runs-and-metrics.md.
@@ -179,6 +188,8 @@ pub struct PassFigures<'a> {
     pub false_landmarks: usize,
     pub duplicate_landmarks: usize,
     pub map: &'a MapContent,
+    /// The trees `map`'s recall counts, for its words.
+    pub recall_basis: RecallBasis,
     pub ate_rmse_m: f64,
     pub landmark_rmse_m: Option<f64>,
     pub collisions: usize,
@@ -188,6 +199,17 @@ pub struct PassFigures<'a> {
 }
 
 impl Metrics {
+    /// The trees the run's recall counts: its method's basis, which a camera run of a
+    /// position-only method does not share with the camera; for a method this build does
+    /// not know, trees in view where they were counted.
+    pub fn recall_basis(&self) -> RecallBasis {
+        match slam::association::AssociationMethod::from_name(&self.method) {
+            Some(method) => RecallBasis::of_method(method),
+            None if self.map.trees_in_view.is_some() => RecallBasis::InView,
+            None => RecallBasis::LaserSeen,
+        }
+    }
+
     /// What the pass criteria judge of this run.
     pub fn pass_figures(&self) -> PassFigures<'_> {
         PassFigures {
@@ -195,6 +217,7 @@ impl Metrics {
             false_landmarks: self.false_landmarks,
             duplicate_landmarks: self.duplicate_landmarks,
             map: &self.map,
+            recall_basis: self.recall_basis(),
             ate_rmse_m: self.ate_rmse_m,
             landmark_rmse_m: self.landmark_rmse_m,
             collisions: self.collisions,
@@ -229,8 +252,10 @@ pub fn check_pass(p: &crate::scenario::PassCriteria, m: &PassFigures) -> Vec<Str
     if let Some(min) = p.min_tree_recall {
         match m.map.tree_recall {
             Some(recall) if recall >= min => {}
-            Some(recall) => f.push(format!("tree recall {recall:.2} ({}; min {min})", m.map.recall_in_words())),
-            None => f.push(format!("tree recall undefined: {} (min {min})", m.map.recall_in_words())),
+            Some(recall) => {
+                f.push(format!("tree recall {recall:.2} ({}; min {min})", m.map.recall_in_words(m.recall_basis)))
+            }
+            None => f.push(format!("tree recall undefined: {} (min {min})", m.map.recall_in_words(m.recall_basis))),
         }
     }
     if let Some(max) = p.max_ate_rmse_m
@@ -294,7 +319,7 @@ pub fn summary_table(m: &Metrics) -> String {
         s.push_str(&format!("  rendered by       {renderer}\n"));
     }
     let recall = m.map.tree_recall.map_or("undefined".to_string(), |r| format!("{:.0}%", 100.0 * r));
-    s.push_str(&format!("  tree recall       {recall:>4} ({})\n", m.map.recall_in_words()));
+    s.push_str(&format!("  tree recall       {recall:>4} ({})\n", m.map.recall_in_words(m.recall_basis())));
     if let Some(judged) = m.map.trees_judged {
         s.push_str(&format!("  trees judged      {judged:>4} (by the method's own segmentation, in enough frames)\n"));
     }
@@ -308,7 +333,19 @@ pub fn summary_table(m: &Metrics) -> String {
     }
     s.push_str(&format!("  associations      {:>4} ({} wrong)\n", m.associations.total, m.associations.wrong));
     s.push_str(&format!("  ATE RMSE          {:>8.3} m\n", m.ate_rmse_m));
-    s.push_str(&format!("  RPE RMSE          {:>8.3} m over 1 s\n", m.rpe_rmse_m));
+    if m.rpe_rmse_m.is_finite() {
+        s.push_str(&format!(
+            "  RPE RMSE          {:>8.3} m over {:.0} s\n",
+            m.rpe_rmse_m,
+            crate::score::scorer::RPE_DELTA_S
+        ));
+    } else {
+        // As metrics.json's null says, and as `objslam score` prints it.
+        s.push_str(&format!(
+            "  RPE RMSE          undefined (no poses {:.0} s apart)\n",
+            crate::score::scorer::RPE_DELTA_S
+        ));
+    }
     if let Some(r) = m.landmark_rmse_m {
         s.push_str(&format!("  landmark RMSE     {r:>8.3} m\n"));
     }
@@ -343,6 +380,43 @@ mod tests {
         assert_eq!(unbounded_figure(-2.5e300, 2), "-2.500e300");
         assert_eq!(unbounded_figure(999_999.0, 1), "999999.0");
         assert_eq!(unbounded_figure(f64::NAN, 2), "NaN");
+    }
+
+    /// Regression: the run's summary printed "NaN m" for an RPE that metrics.json writes as
+    /// null; `objslam score` says "undefined".
+    #[test]
+    fn an_undefined_rpe_is_summarised_as_undefined() {
+        let mut m: Metrics = serde_json::from_str(include_str!("../../tests/data/metrics_sample.json")).unwrap();
+        assert!(summary_table(&m).contains("RPE RMSE             0.037 m over 1 s"), "{}", summary_table(&m));
+        m.rpe_rmse_m = f64::NAN;
+        let s = summary_table(&m);
+        assert!(
+            s.contains("RPE RMSE          undefined (no poses 1 s apart)") && !s.contains("RPE RMSE          NaN"),
+            "{s}"
+        );
+    }
+
+    /// Regression: a camera run that classified no patch (0.5 s) wrote precision and recall 1.
+    #[test]
+    fn segmentation_over_no_patch_is_null_in_metrics_json() {
+        let json = |p: slam::classifier::PatchScores| serde_json::to_value(SegmentationScore::of(&p)).unwrap();
+        assert_eq!(json(Default::default()), serde_json::json!({"precision": null, "recall": null}));
+        let some = slam::classifier::PatchScores { true_positives: 3, false_positives: 1, ..Default::default() };
+        assert_eq!(json(some), serde_json::json!({"precision": 0.75, "recall": 1.0}));
+    }
+
+    /// A position-only method's recall counts the trees the laser saw, camera or not.
+    #[test]
+    fn a_position_only_run_with_a_camera_words_its_recall_on_the_trees_the_laser_saw() {
+        let mut m: Metrics = serde_json::from_str(include_str!("../../tests/data/metrics_sample.json")).unwrap();
+        let pass = crate::scenario::PassCriteria { min_tree_recall: Some(1.0), ..Default::default() };
+        let recall_failure =
+            |m: &Metrics| check_pass(&pass, &m.pass_figures()).into_iter().find(|f| f.contains("recall"));
+        assert!(recall_failure(&m).is_some_and(|f| f.contains("89 of 117 trees in view mapped")));
+        m.method = "jcbb".into();
+        m.map.missed_trees = vec![1, 2, 3];
+        assert!(recall_failure(&m).is_some_and(|f| f.contains("117 of 120 trees seen by the laser mapped")));
+        assert!(summary_table(&m).contains("117 of 120 trees seen by the laser mapped"));
     }
 
     /// An RMSE over no landmark is undefined and fails its bound, as a recall over no tree

@@ -396,7 +396,7 @@ fn run_and_write(
     // Every ground-truth figure; the recall's denominators come from the camera's true
     // extrinsics, whatever the run's calibration.
     let true_camera = sim_config.camera.enabled.then(|| camera_geometry(&scenario.sim, &calibration.truth));
-    let basis = if camera_method { RecallBasis::InView } else { RecallBasis::LaserSeen };
+    let basis = RecallBasis::of_method(config.method);
     let mut scorer = RunScorer::new(&world, true_camera, VisibilitySettings::of(&config), basis);
     if camera_method {
         scorer = scorer.scoring_segmentation();
@@ -480,10 +480,7 @@ fn run_and_write(
         relinearisation_failures: log.solves.iter().filter(|(_, r)| r.is_err()).count(),
         retracted_landmarks: RetractionCounts { total: scored.retracted, trees: scored.retracted_trees },
         false_landmarks: scored.false_landmarks,
-        segmentation: scored
-            .patches
-            .map(|p| SegmentationScore { precision: Some(p.precision()), recall: Some(p.recall()) })
-            .unwrap_or_default(),
+        segmentation: scored.patches.as_ref().map(SegmentationScore::of).unwrap_or_default(),
         calibration: Some(CalibrationScore {
             mode: calibration.mode.clone(),
             rotation_error_deg: calibration.rotation_error_deg,

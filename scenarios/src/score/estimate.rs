@@ -25,9 +25,9 @@ pub struct OffPlane {
     pub max_tilt_deg: f64,
 }
 
-/// The largest coordinate a pose may have (m): a million km, far past any coordinate on
-/// Earth (UTM northings stay below 1e7 m), so a larger one is a unit or column mistake, and
-/// errors of poses within it square without overflow.
+/// The largest coordinate a pose or landmark may have (m): a million km, far past any
+/// coordinate on Earth (UTM northings stay below 1e7 m), so a larger one is a unit or column
+/// mistake, and errors of poses and landmarks within it square without overflow.
 const MAX_POSITION_M: f64 = 1e9;
 
 /// A TUM trajectory as [`read_tum`] reads it, with what the plane leaves out of it.
@@ -457,6 +457,17 @@ pub(super) fn read_landmarks(file: &Path) -> Result<Vec<MapLandmark>, ScoreError
         if !l.position.iter().all(|v| v.is_finite()) {
             return Err(invalid(file, None, format!("landmark {}: position is not finite", l.id)));
         }
+        // As for poses: a distance to an object must square without overflow.
+        if let Some(v) = l.position.iter().find(|v| v.abs() > MAX_POSITION_M) {
+            return Err(invalid(
+                file,
+                None,
+                format!(
+                    "landmark {}: a position of {v:e} m: beyond any place on Earth (a unit or column mistake?)",
+                    l.id
+                ),
+            ));
+        }
         if !seen.insert(l.id) {
             return Err(invalid(file, None, format!("landmark id {} appears twice", l.id)));
         }
@@ -608,6 +619,10 @@ mod tests {
         let map = dir.join("map.json");
         std::fs::write(&map, "\u{feff}[{\"id\": 1, \"position\": [1.0, 2.0]}]").unwrap();
         assert_eq!(read_landmarks(&map).unwrap()[0].position, [1.0, 2.0]);
+        // Regression: a landmark whose distances overflow to infinity hung the scoring.
+        std::fs::write(&map, r#"[{"id": 1, "position": [1.0, 2.0]}, {"id": 7, "position": [1e200, 0]}]"#).unwrap();
+        let e = read_landmarks(&map).unwrap_err().to_string();
+        assert!(e.contains("map.json") && e.contains("landmark 7") && e.contains("beyond any place on Earth"), "{e}");
         // A CSV cell that is not text is said so, not dumped as the reader's error value.
         let csv = dir.join("assoc.csv");
         std::fs::write(&csv, b"t,observation,landmark\n0.1,0,3\n0.2,\xff,4\n").unwrap();

@@ -316,6 +316,13 @@ fn read_frames(log: &Path) -> Result<Vec<LogFrame>, ScoreError> {
         let (Some(t), Some(instance)) = (v["t"].as_f64(), v["instance"].as_str()) else {
             return Err(invalid(&file, Some(n), "a frame needs `t` and `instance`"));
         };
+        // The scans take frames with a cursor that only moves forward: a frame out of
+        // order would be skipped, and the trees in view counted on fewer frames.
+        if let Some(last) = frames.last().map(|f: &LogFrame| f.t)
+            && t <= last
+        {
+            return Err(invalid(&file, Some(n), format!("frame time {t} does not follow {last}")));
+        }
         frames.push(LogFrame { t, instance: log.join(instance) });
     }
     Ok(frames)
@@ -832,6 +839,7 @@ fn check(pass: &PassCriteria, m: &mut ScoredMetrics, map: &MapContent) {
         false_landmarks,
         duplicate_landmarks,
         map,
+        recall_basis: m.recall_basis,
         ate_rmse_m: m.ate_rmse_m,
         landmark_rmse_m: m.landmark_rmse_m,
         collisions: m.collisions,
@@ -866,7 +874,7 @@ pub fn summary_table(m: &ScoredMetrics) -> String {
     }
     if let Some(map) = &m.map {
         let recall = map.tree_recall.map_or("undefined".to_string(), |r| format!("{:.0}%", 100.0 * r));
-        s.push_str(&format!("  tree recall       {recall:>4} ({})\n", map.recall_in_words()));
+        s.push_str(&format!("  tree recall       {recall:>4} ({})\n", map.recall_in_words(m.recall_basis)));
         s.push_str(&format!(
             "  false landmarks   {:>4} (posts {}, palms {}, people {}, walls {}, nothing {})\n",
             m.false_landmarks.unwrap_or(0),
@@ -912,5 +920,24 @@ mod tests {
         assert!(mid[2].abs() > 3.1, "the heading goes the short way round: {}", mid[2]);
         assert_eq!(truth_at(&truth, 0.5), None);
         assert_eq!(truth_at(&truth, 2.5), None);
+    }
+
+    /// Regression: frames out of time order were skipped by the scans' cursor without a
+    /// word, and the trees in view (the recall's denominator) counted on fewer frames.
+    #[test]
+    fn camera_frames_out_of_time_order_are_an_error_naming_the_line() {
+        let dir = std::env::temp_dir().join(format!("objslam-frames-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let frame = |t: f64| format!("{{\"t\": {t}, \"instance\": \"camera/{t}_instance.png\"}}\n");
+        let read = |lines: &[f64]| {
+            std::fs::write(dir.join(files::CAMERA_LOG), lines.iter().map(|t| frame(*t)).collect::<String>()).unwrap();
+            read_frames(&dir).map(|f| f.len()).map_err(|e| e.to_string())
+        };
+        assert_eq!(read(&[0.1, 0.2, 0.3]), Ok(3));
+        let e = read(&[0.1, 0.3, 0.2]);
+        assert!(e.as_ref().is_err_and(|e| e.contains("camera.jsonl:3") && e.contains("does not follow")), "{e:?}");
+        let e = read(&[0.1, 0.1]);
+        assert!(e.as_ref().is_err_and(|e| e.contains("camera.jsonl:2") && e.contains("does not follow")), "{e:?}");
+        std::fs::remove_dir_all(&dir).ok();
     }
 }

@@ -19,8 +19,15 @@ pub fn ate_rmse(estimate: &[[f64; 2]], truth: &[[f64; 2]]) -> f64 {
     (s / n as f64).sqrt()
 }
 
+/// The largest cost magnitude [`hungarian`] works with: larger ones count as it, so that the
+/// potentials (sums of costs) stay finite.
+const MAX_ASSIGNMENT_COST: f64 = 1e100;
+
 /// Minimum-cost assignment of rows to columns (rows <= columns or not; unassigned rows get
-/// `None`), by the Hungarian algorithm (Kuhn-Munkres, O(n^3)). Costs must be finite.
+/// `None`), by the Hungarian algorithm (Kuhn-Munkres, O(n^3)). A non-finite cost (a
+/// distance that overflowed) counts as the large cost of a dummy cell, and one beyond
+/// ±[`MAX_ASSIGNMENT_COST`] as that bound: with an infinite or NaN potential no column
+/// would ever be found and the search would not end.
 pub fn hungarian(cost: &[Vec<f64>]) -> Vec<Option<usize>> {
     let rows = cost.len();
     if rows == 0 {
@@ -32,8 +39,11 @@ pub fn hungarian(cost: &[Vec<f64>]) -> Vec<Option<usize>> {
     }
     // Square the problem with a large cost for dummy cells.
     let n = rows.max(cols);
-    let big = cost.iter().flatten().fold(0.0f64, |m, &c| m.max(c.abs())) * 10.0 + 1.0;
-    let c = |i: usize, j: usize| if i < rows && j < cols { cost[i][j] } else { big };
+    let bounded = |c: f64| c.is_finite().then(|| c.clamp(-MAX_ASSIGNMENT_COST, MAX_ASSIGNMENT_COST));
+    let big = cost.iter().flatten().filter_map(|&c| bounded(c)).fold(0.0f64, |m, c| m.max(c.abs())) * 10.0 + 1.0;
+    let c = |i: usize, j: usize| {
+        if i < rows && j < cols { cost[i].get(j).and_then(|&c| bounded(c)).unwrap_or(big) } else { big }
+    };
     // Potentials formulation with 1-based indices (row 0 / column 0 are sentinels).
     let mut u = vec![0.0; n + 1];
     let mut v = vec![0.0; n + 1];
@@ -127,17 +137,23 @@ pub struct MapContent {
 }
 
 impl MapContent {
-    /// The recall's terms, e.g. "8 of 10 trees in view mapped; 12 seen by the laser".
-    pub fn recall_in_words(&self) -> String {
-        match self.trees_in_view {
-            Some(n) => format!(
+    /// The recall's terms on `basis`, the one it was computed on (`missed_trees` names trees
+    /// of that basis), e.g. "8 of 10 trees in view mapped; 12 seen by the laser".
+    pub fn recall_in_words(&self, basis: scorer::RecallBasis) -> String {
+        // Saturating: counts read back from a metrics.json need not agree.
+        let missed = self.missed_trees.len();
+        match (basis, self.trees_in_view) {
+            (scorer::RecallBasis::InView, Some(n)) => format!(
                 "{} of {n} trees in view mapped; {} seen by the laser",
-                n - self.missed_trees.len(),
+                n.saturating_sub(missed),
                 self.trees_laser_seen
             ),
-            None => format!(
+            (scorer::RecallBasis::InView, None) => {
+                format!("no trees in view counted (no camera); {} seen by the laser", self.trees_laser_seen)
+            }
+            (scorer::RecallBasis::LaserSeen, _) => format!(
                 "{} of {} trees seen by the laser mapped",
-                self.trees_laser_seen - self.missed_trees.len(),
+                self.trees_laser_seen.saturating_sub(missed),
                 self.trees_laser_seen
             ),
         }
@@ -165,6 +181,28 @@ mod recall_tests {
         assert_eq!(tree_recall(&mapped, Some(&[1, 2].into())), Some(1.0), "tree 9 was mapped but not there to map");
         assert_eq!(tree_recall(&mapped, Some(&Default::default())), None);
         assert_eq!(tree_recall(&mapped, None), None);
+    }
+
+    /// Regression: the words followed whether the run had a camera, not the basis the
+    /// recall was computed on, so a laser-seen recall of a camera log was worded as trees
+    /// in view, and an empty map wrapped below zero ("18446744073709551614 of 10").
+    #[test]
+    fn recall_is_worded_on_the_basis_it_was_computed_on() {
+        use scorer::RecallBasis::{InView, LaserSeen};
+        // An empty map scored on the 12 trees the laser saw, 10 of them in view.
+        let map = MapContent {
+            trees_in_view: Some(10),
+            trees_laser_seen: 12,
+            missed_trees: (1..=12).collect(),
+            ..Default::default()
+        };
+        assert_eq!(map.recall_in_words(LaserSeen), "0 of 12 trees seen by the laser mapped");
+        // Counts that disagree (an edited metrics.json) give no wrapped figure.
+        assert_eq!(map.recall_in_words(InView), "0 of 10 trees in view mapped; 12 seen by the laser");
+        let map = MapContent { trees_in_view: Some(10), trees_laser_seen: 12, missed_trees: vec![3, 4], ..map };
+        assert_eq!(map.recall_in_words(InView), "8 of 10 trees in view mapped; 12 seen by the laser");
+        let map = MapContent { trees_in_view: None, ..map };
+        assert_eq!(map.recall_in_words(LaserSeen), "10 of 12 trees seen by the laser mapped");
     }
 }
 
@@ -363,6 +401,16 @@ mod tests {
         assert_eq!(a[0], Some(0));
         assert_eq!(a[1], Some(1));
         assert_eq!(a[2], None);
+    }
+
+    /// Regression: an infinite or NaN cost (a distance that overflowed) never ended.
+    #[test]
+    fn hungarian_ends_on_non_finite_and_huge_costs() {
+        let cost = vec![vec![f64::INFINITY, 1.0], vec![f64::NAN, 2.0]];
+        assert_eq!(hungarian(&cost), [Some(1), Some(0)]);
+        let cost = vec![vec![f64::MAX, f64::NEG_INFINITY, 1e300], vec![f64::NAN; 3]];
+        let a = hungarian(&cost);
+        assert_eq!(a.iter().flatten().count(), 2, "{a:?}");
     }
 
     #[test]

@@ -25,6 +25,13 @@ pub enum RecallBasis {
     LaserSeen,
 }
 
+impl RecallBasis {
+    /// The basis `objslam run` scores `method` on.
+    pub fn of_method(method: slam::association::AssociationMethod) -> Self {
+        if method.uses_appearance() { RecallBasis::InView } else { RecallBasis::LaserSeen }
+    }
+}
+
 /// What makes a tree count as seen: the clustering's fewest points and range, and the
 /// observations that confirm a landmark (see [`TreeVisibility`]).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -375,15 +382,19 @@ impl<'w> RunScorer<'w> {
     }
 }
 
+/// The farthest a landmark may be from a static object's centre to be scored against it, m.
+const LANDMARK_MATCH_GATE_M: f64 = 2.0;
+
 /// Landmark RMSE after optimal assignment to the static objects' centres (trees, posts,
-/// palms), pairs further apart than 2 m left out; `None` when no pair is that close.
+/// palms), pairs further apart than [`LANDMARK_MATCH_GATE_M`] left out; `None` when no
+/// pair is that close.
 pub fn landmark_rmse(world: &World, landmarks: &[MapLandmark]) -> Option<f64> {
     let statics: Vec<&worlds::StaticObject> = world
         .objects
         .iter()
         .filter(|o| matches!(o.class, ObjectClass::Tree | ObjectClass::Post | ObjectClass::Palm))
         .collect();
-    let cost: Vec<Vec<f64>> = landmarks
+    let distance: Vec<Vec<f64>> = landmarks
         .iter()
         .map(|l| {
             statics
@@ -392,9 +403,19 @@ pub fn landmark_rmse(world: &World, landmarks: &[MapLandmark]) -> Option<f64> {
                 .collect()
         })
         .collect();
+    // Every pair beyond the gate costs the same, more than all pairs within it together:
+    // the assignment then makes as many pairs within the gate as it can, the closest of
+    // those, and a pair the gate will drop cannot take a landmark's good match.
+    let beyond = LANDMARK_MATCH_GATE_M * (landmarks.len().min(statics.len()) + 1) as f64;
+    let gated = |d: f64| if d <= LANDMARK_MATCH_GATE_M { d } else { beyond };
+    let cost: Vec<Vec<f64>> = distance.iter().map(|row| row.iter().map(|&d| gated(d)).collect()).collect();
     let assignment = super::hungarian(&cost);
-    let matched: Vec<f64> =
-        assignment.iter().enumerate().filter_map(|(i, j)| j.map(|j| cost[i][j])).filter(|d| *d <= 2.0).collect();
+    let matched: Vec<f64> = assignment
+        .iter()
+        .enumerate()
+        .filter_map(|(i, j)| j.map(|j| distance[i][j]))
+        .filter(|d| *d <= LANDMARK_MATCH_GATE_M)
+        .collect();
     (!matched.is_empty()).then(|| (matched.iter().map(|d| d * d).sum::<f64>() / matched.len() as f64).sqrt())
 }
 
@@ -495,6 +516,25 @@ mod tests {
         assert_eq!((score.retracted, score.retracted_trees), (2, 1));
         assert_eq!(score.associations.wrong, 0);
         assert!(score.anees.is_nan(), "no covariance given");
+    }
+
+    /// Regression: the assignment ran on raw distances and the gate came after it, so a pair
+    /// the gate would drop took a landmark's good match (RMSE 1.9 m instead of 0.1 m).
+    #[test]
+    fn a_pair_beyond_the_match_gate_takes_no_landmark_its_match() {
+        let mut world = worlds::generate::preset("park", None, 3).unwrap();
+        world.objects.retain(|o| o.class == ObjectClass::Tree);
+        world.objects.truncate(2);
+        (world.objects[0].pose.x, world.objects[0].pose.y) = (0.0, 0.0);
+        (world.objects[1].pose.x, world.objects[1].pose.y) = (2.4, 0.0);
+        // Landmark 1 is 0.1 m from the first tree and 2.3 m from the second; landmark 2 is
+        // 1.9 m from the first and 4.3 m from the second.
+        let map = [MapLandmark { id: 1, position: [0.1, 0.0] }, MapLandmark { id: 2, position: [-1.9, 0.0] }];
+        let rmse = landmark_rmse(&world, &map).unwrap();
+        assert!((rmse - 0.1).abs() < 1e-9, "{rmse}");
+        // A landmark far beyond any object, or at no place at all, matches nothing.
+        let far = [MapLandmark { id: 3, position: [1e200, 0.0] }, MapLandmark { id: 4, position: [f64::NAN, 0.0] }];
+        assert_eq!(landmark_rmse(&world, &far), None);
     }
 
     #[test]
