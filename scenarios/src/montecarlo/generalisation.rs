@@ -261,13 +261,13 @@ fn totals(records: &[RunRecord]) -> MethodTotals {
     let (mut in_view, mut in_view_mapped, mut laser, mut laser_mapped) = (0, 0, 0, 0);
     let mut false_landmarks = FalseByClass::default();
     for m in &metrics {
-        match m.map.trees_in_view {
-            Some(n) => {
+        match (m.recall_basis(), m.map.trees_in_view) {
+            (crate::score::scorer::RecallBasis::InView, Some(n)) => {
                 in_view += n;
                 in_view_mapped += n.saturating_sub(m.map.missed_trees.len());
                 laser_mapped += m.map.trees_mapped.min(m.map.trees_laser_seen);
             }
-            None => laser_mapped += m.map.trees_laser_seen.saturating_sub(m.map.missed_trees.len()),
+            _ => laser_mapped += m.map.trees_laser_seen.saturating_sub(m.map.missed_trees.len()),
         }
         laser += m.map.trees_laser_seen;
         false_landmarks.posts += m.map.posts;
@@ -280,11 +280,7 @@ fn totals(records: &[RunRecord]) -> MethodTotals {
     MethodTotals {
         runs,
         errors: records.len() - runs,
-        recall_in_view: metrics
-            .iter()
-            .any(|m| m.map.trees_in_view.is_some())
-            .then(|| ratio(in_view_mapped, in_view))
-            .flatten(),
+        recall_in_view: ratio(in_view_mapped, in_view),
         recall_laser_seen: ratio(laser_mapped, laser),
         false_landmarks,
         runs_with_false_landmarks: with(&|m| m.false_landmarks > 0),
@@ -506,7 +502,16 @@ mod tests {
                 m.map.tree_recall = None;
             }),
         ];
-        let r = report(Split::Test, 2, &combined, &[]);
+        // A position-only run with a camera names its missed trees among those the laser
+        // saw: its trees in view do not make an in-view recall.
+        let jcbb = vec![record(0, None, |m| {
+            good(m);
+            m.method = "jcbb".into();
+            m.map.missed_trees = vec![5];
+            m.map.trees_mapped = 11;
+        })];
+        let r = report(Split::Test, 2, &combined, &jcbb);
+        assert_eq!((r.jcbb.recall_in_view, r.jcbb.recall_laser_seen), (None, Some(11.0 / 12.0)));
         assert_eq!((r.claim.count, r.claim.runs, r.claim_undefined), (1, 3, 1));
         let (lo, hi) = r.claim.ci95;
         assert!(lo < 1.0 / 3.0 && 1.0 / 3.0 < hi);
@@ -517,7 +522,6 @@ mod tests {
         assert_eq!(r.combined.recall_laser_seen, Some(38.0 / 48.0));
         assert_eq!(r.combined.false_landmarks.posts, 1);
         assert_eq!(r.combined.runs_with_false_landmarks, Proportion::of(1, 4));
-        assert_eq!(r.jcbb.runs, 0);
-        assert_eq!(r.jcbb.recall_laser_seen, None);
+        assert_eq!(r.jcbb.runs, 1);
     }
 }
