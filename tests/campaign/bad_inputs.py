@@ -539,6 +539,9 @@ def build_cases(binary, w, kinds):
     more.append(log_case("odometry header alone", odo_name, odo[0] + "\n", None))
     more.append(log_case("odometry blank line", odo_name, "\n".join(odo[:4] + [""] + odo[5:]) + "\n", "line"))
     more.append(log_case("odometry not UTF-8", odo_name, ("\n".join(odo[:4]) + "\n").encode() + b"0.99,\xff\xfe,0,0\n", "line"))
+    # Finite but impossible: would overflow the filter, or a file cut short.
+    more.append(log_case("odometry step of 1e300 m", odo_name, "\n".join(odo[:5] + [re.sub(r"^([^,]*),[^,]*", r"\1,1e300", odo[5])] + odo[6:]) + "\n", "line"))
+    more.append(log_case("odometry cut to half", odo_name, "\n".join(odo[:len(odo) // 2]) + "\n", None))
     more.append(log_case("manifest start_pose of 4", "manifest.toml",
                          re.sub(r"start_pose = \[([^\]]*)\]", r"start_pose = [\1, 0.0]", manifest), "start_pose"))
     if "scans.csv" in log_files:

@@ -68,7 +68,7 @@ pub enum ReplayError {
     /// Motion that stops while the sensors go on is a cut file, not a vehicle standing
     /// still: odometry comes at tens of hertz, so a second without it is no jitter.
     #[error(
-        "the motion ends at t = {motion_end} s while observations go on to t = {t} s: a log's motion must cover what it saw (is the odometry file cut short?)"
+        "the motion ends at t = {motion_end} s while observations go on to t = {t} s: a log's motion (odometry.csv of a robot log) must cover what it saw (is the file cut short?)"
     )]
     MotionEnded { motion_end: f64, t: f64 },
     #[error(
