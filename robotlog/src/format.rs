@@ -116,6 +116,18 @@ fn open_parts(dir: &Path) -> Result<OpenLog, LogError> {
             if rows.names.len() < 2 {
                 return Err(LogError::Line { file: scans, line: 1, problem: "no beam column after `t`".into() });
             }
+            // The beams sweep at most a turn: more is an increment in degrees, or too many beams.
+            let sweep = laser.angle_increment_rad.abs() * (rows.names.len() - 2) as f64;
+            if sweep > std::f64::consts::TAU + 1e-9 {
+                return Err(LogError::File {
+                    file: dir.join(MANIFEST),
+                    problem: format!(
+                        "laser.angle_increment_rad {} over the {} beams of scans.csv sweeps {sweep:.2} rad, more than a turn",
+                        laser.angle_increment_rad,
+                        rows.names.len() - 1
+                    ),
+                });
+            }
             ObservationRows::Scans(ScanRows { rows, laser: laser.clone() })
         }
         (false, true) if manifest.laser.is_some() => {
@@ -520,6 +532,11 @@ impl DetectionRows {
             return Err(self.rows.problem(line, format!("`range_m` must be finite and positive, got {range_m}")));
         }
         let bearing_rad = self.rows.finite(line, row, 2, "bearing_rad")?;
+        if bearing_rad.abs() > std::f64::consts::TAU {
+            return Err(self
+                .rows
+                .problem(line, format!("`bearing_rad` {bearing_rad} is beyond a turn: radians, not degrees")));
+        }
         let diameter_m = match row[3] {
             None => None,
             Some(d) if d.is_finite() && d >= 0.0 => Some(d),

@@ -221,6 +221,15 @@ impl Manifest {
                 return Err((format!("sensor.{name}"), format!("must be finite, got {v}")));
             }
         }
+        // Beyond a turn either way an angle is a unit mistake (degrees for radians).
+        let turn = std::f64::consts::TAU;
+        for (name, v) in
+            [("vehicle.start_pose[2]", self.vehicle.start_pose[2]), ("sensor.yaw_rad", self.sensor.yaw_rad)]
+        {
+            if v.abs() > turn {
+                return Err((name.into(), format!("must be within a turn (radians, not degrees), got {v}")));
+            }
+        }
         // The filter divides by the noise at any range: the range and bearing terms must be
         // positive; the per-metre term adds to the range term and may be zero.
         for (name, v, zero_allowed) in [

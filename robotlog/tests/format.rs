@@ -155,6 +155,11 @@ fn malformed_files_are_errors_that_name_file_and_line() {
         // Values no odometry gives: corrupt data, which would overflow the filter.
         ("odometry.csv", "t,dx,dy,dtheta\n0,1e300,0,0\n", "odometry.csv:2: a step of (1e300, 0e0) m is beyond 1e9 m"),
         ("odometry.csv", "t,v,omega\n0,0.5,0\n0.1,-1000,0\n", "odometry.csv:3: speed -1e3 m/s is beyond 343 m/s"),
+        (
+            "manifest.toml",
+            "format_version = 1\n[sensor]\nx_m = 0\ny_m = 0\nyaw_rad = 90.0\n",
+            "sensor.yaw_rad: must be within a turn",
+        ),
         ("scans.csv", "t,r0\n", "scans.csv: a header and no row"),
         ("scans.csv", "t\n0\n", "scans.csv:1: no beam column after `t`"),
         ("odometry.csv", "t,speed,steering\n0,1,0\n", "needs `t,dx,dy,dtheta` or `t,v,omega`"),
@@ -204,6 +209,11 @@ fn malformed_files_are_errors_that_name_file_and_line() {
             "manifest.toml",
             "format_version = 1\n[sensor]\nx_m = 0\ny_m = 0\n[laser]\nangle_min_rad = -90.0\nangle_increment_rad = 0.5\nrange_min_m = 0.1\nrange_max_m = 30.0\n",
             "laser.angle_min_rad: must be finite and within a turn (radians), got -90",
+        ),
+        (
+            "manifest.toml",
+            "format_version = 1\n[sensor]\nx_m = 0\ny_m = 0\n[laser]\nangle_min_rad = -1.5\nangle_increment_rad = 1.5\nrange_min_m = 0.1\nrange_max_m = 30.0\n",
+            "laser.angle_increment_rad 1.5 over the 7 beams of scans.csv sweeps 9.00 rad, more than a turn",
         ),
     ];
     for (file, text, expected) in cases {

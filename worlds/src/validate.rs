@@ -160,23 +160,86 @@ pub fn validate(world: &World, base_dir: &Path) -> Vec<Problem> {
         }
         check_colour(&mut push, &format!("{f}.shirt.colour"), &p.shirt.colour);
         check_colour(&mut push, &format!("{f}.trousers.colour"), &p.trousers.colour);
-        check_route(&mut push, &format!("{f}.route"), &p.route, &world.objects, &footprints, PERSON_ROUTE_CLEARANCE_M);
+        // A wide person needs more room than the usual half width.
+        let half_width = p.hip_half_width_m + p.leg_radius_m;
+        let clearance =
+            if half_width.is_finite() { PERSON_ROUTE_CLEARANCE_M.max(half_width) } else { PERSON_ROUTE_CLEARANCE_M };
+        check_route(&mut push, &format!("{f}.route"), &p.route, &world.objects, &footprints, clearance);
+        check_on_ground(&mut push, &format!("{f}.route.waypoints"), &p.route.waypoints, g);
     }
 
     let r = &world.robot;
     if !all_finite(&[r.start.x, r.start.y, r.start.yaw_deg]) {
         push("robot.start".into(), "pose must be finite".into());
+    } else if r.start.yaw_deg.abs() > 360.0 {
+        push(
+            "robot.start.yaw_deg".into(),
+            format!("must be within a turn (-360 to 360 degrees), got {}", r.start.yaw_deg),
+        );
     }
+    check_on_ground(&mut push, "robot.start", &[[r.start.x, r.start.y]], g);
     if !(1..=crate::MAX_LAPS).contains(&r.laps) {
         push("robot.laps".into(), format!("must be 1 to {}, got {}", crate::MAX_LAPS, r.laps));
+    } else if r.laps > 1 && !r.route.looping {
+        push(
+            "robot.laps".into(),
+            format!("{} laps of a route that does not loop: set route.looping = true, or laps = 1", r.laps),
+        );
     }
     check_route(&mut push, "robot.route", &r.route, &world.objects, &footprints, ROBOT_ROUTE_CLEARANCE_M);
+    check_on_ground(&mut push, "robot.route.waypoints", &r.route.waypoints, g);
+    if r.route.waypoints.len() >= 2
+        && all_finite(&[r.start.x, r.start.y])
+        && r.route.waypoints.iter().all(|w| all_finite(w))
+    {
+        if r.route.length_m() <= 0.0 {
+            push("robot.route.waypoints".into(), "the route has no length: its waypoints are all one point".into());
+        }
+        // The robot drives from its start to the route's first target (the first waypoint,
+        // or the second of a looping route, which returns to the first): that leg needs
+        // the route's clearance too.
+        let first = if r.route.looping { r.route.waypoints[1] } else { r.route.waypoints[0] };
+        let start = [r.start.x, r.start.y];
+        for (i, fp) in footprints.iter().enumerate() {
+            let d = fp.distance_to_segment(start, first);
+            if d < ROBOT_ROUTE_CLEARANCE_M {
+                push(
+                    "robot.start".into(),
+                    format!(
+                        "the drive from the start ({:.2}, {:.2}) to the route's first target ({:.2}, {:.2}) passes {d:.2} m from object {} (needs {ROBOT_ROUTE_CLEARANCE_M:.2} m clearance)",
+                        start[0], start[1], first[0], first[1], world.objects[i].id
+                    ),
+                );
+            }
+        }
+    }
     for (i, fp) in footprints.iter().enumerate() {
         if fp.distance_to_point([r.start.x, r.start.y]) < ROBOT_ROUTE_CLEARANCE_M {
             push("robot.start".into(), format!("robot starts inside or touching object {}", world.objects[i].id));
         }
     }
     out
+}
+
+/// Refuses `points` off the ground: nothing stands or drives there.
+fn check_on_ground(
+    push: &mut dyn FnMut(String, String),
+    field: &str,
+    points: &[[f64; 2]],
+    g: &crate::description::Ground,
+) {
+    if let Some((k, p)) = points.iter().enumerate().find(|(_, p)| {
+        all_finite(&p[..]) && !(p[0] >= g.min_m[0] && p[0] <= g.max_m[0] && p[1] >= g.min_m[1] && p[1] <= g.max_m[1])
+    }) {
+        let at = if points.len() > 1 { format!("[{k}]") } else { String::new() };
+        push(
+            format!("{field}{at}"),
+            format!(
+                "({:.2}, {:.2}) lies off the ground ({:.2}, {:.2}) to ({:.2}, {:.2})",
+                p[0], p[1], g.min_m[0], g.min_m[1], g.max_m[0], g.max_m[1]
+            ),
+        );
+    }
 }
 
 fn check_route(

@@ -208,3 +208,50 @@ fn an_array_longer_than_its_field_is_named_with_its_line() {
     let msg = message(&bad);
     assert!(msg.contains(&format!("line {line}: ")) && msg.contains("colour: 4 elements, more than it takes"), "{msg}");
 }
+
+/// A world whose robot or people leave the ground, whose start leg runs through an object,
+/// or whose route cannot be driven as written is refused before anything runs.
+#[test]
+fn routes_off_the_ground_or_that_cannot_be_driven_are_named() {
+    let world = park(&ParkParams::default(), 11).unwrap();
+    let check = |edit: &dyn Fn(&mut worlds::World)| {
+        let mut w = world.clone();
+        edit(&mut w);
+        message(&w.to_toml())
+    };
+    let beyond = world.ground.max_m[0] + 5.0;
+    let m = check(&|w| w.robot.route.waypoints[1] = [beyond, 0.0]);
+    assert!(m.contains("robot.route.waypoints[1]") && m.contains("lies off the ground"), "{m}");
+    let m = check(&|w| (w.robot.start.x, w.robot.start.y) = (beyond, 0.0));
+    assert!(m.contains("robot.start") && m.contains("lies off the ground"), "{m}");
+    if let Some(p) = world.people.first() {
+        let _ = p;
+        let m = check(&|w| w.people[0].route.waypoints[0] = [0.0, world.ground.min_m[1] - 40.0]);
+        assert!(m.contains("people[0].route.waypoints[0]") && m.contains("lies off the ground"), "{m}");
+        // A person wider than the route's usual clearance needs more room.
+        let m = check(&|w| w.people[0].leg_radius_m = 5.0);
+        assert!(m.contains("people[0].route") && m.contains("clearance"), "{m}");
+    }
+    let m = check(&|w| w.robot.start.yaw_deg = 1e12);
+    assert!(m.contains("robot.start.yaw_deg") && m.contains("within a turn"), "{m}");
+    let m = check(&|w| {
+        w.robot.route.looping = false;
+        w.robot.laps = 3;
+    });
+    assert!(m.contains("robot.laps") && m.contains("does not loop"), "{m}");
+    let m = check(&|w| {
+        let p = w.robot.route.waypoints[0];
+        w.robot.route.waypoints = vec![p, p];
+        w.robot.route.looping = false;
+    });
+    assert!(m.contains("the route has no length"), "{m}");
+    // The leg from the start to the first target passes through a tree put on it.
+    let m = check(&|w| {
+        let tree = w.objects.iter().position(|o| o.class == worlds::ObjectClass::Tree).unwrap();
+        let target = if w.robot.route.looping { w.robot.route.waypoints[1] } else { w.robot.route.waypoints[0] };
+        let (sx, sy) = (w.robot.start.x, w.robot.start.y);
+        w.objects[tree].pose.x = 0.5 * (sx + target[0]);
+        w.objects[tree].pose.y = 0.5 * (sy + target[1]);
+    });
+    assert!(m.contains("the drive from the start"), "{m}");
+}

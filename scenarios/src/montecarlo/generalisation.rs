@@ -417,9 +417,12 @@ mod tests {
         assert_eq!(tune.len(), 2000);
         assert!(tune.is_disjoint(&test), "a world seed in both splits");
         for split in [Split::Tune, Split::Test] {
-            for i in 0..12 {
+            for i in 0..16 {
                 let p = world_params(split, i).unwrap();
                 assert_eq!(p, world_params(split, i).unwrap(), "a draw is a function of split and index");
+                let world = worlds::generate::park(&p, world_seed(split, i)).unwrap();
+                let problems = worlds::validate::validate(&world, std::path::Path::new("."));
+                assert!(problems.is_empty(), "{} world {i}: {problems:?}", split.name());
                 assert!((300.0..=2000.0).contains(&p.area_m2), "{p:?}");
                 assert!(p.tree_radius_m[0] >= 0.08 && p.tree_radius_m[1] <= 0.5, "{p:?}");
                 assert!(p.tree_height_m[0] >= 3.0 && p.tree_height_m[1] <= 12.0, "{p:?}");
