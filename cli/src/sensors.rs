@@ -166,7 +166,11 @@ pub(crate) fn dataset(
     out: &std::path::Path,
 ) -> Result<()> {
     let (w, name) = match (world, preset) {
-        (Some(path), None) => (worlds::load(&path)?, path.display().to_string()),
+        (Some(path), None) => {
+            let mut world = worlds::load(&path)?;
+            world.resolve_mesh_paths(&path);
+            (world, path.display().to_string())
+        }
         (None, preset) => {
             let p = preset.unwrap_or_else(|| "park".into());
             (worlds::generate::preset(&p, None, seed)?, format!("preset {p}, seed {seed}"))

@@ -81,7 +81,10 @@ pub(crate) fn load_world(input: &str, seed: u64) -> Result<worlds::World> {
             worlds::generate::PRESETS.join(", ")
         );
     }
-    Ok(worlds::load(path)?)
+    let mut world = worlds::load(path)?;
+    // A recording's world.toml is read from the recording's directory.
+    world.resolve_mesh_paths(path);
+    Ok(world)
 }
 
 /// `objslam world import`: the world with the mesh added, checked as any world file is

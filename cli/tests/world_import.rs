@@ -113,5 +113,34 @@ fn a_mesh_joins_a_world_with_a_collider_fitted_to_it() {
     let meshes: Vec<_> = two.objects.iter().filter(|o| o.mesh.is_some()).collect();
     assert_eq!(meshes.len(), 2);
     assert!(meshes.iter().all(|o| o.mesh_data.0.is_some()), "both meshes found from the new file");
+
+    // A scenario on that world: its run's outputs score as a log (their world.toml finds
+    // the meshes), and the scenario its metadata.json records runs the run again from
+    // another directory.
+    let scenario = "name = \"with_posts\"\n[world]\nfile = \"elsewhere/two.toml\"\n[sim]\nmax_duration_s = 8.0\n";
+    std::fs::write(dir.join("with_posts.toml"), scenario).unwrap();
+    let run = path("run");
+    // 8 s do not finish the route, so the run fails its criteria (exit 1), outputs written.
+    let said = |o: &std::process::Output| {
+        format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
+    };
+    let out = objslam(&["run", &path("with_posts.toml"), "--method", "nn", "--out", &run]);
+    assert_eq!(out.status.code(), Some(1), "{}", said(&out));
+    let est = format!("{run}/trajectory_est.tum");
+    let out = objslam(&["score", "--log", &run, "--trajectory", &est, "--out", &path("scored")]);
+    assert!(out.status.code().is_some_and(|c| c <= 1), "{}", said(&out));
+    assert!(dir.join("scored/metrics.json").is_file(), "{}", said(&out));
+    let meta: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("run/metadata.json")).unwrap()).unwrap();
+    let recorded: scenarios::scenario::Scenario =
+        serde_json::from_value(meta["configuration"]["scenario"].clone()).unwrap();
+    std::fs::create_dir_all(dir.join("rerun")).unwrap();
+    std::fs::write(dir.join("rerun/again.toml"), toml::to_string(&recorded).unwrap()).unwrap();
+    let again = path("again");
+    let out = objslam(&["run", &path("rerun/again.toml"), "--out", &again]);
+    assert_eq!(out.status.code(), Some(1), "{}", said(&out));
+    let same =
+        |f: &str| std::fs::read(dir.join("run").join(f)).unwrap() == std::fs::read(dir.join("again").join(f)).unwrap();
+    assert!(same("trajectory_est.tum") && same("landmarks.json"), "the recorded scenario runs the run again");
     let _ = std::fs::remove_dir_all(&dir);
 }

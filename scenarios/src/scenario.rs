@@ -96,6 +96,8 @@ impl<'de> Deserialize<'de> for CalibrationSpelling {
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
 struct CalibrationTable {
+    /// Absent: "true", as the table's other keys default to the true extrinsics' zeros.
+    #[serde(default = "true_mode")]
     mode: String,
     #[serde(default)]
     rotation_sigma_deg: f64,
@@ -103,6 +105,10 @@ struct CalibrationTable {
     translation_sigma_m: f64,
     #[serde(default)]
     session: crate::calibrate::SessionConfig,
+}
+
+fn true_mode() -> String {
+    "true".into()
 }
 
 impl From<CalibrationSpelling> for CalibrationChoice {
@@ -319,6 +325,9 @@ impl Scenario {
             (None, Some(_)) if self.world.params.is_some() => {
                 return bad("world.params", "generator parameters only apply to a preset".into());
             }
+            (None, Some(_)) if self.world.seed.is_some() => {
+                return bad("world.seed", "a world seed only applies to a preset (a world file is one world)".into());
+            }
             _ => {}
         }
         if let Some(p) = &self.world.params {
@@ -458,6 +467,30 @@ impl Scenario {
         }
     }
 
+    /// The scenario with the files it names relative to itself (`world.file`, a
+    /// calibration file, `appearance.model`) made absolute against `base_dir`, its file's
+    /// directory: written into a run's `metadata.json`, it runs the run again from
+    /// wherever it is saved.
+    pub fn with_absolute_paths(&self, base_dir: &Path) -> Scenario {
+        let absolute = |relative: &str| {
+            std::path::absolute(base_dir.join(relative))
+                .ok()
+                .and_then(|p| p.to_str().map(str::to_owned))
+                .unwrap_or_else(|| relative.to_owned())
+        };
+        let mut s = self.clone();
+        if let Some(file) = &s.world.file {
+            s.world.file = Some(absolute(file));
+        }
+        if s.calibration.mode.ends_with(".json") {
+            s.calibration.mode = absolute(&s.calibration.mode);
+        }
+        if let Some(model) = &s.appearance.model {
+            s.appearance.model = Some(absolute(model));
+        }
+        s
+    }
+
     /// Builds the world for a run seed.
     pub fn world(&self, base_dir: &Path, run_seed: u64) -> Result<worlds::World, ScenarioError> {
         let scenario = self.describe();
@@ -466,7 +499,9 @@ impl Scenario {
                 .map_err(|source| ScenarioError::World { scenario, source })
         } else {
             let path = base_dir.join(self.world.file.as_deref().unwrap_or_default());
-            worlds::load(&path).map_err(|source| ScenarioError::World { scenario, source })
+            let mut world = worlds::load(&path).map_err(|source| ScenarioError::World { scenario, source })?;
+            world.resolve_mesh_paths(&path);
+            Ok(world)
         }
     }
 }
@@ -581,7 +616,9 @@ mod tests {
         for (name, _) in LIBRARY {
             let (s, base) = Scenario::load(name).unwrap();
             assert_eq!(&s.name, name);
-            s.world(&base, s.seed).unwrap();
+            let world = s.world(&base, s.seed).unwrap();
+            let problems = worlds::validate::validate(&world, &base);
+            assert!(problems.is_empty(), "{name}: {problems:?}");
             // `<built-in>/NAME`, as a study pins it, is the same scenario.
             assert_eq!(Scenario::load(&format!("<built-in>/{name}")).unwrap().0, s);
             assert_eq!(s.built_in(), Some(*name));
@@ -592,6 +629,22 @@ mod tests {
         std::fs::remove_file(&file).unwrap();
         assert_eq!(from_file.built_in(), None, "read from a file, though its text is a built-in's");
         assert!(matches!(Scenario::load("<built-in>/no_such"), Err(ScenarioError::Unknown { .. })));
+    }
+
+    /// A world seed beside a world file is refused (a file is one world), and a
+    /// `[calibration]` table may leave out its mode, which is then "true".
+    #[test]
+    fn a_seed_for_a_world_file_is_refused_and_a_calibration_table_defaults_its_mode() {
+        let e = Scenario::parse("name = \"s\"\n[world]\nfile = \"w.toml\"\nseed = 3\n", Path::new("s.toml"))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("world.seed") && e.contains("only applies to a preset"), "{e}");
+        let s = Scenario::parse(
+            "name = \"s\"\n[world]\npreset = \"park\"\n[calibration]\nrotation_sigma_deg = 0.0\n",
+            Path::new("s.toml"),
+        )
+        .unwrap();
+        assert_eq!(s.calibration.mode, "true");
     }
 
     /// city_park is the size it says: ten times paper_park's ground, with its objects.

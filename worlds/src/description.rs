@@ -620,6 +620,22 @@ fn one() -> u32 {
 }
 
 impl World {
+    /// Makes the objects' relative `mesh` paths absolute, as read from `world_file`: a
+    /// copy of the world written elsewhere (a run's or a recording's `world.toml`, which
+    /// `objslam score --log` reads) then still finds its meshes.
+    pub fn resolve_mesh_paths(&mut self, world_file: &std::path::Path) {
+        let base = world_file.parent().unwrap_or(std::path::Path::new("."));
+        for o in &mut self.objects {
+            if let Some(mesh) = &o.mesh
+                && std::path::Path::new(mesh).is_relative()
+                && let Some(absolute) =
+                    std::path::absolute(base.join(mesh)).ok().and_then(|p| p.to_str().map(str::to_owned))
+            {
+                o.mesh = Some(absolute);
+            }
+        }
+    }
+
     /// Looks an object up by instance id.
     pub fn object(&self, id: u16) -> Option<&StaticObject> {
         self.objects.iter().find(|o| o.id == id)

@@ -319,9 +319,9 @@ fn add_node_meshes(
         let reader = prim.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
         let unread = |what: &str| format!("{}: its {what} accessor could not be read", at());
         let positions: Vec<[f32; 3]> = reader.read_positions().ok_or_else(|| unread("POSITION"))?.collect();
-        let normals: Vec<[f32; 3]> = match normal {
-            Some(_) => reader.read_normals().ok_or_else(|| unread("NORMAL"))?.collect(),
-            None => vec![[0.0, 0.0, 1.0]; n],
+        let normals: Option<Vec<[f32; 3]>> = match normal {
+            Some(_) => Some(reader.read_normals().ok_or_else(|| unread("NORMAL"))?.collect()),
+            None => None,
         };
         let uvs: Vec<[f32; 2]> = match uv {
             Some(_) => reader.read_tex_coords(0).ok_or_else(|| unread("TEXCOORD_0"))?.into_f32().collect(),
@@ -334,32 +334,88 @@ fn add_node_meshes(
             }
             None => (0..n as u32).collect(),
         };
-        if positions.len() != n || normals.len() != n || uvs.len() != n {
+        if positions.len() != n || normals.as_ref().is_some_and(|v| v.len() != n) || uvs.len() != n {
             return Err(format!("{}: its attributes read {} positions for a count of {n}", at(), positions.len()));
         }
         if let Some(bad) = vertices.iter().find(|&&i| i as usize >= n) {
             return Err(format!("{}: index {bad} out of range for {n} vertices", at()));
         }
-        let indices = triangle_list(mode, &vertices).map_err(|e| format!("{}: {e}", at()))?;
-        let base = out.positions.len() as u32;
-        for (p, nrm) in positions.iter().zip(&normals) {
+        let mut indices = triangle_list(mode, &vertices).map_err(|e| format!("{}: {e}", at()))?;
+        // A mirroring transform turns the triangles' winding inside out: wind them back, so
+        // that their front faces still face out.
+        let linear = [
+            [world[0][0], world[0][1], world[0][2]],
+            [world[1][0], world[1][1], world[1][2]],
+            [world[2][0], world[2][1], world[2][2]],
+        ];
+        let det = determinant(&linear);
+        if det < 0.0 {
+            indices.chunks_exact_mut(3).for_each(|t| t.swap(1, 2));
+        }
+        let mut tps = Vec::with_capacity(n);
+        for p in &positions {
             let tp: [f32; 3] =
                 std::array::from_fn(|r| world[0][r] * p[0] + world[1][r] * p[1] + world[2][r] * p[2] + world[3][r]);
             if tp.iter().any(|v| !v.is_finite()) {
                 return Err(format!("{}: a position is not finite ({p:?})", at()));
             }
-            let tn: [f32; 3] =
-                std::array::from_fn(|r| world[0][r] * nrm[0] + world[1][r] * nrm[1] + world[2][r] * nrm[2]);
-            if tn.iter().any(|v| !v.is_finite()) {
-                return Err(format!("{}: a normal is not finite ({nrm:?})", at()));
-            }
-            out.positions.push(tp);
-            out.normals.push(tn);
+            tps.push(tp);
         }
-        out.uvs.extend(uvs);
-        out.indices.extend(indices.iter().map(|i| i + base));
+        let base = out.positions.len() as u32;
+        match normals {
+            Some(normals) => {
+                // Normals go by the inverse transpose (the cofactors, signed by the
+                // determinant), so a non-uniform scale keeps them perpendicular to the faces.
+                let cof = cofactors(&linear);
+                for nrm in &normals {
+                    let tn: [f32; 3] = std::array::from_fn(|r| {
+                        det.signum() * (cof[0][r] * nrm[0] + cof[1][r] * nrm[1] + cof[2][r] * nrm[2])
+                    });
+                    let length = (tn[0] * tn[0] + tn[1] * tn[1] + tn[2] * tn[2]).sqrt();
+                    if !(length.is_finite() && length > 0.0) {
+                        return Err(format!("{}: a normal is not finite or is zero once placed ({nrm:?})", at()));
+                    }
+                    out.normals.push(tn.map(|v| v / length));
+                }
+                out.positions.extend(tps);
+                out.uvs.extend(uvs);
+                out.indices.extend(indices.iter().map(|i| i + base));
+            }
+            None => {
+                // glTF: without normals, a primitive is drawn with flat normals, one per
+                // triangle, so each triangle gets vertices of its own.
+                for (k, t) in indices.chunks_exact(3).enumerate() {
+                    let [a, b, c] = [t[0], t[1], t[2]].map(|i| tps[i as usize]);
+                    let (u, v) = ([b[0] - a[0], b[1] - a[1], b[2] - a[2]], [c[0] - a[0], c[1] - a[1], c[2] - a[2]]);
+                    let face = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
+                    let length = (face[0] * face[0] + face[1] * face[1] + face[2] * face[2]).sqrt();
+                    // A triangle of no area has no side to light: any unit normal will do.
+                    let unit = if length > 0.0 { face.map(|f| f / length) } else { [0.0, 0.0, 1.0] };
+                    for &i in t {
+                        out.positions.push(tps[i as usize]);
+                        out.normals.push(unit);
+                        out.uvs.push(uvs[i as usize]);
+                    }
+                    out.indices.extend([0, 1, 2].map(|j| base + 3 * k as u32 + j));
+                }
+            }
+        }
     }
     Ok(world)
+}
+
+fn determinant(m: &[[f32; 3]; 3]) -> f32 {
+    m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1]) - m[1][0] * (m[0][1] * m[2][2] - m[0][2] * m[2][1])
+        + m[2][0] * (m[0][1] * m[1][2] - m[0][2] * m[1][1])
+}
+
+/// The cofactor matrix of `m` (same column-major layout): det(m) times its inverse
+/// transpose, defined even where `m` is singular.
+fn cofactors(m: &[[f32; 3]; 3]) -> [[f32; 3]; 3] {
+    // Columns c0, c1, c2: the cofactor matrix's columns are c1 x c2, c2 x c0, c0 x c1.
+    let cross =
+        |a: [f32; 3], b: [f32; 3]| [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]];
+    [cross(m[1], m[2]), cross(m[2], m[0]), cross(m[0], m[1])]
 }
 
 /// Component types an attribute may have: the type, and whether it is normalized.
@@ -674,14 +730,18 @@ mod tests {
 
     #[test]
     fn strips_and_fans_become_triangles_and_a_partial_triangle_is_refused() {
-        let bin = square();
-        let view = serde_json::json!([{"buffer": 0, "byteLength": 48}]);
+        // With normals, so the vertices stay shared and the indices show the triangles.
+        let mut bin = square();
+        bin.extend(f32_bytes([0.0f32, 1.0, 0.0].iter().cycle().take(12)));
+        let view = serde_json::json!([{"buffer": 0, "byteLength": 96}]);
+        let normals =
+            serde_json::json!({"bufferView": 0, "byteOffset": 48, "componentType": 5126, "count": 4, "type": "VEC3"});
         let import = |mode: u32| {
             import_mesh_slice(&glb_with(
                 &bin,
                 view.clone(),
-                serde_json::json!([positions(4)]),
-                serde_json::json!({"attributes": {"POSITION": 0}, "mode": mode}),
+                serde_json::json!([positions(4), normals]),
+                serde_json::json!({"attributes": {"POSITION": 0, "NORMAL": 1}, "mode": mode}),
             ))
         };
         // The strip's second triangle keeps the first's winding.
@@ -690,6 +750,71 @@ mod tests {
         assert_eq!(import(4).unwrap_err(), "mesh 0 primitive 0: 4 vertex indices do not make whole triangles");
         // Lines have no surface: with nothing else the file has no triangles.
         assert_eq!(import(1).unwrap_err(), "the file has no triangle meshes");
+    }
+
+    /// A node's mirroring or non-uniform scale keeps faces facing out and normals
+    /// perpendicular to them; a primitive without normals gets flat ones (glTF's rule).
+    #[test]
+    fn transforms_keep_normals_on_their_faces_and_missing_normals_are_flat() {
+        // One triangle in glTF's x-z plane, its normal up (+y) and declared.
+        let mut bin = f32_bytes([0.0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, -1.0].iter());
+        bin.extend(f32_bytes([0.0f32, 1.0, 0.0].iter().cycle().take(9)));
+        let import = |node: serde_json::Value, with_normals: bool| {
+            let attributes = if with_normals {
+                serde_json::json!({"POSITION": 0, "NORMAL": 1})
+            } else {
+                serde_json::json!({"POSITION": 0})
+            };
+            let root = serde_json::json!({
+                "asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [node],
+                "meshes": [{"primitives": [{"attributes": attributes}]}],
+                "accessors": [
+                    {"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0, 0, -1], "max": [1, 0, 0]},
+                    {"bufferView": 0, "byteOffset": 36, "componentType": 5126, "count": 3, "type": "VEC3"}
+                ],
+                "bufferViews": [{"buffer": 0, "byteLength": 72}], "buffers": [{"byteLength": 72}]
+            });
+            import_mesh_slice(&glb_bytes(&root, &bin)).unwrap()
+        };
+        // The face's normal from its vertices as wound, and the stored normal.
+        let face_and_stored = |m: &TriMesh| {
+            let [a, b, c] = [0, 1, 2].map(|k| m.positions[m.indices[k] as usize]);
+            let (u, v) = ([b[0] - a[0], b[1] - a[1], b[2] - a[2]], [c[0] - a[0], c[1] - a[1], c[2] - a[2]]);
+            let f = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
+            let l = (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt();
+            (f.map(|x| x / l), m.normals[m.indices[0] as usize])
+        };
+        let close = |a: [f32; 3], b: [f32; 3]| a.iter().zip(&b).all(|(x, y)| (x - y).abs() < 1e-5);
+        let plain = import(serde_json::json!({"mesh": 0}), true);
+        let (face, stored) = face_and_stored(&plain);
+        assert!(close(face, stored), "the test's triangle faces its normal: {face:?} {stored:?}");
+        // Mirrored: the winding is turned back, so the face still faces its normal.
+        let mirrored = import(serde_json::json!({"mesh": 0, "scale": [-1.0, 1.0, 1.0]}), true);
+        let (face, stored) = face_and_stored(&mirrored);
+        assert!(close(face, stored), "mirrored: {face:?} {stored:?}");
+        // Turned 45 degrees about y and stretched three times along x: the normal stays
+        // perpendicular to the face (the transform itself would tilt it).
+        let (s, c) = (std::f32::consts::FRAC_PI_8.sin(), std::f32::consts::FRAC_PI_8.cos());
+        let sheared = serde_json::json!({"children": [1], "scale": [3.0, 1.0, 1.0]});
+        let turned = serde_json::json!({"mesh": 0, "rotation": [s, 0.0, 0.0, c]});
+        let two = {
+            let r = serde_json::json!({
+                "asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [sheared, turned],
+                "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "NORMAL": 1}}]}],
+                "accessors": [
+                    {"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0, 0, -1], "max": [1, 0, 0]},
+                    {"bufferView": 0, "byteOffset": 36, "componentType": 5126, "count": 3, "type": "VEC3"}
+                ],
+                "bufferViews": [{"buffer": 0, "byteLength": 72}], "buffers": [{"byteLength": 72}]
+            });
+            import_mesh_slice(&glb_bytes(&r, &bin)).unwrap()
+        };
+        let (face, stored) = face_and_stored(&two);
+        assert!(close(face, stored), "stretched: {face:?} {stored:?}");
+        // Without normals: each triangle's own, facing as it is wound.
+        let flat = import(serde_json::json!({"mesh": 0}), false);
+        let (face, stored) = face_and_stored(&flat);
+        assert!(close(face, stored), "flat: {face:?} {stored:?}");
     }
 
     #[test]

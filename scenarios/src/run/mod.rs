@@ -508,9 +508,9 @@ fn run_and_write(
     };
     metrics.failures = check_pass(&scenario.pass, &metrics.pass_figures());
     metrics.passed = metrics.failures.is_empty();
-    // The scenario with the command line's seed and method written in, so that it alone
-    // runs this run again.
-    let mut as_run = scenario.clone();
+    // The scenario with the command line's seed and method written in, and the files it
+    // names made absolute, so that it alone runs this run again.
+    let mut as_run = scenario.with_absolute_paths(base_dir);
     as_run.seed = seed;
     as_run.pipeline.method = config.method;
     let resolved = json!({

@@ -47,6 +47,13 @@ impl RangeBearingModel {
                 return Err((name, format!("must be finite and positive, got {v}")));
             }
         }
+        // A bearing error of more than half a turn says nothing: degrees given for radians.
+        if self.bearing_sigma_rad > std::f64::consts::PI {
+            return Err((
+                "bearing_sigma_rad",
+                format!("must be at most pi (radians, not degrees), got {}", self.bearing_sigma_rad),
+            ));
+        }
         if !(self.range_sigma_per_m.is_finite() && self.range_sigma_per_m >= 0.0) {
             return Err((
                 "range_sigma_per_m",

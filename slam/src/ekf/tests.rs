@@ -511,4 +511,7 @@ fn range_dependent_noise_widens_far_observations() {
     assert!((m.noise_at(40.0)[(0, 0)] - 0.45f64.powi(2)).abs() < 1e-12);
     assert_eq!(m.noise_at(40.0)[(1, 1)], m.noise_at(0.0)[(1, 1)]);
     assert_eq!(RangeBearingModel { range_sigma_per_m: -1.0, ..m }.validate().unwrap_err().0, "range_sigma_per_m");
+    // Degrees given for radians.
+    let (field, problem) = RangeBearingModel { bearing_sigma_rad: 10.0, ..m }.validate().unwrap_err();
+    assert!(field == "bearing_sigma_rad" && problem.contains("radians, not degrees"), "{problem}");
 }
