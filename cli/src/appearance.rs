@@ -17,22 +17,6 @@ pub(crate) fn train(args: &crate::args::TrainArgs) -> Result<()> {
             crate::paths::writable_file(flag, file)?;
         }
     }
-    // The other worlds' datasets are read before the training, not after it, and must not
-    // be the training's own images: a held-out figure on them would measure nothing held out.
-    let trained_on = scenarios::train::read_manifest(dataset)?;
-    for other in &args.heldout_dataset {
-        let held_out = scenarios::train::read_manifest(other)?;
-        let copy = (held_out.world == trained_on.world && held_out.seed == trained_on.seed).then_some("a copy of it");
-        if let Some(what) = scenarios::partial_files::same_path(other, dataset).then_some("it").or(copy) {
-            anyhow::bail!(
-                "--heldout-dataset {}: {what} is the training dataset {} ({}, seed {}); held-out images must come from another world",
-                other.display(),
-                dataset.display(),
-                trained_on.world,
-                trained_on.seed
-            );
-        }
-    }
     let options = slam::classifier::TrainingOptions {
         pca_dims: *pca_dims,
         seed: *seed,
@@ -42,6 +26,14 @@ pub(crate) fn train(args: &crate::args::TrainArgs) -> Result<()> {
         vb: slam::gmm::VbOptions { max_components: *max_components, ..Default::default() },
         ..Default::default()
     };
+    // The other worlds' datasets are read and checked before the training, not after it
+    // (see `read_heldout_manifest`): not the training's own world, its classes, the
+    // model's patches, and some images.
+    let trained_on = scenarios::train::read_manifest(dataset)?;
+    for other in &args.heldout_dataset {
+        scenarios::train::read_heldout_manifest(other, dataset, &trained_on, options.features.patch_size)
+            .map_err(|e| anyhow::anyhow!("--heldout-dataset {e}"))?;
+    }
     let bar = progress::training("train");
     let started = std::time::Instant::now();
     let (model, classes) =

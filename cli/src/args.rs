@@ -370,7 +370,7 @@ pub(crate) struct MontecarloArgs {
     #[arg(long, global = true, allow_negative_numbers = true)]
     pub(crate) jobs: Option<usize>,
     /// Run on threads of this process instead of worker processes (slower: runs in one
-    /// process share the software renderer's locks; no --run-timeout).
+    /// process share the software renderer's locks; no --jobs or --run-timeout).
     #[arg(long, global = true)]
     pub(crate) in_process: bool,
     /// Seconds a worker process may spend on one run before it is killed and the run

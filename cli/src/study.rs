@@ -28,6 +28,14 @@ pub(crate) fn montecarlo(args: MontecarloArgs) -> Result<()> {
             "--run-timeout limits worker processes, and --in-process runs on threads, which cannot be killed"
         );
     }
+    // Refused rather than honoured: in-process runs share rayon's one pool with the
+    // trainings and the rendering inside each run, so a count of threads would not be a
+    // count of runs (RAYON_NUM_THREADS sizes that pool).
+    if args.in_process && args.jobs.is_some() {
+        anyhow::bail!(
+            "--jobs counts worker processes, and --in-process runs on this process's threads (RAYON_NUM_THREADS sets how many)"
+        );
+    }
     let run_timeout = args.run_timeout.unwrap_or(DEFAULT_RUN_TIMEOUT_S);
     let workers = if args.in_process {
         mc::Workers::Threads

@@ -34,6 +34,11 @@ fn negative_numbers_are_values_checked_like_any_other() {
         (vec!["montecarlo", "merge", out, "--out", out, "--jobs", "3"], "--jobs says how a study's runs are run"),
         (vec!["montecarlo", "rerun", out, "--job", "0", "--out", out, "--in-process"], "--in-process says how"),
         (vec!["montecarlo", "laser_only", "--in-process", "--run-timeout", "60", "--out", out], "--run-timeout limits"),
+        // Ignored before, even 0 (the bad method only stops the study that would have run).
+        (
+            vec!["montecarlo", "laser_only", "--in-process", "--jobs", "0", "--methods", "bogus", "--out", out],
+            "--jobs counts worker processes, and --in-process runs on this process's threads",
+        ),
         (vec!["montecarlo", "laser_only", "--runs", "-3"], "invalid value '-3' for '--runs <RUNS>'"),
         (vec!["run", "--method", "bogus"], "invalid value 'bogus' for '--method <METHOD>'"),
         (vec!["calibrate", "calibration", "--poses", "0", "--out", out], "--poses must be 5..10000"),

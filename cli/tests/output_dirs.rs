@@ -226,7 +226,10 @@ fn an_output_that_is_an_input_is_refused_and_the_input_kept() {
         (vec!["score", "--log", "run", "--trajectory", "t.tum", "--out", "run/"], "the log given"),
         (vec!["score", "--log", "run", "--trajectory", "run/metrics.json", "--out", "run"], "the log given"),
         (vec!["train", "--dataset", "images", "--heldout-dataset", "images/", "--out", "m.json"], "it is the training"),
-        (vec!["train", "--dataset", "images", "--heldout-dataset", "copy", "--out", "m.json"], "a copy of it"),
+        (
+            vec!["train", "--dataset", "images", "--heldout-dataset", "copy", "--out", "m.json"],
+            "shows the world of the training dataset images",
+        ),
         // Refused before training, not when the model is saved.
         (vec!["train", "--dataset", "images", "--out", "run"], "--out run: is a directory"),
         (vec!["train", "--dataset", "images", "--out", "nowhere/m.json"], "the directory nowhere does not exist"),
@@ -242,6 +245,41 @@ fn an_output_that_is_an_input_is_refused_and_the_input_kept() {
     }
     assert_eq!(contents(&root), before, "every input is as it was; nothing was written");
     assert!(world.is_file());
+    let _ = std::fs::remove_dir_all(&root);
+}
+
+/// A held-out dataset that cannot give held-out figures of the model is refused before
+/// training, whatever its spelling: the training's world under another path, other
+/// classes (scored against other labels), other patches (refused only after training,
+/// the model written), and no image (read as precision, recall and F1 1).
+#[test]
+fn held_out_datasets_that_would_measure_nothing_held_out_are_refused_before_training() {
+    let root = temp_root("heldout-checks");
+    let made = |args: &[&str]| {
+        let o = objslam(&root, args);
+        assert!(o.status.success(), "{args:?}: {}", stderr(&o));
+    };
+    made(&["world", "generate", "--preset", "park", "--out", "w.toml"]);
+    made(&["dataset", "--world", "w.toml", "--images", "1", "--out", "tr"]);
+    made(&["dataset", "--world", "./w.toml", "--images", "1", "--seed", "2", "--out", "same"]);
+    made(&["dataset", "--preset", "park", "--seed", "7", "--images", "1", "--classes", "post", "--out", "post"]);
+    made(&["dataset", "--preset", "park", "--seed", "7", "--images", "1", "--patch-size", "8", "--out", "p8"]);
+    made(&["dataset", "--preset", "park", "--seed", "7", "--images", "1", "--out", "empty"]);
+    let manifest = root.join("empty/dataset.json");
+    let mut m: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&manifest).unwrap()).unwrap();
+    m["images"] = serde_json::json!([]);
+    std::fs::write(&manifest, m.to_string()).unwrap();
+    for (held_out, expect) in [
+        ("same", "--heldout-dataset same: shows the world of the training dataset tr (w.toml: the same world.toml)"),
+        ("post", "post/dataset.json: labelled for the classes post, and the training dataset tr for tree"),
+        ("p8", "p8/dataset.json: patch_size is 8, the model uses 9"),
+        ("empty", "empty/dataset.json: images: [] (no image): a held-out dataset with no image scores nothing"),
+    ] {
+        let o = objslam(&root, &["train", "--dataset", "tr", "--heldout-dataset", held_out, "--out", "m.json"]);
+        assert!(!o.status.success(), "{held_out} was scored");
+        assert!(stderr(&o).contains(expect), "{held_out}: {}", stderr(&o));
+        assert!(!root.join("m.json").exists(), "{held_out}: refused after training");
+    }
     let _ = std::fs::remove_dir_all(&root);
 }
 

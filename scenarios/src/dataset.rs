@@ -31,6 +31,15 @@ pub enum DatasetError {
     Write(#[from] RecordError),
     #[error("{}: {source}", file.display())]
     Io { file: PathBuf, source: std::io::Error },
+    /// The dataset was written whole, but some of its files could not be moved into place.
+    #[error("{}", crate::run::join_errors(.0))]
+    Publish(Vec<crate::partial_files::PartialFileError>),
+}
+
+impl From<crate::partial_files::PartialFileError> for DatasetError {
+    fn from(e: crate::partial_files::PartialFileError) -> Self {
+        DatasetError::Io { file: e.file, source: e.source }
+    }
 }
 
 /// Dataset settings.
@@ -189,7 +198,11 @@ pub fn look_at(eye: [f64; 3], target: [f64; 3]) -> Rigid {
     Rigid { r: [[x[0], y[0], z[0]], [x[1], y[1], z[1]], [x[2], y[2], z[2]]], t: eye }
 }
 
-/// Makes a dataset of `world` in `out`. `progress(done, total)` after each image.
+/// Makes a dataset of `world` in `out`. `progress(done, total)` after each image. `out` is
+/// held against other commands while the dataset is written in its unfinished directory,
+/// and the dataset replaces what `out` held only once written whole, its `dataset.json`
+/// last: two datasets given one `out`, or one stopped on the way, never leave a manifest
+/// over another dataset's images.
 pub fn make_dataset(
     world: &World,
     world_name: &str,
@@ -197,6 +210,35 @@ pub fn make_dataset(
     out: &Path,
     progress: impl Fn(usize, usize),
 ) -> Result<Manifest, DatasetError> {
+    use crate::partial_files as staging;
+    check_config(world, config)?;
+    let lock = staging::lock_output(out)?;
+    let written = staging::start_unfinished(out)
+        .map_err(DatasetError::from)
+        .and_then(|dir| write_dataset(world, world_name, config, &dir, progress));
+    let manifest = match written {
+        Ok(manifest) => manifest,
+        Err(e) => {
+            let _ = std::fs::remove_dir_all(staging::unfinished_dir(out));
+            lock.release_failed();
+            return Err(e);
+        }
+    };
+    // The manifest waits outside the unfinished directory while the rest is moved in, the
+    // earlier one removed first: a publish stopped midway leaves no manifest, not a mix.
+    let (staged, waiting) = (staging::unfinished_dir(out).join("dataset.json"), out.join(".dataset.json.partial"));
+    std::fs::rename(&staged, &waiting).map_err(|e| DatasetError::Io { file: staged, source: e })?;
+    if let Err(errors) = staging::publish(&staging::unfinished_dir(out), out, &["dataset.json"]) {
+        let _ = std::fs::remove_file(&waiting);
+        return Err(DatasetError::Publish(errors));
+    }
+    let manifest_file = out.join("dataset.json");
+    std::fs::rename(&waiting, &manifest_file).map_err(|e| DatasetError::Io { file: manifest_file, source: e })?;
+    Ok(manifest)
+}
+
+/// Refuses settings no dataset of `world` can be made with, before anything is written.
+fn check_config(world: &World, config: &DatasetConfig) -> Result<(), DatasetError> {
     // Each image is written as it is made (memory stays flat), but the COCO annotations
     // are gathered for one file: a million images is far beyond any training run here.
     if !(1..=1_000_000).contains(&config.images) {
@@ -208,15 +250,28 @@ pub fn make_dataset(
             config.patch_size, config.camera.width, config.camera.height
         )));
     }
-    let targets: Vec<&worlds::StaticObject> =
-        world.objects.iter().filter(|o| config.classes.contains(&o.class)).collect();
-    if targets.is_empty() && config.background_fraction < 1.0 {
+    if !world.objects.iter().any(|o| config.classes.contains(&o.class)) && config.background_fraction < 1.0 {
         return Err(DatasetError::Config(format!(
             "the world has no object of the classes {:?}",
             config.classes.iter().map(|c| c.name()).collect::<Vec<_>>()
         )));
     }
-    crate::partial_files::make_output_dir(out).map_err(|e| DatasetError::Io { file: e.file, source: e.source })?;
+    Ok(())
+}
+
+/// Writes a dataset of `world` straight into `out`, which the caller holds (see
+/// [`make_dataset`], or a training's own scratch directory).
+pub(crate) fn write_dataset(
+    world: &World,
+    world_name: &str,
+    config: &DatasetConfig,
+    out: &Path,
+    progress: impl Fn(usize, usize),
+) -> Result<Manifest, DatasetError> {
+    check_config(world, config)?;
+    let targets: Vec<&worlds::StaticObject> =
+        world.objects.iter().filter(|o| config.classes.contains(&o.class)).collect();
+    crate::partial_files::make_output_dir(out)?;
     clear_earlier_images(out)?;
     for dir in ["images", "masks", "labels"] {
         std::fs::create_dir_all(out.join(dir)).map_err(|e| DatasetError::Io { file: out.join(dir), source: e })?;

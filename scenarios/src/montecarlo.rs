@@ -93,11 +93,15 @@ impl Vary {
         if param.trim().is_empty() {
             return Err(bad("empty parameter name"));
         }
-        let values = if steps == 1 {
-            vec![a]
-        } else {
-            (0..steps).map(|i| a + (b - a) * i as f64 / (steps - 1) as f64).collect()
-        };
+        // One value cannot run from A to B: taking A alone would drop B unsaid.
+        if steps == 1 && a != b {
+            return Err(bad("one step cannot go from A to B: give A..A:1 for one value, or 2 or more steps"));
+        }
+        // The last value is B itself, not A plus the steps (0.2..1:4 gave
+        // 1.0000000000000002, which a setting of at most 1 refused); the others are as
+        // they always were, so the job keys of studies begun before stay the same.
+        let values =
+            (0..steps).map(|i| if i + 1 == steps { b } else { a + (b - a) * i as f64 / (steps - 1) as f64 }).collect();
         Ok(Vary { param: param.trim().into(), values })
     }
 }
@@ -401,6 +405,27 @@ pub fn jobs(plan: &StudyPlan) -> Vec<Job> {
     out
 }
 
+/// Refuses a plan two of whose values of one parameter give `base` the same settings: a
+/// whole-number setting takes 5.000000001 as 5 (to rounding in a range's steps), so
+/// values that differ as typed could be one job run twice under two keys. A value the
+/// scenario refuses is left to the check of each job, which names it.
+fn check_values_differ(plan: &StudyPlan, base: &Scenario) -> Result<(), StudyError> {
+    for v in &plan.vary {
+        let mut seen: BTreeMap<String, f64> = BTreeMap::new();
+        for &x in &v.values {
+            let Ok(scenario) = apply_param(base, &v.param, x) else { continue };
+            let settings = serde_json::to_string(&scenario).map_err(|e| StudyError::Plan(e.to_string()))?;
+            if let Some(first) = seen.insert(settings, x) {
+                return Err(StudyError::Plan(format!(
+                    "--vary {}: the values {first} and {x} set it alike (a whole-number setting takes the nearest whole number), so their runs would be one job run twice; give values that differ by a whole number",
+                    v.param
+                )));
+            }
+        }
+    }
+    Ok(())
+}
+
 /// Sets a dotted path (`sim.odometry.scale_sigma`) in the scenario to `value`. A 2-element
 /// range (such as `world.params.post_distance_m`) is set to `[value, value]`. The
 /// generalisation benchmark's world parameters (`generalisation.test_world`, ...) replace the
@@ -437,9 +462,10 @@ pub fn apply_param(scenario: &Scenario, path: &str, value: f64) -> Result<Scenar
         Scenario::parse(&text, Path::new(&format!("{}[{path}={value}]", scenario.name))).map_err(|e| bad(e.to_string()))
     };
     // A setting the scenario leaves out has no type to follow: a number, unless only a
-    // whole one will do (a count the scenario did not set).
-    with(false)
-        .or_else(|e| if value.fract() == 0.0 && value.abs() < 9.2e18 { with(true).map_err(|_| e) } else { Err(e) })
+    // whole one will do (a count the scenario did not set). Where the whole number is
+    // refused too, its reason is the one to give: the first attempt's is only that a
+    // count is no float.
+    with(false).or_else(|e| if value.fract() == 0.0 && value.abs() < 9.2e18 { with(true) } else { Err(e) })
 }
 
 /// A parameter's path under today's spelling: a key read under a former spelling is
@@ -744,6 +770,7 @@ pub fn run_study_with(
     let held = hold(out)?;
     let plan_file = out.join("study.json");
     let (pin, base_scenario, base_dir) = pin_scenario(&plan.scenario)?;
+    check_values_differ(plan, &base_scenario)?;
     match read_study_file(&plan_file, "; remove the directory, or this file if runs.jsonl is empty, to start again") {
         Ok(existing) => {
             if !same_plan(&existing, plan) {
@@ -1391,6 +1418,59 @@ mod tests {
         for bad in ["x", "x=1..2", "x=1:3", "x=a..2:3", "=1..2:3", "x=1..2:0"] {
             assert!(Vary::parse(bad).is_err(), "{bad}");
         }
+    }
+
+    /// A range ends on B exactly (0.2..1:4 ended on 1.0000000000000002, which a setting of
+    /// at most 1 refused), its other values as before; one step from A to another B is
+    /// refused, not taken as A alone.
+    #[test]
+    fn a_range_ends_on_its_end_and_one_step_is_one_value() {
+        let v = Vary::parse("pass.min_tree_recall=0.2..1:4").unwrap();
+        assert_eq!(v.values[3], 1.0);
+        assert_eq!(v.values[..3], [0.2, 0.2 + 0.8 * 1.0 / 3.0, 0.2 + 0.8 * 2.0 / 3.0], "interior values as before");
+        assert_eq!(Vary::parse("x=0.06..0.9:2").unwrap().values, [0.06, 0.9]);
+        let (s, _) = Scenario::load("laser_only").unwrap();
+        for &x in &v.values {
+            apply_param(&s, "pass.min_tree_recall", x).unwrap();
+        }
+        let e = Vary::parse("x=0..0.02:1").unwrap_err().to_string();
+        assert!(e.contains("--vary \"x=0..0.02:1\"") && e.contains("one step cannot go from A to B"), "{e}");
+        assert_eq!(Vary::parse("x=0.5..0.5:1").unwrap().values, [0.5]);
+    }
+
+    /// A whole-number setting's refusal gives its own reason (laser_only asks for at least
+    /// one false landmark), not that a float is no count.
+    #[test]
+    fn a_whole_number_settings_refusal_gives_its_reason() {
+        let (s, _) = Scenario::load("laser_only").unwrap();
+        let e = apply_param(&s, "pass.max_false_landmarks", 0.0).unwrap_err().to_string();
+        assert!(e.contains("is above pass.max_false_landmarks = 0"), "{e}");
+        assert!(!e.contains("float"), "{e}");
+    }
+
+    /// Values that differ as typed but set a whole-number setting alike would be one job
+    /// run twice: refused before a run, with the two values.
+    #[test]
+    fn values_that_set_a_setting_alike_are_refused() {
+        let (s, _) = Scenario::load("laser_only").unwrap();
+        let plan = |spec: &str| StudyPlan {
+            scenario: "laser_only".into(),
+            base_seed: 1,
+            runs: 1,
+            methods: vec!["nn".into()],
+            vary: vec![Vary::parse(spec).unwrap()],
+        };
+        let alike = plan("world.seed=5..5.000000001:2");
+        alike.check().unwrap();
+        let e = check_values_differ(&alike, &s).unwrap_err().to_string();
+        assert!(e.contains("--vary world.seed: the values 5 and 5.000000001 set it alike"), "{e}");
+        let out = std::env::temp_dir().join(format!("objslam-mc-alike-{}", std::process::id()));
+        let e = run_study(&alike, Shard::all(), &out, |_| {}).unwrap_err().to_string();
+        assert!(e.contains("set it alike"), "{e}");
+        assert!(!out.join("runs.jsonl").exists() && !out.join("study.json").exists(), "refused before the study began");
+        let _ = std::fs::remove_dir_all(&out);
+        check_values_differ(&plan("world.seed=5..6:2"), &s).unwrap();
+        check_values_differ(&plan("sim.odometry.scale_sigma=0..0.02:3"), &s).unwrap();
     }
 
     #[test]

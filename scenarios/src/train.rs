@@ -219,10 +219,87 @@ pub struct HeldoutWorld {
     pub by_class: ClassTable,
 }
 
+/// Reads the manifest of the held-out dataset in `dir`, refusing, before any training, a
+/// dataset whose figures would not be held-out figures of a model trained on the dataset
+/// in `training` (its manifest `trained_on`) with `patch_size` px patches: the training
+/// dataset itself, or one of its world however the world was named (their `world.toml`
+/// files the same; by name and seed for datasets made before they held one), one labelled
+/// for other classes (the model's object would be scored against another's labels), one
+/// of other patches, and one with no image (it scores nothing, and read as perfect).
+pub fn read_heldout_manifest(
+    dir: &Path,
+    training: &Path,
+    trained_on: &Manifest,
+    patch_size: u32,
+) -> Result<Manifest, TrainError> {
+    let manifest = read_manifest(dir)?;
+    let another_world = "held-out images must come from another world";
+    if crate::partial_files::same_path(dir, training) {
+        return Err(file_err(
+            dir,
+            format!(
+                "it is the training dataset {} ({}, seed {}); {another_world}",
+                training.display(),
+                trained_on.world,
+                trained_on.seed
+            ),
+        ));
+    }
+    let same_world =
+        match (std::fs::read(dir.join(crate::files::WORLD)), std::fs::read(training.join(crate::files::WORLD))) {
+            (Ok(held_out), Ok(trained)) => (held_out == trained).then_some("the same world.toml"),
+            _ => (manifest.world == trained_on.world && manifest.seed == trained_on.seed)
+                .then_some("the same world and seed"),
+        };
+    if let Some(how) = same_world {
+        return Err(file_err(
+            dir,
+            format!(
+                "shows the world of the training dataset {} ({}: {how}); {another_world}",
+                training.display(),
+                trained_on.world
+            ),
+        ));
+    }
+    let names = |m: &Manifest| {
+        let mut ids: Vec<u8> = m.classes.iter().map(|c| c.id()).collect();
+        ids.sort_unstable();
+        ids.dedup();
+        ids.iter().filter_map(|&id| worlds::ObjectClass::from_id(id)).map(|c| c.name()).collect::<Vec<_>>().join(",")
+    };
+    if names(&manifest) != names(trained_on) {
+        return Err(file_err(
+            &dir.join("dataset.json"),
+            format!(
+                "labelled for the classes {}, and the training dataset {} for {}: the model would be scored against other objects' labels; make it with --classes {}",
+                names(&manifest),
+                training.display(),
+                names(trained_on),
+                names(trained_on)
+            ),
+        ));
+    }
+    check_patch_size(dir, &manifest, patch_size)?;
+    check_not_empty(dir, &manifest)?;
+    Ok(manifest)
+}
+
+/// Refuses a dataset with no image to score: its precision and recall would read 1.
+fn check_not_empty(dir: &Path, manifest: &Manifest) -> Result<(), TrainError> {
+    if manifest.images.is_empty() {
+        return Err(file_err(
+            &dir.join("dataset.json"),
+            "images: [] (no image): a held-out dataset with no image scores nothing",
+        ));
+    }
+    Ok(())
+}
+
 /// Scores `model` on every image of the dataset in `dir` (another world's, for how the
 /// model generalises), with the training's rule for which patches are object.
 pub fn score_on_dataset(dir: &Path, model: &AppearanceModel, label_fraction: f64) -> Result<HeldoutWorld, TrainError> {
     let manifest = read_manifest(dir)?;
+    check_not_empty(dir, &manifest)?;
     let n = manifest.images.len();
     let ids: Vec<usize> = (0..n).collect();
     let (scores, by_class) = score_images(dir, &manifest, model, &ids, label_fraction)?;

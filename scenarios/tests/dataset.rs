@@ -106,3 +106,31 @@ fn bad_dataset_settings_are_errors() {
     let e = make_dataset(&world, "w", &no_class, &dir, |_, _| {}).unwrap_err().to_string();
     assert!(e.contains("checkerboard"), "{e}");
 }
+
+/// A dataset holds its directory against other commands (two given one directory mixed
+/// their files), and replaces an earlier dataset whole, its surplus images too, leaving
+/// nothing unfinished behind.
+#[test]
+fn a_dataset_holds_its_directory_and_replaces_an_earlier_one_whole() {
+    let dir = std::env::temp_dir().join(format!("objslam-dataset-held-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let world = worlds::generate::park(&Default::default(), 4).unwrap();
+    let mut config = DatasetConfig { images: 2, seed: 2, ..Default::default() };
+    config.camera.width = 90;
+    config.camera.height = 72;
+    make_dataset(&world, "park seed 4", &config, &dir, |_, _| {}).unwrap();
+    let earlier = std::fs::read_to_string(dir.join("dataset.json")).unwrap();
+    let one = DatasetConfig { images: 1, seed: 3, ..config };
+    let held = scenarios::partial_files::lock_output(&dir).unwrap();
+    let e = make_dataset(&world, "park seed 4", &one, &dir, |_, _| {}).unwrap_err().to_string();
+    assert!(e.contains("another objslam command is writing into this directory"), "{e}");
+    assert_eq!(std::fs::read_to_string(dir.join("dataset.json")).unwrap(), earlier, "the earlier dataset is kept");
+    drop(held);
+    let made = make_dataset(&world, "park seed 4", &one, &dir, |_, _| {}).unwrap();
+    let manifest: Manifest = serde_json::from_str(&std::fs::read_to_string(dir.join("dataset.json")).unwrap()).unwrap();
+    assert_eq!(manifest, made);
+    assert_eq!(manifest.images.len(), 1);
+    assert!(dir.join("images/000000.png").is_file() && !dir.join("images/000001.png").exists());
+    assert!(!dir.join(".unfinished").exists() && !dir.join(".dataset.json.partial").exists());
+    let _ = std::fs::remove_dir_all(&dir);
+}
