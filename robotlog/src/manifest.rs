@@ -84,7 +84,8 @@ pub struct Camera {
     /// Image size (pixels); every frame must have it.
     pub width: u32,
     pub height: u32,
-    /// Focal lengths and principal point (pixels), for undistorted images.
+    /// Focal lengths and principal point (pixels), for undistorted images, as ROS's
+    /// CameraInfo and OpenCV give them: pixel centres at whole coordinates.
     pub fx: f64,
     pub fy: f64,
     pub cx: f64,
@@ -168,6 +169,10 @@ impl Camera {
         Ok(())
     }
 }
+
+/// How far the pipeline's pixel coordinates run ahead of the manifest's: ROS and OpenCV
+/// put a pixel's centre at whole coordinates, the pipeline at half-integers.
+const ROS_PIXEL_OFFSET: f64 = 0.5;
 
 impl Manifest {
     /// The first fact that makes no sense, as (field, problem).
@@ -294,8 +299,9 @@ impl Manifest {
         Some(slam::segmentation::CameraGeometry {
             fx: c.fx,
             fy: c.fy,
-            cx: c.cx,
-            cy: c.cy,
+            // The pipeline puts pixel centres at half-integers.
+            cx: c.cx + ROS_PIXEL_OFFSET,
+            cy: c.cy + ROS_PIXEL_OFFSET,
             width: c.width,
             height: c.height,
             laser_from_camera: slam::calibration::Extrinsics { phi, delta: turn(c.translation_m) },

@@ -397,10 +397,12 @@ fn a_turned_sensor_turns_the_camera_with_its_returns() {
     // The pipeline takes returns in the vehicle's heading; a point straight ahead of a
     // sensor yawed 90 degrees is to the vehicle's left, and still on the camera's axis.
     // The camera sits 0.2 m ahead of and 0.1 m left of the sensor, 0.1 m up. A point 5 m
-    // ahead of the camera and 1 m to its right (optical +x) projects to u = cx + fx/5.
+    // ahead of the camera and 1 m to its right (optical +x) projects to u = cx + fx/5, plus
+    // the half pixel by which the pipeline's pixel centres run ahead of the manifest's
+    // (ROS's) whole-number ones.
     let mut m = manifest("odometry", true);
     m.camera = Some(Camera { translation_m: [0.2, 0.1, 0.1], ..camera() });
-    let expected = [2.0 + 2.0 / 5.0, 1.5];
+    let expected = [2.0 + 2.0 / 5.0 + 0.5, 1.5 + 0.5];
     let sensor_point = [5.2, 0.1 - 1.0, 0.1];
     let pixel = m.camera_geometry().unwrap().project(&nalgebra::Vector3::from(sensor_point)).unwrap();
     assert!((pixel[0] - expected[0]).abs() < 1e-9 && (pixel[1] - expected[1]).abs() < 1e-9, "{pixel:?}");

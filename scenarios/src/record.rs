@@ -520,13 +520,14 @@ fn write_log(
             camera: (!frames.is_empty()).then(|| {
                 let k = config.camera.intrinsics();
                 let e = calibration.copied().unwrap_or_else(|| crate::calibrate::true_extrinsics(config));
+                let (cx, cy) = k.principal_point_ros();
                 robotlog::manifest::Camera {
                     width: k.width,
                     height: k.height,
                     fx: k.fx,
                     fy: k.fy,
-                    cx: k.cx,
-                    cy: k.cy,
+                    cx,
+                    cy,
                     rotation: e.phi,
                     translation_m: e.delta,
                 }
@@ -748,13 +749,15 @@ fn record_jsonl(
                     .expect("JSON"),
                 )?;
                 mcap.write("/camera/image", "foxglove.CompressedImage", frame.t, &json!({"timestamp": timestamp(frame.t), "frame_id": "camera_optical", "format": "png", "data": base64(&files.colour_png)}))?;
+                // Foxglove, as ROS, puts pixel centres at whole coordinates.
+                let (cx, cy) = k.principal_point_ros();
                 mcap.write(
                     "/camera/calibration",
                     "foxglove.CameraCalibration",
                     frame.t,
                     &json!({"timestamp": timestamp(frame.t), "frame_id": "camera_optical", "width": k.width, "height": k.height, "distortion_model": "plumb_bob",
-                            "D": [0.0, 0.0, 0.0, 0.0, 0.0], "K": [k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0],
-                            "R": [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0], "P": [k.fx, 0.0, k.cx, 0.0, 0.0, k.fy, k.cy, 0.0, 0.0, 0.0, 1.0, 0.0]}),
+                            "D": [0.0, 0.0, 0.0, 0.0, 0.0], "K": [k.fx, 0.0, cx, 0.0, k.fy, cy, 0.0, 0.0, 1.0],
+                            "R": [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0], "P": [k.fx, 0.0, cx, 0.0, 0.0, k.fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0]}),
                 )?;
                 frames += 1;
             }

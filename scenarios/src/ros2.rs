@@ -296,8 +296,20 @@ impl Ros2Recorder {
                     scan_time: scan.scan_time as f32,
                     range_min: scan.range_min as f32,
                     range_max: scan.range_max as f32,
-                    // REP-117: no return within range_max is +inf.
-                    ranges: scan.ranges.iter().map(|r| if r.is_finite() { *r as f32 } else { f32::INFINITY }).collect(),
+                    // REP-117: no return within range_max is +inf, one too close to measure -inf.
+                    ranges: scan
+                        .ranges
+                        .iter()
+                        .map(|&r| {
+                            if r.is_finite() {
+                                r as f32
+                            } else if r < 0.0 {
+                                f32::NEG_INFINITY
+                            } else {
+                                f32::INFINITY
+                            }
+                        })
+                        .collect(),
                     intensities: Vec::new(),
                 };
                 self.bag.write("/scan", nanos(scan.t), &msg)?;
@@ -316,10 +328,12 @@ impl Ros2Recorder {
                 };
                 self.bag.write("/camera/image_raw", nanos(frame.t), &image)?;
                 let k = frame.intrinsics;
+                // ROS puts pixel centres at whole coordinates.
+                let (cx, cy) = k.principal_point_ros();
                 self.bag.write(
                     "/camera/camera_info",
                     nanos(frame.t),
-                    &CameraInfo::pinhole(header, k.width, k.height, k.fx, k.fy, k.cx, k.cy),
+                    &CameraInfo::pinhole(header, k.width, k.height, k.fx, k.fy, cx, cy),
                 )?;
             }
         }

@@ -262,6 +262,17 @@ fn a_ros2_bag_holds_what_the_json_lines_hold_in_standard_messages() {
                 assert_eq!((r.u32(), r.u32(), r.string()), (480, 640, "rgb8".to_string()));
                 frames += 1;
             }
+            "/camera/camera_info" => {
+                let _ = r.header();
+                assert_eq!((r.u32(), r.u32(), r.string()), (480, 640, "plumb_bob".to_string()));
+                (0..r.u32()).for_each(|_| assert_eq!(r.f64(), 0.0));
+                let k: Vec<f64> = (0..9).map(|_| r.f64()).collect();
+                // ROS puts pixel centres at whole coordinates: the image's centre is
+                // (319.5, 239.5) there, (320, 240) in the simulator's own convention.
+                let own = config.camera.intrinsics();
+                assert_eq!((k[0], k[2], k[4], k[5]), (own.fx, 319.5, own.fy, 239.5));
+                assert_eq!((own.cx, own.cy), (320.0, 240.0));
+            }
             "/tf_static" => {
                 for _ in 0..r.u32() {
                     let (_, parent) = r.header();

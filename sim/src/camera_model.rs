@@ -52,6 +52,10 @@ impl Default for CameraConfig {
     }
 }
 
+/// How far this project's pixel coordinates run ahead of ROS's and OpenCV's (see
+/// [`Intrinsics::principal_point_ros`]).
+pub const ROS_PIXEL_OFFSET: f64 = 0.5;
+
 /// Pinhole intrinsics in pixels.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Intrinsics {
@@ -64,6 +68,13 @@ pub struct Intrinsics {
 }
 
 impl Intrinsics {
+    /// The principal point as ROS, OpenCV and Foxglove give it. They put a pixel's centre
+    /// at whole coordinates; this project (its renderer and pipeline) at half-integers,
+    /// pixel (i, j) spanning [i, i + 1) x [j, j + 1). Exchange formats use theirs.
+    pub fn principal_point_ros(&self) -> (f64, f64) {
+        (self.cx - ROS_PIXEL_OFFSET, self.cy - ROS_PIXEL_OFFSET)
+    }
+
     /// K as a row-major 3x3.
     pub fn k(&self) -> [[f64; 3]; 3] {
         [[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]]

@@ -33,6 +33,10 @@ impl Default for SimConfig {
     }
 }
 
+/// The Pioneer 2-AT's top speed (m/s) and turn rate (deg/s), from ARIA's p2at.p.
+pub const PIONEER_MAX_SPEED_MPS: f64 = 1.2;
+pub const PIONEER_MAX_TURN_RATE_DPS: f64 = 300.0;
+
 /// The Pioneer 2-AT (ARIA p2at.p) and its path-following controller.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -47,7 +51,8 @@ pub struct RobotConfig {
     pub cruise_speed_mps: f64,
     /// Pure-pursuit look-ahead distance.
     pub lookahead_m: f64,
-    /// Stop while the laser sees something closer than this ahead (people crossing).
+    /// Stop while something ahead is closer than this to the robot's front (people
+    /// crossing): the laser, mounted behind the front, sees it that much further away.
     pub safety_stop_m: f64,
 }
 
@@ -271,12 +276,24 @@ impl SimConfig {
         if self.laser.min_range_m >= self.laser.max_range_m {
             return bad("laser.min_range_m", "must be below max_range_m".into());
         }
-        // A Pioneer 2-AT turns at up to 300 deg/s: more is a typo, and makes the follower
-        // turn on the spot in bang-bang fashion.
-        if self.robot.max_turn_rate_dps > 360.0 {
+        // The robot is a Pioneer 2-AT (ARIA's p2at.p): up to 1.2 m/s and 300 deg/s. More is
+        // another robot, or a typo, and makes the follower turn on the spot bang-bang.
+        if self.robot.max_turn_rate_dps > PIONEER_MAX_TURN_RATE_DPS {
             return bad(
                 "robot.max_turn_rate_dps",
-                format!("must be at most 360 deg/s, got {}", self.robot.max_turn_rate_dps),
+                format!(
+                    "must be at most the Pioneer 2-AT's {PIONEER_MAX_TURN_RATE_DPS} deg/s, got {}",
+                    self.robot.max_turn_rate_dps
+                ),
+            );
+        }
+        if self.robot.max_speed_mps > PIONEER_MAX_SPEED_MPS {
+            return bad(
+                "robot.max_speed_mps",
+                format!(
+                    "must be at most the Pioneer 2-AT's {PIONEER_MAX_SPEED_MPS} m/s, got {}",
+                    self.robot.max_speed_mps
+                ),
             );
         }
         if self.robot.cruise_speed_mps > self.robot.max_speed_mps {

@@ -79,6 +79,9 @@ impl Laser {
                         let measured = ((range + noise[i]) / q).round() * q;
                         if measured >= min && measured <= max {
                             r[k] = measured;
+                        } else if measured < min {
+                            // REP-117: a return too close to measure is -inf (no return, +inf).
+                            r[k] = f64::NEG_INFINITY;
                         }
                     }
                 }

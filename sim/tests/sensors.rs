@@ -113,6 +113,11 @@ fn no_return_beyond_maximum_range() {
     config.laser.max_range_m = 16.0;
     let (scan, _) = first_scan(&w, &config, 1);
     assert!(scan.ranges[180].is_finite());
+    // Nearer than the minimum range: too close to measure, -inf (REP-117), not "no return".
+    config.laser.min_range_m = 13.0;
+    let (scan, _) = first_scan(&w, &config, 1);
+    assert_eq!(scan.ranges[180], f64::NEG_INFINITY);
+    assert_eq!(scan.ranges[0], f64::INFINITY, "nothing to the right");
 }
 
 #[test]
@@ -242,6 +247,15 @@ fn bad_settings_are_named() {
     c.laser = LaserConfig { max_range_m: 50.0, ..Default::default() };
     let e = Simulation::new(&w, &c, 1).err().unwrap().to_string();
     assert!(e.contains("max_range_m"), "{e}");
+    // Faster or quicker-turning than a Pioneer 2-AT.
+    let mut c = cfg();
+    c.robot.max_speed_mps = 3.0;
+    let e = Simulation::new(&w, &c, 1).err().unwrap().to_string();
+    assert!(e.contains("robot.max_speed_mps") && e.contains("1.2 m/s"), "{e}");
+    let mut c = cfg();
+    c.robot.max_turn_rate_dps = 330.0;
+    let e = Simulation::new(&w, &c, 1).err().unwrap().to_string();
+    assert!(e.contains("robot.max_turn_rate_dps") && e.contains("300 deg/s"), "{e}");
     let e = worlds::load(std::path::Path::new("/no/such/world.toml")).unwrap_err().to_string();
     assert!(e.contains("/no/such/world.toml"));
 }

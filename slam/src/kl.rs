@@ -111,6 +111,10 @@ pub fn kl_matched_bound(f: &PreparedGmm, g: &PreparedGmm) -> Result<f64, KlError
     }
     let mut total = 0.0;
     for (a, fa) in f.components.iter().enumerate() {
+        // A component of no weight adds nothing (and 0 x -inf would be NaN).
+        if f.log_weights[a] == f64::NEG_INFINITY {
+            continue;
+        }
         let (best, kl) = g
             .components
             .iter()
@@ -188,6 +192,23 @@ mod tests {
             assert!(kl_matched_bound(&f, &f).unwrap().abs() < 1e-9);
             assert!(kl_gaussian(&f.components[0], &f.components[0]).abs() < 1e-9);
         }
+    }
+
+    /// A component of no weight changes neither divergence (the matched bound had made
+    /// 0 x -inf of it, NaN).
+    #[test]
+    fn a_component_of_no_weight_adds_nothing() {
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let f = random_gmm(&mut rng, 2, 3, 2.0);
+        let g = random_gmm(&mut rng, 2, 3, 2.0);
+        let mut f0 = f.clone();
+        let mut extra = f.components[0].clone();
+        extra.weight = 0.0;
+        f0.components.push(extra);
+        let (pf, pf0, pg) =
+            (PreparedGmm::new(&f).unwrap(), PreparedGmm::new(&f0).unwrap(), PreparedGmm::new(&g).unwrap());
+        let (a, b) = (kl_matched_bound(&pf, &pg).unwrap(), kl_matched_bound(&pf0, &pg).unwrap());
+        assert!(b.is_finite() && (a - b).abs() < 1e-12, "{a} against {b}");
     }
 
     #[test]

@@ -184,7 +184,8 @@ pub fn fit_observation(
         prior.check(d)?;
     }
     let options = VbOptions {
-        max_components: config.components.max(1).min(n),
+        // 0: a search by birth and death, up to as many components as a model may have.
+        max_components: if config.components == 0 { MAX_OBJECT_COMPONENTS } else { config.components }.min(n).max(1),
         fixed_k: config.components > 0,
         max_iterations: 200,
         tolerance: 1e-6,
@@ -458,6 +459,21 @@ mod tests {
             pixels: vec![],
             centre_covariance: Matrix2::identity() * 0.01,
         }
+    }
+
+    /// `components = 0` searches: two looks far apart in one observation become two
+    /// components (the cap of one component had kept every search at one).
+    #[test]
+    fn zero_components_searches_for_more_than_one() {
+        let (a, b) =
+            (observation(21, [3.0, 0.0, 0.0], [0.0, 0.0], 80), observation(22, [-3.0, 0.0, 0.0], [0.0, 0.0], 80));
+        let mut both = a.clone();
+        both.rows = DMatrix::from_fn(160, 6, |i, j| if i < 80 { a.rows[(i, j)] } else { b.rows[(i - 80, j)] });
+        let searched =
+            fit_observation(&both, None, &ObjectModelConfig { components: 0, ..Default::default() }).unwrap();
+        assert!(searched.components.len() >= 2, "{} components", searched.components.len());
+        let one = fit_observation(&both, None, &ObjectModelConfig { components: 1, ..Default::default() }).unwrap();
+        assert_eq!(one.components.len(), 1);
     }
 
     #[test]

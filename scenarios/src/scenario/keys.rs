@@ -119,11 +119,14 @@ pub(super) const KEYS: &[(&str, &str)] = &[
     ("sim.robot.length_m", "Body length, front to back (m); positive."),
     ("sim.robot.width_m", "Body width (m); positive."),
     ("sim.robot.body_height_m", "Height of the body's collision box (m); positive."),
-    ("sim.robot.max_speed_mps", "Speed limit of the path follower (m/s); positive, at least cruise_speed_mps."),
+    (
+        "sim.robot.max_speed_mps",
+        "Speed limit of the path follower (m/s); positive, at least cruise_speed_mps, at most the Pioneer 2-AT's 1.2.",
+    ),
     (
         "sim.robot.max_turn_rate_dps",
-        "Turn rate limit of the path follower (deg/s); positive, at most 360. The default is 1.5 rad/s; a \
-         Pioneer 2-AT turns at up to 300 deg/s.",
+        "Turn rate limit of the path follower (deg/s); positive, at most the Pioneer 2-AT's 300. The default is \
+         1.5 rad/s.",
     ),
     (
         "sim.robot.cruise_speed_mps",

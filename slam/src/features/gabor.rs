@@ -68,7 +68,9 @@ impl GaborFilter {
     }
 
     fn orientation(&self) -> Option<bool> {
-        let t = self.theta_deg.rem_euclid(180.0);
+        // Modulo a whole turn: at 180 and 270 degrees the carrier runs the other way, which
+        // only a phase of 0 or pi leaves unchanged, so those take the general kernel.
+        let t = self.theta_deg.rem_euclid(360.0);
         if t.abs() < 1e-9 {
             Some(false)
         } else if (t - 90.0).abs() < 1e-9 {
@@ -428,6 +430,25 @@ mod tests {
             })
             .collect();
         Plane { width: w, height: h, data }
+    }
+
+    /// Where a filter takes the separable path, the two 1-D kernels' product is its 2-D
+    /// kernel, at any phase; at 180 and 270 degrees the carrier runs the other way.
+    #[test]
+    fn separable_kernels_are_the_2d_kernel_at_every_orientation_and_phase() {
+        let base = GaborBank::default().filters[0].clone();
+        for theta_deg in [0.0, 90.0, 180.0, 270.0, -90.0, 360.0, 45.0] {
+            for psi in [0.0, std::f64::consts::FRAC_PI_4, std::f64::consts::FRAC_PI_2, 1.0] {
+                let f = GaborFilter { theta_deg, psi, ..base.clone() };
+                let Some((h, v)) = f.separable() else { continue };
+                let full = f.kernel_2d();
+                let product: Vec<f32> = v.iter().flat_map(|&b| h.iter().map(move |&a| a * b)).collect();
+                assert_eq!(full.len(), product.len(), "{theta_deg} deg");
+                let worst = full.iter().zip(&product).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+                let scale = full.iter().map(|a| a.abs()).fold(0.0f32, f32::max);
+                assert!(worst <= 1e-5 * scale, "theta {theta_deg}, psi {psi}: off by {worst} of {scale}");
+            }
+        }
     }
 
     #[test]

@@ -502,7 +502,8 @@ pub(super) fn free_space_probability(scan: &LaserScan, r: f64, b: f64, s: &Matri
         let w = (-0.5 * ((a - b) / sigma).powi(2)).exp();
         let ri = scan.ranges[i];
         all += w;
-        if !ri.is_finite() || ri > scan.range_max || (scan.valid(i) && ri > r + margin) {
+        // No return (+inf) passes; one too close to measure (-inf, REP-117) is in the way.
+        if ri == f64::INFINITY || ri > scan.range_max || (scan.valid(i) && ri > r + margin) {
             free += w;
         }
     }
