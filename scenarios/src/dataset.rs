@@ -212,18 +212,8 @@ pub fn make_dataset(
 ) -> Result<Manifest, DatasetError> {
     use crate::partial_files as staging;
     check_config(world, config)?;
-    let lock = staging::lock_output(out)?;
-    let written = staging::start_unfinished(out)
-        .map_err(DatasetError::from)
-        .and_then(|dir| write_dataset(world, world_name, config, &dir, progress));
-    let manifest = match written {
-        Ok(manifest) => manifest,
-        Err(e) => {
-            let _ = std::fs::remove_dir_all(staging::unfinished_dir(out));
-            lock.release_failed();
-            return Err(e);
-        }
-    };
+    let (manifest, _held) =
+        staging::write_unfinished(out, |dir| write_dataset(world, world_name, config, dir, progress))?;
     // The manifest waits outside the unfinished directory while the rest is moved in, the
     // earlier one removed first: a publish stopped midway leaves no manifest, not a mix.
     let (staged, waiting) = (staging::unfinished_dir(out).join("dataset.json"), out.join(".dataset.json.partial"));

@@ -199,6 +199,24 @@ pub fn start_unfinished(out: &Path) -> Result<PathBuf, PartialFileError> {
     Ok(dir)
 }
 
+/// Holds `out` and runs `write` on its fresh unfinished directory. On success the hold is
+/// returned with what `write` gave, for the caller to publish under; on failure what was
+/// written is removed and the hold released (a directory the hold made goes again).
+pub fn write_unfinished<T, E: From<PartialFileError>>(
+    out: &Path,
+    write: impl FnOnce(&Path) -> Result<T, E>,
+) -> Result<(T, OutputLock), E> {
+    let lock = lock_output(out)?;
+    match start_unfinished(out).map_err(E::from).and_then(|dir| write(&dir)) {
+        Ok(value) => Ok((value, lock)),
+        Err(e) => {
+            let _ = std::fs::remove_dir_all(unfinished_dir(out));
+            lock.release_failed();
+            Err(e)
+        }
+    }
+}
+
 /// Passes `result` on, ending the hold `lock` on `out`; where it is a failure, removes
 /// `out`'s unfinished directory if the failure left it empty (one holding outputs is kept),
 /// and `out` itself where the hold made it and it is empty, so a failed command leaves no

@@ -363,20 +363,12 @@ fn staged(
     write: impl FnOnce(&Path) -> Result<RecordSummary, RecordError>,
 ) -> Result<RecordSummary, RecordError> {
     use crate::partial_files as staging;
-    let lock = staging::lock_output(out)?;
-    if out.join(ros2bag::METADATA_FILE).exists() {
-        lock.release_failed();
-        return Err(RecordError::HoldsBag { dir: out.to_path_buf() });
-    }
-    let written = staging::start_unfinished(out).map_err(RecordError::from).and_then(|dir| write(&dir));
-    let summary = match written {
-        Ok(summary) => summary,
-        Err(e) => {
-            let _ = std::fs::remove_dir_all(staging::unfinished_dir(out));
-            lock.release_failed();
-            return Err(e);
+    let (summary, _held) = staging::write_unfinished(out, |dir| {
+        if out.join(ros2bag::METADATA_FILE).exists() {
+            return Err(RecordError::HoldsBag { dir: out.to_path_buf() });
         }
-    };
+        write(dir)
+    })?;
     staging::publish(&staging::unfinished_dir(out), out, &recording_files()).map_err(RecordError::Publish)?;
     Ok(summary)
 }
