@@ -3,6 +3,7 @@
 
 use anyhow::{Context, Result};
 use scenarios::files;
+use slam::classifier::score_text;
 
 use crate::progress;
 
@@ -62,10 +63,10 @@ pub(crate) fn train(args: &crate::args::TrainArgs) -> Result<()> {
     );
     match &t.heldout {
         Some(s) => println!(
-            "  held-out patches: precision {:.3}, recall {:.3}, F1 {:.3} ({} object patches of {})",
-            s.precision(),
-            s.recall(),
-            s.f1(),
+            "  held-out patches: precision {}, recall {}, F1 {} ({} object patches of {})",
+            score_text(s.defined_precision()),
+            score_text(s.defined_recall()),
+            score_text(s.defined_f1()),
             s.true_positives + s.false_negatives,
             s.true_positives + s.false_negatives + s.false_positives + s.true_negatives
         ),
@@ -79,12 +80,12 @@ pub(crate) fn train(args: &crate::args::TrainArgs) -> Result<()> {
     }
     if let Some(s) = &t.foliage_heldout {
         println!(
-            "  foliage ({} patches, {} components), held out: precision {:.3}, recall {:.3}, F1 {:.3}",
+            "  foliage ({} patches, {} components), held out: precision {}, recall {}, F1 {}",
             t.foliage_patches,
             model.foliage.as_ref().map_or(0, |f| f.gmm.effective_components(1e-3)),
-            s.precision(),
-            s.recall(),
-            s.f1()
+            score_text(s.defined_precision()),
+            score_text(s.defined_recall()),
+            score_text(s.defined_f1())
         );
     }
     if let Some(d) = &model.distractors {
@@ -107,13 +108,13 @@ pub(crate) fn train(args: &crate::args::TrainArgs) -> Result<()> {
     for other in &args.heldout_dataset {
         let w = scenarios::train::score_on_dataset(other, &model, options.label_fraction)?;
         println!(
-            "  held-out world {} ({} images, {}): precision {:.3}, recall {:.3}, F1 {:.3}; called object: {}",
+            "  held-out world {} ({} images, {}): precision {}, recall {}, F1 {}; called object: {}",
             w.world,
             w.images,
             other.display(),
-            w.precision,
-            w.recall,
-            w.f1,
+            score_text(w.precision),
+            score_text(w.recall),
+            score_text(w.f1),
             class_shares(&w.by_class)
         );
         worlds.push(w);

@@ -693,19 +693,68 @@ pub fn true_plane(board: &StaticObject, world_from_camera: &Rigid) -> Option<Vec
     Some(n_c * n_c.dot(&p_c))
 }
 
-/// Reads the extrinsics from a calibration file: a JSON object with `phi` (3x3 rotation,
-/// row-major) and `delta` (3 numbers, m), as `objslam calibrate` writes; other keys are
-/// ignored. Phi must be a rotation to within 1e-3 (it is re-orthonormalised).
 /// Largest laser-to-camera offset a calibration file may give, per axis.
 pub const MAX_MOUNT_OFFSET_M: f64 = 10.0;
 
+/// Reads the extrinsics from a calibration file: a JSON object with `phi` (3x3 rotation,
+/// row-major) and `delta` (3 numbers, m), as `objslam calibrate` writes; other keys are
+/// ignored. Phi must be a rotation to within 1e-3 (it is re-orthonormalised).
 pub fn load_extrinsics(path: &Path) -> Result<Extrinsics, CalibrateError> {
+    extrinsics_of(path, &read_json(path)?)
+}
+
+/// Like [`load_extrinsics`], for a run with `camera`: where the file names the camera it
+/// calibrated (`camera`, as `objslam calibrate` writes it), that camera must be this one.
+/// Another image size or K means another camera, whose mounting the file does not
+/// measure. A file without `camera` (written by hand or by another tool) is taken as is.
+pub fn load_extrinsics_for(path: &Path, camera: &sim::camera::Intrinsics) -> Result<Extrinsics, CalibrateError> {
+    let v = read_json(path)?;
+    let extrinsics = extrinsics_of(path, &v)?;
+    let Some(written) = v.get("camera") else { return Ok(extrinsics) };
+    let bad = |field: &str, message: String| CalibrateError::File {
+        file: path.to_path_buf(),
+        field: format!("camera.{field}"),
+        message,
+    };
+    let fields = [
+        ("width", camera.width as f64),
+        ("height", camera.height as f64),
+        ("fx", camera.fx),
+        ("fy", camera.fy),
+        ("cx", camera.cx),
+        ("cy", camera.cy),
+    ];
+    for (field, ours) in fields {
+        let value = written.get(field).ok_or_else(|| bad(field, "missing".into()))?;
+        let theirs = value.as_f64().ok_or_else(|| bad(field, format!("must be a number, got {value}")))?;
+        // The file's own numbers come from the same formula; a relative 1e-9 allows for
+        // JSON's shortest round trip only.
+        if (theirs - ours).abs() > 1e-9 * ours.abs().max(1.0) {
+            return Err(bad(
+                field,
+                format!(
+                    "is {theirs}, but the scenario's camera has {ours}: the file calibrates another camera \
+                     (remove its `camera` to use its extrinsics anyway)"
+                ),
+            ));
+        }
+    }
+    Ok(extrinsics)
+}
+
+fn read_json(path: &Path) -> Result<serde_json::Value, CalibrateError> {
     let text =
         std::fs::read_to_string(path).map_err(|source| CalibrateError::Read { file: path.to_path_buf(), source })?;
+    serde_json::from_str(&text).map_err(|e| CalibrateError::File {
+        file: path.to_path_buf(),
+        field: "(file)".into(),
+        message: format!("not valid JSON: {e}"),
+    })
+}
+
+fn extrinsics_of(path: &Path, v: &serde_json::Value) -> Result<Extrinsics, CalibrateError> {
     let bad =
         |field: &str, message: String| CalibrateError::File { file: path.to_path_buf(), field: field.into(), message };
-    let v: serde_json::Value =
-        serde_json::from_str(&text).map_err(|e| bad("(file)", format!("not valid JSON: {e}")))?;
     let obj = v.as_object().ok_or_else(|| bad("(file)", "must be a JSON object with `phi` and `delta`".into()))?;
     let number = |field: &str, x: &serde_json::Value| -> Result<f64, CalibrateError> {
         x.as_f64().filter(|f| f.is_finite()).ok_or_else(|| bad(field, format!("must be a finite number, got {x}")))
@@ -856,6 +905,41 @@ mod tests {
         }
         let msg = load_extrinsics(&dir.join("missing.json")).unwrap_err().to_string();
         assert!(msg.contains("missing.json") && msg.contains("cannot read"), "{msg}");
+    }
+
+    #[test]
+    fn a_calibration_of_another_camera_is_refused() {
+        let dir = std::env::temp_dir().join(format!("objslam-calcam-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let sim = SimConfig::default();
+        let (truth, camera) = (true_extrinsics(&sim), sim.camera.intrinsics());
+        let file = |name: &str, camera: serde_json::Value| {
+            let f = dir.join(name);
+            let mut v = serde_json::json!({"phi": truth.phi, "delta": truth.delta});
+            if !camera.is_null() {
+                v["camera"] = camera;
+            }
+            std::fs::write(&f, v.to_string()).unwrap();
+            f
+        };
+        // Its own camera, as `objslam calibrate` writes it, and no camera at all: read.
+        let own = file("own.json", serde_json::to_value(camera).unwrap());
+        assert!(load_extrinsics_for(&own, &camera).unwrap().error_to(&truth).1 < 1e-12);
+        assert!(load_extrinsics_for(&file("bare.json", serde_json::Value::Null), &camera).is_ok());
+        // Another focal length or image size: refused, naming the file and the field.
+        let mut wider = serde_json::to_value(camera).unwrap();
+        wider["fx"] = serde_json::json!(camera.fx * 0.8);
+        let msg = load_extrinsics_for(&file("wider.json", wider), &camera).unwrap_err().to_string();
+        assert!(msg.contains("wider.json") && msg.contains("camera.fx") && msg.contains("another camera"), "{msg}");
+        let mut taller = serde_json::to_value(camera).unwrap();
+        taller["height"] = serde_json::json!(720);
+        let msg = load_extrinsics_for(&file("taller.json", taller), &camera).unwrap_err().to_string();
+        assert!(msg.contains("camera.height") && msg.contains("720"), "{msg}");
+        let msg = load_extrinsics_for(&file("partial.json", serde_json::json!({"fx": camera.fx})), &camera)
+            .unwrap_err()
+            .to_string();
+        assert!(msg.contains("camera.width: missing"), "{msg}");
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]

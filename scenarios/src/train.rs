@@ -212,9 +212,11 @@ pub struct HeldoutWorld {
     /// The world the dataset's images show (its manifest's `world`).
     pub world: String,
     pub images: usize,
-    pub precision: f64,
-    pub recall: f64,
-    pub f1: f64,
+    /// `None` (null) where undefined: no patch was called object (precision), or the
+    /// images hold no object patch (recall); F1 where either is.
+    pub precision: Option<f64>,
+    pub recall: Option<f64>,
+    pub f1: Option<f64>,
     /// True class -> (patches, patches called object).
     pub by_class: ClassTable,
 }
@@ -307,9 +309,9 @@ pub fn score_on_dataset(dir: &Path, model: &AppearanceModel, label_fraction: f64
         dataset: dir.to_path_buf(),
         world: manifest.world.clone(),
         images: n,
-        precision: scores.precision(),
-        recall: scores.recall(),
-        f1: scores.f1(),
+        precision: scores.defined_precision(),
+        recall: scores.defined_recall(),
+        f1: scores.defined_f1(),
         by_class,
     })
 }

@@ -14,13 +14,21 @@ pub struct PathFollower {
     /// Progress along the path (m), only ever increases.
     progress: f64,
     config: RobotConfig,
-    /// How far ahead of the base's centre the laser sits (m): the safety stop's distances
-    /// are the laser's.
-    laser_forward_m: f64,
+    /// Where the laser sits on the base: forward and left of its centre (m), and turned
+    /// (rad). The safety stop's distances are the laser's, its cone the base's heading.
+    laser_mount: LaserMount,
+}
+
+/// The laser's place on the base, as the safety stop needs it.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct LaserMount {
+    pub forward_m: f64,
+    pub left_m: f64,
+    pub yaw_rad: f64,
 }
 
 impl PathFollower {
-    pub fn new(spec: &RobotSpec, config: &RobotConfig, laser_forward_m: f64) -> Self {
+    pub fn new(spec: &RobotSpec, config: &RobotConfig, laser_mount: LaserMount) -> Self {
         let mut path = vec![[spec.start.x, spec.start.y]];
         for _ in 0..spec.laps {
             for (_, b) in spec.route.segments() {
@@ -35,7 +43,7 @@ impl PathFollower {
             let d = ((w[1][0] - w[0][0]).powi(2) + (w[1][1] - w[0][1]).powi(2)).sqrt();
             arc.push(arc.last().unwrap() + d);
         }
-        PathFollower { path, arc, progress: 0.0, config: config.clone(), laser_forward_m }
+        PathFollower { path, arc, progress: 0.0, config: config.clone(), laser_mount }
     }
 
     pub fn total_length(&self) -> f64 {
@@ -99,7 +107,11 @@ impl PathFollower {
             (2.0 * v.max(0.15) * alpha.sin() / ld).clamp(-max_turn, max_turn)
         };
         if let Some(scan) = scan
-            && blocked(scan, self.config.safety_stop_m + self.config.length_m / 2.0 - self.laser_forward_m)
+            && blocked(
+                scan,
+                &self.laser_mount,
+                self.config.safety_stop_m + self.config.length_m / 2.0 - self.laser_mount.forward_m,
+            )
         {
             return (0.0, 0.0);
         }
@@ -107,10 +119,63 @@ impl PathFollower {
     }
 }
 
-/// True if a return within `dist` lies in the ±30 deg cone ahead.
-fn blocked(scan: &LaserScan, dist: f64) -> bool {
+/// True if a return lies within `dist` of the point on the base's axis level with the
+/// laser, in the ±30 deg cone ahead of it along the base's heading: a laser turned or set
+/// off the axis still guards the way the robot drives.
+fn blocked(scan: &LaserScan, mount: &LaserMount, dist: f64) -> bool {
+    let (sin_yaw, cos_yaw) = mount.yaw_rad.sin_cos();
+    let cone = 30f64.to_radians();
     scan.ranges.iter().enumerate().any(|(i, r)| {
         let a = scan.angle_min + scan.angle_increment * i as f64;
-        a.abs() < 30f64.to_radians() && *r < dist
+        if mount.yaw_rad == 0.0 && mount.left_m == 0.0 {
+            // The laser on the axis, facing ahead: its own bearings are the base's.
+            return a.abs() < cone && *r < dist;
+        }
+        let (sin_a, cos_a) = a.sin_cos();
+        let (x, y) = (r * cos_a, r * sin_a);
+        let (x, y) = (cos_yaw * x - sin_yaw * y, sin_yaw * x + cos_yaw * y + mount.left_m);
+        x > 0.0 && y.atan2(x).abs() < cone && x.hypot(y) < dist
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 180 degree scan, one beam a degree, with one return at `range` along laser
+    /// bearing `bearing_deg` and nothing elsewhere.
+    fn scan_with_return(bearing_deg: i32, range: f64) -> LaserScan {
+        let mut ranges = vec![f64::INFINITY; 181];
+        ranges[(bearing_deg + 90) as usize] = range;
+        LaserScan {
+            t: 0.0,
+            angle_min: -std::f64::consts::FRAC_PI_2,
+            angle_increment: 1f64.to_radians(),
+            time_increment: 0.0,
+            scan_time: 0.1,
+            range_min: 0.05,
+            range_max: 80.0,
+            ranges,
+        }
+    }
+
+    #[test]
+    fn the_safety_cone_follows_the_base_heading_whatever_the_laser_mount() {
+        let ahead = LaserMount { forward_m: 0.2, ..Default::default() };
+        assert!(blocked(&scan_with_return(0, 0.5), &ahead, 0.6));
+        assert!(blocked(&scan_with_return(-25, 0.5), &ahead, 0.6));
+        assert!(!blocked(&scan_with_return(40, 0.5), &ahead, 0.6));
+        assert!(!blocked(&scan_with_return(0, 0.7), &ahead, 0.6));
+        // Turned 60 degrees left: what is straight ahead of the base is at -60 degrees in
+        // the laser's scan, and what the laser sees at 0 lies well to the left.
+        let turned = LaserMount { yaw_rad: 60f64.to_radians(), ..ahead };
+        assert!(blocked(&scan_with_return(-60, 0.5), &turned, 0.6));
+        assert!(!blocked(&scan_with_return(0, 0.5), &turned, 0.6));
+        // Set 0.3 m to the left of the axis: a return 0.5 m ahead of the laser lies 31
+        // degrees off the axis, outside the cone; one 0.3 m to the laser's right is on it.
+        let aside = LaserMount { left_m: 0.3, ..ahead };
+        assert!(!blocked(&scan_with_return(0, 0.5), &aside, 0.6));
+        let on_axis = -(0.3f64.atan2(0.4).to_degrees().round() as i32);
+        assert!(blocked(&scan_with_return(on_axis, 0.5), &aside, 0.6));
+    }
 }

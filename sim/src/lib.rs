@@ -147,7 +147,12 @@ impl Simulation {
         config.check()?;
         let dt = 1.0 / config.physics_rate_hz;
         let scene = PhysicsScene::build(world, &config.robot, dt);
-        let follower = PathFollower::new(&world.robot, &config.robot, config.laser.mount_xyz_m[0]);
+        let mount = controller::LaserMount {
+            forward_m: config.laser.mount_xyz_m[0],
+            left_m: config.laser.mount_xyz_m[1],
+            yaw_rad: config.laser.mount_yaw_deg.to_radians(),
+        };
+        let follower = PathFollower::new(&world.robot, &config.robot, mount);
         // Without a limit, allow three times the nominal driving time (people may block).
         let max_duration_s =
             config.max_duration_s.unwrap_or(3.0 * follower.total_length() / config.robot.cruise_speed_mps + 30.0);

@@ -95,6 +95,17 @@ impl PatchScores {
         let (p, r) = (self.precision(), self.recall());
         if p + r == 0.0 { 0.0 } else { 2.0 * p * r / (p + r) }
     }
+    /// The harmonic mean of precision and recall; `None` when either is undefined.
+    pub fn defined_f1(&self) -> Option<f64> {
+        let (p, r) = (self.defined_precision()?, self.defined_recall()?);
+        Some(if p + r == 0.0 { 0.0 } else { 2.0 * p * r / (p + r) })
+    }
+}
+
+/// A score for people to read: three decimals, or "undefined" (see
+/// [`PatchScores::defined_precision`]).
+pub fn score_text(score: Option<f64>) -> String {
+    score.map_or_else(|| "undefined".to_string(), |s| format!("{s:.3}"))
 }
 
 /// How a model was trained, recorded in the file.
@@ -964,5 +975,11 @@ mod tests {
         assert_eq!((missed.defined_precision(), missed.defined_recall()), (None, Some(0.0)));
         let wrong = PatchScores { false_positives: 2, ..Default::default() };
         assert_eq!((wrong.defined_precision(), wrong.defined_recall()), (Some(0.0), None));
+        // F1 is undefined with either; a held-out world with no tree patch had scored 1.000.
+        assert_eq!((negatives.defined_f1(), missed.defined_f1(), wrong.defined_f1()), (None, None, None));
+        assert_eq!(score_text(negatives.defined_f1()), "undefined");
+        let half = PatchScores { true_positives: 1, false_positives: 1, false_negatives: 1, true_negatives: 0 };
+        assert_eq!(half.defined_f1(), Some(0.5));
+        assert_eq!(score_text(half.defined_f1()), "0.500");
     }
 }

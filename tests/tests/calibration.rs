@@ -159,6 +159,12 @@ fn the_runner_resolves_estimated_and_file_calibrations() {
     assert_eq!(r.mode, "file");
     assert!(r.extrinsics.error_to(&resolved).0 < 1e-6 && r.extrinsics.error_to(&resolved).1 < 1e-9);
 
+    // The file of this camera, read by a run with another camera: refused, by field.
+    let mut other_camera = from_file.clone();
+    other_camera.sim.camera.hfov_deg += 10.0;
+    let e = resolve_calibration(&other_camera, &dir, 1).unwrap_err().to_string();
+    assert!(e.contains("calibration.json") && e.contains("camera.fx") && e.contains("another camera"), "{e}");
+
     // A broken file: the error names the file and the field.
     std::fs::write(dir.join("bad.json"), r#"{"phi": [[1, 0, 0], [0, 1, 0]], "delta": [0, 0, 0]}"#).unwrap();
     from_file.calibration.mode = "bad.json".into();

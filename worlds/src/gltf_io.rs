@@ -95,7 +95,10 @@ pub fn parts_to_glb(parts: &[MeshPart]) -> Vec<u8> {
         materials.push(json!({
             "name": format!("{}_material", part.name),
             "pbrMetallicRoughness": {"baseColorTexture": {"index": textures.len() - 1}, "metallicFactor": 0.0, "roughnessFactor": 0.9},
-            "doubleSided": true
+            // Single-sided: the parts are closed and wound outwards wherever they can be
+            // seen, and carry both windings where both sides show (mesh.rs), so a viewer
+            // may cull back faces, and importing the file again does not double them.
+            "doubleSided": false
         }));
         meshes.push(json!({
             "name": part.name,
@@ -362,6 +365,7 @@ fn add_node_meshes(
             tps.push(tp);
         }
         let base = out.positions.len() as u32;
+        let first_index = out.indices.len();
         match normals {
             Some(normals) => {
                 // Normals go by the inverse transpose (the cofactors, signed by the
@@ -400,8 +404,26 @@ fn add_node_meshes(
                 }
             }
         }
+        if prim.material().double_sided() {
+            add_back_faces(out, base as usize, first_index);
+        }
     }
     Ok(world)
+}
+
+/// A double-sided material is seen from both sides (glTF 2.0, 3.9.5), where a mesh's
+/// back faces may be culled: its triangles from vertex `first_vertex` and index
+/// `first_index` on get twins wound the other way, with their normals turned over, as
+/// the procedural meshes carry both windings where both sides show.
+fn add_back_faces(out: &mut TriMesh, first_vertex: usize, first_index: usize) {
+    let shift = (out.positions.len() - first_vertex) as u32;
+    for k in first_vertex..out.positions.len() {
+        out.positions.push(out.positions[k]);
+        out.normals.push(out.normals[k].map(|v| -v));
+        out.uvs.push(out.uvs[k]);
+    }
+    let back: Vec<u32> = out.indices[first_index..].chunks_exact(3).flat_map(|t| [t[0], t[2], t[1]]).collect();
+    out.indices.extend(back.iter().map(|i| i + shift));
 }
 
 fn determinant(m: &[[f32; 3]; 3]) -> f32 {
@@ -815,6 +837,54 @@ mod tests {
         let flat = import(serde_json::json!({"mesh": 0}), false);
         let (face, stored) = face_and_stored(&flat);
         assert!(close(face, stored), "flat: {face:?} {stored:?}");
+    }
+
+    #[test]
+    fn double_sided_materials_are_seen_from_both_sides() {
+        // One triangle, normal +y (glTF), with and without normals, single- or double-sided.
+        let mut bin = f32_bytes([0.0f32, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, -1.0].iter());
+        bin.extend(f32_bytes([0.0f32, 1.0, 0.0].iter().cycle().take(9)));
+        let import = |double_sided: Option<bool>, with_normals: bool| {
+            let attributes = if with_normals {
+                serde_json::json!({"POSITION": 0, "NORMAL": 1})
+            } else {
+                serde_json::json!({"POSITION": 0})
+            };
+            let mut primitive = serde_json::json!({"attributes": attributes});
+            let mut root = serde_json::json!({
+                "asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+                "accessors": [
+                    {"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0, 0, -1], "max": [1, 0, 0]},
+                    {"bufferView": 0, "byteOffset": 36, "componentType": 5126, "count": 3, "type": "VEC3"}
+                ],
+                "bufferViews": [{"buffer": 0, "byteLength": 72}], "buffers": [{"byteLength": 72}]
+            });
+            if let Some(d) = double_sided {
+                root["materials"] = serde_json::json!([{"doubleSided": d}]);
+                primitive["material"] = serde_json::json!(0);
+            }
+            root["meshes"] = serde_json::json!([{"primitives": [primitive]}]);
+            import_mesh_slice(&glb_bytes(&root, &bin)).unwrap()
+        };
+        // The default material and an explicit single side: the triangle once.
+        for single in [None, Some(false)] {
+            assert_eq!(import(single, true).triangle_count(), 1);
+        }
+        for with_normals in [true, false] {
+            let m = import(Some(true), with_normals);
+            assert_eq!(m.triangle_count(), 2, "normals given: {with_normals}");
+            // Every triangle faces the way its normals point: the twin faces down (-z up).
+            let mut facing = Vec::new();
+            for t in m.indices.chunks_exact(3) {
+                let [a, b, c] = [t[0], t[1], t[2]].map(|i| m.positions[i as usize]);
+                let (u, v) = ([b[0] - a[0], b[1] - a[1], b[2] - a[2]], [c[0] - a[0], c[1] - a[1], c[2] - a[2]]);
+                let f = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
+                let n = m.normals[t[0] as usize];
+                assert!(f[0] * n[0] + f[1] * n[1] + f[2] * n[2] > 0.0, "{t:?} wound against its normal {n:?}");
+                facing.push(n[2].signum());
+            }
+            assert_eq!(facing, [1.0, -1.0], "normals given: {with_normals}");
+        }
     }
 
     #[test]

@@ -145,7 +145,8 @@ pub fn resolve_calibration(scenario: &Scenario, base_dir: &Path, seed: u64) -> R
         }
         path => {
             let file = base_dir.join(path);
-            let e = crate::calibrate::load_extrinsics(&file).map_err(|e| RunError::NamedFile {
+            let camera = scenario.sim.camera.intrinsics();
+            let e = crate::calibrate::load_extrinsics_for(&file, &camera).map_err(|e| RunError::NamedFile {
                 scenario: scenario.describe(),
                 key: "calibration",
                 message: e.to_string(),
