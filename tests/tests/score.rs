@@ -12,7 +12,7 @@ use scenarios::score::log::{Estimate, LogScoring, score_log};
 
 /// Keys of run metrics that only the method's insides carry: `objslam score` leaves them
 /// out (or null), so they are not compared.
-const METHOD_INTERNAL_MAP_KEYS: [&str; 1] = ["trees_judged"];
+const METHOD_INTERNAL_MAP_KEYS: [&str; 2] = ["trees_judged", "missed_by_stage"];
 
 fn record_and_run(name: &str, seed: u64, duration: f64, camera: bool, dir: &Path) -> (PathBuf, PathBuf) {
     let (mut sc, base) = Scenario::load(name).unwrap();

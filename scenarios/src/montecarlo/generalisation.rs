@@ -11,6 +11,8 @@
 //! The claim for one run: no false landmark, no wrong association, no duplicate, and a
 //! tree recall (of the trees in the camera's view, from ground truth) of at least 0.95.
 
+use std::collections::BTreeMap;
+
 use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
@@ -223,6 +225,10 @@ pub struct MethodTotals {
     pub associations: usize,
     pub runs_with_duplicates: Proportion,
     pub duplicates: usize,
+    /// Camera methods: the missed trees of all runs by the last stage of the pipeline
+    /// each reached (`map.missed_by_stage`), where the recall is lost.
+    #[serde(default)]
+    pub missed_by_stage: Option<BTreeMap<String, usize>>,
 }
 
 /// What `DIR/summary.json` holds.
@@ -289,6 +295,13 @@ fn totals(records: &[RunRecord]) -> MethodTotals {
         associations: metrics.iter().map(|m| m.associations.total).sum(),
         runs_with_duplicates: with(&|m| m.duplicate_landmarks > 0),
         duplicates: metrics.iter().map(|m| m.duplicate_landmarks).sum(),
+        missed_by_stage: metrics.iter().filter_map(|m| m.map.missed_by_stage.as_ref()).fold(None, |sum, by_stage| {
+            let mut sum: BTreeMap<String, usize> = sum.unwrap_or_default();
+            for (stage, ids) in by_stage {
+                *sum.entry(stage.clone()).or_default() += ids.len();
+            }
+            Some(sum)
+        }),
     }
 }
 
@@ -375,6 +388,16 @@ pub fn report_text(r: &GeneralisationReport) -> String {
             t.duplicates,
             pct(&t.runs_with_duplicates),
         );
+        if let Some(by_stage) = &t.missed_by_stage {
+            let stages: Vec<String> = crate::score::segmentation::MissedStage::ALL
+                .iter()
+                .map(|stage| {
+                    let n = by_stage.get(stage.key()).copied().unwrap_or(0);
+                    format!("{} {n}", stage.key().replace('_', " "))
+                })
+                .collect();
+            out += &format!("  {:<9} trees missed, by the last stage reached: {}\n", "", stages.join(", "));
+        }
     }
     out
 }
@@ -491,6 +514,8 @@ mod tests {
             record(0, Some(2), |m| {
                 good(m);
                 m.map.missed_trees = vec![3, 4];
+                m.map.missed_by_stage =
+                    Some([("never_segmented".into(), vec![3]), ("judged_not_a_tree".into(), vec![4])].into());
                 m.map.trees_mapped = 8;
                 m.map.tree_recall = Some(0.8);
             }),
@@ -526,5 +551,11 @@ mod tests {
         assert_eq!(r.combined.false_landmarks.posts, 1);
         assert_eq!(r.combined.runs_with_false_landmarks, Proportion::of(1, 4));
         assert_eq!(r.jcbb.runs, 1);
+        // Where the recall was lost, summed over the runs that name it.
+        let stages = r.combined.missed_by_stage.as_ref().expect("a camera run names its stages");
+        assert_eq!((stages["never_segmented"], stages["judged_not_a_tree"], stages.len()), (1, 1, 2));
+        assert_eq!(r.jcbb.missed_by_stage, None);
+        let text = report_text(&r);
+        assert!(text.contains("never segmented 1, never fully judged 0"), "{text}");
     }
 }

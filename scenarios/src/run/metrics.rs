@@ -302,6 +302,20 @@ pub fn unbounded_figure(v: f64, decimals: usize) -> String {
     if v.abs() < 1e6 { format!("{v:.decimals$}") } else { format!("{v:.3e}") }
 }
 
+/// `map.missed_by_stage` for people: "never segmented 12; never fully judged 9", in the
+/// pipeline's order.
+pub fn missed_in_words(by_stage: &std::collections::BTreeMap<String, Vec<u16>>) -> String {
+    crate::score::segmentation::MissedStage::ALL
+        .iter()
+        .filter_map(|stage| {
+            let ids = by_stage.get(stage.key())?;
+            let ids: Vec<String> = ids.iter().map(|id| id.to_string()).collect();
+            Some(format!("{} {}", stage.key().replace('_', " "), ids.join(" ")))
+        })
+        .collect::<Vec<_>>()
+        .join("; ")
+}
+
 /// Short summary table for the terminal.
 pub fn summary_table(m: &Metrics) -> String {
     let mut s = String::new();
@@ -322,6 +336,9 @@ pub fn summary_table(m: &Metrics) -> String {
     s.push_str(&format!("  tree recall       {recall:>4} ({})\n", m.map.recall_in_words(m.recall_basis())));
     if let Some(judged) = m.map.trees_judged {
         s.push_str(&format!("  trees judged      {judged:>4} (by the method's own segmentation, in enough frames)\n"));
+    }
+    if let Some(by_stage) = m.map.missed_by_stage.as_ref().filter(|b| !b.is_empty()) {
+        s.push_str(&format!("  trees missed      {:>4} ({})\n", m.map.missed_trees.len(), missed_in_words(by_stage)));
     }
     s.push_str(&format!("  false landmarks   {:>4} (posts {}, palms {}, people {}, walls {}, nothing {}; {} retracted, {} of them trees)\n", m.false_landmarks, m.map.posts, m.map.palms, m.map.people, m.map.walls, m.map.nothing, m.retracted_landmarks.total, m.retracted_landmarks.trees));
     s.push_str(&format!("  duplicates        {:>4} ({} fused)\n", m.duplicate_landmarks, m.merged_landmarks));

@@ -6,6 +6,8 @@ pub mod log;
 pub mod scorer;
 pub mod segmentation;
 
+use std::collections::BTreeMap;
+
 use serde::{Deserialize, Serialize};
 
 /// Root-mean-square of the position differences of time-aligned pose pairs (ATE without
@@ -128,6 +130,12 @@ pub struct MapContent {
     /// Ids of the trees in the recall's denominator that carry no landmark: where to look.
     #[serde(default)]
     pub missed_trees: Vec<u16>,
+    /// Camera methods: `missed_trees` by the last stage of the method's pipeline each
+    /// reached (`never_segmented`, `never_fully_judged`, `judged_too_rarely`,
+    /// `judged_not_a_tree`, `observed_not_mapped`; see
+    /// [`segmentation::MissedStage`]). Explains the recall lost; `None` for others.
+    #[serde(default)]
+    pub missed_by_stage: Option<BTreeMap<String, Vec<u16>>>,
     pub posts: usize,
     pub palms: usize,
     pub people: usize,

@@ -357,6 +357,13 @@ impl<'w> RunScorer<'w> {
         };
         map.tree_recall = super::tree_recall(&trees_mapped, to_map.as_ref());
         map.missed_trees = to_map.map(|t| t.difference(&trees_mapped).copied().collect()).unwrap_or_default();
+        map.missed_by_stage = self.segmentation.as_ref().map(|s| {
+            let mut by_stage: BTreeMap<String, Vec<u16>> = BTreeMap::new();
+            for &id in &map.missed_trees {
+                by_stage.entry(s.stage_reached(id).key().to_string()).or_default().push(id);
+            }
+            by_stage
+        });
         let duplicate_landmarks = per_object.iter().filter(|(id, _)| **id != 0).map(|(_, n)| n.saturating_sub(1)).sum();
         let false_landmarks = map.posts + map.palms + map.people + map.walls + map.nothing;
         let xy = |poses: &[[f64; 3]]| poses.iter().map(|p| [p[0], p[1]]).collect::<Vec<_>>();

@@ -39,7 +39,55 @@ pub struct SegmentationScorer {
     frames_needed: usize,
     judged_frames: BTreeMap<u16, usize>,
     judged: BTreeSet<u16>,
+    /// Per tree: frames its cluster was segmented in, and frames it was observed as an
+    /// object where it could start a landmark (see [`MissedStage`]).
+    segmented_frames: BTreeMap<u16, usize>,
+    observed_frames: BTreeMap<u16, usize>,
     patches: PatchScores,
+}
+
+/// How far along the camera method's pipeline a tree it did not map got: where to look
+/// for the recall lost (`map.missed_by_stage`). In the pipeline's order; each tree is
+/// named at the last stage it reached.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub enum MissedStage {
+    /// No frame segmented its cluster: hidden in part behind a nearer object whenever the
+    /// laser saw it (such clusters are not judged), merged with another object into one
+    /// cluster, or outside the image.
+    NeverSegmented,
+    /// Segmented, but never with the band above the laser in the image and clear of the
+    /// image's edge: seen only from close by, or at the edge.
+    NeverFullyJudged,
+    /// Fully judged in fewer frames than confirm a landmark.
+    JudgedTooRarely,
+    /// Judged in enough frames, never observed as an object where it could start a
+    /// landmark: the segmentation called it something else.
+    JudgedNotATree,
+    /// Observed as an object, yet no landmark is on it at the end: not confirmed, fused
+    /// into another landmark, or retracted.
+    ObservedNotMapped,
+}
+
+impl MissedStage {
+    /// Its key in `map.missed_by_stage`.
+    pub fn key(self) -> &'static str {
+        match self {
+            MissedStage::NeverSegmented => "never_segmented",
+            MissedStage::NeverFullyJudged => "never_fully_judged",
+            MissedStage::JudgedTooRarely => "judged_too_rarely",
+            MissedStage::JudgedNotATree => "judged_not_a_tree",
+            MissedStage::ObservedNotMapped => "observed_not_mapped",
+        }
+    }
+
+    /// In the pipeline's order.
+    pub const ALL: [MissedStage; 5] = [
+        MissedStage::NeverSegmented,
+        MissedStage::NeverFullyJudged,
+        MissedStage::JudgedTooRarely,
+        MissedStage::JudgedNotATree,
+        MissedStage::ObservedNotMapped,
+    ];
 }
 
 impl SegmentationScorer {
@@ -50,6 +98,8 @@ impl SegmentationScorer {
             frames_needed,
             judged_frames: BTreeMap::new(),
             judged: BTreeSet::new(),
+            segmented_frames: BTreeMap::new(),
+            observed_frames: BTreeMap::new(),
             patches: PatchScores::default(),
         }
     }
@@ -70,14 +120,24 @@ impl SegmentationScorer {
             .map(|cs| {
                 let c = &clusters[cs.index];
                 let obj = true_object(hit_ids, c.first_beam, c.last_beam);
+                if !self.tree_ids.contains(&obj) {
+                    return obj;
+                }
+                *self.segmented_frames.entry(obj).or_insert(0) += 1;
                 // A tree counts in frames where the segmentation could judge its cluster:
                 // its band in the image, not cut by the image's edge.
-                if self.tree_ids.contains(&obj) && cs.band_visible && !cs.at_image_edge {
+                let fully_judged = cs.band_visible && !cs.at_image_edge;
+                if fully_judged {
                     let n = self.judged_frames.entry(obj).or_insert(0);
                     *n += 1;
                     if *n >= self.frames_needed {
                         self.judged.insert(obj);
                     }
+                }
+                // As the pipeline lets an observation start a landmark: judged fully, or
+                // at a place the pooled evidence calls an object.
+                if cs.observed && (fully_judged || cs.pooled.as_ref().is_some_and(|j| j.is_object)) {
+                    *self.observed_frames.entry(obj).or_insert(0) += 1;
                 }
                 obj
             })
@@ -93,6 +153,22 @@ impl SegmentationScorer {
     /// Trees judged in enough frames.
     pub fn trees_judged(&self) -> usize {
         self.judged.len()
+    }
+
+    /// The last stage tree `id` reached (meant for trees that were not mapped).
+    pub fn stage_reached(&self, id: u16) -> MissedStage {
+        let count = |m: &BTreeMap<u16, usize>| m.get(&id).copied().unwrap_or(0);
+        if count(&self.observed_frames) > 0 {
+            MissedStage::ObservedNotMapped
+        } else if self.judged.contains(&id) {
+            MissedStage::JudgedNotATree
+        } else if count(&self.judged_frames) > 0 {
+            MissedStage::JudgedTooRarely
+        } else if count(&self.segmented_frames) > 0 {
+            MissedStage::NeverFullyJudged
+        } else {
+            MissedStage::NeverSegmented
+        }
     }
 
     /// Patch precision and recall against the masks.
@@ -179,5 +255,36 @@ mod tests {
         assert_eq!(s.trees_judged(), 2);
         // Only the first record's image was the frame given.
         assert_eq!(s.patches(), PatchScores { true_positives: 1, ..Default::default() });
+    }
+
+    /// Each unmapped tree is named at the last stage it reached: never segmented, only at
+    /// the edge, judged once, judged enough but called something else, observed.
+    #[test]
+    fn missed_trees_are_named_by_the_last_stage_they_reached() {
+        let mut s = SegmentationScorer::new([1, 2, 3, 4, 5].into(), 1, 2);
+        // Trees 2-5 each hit by two beams; tree 1 never segmented.
+        let hits = [2, 2, 3, 3, 4, 4, 5, 5];
+        let clusters = [cluster(0, 1), cluster(2, 3), cluster(4, 5), cluster(6, 7)];
+        let not_a_tree = |c: ClusterSegmentation| ClusterSegmentation { observed: false, is_object: false, ..c };
+        for k in 0..2 {
+            let record = SegmentationRecord {
+                t_image: k as f64,
+                patch_size: 2,
+                cells: vec![],
+                clusters: vec![
+                    // 2: only at the image's edge (observed, but not where it could start a landmark).
+                    judged(0, true, true),
+                    // 3: fully judged in the first frame only, and called something else.
+                    not_a_tree(judged(1, k == 0, false)),
+                    // 4: fully judged in both, called something else in both.
+                    not_a_tree(judged(2, true, false)),
+                    // 5: observed in a fully judged frame.
+                    judged(3, true, false),
+                ],
+            };
+            s.on_record(&record, &clusters, &hits, None);
+        }
+        let stages: Vec<MissedStage> = (1..=5).map(|id| s.stage_reached(id)).collect();
+        assert_eq!(stages, MissedStage::ALL);
     }
 }
