@@ -120,7 +120,7 @@ pub(crate) fn train(args: &crate::args::TrainArgs) -> Result<()> {
         worlds.push(w);
     }
     if let Some(file) = &args.heldout_report {
-        std::fs::write(file, serde_json::to_string_pretty(&worlds)? + "\n")
+        crate::paths::write_whole(file, serde_json::to_string_pretty(&worlds)? + "\n")
             .with_context(|| format!("{}: cannot write", file.display()))?;
     }
     if let Some(csv) = &args.export_features {
@@ -159,7 +159,7 @@ pub(crate) fn gmm_fit(data: &std::path::Path, options: &slam::gmm::VbOptions, ou
     // is whole): the same data and `fit.options` fit the same model again.
     let mut file = serde_json::to_value(&model)?;
     file["fit"] = serde_json::to_value(scenarios::train::GmmFitRecord::new(data, digest, options))?;
-    std::fs::write(out, serde_json::to_string_pretty(&file)?).with_context(|| format!("writing {}", out.display()))?;
+    crate::paths::write_whole(out, serde_json::to_string_pretty(&file)?)?;
     println!("{} points x {} dimensions, fitted in {secs:.2} s", model.points, model.dims());
     println!(
         "  lower bound: {:.6} nats (full PRML 10.70 bound on ln p(X), all constant terms included; {:.6} per point)",

@@ -307,11 +307,14 @@ pub(crate) enum GmmCommand {
     Fit {
         /// A CSV of numbers, one point a row (a header row is skipped).
         data: PathBuf,
-        /// Most components the search may keep (exactly this many with --fixed-k).
+        /// Most components the search may keep (the components VBEM starts from with
+        /// --fixed-k).
         #[arg(long, default_value_t = 10, allow_negative_numbers = true)]
         max_components: usize,
-        /// Use exactly --max-components components instead of searching.
-        #[arg(long)]
+        /// Start VBEM from --max-components components and do not search: no split or
+        /// deletion is tried, but components VBEM leaves with too few points to fit are
+        /// removed (variational Bayes empties what the data do not need), so at most K.
+        #[arg(long, conflicts_with = "search")]
         fixed_k: bool,
         /// How to search for the number of components: `prune` starts from
         /// --max-components and lets VBEM empty and delete components (fast); `grow` starts
@@ -360,8 +363,9 @@ pub(crate) struct MontecarloArgs {
     /// from the environment when present.
     #[arg(long)]
     pub(crate) shard: Option<String>,
-    /// Number of shards when the index comes from JOB_COMPLETION_INDEX.
-    #[arg(long, allow_negative_numbers = true)]
+    /// Number of shards when the index comes from JOB_COMPLETION_INDEX (--shard K/N
+    /// gives its own).
+    #[arg(long, allow_negative_numbers = true, conflicts_with = "shard")]
     pub(crate) shard_count: Option<usize>,
     /// The study's directory (default runs/montecarlo-<scenario>-<seed>).
     #[arg(long)]

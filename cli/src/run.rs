@@ -4,7 +4,7 @@
 use scenarios::files;
 use std::path::PathBuf;
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use slam::association::AssociationMethod;
 
 use crate::args::{MethodArg, ReplayArgs, ReplayDataset, ScoreArgs};
@@ -119,8 +119,7 @@ pub(crate) fn score(args: ScoreArgs) -> Result<()> {
     let m = scenarios::score::log::score_log(&args.log, &estimate)?;
     scenarios::partial_files::make_output_dir(&args.out)?;
     let file = args.out.join(files::METRICS);
-    std::fs::write(&file, serde_json::to_string_pretty(&m)? + "\n")
-        .with_context(|| format!("{}: cannot write", file.display()))?;
+    crate::paths::write_whole(&file, serde_json::to_string_pretty(&m)? + "\n")?;
     print!("{}", scenarios::score::log::summary_table(&m));
     println!("  metrics in {}", file.display());
     if m.passed == Some(false) {

@@ -127,7 +127,7 @@ fn import(
         .map_err(|e| anyhow::anyhow!("{}: {e}", mesh.display()))?;
     let text = w.to_toml();
     worlds::parse(&text, out).context("the world with the mesh added is not valid; nothing was written")?;
-    std::fs::write(out, text).with_context(|| format!("{}: cannot write", out.display()))?;
+    crate::paths::write_whole(out, text)?;
     let added = w.objects.last().expect("just added");
     eprintln!("added {} {id} at ({x}, {y}), {} -> {}", class.name(), added.shape.describe(), out.display());
     Ok(())

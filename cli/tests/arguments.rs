@@ -51,6 +51,16 @@ fn negative_numbers_are_values_checked_like_any_other() {
         (vec!["dataset", "--images", "1", "--classes", "oak", "--out", out], "--classes: unknown class \"oak\""),
         (vec!["montecarlo", "laser_only", "--methods", "nn, bogus", "--out", out], "unknown method \"bogus\""),
         (vec!["montecarlo", "rerun", out, "--job", "-1", "--out", out], "study.json"),
+        // Ignored without a word before: --fixed-k does not search.
+        (
+            vec!["gmm", "fit", out, "--fixed-k", "--search", "grow", "--out", out],
+            "'--fixed-k' cannot be used with '--search <SEARCH>'",
+        ),
+        // Dropped without a word before: --shard gives its own count.
+        (
+            vec!["montecarlo", "laser_only", "--shard", "0/2", "--shard-count", "3", "--out", out],
+            "'--shard <SHARD>' cannot be used with '--shard-count <SHARD_COUNT>'",
+        ),
     ] {
         let (ok, err) = stderr_of(&args);
         assert!(!ok, "{args:?} succeeded");

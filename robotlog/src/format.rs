@@ -343,9 +343,15 @@ impl Rows {
             .map_err(|_| self.problem(line, format!("column `{}`: `{v}` is not a number", self.names[k])))
     }
 
-    /// A row's time, checked to be there, finite and not before the previous row's.
+    /// A row's time, checked to be there, finite, within [`MAX_TIME_S`] and not before
+    /// the previous row's.
     fn time(&mut self, line: u64, t: Option<f64>) -> Result<f64, LogError> {
         let t = self.finite(line, &[t], 0, "t")?;
+        if t.abs() > MAX_TIME_S {
+            return Err(
+                self.problem(line, format!("t = {t:e} s lies beyond {MAX_TIME_S:e} s: seconds, not another unit"))
+            );
+        }
         if t < self.previous_t {
             return Err(self.problem(line, format!("t = {t} s comes before the previous row's {} s", self.previous_t)));
         }
@@ -531,6 +537,9 @@ impl DetectionRows {
         if range_m <= 0.0 {
             return Err(self.rows.problem(line, format!("`range_m` must be finite and positive, got {range_m}")));
         }
+        if range_m > MAX_COORDINATE_M {
+            return Err(self.rows.problem(line, format!("`range_m` {range_m:e} lies beyond {MAX_COORDINATE_M:e} m")));
+        }
         let bearing_rad = self.rows.finite(line, row, 2, "bearing_rad")?;
         if bearing_rad.abs() > std::f64::consts::TAU {
             return Err(self
@@ -636,6 +645,11 @@ pub fn write_frame(dir: &Path, index: usize, t: f64, image: &RgbImage) -> Result
 /// Largest reference coordinate taken (m): beyond any map on Earth (UTM northings are under
 /// 1e7), and far enough below f64's range that squared errors cannot overflow.
 pub const MAX_COORDINATE_M: f64 = 1e9;
+
+/// Largest time a log may give, either way (s): about 300 years, past any clock's epoch
+/// seconds; beyond it a time is in another unit, or garbage that would make one motion
+/// step of any length.
+pub const MAX_TIME_S: f64 = 1e10;
 
 fn reference_rows(file: &Path) -> Result<RowsOf<ReferenceSample>, LogError> {
     let mut rows = Rows::open(file, &[&["t", "x", "y"], &["t", "x", "y", "theta"]])?;

@@ -174,6 +174,10 @@ impl Camera {
 /// put a pixel's centre at whole coordinates, the pipeline at half-integers.
 const ROS_PIXEL_OFFSET: f64 = 0.5;
 
+/// Farthest a sensor may sit from the vehicle's reference point (m), per axis: longer than
+/// any road vehicle (Victoria Park's laser is 3.78 m ahead of the rear axle).
+pub const MAX_SENSOR_OFFSET_M: f64 = 50.0;
+
 impl Manifest {
     /// The first fact that makes no sense, as (field, problem).
     pub fn validate(&self) -> Result<(), (String, String)> {
@@ -224,6 +228,18 @@ impl Manifest {
         for (name, v) in [("x_m", self.sensor.x_m), ("y_m", self.sensor.y_m), ("yaw_rad", self.sensor.yaw_rad)] {
             if !v.is_finite() {
                 return Err((format!("sensor.{name}"), format!("must be finite, got {v}")));
+            }
+        }
+        // A sensor is on the vehicle: a mounting further off than a vehicle is long is a
+        // unit mistake (millimetres for metres).
+        for (name, v) in [("x_m", self.sensor.x_m), ("y_m", self.sensor.y_m)] {
+            if v.abs() > MAX_SENSOR_OFFSET_M {
+                return Err((
+                    format!("sensor.{name}"),
+                    format!(
+                        "{v:e} m from the vehicle's reference point: at most {MAX_SENSOR_OFFSET_M} m (metres, not millimetres)"
+                    ),
+                ));
             }
         }
         // Beyond a turn either way an angle is a unit mistake (degrees for radians).

@@ -120,6 +120,11 @@ fn controls_and_detections_read_back_as_written() {
     };
     robotlog::format::write(&d, &log).unwrap();
     assert_eq!(robotlog::format::read(&d).unwrap(), log);
+    // A range no laser measures, however finite: refused at its line (it had reached the
+    // filter and stopped the replay with an error naming no file).
+    std::fs::write(d.join("detections.csv"), "t,range_m,bearing_rad,diameter_m\n0.01,1e300,0.1,0.3\n").unwrap();
+    let e = robotlog::format::read(&d).unwrap_err().to_string();
+    assert!(e.contains("detections.csv:2: `range_m` 1e300 lies beyond 1e9 m"), "{e}");
     std::fs::remove_dir_all(&d).ok();
 }
 
@@ -155,6 +160,18 @@ fn malformed_files_are_errors_that_name_file_and_line() {
         // Values no odometry gives: corrupt data, which would overflow the filter.
         ("odometry.csv", "t,dx,dy,dtheta\n0,1e300,0,0\n", "odometry.csv:2: a step of (1e300, 0e0) m is beyond 1e9 m"),
         ("odometry.csv", "t,v,omega\n0,0.5,0\n0.1,-1000,0\n", "odometry.csv:3: speed -1e3 m/s is beyond 343 m/s"),
+        // Huge but finite: a time, a range, a mounting (they had reached the filter).
+        (
+            "odometry.csv",
+            "t,dx,dy,dtheta\n0,0.1,0,0\n1e300,0.1,0,0\n",
+            "odometry.csv:3: t = 1e300 s lies beyond 1e10 s",
+        ),
+        ("odometry.csv", "t,dx,dy,dtheta\n-1e300,0.1,0,0\n", "odometry.csv:2: t = -1e300 s lies beyond"),
+        (
+            "manifest.toml",
+            "format_version = 1\n[sensor]\nx_m = 1e300\ny_m = 0\n",
+            "sensor.x_m: 1e300 m from the vehicle's reference point: at most 50 m",
+        ),
         (
             "manifest.toml",
             "format_version = 1\n[sensor]\nx_m = 0\ny_m = 0\nyaw_rad = 90.0\n",

@@ -121,15 +121,37 @@ impl Default for SessionConfig {
     }
 }
 
+/// Fewest board poses a session may ask for: the linear estimate needs 5 with laser points
+/// (each constrains 2 of its 9 unknowns). Thousands add nothing but time.
+pub const POSES: std::ops::RangeInclusive<usize> = 5..=10_000;
+
 impl SessionConfig {
-    /// Checks the settings; `file` names the scenario in errors.
+    /// Checks the settings for a session run with `sim`'s sensors; `file` names the
+    /// scenario in errors.
     pub fn check(&self, file: &Path, sim: &SimConfig) -> Result<(), CalibrateError> {
+        self.check_settings(file)?;
+        self.check_for_sensors(file, sim)
+    }
+
+    /// Checks what does not depend on the sensors: a scenario that does not run its
+    /// session (calibration mode other than `estimated`) is checked this far, so that a
+    /// laser mounted where no board of the session would cut it is not refused for a
+    /// session it never runs (`objslam calibrate` checks the rest).
+    pub fn check_settings(&self, file: &Path) -> Result<(), CalibrateError> {
         let bad = |field: &str, message: String| {
             Err(CalibrateError::Session { file: file.to_path_buf(), field: field.into(), message })
         };
-        // Zhang & Pless need a handful of poses; thousands add nothing but time.
-        if !(1..=10_000).contains(&self.poses) {
-            return bad("poses", format!("must be 1..10000, got {}", self.poses));
+        if !POSES.contains(&self.poses) {
+            return bad(
+                "poses",
+                format!(
+                    "must be {}..{} (a calibration needs at least {} board poses), got {}",
+                    POSES.start(),
+                    POSES.end(),
+                    POSES.start(),
+                    self.poses
+                ),
+            );
         }
         if !(1..=1000).contains(&self.scans_per_pose) {
             return bad("scans_per_pose", format!("must be 1..1000, got {}", self.scans_per_pose));
@@ -184,19 +206,7 @@ impl SessionConfig {
                 format!("must be within +-80 deg (the camera must see the board's face), got {:?}", self.turn_deg),
             );
         }
-        // The laser's plane must cut every board, away from its edges.
-        let laser_z = sim.laser.mount_xyz_m[2];
         let max_tilt = self.tilt_deg[0].abs().max(self.tilt_deg[1].abs()).to_radians();
-        let reach = 0.4 * self.board_height_m * max_tilt.cos();
-        if self.centre_height_m[0] - reach > laser_z || self.centre_height_m[1] + reach < laser_z {
-            return bad(
-                "centre_height_m",
-                format!(
-                    "the laser's plane ({laser_z:.2} m up) must cut the boards well inside their height: centres must be within {reach:.2} m of it, got {:?}",
-                    self.centre_height_m
-                ),
-            );
-        }
         let lowest = self.centre_height_m[0]
             - 0.5 * self.board_height_m * max_tilt.cos()
             - 0.5 * worlds::BOARD_THICKNESS_M * max_tilt.sin();
@@ -220,6 +230,27 @@ impl SessionConfig {
             && let Err((field, message)) = s.validate()
         {
             return bad(&format!("segmentation.{field}"), message);
+        }
+        Ok(())
+    }
+
+    /// Checks the session against the sensors that would run it.
+    fn check_for_sensors(&self, file: &Path, sim: &SimConfig) -> Result<(), CalibrateError> {
+        let bad = |field: &str, message: String| {
+            Err(CalibrateError::Session { file: file.to_path_buf(), field: field.into(), message })
+        };
+        // The laser's plane must cut every board, away from its edges.
+        let laser_z = sim.laser.mount_xyz_m[2];
+        let max_tilt = self.tilt_deg[0].abs().max(self.tilt_deg[1].abs()).to_radians();
+        let reach = 0.4 * self.board_height_m * max_tilt.cos();
+        if self.centre_height_m[0] - reach > laser_z || self.centre_height_m[1] + reach < laser_z {
+            return bad(
+                "centre_height_m",
+                format!(
+                    "the laser's plane ({laser_z:.2} m up) must cut the boards well inside their height: centres must be within {reach:.2} m of it, got {:?}",
+                    self.centre_height_m
+                ),
+            );
         }
         Ok(())
     }
@@ -493,7 +524,7 @@ pub fn run_session(
     let file = PathBuf::from(scenario.describe());
     let mut config = scenario.calibration.session.clone();
     if let Some(p) = poses {
-        if !(5..=10_000).contains(&p) {
+        if !POSES.contains(&p) {
             return Err(CalibrateError::Poses(p));
         }
         config.poses = p;

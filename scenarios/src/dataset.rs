@@ -214,16 +214,9 @@ pub fn make_dataset(
     check_config(world, config)?;
     let (manifest, _held) =
         staging::write_unfinished(out, |dir| write_dataset(world, world_name, config, dir, progress))?;
-    // The manifest waits outside the unfinished directory while the rest is moved in, the
-    // earlier one removed first: a publish stopped midway leaves no manifest, not a mix.
-    let (staged, waiting) = (staging::unfinished_dir(out).join("dataset.json"), out.join(".dataset.json.partial"));
-    std::fs::rename(&staged, &waiting).map_err(|e| DatasetError::Io { file: staged, source: e })?;
-    if let Err(errors) = staging::publish(&staging::unfinished_dir(out), out, &["dataset.json"]) {
-        let _ = std::fs::remove_file(&waiting);
-        return Err(DatasetError::Publish(errors));
-    }
-    let manifest_file = out.join("dataset.json");
-    std::fs::rename(&waiting, &manifest_file).map_err(|e| DatasetError::Io { file: manifest_file, source: e })?;
+    // The manifest is the marker: the earlier one removed first, this one moved in last,
+    // so a publish stopped midway leaves no manifest, not a mix.
+    staging::publish(&staging::unfinished_dir(out), out, &[], "dataset.json").map_err(DatasetError::Publish)?;
     Ok(manifest)
 }
 

@@ -681,7 +681,9 @@ fn parse_run_lines(path: &Path, complete: &str) -> Result<Vec<(usize, RunRecord)
 /// Writes `text` to `file` through a temporary file and a rename, so that a failed write
 /// never leaves a partial file behind.
 pub fn write_atomically(file: &Path, text: &str) -> Result<(), StudyError> {
-    let tmp = file.with_extension("tmp");
+    let mut tmp = file.as_os_str().to_owned();
+    tmp.push(".partial");
+    let tmp = PathBuf::from(tmp);
     let io = |e: std::io::Error| StudyError::Io { file: file.into(), source: e };
     let mut f = std::fs::File::create(&tmp).map_err(io)?;
     f.write_all(text.as_bytes()).and_then(|_| f.sync_all()).map_err(|e| {
@@ -1336,7 +1338,6 @@ pub fn summarise(plan: &StudyPlan, runs: &[RunRecord]) -> Vec<SummaryRow> {
 
 /// Writes `summary.csv`, `summary.json` and the failure-rate plots (PNG and SVG).
 pub fn write_summary(plan: &StudyPlan, rows: &[SummaryRow], out: &Path) -> Result<(), StudyError> {
-    let io = |f: PathBuf, e: std::io::Error| StudyError::Io { file: f, source: e };
     let mut csv = String::from("method");
     for v in &plan.vary {
         csv.push(',');
@@ -1363,14 +1364,15 @@ pub fn write_summary(plan: &StudyPlan, rows: &[SummaryRow], out: &Path) -> Resul
             r.min_tree_recall
         ));
     }
-    std::fs::write(out.join("summary.csv"), csv).map_err(|e| io(out.join("summary.csv"), e))?;
-    std::fs::write(
-        out.join("summary.json"),
-        serde_json::to_string_pretty(&serde_json::json!({"study": plan, "rows": rows})).expect("JSON"),
-    )
-    .map_err(|e| io(out.join("summary.json"), e))?;
-    crate::plot::failure_rate_plot(plan, rows, &out.join("failure_rate.png"), &out.join("failure_rate.svg"))?;
-    Ok(())
+    // Each file whole or not at all (a kill midway had left a CSV of one summary beside
+    // the JSON of another); the same command writes them all again.
+    write_atomically(&out.join("summary.csv"), &csv)?;
+    write_atomically(
+        &out.join("summary.json"),
+        &serde_json::to_string_pretty(&serde_json::json!({"study": plan, "rows": rows})).expect("JSON"),
+    )?;
+    let svg = crate::plot::failure_rate_plot(plan, rows, &out.join("failure_rate.png"))?;
+    write_atomically(&out.join("failure_rate.svg"), &svg)
 }
 
 #[cfg(test)]
@@ -1638,7 +1640,7 @@ mod tests {
         std::fs::write(&f, [c.as_str(), b1.as_str(), a.as_str(), b2.as_str()].concat()).unwrap();
         put_in_job_order(&f).unwrap();
         assert_eq!(std::fs::read_to_string(&f).unwrap(), [a.as_str(), b1.as_str(), b2.as_str(), c.as_str()].concat());
-        assert!(!f.with_extension("tmp").exists());
+        assert!(!dir.join("runs.jsonl.partial").exists());
         // A file in order is left as it is: not replaced (a rewrite is a rename, which
         // gives the path another inode).
         #[cfg(unix)]

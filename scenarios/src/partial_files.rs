@@ -4,7 +4,9 @@
 //! files are removed). A run or replay writes these, and its other outputs, in the output
 //! directory's unfinished directory ([`start_unfinished`]) and moves them all into place
 //! only when every one was written ([`publish`]): one stopped or failing on the way leaves
-//! the directory's earlier outputs whole, never a mix of two.
+//! the directory's earlier outputs whole, and one stopped while moving them in leaves a
+//! directory without its marker file (`metadata.json`), never a mix of two outputs that
+//! reads as one.
 
 use std::fs::File;
 use std::io::{BufWriter, Write};
@@ -233,10 +235,15 @@ pub fn abandon_if_failed<T, E>(lock: Option<OutputLock>, out: Option<&Path>, res
 
 /// Moves finished outputs from `unfinished` into `out`, each replacing the file (or
 /// directory) of the same name, after removing the `stale` names (outputs an earlier one
-/// may hold that this one does not write). A directory standing where a file goes is
-/// refused before anything is moved or removed; past that, a file that cannot be moved
-/// stops no other. Every failure is returned, and what was not moved stays in `unfinished`.
-pub fn publish(unfinished: &Path, out: &Path, stale: &[&str]) -> Result<(), Vec<PartialFileError>> {
+/// may hold that this one does not write). `marker` is the file that makes `out` read as
+/// a finished output (a run's `metadata.json`, a bag's `metadata.yaml`): the earlier one
+/// is removed before anything else and the new one moved in last, so that a publish
+/// stopped midway (a kill) leaves a directory without it, never a mix of two outputs
+/// that reads as one. A directory standing where a file goes is refused before anything
+/// is moved or removed; past that, a file that cannot be moved stops no other (but the
+/// marker, which then stays out). Every failure is returned, and what was not moved
+/// stays in `unfinished`.
+pub fn publish(unfinished: &Path, out: &Path, stale: &[&str], marker: &str) -> Result<(), Vec<PartialFileError>> {
     fn one(file: &Path) -> impl FnOnce(std::io::Error) -> Vec<PartialFileError> + '_ {
         move |source| vec![PartialFileError { file: file.to_path_buf(), source }]
     }
@@ -245,6 +252,8 @@ pub fn publish(unfinished: &Path, out: &Path, stale: &[&str]) -> Result<(), Vec<
         let entry = entry.map_err(one(unfinished))?;
         entries.push((entry.path(), out.join(entry.file_name())));
     }
+    // The marker last.
+    entries.sort_by_key(|(from, _)| from.file_name().is_some_and(|n| n == marker));
     // A directory where a file goes is found before anything moves, so that the outputs
     // stay all old rather than half new.
     let blocked: Vec<PartialFileError> = entries
@@ -261,7 +270,7 @@ pub fn publish(unfinished: &Path, out: &Path, stale: &[&str]) -> Result<(), Vec<
     if !blocked.is_empty() {
         return Err(blocked);
     }
-    for name in stale {
+    for name in std::iter::once(&marker).chain(stale) {
         let path = out.join(name);
         let removed = if path.is_dir() { std::fs::remove_dir_all(&path) } else { std::fs::remove_file(&path) };
         match removed {
@@ -271,6 +280,9 @@ pub fn publish(unfinished: &Path, out: &Path, stale: &[&str]) -> Result<(), Vec<
     }
     let mut errors = Vec::new();
     for (from, to) in entries {
+        if !errors.is_empty() && from.file_name().is_some_and(|n| n == marker) {
+            break;
+        }
         let moved = if to.is_dir() {
             std::fs::remove_dir_all(&to).and_then(|()| std::fs::rename(&from, &to))
         } else {
@@ -328,6 +340,39 @@ mod tests {
         let e = start_unfinished(&dir).unwrap_err().to_string();
         assert!(e.contains(".unfinished") && e.contains("a file or link stands where"), "{e}");
         assert_eq!(std::fs::read_to_string(unfinished_dir(&dir)).unwrap(), "mine", "left as it was");
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// Regression: a run killed while its outputs were moved in left some files of each
+    /// run under an earlier run's `metadata.json`. The marker now goes first and comes
+    /// last: a publish that stops midway leaves none.
+    #[test]
+    fn the_marker_goes_first_and_comes_last() {
+        let dir = std::env::temp_dir().join(format!("objslam-publish-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let unfinished = unfinished_dir(&dir);
+        std::fs::create_dir_all(&unfinished).unwrap();
+        for (name, text) in
+            [("metadata.json", "old"), ("a.json", "old"), ("b", "a file, where the new b is a directory")]
+        {
+            std::fs::write(dir.join(name), text).unwrap();
+        }
+        std::fs::write(unfinished.join("metadata.json"), "new").unwrap();
+        std::fs::write(unfinished.join("a.json"), "new").unwrap();
+        std::fs::create_dir(unfinished.join("b")).unwrap();
+        // b cannot replace the file: the other outputs move, the marker does not, and the
+        // earlier marker is gone, so the directory no longer reads as a finished output.
+        let errors = publish(&unfinished, &dir, &[], "metadata.json").unwrap_err();
+        assert_eq!(errors.len(), 1);
+        assert_eq!(errors[0].file, dir.join("b"));
+        assert_eq!(std::fs::read_to_string(dir.join("a.json")).unwrap(), "new");
+        assert!(!dir.join("metadata.json").exists(), "no marker over a mix");
+        assert!(unfinished.join("metadata.json").exists(), "the new marker waits with what did not move");
+        // Once nothing blocks it, the whole output moves in, the marker with it.
+        std::fs::remove_file(dir.join("b")).unwrap();
+        publish(&unfinished, &dir, &[], "metadata.json").unwrap();
+        assert_eq!(std::fs::read_to_string(dir.join("metadata.json")).unwrap(), "new");
+        assert!(dir.join("b").is_dir() && !unfinished.exists());
         std::fs::remove_dir_all(&dir).ok();
     }
 

@@ -473,18 +473,19 @@ fn draw_costs<DB: DrawingBackend>(
 
 /// Failure rate against the first varied parameter, one line per method, with 95%
 /// intervals; written as PNG and SVG.
+/// Writes the PNG, and returns the same plot as SVG text for the caller to write whole.
 pub fn failure_rate_plot(
     plan: &crate::montecarlo::StudyPlan,
     rows: &[crate::montecarlo::SummaryRow],
     png: &Path,
-    svg: &Path,
-) -> Result<(), PlotError> {
+) -> Result<String, PlotError> {
     register_fonts();
     let size = (STUDY_PLOT_W + LEGEND_W, 600);
     write_png(png, size, |root| draw_failure_rate(root, plan, rows))?;
-    draw_failure_rate(SVGBackend::new(svg, size).into_drawing_area(), plan, rows)
-        .map_err(|message| PlotError { file: svg.to_path_buf(), message })?;
-    Ok(())
+    let mut svg = String::new();
+    draw_failure_rate(SVGBackend::with_string(&mut svg, size).into_drawing_area(), plan, rows)
+        .map_err(|message| PlotError { file: png.with_extension("svg"), message })?;
+    Ok(svg)
 }
 
 fn draw_failure_rate<DB: DrawingBackend>(

@@ -369,7 +369,12 @@ fn staged(
         }
         write(dir)
     })?;
-    staging::publish(&staging::unfinished_dir(out), out, &recording_files()).map_err(RecordError::Publish)?;
+    // A robot log is marked finished by its manifest, a JSON-lines log by its metadata;
+    // the stale names, both markers among them, go before anything moves.
+    let unfinished = staging::unfinished_dir(out);
+    let marker =
+        if unfinished.join(robotlog::format::MANIFEST).exists() { robotlog::format::MANIFEST } else { files::METADATA };
+    staging::publish(&unfinished, out, &recording_files(), marker).map_err(RecordError::Publish)?;
     Ok(summary)
 }
 

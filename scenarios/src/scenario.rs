@@ -368,7 +368,10 @@ impl Scenario {
                 return bad(field, format!("only applies to mode \"perturbed\", not {:?}", c.mode));
             }
         }
-        if let Err(e) = c.session.check(file, &self.sim) {
+        // The session is checked against the sensors only where a run runs it.
+        let session =
+            if c.mode == "estimated" { c.session.check(file, &self.sim) } else { c.session.check_settings(file) };
+        if let Err(e) = session {
             let message = match e {
                 crate::calibrate::CalibrateError::Session { field, message, .. } => {
                     return bad(&format!("calibration.session.{field}"), message);
@@ -400,6 +403,23 @@ impl Scenario {
         }
         if let Err((field, message)) = self.appearance.check() {
             return bad(&format!("appearance.{field}"), message);
+        }
+        // A model trained for the run is trained on patches of its camera's images.
+        let patch = crate::dataset::DatasetConfig::default().patch_size;
+        let camera = &self.sim.camera;
+        if self.pipeline.method.uses_appearance()
+            && self.appearance.model.is_none()
+            && camera.width.min(camera.height) < patch
+        {
+            return bad(
+                if camera.width < patch { "sim.camera.width" } else { "sim.camera.height" },
+                format!(
+                    "a {}x{} image holds no {patch}x{patch}-pixel patch for the appearance model the method {} trains",
+                    camera.width,
+                    camera.height,
+                    self.pipeline.method.name()
+                ),
+            );
         }
         // A model given as a file is checked against this when it is loaded.
         let dims = self.pipeline.object_model.appearance_dims;
@@ -645,6 +665,32 @@ mod tests {
         )
         .unwrap();
         assert_eq!(s.calibration.mode, "true");
+    }
+
+    /// The calibration session is checked against the laser only where a run runs it
+    /// (a low laser had been refused for a session it never ran), and a session of fewer
+    /// poses than a calibration needs is refused when the file is read, not by the run.
+    #[test]
+    fn the_calibration_session_is_checked_against_the_sensors_only_where_it_runs() {
+        let text = |mode: &str, poses: usize| {
+            format!(
+                "name = \"s\"\n[world]\npreset = \"park\"\n[sim.laser]\nmount_xyz_m = [0.16, 0.0, 0.2]\n\
+                 [calibration]\nmode = \"{mode}\"\n[calibration.session]\nposes = {poses}\n"
+            )
+        };
+        Scenario::parse(&text("true", 20), Path::new("s.toml")).unwrap();
+        // A camera too small for a patch, for a method that trains its model on it.
+        let tiny = "name = \"s\"\n[world]\npreset = \"park\"\n[sim.camera]\nwidth = 8\nheight = 8\n";
+        let e = Scenario::parse(tiny, Path::new("s.toml")).unwrap_err().to_string();
+        assert!(e.contains("s.toml") && e.contains("sim.camera.width") && e.contains("9x9"), "{e}");
+        let tiny_nn = format!("{tiny}[pipeline]\nmethod = \"nn\"\n");
+        Scenario::parse(&tiny_nn, Path::new("s.toml")).unwrap();
+        let e = Scenario::parse(&text("estimated", 20), Path::new("s.toml")).unwrap_err().to_string();
+        assert!(e.contains("calibration.session.centre_height_m") && e.contains("laser's plane"), "{e}");
+        for mode in ["true", "estimated"] {
+            let e = Scenario::parse(&text(mode, 2), Path::new("s.toml")).unwrap_err().to_string();
+            assert!(e.contains("calibration.session.poses") && e.contains("at least 5"), "{e}");
+        }
     }
 
     /// city_park is the size it says: ten times paper_park's ground, with its objects.

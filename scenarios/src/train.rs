@@ -584,7 +584,9 @@ pub fn gmm_score_csv(model: &Path, path: &Path) -> Result<(f64, usize), TrainErr
             format!("{} columns, but the model {} has {} dimensions", data.ncols(), model.display(), fitted.dims()),
         ));
     }
-    Ok((fitted.mean_log_predictive(&data)?, data.nrows()))
+    // The data's own problems (values too large to score) name the CSV.
+    let mean = fitted.mean_log_predictive(&data).map_err(|e| file_err(path, e))?;
+    Ok((mean, data.nrows()))
 }
 
 #[cfg(test)]

@@ -601,7 +601,7 @@ fn camera_methods_without_a_camera_fail_clearly() {
     let (mut sc, base) = Scenario::load("paper_park").unwrap();
     sc.sim.camera.enabled = false;
     let err = run(&sc, &base, &RunOptions::default(), |_| {}).err().expect("combined needs the camera").to_string();
-    assert!(err.contains("combined") && err.contains("camera"), "{err}");
+    assert!(err.contains("combined") && err.contains("sim.camera.enabled") && err.contains("paper_park"), "{err}");
 }
 
 /// Nonsense pipeline settings are errors when the scenario is read, naming the file, the

@@ -316,6 +316,44 @@ fn inputs_that_do_not_fit_the_log_are_errors_naming_file_and_line() {
     assert!(e.contains("assoc.jsonl:2") && e.contains("landmark 999 is fused before"), "{e}");
     v.as_object_mut().unwrap().remove("fusions");
 
+    // A landmark fused away, then associated again: refused at the later scan's line.
+    let named_at = |line: &str| -> Vec<u64> {
+        let v: serde_json::Value = serde_json::from_str(line).unwrap();
+        v["observations"].as_array().unwrap().iter().filter_map(|o| o["landmark"].as_u64()).collect()
+    };
+    let original: Vec<String> = text.lines().map(String::from).collect();
+    let mut seen: Vec<u64> = Vec::new();
+    let mut case = None;
+    'search: for (i, line) in original.iter().enumerate() {
+        for id in named_at(line) {
+            if !seen.contains(&id) {
+                seen.push(id);
+            }
+        }
+        if seen.len() < 2 {
+            continue;
+        }
+        let (kept, removed) = (seen[0], seen[1]);
+        for (j, later) in original.iter().enumerate().skip(i + 1) {
+            if named_at(later).contains(&removed) {
+                case = Some((i, j, kept, removed));
+                break 'search;
+            }
+        }
+    }
+    let (i, j, kept, removed) = case.expect("two landmarks, the second associated again later");
+    let mut fused = original.clone();
+    let mut at: serde_json::Value = serde_json::from_str(&fused[i]).unwrap();
+    at["fusions"] = serde_json::json!([{"kept": kept, "removed": removed}]);
+    fused[i] = at.to_string();
+    std::fs::write(&assoc, fused.join("\n")).unwrap();
+    let e = error(Estimate { associations: Some(assoc.clone()), ..estimate(&out, "x") });
+    assert!(
+        e.contains(&format!("assoc.jsonl:{}", j + 1))
+            && e.contains(&format!("landmark {removed}, which was fused away")),
+        "{e}"
+    );
+
     // A scan time the log does not have.
     v["t"] = serde_json::json!(0.05);
     v["observations"] = serde_json::json!([]);

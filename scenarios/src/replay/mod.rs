@@ -515,7 +515,7 @@ fn replay_and_write(
         streams.finish()?;
         write_outputs(&unfinished, &log.manifest, (&paired.drawn, &paired.dropped), &result)
             .map_err(|e| ReplayError::Unpublished { dir: unfinished.clone(), source: Box::new(e) })?;
-        crate::partial_files::publish(&unfinished, dir, &[]).map_err(ReplayError::Publish)?;
+        crate::partial_files::publish(&unfinished, dir, &[], files::METADATA).map_err(ReplayError::Publish)?;
     }
     Ok(result)
 }

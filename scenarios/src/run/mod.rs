@@ -45,8 +45,8 @@ pub enum RunError {
     Pipeline { scenario: String, setting: slam::settings::InvalidSetting },
     #[error("method {method}: {message}")]
     Method { method: String, message: String },
-    /// A file a scenario's setting names could not be used: the scenario and the key say
-    /// where it was named.
+    /// A scenario's setting, or a file it names, that a run cannot use: the scenario and
+    /// the key say where it was set.
     #[error("{scenario}: {key}: {message}")]
     NamedFile { scenario: String, key: &'static str, message: String },
     #[error(
@@ -219,9 +219,10 @@ pub fn run_config(scenario: &Scenario, method: Option<AssociationMethod>) -> Res
 /// other methods still run when the scenario has no camera.
 fn check_camera(scenario: &Scenario, config: &PipelineConfig) -> Result<(), RunError> {
     if config.method.uses_appearance() && !scenario.sim.camera.enabled {
-        return Err(RunError::Method {
-            method: config.method.name().into(),
-            message: "needs the camera, which the scenario disables (sim.camera.enabled = false)".into(),
+        return Err(RunError::NamedFile {
+            scenario: scenario.describe(),
+            key: "sim.camera.enabled",
+            message: format!("false, but the method {} needs the camera", config.method.name()),
         });
     }
     Ok(())

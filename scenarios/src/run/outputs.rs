@@ -89,7 +89,7 @@ const CONDITIONAL_OUTPUTS: [&str; 4] =
 /// Moves a finished run's outputs from `unfinished` into `out` (see
 /// [`crate::partial_files::publish`]), after removing an earlier run's conditional ones.
 pub(super) fn publish_outputs(unfinished: &Path, out: &Path) -> Result<(), RunError> {
-    crate::partial_files::publish(unfinished, out, &CONDITIONAL_OUTPUTS).map_err(|errors| {
+    crate::partial_files::publish(unfinished, out, &CONDITIONAL_OUTPUTS, files::METADATA).map_err(|errors| {
         let errors: Vec<RunError> = errors.into_iter().map(RunError::from).collect();
         super::first_or_all(errors, RunError::Outputs).expect_err("publish fails with errors")
     })

@@ -228,7 +228,7 @@ pub(super) const KEYS: &[(&str, &str)] = &[
          seed; 0 or more, and 0 in the other modes.",
     ),
     // [calibration.session]
-    ("calibration.session.poses", "Number of board poses (stations); 1 to 10000."),
+    ("calibration.session.poses", "Number of board poses (stations); 5 to 10000."),
     ("calibration.session.board_width_m", "Board width (m); positive."),
     ("calibration.session.board_height_m", "Board height (m); positive."),
     (

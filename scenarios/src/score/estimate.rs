@@ -220,6 +220,20 @@ pub(super) fn check_map_is_associated(
         }
         named.extend(scan.fusions.iter().flat_map(|f| [f.kept, f.removed]));
     }
+    // A landmark fused away is no longer in the map: the map that holds one is of an
+    // earlier moment than the associations.
+    let fused_away: std::collections::HashMap<u32, usize> =
+        scans.iter().flat_map(|scan| scan.fusions.iter().map(|f| (f.removed, scan.line))).collect();
+    if let Some((id, line)) = map.iter().find_map(|l| fused_away.get(&l.id).map(|&line| (l.id, line))) {
+        return Err(invalid(
+            map_file,
+            None,
+            format!(
+                "landmark {id} of the map was fused away at {}:{line}: the two files are not one run's",
+                associations_file.display()
+            ),
+        ));
+    }
     let unnamed: Vec<u32> = map.iter().map(|l| l.id).filter(|id| !named.contains(id)).collect();
     match unnamed.first() {
         None => Ok(()),
@@ -311,7 +325,9 @@ pub(super) fn read_associations(file: &Path) -> Result<Vec<ScanAssociations>, Sc
 /// `{"t", "observation", "landmark" | "choice"}` or fusion `{"t", "fusion"}` per line.
 fn read_association_lines(file: &Path) -> Result<Vec<(usize, f64, AssociationEntry)>, ScoreError> {
     let mut entries = Vec::new();
-    for (n, line) in numbered_lines(&read_text(file)?) {
+    let text = read_text(file)?;
+    // A byte-order mark, as some editors write, read past as in the other inputs.
+    for (n, line) in numbered_lines(text.strip_prefix('\u{feff}').unwrap_or(&text)) {
         let bad = |e: serde_json::Error| invalid(file, Some(n), e.to_string());
         let v: serde_json::Value = serde_json::from_str(line).map_err(bad)?;
         let entry = if v.get("observations").is_some() {
@@ -619,6 +635,14 @@ mod tests {
         let map = dir.join("map.json");
         std::fs::write(&map, "\u{feff}[{\"id\": 1, \"position\": [1.0, 2.0]}]").unwrap();
         assert_eq!(read_landmarks(&map).unwrap()[0].position, [1.0, 2.0]);
+        // And associations in JSON lines (refused at line 1 before).
+        let lines = dir.join("assoc.jsonl");
+        std::fs::write(
+            &lines,
+            "\u{feff}{\"t\": 0.1, \"observation\": 0, \"choice\": {\"kind\": \"new\", \"landmark\": 3}}\n",
+        )
+        .unwrap();
+        assert_eq!(read_associations(&lines).unwrap().len(), 1);
         // Regression: a landmark whose distances overflow to infinity hung the scoring.
         std::fs::write(&map, r#"[{"id": 1, "position": [1.0, 2.0]}, {"id": 7, "position": [1e200, 0]}]"#).unwrap();
         let e = read_landmarks(&map).unwrap_err().to_string();
@@ -656,5 +680,8 @@ mod tests {
             e.contains("map.json") && e.contains("landmark 100000 (and 1 more)") && e.contains("assoc.jsonl"),
             "{e}"
         );
+        // A map that still holds a landmark the associations fused away.
+        let e = check_map_is_associated(m, &map(&[0, 1]), a, &scans).unwrap_err().to_string();
+        assert!(e.contains("map.json") && e.contains("landmark 1 of the map was fused away at assoc.jsonl:1"), "{e}");
     }
 }

@@ -229,6 +229,11 @@ fn read_metadata(log: &Path) -> Result<LogMetadata, ScoreError> {
             ))
         } else if log.join("metadata.yaml").exists() {
             Some("a ROS 2 bag (metadata.yaml); record the JSON-lines log beside it (`objslam record`, the default format) to score a system".into())
+        } else if crate::partial_files::unfinished_dir(log).exists() {
+            Some(format!(
+                "no finished run or recording: its metadata.json, moved in last, is missing, and {} holds what an objslam command stopped before finishing",
+                crate::partial_files::unfinished_dir(log).display()
+            ))
         } else {
             None
         };
@@ -722,6 +727,15 @@ fn score_scans(
             Some((file, scans)) => match entry_at(scans, &mut next_association, |a| a.t, scan.t, 1e-6) {
                 Ok(Some(a)) => {
                     let observations = scan_observations(file, a, &scan, &log_observations, &observations_file)?;
+                    // A landmark fused away at an earlier scan takes no more observations.
+                    if let Some(id) = observations.iter().filter_map(|o| o.landmark).find(|id| fused_away.contains(id))
+                    {
+                        return Err(invalid(
+                            file,
+                            Some(a.line),
+                            format!("an observation is associated with landmark {id}, which was fused away before"),
+                        ));
+                    }
                     named.extend(observations.iter().filter_map(|o| o.landmark));
                     // A fusion joins two landmarks that exist: both were made from
                     // associated observations (this scan's included), neither fused away.

@@ -140,7 +140,8 @@ pub struct MapContent {
     pub palms: usize,
     pub people: usize,
     pub walls: usize,
-    /// Landmarks on nothing at all (spurious).
+    /// Landmarks on nothing at all (spurious), or on no single object: none has a
+    /// majority of their observations.
     pub nothing: usize,
 }
 
@@ -269,9 +270,11 @@ impl AssociationLedger {
         self.fused.insert(removed, kept);
     }
 
-    /// The object each landmark stands on: the majority of its observations' objects (a
-    /// real object before none on a tie, then the higher id). A fused landmark stands on its
-    /// keeper's.
+    /// The object each landmark stands on: the object of more than half of its
+    /// observations, or none (0) where no object has a majority. A landmark fed a quarter
+    /// by one tree and the rest by its neighbours is not that tree's landmark: counted as
+    /// on nothing, it is a false landmark and its associations are wrong. A fused landmark
+    /// stands on its keeper's.
     pub fn landmark_objects(&self) -> std::collections::HashMap<u32, u16> {
         let mut out: std::collections::HashMap<u32, u16> = self
             .observed
@@ -281,7 +284,8 @@ impl AssociationLedger {
                 for o in objects {
                     *counts.entry(*o).or_default() += 1;
                 }
-                (*id, counts.into_iter().max_by_key(|(o, n)| (*n, *o != 0)).map(|(o, _)| o).unwrap_or(0))
+                let majority = counts.into_iter().find(|(_, n)| 2 * n > objects.len()).map_or(0, |(o, _)| o);
+                (*id, majority)
             })
             .collect();
         for (removed, kept) in &self.fused {
@@ -387,6 +391,29 @@ mod tests {
         let objects = ledger.landmark_objects();
         assert_eq!((objects[&1], objects[&2], objects[&5]), (3, 3, 3));
         assert_eq!(ledger.counts(), AssociationCounts { total: 8, wrong: 2 });
+    }
+
+    /// Regression: a landmark fed 24% by one tree and the rest by its neighbours counted
+    /// as that tree's, with no false landmark (`--method appearance` on `paper_park`).
+    #[test]
+    fn a_landmark_stands_on_an_object_only_with_a_majority_of_its_observations() {
+        let mut ledger = AssociationLedger::default();
+        for (object, n) in [(4, 3), (3, 2), (13, 2), (5, 2)] {
+            for _ in 0..n {
+                ledger.observe(0, object);
+            }
+        }
+        for (object, n) in [(6, 3), (7, 2)] {
+            for _ in 0..n {
+                ledger.observe(1, object);
+            }
+        }
+        let objects = ledger.landmark_objects();
+        // 3 of 9 is a plurality, not a majority; 3 of 5 is.
+        assert_eq!((objects[&0], objects[&1]), (0, 6));
+        // All 8 associations of landmark 0 are wrong (its first observation started it),
+        // and landmark 1's 2 of 4 (the two of object 7).
+        assert_eq!(ledger.counts(), AssociationCounts { total: 12, wrong: 10 });
     }
 
     #[test]
