@@ -42,7 +42,7 @@ pub(crate) fn train(args: &crate::args::TrainArgs) -> Result<()> {
             progress::set_training(&bar, stage, done, total)
         })?;
     bar.finish_and_clear();
-    model.save(out)?;
+    crate::paths::write_whole(out, model.to_json())?;
     let t = &model.training;
     println!("trained on {} images in {:.1} s -> {}", t.images, started.elapsed().as_secs_f64(), out.display());
     println!(

@@ -32,22 +32,49 @@ pub(crate) fn writable_file(flag: &str, out: &Path) -> Result<()> {
         _ => {}
     }
     // The file is written beside itself first (see `write_whole`): that must be possible.
-    let probe = partial_name(out);
-    std::fs::File::create(&probe).with_context(|| format!("{flag} {}: cannot write there", out.display()))?;
-    let _ = std::fs::remove_file(&probe);
+    if let Staging::Beside(target) = staging(out) {
+        let probe = partial_name(&target);
+        std::fs::File::create(&probe).with_context(|| format!("{flag} {}: cannot write there", out.display()))?;
+        let _ = std::fs::remove_file(&probe);
+    }
     Ok(())
+}
+
+/// How an output file is written.
+enum Staging {
+    /// Beside the file (a link's target, where `out` is a link), then renamed over it.
+    Beside(std::path::PathBuf),
+    /// Straight into it: `out` is no regular file (a device such as /dev/null, a pipe),
+    /// which a rename would replace.
+    Through,
+}
+
+fn staging(out: &Path) -> Staging {
+    let target = std::fs::canonicalize(out).unwrap_or_else(|_| out.to_path_buf());
+    match std::fs::metadata(&target) {
+        Ok(m) if !m.is_file() => Staging::Through,
+        _ => Staging::Beside(target),
+    }
 }
 
 /// Writes `bytes` to `out` whole or not at all: into `out` + ".partial" beside it, then
 /// renamed over `out`, so that a command stopped while writing leaves the earlier file
-/// (a trained model, a fitted mixture) as it was, never an empty or cut one.
+/// (a trained model, a fitted mixture) as it was, never an empty or cut one. A link is
+/// followed (the file it names is replaced, the link kept), and a device or pipe written
+/// into as it is.
 pub(crate) fn write_whole(out: &Path, bytes: impl AsRef<[u8]>) -> Result<()> {
-    let partial = partial_name(out);
+    let target = match staging(out) {
+        Staging::Through => {
+            return std::fs::write(out, bytes).with_context(|| format!("{}: cannot write", out.display()));
+        }
+        Staging::Beside(target) => target,
+    };
+    let partial = partial_name(&target);
     let written = std::fs::File::create(&partial).and_then(|mut f| {
         std::io::Write::write_all(&mut f, bytes.as_ref())?;
         f.sync_all()
     });
-    if let Err(e) = written.and_then(|()| std::fs::rename(&partial, out)) {
+    if let Err(e) = written.and_then(|()| std::fs::rename(&partial, &target)) {
         let _ = std::fs::remove_file(&partial);
         return Err(e).with_context(|| format!("{}: cannot write", out.display()));
     }
@@ -81,6 +108,20 @@ mod tests {
         let e = format!("{:#}", write_whole(&nowhere, "x").unwrap_err());
         assert!(e.contains("m.json: cannot write"), "{e}");
         assert!(!partial_name(&nowhere).exists());
+        // A link keeps linking, to the file written; a device is written into, not replaced.
+        #[cfg(unix)]
+        {
+            let link = dir.join("link.json");
+            std::os::unix::fs::symlink(&file, &link).unwrap();
+            writable_file("--out", &link).unwrap();
+            write_whole(&link, "through the link").unwrap();
+            assert!(std::fs::symlink_metadata(&link).unwrap().file_type().is_symlink());
+            assert_eq!(std::fs::read_to_string(&file).unwrap(), "through the link");
+            let null = Path::new("/dev/null");
+            writable_file("--out", null).unwrap();
+            write_whole(null, "discarded").unwrap();
+            assert!(!std::fs::metadata(null).unwrap().is_file(), "/dev/null is still a device");
+        }
         std::fs::remove_dir_all(&dir).ok();
     }
 }

@@ -12,7 +12,7 @@ pub(crate) fn world(cmd: WorldCommand) -> Result<()> {
             let world = worlds::generate::preset(&preset, params.as_ref(), seed)?;
             match out {
                 Some(path) => {
-                    worlds::save(&world, &path)?;
+                    crate::paths::write_whole(&path, world.to_toml())?;
                     eprintln!(
                         "wrote {} ({} objects, {} people)",
                         path.display(),
@@ -40,7 +40,7 @@ pub(crate) fn world(cmd: WorldCommand) -> Result<()> {
         WorldCommand::Export { file, out } => {
             crate::paths::not_an_input("--out", &out, &[("world file", &file)])?;
             let w = worlds::load(&file)?;
-            worlds::gltf_io::export_glb_file(&w, &out)?;
+            crate::paths::write_whole(&out, worlds::gltf_io::export_glb(&w))?;
             eprintln!("wrote {}", out.display());
         }
         WorldCommand::Import { mesh, world, class, at, yaw_deg, out } => {

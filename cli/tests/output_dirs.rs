@@ -302,5 +302,15 @@ fn a_recording_never_replaces_a_ros2_bag() {
         assert!(!e.contains("panicked"), "{e}");
         assert_eq!(contents(&bag), before, "the bag is untouched");
     }
+    // Nor a run's directory: its trajectory and map would stay beside another recording.
+    let run = root.join("run");
+    let run_arg = run.to_str().unwrap();
+    std::fs::create_dir_all(&run).unwrap();
+    std::fs::write(run.join("metrics.json"), "{}").unwrap();
+    let o = objslam(&root, &["record", "park", "--duration", "1", "--no-camera", "--out", run_arg]);
+    assert!(!o.status.success(), "a recording went into a run's directory");
+    let e = stderr(&o);
+    assert!(e.contains(run_arg) && e.contains("holds a run's outputs (metrics.json)"), "{e}");
+    assert!(!run.join("metadata.json").exists());
     let _ = std::fs::remove_dir_all(&root);
 }

@@ -690,7 +690,10 @@ pub fn write_atomically(file: &Path, text: &str) -> Result<(), StudyError> {
         let _ = std::fs::remove_file(&tmp);
         io(e)
     })?;
-    std::fs::rename(&tmp, file).map_err(io)
+    std::fs::rename(&tmp, file).map_err(|e| {
+        let _ = std::fs::remove_file(&tmp);
+        io(e)
+    })
 }
 
 /// Rewrites `runs.jsonl` at `path` with its lines in job order (a job's lines keeping
@@ -822,6 +825,10 @@ pub fn run_study_with(
             .ok_or_else(|| StudyError::Job { key: job.key(), message: format!("unknown method {:?}", job.method) })?;
         crate::run::run_config(&scenario, Some(method))
             .map_err(|e| StudyError::Job { key: job.key(), message: e.to_string() })?;
+        if let Some((setting, problem)) = scenario.camera_too_small_for(method) {
+            let message = format!("{}: {setting}: {problem}", scenario.describe());
+            return Err(StudyError::Job { key: job.key(), message });
+        }
         if job_needs_appearance(job, &scenario) {
             models
                 .resolve(&scenario, |stage, done, total| progress(StudyProgress::Training { stage, done, total }))

@@ -55,6 +55,14 @@ pub enum RecordError {
         ros2bag::METADATA_FILE
     )]
     HoldsBag { dir: PathBuf },
+    /// A run's directory holds its estimate beside its log: a recording there would leave
+    /// the run's trajectory and map beside another world's truth, to be scored as one.
+    #[error(
+        "{} holds a run's outputs ({}): a directory holds one recording or one run; record into another directory",
+        dir.display(),
+        files::METRICS
+    )]
+    HoldsRun { dir: PathBuf },
 }
 
 /// What `objslam record` writes.
@@ -366,6 +374,9 @@ fn staged(
     let (summary, _held) = staging::write_unfinished(out, |dir| {
         if out.join(ros2bag::METADATA_FILE).exists() {
             return Err(RecordError::HoldsBag { dir: out.to_path_buf() });
+        }
+        if out.join(files::METRICS).exists() {
+            return Err(RecordError::HoldsRun { dir: out.to_path_buf() });
         }
         write(dir)
     })?;

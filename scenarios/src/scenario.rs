@@ -404,22 +404,8 @@ impl Scenario {
         if let Err((field, message)) = self.appearance.check() {
             return bad(&format!("appearance.{field}"), message);
         }
-        // A model trained for the run is trained on patches of its camera's images.
-        let patch = crate::dataset::DatasetConfig::default().patch_size;
-        let camera = &self.sim.camera;
-        if self.pipeline.method.uses_appearance()
-            && self.appearance.model.is_none()
-            && camera.width.min(camera.height) < patch
-        {
-            return bad(
-                if camera.width < patch { "sim.camera.width" } else { "sim.camera.height" },
-                format!(
-                    "a {}x{} image holds no {patch}x{patch}-pixel patch for the appearance model the method {} trains",
-                    camera.width,
-                    camera.height,
-                    self.pipeline.method.name()
-                ),
-            );
+        if let Some((field, message)) = self.camera_too_small_for(self.pipeline.method) {
+            return bad(field, message);
         }
         // A model given as a file is checked against this when it is loaded.
         let dims = self.pipeline.object_model.appearance_dims;
@@ -485,6 +471,26 @@ impl Scenario {
         } else {
             self.source.0.display().to_string()
         }
+    }
+
+    /// Where `method` trains its appearance model on this scenario's camera images and they
+    /// hold no patch: the camera key and the problem.
+    pub fn camera_too_small_for(&self, method: slam::association::AssociationMethod) -> Option<(&'static str, String)> {
+        let patch = crate::dataset::DatasetConfig::default().patch_size;
+        let camera = &self.sim.camera;
+        (method.uses_appearance() && self.appearance.model.is_none() && camera.width.min(camera.height) < patch).then(
+            || {
+                (
+                    if camera.width < patch { "sim.camera.width" } else { "sim.camera.height" },
+                    format!(
+                        "a {}x{} image holds no {patch}x{patch}-pixel patch for the appearance model the method {} trains",
+                        camera.width,
+                        camera.height,
+                        method.name()
+                    ),
+                )
+            },
+        )
     }
 
     /// The scenario with the files it names relative to itself (`world.file`, a
@@ -684,7 +690,11 @@ mod tests {
         let e = Scenario::parse(tiny, Path::new("s.toml")).unwrap_err().to_string();
         assert!(e.contains("s.toml") && e.contains("sim.camera.width") && e.contains("9x9"), "{e}");
         let tiny_nn = format!("{tiny}[pipeline]\nmethod = \"nn\"\n");
-        Scenario::parse(&tiny_nn, Path::new("s.toml")).unwrap();
+        let s = Scenario::parse(&tiny_nn, Path::new("s.toml")).unwrap();
+        // A camera method asked for the run is checked before anything trains.
+        let combined = Some(slam::association::AssociationMethod::Combined);
+        let e = crate::run::preflight(&s, Path::new("."), combined, None).map(|_| ()).expect_err("refused").to_string();
+        assert!(e.contains("s.toml") && e.contains("sim.camera.width") && e.contains("combined"), "{e}");
         let e = Scenario::parse(&text("estimated", 20), Path::new("s.toml")).unwrap_err().to_string();
         assert!(e.contains("calibration.session.centre_height_m") && e.contains("laser's plane"), "{e}");
         for mode in ["true", "estimated"] {

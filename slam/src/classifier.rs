@@ -249,19 +249,15 @@ impl AppearanceModel {
         Ok(model)
     }
 
-    /// Writes the model as JSON, whole or not at all: beside the file first, then renamed
-    /// over it, so that a save cut short leaves an earlier model as it was.
+    /// The model as JSON, as [`AppearanceModel::save`] writes it.
+    pub fn to_json(&self) -> String {
+        serde_json::to_string(self).expect("a model serialises")
+    }
+
+    /// Writes the model as JSON (into a file of the caller's staging: a command that
+    /// replaces a user's file writes it beside and renames it).
     pub fn save(&self, path: &Path) -> Result<(), ModelError> {
-        let io = |source| ModelError::Io { file: path.display().to_string(), source };
-        let text = serde_json::to_string(self).map_err(|e| io(std::io::Error::other(e)))?;
-        let mut partial = path.as_os_str().to_owned();
-        partial.push(".partial");
-        let partial = std::path::PathBuf::from(partial);
-        let written = std::fs::write(&partial, text).and_then(|()| std::fs::rename(&partial, path));
-        if written.is_err() {
-            let _ = std::fs::remove_file(&partial);
-        }
-        written.map_err(io)
+        std::fs::write(path, self.to_json()).map_err(|e| ModelError::Io { file: path.display().to_string(), source: e })
     }
 }
 

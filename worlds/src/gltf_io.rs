@@ -41,7 +41,7 @@ pub fn export_glb(world: &World) -> Vec<u8> {
 
 /// Writes a world's `.glb` file.
 pub fn export_glb_file(world: &World, path: &Path) -> Result<(), WorldError> {
-    crate::write_whole(path, &export_glb(world))
+    std::fs::write(path, export_glb(world)).map_err(|source| WorldError::Write { file: path.to_path_buf(), source })
 }
 
 /// Packs mesh parts into a `.glb`; each part becomes a node with its instance id and

@@ -60,20 +60,7 @@ pub fn load(path: &Path) -> Result<World, WorldError> {
     parse(&text, path)
 }
 
-/// Writes a world as TOML (whole or not at all, see [`write_whole`]).
+/// Writes a world as TOML.
 pub fn save(world: &World, path: &Path) -> Result<(), WorldError> {
-    write_whole(path, world.to_toml().as_bytes())
-}
-
-/// Writes `bytes` to `path` beside it first, then renames it over the file, so that a
-/// command stopped while writing leaves an earlier file as it was, never a cut one.
-pub(crate) fn write_whole(path: &Path, bytes: &[u8]) -> Result<(), WorldError> {
-    let mut partial = path.as_os_str().to_owned();
-    partial.push(".partial");
-    let partial = std::path::PathBuf::from(partial);
-    let written = std::fs::write(&partial, bytes).and_then(|()| std::fs::rename(&partial, path));
-    if written.is_err() {
-        let _ = std::fs::remove_file(&partial);
-    }
-    written.map_err(|source| WorldError::Write { file: path.to_path_buf(), source })
+    std::fs::write(path, world.to_toml()).map_err(|source| WorldError::Write { file: path.to_path_buf(), source })
 }

@@ -302,15 +302,16 @@ pub fn unbounded_figure(v: f64, decimals: usize) -> String {
     if v.abs() < 1e6 { format!("{v:.decimals$}") } else { format!("{v:.3e}") }
 }
 
-/// `map.missed_by_stage` for people: "never segmented 12; never fully judged 9", in the
-/// pipeline's order.
+/// `map.missed_by_stage` for people: "never segmented: tree 12; never fully judged: trees
+/// 9 14", in the pipeline's order.
 pub fn missed_in_words(by_stage: &std::collections::BTreeMap<String, Vec<u16>>) -> String {
     crate::score::segmentation::MissedStage::ALL
         .iter()
         .filter_map(|stage| {
             let ids = by_stage.get(stage.key())?;
-            let ids: Vec<String> = ids.iter().map(|id| id.to_string()).collect();
-            Some(format!("{} {}", stage.key().replace('_', " "), ids.join(" ")))
+            let names: Vec<String> = ids.iter().map(|id| id.to_string()).collect();
+            let trees = if ids.len() == 1 { "tree" } else { "trees" };
+            Some(format!("{}: {trees} {}", stage.key().replace('_', " "), names.join(" ")))
         })
         .collect::<Vec<_>>()
         .join("; ")

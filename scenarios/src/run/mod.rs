@@ -225,6 +225,11 @@ fn check_camera(scenario: &Scenario, config: &PipelineConfig) -> Result<(), RunE
             message: format!("false, but the method {} needs the camera", config.method.name()),
         });
     }
+    // Checked when the scenario was read for its own method; a method given for the run
+    // (`--method`, a study's `--methods`) is checked here.
+    if let Some((key, message)) = scenario.camera_too_small_for(config.method) {
+        return Err(RunError::NamedFile { scenario: scenario.describe(), key, message });
+    }
     Ok(())
 }
 
