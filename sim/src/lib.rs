@@ -57,6 +57,9 @@ pub enum SimError {
     Thread(String),
 }
 
+/// Longest run a simulation gives itself when no `max_duration_s` is set (s): a month.
+pub const MAX_DEFAULT_DURATION_S: f64 = 30.0 * 86_400.0;
+
 /// Derives independent seeds for each random source from the run seed, so adding a
 /// sensor never changes another sensor's noise.
 pub fn derive_seed(seed: u64, stream: &str) -> u64 {
@@ -153,9 +156,25 @@ impl Simulation {
             yaw_rad: config.laser.mount_yaw_deg.to_radians(),
         };
         let follower = PathFollower::new(&world.robot, &config.robot, mount);
-        // Without a limit, allow three times the nominal driving time (people may block).
-        let max_duration_s =
-            config.max_duration_s.unwrap_or(3.0 * follower.total_length() / config.robot.cruise_speed_mps + 30.0);
+        // Without a limit, allow three times the nominal driving time (people may block);
+        // one beyond a simulated month is a cruise speed nobody meant, and would look hung.
+        let max_duration_s = match config.max_duration_s {
+            Some(d) => d,
+            None => {
+                let d = 3.0 * follower.total_length() / config.robot.cruise_speed_mps + 30.0;
+                if d > MAX_DEFAULT_DURATION_S {
+                    return Err(SimError::Config {
+                        field: "robot.cruise_speed_mps".into(),
+                        message: format!(
+                            "at {} m/s the route of {:.0} m would run for {d:.3e} s: give a cruise speed the robot drives at, or sim.max_duration_s for a run that long",
+                            config.robot.cruise_speed_mps,
+                            follower.total_length()
+                        ),
+                    });
+                }
+                d
+            }
+        };
         let mut sim = Simulation {
             world: world.clone(),
             config: config.clone(),

@@ -256,6 +256,13 @@ fn bad_settings_are_named() {
     c.robot.max_turn_rate_dps = 330.0;
     let e = Simulation::new(&w, &c, 1).err().unwrap().to_string();
     assert!(e.contains("robot.max_turn_rate_dps") && e.contains("300 deg/s"), "{e}");
+    // So slow the run would look hung (it had started on 3e11 simulated seconds).
+    let mut c = cfg();
+    c.robot.cruise_speed_mps = 1e-9;
+    let e = Simulation::new(&w, &c, 1).err().unwrap().to_string();
+    assert!(e.contains("robot.cruise_speed_mps") && e.contains("sim.max_duration_s"), "{e}");
+    c.max_duration_s = Some(10.0);
+    Simulation::new(&w, &c, 1).unwrap();
     let e = worlds::load(std::path::Path::new("/no/such/world.toml")).unwrap_err().to_string();
     assert!(e.contains("/no/such/world.toml"));
 }
