@@ -32,59 +32,16 @@ pub(crate) fn writable_file(flag: &str, out: &Path) -> Result<()> {
         _ => {}
     }
     // The file is written beside itself first (see `write_whole`): that must be possible.
-    if let Staging::Beside(target) = staging(out) {
-        let probe = partial_name(&target);
-        std::fs::File::create(&probe).with_context(|| format!("{flag} {}: cannot write there", out.display()))?;
-        let _ = std::fs::remove_file(&probe);
-    }
-    Ok(())
+    scenarios::partial_files::check_writable(out)
+        .with_context(|| format!("{flag} {}: cannot write there", out.display()))
 }
 
-/// How an output file is written.
-enum Staging {
-    /// Beside the file (a link's target, where `out` is a link), then renamed over it.
-    Beside(std::path::PathBuf),
-    /// Straight into it: `out` is no regular file (a device such as /dev/null, a pipe),
-    /// which a rename would replace.
-    Through,
-}
-
-fn staging(out: &Path) -> Staging {
-    let target = std::fs::canonicalize(out).unwrap_or_else(|_| out.to_path_buf());
-    match std::fs::metadata(&target) {
-        Ok(m) if !m.is_file() => Staging::Through,
-        _ => Staging::Beside(target),
-    }
-}
-
-/// Writes `bytes` to `out` whole or not at all: into `out` + ".partial" beside it, then
-/// renamed over `out`, so that a command stopped while writing leaves the earlier file
-/// (a trained model, a fitted mixture) as it was, never an empty or cut one. A link is
-/// followed (the file it names is replaced, the link kept), and a device or pipe written
-/// into as it is.
+/// Writes `bytes` to `out` whole or not at all (see
+/// [`scenarios::partial_files::write_whole`]): a command stopped while writing leaves the
+/// earlier file (a trained model, a fitted mixture) as it was.
 pub(crate) fn write_whole(out: &Path, bytes: impl AsRef<[u8]>) -> Result<()> {
-    let target = match staging(out) {
-        Staging::Through => {
-            return std::fs::write(out, bytes).with_context(|| format!("{}: cannot write", out.display()));
-        }
-        Staging::Beside(target) => target,
-    };
-    let partial = partial_name(&target);
-    let written = std::fs::File::create(&partial).and_then(|mut f| {
-        std::io::Write::write_all(&mut f, bytes.as_ref())?;
-        f.sync_all()
-    });
-    if let Err(e) = written.and_then(|()| std::fs::rename(&partial, &target)) {
-        let _ = std::fs::remove_file(&partial);
-        return Err(e).with_context(|| format!("{}: cannot write", out.display()));
-    }
-    Ok(())
-}
-
-fn partial_name(out: &Path) -> std::path::PathBuf {
-    let mut name = out.as_os_str().to_owned();
-    name.push(".partial");
-    name.into()
+    scenarios::partial_files::write_whole(out, bytes.as_ref())
+        .with_context(|| format!("{}: cannot write", out.display()))
 }
 
 #[cfg(test)]
@@ -100,14 +57,14 @@ mod tests {
         writable_file("--out", &file).unwrap();
         write_whole(&file, "new").unwrap();
         assert_eq!(std::fs::read_to_string(&file).unwrap(), "new");
-        assert!(!partial_name(&file).exists(), "the probe and the partial file are gone");
+        assert!(!dir.join("model.json.partial").exists(), "the probe and the partial file are gone");
         // Where it cannot be written, before and after a long job: named, nothing left.
         let nowhere = dir.join("missing").join("m.json");
         let e = writable_file("--out", &nowhere).unwrap_err().to_string();
         assert!(e.contains("--out") && e.contains("does not exist"), "{e}");
         let e = format!("{:#}", write_whole(&nowhere, "x").unwrap_err());
         assert!(e.contains("m.json: cannot write"), "{e}");
-        assert!(!partial_name(&nowhere).exists());
+        assert!(!dir.join("missing").exists());
         // A link keeps linking, to the file written; a device is written into, not replaced.
         #[cfg(unix)]
         {

@@ -226,6 +226,7 @@ impl AppearanceSource {
             .map_err(|e| AppearanceError::Io { file: e.file, source: e.source })?;
         let world = worlds::generate::preset(&self.training_preset, None, self.training_world_seed)?;
         let config = self.dataset_config(camera);
+        crate::dataset::check_config(&world, &config)?;
         // Straight into the scratch this training holds, not staged within it.
         crate::dataset::write_dataset(
             &world,

@@ -221,7 +221,7 @@ pub fn make_dataset(
 }
 
 /// Refuses settings no dataset of `world` can be made with, before anything is written.
-fn check_config(world: &World, config: &DatasetConfig) -> Result<(), DatasetError> {
+pub(crate) fn check_config(world: &World, config: &DatasetConfig) -> Result<(), DatasetError> {
     // Each image is written as it is made (memory stays flat), but the COCO annotations
     // are gathered for one file: a million images is far beyond any training run here.
     if !(1..=1_000_000).contains(&config.images) {
@@ -243,7 +243,8 @@ fn check_config(world: &World, config: &DatasetConfig) -> Result<(), DatasetErro
 }
 
 /// Writes a dataset of `world` straight into `out`, which the caller holds (see
-/// [`make_dataset`], or a training's own scratch directory).
+/// [`make_dataset`], or a training's own scratch directory), with a `config` the caller
+/// has checked ([`check_config`], before taking `out`).
 pub(crate) fn write_dataset(
     world: &World,
     world_name: &str,
@@ -251,7 +252,6 @@ pub(crate) fn write_dataset(
     out: &Path,
     progress: impl Fn(usize, usize),
 ) -> Result<Manifest, DatasetError> {
-    check_config(world, config)?;
     let targets: Vec<&worlds::StaticObject> =
         world.objects.iter().filter(|o| config.classes.contains(&o.class)).collect();
     crate::partial_files::make_output_dir(out)?;

@@ -678,22 +678,10 @@ fn parse_run_lines(path: &Path, complete: &str) -> Result<Vec<(usize, RunRecord)
         .collect()
 }
 
-/// Writes `text` to `file` through a temporary file and a rename, so that a failed write
-/// never leaves a partial file behind.
+/// Writes `text` to `file` whole or not at all (see [`crate::partial_files::write_whole`]).
 pub fn write_atomically(file: &Path, text: &str) -> Result<(), StudyError> {
-    let mut tmp = file.as_os_str().to_owned();
-    tmp.push(".partial");
-    let tmp = PathBuf::from(tmp);
-    let io = |e: std::io::Error| StudyError::Io { file: file.into(), source: e };
-    let mut f = std::fs::File::create(&tmp).map_err(io)?;
-    f.write_all(text.as_bytes()).and_then(|_| f.sync_all()).map_err(|e| {
-        let _ = std::fs::remove_file(&tmp);
-        io(e)
-    })?;
-    std::fs::rename(&tmp, file).map_err(|e| {
-        let _ = std::fs::remove_file(&tmp);
-        io(e)
-    })
+    crate::partial_files::write_whole(file, text.as_bytes())
+        .map_err(|e| StudyError::Io { file: e.file, source: e.source })
 }
 
 /// Rewrites `runs.jsonl` at `path` with its lines in job order (a job's lines keeping

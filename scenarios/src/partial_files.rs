@@ -37,7 +37,7 @@ impl<K: Copy + PartialEq> PartialFiles<K> {
         std::fs::create_dir_all(dir).map_err(error(dir))?;
         let mut files = PartialFiles { files: Vec::new() };
         for (key, name) in streams {
-            let partial = dir.join(format!("{name}.partial"));
+            let partial = partial_name(&dir.join(name));
             let f = File::create(&partial).map_err(error(&partial))?;
             files.files.push((*key, dir.join(name), partial, BufWriter::new(f)));
         }
@@ -231,6 +231,46 @@ pub fn abandon_if_failed<T, E>(lock: Option<OutputLock>, out: Option<&Path>, res
         }
     }
     result
+}
+
+/// Writes `bytes` to `file` whole or not at all: into `file` + ".partial" beside it, then
+/// renamed over it, so that a command stopped while writing leaves the earlier file as it
+/// was, never an empty or cut one. A link is followed (the file it names is replaced, the
+/// link kept), and a device or pipe (`/dev/null`) is written into as it is, not replaced.
+pub fn write_whole(file: &Path, bytes: &[u8]) -> Result<(), PartialFileError> {
+    let target = std::fs::canonicalize(file).unwrap_or_else(|_| file.to_path_buf());
+    if std::fs::metadata(&target).is_ok_and(|m| !m.is_file()) {
+        return std::fs::write(file, bytes).map_err(error(file));
+    }
+    let partial = partial_name(&target);
+    let written = File::create(&partial).and_then(|mut f| {
+        f.write_all(bytes)?;
+        f.sync_all()
+    });
+    written.and_then(|()| std::fs::rename(&partial, &target)).map_err(|source| {
+        let _ = std::fs::remove_file(&partial);
+        PartialFileError { file: file.to_path_buf(), source }
+    })
+}
+
+/// Whether [`write_whole`] could write `file`: the file it would write beside it can be
+/// made (checked before a long job rather than found when its result is saved).
+pub fn check_writable(file: &Path) -> Result<(), PartialFileError> {
+    let target = std::fs::canonicalize(file).unwrap_or_else(|_| file.to_path_buf());
+    if std::fs::metadata(&target).is_ok_and(|m| !m.is_file()) {
+        return Ok(());
+    }
+    let probe = partial_name(&target);
+    File::create(&probe).map_err(error(file))?;
+    let _ = std::fs::remove_file(&probe);
+    Ok(())
+}
+
+/// `file` + ".partial": where a file is written before it takes its name.
+fn partial_name(file: &Path) -> PathBuf {
+    let mut name = file.as_os_str().to_owned();
+    name.push(".partial");
+    name.into()
 }
 
 /// Moves finished outputs from `unfinished` into `out`, each replacing the file (or

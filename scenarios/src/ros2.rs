@@ -97,21 +97,9 @@ impl StagedBag {
         self.recorder.take().expect("a staged bag has its recorder until finished").finish()?;
         // Closed whole: from here a failure to move a file in keeps what was not moved.
         let _lock = self.lock.take();
-        let unfinished = staging::unfinished_dir(&self.out);
-        // An earlier bag's metadata goes first, so that no moment shows it over this
-        // bag's file; `publish` moves this bag's in last.
-        let marker = self.out.join(ros2bag::METADATA_FILE);
-        match std::fs::remove_file(&marker) {
-            Err(source) if source.kind() != std::io::ErrorKind::NotFound => {
-                return Err(Ros2Error::Publish(vec![staging::PartialFileError { file: marker, source }]));
-            }
-            _ => {}
-        }
-        let mcap = format!("{}_0.mcap", self.stem);
-        std::fs::rename(unfinished.join(&mcap), self.out.join(&mcap)).map_err(|source| {
-            Ros2Error::Publish(vec![staging::PartialFileError { file: self.out.join(&mcap), source }])
-        })?;
-        staging::publish(&unfinished, &self.out, &[], ros2bag::METADATA_FILE).map_err(Ros2Error::Publish)
+        // metadata.yaml is the marker: moved in after the MCAP file it describes.
+        staging::publish(&staging::unfinished_dir(&self.out), &self.out, &[], ros2bag::METADATA_FILE)
+            .map_err(Ros2Error::Publish)
     }
 }
 

@@ -393,7 +393,7 @@ pub fn report_text(r: &GeneralisationReport) -> String {
                 .iter()
                 .map(|stage| {
                     let n = by_stage.get(stage.key()).copied().unwrap_or(0);
-                    format!("{} {n}", stage.key().replace('_', " "))
+                    format!("{} {n}", stage.in_words())
                 })
                 .collect();
             out += &format!("  {:<9} trees missed, by the last stage reached: {}\n", "", stages.join(", "));

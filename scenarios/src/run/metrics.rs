@@ -311,7 +311,7 @@ pub fn missed_in_words(by_stage: &std::collections::BTreeMap<String, Vec<u16>>) 
             let ids = by_stage.get(stage.key())?;
             let names: Vec<String> = ids.iter().map(|id| id.to_string()).collect();
             let trees = if ids.len() == 1 { "tree" } else { "trees" };
-            Some(format!("{}: {trees} {}", stage.key().replace('_', " "), names.join(" ")))
+            Some(format!("{}: {trees} {}", stage.in_words(), names.join(" ")))
         })
         .collect::<Vec<_>>()
         .join("; ")

@@ -80,6 +80,11 @@ impl MissedStage {
         }
     }
 
+    /// Its key for people: "never fully judged".
+    pub fn in_words(self) -> String {
+        self.key().replace('_', " ")
+    }
+
     /// In the pipeline's order.
     pub const ALL: [MissedStage; 5] = [
         MissedStage::NeverSegmented,
