@@ -1,6 +1,7 @@
 //! `objslam record`: a sensor log that other SLAM systems can read (schema in docs/guide/simulator.md).
 //!
-//! - `laser.jsonl`: one scan per line, like ROS LaserScan (`null` = no return);
+//! - `laser.jsonl`: one scan per line, like ROS LaserScan (`null` = no return, `"-inf"` =
+//!   too close to measure);
 //! - `odometry.jsonl`: incremental odometry (t, dx, dy, dtheta) in the previous robot frame;
 //! - `ground_truth.tum`: the robot base pose in TUM format at the odometry rate;
 //! - `laser_truth.jsonl`: per scan, the instance id each beam hit and its noise-free range

@@ -136,21 +136,87 @@ impl SensorEvent {
     }
 }
 
-/// JSON has no infinity: no-return beams are written as `null` and read back as infinity.
+/// JSON has no infinity: a beam with no return (`INFINITY`) is written as `null`, and one
+/// too close to measure (`NEG_INFINITY`, REP-117) as the string `"-inf"`, which Python's
+/// `float` and NumPy read as minus infinity. Both read back as they were written, so a
+/// log's free space stays what the laser saw (a too-close return is in the way).
 mod ranges_json {
-    use serde::{Deserialize, Deserializer, Serializer, ser::SerializeSeq};
+    use std::fmt;
+
+    use serde::de::{self, SeqAccess, Visitor};
+    use serde::{Deserializer, Serializer, ser::SerializeSeq};
+
+    /// How a too-close return is written.
+    pub const TOO_CLOSE: &str = "-inf";
 
     pub fn serialize<S: Serializer>(v: &[f64], s: S) -> Result<S::Ok, S::Error> {
         let mut seq = s.serialize_seq(Some(v.len()))?;
         for r in v {
-            if r.is_finite() { seq.serialize_element(r)? } else { seq.serialize_element(&None::<f64>)? }
+            if r.is_finite() {
+                seq.serialize_element(r)?
+            } else if *r == f64::NEG_INFINITY {
+                seq.serialize_element(TOO_CLOSE)?
+            } else {
+                seq.serialize_element(&None::<f64>)?
+            }
         }
         seq.end()
     }
 
+    /// One range: a number, `null` or `"-inf"`.
+    struct Range(f64);
+
+    impl<'de> serde::Deserialize<'de> for Range {
+        fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+            struct RangeVisitor;
+            impl<'de> Visitor<'de> for RangeVisitor {
+                type Value = Range;
+                fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+                    write!(f, "a range in metres, null (no return) or \"{TOO_CLOSE}\" (a return too close to measure)")
+                }
+                fn visit_f64<E: de::Error>(self, v: f64) -> Result<Range, E> {
+                    Ok(Range(v))
+                }
+                fn visit_i64<E: de::Error>(self, v: i64) -> Result<Range, E> {
+                    Ok(Range(v as f64))
+                }
+                fn visit_u64<E: de::Error>(self, v: u64) -> Result<Range, E> {
+                    Ok(Range(v as f64))
+                }
+                fn visit_unit<E: de::Error>(self) -> Result<Range, E> {
+                    Ok(Range(f64::INFINITY))
+                }
+                fn visit_none<E: de::Error>(self) -> Result<Range, E> {
+                    Ok(Range(f64::INFINITY))
+                }
+                fn visit_str<E: de::Error>(self, v: &str) -> Result<Range, E> {
+                    if v == TOO_CLOSE {
+                        Ok(Range(f64::NEG_INFINITY))
+                    } else {
+                        Err(E::invalid_value(de::Unexpected::Str(v), &self))
+                    }
+                }
+            }
+            d.deserialize_any(RangeVisitor)
+        }
+    }
+
     pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<f64>, D::Error> {
-        let v: Vec<Option<f64>> = Vec::deserialize(d)?;
-        Ok(v.into_iter().map(|r| r.unwrap_or(f64::INFINITY)).collect())
+        struct RangesVisitor;
+        impl<'de> Visitor<'de> for RangesVisitor {
+            type Value = Vec<f64>;
+            fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+                f.write_str("a list of ranges")
+            }
+            fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<Vec<f64>, A::Error> {
+                let mut out = Vec::with_capacity(seq.size_hint().unwrap_or(0));
+                while let Some(Range(r)) = seq.next_element()? {
+                    out.push(r);
+                }
+                Ok(out)
+            }
+        }
+        d.deserialize_seq(RangesVisitor)
     }
 }
 
@@ -183,5 +249,35 @@ mod tests {
         assert!(text.contains("null"));
         let back: LaserScan = serde_json::from_str(&text).unwrap();
         assert_eq!(back, s);
+    }
+
+    #[test]
+    fn a_too_close_return_round_trips_apart_from_no_return() {
+        let s = LaserScan {
+            t: 0.0,
+            angle_min: 0.0,
+            angle_increment: 0.1,
+            time_increment: 0.0,
+            scan_time: 0.1,
+            range_min: 0.05,
+            range_max: 8.0,
+            ranges: vec![f64::NEG_INFINITY, 2.5, f64::INFINITY, 3.0],
+        };
+        let text = serde_json::to_string(&s).unwrap();
+        assert!(text.contains(r#""ranges":["-inf",2.5,null,3"#), "{text}");
+        let back: LaserScan = serde_json::from_str(&text).unwrap();
+        assert_eq!(back, s);
+        // Whole numbers read as ranges too.
+        let back: LaserScan = serde_json::from_str(&text.replace("2.5", "2")).unwrap();
+        assert_eq!(back.ranges[1], 2.0);
+    }
+
+    #[test]
+    fn a_range_that_is_neither_number_null_nor_too_close_is_refused_by_name() {
+        let line = r#"{"t":0,"angle_min":0,"angle_increment":0.1,"time_increment":0,"scan_time":0.1,"range_min":0,"range_max":8,"ranges":[1.0,"inf"]}"#;
+        let e = serde_json::from_str::<LaserScan>(line).unwrap_err().to_string();
+        assert!(e.contains("\"inf\"") && e.contains("too close"), "{e}");
+        let e = serde_json::from_str::<LaserScan>(&line.replace(r#""inf""#, "true")).unwrap_err().to_string();
+        assert!(e.contains("null (no return)"), "{e}");
     }
 }
