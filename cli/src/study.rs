@@ -56,9 +56,7 @@ pub(crate) fn montecarlo(args: MontecarloArgs) -> Result<()> {
     };
     if let Some(MontecarloCommand::Merge { dirs, out }) = args.command {
         let (plan, runs) = mc::merge(&dirs, &out)?;
-        let rows = mc::summarise(&plan, &runs);
-        mc::write_summary(&plan, &rows, &out)?;
-        print_summary(&rows);
+        print_summary(&mc::summarise(&plan, &runs));
         let missing = mc::missing_runs(&plan, &runs);
         let planned = mc::jobs(&plan).len();
         println!(
@@ -219,7 +217,8 @@ impl Retry {
     }
 }
 
-/// Runs (or resumes) one study with a progress bar, then writes and prints its summary;
+/// Runs (or resumes) one study with a progress bar (the study writes its summary), then
+/// prints the summary;
 /// returns the runs to retry.
 fn run_plan(
     plan: &scenarios::montecarlo::StudyPlan,
@@ -231,9 +230,7 @@ fn run_plan(
     let bar = progress::StudyBar::new();
     let records = mc::run_study_with(plan, shard, out, workers, |p| bar.show(p))?;
     bar.finish();
-    let rows = mc::summarise(plan, &records);
-    mc::write_summary(plan, &rows, out)?;
-    print_summary(&rows);
+    print_summary(&mc::summarise(plan, &records));
     let (retry, finished): (Vec<_>, Vec<_>) = records.iter().partition(|r| r.retryable);
     let errors = finished.iter().filter(|r| r.error.is_some()).count();
     println!(

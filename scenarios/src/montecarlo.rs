@@ -748,8 +748,9 @@ pub fn run_study(
     run_study_with(plan, shard, out, &Workers::Threads, progress)
 }
 
-/// Runs (the remaining jobs of) a study into `out` on `workers`. `progress` hears of
-/// trainings and of runs as they finish. Returns every record of this shard's jobs.
+/// Runs (the remaining jobs of) a study into `out` on `workers`, then writes its summary
+/// ([`write_summary`]) there. `progress` hears of trainings and of runs as they finish.
+/// Returns every record of this shard's jobs.
 pub fn run_study_with(
     plan: &StudyPlan,
     shard: Shard,
@@ -880,6 +881,9 @@ pub fn run_study_with(
     let keys: BTreeSet<String> = mine.iter().map(|j| j.key()).collect();
     let mut all: Vec<RunRecord> = existing.into_iter().filter(|r| keys.contains(&r.key)).chain(new).collect();
     all.sort_by_key(|r| r.job.index);
+    // The summary is the study's too: written while the directory is still held, so that
+    // another study starting there cannot write its own between.
+    write_summary(plan, &summarise(plan, &all), out)?;
     drop(held);
     Ok(all)
 }
@@ -1109,6 +1113,7 @@ fn digest(study: &StudyFile) -> Option<&str> {
 /// Merges shard directories into `out`: runs de-duplicated by job and ordered by job index.
 /// `out` is held as a study holds it; one that already holds this study's runs has them
 /// merged too, and one that holds another study's (or runs without a plan) is refused.
+/// Writes the merged summary there.
 pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<(StudyPlan, Vec<RunRecord>), StudyError> {
     let held = hold(out)?;
     let merged = merge_held(dirs, out);
@@ -1181,6 +1186,7 @@ fn merge_held(dirs: &[PathBuf], out: &Path) -> Result<(StudyPlan, Vec<RunRecord>
     write_atomically(&out.join("study.json"), &serde_json::to_string_pretty(&study).expect("JSON"))?;
     let lines: String = runs.iter().map(|r| serde_json::to_string(r).expect("JSON") + "\n").collect();
     write_atomically(&out.join("runs.jsonl"), &lines)?;
+    write_summary(&study.plan, &summarise(&study.plan, &runs), out)?;
     Ok((study.plan, runs))
 }
 

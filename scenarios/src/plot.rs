@@ -29,8 +29,8 @@ pub fn register_fonts() {
 /// A picture being drawn in memory.
 type Canvas<'a> = DrawingArea<BitMapBackend<'a>, plotters::coord::Shift>;
 
-/// Draws a `size` picture with `draw` in memory and writes it to `file` as a PNG, under a
-/// `.partial` name renamed when whole: a write that fails (a full disk) leaves no cut
+/// Draws a `size` picture with `draw` in memory and writes it to `file` as a PNG, whole
+/// ([`crate::partial_files::write_whole`]): a write that fails (a full disk) leaves no cut
 /// picture under the file's name, and its error is the system's, named by the file.
 fn write_png(
     file: &Path,
@@ -40,25 +40,17 @@ fn write_png(
     let fail = |message: String| PlotError { file: file.to_path_buf(), message };
     let mut pixels = vec![0u8; width as usize * height as usize * 3];
     draw(BitMapBackend::with_buffer(&mut pixels, (width, height)).into_drawing_area()).map_err(fail)?;
-    let mut partial = file.as_os_str().to_owned();
-    partial.push(".partial");
-    let partial = std::path::PathBuf::from(partial);
-    let written = image::save_buffer_with_format(
-        &partial,
+    let mut png = std::io::Cursor::new(Vec::new());
+    image::write_buffer_with_format(
+        &mut png,
         &pixels,
         width,
         height,
         image::ExtendedColorType::Rgb8,
         image::ImageFormat::Png,
     )
-    .map_err(|e| e.to_string())
-    // On disk before it takes the name (a full disk can show only when the data is written).
-    .and_then(|()| std::fs::File::open(&partial).and_then(|f| f.sync_all()).map_err(|e| e.to_string()))
-    .and_then(|()| std::fs::rename(&partial, file).map_err(|e| e.to_string()));
-    if let Err(message) = written {
-        let _ = std::fs::remove_file(&partial);
-        return Err(fail(message));
-    }
+    .map_err(|e| fail(e.to_string()))?;
+    crate::partial_files::write_whole(file, png.get_ref()).map_err(|e| fail(e.source.to_string()))?;
     Ok(())
 }
 
