@@ -7,9 +7,10 @@ JSON lines of the same recording. Run by hand (it needs `pip install rosbags num
     python3 scenarios/tests/check_ros2_bag.py runs/bag runs/rec
 
 It prints every topic with its type and count, and how many scan ranges differ from
-laser.jsonl (as float32). laser.jsonl writes null both for no return and for a return
-closer than range_min, which the bag keeps apart as +inf and -inf (REP-117): a null must
-be an infinity of either sign. Exit status 1 on any difference.
+laser.jsonl (as float32). laser.jsonl writes null for no return and "-inf" for a return
+closer than range_min, which the bag keeps as +inf and -inf (REP-117); a null from an older
+recording, which wrote null for both, may be an infinity of either sign. Exit status 1 on
+any difference.
 """
 import json
 import math
@@ -32,6 +33,6 @@ with AnyReader([bag]) as reader:
         n += 1
         mismatched += abs(m.header.stamp.sec + m.header.stamp.nanosec * 1e-9 - s["t"]) > 1e-9
         for a, b in zip(s["ranges"], m.ranges):
-            mismatched += not math.isinf(b) if a is None else np.float32(a) != b
+            mismatched += not math.isinf(b) if a is None else np.float32(float(a)) != b
 print(f"scans compared: {n} of {len(scans)}; mismatched values: {mismatched}")
 sys.exit(1 if mismatched or n != len(scans) else 0)
