@@ -221,7 +221,20 @@ pub(crate) fn calibrate(
     if let Some(file) = out.parent().and_then(|d| d.ancestors().find(|a| a.is_file())) {
         anyhow::bail!("--out {}: {} is a file, not a directory", out.display(), file.display());
     }
+    if out.is_dir() {
+        anyhow::bail!("--out {}: is a directory; give the path of the calibration file to write", out.display());
+    }
     let (sc, base) = scenarios::scenario::Scenario::load(scenario)?;
+    let inputs = sc.input_files(&base);
+    crate::paths::not_an_input(
+        "--out",
+        out,
+        &inputs.iter().map(|(what, file)| (*what, file.as_path())).collect::<Vec<_>>(),
+    )?;
+    // A directory still to be made is made when the result is written.
+    if out.parent().is_none_or(|d| d.as_os_str().is_empty() || d.is_dir()) {
+        scenarios::partial_files::check_writable(out)?;
+    }
     let seed = seed.unwrap_or(sc.seed);
     let started = std::time::Instant::now();
     let report = scenarios::calibrate::run_session(&sc, &base, seed, poses, images)?;

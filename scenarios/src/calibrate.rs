@@ -96,8 +96,11 @@ pub struct SessionConfig {
     pub scans_per_pose: usize,
     /// A post behind each board, in the laser's view, that segmentation must reject.
     pub distractors: bool,
-    /// Laser segmentation settings; the bearing window, ranges and board lengths are set
-    /// from the camera and the board when left at their defaults.
+    /// Laser segmentation settings. Absent, the bearing window, ranges, board lengths and
+    /// inlier distance are set from the camera, the session's distances and the board's
+    /// size ([`SessionConfig::segmentation_for`]); given, the table is used as written, each
+    /// key left out taking the fixed value `objslam config defaults` shows, not the derived
+    /// one.
     pub segmentation: Option<BoardSegmentation>,
 }
 
@@ -124,6 +127,12 @@ impl Default for SessionConfig {
 /// Fewest board poses a session may ask for: the linear estimate needs 5 with laser points
 /// (each constrains 2 of its 9 unknowns). Thousands add nothing but time.
 pub const POSES: std::ops::RangeInclusive<usize> = 5..=10_000;
+
+/// The longest line of stations a session may lay out, centred on the origin: 2 km out,
+/// a single-precision coordinate (the physics' and the renderer's) is good to 0.12 mm,
+/// well under the millimetres a calibration resolves; at 100 km it is 4 mm, and a session
+/// spaced that far measured 0.36 degrees of error against 0.03-0.17 at the default.
+pub const MAX_STATION_SPAN_M: f64 = 4000.0;
 
 impl SessionConfig {
     /// Checks the settings for a session run with `sim`'s sensors; `file` names the
@@ -226,6 +235,18 @@ impl SessionConfig {
                 ),
             );
         }
+        let span = (self.poses - 1) as f64 * self.station_spacing_m;
+        if span > MAX_STATION_SPAN_M {
+            return bad(
+                "station_spacing_m",
+                format!(
+                    "the {} stations stand in a line {span:.0} m long ((poses - 1) x {} m), more than {MAX_STATION_SPAN_M} m: \
+                     farther out, the simulator's single-precision physics and rendering cost the calibration its accuracy; \
+                     ask for fewer poses or a shorter spacing",
+                    self.poses, self.station_spacing_m
+                ),
+            );
+        }
         if let Some(s) = &self.segmentation
             && let Err((field, message)) = s.validate()
         {
@@ -298,8 +319,10 @@ pub struct Station {
     pub turn_deg: f64,
 }
 
-/// Id of station k's board; its distractor is `BOARD_ID_BASE + 1000 + k`.
+/// Id of station k's board; its distractor is `DISTRACTOR_ID_BASE + k`.
 const BOARD_ID_BASE: u16 = 1000;
+/// Above every board's id, however many poses a session asks for.
+const DISTRACTOR_ID_BASE: u16 = BOARD_ID_BASE + *POSES.end() as u16;
 
 /// Draws the stations of a session from `seed`.
 pub fn plan_stations(config: &SessionConfig, sim: &SimConfig, seed: u64) -> Vec<Station> {
@@ -356,7 +379,7 @@ pub fn plan_stations(config: &SessionConfig, sim: &SimConfig, seed: u64) -> Vec<
                     centre[1] + back * away.sin() + side * away.cos(),
                 ];
                 StaticObject {
-                    id: BOARD_ID_BASE + 1000 + k as u16,
+                    id: DISTRACTOR_ID_BASE + k as u16,
                     class: ObjectClass::Post,
                     pose: Pose2 { x: p[0], y: p[1], yaw_deg: 0.0 },
                     shape: Shape::Post { radius_m: 0.1, height_m: 1.2 },
@@ -496,8 +519,9 @@ impl CalibrationReport {
                 CalibrateError::Write { file: path.to_path_buf(), source }
             })?;
         }
-        std::fs::write(path, serde_json::to_string_pretty(self).expect("JSON") + "\n")
-            .map_err(|source| CalibrateError::Write { file: path.to_path_buf(), source })
+        // Whole or not at all: a full disk or a kill leaves the earlier file as it was.
+        crate::partial_files::write_whole(path, (serde_json::to_string_pretty(self).expect("JSON") + "\n").as_bytes())
+            .map_err(|e| CalibrateError::Write { file: path.to_path_buf(), source: e.source })
     }
 }
 
@@ -876,6 +900,15 @@ mod tests {
         assert_ne!(plan_stations(&config, &sim, 5), st);
     }
 
+    /// Boards and their distractors keep apart ids up to the largest session allowed.
+    #[test]
+    fn the_largest_session_builds_a_valid_world() {
+        let config = SessionConfig { poses: *POSES.end(), ..SessionConfig::default() };
+        let st = plan_stations(&config, &SimConfig::default(), 1);
+        let world = range_world(&st, &worlds::generate::park(&Default::default(), 1).unwrap()).unwrap();
+        assert_eq!(world.objects.len(), 2 * *POSES.end());
+    }
+
     #[test]
     fn bad_sessions_are_named() {
         let sim = SimConfig::default();
@@ -891,6 +924,12 @@ mod tests {
         assert!(e.contains("poses"), "{e}");
         let e = SessionConfig { station_spacing_m: 3.0, ..Default::default() }.check(f, &sim).unwrap_err().to_string();
         assert!(e.contains("station_spacing_m"), "{e}");
+        // Stations strung out so far that single precision would show in the result.
+        let e = SessionConfig { station_spacing_m: 1e4, ..Default::default() }.check(f, &sim).unwrap_err().to_string();
+        assert!(e.contains("station_spacing_m") && e.contains("190000 m") && e.contains("fewer poses"), "{e}");
+        let e = SessionConfig { poses: 1001, ..Default::default() }.check(f, &sim).unwrap_err().to_string();
+        assert!(e.contains("12000 m"), "{e}");
+        SessionConfig { poses: 300, ..Default::default() }.check(f, &sim).unwrap();
     }
 
     #[test]

@@ -64,3 +64,33 @@ pub const PIPELINE: &str = "pipeline.toml";
 pub const APPEARANCE_MODEL: &str = "appearance_model.json";
 /// Every stream in one MCAP file, for Foxglove.
 pub const MCAP: &str = "run.mcap";
+/// The map, drawn over the world.
+pub const MAP: &str = "map.png";
+
+/// Every name `objslam run` writes, replaces or removes directly in its output directory:
+/// an input file there (a calibration the last run estimated, a world file) would be lost
+/// to the next run into that directory, so the run refuses such an input first.
+pub const RUN_OUTPUTS: &[&str] = &[
+    WORLD,
+    SENSORS,
+    METADATA,
+    METRICS,
+    LASER,
+    LASER_TRUTH,
+    OBSERVATIONS,
+    ODOMETRY,
+    COLLISIONS,
+    TRAJECTORY_GT,
+    TRAJECTORY_EST,
+    TRAJECTORY_EST_COVARIANCE,
+    LANDMARKS,
+    ASSOCIATIONS,
+    DECISIONS,
+    RELINEARISATIONS,
+    TREES_SHOWN,
+    SEGMENTATION,
+    CALIBRATION,
+    OBJECTS_DIR,
+    MCAP,
+    MAP,
+];

@@ -196,8 +196,7 @@ pub fn pin_scenario(name_or_path: &str) -> Result<(ScenarioPin, Scenario, PathBu
         let world = scenario.world(&base_dir, 0)?;
         digest.update(serde_json::to_string(&world).expect("a world is JSON").as_bytes());
     }
-    let calibration_file = (!["true", "perturbed", "estimated"].contains(&scenario.calibration.mode.as_str()))
-        .then_some(scenario.calibration.mode.as_str());
+    let calibration_file = scenario.calibration_file();
     for named in [scenario.appearance.model.as_deref(), calibration_file].into_iter().flatten() {
         // One that cannot be read is the runs' error to report, in their own words.
         match std::fs::read(base_dir.join(named)) {

@@ -185,6 +185,9 @@ impl PassCriteria {
     }
 }
 
+/// The `calibration.mode` keywords; any other value names a calibration file (.json).
+pub const CALIBRATION_MODES: [&str; 3] = ["true", "perturbed", "estimated"];
+
 /// Where a scenario was read from (`<built-in>/<name>.toml` for the library's; empty for
 /// one built in code): named in errors found after reading, and not part of what the
 /// scenario says, so two scenarios with the same settings are equal wherever they came from.
@@ -347,7 +350,7 @@ impl Scenario {
         let c = &self.calibration;
         // A file is named by its extension, so that a misspelt mode ("ture") is not taken
         // for a file that does not exist.
-        let keyword = matches!(c.mode.as_str(), "true" | "perturbed" | "estimated");
+        let keyword = CALIBRATION_MODES.contains(&c.mode.as_str());
         if !keyword && !c.mode.to_ascii_lowercase().ends_with(".json") {
             return bad(
                 "calibration.mode",
@@ -363,6 +366,12 @@ impl Scenario {
         ] {
             if !(v.is_finite() && v >= 0.0) {
                 return bad(field, format!("perturbation sigmas must be finite and not negative, got {v}"));
+            }
+            // A calibration off by more is no calibration of this robot: a file is refused
+            // beyond the same offset, and a rotation's error is at most a half turn.
+            let most = if field.ends_with("_deg") { 180.0 } else { crate::calibrate::MAX_MOUNT_OFFSET_M };
+            if v > most {
+                return bad(field, format!("must be at most {most}, got {v}"));
             }
             if v != 0.0 && c.mode != "perturbed" {
                 return bad(field, format!("only applies to mode \"perturbed\", not {:?}", c.mode));
@@ -508,13 +517,38 @@ impl Scenario {
         if let Some(file) = &s.world.file {
             s.world.file = Some(absolute(file));
         }
-        if s.calibration.mode.ends_with(".json") {
-            s.calibration.mode = absolute(&s.calibration.mode);
+        if let Some(file) = self.calibration_file() {
+            s.calibration.mode = absolute(file);
         }
         if let Some(model) = &s.appearance.model {
             s.appearance.model = Some(absolute(model));
         }
         s
+    }
+
+    /// The calibration file `calibration.mode` names, if it names one rather than a mode.
+    pub fn calibration_file(&self) -> Option<&str> {
+        (!CALIBRATION_MODES.contains(&self.calibration.mode.as_str())).then_some(self.calibration.mode.as_str())
+    }
+
+    /// The files a run of this scenario reads, each with what it is: the scenario file
+    /// itself (when it is one on disk), the world file, the calibration file and the
+    /// appearance model, resolved against `base_dir`.
+    pub fn input_files(&self, base_dir: &Path) -> Vec<(&'static str, std::path::PathBuf)> {
+        let mut inputs = Vec::new();
+        if self.source.0.is_file() {
+            inputs.push(("scenario file", self.source.0.clone()));
+        }
+        if let Some(file) = &self.world.file {
+            inputs.push(("world file", base_dir.join(file)));
+        }
+        if let Some(file) = self.calibration_file() {
+            inputs.push(("calibration file", base_dir.join(file)));
+        }
+        if let Some(file) = &self.appearance.model {
+            inputs.push(("appearance model", base_dir.join(file)));
+        }
+        inputs
     }
 
     /// Builds the world for a run seed.
@@ -778,6 +812,14 @@ mod tests {
         // Settings that a run would replace or reject later are refused when read.
         let base = "name = \"x\"\n[world]\npreset = \"park\"\n";
         for (table, expect) in [
+            (
+                "[calibration]\nmode = \"perturbed\"\ntranslation_sigma_m = 1e12\n",
+                "line 6: calibration.translation_sigma_m: must be at most 10",
+            ),
+            (
+                "[calibration]\nmode = \"perturbed\"\nrotation_sigma_deg = 1e9\n",
+                "line 6: calibration.rotation_sigma_deg: must be at most 180",
+            ),
             ("[appearance]\ntraining_images = 0\n", "line 5: appearance.training_images"),
             ("[appearance]\ntraining_preset = \"jungle\"\n", "line 5: appearance.training_preset"),
             ("[appearance]\nmax_patches_per_class = 0\n", "line 5: appearance.max_patches_per_class"),

@@ -226,6 +226,57 @@ fn run_writes_every_output() {
     let decisions = std::fs::read_to_string(dir.join("decisions.jsonl")).unwrap();
     assert!(decisions.lines().count() >= m.associations.total);
     assert!(std::fs::metadata(dir.join("run.mcap")).unwrap().len() > 1000);
+    // The list of what a run writes, which guards its inputs, names every output.
+    for entry in std::fs::read_dir(&dir).unwrap() {
+        let name = entry.unwrap().file_name().into_string().unwrap();
+        assert!(
+            name.starts_with('.') || scenarios::files::RUN_OUTPUTS.contains(&name.as_str()),
+            "{name} is not in files::RUN_OUTPUTS"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// An input the run would replace or remove in its output directory (a calibration an
+/// earlier run estimated there, reused; a world file) is refused before anything runs,
+/// and stays as it was; one elsewhere in the directory is not in the way.
+#[test]
+fn an_input_among_the_run_outputs_is_refused_and_kept() {
+    let dir = std::env::temp_dir().join(format!("objslam-input-in-outputs-{}", std::process::id()));
+    std::fs::create_dir_all(dir.join("mine")).unwrap();
+    let (mut sc, base) = Scenario::load("laser_only").unwrap();
+    sc.sim.max_duration_s = Some(2.0);
+    let truth = scenarios::calibrate::true_extrinsics(&sc.sim);
+    let calibration = serde_json::json!({"phi": truth.phi, "delta": truth.delta}).to_string();
+    let options = RunOptions { out: Some(dir.clone()), ..Default::default() };
+    for (key, name) in [("calibration", "calibration.json"), ("world", "world.toml")] {
+        let mut sc = sc.clone();
+        let file = dir.join(name);
+        if key == "calibration" {
+            std::fs::write(&file, &calibration).unwrap();
+            sc.calibration.mode = file.to_string_lossy().into_owned();
+        } else {
+            worlds::save(&sc.world(&base, 1).unwrap(), &file).unwrap();
+            (sc.world.preset, sc.world.seed) = (None, None);
+            sc.world.file = Some(file.to_string_lossy().into_owned());
+        }
+        let before = std::fs::read(&file).unwrap();
+        let e = run(&sc, &base, &options, |_| {}).err().expect("refused").to_string();
+        assert!(e.contains(name) && e.contains(&format!("the {key}")) && e.contains("copy it elsewhere"), "{e}");
+        assert_eq!(std::fs::read(&file).unwrap(), before, "{name} changed");
+        assert!(!dir.join("metadata.json").exists(), "the run went ahead");
+        // Under a name the run does not write, the same file is read and kept.
+        let kept = dir.join("mine").join(name);
+        std::fs::rename(&file, &kept).unwrap();
+        if key == "calibration" {
+            sc.calibration.mode = kept.to_string_lossy().into_owned();
+        } else {
+            sc.world.file = Some(kept.to_string_lossy().into_owned());
+        }
+        run(&sc, &base, &options, |_| {}).unwrap();
+        assert_eq!(std::fs::read(&kept).unwrap(), before);
+        std::fs::remove_file(dir.join("metadata.json")).unwrap();
+    }
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -80,6 +80,12 @@ pub enum RunError {
     Unpublished { dir: PathBuf, source: Box<RunError> },
     #[error("--bag {}: it is the run's output directory; a bag needs a directory of its own", .0.display())]
     BagInOutputs(PathBuf),
+    #[error(
+        "{}: the {what} lies among the outputs of {}, which this run replaces or removes; copy it elsewhere or choose another output directory",
+        file.display(),
+        out.display()
+    )]
+    InputInOutputs { what: &'static str, file: PathBuf, out: PathBuf },
     #[error(transparent)]
     Calibration(#[from] crate::calibrate::CalibrateError),
     #[error(transparent)]
@@ -365,6 +371,9 @@ pub fn run(
     options: &RunOptions,
     progress: impl FnMut(RunProgress),
 ) -> Result<RunOutcome, RunError> {
+    if let Some(out) = &options.out {
+        check_inputs_outside_outputs(scenario, base_dir, out)?;
+    }
     // Held until the outputs are published or abandoned.
     let lock = options.out.as_deref().map(crate::partial_files::lock_output).transpose()?;
     crate::partial_files::abandon_if_failed(
@@ -372,6 +381,22 @@ pub fn run(
         options.out.as_deref(),
         run_and_write(scenario, base_dir, options, progress),
     )
+}
+
+/// Refuses a scenario whose input files (see [`Scenario::input_files`]) lie in `out` under
+/// a name the run writes or removes there ([`files::RUN_OUTPUTS`]): publishing the run's
+/// outputs would replace or delete them, and the next run of the scenario could not read
+/// them (a calibration estimated by the last run into the same directory, reused).
+fn check_inputs_outside_outputs(scenario: &Scenario, base_dir: &Path, out: &Path) -> Result<(), RunError> {
+    let Ok(out_dir) = std::fs::canonicalize(out) else { return Ok(()) };
+    for (what, file) in scenario.input_files(base_dir) {
+        let Ok(input) = std::fs::canonicalize(&file) else { continue };
+        let first = input.strip_prefix(&out_dir).ok().and_then(|rest| rest.components().next());
+        if first.is_some_and(|c| files::RUN_OUTPUTS.iter().any(|name| c.as_os_str() == *name)) {
+            return Err(RunError::InputInOutputs { what, file, out: out.to_path_buf() });
+        }
+    }
+    Ok(())
 }
 
 fn run_and_write(
