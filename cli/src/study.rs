@@ -142,14 +142,21 @@ fn generalisation(
         Some(s) => mc::Shard::parse(s)?,
         None => mc::Shard::from_env(|k| std::env::var(k).ok(), None)?.unwrap_or(mc::Shard::all()),
     };
-    let plans = mc::generalisation::plans(split, worlds, seed);
-    if worlds == 0 {
-        anyhow::bail!("--runs must be at least 1 world");
+    let plans = mc::generalisation::plans(split, worlds, seed)?;
+    // The benchmark's directory is held for the whole command, as a study holds its own:
+    // its worlds.json and report are written only by the one command running there.
+    let _held = scenarios::partial_files::lock_output(out)?;
+    if out.join("study.json").exists() || out.join("runs.jsonl").exists() {
+        anyhow::bail!(
+            "--out {}: holds a Monte Carlo study (study.json, runs.jsonl), whose summary the benchmark's report would replace; use a new directory",
+            out.display()
+        );
     }
-    // Every plan must be sound and every world draw before the first run; the draws are
-    // written down, so a failure can be traced to its world.
-    for (_, plan) in &plans {
-        plan.check()?;
+    // Every plan must be sound, fit what the directory holds, and every world draw, before
+    // anything is written or run; the draws are written down, so a failure can be traced
+    // to its world.
+    for (name, plan) in &plans {
+        mc::check_study_dir(plan, &out.join(name))?;
     }
     let mut drawn = Vec::new();
     for i in 0..worlds {
@@ -157,8 +164,7 @@ fn generalisation(
         let seed = mc::generalisation::world_seed(split, i);
         drawn.push(serde_json::json!({ "index": i, "seed": seed, "params": params }));
     }
-    scenarios::partial_files::make_output_dir(out)?;
-    mc::write_atomically(&out.join("worlds.json"), &serde_json::to_string_pretty(&drawn)?)?;
+    mc::write_atomically(&out.join(mc::BENCHMARK_WORLDS), &serde_json::to_string_pretty(&drawn)?)?;
     let mut retry = Retry::default();
     for (name, plan) in &plans {
         println!(
@@ -173,7 +179,7 @@ fn generalisation(
     retry.into_result()?;
     if shard != mc::Shard::all() {
         println!(
-            "shard {}/{} done; the report needs every shard: merge each of {}/combined and {}/jcbb with `objslam montecarlo merge`, then rerun this command on the merged directory",
+            "shard {}/{} done; the report needs every shard: merge each of {}/combined and {}/jcbb with `objslam montecarlo merge`, then rerun this command, without --shard, on the merged directory",
             shard.index,
             shard.count,
             out.display(),

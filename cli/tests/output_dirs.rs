@@ -314,3 +314,38 @@ fn a_recording_never_replaces_a_ros2_bag() {
     assert!(!run.join("metadata.json").exists());
     let _ = std::fs::remove_dir_all(&root);
 }
+
+/// A generalisation benchmark's directory and a study's keep apart: a benchmark refused
+/// for a plan its directory does not hold writes nothing there (its worlds.json stays the
+/// first command's), a study or merge into a benchmark's directory is refused, and a
+/// benchmark into a study's directory too. A shard with no job writes the plans and runs
+/// nothing, so none of this trains or runs.
+#[test]
+fn a_benchmark_directory_and_a_study_directory_are_not_taken_for_each_other() {
+    let root = temp_root("benchmark-dirs");
+    let ok = objslam(&root, &["montecarlo", "generalisation", "--runs", "1", "--shard", "5/6", "--out", "g"]);
+    assert!(ok.status.success(), "{}", stderr(&ok));
+    let worlds = std::fs::read(root.join("g/worlds.json")).unwrap();
+    for (args, expect) in [
+        (&["montecarlo", "generalisation", "--runs", "3", "--out", "g"][..], "holds a different study"),
+        (&["montecarlo", "generalisation", "--split", "tune", "--runs", "1", "--out", "g"], "holds a different study"),
+        (
+            &["montecarlo", "laser_only", "--runs", "1", "--methods", "nn", "--out", "g"],
+            "holds a generalisation benchmark",
+        ),
+        (&["montecarlo", "merge", "g/jcbb", "--out", "g"], "holds a generalisation benchmark"),
+        (&["montecarlo", "generalisation", "--runs", "18446744073709551615", "--out", "x"], "more than 1000000 runs"),
+    ] {
+        let o = objslam(&root, args);
+        assert!(!o.status.success() && stderr(&o).contains(expect), "{args:?}: {}", stderr(&o));
+        assert_eq!(std::fs::read(root.join("g/worlds.json")).unwrap(), worlds, "{args:?} wrote worlds.json");
+        assert!(!root.join("g/study.json").exists() && !root.join("g/summary.json").exists(), "{args:?}");
+    }
+    assert!(!root.join("x").exists(), "a refused plan made its directory");
+    std::fs::create_dir_all(root.join("s")).unwrap();
+    std::fs::write(root.join("s/study.json"), "{}").unwrap();
+    let o = objslam(&root, &["montecarlo", "generalisation", "--runs", "1", "--shard", "5/6", "--out", "s"]);
+    assert!(!o.status.success() && stderr(&o).contains("holds a Monte Carlo study"), "{}", stderr(&o));
+    assert!(!root.join("s/worlds.json").exists());
+    let _ = std::fs::remove_dir_all(&root);
+}

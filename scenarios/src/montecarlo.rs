@@ -47,6 +47,11 @@ pub enum StudyError {
     Io { file: PathBuf, source: std::io::Error },
     #[error("{}: this directory's study.json holds a different study ({message}); use a new --out directory", dir.display())]
     Mismatch { dir: PathBuf, message: String },
+    #[error(
+        "{}: holds a generalisation benchmark (worlds.json; its studies are in combined/ and jcbb/), whose report a study's summary would replace; use a new --out directory",
+        .0.display()
+    )]
+    Benchmark(PathBuf),
     #[error(transparent)]
     Scenario(#[from] crate::scenario::ScenarioError),
     #[error(transparent)]
@@ -168,8 +173,15 @@ struct StudyFile {
 /// Reads `file`, a `study.json`; `hint` is added to the message where it is not a plan.
 fn read_study_file(file: &Path, hint: &str) -> Result<StudyFile, StudyError> {
     let bytes = std::fs::read(file).map_err(|e| StudyError::Io { file: file.into(), source: e })?;
-    serde_json::from_slice(&bytes)
-        .map_err(|e| StudyError::File { file: file.into(), message: format!("not a study plan ({e}){hint}") })
+    let study: StudyFile = serde_json::from_slice(&bytes)
+        .map_err(|e| StudyError::File { file: file.into(), message: format!("not a study plan ({e}){hint}") })?;
+    // A plan no study could run (edited by hand) is named by its file, before its runs are
+    // read against it.
+    study
+        .plan
+        .check()
+        .map_err(|e| StudyError::File { file: file.into(), message: format!("not a plan that can run: {e}{hint}") })?;
+    Ok(study)
 }
 
 /// Loads the scenario `name_or_path` names (a file, else a built-in one) and pins it: where
@@ -322,6 +334,23 @@ impl RunRecord {
     /// however and wherever the run was made.
     pub fn without_wall_clock(&self) -> RunRecord {
         RunRecord { metrics: self.metrics.as_ref().map(|m| m.without_wall_clock()), ..self.clone() }
+    }
+
+    /// Whether the record is one a study could have written: a run's metrics or its error,
+    /// never both or neither, only an error to retry, and a recall that is a fraction.
+    fn check(&self) -> Result<(), String> {
+        match (&self.metrics, &self.error) {
+            (Some(_), Some(_)) => return Err("a run record with both metrics and an error".into()),
+            (None, None) => return Err("a run record with neither metrics nor an error".into()),
+            (Some(_), None) if self.retryable => return Err("a run to retry that has metrics".into()),
+            _ => {}
+        }
+        if let Some(r) = self.metrics.as_ref().and_then(|m| m.map.tree_recall)
+            && !(0.0..=1.0).contains(&r)
+        {
+            return Err(format!("map.tree_recall {r} is not a fraction"));
+        }
+        Ok(())
     }
 
     /// An association failure: one or more wrong associations or false landmarks.
@@ -669,10 +698,13 @@ fn parse_run_lines(path: &Path, complete: &str) -> Result<Vec<(usize, RunRecord)
         .enumerate()
         .filter(|(_, l)| !l.trim().is_empty())
         .map(|(i, l)| {
-            serde_json::from_str(l).map(|r| (i + 1, r)).map_err(|e| StudyError::File {
+            let bad = |problem: String| StudyError::File {
                 file: path.into(),
-                message: format!("line {}: not a run record ({e}); remove the line to go on", i + 1),
-            })
+                message: format!("line {}: {problem}; remove the line to go on", i + 1),
+            };
+            let r: RunRecord = serde_json::from_str(l).map_err(|e| bad(format!("not a run record ({e})")))?;
+            r.check().map_err(bad)?;
+            Ok((i + 1, r))
         })
         .collect()
 }
@@ -764,37 +796,9 @@ pub fn run_study_with(
     let plan_file = out.join("study.json");
     let (pin, base_scenario, base_dir) = pin_scenario(&plan.scenario)?;
     check_values_differ(plan, &base_scenario)?;
-    match read_study_file(&plan_file, "; remove the directory, or this file if runs.jsonl is empty, to start again") {
-        Ok(existing) => {
-            if !same_plan(&existing, plan) {
-                return Err(StudyError::Mismatch {
-                    dir: out.into(),
-                    message: format!("it was started as {}", serde_json::to_string(&existing.plan).unwrap_or_default()),
-                });
-            }
-            if let Some(changed) = existing.scenario_pin.and_then(|began| began.changed_to(&plan.scenario, &pin)) {
-                return Err(StudyError::Mismatch { dir: out.into(), message: changed });
-            }
-        }
-        Err(StudyError::Io { source, .. }) if source.kind() == std::io::ErrorKind::NotFound => {
-            // Runs left without their plan are another study's as far as anyone can tell.
-            if has_runs(&out.join("runs.jsonl"))? {
-                return Err(StudyError::File {
-                    file: out.join("runs.jsonl"),
-                    message: "runs of a study whose study.json is gone: move them away or use a new --out directory"
-                        .into(),
-                });
-            }
-            let study = StudyFile { plan: plan.clone(), scenario_pin: Some(pin.clone()) };
-            write_atomically(&plan_file, &serde_json::to_string_pretty(&study).expect("JSON"))?
-        }
-        Err(StudyError::Io { source, .. }) => {
-            return Err(StudyError::File {
-                file: plan_file.clone(),
-                message: format!("cannot read the study plan: {source}"),
-            });
-        }
-        Err(e) => return Err(e),
+    if !existing_study(plan, &pin, out)? {
+        let study = StudyFile { plan: plan.clone(), scenario_pin: Some(pin.clone()) };
+        write_atomically(&plan_file, &serde_json::to_string_pretty(&study).expect("JSON"))?
     }
     let models = StudyModels::new(&base_dir);
     let runs_file = out.join("runs.jsonl");
@@ -885,6 +889,64 @@ pub fn run_study_with(
     write_summary(plan, &summarise(plan, &all), out)?;
     drop(held);
     Ok(all)
+}
+
+/// Whether `out` can take `plan`'s study, without writing anything: `plan` is sound, and
+/// `out` is new, or holds the same study begun (to resume), and is no generalisation
+/// benchmark's directory. A command running several studies checks each before the first
+/// runs.
+pub fn check_study_dir(plan: &StudyPlan, out: &Path) -> Result<(), StudyError> {
+    plan.check()?;
+    let (pin, _, _) = pin_scenario(&plan.scenario)?;
+    existing_study(plan, &pin, out).map(|_| ())
+}
+
+/// Whether `out` holds `plan`'s study already (`false`: it holds none); an error where it
+/// holds another, runs without their plan, or a generalisation benchmark.
+fn existing_study(plan: &StudyPlan, pin: &ScenarioPin, out: &Path) -> Result<bool, StudyError> {
+    refuse_benchmark_dir(out)?;
+    let plan_file = out.join("study.json");
+    match read_study_file(&plan_file, "; remove the directory, or this file if runs.jsonl is empty, to start again") {
+        Ok(existing) => {
+            if !same_plan(&existing, plan) {
+                return Err(StudyError::Mismatch {
+                    dir: out.into(),
+                    message: format!("it was started as {}", serde_json::to_string(&existing.plan).unwrap_or_default()),
+                });
+            }
+            if let Some(changed) = existing.scenario_pin.and_then(|began| began.changed_to(&plan.scenario, pin)) {
+                return Err(StudyError::Mismatch { dir: out.into(), message: changed });
+            }
+            Ok(true)
+        }
+        Err(StudyError::Io { source, .. }) if source.kind() == std::io::ErrorKind::NotFound => {
+            // Runs left without their plan are another study's as far as anyone can tell.
+            if has_runs(&out.join("runs.jsonl"))? {
+                return Err(StudyError::File {
+                    file: out.join("runs.jsonl"),
+                    message: "runs of a study whose study.json is gone: move them away or use a new --out directory"
+                        .into(),
+                });
+            }
+            Ok(false)
+        }
+        Err(StudyError::Io { source, .. }) => {
+            Err(StudyError::File { file: plan_file, message: format!("cannot read the study plan: {source}") })
+        }
+        Err(e) => Err(e),
+    }
+}
+
+/// The file a generalisation benchmark's directory holds beside its two studies.
+pub const BENCHMARK_WORLDS: &str = "worlds.json";
+
+/// Refuses a generalisation benchmark's top directory as a study's: its `summary.json` is
+/// the benchmark's report, which a study's summary would replace.
+fn refuse_benchmark_dir(out: &Path) -> Result<(), StudyError> {
+    if out.join(BENCHMARK_WORLDS).exists() {
+        return Err(StudyError::Benchmark(out.into()));
+    }
+    Ok(())
 }
 
 /// Whether the job's method needs an appearance model and its scenario has the camera it
@@ -1126,6 +1188,7 @@ pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<(StudyPlan, Vec<RunRecord>)
 /// [`merge`] once `out` is held.
 fn merge_held(dirs: &[PathBuf], out: &Path) -> Result<(StudyPlan, Vec<RunRecord>), StudyError> {
     let mut dirs = dirs.to_vec();
+    refuse_benchmark_dir(out)?;
     let out_plan = out.join("study.json");
     if out_plan.exists() {
         if !dirs.iter().any(|d| crate::partial_files::same_path(d, out)) {
@@ -1622,6 +1685,31 @@ mod tests {
         std::fs::write(&f, [format!("{line}\n{line}\n").as_bytes(), b"\xff\xfe\n"].concat()).unwrap();
         let e = read_runs(&f).unwrap_err().to_string();
         assert!(e.contains("line 3: not UTF-8 text"), "{e}");
+        // Records no study writes are refused by their line, not counted.
+        let job = Job { index: 0, method: "nn".into(), params: vec![], run: 0, seed: 1 };
+        let metrics: Metrics = serde_json::from_str(include_str!("../tests/data/metrics_sample.json")).unwrap();
+        let record = |metrics: Option<Metrics>, error: Option<&str>, retryable: bool| RunRecord {
+            key: job.key(),
+            job: job.clone(),
+            metrics,
+            error: error.map(str::to_owned),
+            retryable,
+        };
+        let mut beyond = metrics.clone();
+        beyond.map.tree_recall = Some(7.5);
+        for (bad, expect) in [
+            (record(None, None, false), "neither metrics nor an error"),
+            (record(Some(metrics.clone()), Some("x"), false), "both metrics and an error"),
+            (record(Some(metrics.clone()), None, true), "a run to retry that has metrics"),
+            (record(Some(beyond), None, false), "map.tree_recall 7.5 is not a fraction"),
+        ] {
+            std::fs::write(&f, format!("{line}\n{}\n", serde_json::to_string(&bad).unwrap())).unwrap();
+            let e = read_runs(&f).unwrap_err().to_string();
+            assert!(e.contains("line 2: ") && e.contains(expect), "{e}");
+        }
+        std::fs::write(&f, format!("{}\n", serde_json::to_string(&record(Some(metrics), None, false)).unwrap()))
+            .unwrap();
+        assert_eq!(read_runs(&f).unwrap().len(), 1);
     }
 
     /// Records appended as runs finished are put in job order, a job's lines in the order

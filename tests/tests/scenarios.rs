@@ -482,7 +482,7 @@ fn generalisation_job_with(
     edit: impl FnOnce(&mut Scenario),
 ) -> scenarios::run::Metrics {
     use scenarios::montecarlo::{generalisation, job_scenario, jobs};
-    let plans = generalisation::plans(generalisation::Split::Test, worlds, 1);
+    let plans = generalisation::plans(generalisation::Split::Test, worlds, 1).unwrap();
     let job = &jobs(&plans[study].1)[index];
     let (base_scenario, base) = Scenario::load(generalisation::BASE_SCENARIO).unwrap();
     let mut sc = job_scenario(&base_scenario, job).unwrap();

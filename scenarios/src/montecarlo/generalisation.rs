@@ -162,8 +162,19 @@ pub fn with_world(scenario: &Scenario, split: Split, index: f64) -> Result<Scena
 }
 
 /// The benchmark's two studies, as (name, plan): `combined` on `worlds` worlds of `split`
-/// crossed with the training seeds, and `jcbb` on the same worlds.
-pub fn plans(split: Split, worlds: usize, base_seed: u64) -> Vec<(&'static str, StudyPlan)> {
+/// crossed with the training seeds, and `jcbb` on the same worlds. Refuses a count of
+/// worlds no study could hold before making its values.
+pub fn plans(split: Split, worlds: usize, base_seed: u64) -> Result<Vec<(&'static str, StudyPlan)>, StudyError> {
+    if worlds == 0 {
+        return Err(StudyError::Plan("--runs must be at least 1 world".into()));
+    }
+    if worlds.checked_mul(TRAINING_SEEDS.len()).is_none_or(|jobs| jobs > super::MAX_JOBS) {
+        return Err(StudyError::Plan(format!(
+            "{worlds} worlds x {} training seeds: more than {} runs planned; split the study",
+            TRAINING_SEEDS.len(),
+            super::MAX_JOBS
+        )));
+    }
     let world = Vary { param: split.world_param().into(), values: (0..worlds).map(|i| i as f64).collect() };
     let training =
         Vary { param: "appearance.training_seed".into(), values: TRAINING_SEEDS.iter().map(|&s| s as f64).collect() };
@@ -174,7 +185,7 @@ pub fn plans(split: Split, worlds: usize, base_seed: u64) -> Vec<(&'static str, 
         methods: vec![method.into()],
         vary,
     };
-    vec![("combined", plan("combined", vec![world.clone(), training])), ("jcbb", plan("jcbb", vec![world]))]
+    Ok(vec![("combined", plan("combined", vec![world.clone(), training])), ("jcbb", plan("jcbb", vec![world]))])
 }
 
 /// A count of runs out of `runs`, with its rate and 95% Wilson interval.
@@ -267,10 +278,14 @@ fn totals(records: &[RunRecord]) -> MethodTotals {
     let (mut in_view, mut in_view_mapped, mut laser, mut laser_mapped) = (0, 0, 0, 0);
     let mut false_landmarks = FalseByClass::default();
     for m in &metrics {
-        match (m.recall_basis(), m.map.trees_in_view) {
-            (crate::score::scorer::RecallBasis::InView, Some(n)) => {
-                in_view += n;
-                in_view_mapped += n.saturating_sub(m.map.missed_trees.len());
+        match m.recall_basis() {
+            // Whether or not the run counted its trees in view, its laser-seen recall is what
+            // it mapped: its missed trees are named among those in view, not those seen.
+            crate::score::scorer::RecallBasis::InView => {
+                if let Some(n) = m.map.trees_in_view {
+                    in_view += n;
+                    in_view_mapped += n.saturating_sub(m.map.missed_trees.len());
+                }
                 laser_mapped += m.map.trees_mapped.min(m.map.trees_laser_seen);
             }
             _ => laser_mapped += m.map.trees_laser_seen.saturating_sub(m.map.missed_trees.len()),
@@ -465,7 +480,7 @@ mod tests {
 
     #[test]
     fn plans_cross_combined_with_the_training_seeds_and_run_jcbb_once_a_world() {
-        let plans = plans(Split::Test, 3, 7);
+        let plans = plans(Split::Test, 3, 7).unwrap();
         assert_eq!(plans.len(), 2);
         let (combined, jcbb) = (&plans[0].1, &plans[1].1);
         assert_eq!(super::super::jobs(combined).len(), 3 * TRAINING_SEEDS.len());
@@ -482,6 +497,11 @@ mod tests {
         }
         let e = super::super::apply_param(&base, Split::Tune.world_param(), 1.5).unwrap_err().to_string();
         assert!(e.contains("whole number"), "{e}");
+        // Counts no study could hold are refused before any value is made.
+        for worlds in [0, 1_000_000_000, usize::MAX] {
+            let e = super::plans(Split::Test, worlds, 7).unwrap_err().to_string();
+            assert!(e.contains("at least 1 world") || e.contains("more than 1000000 runs"), "{worlds}: {e}");
+        }
     }
 
     fn record(world: usize, seed: Option<u64>, f: impl Fn(&mut crate::run::Metrics)) -> RunRecord {
@@ -557,5 +577,18 @@ mod tests {
         assert_eq!(r.jcbb.missed_by_stage, None);
         let text = report_text(&r);
         assert!(text.contains("never segmented 1, never fully judged 0"), "{text}");
+
+        // A camera run that counted no trees in view (null) still mapped only what it
+        // mapped of the trees the laser saw: none of its 12 is credited.
+        let mut uncounted = combined.clone();
+        uncounted.push(record(2, Some(1), |m| {
+            good(m);
+            m.map.trees_in_view = None;
+            m.map.tree_recall = None;
+            m.map.trees_mapped = 0;
+        }));
+        let r = report(Split::Test, 3, &uncounted, &jcbb);
+        assert_eq!(r.combined.recall_in_view, Some(28.0 / 30.0));
+        assert_eq!(r.combined.recall_laser_seen, Some(38.0 / 60.0));
     }
 }
