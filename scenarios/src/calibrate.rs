@@ -525,6 +525,24 @@ impl CalibrationReport {
     }
 }
 
+/// Removes an earlier session's pose images (`pose_NN.png`) from `dir`: a shorter session
+/// would otherwise leave some of them among its own, to be taken for its poses.
+fn remove_pose_images(dir: &Path) -> Result<(), CalibrateError> {
+    let io = |file: &Path| {
+        let file = file.to_path_buf();
+        move |source| CalibrateError::Write { file, source }
+    };
+    for entry in std::fs::read_dir(dir).map_err(io(dir))? {
+        let path = entry.map_err(io(dir))?.path();
+        let name = path.file_name().and_then(|n| n.to_str()).unwrap_or_default();
+        let digits = name.strip_prefix("pose_").and_then(|n| n.strip_suffix(".png")).unwrap_or_default();
+        if !digits.is_empty() && digits.bytes().all(|b| b.is_ascii_digit()) {
+            std::fs::remove_file(&path).map_err(io(&path))?;
+        }
+    }
+    Ok(())
+}
+
 /// The simulator's exact laser <- camera extrinsics for a configuration.
 pub fn true_extrinsics(sim: &SimConfig) -> Extrinsics {
     rigid_to_extrinsics(&sim.camera.laser_from_camera(&sim.laser))
@@ -575,6 +593,7 @@ pub fn calibrate_stations(
     if let Some(dir) = images {
         crate::partial_files::make_output_dir(dir)
             .map_err(|e| CalibrateError::Write { file: e.file, source: e.source })?;
+        remove_pose_images(dir)?;
     }
     let mut cam_config = sim_config.camera.clone();
     cam_config.enabled = true;
@@ -765,7 +784,19 @@ pub fn load_extrinsics(path: &Path) -> Result<Extrinsics, CalibrateError> {
 pub fn load_extrinsics_for(path: &Path, camera: &sim::camera::Intrinsics) -> Result<Extrinsics, CalibrateError> {
     let v = read_json(path)?;
     let extrinsics = extrinsics_of(path, &v)?;
-    let Some(written) = v.get("camera") else { return Ok(extrinsics) };
+    let written = match v.get("camera") {
+        None | Some(serde_json::Value::Null) => return Ok(extrinsics),
+        Some(c) if c.is_object() => c,
+        Some(other) => {
+            return Err(CalibrateError::File {
+                file: path.to_path_buf(),
+                field: "camera".into(),
+                message: format!(
+                    "must be a table of the image size and K (width, height, fx, fy, cx, cy), got {other}"
+                ),
+            });
+        }
+    };
     let bad = |field: &str, message: String| CalibrateError::File {
         file: path.to_path_buf(),
         field: format!("camera.{field}"),
@@ -900,6 +931,22 @@ mod tests {
         assert_ne!(plan_stations(&config, &sim, 5), st);
     }
 
+    /// An earlier session's pose images go before a session writes its own; nothing else.
+    #[test]
+    fn an_earlier_sessions_pose_images_are_removed_and_nothing_else() {
+        let dir = std::env::temp_dir().join(format!("objslam-calimages-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        for name in ["pose_05.png", "pose_29.png", "pose_x.png", "pose_.png", "notes.txt", "pose_12.png.bak"] {
+            std::fs::write(dir.join(name), "x").unwrap();
+        }
+        remove_pose_images(&dir).unwrap();
+        let mut left: Vec<String> =
+            std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name().into_string().unwrap()).collect();
+        left.sort();
+        assert_eq!(left, ["notes.txt", "pose_.png", "pose_12.png.bak", "pose_x.png"]);
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
     /// Boards and their distractors keep apart ids up to the largest session allowed.
     #[test]
     fn the_largest_session_builds_a_valid_world() {
@@ -1009,6 +1056,14 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(msg.contains("camera.width: missing"), "{msg}");
+        let msg = load_extrinsics_for(&file("named.json", serde_json::json!("the left one")), &camera)
+            .unwrap_err()
+            .to_string();
+        assert!(msg.contains("named.json") && msg.contains("camera: must be a table"), "{msg}");
+        let f = dir.join("null.json");
+        std::fs::write(&f, serde_json::json!({"phi": truth.phi, "delta": truth.delta, "camera": null}).to_string())
+            .unwrap();
+        assert!(load_extrinsics_for(&f, &camera).is_ok(), "a null camera says no more than none");
         let _ = std::fs::remove_dir_all(&dir);
     }
 

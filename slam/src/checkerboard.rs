@@ -58,7 +58,7 @@ pub enum DetectionError {
     #[error("found {found} corner candidates, the board has {expected} inner corners")]
     TooFewCorners { found: usize, expected: usize },
     #[error(
-        "the corner candidates do not form the board's grid with its checker pattern (largest lattice found: {found} of {expected} corners)"
+        "the corner candidates do not form the board's grid with its checker pattern (the largest lattice of candidates holds {found} corners, the board has {expected} inner corners in a whole window)"
     )]
     NoGrid { found: usize, expected: usize },
     #[error("image buffer of {len} bytes does not match {width}x{height} RGB")]
