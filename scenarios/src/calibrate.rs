@@ -293,6 +293,8 @@ impl SessionConfig {
         let half_fov = (sim.camera.hfov_deg / 2.0 + 5.0).to_radians();
         let yaw = (sim.camera.mount_yaw_deg - sim.laser.mount_yaw_deg).to_radians();
         let noise = sim.laser.range_noise_sigma_m;
+        let lever_arm_m =
+            (0..3).map(|k| (sim.camera.mount_xyz_m[k] - sim.laser.mount_xyz_m[k]).powi(2)).sum::<f64>().sqrt();
         BoardSegmentation {
             bearing_rad: [yaw - half_fov, yaw + half_fov],
             range_m: [0.5 * self.distance_m[0], 1.5 * self.distance_m[1] + self.board_width_m],
@@ -301,6 +303,9 @@ impl SessionConfig {
                 1.05 * self.board_width_m.hypot(self.board_height_m),
             ],
             inlier_m: (4.0 * noise + sim.laser.quantum_m()).max(0.01),
+            // The laser's range to the board and the camera's differ by up to the distance
+            // between the two sensors, on top of the margin for the board's own extent.
+            camera_range_tolerance_m: BoardSegmentation::default().camera_range_tolerance_m + lever_arm_m,
             ..Default::default()
         }
     }

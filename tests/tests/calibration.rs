@@ -50,6 +50,18 @@ fn twenty_board_poses_calibrate_within_0_3_deg_and_1_cm() {
     }
 }
 
+/// A camera mounted well behind the laser sees each board farther than the laser does, by
+/// up to the distance between them: the board is still found in the scan, and the
+/// calibration is as good (every pose had been skipped for the range mismatch).
+#[test]
+fn a_camera_far_from_the_laser_still_finds_its_boards() {
+    let (mut sc, _) = Scenario::load("calibration").unwrap();
+    sc.sim.camera.mount_xyz_m = [-0.6, 0.0, 0.55];
+    let r = session(&sc, 1);
+    assert!(r.poses_used >= 15, "{} of 20 poses used: {:?}", r.poses_used, r.warnings);
+    assert!(r.rotation_error_deg.unwrap() < 0.3 && r.translation_error_m.unwrap() < 0.01, "{r:?}");
+}
+
 #[test]
 fn the_session_is_deterministic_and_its_file_round_trips() {
     let (sc, _) = Scenario::load("calibration").unwrap();
