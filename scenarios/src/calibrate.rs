@@ -64,6 +64,55 @@ pub enum CalibrateError {
     Poses(usize),
 }
 
+/// `[calibration.session.segmentation]`: the keys given, each replacing the value the
+/// session derives (see [`SessionConfig::segmentation_for`]).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SegmentationSettings {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bearing_rad: Option<[f64; 2]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub range_m: Option<[f64; 2]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub length_m: Option<[f64; 2]>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub jump_m: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub inlier_m: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub trim: Option<usize>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera_range_tolerance_m: Option<f64>,
+}
+
+impl SegmentationSettings {
+    /// `base` with the keys given here in place of its values.
+    pub fn apply(&self, base: BoardSegmentation) -> BoardSegmentation {
+        BoardSegmentation {
+            bearing_rad: self.bearing_rad.unwrap_or(base.bearing_rad),
+            range_m: self.range_m.unwrap_or(base.range_m),
+            length_m: self.length_m.unwrap_or(base.length_m),
+            jump_m: self.jump_m.unwrap_or(base.jump_m),
+            inlier_m: self.inlier_m.unwrap_or(base.inlier_m),
+            trim: self.trim.unwrap_or(base.trim),
+            camera_range_tolerance_m: self.camera_range_tolerance_m.unwrap_or(base.camera_range_tolerance_m),
+        }
+    }
+
+    /// Every key given, with `s`'s values (the reference's examples).
+    pub fn all(s: &BoardSegmentation) -> Self {
+        SegmentationSettings {
+            bearing_rad: Some(s.bearing_rad),
+            range_m: Some(s.range_m),
+            length_m: Some(s.length_m),
+            jump_m: Some(s.jump_m),
+            inlier_m: Some(s.inlier_m),
+            trim: Some(s.trim),
+            camera_range_tolerance_m: Some(s.camera_range_tolerance_m),
+        }
+    }
+}
+
 /// The calibration session of a scenario (`[calibration.session]`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
@@ -96,12 +145,11 @@ pub struct SessionConfig {
     pub scans_per_pose: usize,
     /// A post behind each board, in the laser's view, that segmentation must reject.
     pub distractors: bool,
-    /// Laser segmentation settings. Absent, the bearing window, ranges, board lengths and
-    /// inlier distance are set from the camera, the session's distances and the board's
-    /// size ([`SessionConfig::segmentation_for`]); given, the table is used as written, each
-    /// key left out taking the fixed value `objslam config defaults` shows, not the derived
-    /// one.
-    pub segmentation: Option<BoardSegmentation>,
+    /// Laser segmentation settings: the bearing window, ranges, board lengths, inlier
+    /// distance and range tolerance are set from the camera, the session's distances and
+    /// the board's size ([`SessionConfig::segmentation_for`]); a key given here replaces its
+    /// derived value, and the keys left out keep theirs.
+    pub segmentation: Option<SegmentationSettings>,
 }
 
 impl Default for SessionConfig {
@@ -247,8 +295,10 @@ impl SessionConfig {
                 ),
             );
         }
+        // The keys given, each checked as it will be used (beside the others' defaults:
+        // derived values pass the same checks).
         if let Some(s) = &self.segmentation
-            && let Err((field, message)) = s.validate()
+            && let Err((field, message)) = s.apply(BoardSegmentation::default()).validate()
         {
             return bad(&format!("segmentation.{field}"), message);
         }
@@ -284,12 +334,18 @@ impl SessionConfig {
         (self.squares[0] as usize - 1, self.squares[1] as usize - 1)
     }
 
-    /// Segmentation settings: the explicit ones, or the camera's field of view, the
-    /// session's distances and the board's size.
+    /// Segmentation settings: from the camera's field of view and mounting, the laser's
+    /// noise, the session's distances and the board's size, with the keys the scenario
+    /// gives in their place.
     pub fn segmentation_for(&self, sim: &SimConfig) -> BoardSegmentation {
-        if let Some(s) = &self.segmentation {
-            return s.clone();
+        let derived = self.derived_segmentation(sim);
+        match &self.segmentation {
+            Some(given) => given.apply(derived),
+            None => derived,
         }
+    }
+
+    fn derived_segmentation(&self, sim: &SimConfig) -> BoardSegmentation {
         let half_fov = (sim.camera.hfov_deg / 2.0 + 5.0).to_radians();
         let yaw = (sim.camera.mount_yaw_deg - sim.laser.mount_yaw_deg).to_radians();
         let noise = sim.laser.range_noise_sigma_m;
@@ -934,6 +990,27 @@ mod tests {
         assert_eq!(world.objects.len(), 40);
         assert_eq!(plan_stations(&config, &sim, 4), st, "same seed, same plan");
         assert_ne!(plan_stations(&config, &sim, 5), st);
+    }
+
+    /// A segmentation table that gives one key changes that key alone: the others keep
+    /// the values derived from the camera, the laser and the session.
+    #[test]
+    fn a_segmentation_key_given_replaces_only_its_derived_value() {
+        let sim = SimConfig::default();
+        let derived = SessionConfig::default().segmentation_for(&sim);
+        assert_ne!(derived, BoardSegmentation::default(), "the derived settings differ from the fixed ones");
+        let session: SessionConfig = toml::from_str("[segmentation]\ntrim = 2\n").unwrap();
+        assert_eq!(session.segmentation_for(&sim), BoardSegmentation { trim: 2, ..derived.clone() });
+        let all = SessionConfig {
+            segmentation: Some(SegmentationSettings::all(&BoardSegmentation::default())),
+            ..SessionConfig::default()
+        };
+        assert_eq!(all.segmentation_for(&sim), BoardSegmentation::default());
+        let e = toml::from_str::<SessionConfig>("[segmentation]\ntrimm = 2\n").unwrap_err().to_string();
+        assert!(e.contains("trimm"), "{e}");
+        let bad: SessionConfig = toml::from_str("[segmentation]\nrange_m = [3.0, 1.0]\n").unwrap();
+        let e = bad.check_settings(Path::new("s.toml")).unwrap_err().to_string();
+        assert!(e.contains("segmentation.range_m"), "{e}");
     }
 
     /// An earlier session's pose images go before a session writes its own; nothing else.

@@ -20,7 +20,7 @@ pub(super) const TABLES: &[(&str, &str)] = &[
     ("calibration.session", "The calibration session run for mode \"estimated\": its checkerboard stations and board."),
     (
         "calibration.session.segmentation",
-        "Finding the board in a scan; absent: set from the camera and the session. Keys left out: as shown.",
+        "Finding the board in a scan: keys not given are derived from the camera, laser and session.",
     ),
     ("pipeline", "The SLAM pipeline: association method, gates, landmark confirmation and loop closing."),
     ("pipeline.clustering", "Splitting a scan into clusters at range jumps, and which clusters are trunk-sized."),
@@ -669,7 +669,8 @@ fn examples() -> Result<toml::Table, String> {
     s.world.file = Some("my_world.toml".into());
     s.world.seed = Some(2006);
     s.sim.max_duration_s = Some(600.0);
-    s.calibration.session.segmentation = Some(Default::default());
+    s.calibration.session.segmentation =
+        Some(crate::calibrate::SegmentationSettings::all(&slam::calibration::BoardSegmentation::default()));
     s.pipeline.relinearise_every_s = Some(30.0);
     s.pipeline.segmentation.patch_threshold = Some(0.5);
     s.appearance.model = Some("model.json".into());
