@@ -112,6 +112,21 @@ pub(crate) fn record(
         crate::paths::not_an_input("--out", &out.join(files::WORLD), &[("world file", given)])
             .map_err(|_| anyhow::anyhow!("--out {}: the recording writes world.toml there, which is the world file given ({}); record into another directory", out.display(), given.display()))?;
     }
+    // A scenario's input files among what the recording writes or removes there would be
+    // replaced or deleted when it is published.
+    if let RecordSource::Scenario(name) = &source
+        && format != scenarios::record::RecordFormat::Ros2
+    {
+        let (sc, base) = scenarios::scenario::Scenario::load(name)?;
+        let names = scenarios::record::recording_files();
+        if let Some((what, file)) = files::input_among_outputs(out, &names, sc.input_files(&base)) {
+            anyhow::bail!(
+                "--out {}: the scenario's {what} ({}) lies among the files the recording replaces or removes there; copy it elsewhere or record into another directory",
+                out.display(),
+                file.display()
+            );
+        }
+    }
     let RecordingPlan { world, mut config, sim_seed, scoring, pipeline, calibration, model } =
         RecordingPlan::resolve(source, seed, format, no_camera)?;
     if let Some(d) = duration {
@@ -221,11 +236,14 @@ pub(crate) fn calibrate(
     if let Some(file) = out.parent().and_then(|d| d.ancestors().find(|a| a.is_file())) {
         anyhow::bail!("--out {}: {} is a file, not a directory", out.display(), file.display());
     }
-    if out.is_dir() {
+    if out.is_dir() || out.as_os_str().to_string_lossy().ends_with(std::path::MAIN_SEPARATOR) {
         anyhow::bail!("--out {}: is a directory; give the path of the calibration file to write", out.display());
     }
     let (sc, base) = scenarios::scenario::Scenario::load(scenario)?;
-    let inputs = sc.input_files(&base);
+    // The calibration file the scenario names is not read by a session: writing it anew is
+    // what a user re-estimating it wants.
+    let inputs: Vec<_> =
+        sc.input_files(&base).into_iter().filter(|(what, _)| *what != scenarios::scenario::CALIBRATION_INPUT).collect();
     crate::paths::not_an_input(
         "--out",
         out,

@@ -82,7 +82,13 @@ pub(crate) fn montecarlo(args: MontecarloArgs) -> Result<()> {
             None => mc::Shard::from_env(|k| std::env::var(k).ok(), None)?.unwrap_or(mc::Shard::all()),
         };
         let mut retry = Retry::default();
-        for (name, plan) in mc::builtin_study(runs, seed) {
+        let studies = mc::builtin_study(runs, seed);
+        // Each study's directory is checked before the first runs: a later one holding
+        // another study would otherwise be found only after the earlier ones' runs.
+        for (name, plan) in &studies {
+            mc::check_study_dir(plan, &out.join(name))?;
+        }
+        for (name, plan) in studies {
             println!("study {name}: {} = {:?}", plan.vary[0].param, plan.vary[0].values);
             retry.add(run_plan(&plan, shard, &out.join(name), &workers)?);
         }

@@ -349,3 +349,27 @@ fn a_benchmark_directory_and_a_study_directory_are_not_taken_for_each_other() {
     assert!(!root.join("s/worlds.json").exists());
     let _ = std::fs::remove_dir_all(&root);
 }
+
+/// A recording refuses a scenario input among the files it replaces there, as a run does;
+/// a calibration session may write the calibration file its scenario names (it does not
+/// read it), but not the scenario file itself.
+#[test]
+fn inputs_among_a_recordings_outputs_are_refused_and_a_calibration_may_be_rewritten() {
+    let root = temp_root("record-inputs");
+    std::fs::create_dir_all(root.join("rd")).unwrap();
+    let model = root.join("rd/appearance_model.json");
+    std::fs::write(&model, "{}").unwrap();
+    let scenario = "name = \"am\"\n[world]\npreset = \"park\"\n[appearance]\nmodel = \"rd/appearance_model.json\"\n";
+    std::fs::write(root.join("am.toml"), scenario).unwrap();
+    let o = objslam(&root, &["record", "--scenario", "am.toml", "--duration", "1", "--out", "rd"]);
+    assert!(!o.status.success() && stderr(&o).contains("appearance model"), "{}", stderr(&o));
+    assert_eq!(std::fs::read_to_string(&model).unwrap(), "{}");
+    let calibration = "name = \"cal\"\n[world]\npreset = \"park\"\n[calibration]\nmode = \"cal.json\"\n";
+    std::fs::write(root.join("cal.toml"), calibration).unwrap();
+    let o = objslam(&root, &["calibrate", "cal.toml", "--poses", "5", "--out", "cal.toml"]);
+    assert!(!o.status.success() && stderr(&o).contains("scenario file"), "{}", stderr(&o));
+    let o = objslam(&root, &["calibrate", "cal.toml", "--poses", "5", "--out", "cal.json"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(std::fs::read_to_string(root.join("cal.json")).unwrap().contains("\"phi\""));
+    let _ = std::fs::remove_dir_all(&root);
+}

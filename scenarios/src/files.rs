@@ -67,6 +67,31 @@ pub const MCAP: &str = "run.mcap";
 /// The map, drawn over the world.
 pub const MAP: &str = "map.png";
 
+/// The first of `inputs` (each with what it is) that lies in the directory `out` under one
+/// of `names`, the outputs a command writes, replaces or removes there: publishing them
+/// would replace or delete it. An input is judged both where its path puts it (a link in
+/// `out` would be removed) and where it leads.
+pub fn input_among_outputs(
+    out: &std::path::Path,
+    names: &[&str],
+    inputs: Vec<(&'static str, std::path::PathBuf)>,
+) -> Option<(&'static str, std::path::PathBuf)> {
+    use std::path::Path;
+    let out_dir = std::fs::canonicalize(out).ok()?;
+    let among = |path: &Path| {
+        path.strip_prefix(&out_dir)
+            .ok()
+            .and_then(|rest| rest.components().next())
+            .is_some_and(|c| names.iter().any(|name| c.as_os_str() == *name))
+    };
+    inputs.into_iter().find(|(_, file)| {
+        let parent = file.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+        let as_given = std::fs::canonicalize(parent).ok().zip(file.file_name()).map(|(dir, name)| dir.join(name));
+        let target = std::fs::canonicalize(file).ok();
+        [as_given, target].iter().flatten().any(|p| among(p))
+    })
+}
+
 /// Every name `objslam run` writes, replaces or removes directly in its output directory:
 /// an input file there (a calibration the last run estimated, a world file) would be lost
 /// to the next run into that directory, so the run refuses such an input first.

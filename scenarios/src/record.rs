@@ -336,7 +336,7 @@ pub fn record(
 /// that what `out` holds afterwards is never an earlier log's data mixed with the new
 /// one's. The two kinds share names (`camera/`, `world.toml`), so a recording of one kind
 /// clears the other's files too: a directory holds one recording.
-fn recording_files() -> [&'static str; 21] {
+pub fn recording_files() -> [&'static str; 21] {
     use robotlog::format as f;
     [
         f::MANIFEST,

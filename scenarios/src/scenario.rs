@@ -185,6 +185,10 @@ impl PassCriteria {
     }
 }
 
+/// What [`Scenario::input_files`] calls the calibration file: a calibration session writes
+/// that file rather than reading it.
+pub const CALIBRATION_INPUT: &str = "calibration file";
+
 /// The `calibration.mode` keywords; any other value names a calibration file (.json).
 pub const CALIBRATION_MODES: [&str; 3] = ["true", "perturbed", "estimated"];
 
@@ -543,7 +547,7 @@ impl Scenario {
             inputs.push(("world file", base_dir.join(file)));
         }
         if let Some(file) = self.calibration_file() {
-            inputs.push(("calibration file", base_dir.join(file)));
+            inputs.push((CALIBRATION_INPUT, base_dir.join(file)));
         }
         if let Some(file) = &self.appearance.model {
             inputs.push(("appearance model", base_dir.join(file)));

@@ -276,6 +276,24 @@ fn an_input_among_the_run_outputs_is_refused_and_kept() {
         run(&sc, &base, &options, |_| {}).unwrap();
         assert_eq!(std::fs::read(&kept).unwrap(), before);
         std::fs::remove_file(dir.join("metadata.json")).unwrap();
+        // A link there to the file elsewhere would be removed all the same.
+        #[cfg(unix)]
+        {
+            let link = dir.join(name);
+            // The run just made wrote its own copy there (the world it simulated).
+            let _ = std::fs::remove_file(&link);
+            std::os::unix::fs::symlink(&kept, &link).unwrap();
+            let mut sc = sc.clone();
+            if key == "calibration" {
+                sc.calibration.mode = link.to_string_lossy().into_owned();
+            } else {
+                sc.world.file = Some(link.to_string_lossy().into_owned());
+            }
+            let e = run(&sc, &base, &options, |_| {}).err().expect("refused").to_string();
+            assert!(e.contains("copy it elsewhere"), "{e}");
+            assert!(link.exists(), "the link was removed");
+            std::fs::remove_file(&link).unwrap();
+        }
     }
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -388,15 +388,10 @@ pub fn run(
 /// outputs would replace or delete them, and the next run of the scenario could not read
 /// them (a calibration estimated by the last run into the same directory, reused).
 fn check_inputs_outside_outputs(scenario: &Scenario, base_dir: &Path, out: &Path) -> Result<(), RunError> {
-    let Ok(out_dir) = std::fs::canonicalize(out) else { return Ok(()) };
-    for (what, file) in scenario.input_files(base_dir) {
-        let Ok(input) = std::fs::canonicalize(&file) else { continue };
-        let first = input.strip_prefix(&out_dir).ok().and_then(|rest| rest.components().next());
-        if first.is_some_and(|c| files::RUN_OUTPUTS.iter().any(|name| c.as_os_str() == *name)) {
-            return Err(RunError::InputInOutputs { what, file, out: out.to_path_buf() });
-        }
+    match files::input_among_outputs(out, files::RUN_OUTPUTS, scenario.input_files(base_dir)) {
+        Some((what, file)) => Err(RunError::InputInOutputs { what, file, out: out.to_path_buf() }),
+        None => Ok(()),
     }
-    Ok(())
 }
 
 fn run_and_write(
