@@ -414,7 +414,12 @@ pub fn segment_image(model: &AppearanceModel, image_path: &Path, out: &Path) -> 
             }
         }
     }
-    rgb.save(out).map_err(|e| file_err(out, e))?;
+    // Encoded in the format its name asks for, then written whole: a failed write leaves no
+    // cut picture under the name.
+    let format = image::ImageFormat::from_path(out).map_err(|e| file_err(out, e))?;
+    let mut bytes = std::io::Cursor::new(Vec::new());
+    rgb.write_to(&mut bytes, format).map_err(|e| file_err(out, e))?;
+    crate::partial_files::write_whole(out, bytes.get_ref()).map_err(|e| file_err(out, e.source))?;
     Ok((decisions.iter().filter(|&&d| d).count(), decisions.len()))
 }
 
