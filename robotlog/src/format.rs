@@ -199,7 +199,7 @@ fn io(file: &Path) -> impl Fn(std::io::Error) -> LogError + '_ {
 
 /// Refuses what is not a regular file (a link to one is): a pipe or a device would block
 /// or never end.
-fn regular_file(file: &Path) -> Result<(), LogError> {
+pub fn regular_file(file: &Path) -> Result<(), LogError> {
     if fs::metadata(file).map_err(io(file))?.is_file() {
         Ok(())
     } else {

@@ -164,6 +164,14 @@ impl<T: Clone + 'static> Reread<T> {
         self.len == 0
     }
 
+    /// The file the rows are read from (`None` for rows held in memory).
+    pub fn file(&self) -> Option<&Path> {
+        match &self.source {
+            RereadSource::Memory(_) => None,
+            RereadSource::File { file, .. } => Some(file),
+        }
+    }
+
     /// The rows from the first. A file that changed since it was checked is an error: at
     /// the start, in the place of a row that no longer reads, or after the last row.
     pub fn rows(&self) -> Result<Rows<T>, LogError> {

@@ -41,6 +41,20 @@ const MOTION_GAP_S: f64 = 1.0;
 pub enum ReplayError {
     #[error(transparent)]
     Log(#[from] robotlog::LogError),
+    #[error("{}: holds {what}; a replay's outputs need a directory of their own (or an earlier replay's)", dir.display())]
+    HoldsOther { dir: PathBuf, what: String },
+    #[error(
+        "{}: its frames span {:.3}-{:.3} s and the scans {:.3}-{:.3} s; {outside} of the {count} frames lie outside the scans' times, and a scan is segmented only in a frame at most image_max_age_s ({max_age_s} s) before it. Times on another clock or in another unit need mending; a camera not triggered with the laser needs pipeline.image_max_age_s raised (--config)",
+        file.display(), frames.0, frames.1, scans.0, scans.1
+    )]
+    FramesReachNoScan {
+        file: PathBuf,
+        frames: (f64, f64),
+        scans: (f64, f64),
+        outside: usize,
+        count: usize,
+        max_age_s: f64,
+    },
     #[error("{}:{line}: {problem}", file.display())]
     Config { file: PathBuf, line: usize, problem: String },
     #[error("{}: {setting}", file.display())]
@@ -146,6 +160,8 @@ pub fn resolve_config(
     if let Some(dir) = log_dir
         && dir.join(files::PIPELINE).exists()
     {
+        // One of the log's data files: a pipe or a device there would never end.
+        robotlog::format::regular_file(&dir.join(files::PIPELINE))?;
         files.push(dir.join(files::PIPELINE));
     }
     files.extend(overrides.map(Path::to_path_buf));
@@ -308,10 +324,61 @@ pub fn replay(
     appearance: Option<AppearanceModel>,
     out: Option<&Path>,
 ) -> Result<Replay, ReplayError> {
+    if let Some(dir) = out {
+        refuse_other_outputs(dir)?;
+    }
     // Held until the outputs are published or abandoned.
     let lock = out.map(crate::partial_files::lock_output).transpose()?;
     crate::partial_files::abandon_if_failed(lock, out, replay_and_write(log.into(), config, appearance, out))
 }
+
+/// Refuses an output directory that holds a robot log, or another command's outputs (a
+/// run's, a recording's): the replay's files would sit among theirs, and read as one.
+/// An earlier replay's outputs are replaced as usual.
+fn refuse_other_outputs(dir: &Path) -> Result<(), ReplayError> {
+    let holds = |what: String| Err(ReplayError::HoldsOther { dir: dir.to_path_buf(), what });
+    if dir.join(robotlog::format::MANIFEST).exists() {
+        return holds("a robot log (manifest.toml)".into());
+    }
+    let Ok(text) = std::fs::read_to_string(dir.join(files::METADATA)) else { return Ok(()) };
+    let tool = serde_json::from_str::<serde_json::Value>(&text)
+        .ok()
+        .and_then(|v| v.get("tool").and_then(|t| t.as_str()).map(str::to_owned));
+    match tool.as_deref() {
+        Some(REPLAY_TOOL) => Ok(()),
+        Some(other) => holds(format!("the outputs of `{other}` (metadata.json)")),
+        None => holds("another command's outputs (a metadata.json of no replay)".into()),
+    }
+}
+
+/// Refuses camera frames that a camera method could not have used: none came within
+/// `max_age_s` before any scan (a camera not triggered with the laser needs the setting
+/// raised), or most lie outside the scans' times (camera.csv on another clock or in
+/// another unit). Either would replay to an empty map with no word of why.
+fn check_frame_times(
+    file: &Path,
+    frames: &[f64],
+    scans: Option<(f64, f64)>,
+    scans_with_frame: usize,
+    max_age_s: f64,
+) -> Result<(), ReplayError> {
+    let (Some(&first), Some(&last), Some((from, to))) = (frames.first(), frames.last(), scans) else { return Ok(()) };
+    let outside = frames.iter().filter(|&&t| t < from - max_age_s || t > to + max_age_s).count();
+    if scans_with_frame == 0 || 2 * outside > frames.len() {
+        return Err(ReplayError::FramesReachNoScan {
+            file: file.to_path_buf(),
+            frames: (first, last),
+            scans: (from, to),
+            outside,
+            count: frames.len(),
+            max_age_s,
+        });
+    }
+    Ok(())
+}
+
+/// The `tool` a replay's `metadata.json` names.
+const REPLAY_TOOL: &str = "objslam replay";
 
 fn replay_and_write(
     log: LogStream,
@@ -404,6 +471,11 @@ fn replay_and_write(
     let mut motion_end = start;
     // The time of the trajectory's last pose (written to its file where there is one).
     let mut last_written: Option<f64> = None;
+    // The frames' and scans' times, and the scans a frame was recent enough for: frames on
+    // another clock or in another unit reach no scan, which a camera method cannot tell
+    // from a camera that saw nothing.
+    let (mut frame_times, mut scan_span): (Vec<f64>, Option<(f64, f64)>) = (Vec::new(), None);
+    let (mut last_frame_t, mut scans_with_frame) = (None::<f64>, 0usize);
     let error = |t: f64| move |source| ReplayError::Pipeline { t, source };
     loop {
         // At equal times: motion, then the frame, then the scan.
@@ -433,6 +505,8 @@ fn replay_and_write(
             let Some(Ok(frame)) = frames.next() else { unreachable!("peeked a frame") };
             let image = robotlog::format::read_frame(&frame, camera)?;
             pipeline.on_image(tf, image.width, image.height, image.rgb).map_err(error(tf))?;
+            frame_times.push(tf);
+            last_frame_t = Some(tf);
             // A frame moves no pose: nothing to write.
             continue;
         } else {
@@ -460,6 +534,8 @@ fn replay_and_write(
                 }
             };
             scan_ms.add(tick.elapsed().as_secs_f64() * 1e3);
+            scan_span = Some(scan_span.map_or((t, t), |(a, b): (f64, f64)| (a.min(t), b.max(t))));
+            scans_with_frame += usize::from(last_frame_t.is_some_and(|f| t - f <= config.image_max_age_s));
             nis.add(&report.decisions);
             if let Some(s) = &mut streams {
                 for d in &report.decisions {
@@ -484,6 +560,8 @@ fn replay_and_write(
             last_written = Some(p.t);
         }
     }
+    let camera_file = log.camera.file().unwrap_or(Path::new("camera.csv"));
+    check_frame_times(camera_file, &frame_times, scan_span, scans_with_frame, config.image_max_age_s)?;
     let mut paired = reference.finish()?;
     let wall_seconds = started.elapsed().as_secs_f64();
     let log_seconds = end - start;
@@ -682,7 +760,7 @@ fn write_outputs(
     write(
         files::METADATA,
         serde_json::to_string_pretty(&json!({
-            "tool": "objslam replay",
+            "tool": REPLAY_TOOL,
             "version": env!("CARGO_PKG_VERSION"),
             "log": manifest,
             "configuration": replay.config,
@@ -759,6 +837,48 @@ pub fn summary(m: &ReplayMetrics) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Frames a camera method could not use are refused, naming camera.csv: none within
+    /// the age limit of any scan, or most outside the scans' times; frames that reach
+    /// some scans pass.
+    #[test]
+    fn frames_on_another_clock_or_never_reaching_a_scan_are_refused() {
+        let file = Path::new("log/camera.csv");
+        let scans = Some((0.0, 40.0));
+        let at_scans: Vec<f64> = (0..200).map(|k| k as f64 * 0.2).collect();
+        check_frame_times(file, &at_scans, scans, 200, 0.02).unwrap();
+        // A camera started late, over the last half of the log: accepted.
+        let late: Vec<f64> = at_scans.iter().map(|t| t + 20.0).filter(|t| *t <= 40.0).collect();
+        check_frame_times(file, &late, scans, 100, 0.02).unwrap();
+        let milliseconds: Vec<f64> = at_scans.iter().map(|t| t * 1000.0).collect();
+        let e = check_frame_times(file, &milliseconds, scans, 1, 0.02).unwrap_err().to_string();
+        assert!(e.starts_with("log/camera.csv: ") && e.contains("199 of the 200 frames lie outside"), "{e}");
+        let e = check_frame_times(file, &at_scans, scans, 0, 0.02).unwrap_err().to_string();
+        assert!(e.contains("image_max_age_s raised"), "{e}");
+        // Without frames or scans there is nothing to check.
+        check_frame_times(file, &[], scans, 0, 0.02).unwrap();
+        check_frame_times(file, &at_scans, None, 0, 0.02).unwrap();
+    }
+
+    /// A replay's --out may hold an earlier replay's outputs, not a log or a run's.
+    #[test]
+    fn a_replay_refuses_a_directory_holding_a_log_or_a_run() {
+        let dir = std::env::temp_dir().join(format!("objslam-replay-out-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        refuse_other_outputs(&dir).unwrap();
+        std::fs::write(dir.join(files::METADATA), r#"{"tool": "objslam replay"}"#).unwrap();
+        refuse_other_outputs(&dir).unwrap();
+        std::fs::write(dir.join(files::METADATA), r#"{"tool": "objslam run"}"#).unwrap();
+        let e = refuse_other_outputs(&dir).unwrap_err().to_string();
+        assert!(e.contains("the outputs of `objslam run`"), "{e}");
+        std::fs::write(dir.join(files::METADATA), "not json").unwrap();
+        assert!(refuse_other_outputs(&dir).is_err());
+        std::fs::remove_file(dir.join(files::METADATA)).unwrap();
+        std::fs::write(dir.join(robotlog::format::MANIFEST), "").unwrap();
+        let e = refuse_other_outputs(&dir).unwrap_err().to_string();
+        assert!(e.contains("a robot log"), "{e}");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 
     #[test]
     fn the_map_path_stays_bounded_and_keeps_its_ends() {
