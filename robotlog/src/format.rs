@@ -614,19 +614,18 @@ fn camera_rows(file: &Path) -> Result<RowsOf<CameraFrameFile>, LogError> {
 /// checked to have the manifest camera's size.
 pub fn read_frame(frame: &CameraFrameFile, camera: &crate::manifest::Camera) -> Result<RgbImage, LogError> {
     let file = &frame.file;
-    let image = image::open(file).map_err(|e| LogError::File { file: file.clone(), problem: e.to_string() })?;
-    if (image.width(), image.height()) != (camera.width, camera.height) {
+    let problem = |e: image::ImageError| LogError::File { file: file.clone(), problem: e.to_string() };
+    // The size from the header first: an image of another size is refused before it is
+    // decoded (a small file can hold a huge picture).
+    let reader = image::ImageReader::open(file).map_err(io(file))?.with_guessed_format().map_err(io(file))?;
+    let (width, height) = reader.into_dimensions().map_err(problem)?;
+    if (width, height) != (camera.width, camera.height) {
         return Err(LogError::File {
             file: file.clone(),
-            problem: format!(
-                "the image is {}x{}, the manifest's camera {}x{}",
-                image.width(),
-                image.height(),
-                camera.width,
-                camera.height
-            ),
+            problem: format!("the image is {width}x{height}, the manifest's camera {}x{}", camera.width, camera.height),
         });
     }
+    let image = image::open(file).map_err(problem)?;
     let rgb = image.into_rgb8();
     Ok(RgbImage { width: rgb.width(), height: rgb.height(), rgb: rgb.into_raw() })
 }

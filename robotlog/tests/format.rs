@@ -398,12 +398,20 @@ fn camera_files_and_tables_that_do_not_agree_are_errors() {
         ("width = 4", "width = 0", "camera.width: must be at least 1 pixel"),
         ("height = 3", "height = 0", "camera.height: must be at least 1 pixel"),
         ("fx = 2.0", "fx = -2.0", "camera.fx: must be finite and positive"),
+        ("fx = 2.0", "fx = 1e308", "camera.fx: 1e308 pixels: at most 1e7"),
+        ("translation_m = [0.0, 0.0, 0.1]", "translation_m = [-60.0, 0.0, 150.0]", "camera.translation_m: -6e1 m"),
     ] {
         assert!(manifest.contains(from), "{manifest}");
         std::fs::write(d.join("manifest.toml"), manifest.replace(from, to)).unwrap();
         let e = read_error();
         assert!(e.contains(expected) && e.contains("manifest.toml"), "{to}: {e}");
     }
+    // A rotation printed to six decimals is one (a yaw of 9 and a pitch of 18 degrees).
+    let printed =
+        "rotation = [[0.156434, -0.305212, 0.939347], [-0.987688, -0.048341, 0.148778], [0.0, -0.951057, -0.309017]]";
+    let rotation_line = manifest.lines().find(|l| l.starts_with("rotation = ")).unwrap();
+    std::fs::write(d.join("manifest.toml"), manifest.replace(rotation_line, printed)).unwrap();
+    robotlog::format::read(&d).unwrap();
     // A mirror (determinant -1) is no rotation either.
     let mirrored = manifest.replace("[-1.0, 0.0, 0.0]", "[1.0, 0.0, 0.0]");
     assert_ne!(mirrored, manifest);
