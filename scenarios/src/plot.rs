@@ -497,9 +497,14 @@ fn draw_failure_rate<DB: DrawingBackend>(
     };
     let (lo, hi) = axis_range(&xs);
     let pad = if hi > lo { 0.05 * (hi - lo) } else { 0.5 };
+    // The runs each point holds, which a partial merge or a study under way leaves short of
+    // the plan's.
+    let least = rows.iter().map(|r| r.runs).min().unwrap_or(0);
+    let most = rows.iter().map(|r| r.runs).max().unwrap_or(0);
+    let per_point = if least == most { format!("{most}") } else { format!("{least}-{most}") };
     let mut chart = ChartBuilder::on(&plot_area)
         .caption(
-            format!("{}: association-failure rate ({} runs per point, 95% CI)", plan.scenario, plan.runs),
+            format!("{}: association-failure rate ({per_point} runs per point, 95% CI)", plan.scenario),
             ("sans-serif", 20),
         )
         .margin(15)

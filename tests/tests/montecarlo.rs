@@ -70,6 +70,11 @@ fn sharded_merged_study_equals_the_unsharded_one_and_resumes() {
     let third = mc::jobs(&plan).iter().filter(|j| Shard { index: 2, count: 3 }.contains(j)).count();
     assert!(third > 0 && two.len() + third == merged.len());
     assert_eq!(mc::missing_runs(&plan, &two), third);
+    // Its plot says how many runs its points hold, not the plan's 3.
+    let svg = std::fs::read_to_string(root.join("merged-two/failure_rate.svg")).unwrap();
+    assert!(svg.contains("runs per point") && !svg.contains("(3 runs per point"), "{}", &svg[..svg.len().min(600)]);
+    let svg = std::fs::read_to_string(root.join("whole/failure_rate.svg")).unwrap();
+    assert!(svg.contains("(3 runs per point"));
     assert_same(&comparable(&merged), &comparable(&whole));
     let a = mc::summarise(&plan, &whole);
     let b = mc::summarise(&plan, &merged);
