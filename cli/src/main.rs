@@ -16,11 +16,31 @@ use clap::Parser;
 use crate::args::{Cli, Command, ConfigCommand, GmmCommand};
 
 fn main() {
+    quiet_on_closed_stdout();
+    if let Some(commit) = option_env!("OBJSLAM_COMMIT") {
+        scenarios::build::set(commit, option_env!("OBJSLAM_MODIFIED") == Some("true"));
+    }
     let cli = Cli::parse();
     if let Err(e) = dispatch(cli) {
         eprintln!("error: {}", report(&e));
         std::process::exit(2);
     }
+}
+
+/// Ends the program quietly, as a closed pipe's signal would, when what reads its output
+/// stops reading (`objslam gmm fit ... | head -2`): Rust ignores that signal, which a
+/// study's worker pipes need, so printing to a closed stdout panics instead.
+fn quiet_on_closed_stdout() {
+    let report = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        let payload = info.payload();
+        let message = payload.downcast_ref::<String>().map(String::as_str).or(payload.downcast_ref::<&str>().copied());
+        if message.is_some_and(|m| m.starts_with("failed printing to stdout") && m.contains("Broken pipe")) {
+            // 128 + SIGPIPE: what a shell reports for a program its pipe ended.
+            std::process::exit(141);
+        }
+        report(info)
+    }));
 }
 
 /// Most mixture components `--max-components` may ask for: far more than any search here

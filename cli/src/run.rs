@@ -21,6 +21,9 @@ pub(crate) fn run_scenario(
 ) -> Result<()> {
     let name = scenario.unwrap_or(scenarios::scenario::DEFAULT_SCENARIO);
     let (sc, base) = scenarios::scenario::Scenario::load(name)?;
+    for changed in scenarios::run::changed_inputs(std::path::Path::new(name)) {
+        eprintln!("warning: {changed}");
+    }
     let method = method.map(AssociationMethod::from);
     let seed = seed.unwrap_or(sc.seed);
     let out = out.unwrap_or_else(|| PathBuf::from(format!("runs/{}-{seed}", sc.name)));
@@ -65,14 +68,16 @@ fn check_robot_log_dir(dir: &std::path::Path) -> Result<()> {
 
 /// `objslam replay`: a robot log, or a published data set.
 pub(crate) fn replay(log: Option<PathBuf>, options: ReplayArgs, dataset: Option<ReplayDataset>) -> Result<()> {
-    let (log_dir, log, options): (_, robotlog::stream::LogStream, _) = match (dataset, log) {
+    let (log_dir, source, log, options): (_, _, robotlog::stream::LogStream, _) = match (dataset, log) {
         (Some(ReplayDataset::VictoriaPark { data, options }), _) => {
-            (None, robotlog::victoria_park::read(&data)?.into(), options.into())
+            let log = robotlog::victoria_park::read(&data)?.into();
+            let source = scenarios::replay::LogSource::of(&data, robotlog::victoria_park::FILES);
+            (None, source, log, options.into())
         }
         (None, Some(dir)) => {
             check_robot_log_dir(&dir)?;
             let log = robotlog::format::open(&dir)?;
-            (Some(dir), log, options)
+            (Some(dir.clone()), scenarios::replay::LogSource::of_robot_log(&dir), log, options)
         }
         (None, None) => anyhow::bail!("give a log directory, or a data set: `objslam replay victoria-park --data DIR`"),
     };
@@ -92,7 +97,7 @@ pub(crate) fn replay(log: Option<PathBuf>, options: ReplayArgs, dataset: Option<
         }
         None => None,
     };
-    let result = scenarios::replay::replay(log, config, appearance, Some(&out))?;
+    let result = scenarios::replay::replay_from(log, Some(&source), config, appearance, Some(&out))?;
     println!("{}", scenarios::replay::summary(&result.metrics));
     println!("  outputs in {}", out.display());
     Ok(())

@@ -41,8 +41,16 @@ fn negative_numbers_are_values_checked_like_any_other() {
         ),
         (vec!["montecarlo", "laser_only", "--runs", "-3"], "invalid value '-3' for '--runs <RUNS>'"),
         (vec!["run", "--method", "bogus"], "invalid value 'bogus' for '--method <METHOD>'"),
-        (vec!["calibrate", "calibration", "--poses", "0", "--out", out], "--poses must be 5..10000"),
-        (vec!["calibrate", "calibration", "--poses", "4", "--out", out], "needs at least 5 board poses), got 4"),
+        (vec!["calibrate", "calibration", "--poses", "0", "--out", out], "--poses 0: must be 5..10000"),
+        (
+            vec!["calibrate", "calibration", "--poses", "4", "--out", out],
+            "--poses 4: must be 5..10000 (a calibration needs at least 5",
+        ),
+        // Refused under the scenario's station_spacing_m before, a key the user never gave.
+        (
+            vec!["calibrate", "calibration", "--poses", "400", "--out", out],
+            "--poses 400: the stations would stand in a line 4788 m long",
+        ),
         (vec!["calibrate", "calibration", "--out", &under_a_file], "is a file, not a directory"),
         (
             vec!["dataset", "--images", "1", "--classes", "tree,person", "--out", out],

@@ -31,6 +31,8 @@ pub const DETECTIONS_FILE: &str = "VictoriaParkSinSincronizar.mat";
 pub const DEAD_RECKONING_FILE: &str = "aa3_dr.mat";
 pub const LASER_FILE: &str = "aa3_lsr2.mat";
 pub const GPS_FILE: &str = "aa3_gpsx.mat";
+/// Every file of the data set the reader may read.
+pub const FILES: &[&str] = &[DETECTIONS_FILE, DEAD_RECKONING_FILE, LASER_FILE, GPS_FILE];
 
 /// Wheelbase (m).
 pub const WHEELBASE_M: f64 = 2.83;

@@ -60,8 +60,8 @@ pub enum CalibrateError {
     #[error("{}: cannot write: {source}", file.display())]
     Write { file: PathBuf, source: std::io::Error },
     /// The number of poses asked for in place of the scenario's.
-    #[error("--poses must be 5..10000 (a calibration needs at least 5 board poses), got {0}")]
-    Poses(usize),
+    #[error("--poses {poses}: {problem}")]
+    Poses { poses: usize, problem: String },
 }
 
 /// `[calibration.session.segmentation]`: the keys given, each replacing the value the
@@ -613,6 +613,30 @@ pub fn rigid_to_extrinsics(r: &Rigid) -> Extrinsics {
     Extrinsics { phi: r.r, delta: r.t }
 }
 
+/// Checks `--poses` against the session's spacing, so that a line of stations too long is
+/// refused as the option's fault rather than the scenario's `station_spacing_m`.
+fn check_poses_override(poses: usize, spacing_m: f64) -> Result<(), CalibrateError> {
+    let problem = if !POSES.contains(&poses) {
+        format!(
+            "must be {}..{} (a calibration needs at least {} board poses)",
+            POSES.start(),
+            POSES.end(),
+            POSES.start()
+        )
+    } else if (poses - 1) as f64 * spacing_m > MAX_STATION_SPAN_M {
+        // Only a positive spacing makes the line too long, so the division is sound.
+        let most = (MAX_STATION_SPAN_M / spacing_m).floor() as usize + 1;
+        format!(
+            "the stations would stand in a line {:.0} m long at the scenario's calibration.session.station_spacing_m \
+             ({spacing_m} m), more than {MAX_STATION_SPAN_M} m; at most {most} poses at that spacing",
+            (poses - 1) as f64 * spacing_m
+        )
+    } else {
+        return Ok(());
+    };
+    Err(CalibrateError::Poses { poses, problem })
+}
+
 /// Runs the calibration session of a scenario with `seed`; `poses` overrides the
 /// session's number of poses; with `images`, each pose's camera image is written there
 /// (`pose_NN.png`, detected corners marked in red).
@@ -627,9 +651,7 @@ pub fn run_session(
     let file = PathBuf::from(scenario.describe());
     let mut config = scenario.calibration.session.clone();
     if let Some(p) = poses {
-        if !POSES.contains(&p) {
-            return Err(CalibrateError::Poses(p));
-        }
+        check_poses_override(p, config.station_spacing_m)?;
         config.poses = p;
     }
     config.check(&file, &scenario.sim)?;
@@ -762,7 +784,7 @@ pub fn calibrate_stations(
     let (rot_err, trans_err) = est.error_to(&truth);
     Ok(CalibrationReport {
         format_version: CALIBRATION_FORMAT_VERSION,
-        tool: format!("objslam calibrate {}", env!("CARGO_PKG_VERSION")),
+        tool: format!("objslam calibrate {}", crate::build::describe()),
         scenario: String::new(),
         seed,
         phi: est.phi,
@@ -1036,6 +1058,18 @@ mod tests {
         let st = plan_stations(&config, &SimConfig::default(), 1);
         let world = range_world(&st, &worlds::generate::park(&Default::default(), 1).unwrap()).unwrap();
         assert_eq!(world.objects.len(), 2 * *POSES.end());
+    }
+
+    #[test]
+    fn poses_asked_for_are_checked_against_the_spacing() {
+        let spacing = SessionConfig::default().station_spacing_m;
+        let most = (MAX_STATION_SPAN_M / spacing) as usize + 1;
+        assert!(check_poses_override(most, spacing).is_ok());
+        let e = check_poses_override(most + 1, spacing).unwrap_err().to_string();
+        assert!(e.starts_with(&format!("--poses {}: the stations would stand", most + 1)), "{e}");
+        assert!(e.contains(&format!("at most {most} poses at that spacing")), "{e}");
+        let e = check_poses_override(4, spacing).unwrap_err().to_string();
+        assert!(e.contains("--poses 4: must be 5..10000"), "{e}");
     }
 
     #[test]

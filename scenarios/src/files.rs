@@ -9,6 +9,9 @@ pub const WORLD: &str = "world.toml";
 pub const SENSORS: &str = "sensors.json";
 /// What the run was: scenario, seed, resolved configuration, versions.
 pub const METADATA: &str = "metadata.json";
+/// The scenario a run ran, every setting written out and its files named by absolute
+/// path: `objslam run DIR/scenario.toml` runs it again.
+pub const SCENARIO: &str = "scenario.toml";
 /// A run's scores.
 pub const METRICS: &str = "metrics.json";
 /// Laser scans, one JSON line each.
@@ -99,6 +102,7 @@ pub const RUN_OUTPUTS: &[&str] = &[
     WORLD,
     SENSORS,
     METADATA,
+    SCENARIO,
     METRICS,
     LASER,
     LASER_TRUTH,

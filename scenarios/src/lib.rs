@@ -11,6 +11,7 @@
 //! ```
 
 pub mod appearance;
+pub mod build;
 pub mod calibrate;
 pub mod dataset;
 pub mod files;

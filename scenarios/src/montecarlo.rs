@@ -168,6 +168,9 @@ struct StudyFile {
     plan: StudyPlan,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     scenario_pin: Option<ScenarioPin>,
+    /// The build that began the study; runs resumed or merged later may be another's.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    build: Option<crate::build::Build>,
 }
 
 /// Reads `file`, a `study.json`; `hint` is added to the message where it is not a plan.
@@ -797,7 +800,8 @@ pub fn run_study_with(
     let (pin, base_scenario, base_dir) = pin_scenario(&plan.scenario)?;
     check_values_differ(plan, &base_scenario)?;
     if !existing_study(plan, &pin, out)? {
-        let study = StudyFile { plan: plan.clone(), scenario_pin: Some(pin.clone()) };
+        let study =
+            StudyFile { plan: plan.clone(), scenario_pin: Some(pin.clone()), build: Some(crate::build::current()) };
         write_atomically(&plan_file, &serde_json::to_string_pretty(&study).expect("JSON"))?
     }
     let models = StudyModels::new(&base_dir);
@@ -864,7 +868,7 @@ pub fn run_study_with(
             .collect(),
         Workers::Processes { exe, count, run_timeout } => {
             // Workers load the scenario themselves: they are told which one the study pinned.
-            let start = StudyFile { plan: plan.clone(), scenario_pin: Some(pin.clone()) };
+            let start = StudyFile { plan: plan.clone(), scenario_pin: Some(pin.clone()), build: None };
             workers::run_in_processes(&start, &todo, exe, *count, *run_timeout, &record_finished)?
         }
     };
@@ -886,9 +890,43 @@ pub fn run_study_with(
     all.sort_by_key(|r| r.job.index);
     // The summary is the study's too: written while the directory is still held, so that
     // another study starting there cannot write its own between.
+    one_model_per_setting(&all, &runs_file)?;
     write_summary(plan, &summarise(plan, &all), out)?;
     drop(held);
     Ok(all)
+}
+
+/// Refuses runs of one setting (method and parameter values) made with different
+/// appearance models: a study resumed, or shards run, where another model was cached
+/// (another `OBJSLAM_CACHE`, renderer or build trained it) would pool two methods' figures
+/// as one. `file` names the runs in the error.
+fn one_model_per_setting(runs: &[RunRecord], file: &Path) -> Result<(), StudyError> {
+    let mut models: BTreeMap<(usize, &str), BTreeMap<&str, Vec<usize>>> = BTreeMap::new();
+    for r in runs {
+        let digest = r.metrics.as_ref().and_then(|m| m.appearance_model.as_ref()).and_then(|p| p.digest.as_deref());
+        if let Some(digest) = digest {
+            let setting = (r.job.index - r.job.run, r.job.method.as_str());
+            models.entry(setting).or_default().entry(digest).or_default().push(r.job.index);
+        }
+    }
+    let Some((_, by_digest)) = models.iter().find(|(_, by_digest)| by_digest.len() > 1) else { return Ok(()) };
+    let used: Vec<String> = by_digest
+        .iter()
+        .map(|(digest, jobs)| {
+            let shown: Vec<String> = jobs.iter().take(5).map(|j| j.to_string()).collect();
+            let more = if jobs.len() > 5 { format!(" and {} more", jobs.len() - 5) } else { String::new() };
+            format!("model {digest} in jobs {}{more}", shown.join(", "))
+        })
+        .collect();
+    Err(StudyError::File {
+        file: file.into(),
+        message: format!(
+            "runs of one setting used different appearance models ({}): the study was resumed, or its shards run, where \
+             another model was cached (another OBJSLAM_CACHE, renderer or build); keep the runs of one model and run \
+             the others again",
+            used.join("; ")
+        ),
+    })
 }
 
 /// Whether `out` can take `plan`'s study, without writing anything: `plan` is sound, and
@@ -1245,6 +1283,7 @@ fn merge_held(dirs: &[PathBuf], out: &Path) -> Result<(StudyPlan, Vec<RunRecord>
         plan.ok_or_else(|| StudyError::File { file: out.into(), message: "no shard directories given".into() })?;
     let mut runs: Vec<RunRecord> = by_key.into_values().collect();
     runs.sort_by_key(|r| r.job.index);
+    one_model_per_setting(&runs, out)?;
     write_atomically(&out.join("study.json"), &serde_json::to_string_pretty(&study).expect("JSON"))?;
     let lines: String = runs.iter().map(|r| serde_json::to_string(r).expect("JSON") + "\n").collect();
     write_atomically(&out.join("runs.jsonl"), &lines)?;
@@ -1760,5 +1799,36 @@ mod tests {
         let rows = summarise(&plan, &[record(0, false), record(1, true)]);
         assert_eq!((rows.len(), rows[0].runs, rows[0].errors), (1, 1, 1));
         assert_eq!(missing_runs(&plan, &[record(0, false), record(1, true)]), 1);
+    }
+
+    /// Runs of one setting made with two appearance models are refused; each setting may
+    /// have its own (a varied training seed trains another).
+    #[test]
+    fn runs_of_one_setting_with_two_models_are_refused() {
+        let plan = StudyPlan {
+            scenario: "x".into(),
+            base_seed: 1,
+            runs: 2,
+            methods: vec!["combined".into()],
+            vary: vec![Vary { param: "appearance.training_seed".into(), values: vec![1.0, 2.0] }],
+        };
+        let all = jobs(&plan);
+        let record = |k: usize, digest: &str| {
+            let mut m: Metrics =
+                serde_json::from_str(include_str!("../tests/data/metrics_sample.json")).expect("the sample parses");
+            m.appearance_model = Some(crate::run::ModelProvenance {
+                training_seed: 1,
+                training_images: 1,
+                training_renderer: None,
+                digest: Some(digest.into()),
+            });
+            RunRecord { key: all[k].key(), job: all[k].clone(), metrics: Some(m), error: None, retryable: false }
+        };
+        let file = Path::new("runs.jsonl");
+        // Jobs 0 and 1 are one setting's two runs, 2 and 3 the other's.
+        assert!(one_model_per_setting(&[record(0, "a"), record(1, "a"), record(2, "b"), record(3, "b")], file).is_ok());
+        let e = one_model_per_setting(&[record(0, "a"), record(1, "c"), record(2, "b")], file).unwrap_err().to_string();
+        assert!(e.contains("model a in jobs 0; model c in jobs 1"), "{e}");
+        assert!(e.starts_with("runs.jsonl: runs of one setting used different appearance models"), "{e}");
     }
 }

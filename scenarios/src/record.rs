@@ -420,6 +420,7 @@ pub fn provenance(
     json!({
         "tool": tool,
         "version": env!("CARGO_PKG_VERSION"),
+        "build": crate::build::current(),
         "seed": seed,
         "world": {"name": world.name, "seed": world.seed},
         "sim_config": config,

@@ -138,29 +138,43 @@ fn frames_that_later_scans_may_read_are_rendered_whole() {
     }
 }
 
-/// The scenario `metadata.json` records is the run's, command-line seed and method written
-/// in: run alone, it gives the same run.
+/// The scenario a run writes (`scenario.toml`) is the run's, command-line seed and method
+/// written in and files named by absolute path: run alone, it gives the same run; once a
+/// file it names has changed, running it again says so.
 #[test]
 fn recorded_scenario_runs_the_run_again() {
     let dir = std::env::temp_dir().join(format!("objslam-as-run-{}", std::process::id()));
-    let (mut sc, base) = Scenario::load("laser_only").unwrap();
+    let inputs = dir.join("inputs");
+    std::fs::create_dir_all(&inputs).unwrap();
+    let world_file = inputs.join("w.toml");
+    std::fs::write(&world_file, worlds::generate::park(&Default::default(), 5).unwrap().to_toml()).unwrap();
+    let (mut sc, _) = Scenario::load("laser_only").unwrap();
+    sc.world = scenarios::scenario::WorldSource { preset: None, file: Some("w.toml".into()), seed: None, params: None };
     sc.sim.max_duration_s = Some(20.0);
+    let out = dir.join("run");
     let options = RunOptions {
         seed: Some(3),
         method: Some(slam::association::AssociationMethod::Nn),
-        out: Some(dir.clone()),
+        out: Some(out.clone()),
         ..Default::default()
     };
-    let first = run(&sc, &base, &options, |_| {}).unwrap().metrics;
-    let meta: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("metadata.json")).unwrap()).unwrap();
-    let recorded: Scenario = serde_json::from_value(meta["configuration"]["scenario"].clone()).unwrap();
+    let first = run(&sc, &inputs, &options, |_| {}).unwrap().metrics;
+    let written = out.join("scenario.toml");
+    let (recorded, base) = Scenario::load(written.to_str().unwrap()).unwrap();
     assert_eq!((recorded.seed, recorded.pipeline.method), (3, slam::association::AssociationMethod::Nn));
+    assert_eq!(recorded.world.file.as_deref(), Some(std::path::absolute(&world_file).unwrap().to_str().unwrap()));
     let again = run(&recorded, &base, &RunOptions::default(), |_| {}).unwrap().metrics;
     let figures =
         |m: &scenarios::run::Metrics| (m.seed, m.method.clone(), m.ate_rmse_m, m.landmarks, m.associations.total);
     assert_eq!(figures(&again), figures(&first));
     assert_ne!(first.seed, sc.seed, "the test must override the scenario's seed");
+    assert_eq!(scenarios::run::changed_inputs(&written), Vec::<String>::new());
+    std::fs::write(&world_file, std::fs::read_to_string(&world_file).unwrap() + "# moved a tree\n").unwrap();
+    let changed = scenarios::run::changed_inputs(&written);
+    assert!(
+        changed.len() == 1 && changed[0].starts_with("world file ") && changed[0].contains("has changed"),
+        "{changed:?}"
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

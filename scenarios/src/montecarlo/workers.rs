@@ -271,7 +271,8 @@ mod tests {
         let (pin, _, _) = super::super::pin_scenario("laser_only").unwrap();
         let start = |sha256: &str| {
             let pin = ScenarioPin { file: pin.file.clone(), sha256: sha256.into() };
-            serde_json::to_string(&StudyFile { plan: plan.clone(), scenario_pin: Some(pin) }).unwrap() + "\n"
+            serde_json::to_string(&StudyFile { plan: plan.clone(), scenario_pin: Some(pin), build: None }).unwrap()
+                + "\n"
         };
         let mut answers = Vec::new();
         let e = serve_worker(start("0000").as_bytes(), &mut answers).unwrap_err().to_string();

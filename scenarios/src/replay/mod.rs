@@ -324,12 +324,76 @@ pub fn replay(
     appearance: Option<AppearanceModel>,
     out: Option<&Path>,
 ) -> Result<Replay, ReplayError> {
+    replay_from(log, None, config, appearance, out)
+}
+
+/// [`replay`] of a log read from `source`, which `metadata.json` names so that the replay
+/// can be traced to its data.
+pub fn replay_from(
+    log: impl Into<LogStream>,
+    source: Option<&LogSource>,
+    config: PipelineConfig,
+    appearance: Option<AppearanceModel>,
+    out: Option<&Path>,
+) -> Result<Replay, ReplayError> {
     if let Some(dir) = out {
         refuse_other_outputs(dir)?;
     }
     // Held until the outputs are published or abandoned.
     let lock = out.map(crate::partial_files::lock_output).transpose()?;
-    crate::partial_files::abandon_if_failed(lock, out, replay_and_write(log.into(), config, appearance, out))
+    let replayed = replay_and_write(log.into(), source, config, appearance, out);
+    crate::partial_files::abandon_if_failed(lock, out, replayed)
+}
+
+/// Where a replayed log was read: its directory and the data files read there, each with
+/// its SHA-256 as the replay found it (`None`: unreadable).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct LogSource {
+    pub dir: PathBuf,
+    pub files: Vec<SourceFile>,
+}
+
+/// A file of a [`LogSource`].
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SourceFile {
+    pub name: String,
+    pub sha256: Option<String>,
+}
+
+impl LogSource {
+    /// The files of `names` that `dir` holds, with their digests.
+    pub fn of(dir: &Path, names: &[&str]) -> LogSource {
+        use sha2::{Digest, Sha256};
+        let files = names
+            .iter()
+            .filter(|name| dir.join(name).is_file())
+            .map(|name| {
+                let digest = std::fs::read(dir.join(name))
+                    .ok()
+                    .map(|bytes| Sha256::digest(&bytes).iter().map(|b| format!("{b:02x}")).collect());
+                SourceFile { name: name.to_string(), sha256: digest }
+            })
+            .collect();
+        LogSource { dir: std::path::absolute(dir).unwrap_or_else(|_| dir.to_path_buf()), files }
+    }
+
+    /// A robot log's own files (docs/reference/robot-log.md); camera images apart, which
+    /// `camera.csv` names.
+    pub fn of_robot_log(dir: &Path) -> LogSource {
+        use robotlog::format as f;
+        let names = [
+            f::MANIFEST,
+            f::ODOMETRY,
+            f::SCANS,
+            f::DETECTIONS,
+            f::REFERENCE,
+            f::CAMERA,
+            files::PIPELINE,
+            files::APPEARANCE_MODEL,
+            files::RECORDING,
+        ];
+        Self::of(dir, &names)
+    }
 }
 
 /// Refuses an output directory that holds a robot log, or another command's outputs (a
@@ -382,6 +446,7 @@ const REPLAY_TOOL: &str = "objslam replay";
 
 fn replay_and_write(
     log: LogStream,
+    source: Option<&LogSource>,
     config: PipelineConfig,
     appearance: Option<AppearanceModel>,
     out: Option<&Path>,
@@ -591,7 +656,7 @@ fn replay_and_write(
     let result = Replay { metrics, landmarks, config, path: path.points() };
     if let (Some(dir), Some(unfinished), Some(streams)) = (out, unfinished, streams) {
         streams.finish()?;
-        write_outputs(&unfinished, &log.manifest, (&paired.drawn, &paired.dropped), &result)
+        write_outputs(&unfinished, &log.manifest, source, (&paired.drawn, &paired.dropped), &result)
             .map_err(|e| ReplayError::Unpublished { dir: unfinished.clone(), source: Box::new(e) })?;
         crate::partial_files::publish(&unfinished, dir, &[], files::METADATA).map_err(ReplayError::Publish)?;
     }
@@ -749,6 +814,7 @@ fn peak_memory_mb() -> Option<f64> {
 fn write_outputs(
     out: &Path,
     manifest: &Manifest,
+    source: Option<&LogSource>,
     (reference, dropped): (&[[f64; 2]], &[[f64; 2]]),
     replay: &Replay,
 ) -> Result<(), ReplayError> {
@@ -762,7 +828,9 @@ fn write_outputs(
         serde_json::to_string_pretty(&json!({
             "tool": REPLAY_TOOL,
             "version": env!("CARGO_PKG_VERSION"),
+            "build": crate::build::current(),
             "log": manifest,
+            "source": source,
             "configuration": replay.config,
             "appearance_model": replay.metrics.appearance_model,
         }))
@@ -841,6 +909,20 @@ mod tests {
     /// Frames a camera method could not use are refused, naming camera.csv: none within
     /// the age limit of any scan, or most outside the scans' times; frames that reach
     /// some scans pass.
+    #[test]
+    fn a_logs_source_names_its_files_with_their_digests() {
+        let dir = std::env::temp_dir().join(format!("objslam-log-source-{}", std::process::id()));
+        std::fs::create_dir_all(dir.join("camera.csv")).unwrap();
+        std::fs::write(dir.join("manifest.toml"), "abc").unwrap();
+        std::fs::write(dir.join("notes.txt"), "not the log's").unwrap();
+        let source = LogSource::of_robot_log(&dir);
+        assert!(source.dir.is_absolute());
+        // sha256sum of "abc"; a directory of a data file's name and other files are left out.
+        let expected = "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad";
+        assert_eq!(source.files, vec![SourceFile { name: "manifest.toml".into(), sha256: Some(expected.into()) }]);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
     #[test]
     fn frames_on_another_clock_or_never_reaching_a_scan_are_refused() {
         let file = Path::new("log/camera.csv");

@@ -157,7 +157,7 @@ pub fn resolve_calibration(scenario: &Scenario, base_dir: &Path, seed: u64) -> R
                 key: "calibration",
                 message: e.to_string(),
             })?;
-            ("file", Some(file), e, None)
+            ("file", Some(std::path::absolute(&file).unwrap_or(file)), e, None)
         }
     };
     let (rotation_error_deg, translation_error_m) = extrinsics.error_to(&truth);
@@ -540,8 +540,14 @@ fn run_and_write(
     let mut as_run = scenario.with_absolute_paths(base_dir);
     as_run.seed = seed;
     as_run.pipeline.method = config.method;
+    // A preset's parameters as generated, so that another build's defaults do not decide.
+    if as_run.world.preset.as_deref() == Some("park") && as_run.world.params.is_none() {
+        as_run.world.params = Some(worlds::generate::ParkParams::default());
+    }
     let resolved = json!({
         "scenario": as_run,
+        // What the files the scenario names held, to tell a later run of it whether they changed.
+        "inputs": input_digests(scenario, base_dir),
         "seed": seed,
         "sim_seed": sim::derive_seed(seed, "sim"),
         "world": world,
@@ -567,6 +573,7 @@ fn run_and_write(
             pipeline: &pipeline,
             metrics: &metrics,
             resolved: &resolved,
+            as_run: &as_run,
             log: &log,
             landmark_objects: &scored.landmark_objects,
             sim_config: &sim_config,
@@ -577,6 +584,60 @@ fn run_and_write(
         publish_outputs(&unfinished, out)?;
     }
     Ok(RunOutcome { metrics, resolved })
+}
+
+/// Each file a run of `scenario` reads, with what it is and its SHA-256 (`null` where it
+/// cannot be read: the run has failed on it already, or it changed under the run).
+fn input_digests(scenario: &Scenario, base_dir: &Path) -> Vec<serde_json::Value> {
+    use sha2::{Digest, Sha256};
+    scenario
+        .input_files(base_dir)
+        .into_iter()
+        .map(|(what, file)| {
+            let file = std::path::absolute(&file).unwrap_or(file);
+            let sha256 = std::fs::read(&file)
+                .ok()
+                .map(|bytes| Sha256::digest(&bytes).iter().map(|b| format!("{b:02x}")).collect::<String>());
+            json!({"what": what, "file": file, "sha256": sha256})
+        })
+        .collect()
+}
+
+/// Where `scenario_file` is the `scenario.toml` a run wrote, the files its run read that
+/// differ now from what that run's `metadata.json` recorded, in words: running it again
+/// would not repeat that run. Empty for any other scenario file.
+pub fn changed_inputs(scenario_file: &Path) -> Vec<String> {
+    use sha2::{Digest, Sha256};
+    let beside = |name: &str| scenario_file.parent().map(|d| d.join(name));
+    if scenario_file.file_name().is_none_or(|n| n != files::SCENARIO) {
+        return Vec::new();
+    }
+    let Some(metadata) = beside(files::METADATA).and_then(|f| std::fs::read_to_string(f).ok()) else {
+        return Vec::new();
+    };
+    let Ok(metadata) = serde_json::from_str::<serde_json::Value>(&metadata) else { return Vec::new() };
+    if metadata["tool"] != "objslam run" {
+        return Vec::new();
+    }
+    let recorded = metadata["configuration"]["inputs"].as_array().cloned().unwrap_or_default();
+    recorded
+        .iter()
+        .filter(|input| input["what"] != "scenario file")
+        .filter_map(|input| {
+            let (what, file, then) = (input["what"].as_str()?, input["file"].as_str()?, input["sha256"].as_str()?);
+            let now = std::fs::read(file).ok().map(|b| Sha256::digest(&b).iter().map(|b| format!("{b:02x}")).collect::<String>());
+            match now {
+                Some(now) if now == then => None,
+                Some(now) => Some(format!(
+                    "{what} {file} has changed since the run that wrote {} read it (SHA-256 {} then, {} now): this run will not repeat that one",
+                    scenario_file.display(),
+                    &then[..then.len().min(12)],
+                    &now[..12]
+                )),
+                None => Some(format!("{what} {file} cannot be read any more: the run that wrote {} read it", scenario_file.display())),
+            }
+        })
+        .collect()
 }
 
 /// The appearance model a camera method needs: the one given, or the scenario's (trained on

@@ -102,6 +102,8 @@ pub(super) struct FinishedRun<'a> {
     pub metrics: &'a Metrics,
     /// The resolved configuration (metadata.json's `configuration`).
     pub resolved: &'a serde_json::Value,
+    /// The scenario as run: seed and method written in, files named by absolute path.
+    pub as_run: &'a crate::scenario::Scenario,
     pub log: &'a RunLog,
     pub landmark_objects: &'a HashMap<u32, u16>,
     /// The simulator as it ran, and how `objslam score` is to score the directory as a log.
@@ -127,7 +129,7 @@ pub(super) fn write_outputs(out: &Path, run: &FinishedRun, streams: StreamedOutp
 /// metrics.json, the log's own files (world, sensors, collisions, metadata), the
 /// trajectories, decisions, solves and landmarks; the files that could not be written.
 fn write_texts(out: &Path, run: &FinishedRun) -> Vec<RunError> {
-    let FinishedRun { world, pipeline, metrics, resolved, log, landmark_objects, sim_config, scoring } = *run;
+    let FinishedRun { world, pipeline, metrics, resolved, as_run, log, landmark_objects, sim_config, scoring } = *run;
     let (est, gt) = (&log.estimate, &log.truth);
     let solves = &log.solves;
     let errors = std::cell::RefCell::new(Vec::new());
@@ -148,6 +150,7 @@ fn write_texts(out: &Path, run: &FinishedRun) -> Vec<RunError> {
         &serde_json::to_string_pretty(&json!({
             "tool": "objslam run",
             "version": env!("CARGO_PKG_VERSION"),
+            "build": crate::build::current(),
             "seed": metrics.seed,
             "renderer": metrics.renderer,
             "appearance_model": metrics.appearance_model,
@@ -158,6 +161,14 @@ fn write_texts(out: &Path, run: &FinishedRun) -> Vec<RunError> {
         }))
         .expect("JSON"),
     );
+    match scenario_file(as_run) {
+        Ok(text) => write(files::SCENARIO, &text),
+        Err(message) => errors.borrow_mut().push(RunError::NamedFile {
+            scenario: as_run.describe(),
+            key: "scenario.toml",
+            message: format!("cannot be written as TOML: {message}"),
+        }),
+    }
     let tum = |path: &[(f64, [f64; 3])]| {
         let mut s = String::from(crate::record::TUM_HEADER);
         for (t, p) in path {
@@ -302,6 +313,18 @@ fn write_mcap(out: &Path, run: &FinishedRun) -> Result<(), RunError> {
     )?;
     mcap.finish()?;
     Ok(())
+}
+
+/// `scenario.toml`: the scenario as run, runnable as it is, after a header saying so.
+fn scenario_file(as_run: &crate::scenario::Scenario) -> Result<String, String> {
+    let body = toml::to_string(as_run).map_err(|e| e.to_string())?;
+    Ok(format!(
+        "# The scenario of the run in this directory, with its seed and method, every setting written out and\n\
+         # its files named by absolute path: `objslam run scenario.toml --out NEW` runs that run again.\n\
+         # metadata.json's configuration.inputs gives the SHA-256 each of those files had then.\n\
+         # Written by objslam {}.\n\n{body}",
+        crate::build::describe()
+    ))
 }
 
 #[cfg(test)]
