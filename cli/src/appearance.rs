@@ -18,6 +18,30 @@ pub(crate) fn train(args: &crate::args::TrainArgs) -> Result<()> {
             crate::paths::writable_file(flag, file)?;
         }
     }
+    // No output replaces a dataset's file or another output.
+    let outputs: Vec<(&str, &std::path::Path)> = [
+        ("--out", Some(out)),
+        ("--export-features", args.export_features.as_deref()),
+        ("--heldout-report", args.heldout_report.as_deref()),
+    ]
+    .into_iter()
+    .filter_map(|(flag, file)| Some((flag, file?)))
+    .collect();
+    for (i, (flag, file)) in outputs.iter().enumerate() {
+        if let Some(d) = std::iter::once(dataset)
+            .chain(args.heldout_dataset.iter().map(|p| p.as_path()))
+            .find(|d| scenarios::dataset::owns(d, file))
+        {
+            anyhow::bail!(
+                "{flag} {}: a file of the dataset {}, which it would replace; write it elsewhere",
+                file.display(),
+                d.display()
+            );
+        }
+        if let Some((other, _)) = outputs[..i].iter().find(|(_, o)| scenarios::partial_files::same_path(o, file)) {
+            anyhow::bail!("{flag} {}: {other} writes there too; give each its own file", file.display());
+        }
+    }
     let options = slam::classifier::TrainingOptions {
         pca_dims: *pca_dims,
         seed: *seed,
@@ -32,7 +56,7 @@ pub(crate) fn train(args: &crate::args::TrainArgs) -> Result<()> {
     // model's patches, and some images.
     let trained_on = scenarios::train::read_manifest(dataset)?;
     for other in &args.heldout_dataset {
-        scenarios::train::read_heldout_manifest(other, dataset, &trained_on, options.features.patch_size)
+        scenarios::train::read_heldout_manifest(other, dataset, &trained_on, trained_on.patch_size)
             .map_err(|e| anyhow::anyhow!("--heldout-dataset {e}"))?;
     }
     let bar = progress::training("train");
@@ -191,6 +215,7 @@ pub(crate) fn find(
     model: Option<&std::path::Path>,
     top: usize,
 ) -> Result<()> {
+    anyhow::ensure!(top >= 1, "--top must be at least 1, got 0");
     let runs_model = run.join(files::OBJECTS_DIR).join(files::APPEARANCE_MODEL);
     if !run.join(files::OBJECTS_DIR).join(files::OBJECT_MODELS).is_file() {
         anyhow::bail!(

@@ -182,6 +182,12 @@ pub(crate) fn dataset(
 ) -> Result<()> {
     let (w, name) = match (world, preset) {
         (Some(path), None) => {
+            anyhow::ensure!(
+                !scenarios::dataset::owns(out, &path),
+                "--world {}: a file of the dataset in {}, which the new dataset replaces; copy it elsewhere first",
+                path.display(),
+                out.display()
+            );
             let mut world = worlds::load(&path)?;
             world.resolve_mesh_paths(&path);
             (world, path.display().to_string())
@@ -207,6 +213,9 @@ pub(crate) fn dataset(
             None => Err(anyhow::anyhow!("--classes: unknown class {c:?}; classes: {}", AIMED.join(", "))),
         })
         .collect::<Result<Vec<_>>>()?;
+    if let Some(i) = (1..classes.len()).find(|&i| classes[..i].contains(&classes[i])) {
+        anyhow::bail!("--classes: {:?} is named twice", classes[i].name());
+    }
     let config = scenarios::dataset::DatasetConfig { images, seed, classes, patch_size, ..Default::default() };
     let bar = progress::images(images);
     let started = std::time::Instant::now();

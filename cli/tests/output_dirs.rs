@@ -238,6 +238,36 @@ fn an_output_that_is_an_input_is_refused_and_the_input_kept() {
             "--export-features run: is a",
         ),
         (vec!["gmm", "fit", "data.csv", "--out", "run"], "--out run: is a directory"),
+        // A training's outputs had replaced its own dataset's manifest, or each other.
+        (vec!["train", "--dataset", "images", "--out", "images/dataset.json"], "a file of the dataset images"),
+        (vec!["train", "--dataset", "images", "--out", "images/labels/x.json"], "a file of the dataset images"),
+        (
+            vec![
+                "train",
+                "--dataset",
+                "images",
+                "--heldout-dataset",
+                "copy",
+                "--heldout-report",
+                "copy/world.toml",
+                "--out",
+                "m.json",
+            ],
+            "a file of the dataset copy",
+        ),
+        (
+            vec!["train", "--dataset", "images", "--export-features", "m.json", "--out", "m.json"],
+            "--out writes there too",
+        ),
+        // A dataset had replaced the user's own folders and world file in a directory
+        // that holds no dataset.
+        (vec!["dataset", "--images", "1", "--out", "."], "but no dataset.json, so it is not an earlier dataset"),
+        (
+            vec!["dataset", "--world", "images/world.toml", "--images", "1", "--out", "images"],
+            "a file of the dataset in images",
+        ),
+        (vec!["dataset", "--classes", "tree,post,tree", "--images", "1", "--out", "twice"], "\"tree\" is named twice"),
+        (vec!["find", "--run", "run", "image.png", "--top", "0"], "--top must be at least 1"),
     ] {
         let o = objslam(&root, &args);
         assert!(!o.status.success(), "{args:?} succeeded");
@@ -270,9 +300,12 @@ fn held_out_datasets_that_would_measure_nothing_held_out_are_refused_before_trai
     m["images"] = serde_json::json!([]);
     std::fs::write(&manifest, m.to_string()).unwrap();
     for (held_out, expect) in [
-        ("same", "--heldout-dataset same: shows the world of the training dataset tr (w.toml: the same world.toml)"),
+        (
+            "same",
+            "--heldout-dataset same: shows the world of the training dataset tr (w.toml: the same ground, objects and people)",
+        ),
         ("post", "post/dataset.json: labelled for the classes post, and the training dataset tr for tree"),
-        ("p8", "p8/dataset.json: patch_size is 8, the model uses 9"),
+        ("p8", "p8/dataset.json: patch_size is 8, the model's patches are 9 px"),
         ("empty", "empty/dataset.json: images: [] (no image): a held-out dataset with no image scores nothing"),
     ] {
         let o = objslam(&root, &["train", "--dataset", "tr", "--heldout-dataset", held_out, "--out", "m.json"]);

@@ -212,12 +212,47 @@ pub fn make_dataset(
 ) -> Result<Manifest, DatasetError> {
     use crate::partial_files as staging;
     check_config(world, config)?;
+    check_out(out)?;
     let (manifest, _held) =
         staging::write_unfinished(out, |dir| write_dataset(world, world_name, config, dir, progress))?;
     // The manifest is the marker: the earlier one removed first, this one moved in last,
     // so a publish stopped midway leaves no manifest, not a mix.
     staging::publish(&staging::unfinished_dir(out), out, &[], "dataset.json").map_err(DatasetError::Publish)?;
     Ok(manifest)
+}
+
+/// The names a dataset writes in its directory, each replaced whole by the next dataset's.
+pub const OUTPUTS: &[&str] = &["dataset.json", "annotations.json", files::WORLD, "images", "masks", "labels"];
+
+/// Refuses an `out` that holds a name a dataset replaces but is no earlier dataset (it has
+/// no `dataset.json`): a user's own `images/` or `world.toml` would be lost.
+fn check_out(out: &Path) -> Result<(), DatasetError> {
+    if out.join("dataset.json").is_file() {
+        return Ok(());
+    }
+    match OUTPUTS.iter().find(|name| std::fs::symlink_metadata(out.join(name)).is_ok()) {
+        Some(name) => Err(DatasetError::Config(format!(
+            "--out {}: holds {name} but no dataset.json, so it is not an earlier dataset, and a dataset would replace \
+             it; give a new or empty directory",
+            out.display()
+        ))),
+        None => Ok(()),
+    }
+}
+
+/// Whether `file` is one of the files of the dataset in `dir`: a name of [`OUTPUTS`] there,
+/// or anything in its folders (so that no other output of a command overwrites it).
+pub fn owns(dir: &Path, file: &Path) -> bool {
+    let parent = file.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let (Ok(dir), Ok(parent), Some(name)) = (dir.canonicalize(), parent.canonicalize(), file.file_name()) else {
+        return false;
+    };
+    parent
+        .join(name)
+        .strip_prefix(&dir)
+        .ok()
+        .and_then(|rest| rest.components().next())
+        .is_some_and(|first| OUTPUTS.iter().any(|n| first.as_os_str() == *n))
 }
 
 /// Refuses settings no dataset of `world` can be made with, before anything is written.

@@ -298,13 +298,19 @@ pub fn publish(unfinished: &Path, out: &Path, stale: &[&str], marker: &str) -> R
     // stay all old rather than half new.
     let blocked: Vec<PartialFileError> = entries
         .iter()
-        .filter(|(from, to)| to.is_dir() && !from.is_dir())
-        .map(|(_, to)| PartialFileError {
-            file: to.clone(),
-            source: std::io::Error::other(format!(
-                "a directory stands where the file goes (the new outputs are kept in {}, and none was moved)",
-                unfinished.display()
-            )),
+        .filter_map(|(from, to)| {
+            let what = match (from.is_dir(), to.is_dir()) {
+                (false, true) => "a directory stands where the file goes",
+                (true, false) if std::fs::symlink_metadata(to).is_ok() => "a file stands where the directory goes",
+                _ => return None,
+            };
+            Some(PartialFileError {
+                file: to.clone(),
+                source: std::io::Error::other(format!(
+                    "{what} (the new outputs are kept in {}, and none was moved)",
+                    unfinished.display()
+                )),
+            })
         })
         .collect();
     if !blocked.is_empty() {
@@ -400,14 +406,20 @@ mod tests {
         std::fs::write(unfinished.join("metadata.json"), "new").unwrap();
         std::fs::write(unfinished.join("a.json"), "new").unwrap();
         std::fs::create_dir(unfinished.join("b")).unwrap();
-        // b cannot replace the file: the other outputs move, the marker does not, and the
-        // earlier marker is gone, so the directory no longer reads as a finished output.
+        // b cannot replace the file: found before anything moves, so the earlier output
+        // stays whole, its marker with it (an output dataset's folder where the user keeps
+        // a file had published half the new dataset over the old).
         let errors = publish(&unfinished, &dir, &[], "metadata.json").unwrap_err();
         assert_eq!(errors.len(), 1);
         assert_eq!(errors[0].file, dir.join("b"));
-        assert_eq!(std::fs::read_to_string(dir.join("a.json")).unwrap(), "new");
-        assert!(!dir.join("metadata.json").exists(), "no marker over a mix");
-        assert!(unfinished.join("metadata.json").exists(), "the new marker waits with what did not move");
+        assert!(
+            errors[0].source.to_string().starts_with("a file stands where the directory goes"),
+            "{}",
+            errors[0].source
+        );
+        assert_eq!(std::fs::read_to_string(dir.join("a.json")).unwrap(), "old");
+        assert_eq!(std::fs::read_to_string(dir.join("metadata.json")).unwrap(), "old");
+        assert!(unfinished.join("metadata.json").exists(), "the new outputs wait, whole");
         // Once nothing blocks it, the whole output moves in, the marker with it.
         std::fs::remove_file(dir.join("b")).unwrap();
         publish(&unfinished, &dir, &[], "metadata.json").unwrap();

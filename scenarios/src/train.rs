@@ -52,7 +52,10 @@ fn check_patch_size(dir: &Path, manifest: &Manifest, l: u32) -> Result<(), Train
     if manifest.patch_size == l {
         return Ok(());
     }
-    Err(file_err(&dir.join("dataset.json"), format!("patch_size is {}, the model uses {l}", manifest.patch_size)))
+    Err(file_err(
+        &dir.join("dataset.json"),
+        format!("patch_size is {}, the model's patches are {l} px", manifest.patch_size),
+    ))
 }
 
 /// [`load_image`], with the image's class mask.
@@ -80,16 +83,31 @@ fn load_image_and_class(
             ),
         ));
     }
-    if labels.cols != w / labels.patch_size
-        || labels.rows != h / labels.patch_size
-        || labels.fractions.len() != (labels.cols * labels.rows) as usize
-    {
+    if labels.cols != w / labels.patch_size || labels.rows != h / labels.patch_size {
         return Err(file_err(
             &labels_path,
             format!(
                 "a {}x{} grid of {} px patches does not fit the {w}x{h} image",
                 labels.cols, labels.rows, labels.patch_size
             ),
+        ));
+    }
+    if labels.fractions.len() != (labels.cols * labels.rows) as usize {
+        return Err(file_err(
+            &labels_path,
+            format!(
+                "fractions: {} values for a {}x{} grid of patches ({})",
+                labels.fractions.len(),
+                labels.cols,
+                labels.rows,
+                labels.cols * labels.rows
+            ),
+        ));
+    }
+    if let Some(i) = labels.fractions.iter().position(|f| !(0.0..=1.0).contains(f)) {
+        return Err(file_err(
+            &labels_path,
+            format!("fractions[{i}] is {}: a patch's fraction lies in [0, 1]", labels.fractions[i]),
         ));
     }
     // Foliage labels come from the class mask (a dataset's labels file holds only the
@@ -167,7 +185,17 @@ pub fn train_from_dataset(
     progress: impl Fn(&str, usize, usize),
 ) -> Result<(AppearanceModel, ClassTable), TrainError> {
     let manifest = read_manifest(dir)?;
-    check_patch_size(dir, &manifest, options.features.patch_size)?;
+    // The model's patches are the dataset's: its labels are per patch of that size.
+    let options = &TrainingOptions {
+        features: slam::features::FeatureConfig { patch_size: manifest.patch_size, ..options.features.clone() },
+        ..options.clone()
+    };
+    options.features.validate().map_err(|e| {
+        file_err(
+            &dir.join("dataset.json"),
+            format!("patch_size: a model of {} px patches cannot be made ({})", manifest.patch_size, e.problem),
+        )
+    })?;
     let (train_ids, test_ids): (Vec<usize>, Vec<usize>) =
         (0..manifest.images.len()).partition(|i| heldout_every == 0 || i % heldout_every != heldout_every - 1);
     let load = |k: usize| load_image(dir, &manifest, train_ids[k]).map_err(model_error);
@@ -194,6 +222,9 @@ pub const MAX_SEGMENT_PIXELS: u64 = 16_000_000;
 /// [`MAX_SEGMENT_PIXELS`] is refused before it is decoded (features take about 50 bytes a
 /// pixel), naming the file.
 pub fn open_image_to_classify(path: &Path) -> Result<image::RgbImage, TrainError> {
+    if path.is_dir() {
+        return Err(file_err(path, "a directory, not an image file"));
+    }
     let (w, h) = image::image_dimensions(path).map_err(|e| file_err(path, e))?;
     if u64::from(w) * u64::from(h) > MAX_SEGMENT_PIXELS {
         return Err(file_err(path, format!("{w}x{h} is more than {MAX_SEGMENT_PIXELS} pixels; crop or scale it down")));
@@ -247,9 +278,13 @@ pub fn read_heldout_manifest(
             ),
         ));
     }
+    // The world as read, not its bytes: a comment or a name changes no image.
+    let scene = |w: worlds::World| (w.ground, w.objects, w.people);
     let same_world =
-        match (std::fs::read(dir.join(crate::files::WORLD)), std::fs::read(training.join(crate::files::WORLD))) {
-            (Ok(held_out), Ok(trained)) => (held_out == trained).then_some("the same world.toml"),
+        match (worlds::load(&dir.join(crate::files::WORLD)), worlds::load(&training.join(crate::files::WORLD))) {
+            (Ok(held_out), Ok(trained)) => {
+                (scene(held_out) == scene(trained)).then_some("the same ground, objects and people")
+            }
             _ => (manifest.world == trained_on.world && manifest.seed == trained_on.seed)
                 .then_some("the same world and seed"),
         };
@@ -388,6 +423,13 @@ pub fn export_features(
 /// Classifies every patch of an image and draws the object patches over it (tinted, with
 /// their outlines). Returns (object patches, all patches).
 pub fn segment_image(model: &AppearanceModel, image_path: &Path, out: &Path) -> Result<(usize, usize), TrainError> {
+    // The picture's file, checked before the work: its extension says the format.
+    if out.is_dir() {
+        return Err(file_err(out, "a directory; give the picture's file name (.png or .jpg)"));
+    }
+    let format = image::ImageFormat::from_path(out).map_err(|_| {
+        file_err(out, "its extension names no image format; give the picture's file name (.png or .jpg)")
+    })?;
     let mut rgb = open_image_to_classify(image_path)?;
     let (w, h) = rgb.dimensions();
     let classifier = PatchClassifier::new(model).map_err(ModelError::from)?;
@@ -416,7 +458,6 @@ pub fn segment_image(model: &AppearanceModel, image_path: &Path, out: &Path) -> 
     }
     // Encoded in the format its name asks for, then written whole: a failed write leaves no
     // cut picture under the name.
-    let format = image::ImageFormat::from_path(out).map_err(|e| file_err(out, e))?;
     let mut bytes = std::io::Cursor::new(Vec::new());
     rgb.write_to(&mut bytes, format).map_err(|e| file_err(out, e))?;
     crate::partial_files::write_whole(out, bytes.get_ref()).map_err(|e| file_err(out, e.source))?;
@@ -447,16 +488,24 @@ fn parse_csv(path: &Path, text: &str) -> Result<DMatrix<f64>, TrainError> {
     let mut values = Vec::new();
     let mut cols = None;
     let mut rows = 0;
+    let mut first = true;
     for (i, line) in text.lines().enumerate() {
         let line = line.trim();
         if line.is_empty() || line.starts_with('#') {
             continue;
         }
-        let fields: Vec<&str> = line.split(',').map(str::trim).collect();
+        // A field may be quoted ("1.5"), as spreadsheets write them.
+        let fields: Vec<&str> = line
+            .split(',')
+            .map(str::trim)
+            .map(|f| f.strip_prefix('"').and_then(|f| f.strip_suffix('"')).unwrap_or(f))
+            .collect();
         let parsed: Result<Vec<f64>, _> = fields.iter().map(|f| f.parse::<f64>()).collect();
+        // Only the first row may be a header.
+        let may_be_header = std::mem::take(&mut first);
         let row = match parsed {
             Ok(r) => r,
-            Err(_) if cols.is_none() && rows == 0 && fields.iter().all(|f| f.parse::<f64>().is_err()) => continue, // header
+            Err(_) if may_be_header && fields.iter().all(|f| f.parse::<f64>().is_err()) => continue,
             Err(_) => {
                 let bad = fields.iter().position(|f| f.parse::<f64>().is_err()).unwrap_or(0);
                 return Err(TrainError::Csv {
@@ -616,6 +665,13 @@ mod tests {
         assert_eq!(values, DMatrix::from_row_slice(2, 2, &[1.0, 2.0, 3.0, 4.0]));
         // sha256sum of "x,y\n1,2\n3,4\n".
         assert_eq!(digest, "2a2b86e74ffd5e6a9b75e52a105cf9d02920837179f8e8961aa15411d380f7a3");
+        // Quoted fields are numbers too, and only the first row may be a header: a quoted
+        // first row of data had been dropped as a second header.
+        std::fs::write(&file, "x,y\n\"1\",\"2\"\n3,4\n").unwrap();
+        assert_eq!(read_csv(&file).unwrap(), DMatrix::from_row_slice(2, 2, &[1.0, 2.0, 3.0, 4.0]));
+        std::fs::write(&file, "x,y\na,b\n3,4\n").unwrap();
+        let e = read_csv(&file).unwrap_err().to_string();
+        assert!(e.contains("points.csv: line 2: field 1"), "{e}");
         let _ = std::fs::remove_dir_all(&dir);
     }
 }

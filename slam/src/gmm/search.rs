@@ -144,6 +144,22 @@ impl VbGmm {
             if c.mean.iter().chain(c.w_inv.iter()).any(|v| !v.is_finite()) {
                 return Err(GmmError::BadModel(format!("component {k}: mean and W^-1 must be finite")));
             }
+            // A scale matrix: symmetric (to rounding, relative to its largest entry; one
+            // triangle alone would be read) and positive definite.
+            let scale = c.w_inv.amax();
+            if (0..d).any(|i| (0..i).any(|j| (c.w_inv[(i, j)] - c.w_inv[(j, i)]).abs() > 1e-9 * scale)) {
+                return Err(GmmError::BadModel(format!("component {k}: W^-1 is not symmetric")));
+            }
+            if nalgebra::Cholesky::new(c.w_inv.clone()).is_none() {
+                return Err(GmmError::BadModel(format!("component {k}: W^-1 is not positive definite")));
+            }
+        }
+        if !self.counts.is_empty() && self.counts.len() != self.components.len() {
+            return Err(GmmError::BadModel(format!(
+                "{} counts for {} components",
+                self.counts.len(),
+                self.components.len()
+            )));
         }
         Ok(())
     }
