@@ -324,8 +324,17 @@ fn draw_legend<DB: DrawingBackend>(
     let font = ("sans-serif", 15).into_font();
     let (left, top, row) = (10i32, 60i32, 26i32);
     area.draw(&Text::new("legend", (left, top - 30), ("sans-serif", 16).into_font().style(FontStyle::Bold)))?;
-    for (i, (name, swatch)) in entries.iter().enumerate() {
-        let y = top + i as i32 * row;
+    // Names wider than the panel go on to further rows (a study's names carry the varied
+    // parameters and their values, wider than any panel sized in advance).
+    let text_left = left + 42;
+    let room = (area.dim_in_pixel().0 as i32 - text_left - 6).max(40) as u32;
+    let style: TextStyle = font.clone().into();
+    let fits = |text: &str| area.estimate_text_size(text, &style).map_or(true, |(w, _)| w <= room);
+    let mut rows_used = 0i32;
+    for (name, swatch) in entries {
+        let y = top + rows_used * row;
+        let lines = wrap_to(name, &fits);
+        rows_used += lines.len().max(1) as i32;
         let (a, b, mid) = (left, left + 30, left + 15);
         match *swatch {
             Swatch::Disc(c) => area.draw(&Circle::new((mid, y), 6, c.filled()))?,
@@ -350,9 +359,39 @@ fn draw_legend<DB: DrawingBackend>(
             Swatch::Cross(c) => area.draw(&Cross::new((mid, y), 5, c.stroke_width(2)))?,
             Swatch::Ring(c) => area.draw(&Circle::new((mid, y), 5, c.stroke_width(2)))?,
         }
-        area.draw(&Text::new(name.clone(), (b + 12, y - 8), font.clone()))?;
+        for (k, line) in lines.into_iter().enumerate() {
+            area.draw(&Text::new(line, (text_left, y - 8 + k as i32 * (row - 6)), font.clone()))?;
+        }
     }
     Ok(())
+}
+
+/// `text` in lines that each `fits`, broken at spaces, and inside a word too long for a
+/// line of its own.
+fn wrap_to(text: &str, fits: &dyn Fn(&str) -> bool) -> Vec<String> {
+    let mut lines: Vec<String> = Vec::new();
+    let mut line = String::new();
+    for word in text.split(' ') {
+        let joined = if line.is_empty() { word.to_string() } else { format!("{line} {word}") };
+        if fits(&joined) {
+            line = joined;
+            continue;
+        }
+        if !line.is_empty() {
+            lines.push(std::mem::take(&mut line));
+        }
+        for c in word.chars() {
+            line.push(c);
+            if !fits(&line) && line.chars().count() > 1 {
+                line.pop();
+                lines.push(std::mem::replace(&mut line, c.to_string()));
+            }
+        }
+    }
+    if !line.is_empty() || lines.is_empty() {
+        lines.push(line);
+    }
+    lines
 }
 
 /// Points of the `k`-sigma ellipse of a 2-D Gaussian.
@@ -730,6 +769,20 @@ mod tests {
         draw_replay_map("t", &path, &path, &[], &path, &file).unwrap();
         assert_eq!(image::open(&file).unwrap().to_rgb8().dimensions(), (1000, 1000));
         std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// A legend name too wide for its panel goes on to further rows, whole words where
+    /// they fit, and loses no character.
+    #[test]
+    fn long_legend_names_wrap_and_lose_nothing() {
+        let fits = |t: &str| t.chars().count() <= 12;
+        let name = "jcbb (sim.odometry.scale_sigma=0.02, a=1)";
+        let lines = wrap_to(name, &fits);
+        assert!(lines.iter().all(|l| fits(l)), "{lines:?}");
+        assert_eq!(lines[0], "jcbb", "{lines:?}");
+        assert_eq!(lines.concat().replace(' ', ""), name.replace(' ', ""));
+        assert_eq!(wrap_to("nn", &fits), vec!["nn".to_string()]);
+        assert_eq!(wrap_to("", &fits), vec![String::new()]);
     }
 
     #[test]

@@ -377,6 +377,13 @@ pub fn report_text(r: &GeneralisationReport) -> String {
     if r.claim_undefined > 0 {
         out += &format!("                   ({} runs had no tree in view and are not counted)\n", r.claim_undefined);
     }
+    if r.combined.errors > 0 {
+        // Not among the runs the claim counts, held or failed: said here, not only below.
+        out += &format!(
+            "                   ({} combined runs ended in an error and are not counted; their errors are in combined/runs.jsonl)\n",
+            r.combined.errors
+        );
+    }
     let by_seed: Vec<String> = r
         .claim_by_training_seed
         .iter()
@@ -577,6 +584,15 @@ mod tests {
         assert_eq!(r.jcbb.missed_by_stage, None);
         let text = report_text(&r);
         assert!(text.contains("never segmented 1, never fully judged 0"), "{text}");
+        assert!(!text.contains("ended in an error"), "{text}");
+
+        // An errored run is named beside the claim it is left out of.
+        let mut errored = combined.clone();
+        errored.push(RunRecord { metrics: None, error: Some("boom".into()), ..record(2, Some(1), good) });
+        let r = report(Split::Test, 3, &errored, &jcbb);
+        assert_eq!((r.claim.runs, r.combined.errors), (3, 1));
+        let text = report_text(&r);
+        assert!(text.contains("(1 combined runs ended in an error and are not counted"), "{text}");
 
         // A camera run that counted no trees in view (null) still mapped only what it
         // mapped of the trees the laser saw: none of its 12 is credited.
