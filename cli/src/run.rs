@@ -21,7 +21,7 @@ pub(crate) fn run_scenario(
 ) -> Result<()> {
     let name = scenario.unwrap_or(scenarios::scenario::DEFAULT_SCENARIO);
     let (sc, base) = scenarios::scenario::Scenario::load(name)?;
-    for changed in scenarios::run::changed_inputs(std::path::Path::new(name)) {
+    for changed in scenarios::run::changed_inputs(std::path::Path::new(name), &sc, &base) {
         eprintln!("warning: {changed}");
     }
     let method = method.map(AssociationMethod::from);
@@ -39,6 +39,11 @@ pub(crate) fn run_scenario(
     let outcome = scenarios::run::run(&sc, &base, &options, |p| bar.show(p));
     bar.finish();
     let outcome = outcome?;
+    if let Some(changed) =
+        scenarios::run::changed_model(std::path::Path::new(name), outcome.metrics.appearance_model.as_ref())
+    {
+        eprintln!("warning: {changed}");
+    }
     print!("{}", scenarios::run::summary_table(&outcome.metrics));
     println!("  outputs in {}", out.display());
     if !outcome.metrics.passed {

@@ -227,7 +227,10 @@ pub const OUTPUTS: &[&str] = &["dataset.json", "annotations.json", files::WORLD,
 /// Refuses an `out` that holds a name a dataset replaces but is no earlier dataset (it has
 /// no `dataset.json`): a user's own `images/` or `world.toml` would be lost.
 fn check_out(out: &Path) -> Result<(), DatasetError> {
-    if out.join("dataset.json").is_file() {
+    // An earlier dataset, or one stopped while it was moved in (its manifest still waits
+    // in the unfinished directory, where it goes last).
+    let unfinished = crate::partial_files::unfinished_dir(out);
+    if out.join("dataset.json").is_file() || unfinished.join("dataset.json").is_file() {
         return Ok(());
     }
     match OUTPUTS.iter().find(|name| std::fs::symlink_metadata(out.join(name)).is_ok()) {
@@ -516,6 +519,31 @@ fn clear_earlier_images(out: &Path) -> Result<(), DatasetError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// An `--out` holding a dataset's names is taken only as a dataset: one with its
+    /// manifest, or one stopped while moved in (its manifest still unfinished).
+    #[test]
+    fn only_a_dataset_directory_is_written_over() {
+        let out = std::env::temp_dir().join(format!("objslam-dataset-out-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&out);
+        std::fs::create_dir_all(out.join("images")).unwrap();
+        std::fs::write(out.join("notes.txt"), "mine").unwrap();
+        let e = check_out(&out).unwrap_err().to_string();
+        assert!(e.contains("holds images but no dataset.json"), "{e}");
+        let unfinished = crate::partial_files::unfinished_dir(&out);
+        std::fs::create_dir_all(&unfinished).unwrap();
+        std::fs::write(unfinished.join("dataset.json"), "{}").unwrap();
+        check_out(&out).unwrap();
+        std::fs::remove_dir_all(&unfinished).unwrap();
+        std::fs::write(out.join("dataset.json"), "{}").unwrap();
+        check_out(&out).unwrap();
+        std::fs::remove_dir_all(&out).unwrap();
+        // Unrelated files alone are no dataset's names.
+        std::fs::create_dir_all(&out).unwrap();
+        std::fs::write(out.join("notes.txt"), "mine").unwrap();
+        check_out(&out).unwrap();
+        std::fs::remove_dir_all(&out).unwrap();
+    }
 
     #[test]
     fn an_earlier_datasets_image_files_are_removed_and_other_files_kept() {

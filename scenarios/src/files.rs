@@ -70,6 +70,14 @@ pub const MCAP: &str = "run.mcap";
 /// The map, drawn over the world.
 pub const MAP: &str = "map.png";
 
+/// The SHA-256 of a file's bytes in hex, `None` where it cannot be read: what outputs record
+/// of the files they were made from.
+pub fn sha256_hex(file: &std::path::Path) -> Option<String> {
+    use sha2::{Digest, Sha256};
+    let bytes = std::fs::read(file).ok()?;
+    Some(Sha256::digest(&bytes).iter().map(|b| format!("{b:02x}")).collect())
+}
+
 /// The first of `inputs` (each with what it is) that lies in the directory `out` under one
 /// of `names`, the outputs a command writes, replaces or removes there: publishing them
 /// would replace or delete it. An input is judged both where its path puts it (a link in

@@ -890,7 +890,13 @@ pub fn run_study_with(
     all.sort_by_key(|r| r.job.index);
     // The summary is the study's too: written while the directory is still held, so that
     // another study starting there cannot write its own between.
-    one_model_per_setting(&all, &runs_file)?;
+    if let Err(e) = one_model_per_setting(&all, &runs_file) {
+        // An earlier summary no longer describes the runs beside it.
+        for name in ["summary.csv", "summary.json"] {
+            let _ = std::fs::remove_file(out.join(name));
+        }
+        return Err(e);
+    }
     write_summary(plan, &summarise(plan, &all), out)?;
     drop(held);
     Ok(all)
@@ -898,8 +904,8 @@ pub fn run_study_with(
 
 /// Refuses runs of one setting (method and parameter values) made with different
 /// appearance models: a study resumed, or shards run, where another model was cached
-/// (another `OBJSLAM_CACHE`, renderer or build trained it) would pool two methods' figures
-/// as one. `file` names the runs in the error.
+/// (another `OBJSLAM_CACHE`, renderer or build trained it) would pool two models' runs as
+/// one setting's. `file` names the runs in the error.
 fn one_model_per_setting(runs: &[RunRecord], file: &Path) -> Result<(), StudyError> {
     let mut models: BTreeMap<(usize, &str), BTreeMap<&str, Vec<usize>>> = BTreeMap::new();
     for r in runs {

@@ -330,10 +330,16 @@ fn draw_legend<DB: DrawingBackend>(
     let room = (area.dim_in_pixel().0 as i32 - text_left - 6).max(40) as u32;
     let style: TextStyle = font.clone().into();
     let fits = |text: &str| area.estimate_text_size(text, &style).map_or(true, |(w, _)| w <= room);
+    let mut wrapped: Vec<Vec<String>> = entries.iter().map(|(name, _)| wrap_to(name, &fits)).collect();
+    // Where wrapping would push entries below the panel, every entry keeps one row (its
+    // name then runs past the panel's edge, but no entry is lost).
+    let rows: usize = wrapped.iter().map(Vec::len).sum();
+    if top + rows as i32 * row > area.dim_in_pixel().1 as i32 {
+        wrapped = entries.iter().map(|(name, _)| vec![name.clone()]).collect();
+    }
     let mut rows_used = 0i32;
-    for (name, swatch) in entries {
+    for ((_, swatch), lines) in entries.iter().zip(wrapped) {
         let y = top + rows_used * row;
-        let lines = wrap_to(name, &fits);
         rows_used += lines.len().max(1) as i32;
         let (a, b, mid) = (left, left + 30, left + 15);
         match *swatch {

@@ -168,13 +168,27 @@ fn recorded_scenario_runs_the_run_again() {
         |m: &scenarios::run::Metrics| (m.seed, m.method.clone(), m.ate_rmse_m, m.landmarks, m.associations.total);
     assert_eq!(figures(&again), figures(&first));
     assert_ne!(first.seed, sc.seed, "the test must override the scenario's seed");
-    assert_eq!(scenarios::run::changed_inputs(&written), Vec::<String>::new());
+    assert_eq!(scenarios::run::changed_inputs(&written, &recorded, &base), Vec::<String>::new());
     std::fs::write(&world_file, std::fs::read_to_string(&world_file).unwrap() + "# moved a tree\n").unwrap();
-    let changed = scenarios::run::changed_inputs(&written);
+    let changed = scenarios::run::changed_inputs(&written, &recorded, &base);
     assert!(
         changed.len() == 1 && changed[0].starts_with("world file ") && changed[0].contains("has changed"),
         "{changed:?}"
     );
+    // The model a camera run used is compared after the new run: another cache's is named.
+    let mut meta: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("metadata.json")).unwrap()).unwrap();
+    meta["appearance_model"] = serde_json::json!({"digest": "10e8c1e8666dffa0"});
+    std::fs::write(out.join("metadata.json"), meta.to_string()).unwrap();
+    let model = |digest: &str| scenarios::run::ModelProvenance {
+        training_seed: 1,
+        training_images: 60,
+        training_renderer: None,
+        digest: Some(digest.into()),
+    };
+    assert_eq!(scenarios::run::changed_model(&written, Some(&model("10e8c1e8666dffa0"))), None);
+    let warned = scenarios::run::changed_model(&written, Some(&model("2d4b3d4e231dadc2"))).unwrap();
+    assert!(warned.contains("digest 2d4b3d4e231dadc2") && warned.contains("(10e8c1e8666dffa0)"), "{warned}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -363,16 +363,10 @@ pub struct SourceFile {
 impl LogSource {
     /// The files of `names` that `dir` holds, with their digests.
     pub fn of(dir: &Path, names: &[&str]) -> LogSource {
-        use sha2::{Digest, Sha256};
         let files = names
             .iter()
             .filter(|name| dir.join(name).is_file())
-            .map(|name| {
-                let digest = std::fs::read(dir.join(name))
-                    .ok()
-                    .map(|bytes| Sha256::digest(&bytes).iter().map(|b| format!("{b:02x}")).collect());
-                SourceFile { name: name.to_string(), sha256: digest }
-            })
+            .map(|name| SourceFile { name: name.to_string(), sha256: files::sha256_hex(&dir.join(name)) })
             .collect();
         LogSource { dir: std::path::absolute(dir).unwrap_or_else(|_| dir.to_path_buf()), files }
     }
@@ -906,9 +900,7 @@ pub fn summary(m: &ReplayMetrics) -> String {
 mod tests {
     use super::*;
 
-    /// Frames a camera method could not use are refused, naming camera.csv: none within
-    /// the age limit of any scan, or most outside the scans' times; frames that reach
-    /// some scans pass.
+    /// A log's source names its data files with their digests, and nothing else.
     #[test]
     fn a_logs_source_names_its_files_with_their_digests() {
         let dir = std::env::temp_dir().join(format!("objslam-log-source-{}", std::process::id()));
@@ -923,6 +915,9 @@ mod tests {
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
+    /// Frames a camera method could not use are refused, naming camera.csv: none within
+    /// the age limit of any scan, or most outside the scans' times; frames that reach
+    /// some scans pass.
     #[test]
     fn frames_on_another_clock_or_never_reaching_a_scan_are_refused() {
         let file = Path::new("log/camera.csv");

@@ -547,7 +547,7 @@ fn run_and_write(
     let resolved = json!({
         "scenario": as_run,
         // What the files the scenario names held, to tell a later run of it whether they changed.
-        "inputs": input_digests(scenario, base_dir),
+        "inputs": input_digests(scenario, base_dir, &world),
         "seed": seed,
         "sim_seed": sim::derive_seed(seed, "sim"),
         "world": world,
@@ -586,58 +586,82 @@ fn run_and_write(
     Ok(RunOutcome { metrics, resolved })
 }
 
-/// Each file a run of `scenario` reads, with what it is and its SHA-256 (`null` where it
-/// cannot be read: the run has failed on it already, or it changed under the run).
-fn input_digests(scenario: &Scenario, base_dir: &Path) -> Vec<serde_json::Value> {
-    use sha2::{Digest, Sha256};
-    scenario
-        .input_files(base_dir)
+/// Each file a run of `scenario` in `world` reads, with what it is and its SHA-256 (`null`
+/// where it cannot be read: the run has failed on it already, or it changed under the
+/// run): the scenario's files and the world's mesh files.
+fn input_digests(scenario: &Scenario, base_dir: &Path, world: &worlds::World) -> Vec<serde_json::Value> {
+    let mut inputs: Vec<(&str, PathBuf)> = scenario.input_files(base_dir);
+    for mesh in world.objects.iter().filter_map(|o| o.mesh.as_ref()) {
+        let mesh = PathBuf::from(mesh);
+        if !inputs.iter().any(|(_, f)| *f == mesh) {
+            inputs.push(("mesh file", mesh));
+        }
+    }
+    inputs
         .into_iter()
         .map(|(what, file)| {
             let file = std::path::absolute(&file).unwrap_or(file);
-            let sha256 = std::fs::read(&file)
-                .ok()
-                .map(|bytes| Sha256::digest(&bytes).iter().map(|b| format!("{b:02x}")).collect::<String>());
-            json!({"what": what, "file": file, "sha256": sha256})
+            json!({"what": what, "file": file, "sha256": files::sha256_hex(&file)})
         })
         .collect()
 }
 
-/// Where `scenario_file` is the `scenario.toml` a run wrote, the files its run read that
-/// differ now from what that run's `metadata.json` recorded, in words: running it again
-/// would not repeat that run. Empty for any other scenario file.
-pub fn changed_inputs(scenario_file: &Path) -> Vec<String> {
-    use sha2::{Digest, Sha256};
-    let beside = |name: &str| scenario_file.parent().map(|d| d.join(name));
+/// The `metadata.json` of the run that wrote `scenario_file`, where that is a run's
+/// `scenario.toml` beside it; `None` for any other scenario file.
+pub fn recorded_run(scenario_file: &Path) -> Option<serde_json::Value> {
     if scenario_file.file_name().is_none_or(|n| n != files::SCENARIO) {
-        return Vec::new();
+        return None;
     }
-    let Some(metadata) = beside(files::METADATA).and_then(|f| std::fs::read_to_string(f).ok()) else {
-        return Vec::new();
-    };
-    let Ok(metadata) = serde_json::from_str::<serde_json::Value>(&metadata) else { return Vec::new() };
-    if metadata["tool"] != "objslam run" {
-        return Vec::new();
-    }
+    let text = std::fs::read_to_string(scenario_file.parent()?.join(files::METADATA)).ok()?;
+    let metadata: serde_json::Value = serde_json::from_str(&text).ok()?;
+    (metadata["tool"] == "objslam run").then_some(metadata)
+}
+
+/// Where `scenario_file` is the `scenario.toml` a run wrote, the files that run read which
+/// this run of `scenario` (read from it) reads too and which differ now from what the
+/// run's `metadata.json` recorded, in words: this run may not repeat that one. Empty for
+/// any other scenario file.
+pub fn changed_inputs(scenario_file: &Path, scenario: &Scenario, base_dir: &Path) -> Vec<String> {
+    let Some(metadata) = recorded_run(scenario_file) else { return Vec::new() };
+    let named: Vec<PathBuf> =
+        scenario.input_files(base_dir).into_iter().map(|(_, f)| std::path::absolute(&f).unwrap_or(f)).collect();
     let recorded = metadata["configuration"]["inputs"].as_array().cloned().unwrap_or_default();
     recorded
         .iter()
         .filter(|input| input["what"] != "scenario file")
         .filter_map(|input| {
             let (what, file, then) = (input["what"].as_str()?, input["file"].as_str()?, input["sha256"].as_str()?);
-            let now = std::fs::read(file).ok().map(|b| Sha256::digest(&b).iter().map(|b| format!("{b:02x}")).collect::<String>());
-            match now {
+            // A file the scenario no longer names is no longer this run's; a mesh is the world's.
+            if what != "mesh file" && !named.iter().any(|n| n == Path::new(file)) {
+                return None;
+            }
+            let by = scenario_file.display();
+            match files::sha256_hex(Path::new(file)) {
                 Some(now) if now == then => None,
                 Some(now) => Some(format!(
-                    "{what} {file} has changed since the run that wrote {} read it (SHA-256 {} then, {} now): this run will not repeat that one",
-                    scenario_file.display(),
+                    "{what} {file} has changed since the run that wrote {by} read it (SHA-256 {} then, {} now): this run may not repeat that one",
                     &then[..then.len().min(12)],
                     &now[..12]
                 )),
-                None => Some(format!("{what} {file} cannot be read any more: the run that wrote {} read it", scenario_file.display())),
+                None => Some(format!("{what} {file} cannot be read any more; the run that wrote {by} read it")),
             }
         })
         .collect()
+}
+
+/// Where `scenario_file` is a run's `scenario.toml`, whether the appearance model of a new
+/// run of it (`now`, its digest) differs from the recorded run's: a trained model comes
+/// from the cache, which the scenario does not pin.
+pub fn changed_model(scenario_file: &Path, now: Option<&ModelProvenance>) -> Option<String> {
+    let metadata = recorded_run(scenario_file)?;
+    let then = metadata["appearance_model"]["digest"].as_str()?;
+    let now = now?.digest.as_deref()?;
+    (then != now).then(|| {
+        format!(
+            "the appearance model (digest {now}) is not the one the run that wrote {} used ({then}): another cache, renderer or build trained it; this run may not repeat that one",
+            scenario_file.display()
+        )
+    })
 }
 
 /// The appearance model a camera method needs: the one given, or the scenario's (trained on
