@@ -517,12 +517,24 @@ pub fn failure_rate_plot(
     png: &Path,
 ) -> Result<String, PlotError> {
     register_fonts();
-    let size = (STUDY_PLOT_W + LEGEND_W, 600);
+    // Tall enough for the legend's names wrapped to its panel (at most about 12 pixels a character
+    // at its font), so that a study of many series loses none.
+    let names: std::collections::BTreeSet<String> = rows.iter().map(series_name).collect();
+    let per_row = (LEGEND_W as usize - 58) / 12;
+    let legend_rows: usize = names.iter().map(|n| n.chars().count().div_ceil(per_row).max(1)).sum();
+    let size = (STUDY_PLOT_W + LEGEND_W, 600.max(90 + 26 * legend_rows as u32));
     write_png(png, size, |root| draw_failure_rate(root, plan, rows))?;
     let mut svg = String::new();
     draw_failure_rate(SVGBackend::with_string(&mut svg, size).into_drawing_area(), plan, rows)
         .map_err(|message| PlotError { file: png.with_extension("svg"), message })?;
     Ok(svg)
+}
+
+/// A failure-rate plot's series: the method and the values of the varied parameters after
+/// the first (which is the x axis).
+fn series_name(r: &crate::montecarlo::SummaryRow) -> String {
+    let others: Vec<String> = r.params.iter().skip(1).map(|(p, v)| format!("{p}={v}")).collect();
+    if others.is_empty() { r.method.clone() } else { format!("{} ({})", r.method, others.join(", ")) }
 }
 
 fn draw_failure_rate<DB: DrawingBackend>(
@@ -564,8 +576,7 @@ fn draw_failure_rate<DB: DrawingBackend>(
             Some(_) => r.params[0].1,
             None => plan.methods.iter().position(|m| *m == r.method).unwrap_or(i) as f64,
         };
-        let others: Vec<String> = r.params.iter().skip(1).map(|(p, v)| format!("{p}={v}")).collect();
-        let name = if others.is_empty() { r.method.clone() } else { format!("{} ({})", r.method, others.join(", ")) };
+        let name = series_name(r);
         if r.failure_rate.is_finite() {
             series.entry(name).or_default().push((x, r.failure_rate, r.failure_rate_ci95.0, r.failure_rate_ci95.1));
         }
