@@ -283,8 +283,7 @@ impl SessionConfig {
                 ),
             );
         }
-        let span = (self.poses - 1) as f64 * self.station_spacing_m;
-        if span > MAX_STATION_SPAN_M {
+        if let Some(span) = too_long_a_line(self.poses, self.station_spacing_m) {
             return bad(
                 "station_spacing_m",
                 format!(
@@ -613,6 +612,13 @@ pub fn rigid_to_extrinsics(r: &Rigid) -> Extrinsics {
     Extrinsics { phi: r.r, delta: r.t }
 }
 
+/// The length of the line `poses` stations `spacing_m` apart make, where it is longer than
+/// [`MAX_STATION_SPAN_M`].
+fn too_long_a_line(poses: usize, spacing_m: f64) -> Option<f64> {
+    let span = poses.saturating_sub(1) as f64 * spacing_m;
+    (span > MAX_STATION_SPAN_M).then_some(span)
+}
+
 /// Checks `--poses` against the session's spacing, so that a line of stations too long is
 /// refused as the option's fault rather than the scenario's `station_spacing_m`.
 fn check_poses_override(poses: usize, spacing_m: f64) -> Result<(), CalibrateError> {
@@ -623,13 +629,12 @@ fn check_poses_override(poses: usize, spacing_m: f64) -> Result<(), CalibrateErr
             POSES.end(),
             POSES.start()
         )
-    } else if (poses - 1) as f64 * spacing_m > MAX_STATION_SPAN_M {
+    } else if let Some(span) = too_long_a_line(poses, spacing_m) {
         // Only a positive spacing makes the line too long, so the division is sound.
         let most = (MAX_STATION_SPAN_M / spacing_m).floor() as usize + 1;
         format!(
-            "the stations would stand in a line {:.0} m long at the scenario's calibration.session.station_spacing_m \
-             ({spacing_m} m), more than {MAX_STATION_SPAN_M} m; at most {most} poses at that spacing",
-            (poses - 1) as f64 * spacing_m
+            "the stations would stand in a line {span:.0} m long at the scenario's calibration.session.station_spacing_m \
+             ({spacing_m} m), more than {MAX_STATION_SPAN_M} m; at most {most} poses at that spacing"
         )
     } else {
         return Ok(());

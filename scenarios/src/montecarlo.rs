@@ -310,6 +310,12 @@ pub struct Job {
 }
 
 impl Job {
+    /// The index of the first job of this one's setting (method and parameter values): the
+    /// runs of one setting are consecutive jobs.
+    pub fn setting(&self) -> usize {
+        self.index - self.run
+    }
+
     /// Stable identity of a job across processes and shards.
     pub fn key(&self) -> String {
         let params: Vec<String> = self.params.iter().map(|(p, v)| format!("{p}={v}")).collect();
@@ -911,7 +917,7 @@ fn one_model_per_setting(runs: &[RunRecord], file: &Path) -> Result<(), StudyErr
     for r in runs {
         let digest = r.metrics.as_ref().and_then(|m| m.appearance_model.as_ref()).and_then(|p| p.digest.as_deref());
         if let Some(digest) = digest {
-            let setting = (r.job.index - r.job.run, r.job.method.as_str());
+            let setting = (r.job.setting(), r.job.method.as_str());
             models.entry(setting).or_default().entry(digest).or_default().push(r.job.index);
         }
     }
@@ -1411,7 +1417,7 @@ pub fn summarise(plan: &StudyPlan, runs: &[RunRecord]) -> Vec<SummaryRow> {
     for r in runs.iter().filter(|r| !r.retryable) {
         // Group by the index of the job's first run in the plan, which orders groups as
         // the plan does.
-        let first = r.job.index - r.job.run;
+        let first = r.job.setting();
         groups.entry((first, r.job.method.clone())).or_default().push(r);
     }
     groups

@@ -371,22 +371,10 @@ impl LogSource {
         LogSource { dir: std::path::absolute(dir).unwrap_or_else(|_| dir.to_path_buf()), files }
     }
 
-    /// A robot log's own files (docs/reference/robot-log.md); camera images apart, which
-    /// `camera.csv` names.
+    /// A robot log's files, those a recording writes ([`crate::record::recording_files`]);
+    /// camera images apart, which `camera.csv` names.
     pub fn of_robot_log(dir: &Path) -> LogSource {
-        use robotlog::format as f;
-        let names = [
-            f::MANIFEST,
-            f::ODOMETRY,
-            f::SCANS,
-            f::DETECTIONS,
-            f::REFERENCE,
-            f::CAMERA,
-            files::PIPELINE,
-            files::APPEARANCE_MODEL,
-            files::RECORDING,
-        ];
-        Self::of(dir, &names)
+        Self::of(dir, &crate::record::recording_files())
     }
 }
 

@@ -544,10 +544,8 @@ fn run_and_write(
     if as_run.world.preset.as_deref() == Some("park") && as_run.world.params.is_none() {
         as_run.world.params = Some(worlds::generate::ParkParams::default());
     }
-    let resolved = json!({
+    let mut resolved = json!({
         "scenario": as_run,
-        // What the files the scenario names held, to tell a later run of it whether they changed.
-        "inputs": input_digests(scenario, base_dir, &world),
         "seed": seed,
         "sim_seed": sim::derive_seed(seed, "sim"),
         "world": world,
@@ -557,6 +555,11 @@ fn run_and_write(
         "pipeline": config,
         "calibration": calibration,
     });
+    if options.out.is_some() {
+        // What the files the scenario names held, to tell a later run of it whether they
+        // changed; read only for a run whose metadata records it (not for a study's runs).
+        resolved["inputs"] = json!(input_digests(scenario, base_dir, &world));
+    }
 
     // Write.
     if let Some(out) = &options.out {
