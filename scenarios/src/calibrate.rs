@@ -1102,8 +1102,8 @@ mod tests {
 
     #[test]
     fn calibration_files_are_read_and_bad_ones_named() {
-        let dir = std::env::temp_dir().join(format!("objslam-calfile-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let scratch = tempfile::tempdir().unwrap();
+        let dir = scratch.path();
         let truth = true_extrinsics(&SimConfig::default());
         let good = dir.join("good.json");
         std::fs::write(&good, serde_json::json!({"phi": truth.phi, "delta": truth.delta, "other": 1}).to_string())

@@ -1722,8 +1722,8 @@ mod tests {
 
     #[test]
     fn truncated_last_line_is_dropped() {
-        let dir = std::env::temp_dir().join(format!("objslam-mc-trunc-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let scratch = tempfile::tempdir().unwrap();
+        let dir = scratch.path();
         let f = dir.join("runs.jsonl");
         let job = Job { index: 0, method: "nn".into(), params: vec![], run: 0, seed: 1 };
         let rec = RunRecord { key: job.key(), job, metrics: None, error: Some("x".into()), retryable: false };
@@ -1767,8 +1767,8 @@ mod tests {
     /// they were written (a retried run after its retryable record), byte for byte.
     #[test]
     fn finished_runs_file_is_put_in_job_order() {
-        let dir = std::env::temp_dir().join(format!("objslam-mc-order-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let scratch = tempfile::tempdir().unwrap();
+        let dir = scratch.path();
         let f = dir.join("runs.jsonl");
         let line = |index: usize, error: &str, retryable: bool| {
             let job = Job { index, method: "nn".into(), params: vec![], run: index, seed: 1 };
@@ -1793,7 +1793,6 @@ mod tests {
             put_in_job_order(&f).unwrap();
             assert_ne!(std::fs::metadata(&f).unwrap().ino(), inode, "the check above could not fail");
         }
-        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     /// A run whose worker died is to be run again, not a figure: the summary leaves it out.

@@ -772,20 +772,19 @@ mod tests {
     /// why in the system's words.
     #[test]
     fn a_picture_that_cannot_be_written_leaves_nothing_behind() {
-        let dir = std::env::temp_dir().join(format!("objslam-plot-{}", std::process::id()));
-        let _ = std::fs::remove_dir_all(&dir);
+        let scratch = tempfile::tempdir().unwrap();
+        let dir = scratch.path();
         let file = dir.join("map.png");
         std::fs::create_dir_all(&file).unwrap();
         let path = [[0.0, 0.0], [1.0, 1.0]];
         let e = draw_replay_map("t", &path, &path, &[], &path, &file).unwrap_err();
         assert_eq!(e.file, file);
         assert!(!e.message.contains("Error("), "no debug dump: {}", e.message);
-        let left: Vec<_> = std::fs::read_dir(&dir).unwrap().map(|f| f.unwrap().file_name()).collect();
+        let left: Vec<_> = std::fs::read_dir(dir).unwrap().map(|f| f.unwrap().file_name()).collect();
         assert_eq!(left, vec![std::ffi::OsString::from("map.png")], "no partial picture");
         std::fs::remove_dir_all(&file).unwrap();
         draw_replay_map("t", &path, &path, &[], &path, &file).unwrap();
         assert_eq!(image::open(&file).unwrap().to_rgb8().dimensions(), (1000, 1000));
-        std::fs::remove_dir_all(&dir).ok();
     }
 
     /// A legend name too wide for its panel goes on to further rows, whole words where
@@ -821,9 +820,8 @@ mod tests {
     #[test]
     fn world_map_renders_to_png() {
         let world = worlds::generate::park(&Default::default(), 5).unwrap();
-        let dir = std::env::temp_dir().join(format!("objslam-plot-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let path = dir.join("map.png");
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("map.png");
         draw_map(&world, &Overlays { title: "park".into(), routes: true, ..Default::default() }, &path).unwrap();
         let img = image::open(&path).unwrap().to_rgb8();
         // Tree green must appear (objects were drawn), and white margins exist.
@@ -850,9 +848,8 @@ mod tests {
             }
         }
         assert!(simulation.route_progress() > 0.99 && driven.len() > 5000);
-        let dir = std::env::temp_dir().join(format!("objslam-plot-driven-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let path = dir.join("map.png");
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("map.png");
         let colour = RGBColor(0, 0, 255);
         let overlays = Overlays {
             title: "driven path".into(),

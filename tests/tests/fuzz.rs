@@ -5,7 +5,6 @@
 //! (docs/guide/fuzzing.md).
 
 use std::path::{Path, PathBuf};
-use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
 use proptest::prelude::*;
@@ -154,18 +153,9 @@ fn text(bytes: &[u8]) -> String {
     String::from_utf8_lossy(bytes).into_owned()
 }
 
-fn scratch() -> &'static PathBuf {
-    static DIR: OnceLock<PathBuf> = OnceLock::new();
-    DIR.get_or_init(|| {
-        let d = std::env::temp_dir().join(format!("objslam-fuzz-{}", std::process::id()));
-        std::fs::create_dir_all(&d).unwrap();
-        d
-    })
-}
-
-/// Writes `bytes` to a scratch file named `name` (unique per thread) and returns its path.
-fn file(name: &str, bytes: &[u8]) -> PathBuf {
-    let path = scratch().join(format!("{:?}-{name}", std::thread::current().id()).replace(['(', ')'], ""));
+/// Writes `bytes` to the file `name` in the test's scratch directory and returns its path.
+fn file(dir: &tempfile::TempDir, name: &str, bytes: &[u8]) -> PathBuf {
+    let path = dir.path().join(name);
     std::fs::write(&path, bytes).unwrap();
     path
 }
@@ -223,38 +213,42 @@ fn gltf_meshes() {
 #[test]
 fn calibration_files() {
     let base = br#"{"phi": [[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]], "delta": [0.12, 0.0, 0.25]}"#;
+    let dir = tempfile::tempdir().unwrap();
     fuzz("calibration.json", base, 5 * SECOND, |b| {
-        scenarios::calibrate::load_extrinsics(&file("calibration.json", b)).is_ok()
+        scenarios::calibrate::load_extrinsics(&file(&dir, "calibration.json", b)).is_ok()
     });
 }
 
 #[test]
 fn csv_files() {
     let base = b"x,y,z\n1.0,2.0,3.5\n-0.5,2.25,1e-3\n4,5,6\n0.1,0.2,0.3\n";
-    fuzz("csv", base, 5 * SECOND, |b| scenarios::train::read_csv(&file("data.csv", b)).is_ok());
+    let dir = tempfile::tempdir().unwrap();
+    fuzz("csv", base, 5 * SECOND, |b| scenarios::train::read_csv(&file(&dir, "data.csv", b)).is_ok());
 }
 
 #[test]
 fn tum_trajectories() {
     let base = b"# t x y z qx qy qz qw\n0 0 0 0 0 0 0 1\n0.1 0.5 0.01 0 0 0 0.0499792 0.9987503\n0.2 1.0 0.02 0 0 0 0.0998334 0.9950042\n";
-    fuzz("tum", base, 5 * SECOND, |b| scenarios::score::estimate::read_tum(&file("est.tum", b)).is_ok());
+    let dir = tempfile::tempdir().unwrap();
+    fuzz("tum", base, 5 * SECOND, |b| scenarios::score::estimate::read_tum(&file(&dir, "est.tum", b)).is_ok());
 }
 
 /// A tiny appearance model, trained in a moment (its JSON is the seed of the model fuzzing).
-fn tiny_model_json() -> String {
+fn tiny_model_json(dir: &tempfile::TempDir) -> String {
     let (mut sc, base) = scenarios::scenario::Scenario::load("paper_park").unwrap();
     sc.appearance.training_images = 2;
     sc.appearance.max_patches_per_class = 300;
     sc.appearance.max_components = 2;
     sc.appearance.pca_dims = 4;
-    let cache = scratch().join("models");
+    let cache = dir.path().join("models");
     let model = sc.appearance.resolve_in(&cache, &base, &sc.sim.camera, |_, _, _| {}).unwrap();
     serde_json::to_string(&model).unwrap()
 }
 
 #[test]
 fn appearance_models_and_images() {
-    let base = tiny_model_json();
+    let dir = tempfile::tempdir().unwrap();
+    let base = tiny_model_json(&dir);
     fuzz("model json", base.as_bytes(), 20 * SECOND, |b| {
         slam::classifier::AppearanceModel::from_json(&text(b), "fuzz.json").is_ok()
     });
@@ -264,7 +258,7 @@ fn appearance_models_and_images() {
     let mut png = Vec::new();
     img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png).unwrap();
     fuzz("png", &png, 20 * SECOND, |b| {
-        scenarios::train::segment_image(&model, &file("image.png", b), &scratch().join("segmented.png")).is_ok()
+        scenarios::train::segment_image(&model, &file(&dir, "image.png", b), &dir.path().join("segmented.png")).is_ok()
     });
 }
 

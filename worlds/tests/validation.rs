@@ -105,8 +105,8 @@ fn missing_mesh_file_is_named() {
 
 #[test]
 fn mesh_that_is_not_gltf_is_named() {
-    let dir = std::env::temp_dir().join(format!("objslam-worlds-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let scratch = tempfile::tempdir().unwrap();
+    let dir = scratch.path();
     std::fs::write(dir.join("fake.glb"), b"this is not a glTF file").unwrap();
     let mut bad = park(&ParkParams::default(), 11).unwrap();
     bad.objects[0].mesh = Some("fake.glb".into());
@@ -119,8 +119,8 @@ fn mesh_that_is_not_gltf_is_named() {
 #[test]
 fn user_glb_mesh_loads() {
     // A world exported as .glb is a valid user mesh for an object.
-    let dir = std::env::temp_dir().join(format!("objslam-worlds-ok-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let scratch = tempfile::tempdir().unwrap();
+    let dir = scratch.path();
     let mut world = park(&ParkParams::default(), 11).unwrap();
     let small = worlds::mesh::object_parts(&world.objects[1]);
     std::fs::write(dir.join("tree.glb"), worlds::gltf_io::parts_to_glb(&small)).unwrap();
