@@ -264,14 +264,6 @@ fn run_plan(
     })
 }
 
-/// A parameter's value as short as it reads: `1`, `0.5`, `0.002` (`1.000e-7` where six
-/// decimals would show nothing).
-fn short_number(v: f64) -> String {
-    let fixed = format!("{v:.6}");
-    let trimmed = fixed.trim_end_matches('0').trim_end_matches('.');
-    if v != 0.0 && (trimmed == "0" || trimmed == "-0") { format!("{v:.3e}") } else { trimmed.to_string() }
-}
-
 /// Counted words: `1 run`, `2 runs`.
 fn count(n: usize, one: &str, many: &str) -> String {
     format!("{n} {}", if n == 1 { one } else { many })
@@ -286,7 +278,7 @@ fn print_summary(rows: &[scenarios::montecarlo::SummaryRow]) {
         let params: Vec<String> = r
             .params
             .iter()
-            .map(|(p, v)| format!("{}={}", p.rsplit('.').next().unwrap_or(p), short_number(*v)))
+            .map(|(p, v)| format!("{}={}", p.rsplit('.').next().unwrap_or(p), scenarios::montecarlo::short_number(*v)))
             .collect();
         let ci = format!("{:.1}-{:.1}%", 100.0 * r.failure_rate_ci95.0, 100.0 * r.failure_rate_ci95.1);
         println!(

@@ -111,6 +111,14 @@ impl Vary {
     }
 }
 
+/// A parameter's value as people read it: twelve significant digits at most, so `0.01`
+/// where a range's step gave 0.009999999999999998 (job keys keep the exact value) while
+/// distinct settings stay distinct; `1e-7` and `2.5e15` where plain digits would run long.
+pub fn short_number(v: f64) -> String {
+    let rounded: f64 = format!("{v:.11e}").parse().unwrap_or(v);
+    if rounded != 0.0 && !(1e-4..1e15).contains(&rounded.abs()) { format!("{rounded:e}") } else { rounded.to_string() }
+}
+
 /// Most values one varied parameter may take.
 pub const MAX_VARY_STEPS: usize = 1000;
 /// Most jobs a study may plan: each needs its record in memory and a line in runs.jsonl
@@ -1534,6 +1542,21 @@ mod tests {
         for bad in ["x", "x=1..2", "x=1:3", "x=a..2:3", "=1..2:3", "x=1..2:0"] {
             assert!(Vary::parse(bad).is_err(), "{bad}");
         }
+    }
+
+    /// People read a range's values without its rounding, and no two values as one.
+    #[test]
+    fn parameter_values_read_short_and_stay_distinct() {
+        let v = Vary::parse("x=0.005..0.03:6").unwrap();
+        assert_eq!(v.values[1], 0.009999999999999998, "the rounding the display hides");
+        let shown: Vec<String> = v.values.iter().map(|&x| short_number(x)).collect();
+        assert_eq!(shown, ["0.005", "0.01", "0.015", "0.02", "0.025", "0.03"]);
+        assert_eq!(short_number(1.0), "1");
+        assert_eq!(short_number(-2.5), "-2.5");
+        assert_eq!(short_number(0.0), "0");
+        assert_eq!(short_number(1e-7), "1e-7");
+        assert_eq!(short_number(2.5e15), "2.5e15");
+        assert_ne!(short_number(1.0000001), short_number(1.0));
     }
 
     /// A range ends on B exactly (0.2..1:4 ended on 1.0000000000000002, which a setting of

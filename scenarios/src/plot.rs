@@ -533,7 +533,8 @@ pub fn failure_rate_plot(
 /// A failure-rate plot's series: the method and the values of the varied parameters after
 /// the first (which is the x axis).
 fn series_name(r: &crate::montecarlo::SummaryRow) -> String {
-    let others: Vec<String> = r.params.iter().skip(1).map(|(p, v)| format!("{p}={v}")).collect();
+    let others: Vec<String> =
+        r.params.iter().skip(1).map(|(p, v)| format!("{p}={}", crate::montecarlo::short_number(*v))).collect();
     if others.is_empty() { r.method.clone() } else { format!("{} ({})", r.method, others.join(", ")) }
 }
 
