@@ -28,14 +28,17 @@ fn main() {
 }
 
 /// Ends the program quietly, as a closed pipe's signal would, when what reads its output
-/// stops reading (`objslam gmm fit ... | head -2`): Rust ignores that signal, which a
-/// study's worker pipes need, so printing to a closed stdout panics instead.
+/// or its messages stops reading (`objslam gmm fit ... | head -2`, `objslam run 2>&1 |
+/// head`): Rust ignores that signal, which a study's worker pipes need, so printing to a
+/// closed stdout or stderr panics instead.
 fn quiet_on_closed_stdout() {
     let report = std::panic::take_hook();
     std::panic::set_hook(Box::new(move |info| {
         let payload = info.payload();
         let message = payload.downcast_ref::<String>().map(String::as_str).or(payload.downcast_ref::<&str>().copied());
-        if message.is_some_and(|m| m.starts_with("failed printing to stdout") && m.contains("Broken pipe")) {
+        let printing =
+            |m: &str| m.starts_with("failed printing to stdout") || m.starts_with("failed printing to stderr");
+        if message.is_some_and(|m| printing(m) && m.contains("Broken pipe")) {
             // 128 + SIGPIPE: what a shell reports for a program its pipe ended.
             std::process::exit(141);
         }

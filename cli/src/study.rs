@@ -56,7 +56,7 @@ pub(crate) fn montecarlo(args: MontecarloArgs) -> Result<()> {
     };
     if let Some(MontecarloCommand::Merge { dirs, out }) = args.command {
         let (plan, runs) = mc::merge(&dirs, &out)?;
-        print_summary(&mc::summarise(&plan, &runs));
+        print_summary(&plan, &runs);
         let missing = mc::missing_runs(&plan, &runs);
         let planned = mc::jobs(&plan).len();
         println!(
@@ -242,7 +242,7 @@ fn run_plan(
     let bar = progress::StudyBar::new();
     let records = mc::run_study_with(plan, shard, out, workers, |p| bar.show(p))?;
     bar.finish();
-    print_summary(&mc::summarise(plan, &records));
+    print_summary(plan, &records);
     let (retry, finished): (Vec<_>, Vec<_>) = records.iter().partition(|r| r.retryable);
     let errors = finished.iter().filter(|r| r.error.is_some()).count();
     println!(
@@ -269,7 +269,19 @@ fn count(n: usize, one: &str, many: &str) -> String {
     format!("{n} {}", if n == 1 { one } else { many })
 }
 
-fn print_summary(rows: &[scenarios::montecarlo::SummaryRow]) {
+/// The summary table, and the builds that made the runs where there are several (a study
+/// resumed or merged after a rebuild: `summary.json`'s `builds` counts their runs).
+fn print_summary(plan: &scenarios::montecarlo::StudyPlan, runs: &[scenarios::montecarlo::RunRecord]) {
+    print_rows(&scenarios::montecarlo::summarise(plan, runs));
+    let builds = scenarios::montecarlo::builds(runs);
+    if builds.len() > 1 {
+        let each: Vec<String> =
+            builds.iter().map(|(b, n)| format!("{}: {}", b.describe(), count(*n, "run", "runs"))).collect();
+        println!("note: these runs were made by {} builds: {}", builds.len(), each.join("; "));
+    }
+}
+
+fn print_rows(rows: &[scenarios::montecarlo::SummaryRow]) {
     println!(
         "{:<12} {:<32} {:>5} {:>8} {:>16} {:>8} {:>8} {:>8} {:>12}",
         "method", "parameters", "runs", "fail", "95% CI", "wrong", "false", "ATE m", "recall (min)"

@@ -235,3 +235,27 @@ fn a_cut_mat_file_is_an_error_without_a_crash_report() {
     assert!(!e.contains("panicked"), "{e}");
     let _ = std::fs::remove_dir_all(&root);
 }
+
+/// Output or messages into a pipe whose reader has gone end the program as the pipe's
+/// signal would (141), not in a panic (101): `objslam config defaults | head -2`,
+/// `objslam world check bad.toml 2>&1 >/dev/null | true`.
+#[test]
+fn a_closed_pipe_ends_the_program_quietly() {
+    let closed = || {
+        let (reader, writer) = std::io::pipe().expect("a pipe");
+        drop(reader);
+        writer
+    };
+    let objslam = || Command::new(env!("CARGO_BIN_EXE_objslam"));
+    let printing =
+        objslam().args(["config", "defaults"]).stdout(closed()).stderr(std::process::Stdio::piped()).output();
+    let printing = printing.expect("objslam runs");
+    assert_eq!(printing.status.code(), Some(141), "{}", String::from_utf8_lossy(&printing.stderr));
+    let failing = objslam()
+        .args(["world", "check", "no-such-world.toml"])
+        .stdout(std::process::Stdio::null())
+        .stderr(closed())
+        .status()
+        .expect("objslam runs");
+    assert_eq!(failing.code(), Some(141));
+}

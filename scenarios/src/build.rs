@@ -37,16 +37,23 @@ pub fn current() -> Build {
     Build { version: env!("CARGO_PKG_VERSION").to_string(), source: SOURCE.get().cloned() }
 }
 
-/// The build in one line, for a tool field: `0.1.0 (abc1234, modified)`.
+/// This program's build in one line, for a tool field: `0.1.0 (abc1234, modified)`.
 pub fn describe() -> String {
-    let b = current();
-    match &b.source {
-        Some(s) => format!(
-            "{} ({}{})",
-            b.version,
-            s.commit.get(..12).unwrap_or(&s.commit),
-            if s.modified { ", modified" } else { "" }
-        ),
-        None => b.version.to_string(),
+    current().describe()
+}
+
+impl Build {
+    /// The build in one line: `0.1.0 (abc1234, modified)`, the version alone where the
+    /// source is unknown.
+    pub fn describe(&self) -> String {
+        match &self.source {
+            Some(s) => format!(
+                "{} ({}{})",
+                self.version,
+                s.commit.get(..12).unwrap_or(&s.commit),
+                if s.modified { ", modified" } else { "" }
+            ),
+            None => self.version.to_string(),
+        }
     }
 }

@@ -344,13 +344,17 @@ pub struct RunRecord {
     /// start), not through the run itself: a resumed study runs it again.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub retryable: bool,
+    /// The build that made the run (none in records of older builds and of runs to
+    /// retry): a study resumed or merged after a rebuild holds runs of several.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub build: Option<crate::build::Build>,
 }
 
 impl RunRecord {
-    /// The record with its metrics' wall-clock figures zeroed: what must be identical
-    /// however and wherever the run was made.
+    /// The record with its metrics' wall-clock figures zeroed and without its build: what
+    /// must be identical however and wherever the run was made.
     pub fn without_wall_clock(&self) -> RunRecord {
-        RunRecord { metrics: self.metrics.as_ref().map(|m| m.without_wall_clock()), ..self.clone() }
+        RunRecord { metrics: self.metrics.as_ref().map(|m| m.without_wall_clock()), build: None, ..self.clone() }
     }
 
     /// Whether the record is one a study could have written: a run's metrics or its error,
@@ -911,7 +915,7 @@ pub fn run_study_with(
         }
         return Err(e);
     }
-    write_summary(plan, &summarise(plan, &all), out)?;
+    write_summary(plan, &all, out)?;
     drop(held);
     Ok(all)
 }
@@ -1105,7 +1109,14 @@ fn run_job_into(base: &Scenario, base_dir: &Path, job: &Job, models: &StudyModel
             (None, Some(format!("panicked: {msg}")))
         }
     };
-    RunRecord { key: job.key(), job: job.clone(), metrics, error, retryable: false }
+    RunRecord {
+        key: job.key(),
+        job: job.clone(),
+        metrics,
+        error,
+        retryable: false,
+        build: Some(crate::build::current()),
+    }
 }
 
 /// A study's job run again with its outputs, beside what the study recorded for it.
@@ -1307,7 +1318,7 @@ fn merge_held(dirs: &[PathBuf], out: &Path) -> Result<(StudyPlan, Vec<RunRecord>
     write_atomically(&out.join("study.json"), &serde_json::to_string_pretty(&study).expect("JSON"))?;
     let lines: String = runs.iter().map(|r| serde_json::to_string(r).expect("JSON") + "\n").collect();
     write_atomically(&out.join("runs.jsonl"), &lines)?;
-    write_summary(&study.plan, &summarise(&study.plan, &runs), out)?;
+    write_summary(&study.plan, &runs, out)?;
     Ok((study.plan, runs))
 }
 
@@ -1458,15 +1469,34 @@ pub fn summarise(plan: &StudyPlan, runs: &[RunRecord]) -> Vec<SummaryRow> {
         .collect()
 }
 
+/// `summary.json`'s `builds`: `[{"build": {...}, "runs": N}]`, as [`builds`] gives them.
+fn builds_json(runs: &[RunRecord]) -> serde_json::Value {
+    builds(runs).into_iter().map(|(build, runs)| serde_json::json!({"build": build, "runs": runs})).collect()
+}
+
+/// The builds that made `runs` (runs to retry aside), each with its number of runs, in
+/// the order they first appear; runs whose records name no build are left out.
+pub fn builds(runs: &[RunRecord]) -> Vec<(crate::build::Build, usize)> {
+    let mut out: Vec<(crate::build::Build, usize)> = Vec::new();
+    for b in runs.iter().filter(|r| !r.retryable).filter_map(|r| r.build.as_ref()) {
+        match out.iter_mut().find(|(known, _)| known == b) {
+            Some((_, n)) => *n += 1,
+            None => out.push((b.clone(), 1)),
+        }
+    }
+    out
+}
+
 /// Writes `summary.csv`, `summary.json` and the failure-rate plots (PNG and SVG).
-pub fn write_summary(plan: &StudyPlan, rows: &[SummaryRow], out: &Path) -> Result<(), StudyError> {
+pub fn write_summary(plan: &StudyPlan, runs: &[RunRecord], out: &Path) -> Result<(), StudyError> {
+    let rows = summarise(plan, runs);
     let mut csv = String::from("method");
     for v in &plan.vary {
         csv.push(',');
         csv.push_str(&v.param);
     }
     csv.push_str(",runs,errors,failures,failure_rate,failure_rate_ci95_low,failure_rate_ci95_high,mean_wrong_associations,mean_false_landmarks,mean_ate_rmse_m,mean_tree_recall,min_tree_recall\n");
-    for r in rows {
+    for r in &rows {
         csv.push_str(&r.method);
         for (_, v) in &r.params {
             csv.push_str(&format!(",{v}"));
@@ -1491,9 +1521,10 @@ pub fn write_summary(plan: &StudyPlan, rows: &[SummaryRow], out: &Path) -> Resul
     write_atomically(&out.join("summary.csv"), &csv)?;
     write_atomically(
         &out.join("summary.json"),
-        &serde_json::to_string_pretty(&serde_json::json!({"study": plan, "rows": rows})).expect("JSON"),
+        &serde_json::to_string_pretty(&serde_json::json!({"study": plan, "rows": rows, "builds": builds_json(runs)}))
+            .expect("JSON"),
     )?;
-    let svg = crate::plot::failure_rate_plot(plan, rows, &out.join("failure_rate.png"))?;
+    let svg = crate::plot::failure_rate_plot(plan, &rows, &out.join("failure_rate.png"))?;
     write_atomically(&out.join("failure_rate.svg"), &svg)
 }
 
@@ -1542,6 +1573,35 @@ mod tests {
         for bad in ["x", "x=1..2", "x=1:3", "x=a..2:3", "=1..2:3", "x=1..2:0"] {
             assert!(Vary::parse(bad).is_err(), "{bad}");
         }
+    }
+
+    /// The builds of a study's runs are counted, runs to retry and records of older builds
+    /// aside, and a run's build is no figure: a rerun or another shard's record of the same
+    /// job by another build repeats it.
+    #[test]
+    fn runs_name_their_build_which_is_counted_and_no_figure() {
+        let build = |commit: &str| crate::build::Build {
+            version: "0.1.0".into(),
+            source: Some(crate::build::Source { commit: commit.into(), modified: false }),
+        };
+        let record = |index: usize, b: Option<crate::build::Build>, retryable: bool| {
+            let job = Job { index, method: "nn".into(), params: vec![], run: index, seed: 1 };
+            RunRecord { key: job.key(), job, metrics: None, error: Some("e".into()), retryable, build: b }
+        };
+        let runs = [
+            record(0, Some(build("aaa")), false),
+            record(1, Some(build("bbb")), false),
+            record(2, Some(build("aaa")), false),
+            record(3, None, false),
+            record(4, Some(build("ccc")), true),
+        ];
+        assert_eq!(builds(&runs), vec![(build("aaa"), 2), (build("bbb"), 1)]);
+        assert_eq!(builds_json(&runs)[1]["build"]["source"]["commit"], "bbb");
+        assert_eq!(runs[0].without_wall_clock(), record(0, Some(build("other")), false).without_wall_clock());
+        let line = serde_json::to_string(&runs[0]).unwrap();
+        assert!(line.contains(r#""build":{"version":"0.1.0","source":{"commit":"aaa""#), "{line}");
+        assert_eq!(serde_json::from_str::<RunRecord>(&line).unwrap(), runs[0]);
+        assert!(!serde_json::to_string(&runs[3]).unwrap().contains("build"), "an older build's record stays as it was");
     }
 
     /// People read a range's values without its rounding, and no two values as one.
@@ -1749,7 +1809,8 @@ mod tests {
         let dir = scratch.path();
         let f = dir.join("runs.jsonl");
         let job = Job { index: 0, method: "nn".into(), params: vec![], run: 0, seed: 1 };
-        let rec = RunRecord { key: job.key(), job, metrics: None, error: Some("x".into()), retryable: false };
+        let rec =
+            RunRecord { key: job.key(), job, metrics: None, error: Some("x".into()), retryable: false, build: None };
         let line = serde_json::to_string(&rec).unwrap();
         std::fs::write(&f, format!("{line}\n{}", &line[..20])).unwrap();
         let runs = read_runs(&f).unwrap();
@@ -1768,6 +1829,7 @@ mod tests {
             metrics,
             error: error.map(str::to_owned),
             retryable,
+            build: None,
         };
         let mut beyond = metrics.clone();
         beyond.map.tree_recall = Some(7.5);
@@ -1795,7 +1857,8 @@ mod tests {
         let f = dir.join("runs.jsonl");
         let line = |index: usize, error: &str, retryable: bool| {
             let job = Job { index, method: "nn".into(), params: vec![], run: index, seed: 1 };
-            let rec = RunRecord { key: job.key(), job, metrics: None, error: Some(error.into()), retryable };
+            let rec =
+                RunRecord { key: job.key(), job, metrics: None, error: Some(error.into()), retryable, build: None };
             serde_json::to_string(&rec).unwrap() + "\n"
         };
         let (a, b1, b2, c) = (line(0, "a", false), line(1, "died", true), line(1, "b", false), line(2, "c", false));
@@ -1829,6 +1892,7 @@ mod tests {
             metrics: None,
             error: Some("x".into()),
             retryable,
+            build: None,
         };
         let rows = summarise(&plan, &[record(0, false), record(1, true)]);
         assert_eq!((rows.len(), rows[0].runs, rows[0].errors), (1, 1, 1));
@@ -1856,7 +1920,14 @@ mod tests {
                 training_renderer: None,
                 digest: Some(digest.into()),
             });
-            RunRecord { key: all[k].key(), job: all[k].clone(), metrics: Some(m), error: None, retryable: false }
+            RunRecord {
+                key: all[k].key(),
+                job: all[k].clone(),
+                metrics: Some(m),
+                error: None,
+                retryable: false,
+                build: None,
+            }
         };
         let file = Path::new("runs.jsonl");
         // Jobs 0 and 1 are one setting's two runs, 2 and 3 the other's.

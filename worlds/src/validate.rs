@@ -18,6 +18,13 @@ pub const ROBOT_ROUTE_CLEARANCE_M: f64 = 0.5;
 /// Clearance of people's routes from obstacles (a walking person's half width).
 pub const PERSON_ROUTE_CLEARANCE_M: f64 = 0.3;
 
+/// Farthest from the origin (m, in x or y) that the ground and objects may reach. The
+/// physics works in f32, whose spacing is at most 61 µm (2^-14 m) within 1,024 m of the
+/// origin: under a tenth of the laser's 1 mm range step and about 1% of the 5 mm the robot
+/// moves in a 10 ms physics step at its 0.5 m/s cruise. Far beyond, positions round to
+/// millimetres, and by 100 km a step rounds away and the robot never moves.
+pub const MAX_COORDINATE_M: f64 = 1_000.0;
+
 /// Checks a world; `base_dir` resolves relative mesh paths. Returns every problem found.
 pub fn validate(world: &World, base_dir: &Path) -> Vec<Problem> {
     let mut out = Vec::new();
@@ -34,6 +41,9 @@ pub fn validate(world: &World, base_dir: &Path) -> Vec<Problem> {
         || !all_finite(&[g.min_m[0], g.min_m[1], g.max_m[0], g.max_m[1]])
     {
         push("ground".into(), "max_m must be greater than min_m in x and y".into());
+    } else if let Some(c) = [g.min_m[0], g.min_m[1], g.max_m[0], g.max_m[1]].iter().find(|c| c.abs() > MAX_COORDINATE_M)
+    {
+        push("ground".into(), far_from_origin(*c));
     }
     check_colour(&mut push, "ground.appearance.colour", &g.appearance.colour);
 
@@ -51,6 +61,8 @@ pub fn validate(world: &World, base_dir: &Path) -> Vec<Problem> {
         check_id(&mut push, o.id, format!("{f}.id"));
         if !all_finite(&[o.pose.x, o.pose.y, o.pose.yaw_deg]) {
             push(format!("{f}.pose"), "pose must be finite".into());
+        } else if let Some(c) = [o.pose.x, o.pose.y].iter().find(|c| c.abs() > MAX_COORDINATE_M) {
+            push(format!("{f}.pose"), far_from_origin(*c));
         }
         for (name, v) in shape_sizes(&o.shape) {
             if !(v.is_finite() && v > 0.0) {
@@ -219,6 +231,14 @@ pub fn validate(world: &World, base_dir: &Path) -> Vec<Problem> {
         }
     }
     out
+}
+
+/// Why a coordinate beyond [`MAX_COORDINATE_M`] is refused, and what to do.
+fn far_from_origin(c: f64) -> String {
+    format!(
+        "{c} m is more than {MAX_COORDINATE_M} m from the origin, where the simulator's f32 physics no longer \
+         resolves a robot's motion; move the world's coordinates to a local origin"
+    )
 }
 
 /// Refuses `points` off the ground: nothing stands or drives there.

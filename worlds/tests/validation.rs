@@ -232,6 +232,16 @@ fn routes_off_the_ground_or_that_cannot_be_driven_are_named() {
         let m = check(&|w| w.people[0].leg_radius_m = 5.0);
         assert!(m.contains("people[0].route") && m.contains("clearance"), "{m}");
     }
+    // A world moved 100 km from the origin: its robot's steps would round away in the
+    // physics' f32 (it never moved, and scored a perfect ATE).
+    let far = worlds::validate::MAX_COORDINATE_M + 1.0;
+    let m = check(&|w| {
+        w.ground.min_m[0] += 1e5;
+        w.ground.max_m[0] += 1e5;
+    });
+    assert!(m.contains("ground") && m.contains("100") && m.contains("from the origin"), "{m}");
+    let m = check(&|w| w.objects[0].pose.y = -far);
+    assert!(m.contains("objects[0].pose") && m.contains(&format!("-{far} m is more than 1000 m")), "{m}");
     let m = check(&|w| w.robot.start.yaw_deg = 1e12);
     assert!(m.contains("robot.start.yaw_deg") && m.contains("within a turn"), "{m}");
     let m = check(&|w| {

@@ -520,7 +520,7 @@ mod tests {
         let mut m: crate::run::Metrics = serde_json::from_str(include_str!("../../tests/data/metrics_sample.json"))
             .expect("the sample metrics parse");
         f(&mut m);
-        RunRecord { key: job.key(), job, metrics: Some(m), error: None, retryable: false }
+        RunRecord { key: job.key(), job, metrics: Some(m), error: None, retryable: false, build: None }
     }
 
     #[test]

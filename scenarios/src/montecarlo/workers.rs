@@ -166,7 +166,7 @@ impl WorkerProcess {
 
 /// The record of a run its worker process could not finish: retried when the study resumes.
 fn error_record(job: &Job, error: String) -> RunRecord {
-    RunRecord { key: job.key(), job: job.clone(), metrics: None, error: Some(error), retryable: true }
+    RunRecord { key: job.key(), job: job.clone(), metrics: None, error: Some(error), retryable: true, build: None }
 }
 
 /// Runs `todo` on `count` child processes of `exe`, calling `finished` for each record as

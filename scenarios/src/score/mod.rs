@@ -26,10 +26,12 @@ pub fn ate_rmse(estimate: &[[f64; 2]], truth: &[[f64; 2]]) -> f64 {
 const MAX_ASSIGNMENT_COST: f64 = 1e100;
 
 /// Minimum-cost assignment of rows to columns (rows <= columns or not; unassigned rows get
-/// `None`), by the Hungarian algorithm (Kuhn-Munkres, O(n^3)). A non-finite cost (a
-/// distance that overflowed) counts as the large cost of a dummy cell, and one beyond
-/// ±[`MAX_ASSIGNMENT_COST`] as that bound: with an infinite or NaN potential no column
-/// would ever be found and the search would not end.
+/// `None`), by the Hungarian algorithm (Kuhn-Munkres with potentials). It runs on the
+/// shorter side, in O(short^2 * long): a score's few landmarks against a large world's
+/// thousands of objects cost what the landmarks need, not the cube of the objects (padding
+/// the problem square did). A non-finite cost (a distance that overflowed) counts as the
+/// large cost of a dummy cell, and one beyond ±[`MAX_ASSIGNMENT_COST`] as that bound: with
+/// an infinite or NaN potential no column would ever be found and the search would not end.
 pub fn hungarian(cost: &[Vec<f64>]) -> Vec<Option<usize>> {
     let rows = cost.len();
     if rows == 0 {
@@ -39,29 +41,42 @@ pub fn hungarian(cost: &[Vec<f64>]) -> Vec<Option<usize>> {
     if cols == 0 {
         return vec![None; rows];
     }
-    // Square the problem with a large cost for dummy cells.
-    let n = rows.max(cols);
     let bounded = |c: f64| c.is_finite().then(|| c.clamp(-MAX_ASSIGNMENT_COST, MAX_ASSIGNMENT_COST));
     let big = cost.iter().flatten().filter_map(|&c| bounded(c)).fold(0.0f64, |m, c| m.max(c.abs())) * 10.0 + 1.0;
-    let c = |i: usize, j: usize| {
-        if i < rows && j < cols { cost[i].get(j).and_then(|&c| bounded(c)).unwrap_or(big) } else { big }
-    };
+    let c = |i: usize, j: usize| cost[i].get(j).and_then(|&c| bounded(c)).unwrap_or(big);
+    let mut result = vec![None; rows];
+    if rows <= cols {
+        for (i, j) in assign_short_side(rows, cols, c).into_iter().enumerate() {
+            result[i] = Some(j);
+        }
+    } else {
+        for (j, i) in assign_short_side(cols, rows, |j, i| c(i, j)).into_iter().enumerate() {
+            result[i] = Some(j);
+        }
+    }
+    result
+}
+
+/// The column of each of `n` rows in a minimum-cost assignment to `m >= n` columns.
+fn assign_short_side(n: usize, m: usize, c: impl Fn(usize, usize) -> f64) -> Vec<usize> {
     // Potentials formulation with 1-based indices (row 0 / column 0 are sentinels).
     let mut u = vec![0.0; n + 1];
-    let mut v = vec![0.0; n + 1];
-    let mut p = vec![0usize; n + 1];
-    let mut way = vec![0usize; n + 1];
+    let mut v = vec![0.0; m + 1];
+    let mut p = vec![0usize; m + 1];
+    let mut way = vec![0usize; m + 1];
+    let mut minv = vec![f64::INFINITY; m + 1];
+    let mut used = vec![false; m + 1];
     for i in 1..=n {
         p[0] = i;
         let mut j0 = 0;
-        let mut minv = vec![f64::INFINITY; n + 1];
-        let mut used = vec![false; n + 1];
+        minv.fill(f64::INFINITY);
+        used.fill(false);
         loop {
             used[j0] = true;
             let i0 = p[j0];
             let mut delta = f64::INFINITY;
             let mut j1 = 0;
-            for j in 1..=n {
+            for j in 1..=m {
                 if !used[j] {
                     let cur = c(i0 - 1, j - 1) - u[i0] - v[j];
                     if cur < minv[j] {
@@ -74,7 +89,7 @@ pub fn hungarian(cost: &[Vec<f64>]) -> Vec<Option<usize>> {
                     }
                 }
             }
-            for j in 0..=n {
+            for j in 0..=m {
                 if used[j] {
                     u[p[j]] += delta;
                     v[j] -= delta;
@@ -96,13 +111,13 @@ pub fn hungarian(cost: &[Vec<f64>]) -> Vec<Option<usize>> {
             }
         }
     }
-    let mut result = vec![None; rows];
+    let mut column = vec![0; n];
     for (j, &i) in p.iter().enumerate().skip(1) {
-        if i >= 1 && i <= rows && j <= cols {
-            result[i - 1] = Some(j - 1);
+        if i >= 1 {
+            column[i - 1] = j - 1;
         }
     }
-    result
+    column
 }
 
 /// Counts of mapped landmarks by the class of the object they truly belong to, and the
@@ -426,6 +441,56 @@ mod tests {
         let perms = [[0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]];
         let best = perms.iter().map(|p| (0..3).map(|i| cost[i][p[i]]).sum::<f64>()).fold(f64::INFINITY, f64::min);
         assert_eq!(total, best);
+    }
+
+    /// Wide and tall problems, solved on their short side, give the least total cost that
+    /// trying every assignment finds, with each column used at most once.
+    #[test]
+    fn hungarian_is_optimal_on_wide_and_tall_problems() {
+        /// The least cost of assigning every row of a wide problem (rows <= columns).
+        fn best(cost: &[Vec<f64>], row: usize, used: &mut Vec<bool>) -> f64 {
+            if row == cost.len() {
+                return 0.0;
+            }
+            let mut least = f64::INFINITY;
+            for j in 0..cost[row].len() {
+                if !used[j] {
+                    used[j] = true;
+                    least = least.min(cost[row][j] + best(cost, row + 1, used));
+                    used[j] = false;
+                }
+            }
+            least
+        }
+        let mut state = 7u64;
+        let mut next = || {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (state >> 33) as f64 / (1u64 << 31) as f64 * 10.0
+        };
+        for (rows, cols) in [(1, 6), (2, 5), (3, 3), (3, 6), (5, 2), (6, 3), (4, 1)] {
+            for _ in 0..20 {
+                let cost: Vec<Vec<f64>> = (0..rows).map(|_| (0..cols).map(|_| next()).collect()).collect();
+                let a = hungarian(&cost);
+                assert_eq!(a.iter().flatten().count(), rows.min(cols));
+                let columns: std::collections::BTreeSet<usize> = a.iter().flatten().copied().collect();
+                assert_eq!(columns.len(), rows.min(cols), "a column used twice: {a:?}");
+                let total: f64 = a.iter().enumerate().filter_map(|(i, j)| j.map(|j| cost[i][j])).sum();
+                let wide: Vec<Vec<f64>> = if rows <= cols {
+                    cost.clone()
+                } else {
+                    (0..cols).map(|j| (0..rows).map(|i| cost[i][j]).collect()).collect()
+                };
+                let least = best(&wide, 0, &mut vec![false; wide[0].len()]);
+                assert!((total - least).abs() < 1e-9, "{rows}x{cols}: {total} against {least}");
+            }
+        }
+        // A score's few landmarks against a large world's objects: quick, and each landmark
+        // takes its own object.
+        let objects = 20_000;
+        let cost: Vec<Vec<f64>> =
+            (0..10).map(|i| (0..objects).map(|j| if j == 1000 * i + 7 { 0.5 } else { 30.0 }).collect()).collect();
+        let a = hungarian(&cost);
+        assert_eq!(a, (0..10).map(|i| Some(1000 * i + 7)).collect::<Vec<_>>());
     }
 
     #[test]
