@@ -73,34 +73,38 @@ fn check_robot_log_dir(dir: &std::path::Path) -> Result<()> {
 
 /// `objslam replay`: a robot log, or a published data set.
 pub(crate) fn replay(log: Option<PathBuf>, options: ReplayArgs, dataset: Option<ReplayDataset>) -> Result<()> {
-    let (log_dir, source, log, options): (_, _, robotlog::stream::LogStream, _) = match (dataset, log) {
+    // The log's directory, and whether it is Victoria Park's files (else a robot log).
+    let (log_dir, victoria_park, log, options): (PathBuf, bool, robotlog::stream::LogStream, _) = match (dataset, log) {
         (Some(ReplayDataset::VictoriaPark { data, options }), _) => {
             let log = robotlog::victoria_park::read(&data)?.into();
-            let source = scenarios::replay::LogSource::of(&data, robotlog::victoria_park::FILES);
-            (None, source, log, options.into())
+            (data, true, log, options.into())
         }
         (None, Some(dir)) => {
             check_robot_log_dir(&dir)?;
             let log = robotlog::format::open(&dir)?;
-            (Some(dir.clone()), scenarios::replay::LogSource::of_robot_log(&dir), log, options)
+            (dir, false, log, options)
         }
         (None, None) => anyhow::bail!("give a log directory, or a data set: `objslam replay victoria-park --data DIR`"),
     };
     let method = options.method.map(AssociationMethod::from);
     let out = options.out.expect("clap requires --out");
-    let config =
-        scenarios::replay::resolve_config(log_dir.as_deref(), &log.manifest, method, options.config.as_deref())?;
+    let robot_log = (!victoria_park).then_some(log_dir.as_path());
+    let config = scenarios::replay::resolve_config(robot_log, &log.manifest, method, options.config.as_deref())?;
     // The model given, else the log's own for a camera method.
-    let beside_log = log_dir
-        .as_ref()
-        .map(|d| d.join(files::APPEARANCE_MODEL))
-        .filter(|f| config.method.uses_appearance() && f.is_file());
+    let beside_log =
+        robot_log.map(|d| d.join(files::APPEARANCE_MODEL)).filter(|f| config.method.uses_appearance() && f.is_file());
     let appearance = match options.appearance_model.as_ref().or(beside_log.as_ref()) {
         Some(file) => {
             println!("appearance model: {}", file.display());
             Some(slam::classifier::AppearanceModel::load(file)?)
         }
         None => None,
+    };
+    // The files read, the log's own model among them where it is read.
+    let source = if victoria_park {
+        scenarios::replay::LogSource::of(&log_dir, &robotlog::victoria_park::files_read(&log_dir))
+    } else {
+        scenarios::replay::LogSource::of_robot_log(&log_dir, options.appearance_model.is_none() && beside_log.is_some())
     };
     let result = scenarios::replay::replay_from(log, Some(&source), config, appearance, Some(&out))?;
     println!("{}", scenarios::replay::summary(&result.metrics));

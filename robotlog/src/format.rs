@@ -13,6 +13,7 @@ use std::path::{Path, PathBuf};
 
 use slam::messages::{Control, Detection, LaserScan, OdometryIncrement};
 
+use crate::line_ends::LfLineEnds;
 use crate::stream::{LogStream, MotionMessage, ObservationMessage, Reread, Rows as RowsOf};
 use crate::{CameraFrameFile, DetectionScan, Log, LogError, Manifest, Motion, Observations, ReferenceSample, RgbImage};
 
@@ -243,7 +244,7 @@ type Row = (u64, f64, Vec<Option<f64>>);
 /// of the allowed headers; `header` is its index), each row with its line.
 struct Rows {
     file: PathBuf,
-    reader: csv::Reader<fs::File>,
+    reader: csv::Reader<LfLineEnds<fs::File>>,
     names: Vec<String>,
     header: usize,
     previous_t: f64,
@@ -269,8 +270,7 @@ impl Rows {
             .has_headers(true)
             .flexible(true)
             .trim(csv::Trim::All)
-            .from_path(file)
-            .map_err(|e| csv_error(file, e))?;
+            .from_reader(LfLineEnds::new(fs::File::open(file).map_err(io(file))?));
         let found: Vec<String> = reader.headers().map_err(|e| csv_error(file, e))?.iter().map(str::to_string).collect();
         let header = expected
             .iter()
@@ -314,6 +314,11 @@ impl Rows {
                 }
             }
         };
+        // Lines of spaces only, which the file holds at its end alone (a blank line before a
+        // row is refused on opening), are blank lines, not rows of one empty cell.
+        if record.len() == 1 && record[0].is_empty() {
+            return self.next_record();
+        }
         let line = record.position().map_or(0, |p| p.line());
         let columns = self.names.len();
         if record.len() != columns {

@@ -8,6 +8,7 @@
 //! docs/reference/robot-log.md.
 
 pub mod format;
+pub mod line_ends;
 pub mod manifest;
 pub mod stream;
 pub mod victoria_park;

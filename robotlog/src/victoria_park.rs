@@ -31,8 +31,6 @@ pub const DETECTIONS_FILE: &str = "VictoriaParkSinSincronizar.mat";
 pub const DEAD_RECKONING_FILE: &str = "aa3_dr.mat";
 pub const LASER_FILE: &str = "aa3_lsr2.mat";
 pub const GPS_FILE: &str = "aa3_gpsx.mat";
-/// Every file of the data set the reader may read.
-pub const FILES: &[&str] = &[DETECTIONS_FILE, DEAD_RECKONING_FILE, LASER_FILE, GPS_FILE];
 
 /// Wheelbase (m).
 pub const WHEELBASE_M: f64 = 2.83;
@@ -43,6 +41,15 @@ pub const LASER_X_M: f64 = 3.78;
 pub const LASER_Y_M: f64 = 0.5;
 
 /// Reads the data set in `dir` (either form, see the module documentation).
+/// The files of `dir` that [`read`] reads: the detections form where it is there, else the
+/// originals, and the GPS.
+pub fn files_read(dir: &Path) -> Vec<&'static str> {
+    let mut names =
+        if dir.join(DETECTIONS_FILE).exists() { vec![DETECTIONS_FILE] } else { vec![DEAD_RECKONING_FILE, LASER_FILE] };
+    names.push(GPS_FILE);
+    names
+}
+
 pub fn read(dir: &Path) -> Result<Log, LogError> {
     crate::format::check_dir(dir, "give the directory that holds the data set's files")?;
     let (motion, observations) = if dir.join(DETECTIONS_FILE).exists() {
@@ -108,7 +115,17 @@ fn load(file: &Path) -> Result<MatFile, LogError> {
             }
         }));
     });
-    let bytes = std::fs::read(file).map_err(|source| LogError::Io { file: file.to_path_buf(), source })?;
+    let mut bytes = std::fs::read(file).map_err(|source| LogError::Io { file: file.to_path_buf(), source })?;
+    if bytes.len() < MAT_HEADER_BYTES {
+        return Err(LogError::File {
+            file: file.to_path_buf(),
+            problem: format!(
+                "not a MAT-file: {} bytes, fewer than a MAT-file's {MAT_HEADER_BYTES}-byte header",
+                bytes.len()
+            ),
+        });
+    }
+    normalise_header_text(&mut bytes);
     PARSING.with(|p| p.set(true));
     let parsed = std::panic::catch_unwind(|| matrw::load_matfile_from_u8(&bytes));
     PARSING.with(|p| p.set(false));
@@ -116,13 +133,43 @@ fn load(file: &Path) -> Result<MatFile, LogError> {
         Ok(Ok(mat)) => Ok(mat),
         Ok(Err(e)) => Err(LogError::File {
             file: file.to_path_buf(),
-            problem: format!("not a readable MAT-file: {}", plain_text(&e.to_string())),
+            problem: format!("not a readable MAT-file: {}", parser_message(&e.to_string())),
         }),
         Err(_) => Err(LogError::File {
             file: file.to_path_buf(),
             problem: "not a readable MAT-file (the parser failed)".into(),
         }),
     }
+}
+
+/// A Level 5 MAT-file's header: 116 bytes of text, 8 of subsystem offset, 2 of version and
+/// 2 of byte order.
+const MAT_HEADER_BYTES: usize = 128;
+
+/// Gives a Level 5 header's descriptive text the `MATLAB 5.0 MAT-file, ` opening the
+/// parser insists on. The text is for people (MATLAB writes `MAT-file, Platform: ...`,
+/// scipy's `savemat` `MAT-file Platform: ...`): a file scipy saved was refused.
+fn normalise_header_text(bytes: &mut [u8]) {
+    const OPENING: &[u8] = b"MATLAB 5.0 MAT-file";
+    const WANTED: &[u8] = b"MATLAB 5.0 MAT-file, ";
+    let text = &bytes[..116];
+    if !text.starts_with(OPENING) || text.starts_with(WANTED) {
+        return;
+    }
+    let rest: Vec<u8> = text[OPENING.len()..].iter().copied().skip_while(|&b| b == b' ' || b == b',').collect();
+    let mut new = WANTED.to_vec();
+    new.extend(rest);
+    new.resize(116, b' ');
+    bytes[..116].copy_from_slice(&new);
+}
+
+/// The parser's message for people: after its `Error: `, without terminal colour codes,
+/// frame lines, backtrace or the parser's source paths, on one line.
+fn parser_message(message: &str) -> String {
+    let text = plain_text(message);
+    let text = text.split_once("Error: ").map_or(text.as_str(), |(_, after)| after);
+    let text = text.split(" at /").next().unwrap_or(text);
+    text.chars().filter(|c| !('\u{2500}'..='\u{257f}').contains(c)).collect::<String>().trim().to_string()
 }
 
 /// The parser's message without its terminal colour codes, on one line.
@@ -244,6 +291,13 @@ fn read_detections_form(file: &Path) -> Result<(Motion, Observations), LogError>
     let MatVariable::CellArray(_) = zt else {
         return Err(LogError::File { file: file.to_path_buf(), problem: "`zt` is missing or not a cell array".into() });
     };
+    let cells: usize = zt.dim().iter().product();
+    if cells > scan_times.len() {
+        return Err(LogError::File {
+            file: file.to_path_buf(),
+            problem: format!("`zt` has {cells} cells, more than `TLsr` has times ({})", scan_times.len()),
+        });
+    }
     let mut scans = Vec::with_capacity(scan_times.len());
     for (k, &t) in scan_times.iter().enumerate() {
         let cell = &zt[k];
@@ -280,6 +334,12 @@ fn read_detections_form(file: &Path) -> Result<(Motion, Observations), LogError>
                 return Err(LogError::File {
                     file: file.to_path_buf(),
                     problem: format!("`zt` cell {} holds a detection that is not finite or not ahead: {d:?}", k + 1),
+                });
+            }
+            if d[1].abs() > std::f64::consts::TAU {
+                return Err(LogError::File {
+                    file: file.to_path_buf(),
+                    problem: format!("`zt` cell {} holds bearing {} beyond a turn: radians, not degrees", k + 1, d[1]),
                 });
             }
             // Bearings run 0..pi from the laser's right, pi/2 straight ahead.

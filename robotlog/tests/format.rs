@@ -566,7 +566,7 @@ fn victoria_park_files_that_are_not_mat_files_are_errors() {
     assert!(matches!(robotlog::victoria_park::read(&d), Err(LogError::Missing { .. })));
     std::fs::write(d.join("VictoriaParkSinSincronizar.mat"), b"MATLAB 5.0 MAT-file, not really").unwrap();
     let e = robotlog::victoria_park::read(&d).unwrap_err().to_string();
-    assert!(e.contains("VictoriaParkSinSincronizar.mat") && e.contains("not a readable MAT-file"), "{e}");
+    assert!(e.contains("VictoriaParkSinSincronizar.mat: not a MAT-file: 31 bytes, fewer than"), "{e}");
     std::fs::remove_dir_all(&d).ok();
 }
 
@@ -625,6 +625,39 @@ fn victoria_park_values_that_cannot_be_are_errors() {
     std::fs::remove_dir_all(&d).ok();
 }
 
+/// The detections form's bearings in degrees, and more detection cells than scan times,
+/// are refused with the file and the cell, not mapped or dropped.
+#[test]
+fn victoria_park_detections_in_degrees_or_without_a_time_are_refused() {
+    use matrw::{CellArray, MatFile, MatVariable, NumericArray};
+    let d = dir("vp-detections");
+    std::fs::create_dir_all(&d).unwrap();
+    let numeric =
+        |dim: Vec<usize>, v: Vec<f64>| MatVariable::NumericArray(NumericArray::new(dim, v.into(), None).unwrap());
+    let write = |bearing: f64, cells: usize| {
+        let mut mat = MatFile::new();
+        mat.insert("time", numeric(vec![1, 3], vec![0.0, 0.5, 1.0]));
+        mat.insert("u", numeric(vec![2, 3], vec![1.0, 0.0, 1.0, 0.0, 1.0, 0.0]));
+        mat.insert("TLsr", numeric(vec![1, 2], vec![0.2, 0.7]));
+        let zt: Vec<MatVariable> = (0..cells).map(|_| numeric(vec![3, 1], vec![10.0, bearing, 0.3])).collect();
+        mat.insert("zt", MatVariable::CellArray(CellArray::new(vec![1, cells], zt).unwrap()));
+        let file = d.join("VictoriaParkSinSincronizar.mat");
+        matrw::save_matfile_v7(file.to_str().unwrap(), mat, true).unwrap();
+    };
+    write(1.2, 2);
+    assert!(robotlog::victoria_park::read(&d).is_ok());
+    write(95.0, 2);
+    let e = robotlog::victoria_park::read(&d).unwrap_err().to_string();
+    assert!(
+        e.contains("VictoriaParkSinSincronizar.mat: `zt` cell 1 holds bearing 95 beyond a turn: radians, not degrees"),
+        "{e}"
+    );
+    write(1.2, 3);
+    let e = robotlog::victoria_park::read(&d).unwrap_err().to_string();
+    assert!(e.contains("`zt` has 3 cells, more than `TLsr` has times (2)"), "{e}");
+    std::fs::remove_dir_all(&d).ok();
+}
+
 /// The ACFR originals' form, made here: `aa3_dr.mat` (ms, speed, steering as int32 and
 /// double) and `aa3_lsr2.mat` (ms, N x 361 ranges in cm as uint16, 8191 for no return).
 #[test]
@@ -662,6 +695,22 @@ fn victoria_park_originals_are_read_as_controls_and_raw_scans() {
     assert!(!scans[1].valid(180), "above 8000 cm is no return");
     assert!(scans[1].valid(179));
     assert!(log.reference.is_empty() && log.manifest.reference.is_none());
+    // The same file as scipy's savemat heads it (no comma after `MAT-file`) is read alike.
+    let file = d.join("aa3_dr.mat");
+    let mut bytes = std::fs::read(&file).unwrap();
+    let text = b"MATLAB 5.0 MAT-file Platform: posix, Created on: Sun Dec  6 12:00:00 2026";
+    bytes[..116].fill(b' ');
+    bytes[..text.len()].copy_from_slice(text);
+    std::fs::write(&file, &bytes).unwrap();
+    assert_eq!(robotlog::victoria_park::read(&d).unwrap().motion, log.motion);
+    // An empty file, and a header no parser reads: plain messages, no parser internals.
+    std::fs::write(d.join("aa3_lsr2.mat"), b"").unwrap();
+    let e = robotlog::victoria_park::read(&d).unwrap_err().to_string();
+    assert!(e.contains("aa3_lsr2.mat: not a MAT-file: 0 bytes, fewer than a MAT-file's 128-byte header"), "{e}");
+    std::fs::write(d.join("aa3_lsr2.mat"), [b'x'; 300]).unwrap();
+    let e = robotlog::victoria_park::read(&d).unwrap_err().to_string();
+    assert!(e.contains("aa3_lsr2.mat: not a readable MAT-file: "), "{e}");
+    assert!(!e.contains("Backtrace") && !e.contains(".cargo") && !e.contains('\u{2501}'), "{e}");
     std::fs::remove_dir_all(&d).ok();
 }
 

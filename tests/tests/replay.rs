@@ -429,6 +429,70 @@ fn motion_cut_short_is_refused() {
     assert!(e.contains(&format!("the motion ends at t = {motion_end} s while observations go on")), "{e}");
 }
 
+/// A log whose motion begins long after its first observations (odometry on another
+/// clock, or in milliseconds) is refused, not replayed from the start pose.
+#[test]
+fn motion_starting_after_the_observations_is_refused() {
+    let mut log = synthetic_park();
+    log.manifest.vehicle.wheelbase_m = Some(2.83);
+    let config = resolve_config(None, &log.manifest, Some(AssociationMethod::Nn), None).unwrap();
+    let first_scan = match &log.observations {
+        Observations::Detections(d) => d[0].t,
+        Observations::Scans(s) => s[0].t,
+    };
+    let Motion::Controls(controls) = &mut log.motion else { panic!("a car's controls") };
+    controls.retain(|(t, _)| *t > first_scan + 5.0);
+    let motion_start = controls[0].0;
+    let e = replay(log, config, None, None).err().expect("late motion is refused").to_string();
+    assert!(
+        e.contains(&format!(
+            "observations begin at t = {first_scan} s, before the motion's first row at t = {motion_start} s"
+        )),
+        "{e}"
+    );
+}
+
+/// Motion in milliseconds beside observations in seconds puts every observation between
+/// two motion rows seconds apart: refused, not replayed from a parked pose.
+#[test]
+fn motion_in_milliseconds_is_refused() {
+    let mut log = synthetic_park();
+    log.manifest.vehicle.wheelbase_m = Some(2.83);
+    let config = resolve_config(None, &log.manifest, Some(AssociationMethod::Nn), None).unwrap();
+    let Motion::Controls(controls) = &mut log.motion else { panic!("a car's controls") };
+    let first = controls[0].0;
+    for (t, _) in controls.iter_mut() {
+        *t = first + (*t - first) * 1000.0;
+    }
+    let e = replay(log, config, None, None).err().expect("refused").to_string();
+    assert!(e.contains("observations fall where the motion has no row for more than 1 s around them"), "{e}");
+}
+
+/// A reference in milliseconds (or on another clock), of which a few samples fall within
+/// the replayed poses' times, is not scored on those few: the ATE is undefined, and the
+/// summary says why.
+#[test]
+fn a_reference_on_another_clock_is_not_scored() {
+    let mut log = synthetic_park();
+    log.manifest.vehicle.wheelbase_m = Some(2.83);
+    log.manifest.vehicle.encoder_offset_m = Some(0.76);
+    log.manifest.reference = Some(robotlog::manifest::Reference {
+        kind: robotlog::ReferenceKind::Gps,
+        point: robotlog::ReferencePoint::Sensor,
+    });
+    let config = resolve_config(None, &log.manifest, Some(AssociationMethod::Nn), None).unwrap();
+    let whole = replay(log.clone(), config.clone(), None, None).unwrap().metrics;
+    assert!(whole.reference.as_ref().unwrap().ate_rmse_m.is_finite());
+    for sample in &mut log.reference {
+        sample.t *= 1000.0;
+    }
+    let m = replay(log, config, None, None).unwrap().metrics;
+    let r = m.reference.as_ref().unwrap();
+    assert!(r.samples_scored > 0 && !r.ate_rmse_m.is_finite(), "{} scored, ATE {}", r.samples_scored, r.ate_rmse_m);
+    let line = scenarios::replay::summary(&m);
+    assert!(line.contains("ATE undefined: only") && line.contains("another clock, or in another unit"), "{line}");
+}
+
 /// A settings file given to a replay (`--config`, or a log's `pipeline.toml`) is refused at
 /// the line of the key that is wrong, bare or under `[pipeline]`, arrays longer than their
 /// field included.

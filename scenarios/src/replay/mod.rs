@@ -17,7 +17,7 @@ use std::time::Instant;
 
 pub use reference::{
     GPS_SPIKE_MAX_FIXES, GPS_SPIKE_SPEED_MPS, GpsSpikeFinder, MIN_ALIGNED_SAMPLES, ReferenceScore, gps_spikes,
-    rigid_alignment,
+    rigid_alignment, too_little_within,
 };
 use reference::{PairStore, ReferencePairs, score_reference};
 
@@ -85,6 +85,18 @@ pub enum ReplayError {
         "the motion ends at t = {motion_end} s while observations go on to t = {t} s: a log's motion (odometry.csv of a robot log) must cover what it saw (is the file cut short?)"
     )]
     MotionEnded { motion_end: f64, t: f64 },
+    /// Observations long before the first motion are on another clock or in another unit
+    /// (odometry in milliseconds): replayed, every one of them was seen from the start pose.
+    #[error(
+        "observations begin at t = {t} s, before the motion's first row at t = {motion_start} s: a log's motion (odometry.csv of a robot log) must cover what it saw (are its files on one clock, in seconds?)"
+    )]
+    MotionStartsLate { motion_start: f64, t: f64 },
+    /// Most observations inside gaps of the motion is motion on another clock or in
+    /// another unit (odometry in ms beside scans in s): each was seen from a parked pose.
+    #[error(
+        "{in_gaps} of the {observations} observations fall where the motion has no row for more than {MOTION_GAP_S} s around them: a log's motion (odometry.csv of a robot log) must cover what it saw (are its files on one clock, in seconds?)"
+    )]
+    ObservationsInMotionGaps { in_gaps: usize, observations: usize },
     #[error(
         "method {method} needs an appearance model (`objslam replay --appearance-model FILE`, from `objslam train`, or the log's own appearance_model.json); `--method nn` or `jcbb` needs none"
     )]
@@ -371,10 +383,17 @@ impl LogSource {
         LogSource { dir: std::path::absolute(dir).unwrap_or_else(|_| dir.to_path_buf()), files }
     }
 
-    /// A robot log's files, those a recording writes ([`crate::record::recording_files`]);
-    /// camera images apart, which `camera.csv` names.
-    pub fn of_robot_log(dir: &Path) -> LogSource {
-        Self::of(dir, &crate::record::recording_files())
+    /// The files of a robot log that a replay reads: the log's own, its `pipeline.toml`,
+    /// and its appearance model where `own_model` (a camera method given no other); camera
+    /// images apart, which `camera.csv` names. A recording's other files are not read.
+    pub fn of_robot_log(dir: &Path, own_model: bool) -> LogSource {
+        use robotlog::format as f;
+        let mut names =
+            vec![f::MANIFEST, f::ODOMETRY, f::SCANS, f::DETECTIONS, f::REFERENCE, f::CAMERA, files::PIPELINE];
+        if own_model {
+            names.push(files::APPEARANCE_MODEL);
+        }
+        Self::of(dir, &names)
     }
 }
 
@@ -516,6 +535,9 @@ fn replay_and_write(
     let yaw = log.manifest.sensor.yaw_rad;
     let (mut detections, mut motion_messages, mut scans, mut end) = (0, 0, 0, start);
     let mut motion_end = start;
+    // Observations between motion rows more than MOTION_GAP_S apart: a few are a dropout,
+    // most are a motion file on another clock.
+    let mut in_motion_gaps = 0usize;
     // The time of the trajectory's last pose (written to its file where there is one).
     let mut last_written: Option<f64> = None;
     // The frames' and scans' times, and the scans a frame was recent enough for: frames on
@@ -562,6 +584,13 @@ fn replay_and_write(
             if tm.is_none() && motion_messages > 0 && t > motion_end + MOTION_GAP_S {
                 return Err(ReplayError::MotionEnded { motion_end, t });
             }
+            if let (0, Some(motion_start)) = (motion_messages, tm)
+                && t < motion_start - MOTION_GAP_S
+            {
+                return Err(ReplayError::MotionStartsLate { motion_start, t });
+            }
+            in_motion_gaps +=
+                usize::from(tm.is_some_and(|next| motion_messages > 0 && next - motion_end > MOTION_GAP_S));
             let tick = Instant::now();
             let report = match message {
                 // Beams in the vehicle's frame: the laser may look sideways.
@@ -606,6 +635,9 @@ fn replay_and_write(
             }
             last_written = Some(p.t);
         }
+    }
+    if 2 * in_motion_gaps > scans {
+        return Err(ReplayError::ObservationsInMotionGaps { in_gaps: in_motion_gaps, observations: scans });
     }
     let camera_file = log.camera.file().unwrap_or(Path::new("camera.csv"));
     check_frame_times(camera_file, &frame_times, scan_span, scans_with_frame, config.image_max_age_s)?;
@@ -855,6 +887,12 @@ pub fn summary(m: &ReplayMetrics) -> String {
             format!("ATE {:.3} m", r.ate_rmse_m)
         } else if r.samples_scored == 0 {
             "ATE undefined: no reference sample within the estimate's time span".to_string()
+        } else if too_little_within(r.samples_scored, r.samples - r.spikes_removed) {
+            format!(
+                "ATE undefined: only {} of the {} samples (spikes aside) lie within the estimate's time span (is the reference on another clock, or in another unit?)",
+                r.samples_scored,
+                r.samples - r.spikes_removed
+            )
         } else {
             format!("ATE undefined: a rigid fit needs {MIN_ALIGNED_SAMPLES} samples")
         };
@@ -895,11 +933,17 @@ mod tests {
         std::fs::create_dir_all(dir.join("camera.csv")).unwrap();
         std::fs::write(dir.join("manifest.toml"), "abc").unwrap();
         std::fs::write(dir.join("notes.txt"), "not the log's").unwrap();
-        let source = LogSource::of_robot_log(&dir);
+        // A recording's own record of itself, and a model no method reads, are not read.
+        std::fs::write(dir.join(files::RECORDING), "{}").unwrap();
+        std::fs::write(dir.join(files::APPEARANCE_MODEL), "abc").unwrap();
+        let source = LogSource::of_robot_log(&dir, false);
         assert!(source.dir.is_absolute());
         // sha256sum of "abc"; a directory of a data file's name and other files are left out.
         let expected = "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad";
-        assert_eq!(source.files, vec![SourceFile { name: "manifest.toml".into(), sha256: Some(expected.into()) }]);
+        let manifest = SourceFile { name: "manifest.toml".into(), sha256: Some(expected.into()) };
+        assert_eq!(source.files, vec![manifest.clone()]);
+        let model = SourceFile { name: files::APPEARANCE_MODEL.into(), sha256: Some(expected.into()) };
+        assert_eq!(LogSource::of_robot_log(&dir, true).files, vec![manifest, model]);
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

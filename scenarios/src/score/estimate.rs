@@ -375,11 +375,11 @@ fn read_csv_numbers(file: &Path, headers: &[&[&str]]) -> Result<(usize, Vec<CsvR
     if let Some(line) = blank {
         return Err(invalid(file, Some(line as usize), "a blank line before the last row"));
     }
+    let opened = std::fs::File::open(file).map_err(|error| ScoreError::Io { file: file.to_path_buf(), error })?;
     let mut reader = csv::ReaderBuilder::new()
         .has_headers(true)
         .trim(csv::Trim::All)
-        .from_path(file)
-        .map_err(|e| csv_invalid(file, e))?;
+        .from_reader(robotlog::line_ends::LfLineEnds::new(opened));
     let found: Vec<String> = reader.headers().map_err(|e| csv_invalid(file, e))?.iter().map(str::to_string).collect();
     let which = headers.iter().position(|h| h.iter().eq(found.iter())).ok_or_else(|| {
         let expected: Vec<String> = headers.iter().map(|h| format!("`{}`", h.join(","))).collect();

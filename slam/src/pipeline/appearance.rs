@@ -329,6 +329,7 @@ impl Pipeline {
             let mut candidates = Vec::new();
             for j in 0..n_before {
                 let m2 = self.ekf.mahalanobis2(&self.config.sensor, j, &z);
+                self.note_distance(m2);
                 if method == AssociationMethod::Combined && m2 > gate {
                     continue;
                 }

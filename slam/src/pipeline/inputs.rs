@@ -264,6 +264,32 @@ mod tests {
         assert!((x - r).abs() < 1e-9 && (y - r).abs() < 1e-9 && (th - std::f64::consts::FRAC_PI_2).abs() < 1e-9);
     }
 
+    /// A covariance no longer positive definite while the state stays finite (what a
+    /// corrupt odometry row of kilometres left in a real log) gives negative squared
+    /// distances: the scan is refused, and every input after it, rather than replayed into
+    /// negative NIS figures.
+    #[test]
+    fn a_covariance_that_is_no_longer_positive_definite_is_refused() {
+        let mut p =
+            Pipeline::new(PipelineConfig { method: AssociationMethod::Nn, ..Default::default() }, [0.0; 3], None)
+                .unwrap();
+        let seen = [detection(5.0, 0.3, 0.3), detection(8.0, -0.4, 0.3)];
+        for k in 1..=5 {
+            p.on_detections(0.1 * k as f64, &seen).unwrap();
+        }
+        assert!(p.ekf.landmark_count() >= 2);
+        // The landmarks' variances turned negative, as cancellation leaves them.
+        for i in p.ekf.landmark_offset()..p.ekf.p.nrows() {
+            p.ekf.p[(i, i)] = -1e3;
+        }
+        let moved = [detection(5.1, 0.3, 0.3), detection(8.0, -0.4, 0.3)];
+        let err = p.on_detections(0.6, &moved).unwrap_err();
+        assert!(matches!(err, PipelineError::Indefinite { t: 0.6 }), "{err}");
+        assert!(err.to_string().contains("stopped being positive definite at t = 0.6 s"), "{err}");
+        let sane = OdometryIncrement { t: 0.7, dx: 0.1, dy: 0.0, dtheta: 0.0 };
+        assert!(matches!(p.on_odometry(&sane), Err(PipelineError::Indefinite { t: 0.6 })));
+    }
+
     #[test]
     fn an_input_that_overflows_the_filter_is_refused_and_so_is_everything_after_it() {
         // A finite but absurd increment: its noise's variance overflows.

@@ -101,8 +101,11 @@ pub struct Pipeline {
     relinearised_at: f64,
     /// The latest control and the time it was given: it holds until the next input.
     control: Option<(f64, Control)>,
-    /// When the filter's state stopped being finite: every later input is refused.
-    diverged_at: Option<f64>,
+    /// When the filter's state stopped being finite, or its covariance positive definite,
+    /// and which: every later input is refused.
+    diverged_at: Option<(f64, Divergence)>,
+    /// A squared Mahalanobis distance came out negative in the scan being processed.
+    indefinite: bool,
 }
 
 /// Errors of the online pipeline.
@@ -131,6 +134,29 @@ pub enum PipelineError {
         "the filter's estimate stopped being finite at t = {t} s (an input far outside what the motion and sensor models describe); nothing after it can be estimated"
     )]
     Diverged { t: f64 },
+    /// A squared Mahalanobis distance came out negative: the covariance is no longer
+    /// positive definite (a corrupt odometry row of kilometres broke it while the state
+    /// stayed finite), so every later gate, distance and NIS would be meaningless.
+    #[error(
+        "the filter's covariance stopped being positive definite at t = {t} s (a squared Mahalanobis distance came out negative after an input far outside what the motion and sensor models describe, such as an odometry step of kilometres); nothing after it can be estimated"
+    )]
+    Indefinite { t: f64 },
+}
+
+/// How the filter broke (see [`PipelineError::Diverged`] and [`PipelineError::Indefinite`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Divergence {
+    NotFinite,
+    Indefinite,
+}
+
+impl Divergence {
+    fn error(self, t: f64) -> PipelineError {
+        match self {
+            Divergence::NotFinite => PipelineError::Diverged { t },
+            Divergence::Indefinite => PipelineError::Indefinite { t },
+        }
+    }
 }
 
 impl Pipeline {
@@ -194,6 +220,7 @@ impl Pipeline {
             relinearisations: Vec::new(),
             relinearised_at: 0.0,
             diverged_at: None,
+            indefinite: false,
             control: None,
         };
         p.record_pose();
@@ -217,8 +244,8 @@ impl Pipeline {
     /// Refuses an input stamped before the previous one, and any input once the filter
     /// has diverged.
     fn check_time(&self, input: &'static str, t: f64) -> Result<(), PipelineError> {
-        if let Some(at) = self.diverged_at {
-            return Err(PipelineError::Diverged { t: at });
+        if let Some((at, how)) = self.diverged_at {
+            return Err(how.error(at));
         }
         if !t.is_finite() {
             return Err(PipelineError::NonFinite { input, t });
@@ -229,16 +256,27 @@ impl Pipeline {
         Ok(())
     }
 
-    /// Refuses to go on once the filter's state is no longer finite (see
-    /// [`PipelineError::Diverged`]); `t` is the input that made it so.
+    /// Refuses to go on once the filter's state is no longer finite or its covariance no
+    /// longer positive definite (see [`PipelineError::Diverged`] and
+    /// [`PipelineError::Indefinite`]); `t` is the input that made it so.
     fn check_state(&mut self, t: f64) -> Result<(), PipelineError> {
-        if self.diverged_at.is_none() && !self.ekf.is_finite() {
-            self.diverged_at = Some(t);
+        if self.diverged_at.is_none() {
+            if !self.ekf.is_finite() {
+                self.diverged_at = Some((t, Divergence::NotFinite));
+            } else if self.indefinite {
+                self.diverged_at = Some((t, Divergence::Indefinite));
+            }
         }
         match self.diverged_at {
-            Some(at) => Err(PipelineError::Diverged { t: at }),
+            Some((at, how)) => Err(how.error(at)),
             None => Ok(()),
         }
+    }
+
+    /// Notes a squared Mahalanobis distance that is negative (see
+    /// [`PipelineError::Indefinite`]); infinities (a landmark ruled out) are fine.
+    fn note_distance(&mut self, d2: f64) {
+        self.indefinite |= d2 < 0.0;
     }
 
     /// The report of the scan at `t`: its observations and what it did, handed over.

@@ -91,6 +91,9 @@ impl Pipeline {
                     .collect()
             })
             .collect();
+        for &d in distances.iter().flatten() {
+            self.note_distance(d);
+        }
         let pairing: Vec<Option<usize>> = match self.config.method {
             AssociationMethod::Jcbb => {
                 let allowed: Vec<Vec<bool>> =
