@@ -275,8 +275,13 @@ fn print_summary(plan: &scenarios::montecarlo::StudyPlan, runs: &[scenarios::mon
     print_rows(&scenarios::montecarlo::summarise(plan, runs));
     let builds = scenarios::montecarlo::builds(runs);
     if builds.len() > 1 {
-        let each: Vec<String> =
-            builds.iter().map(|(b, n)| format!("{}: {}", b.describe(), count(*n, "run", "runs"))).collect();
+        let each: Vec<String> = builds
+            .iter()
+            .map(|(b, n)| {
+                let which = b.as_ref().map_or("a build that did not record itself".to_string(), |b| b.describe());
+                format!("{which}: {}", count(*n, "run", "runs"))
+            })
+            .collect();
         println!("note: these runs were made by {} builds: {}", builds.len(), each.join("; "));
     }
 }

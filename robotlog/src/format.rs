@@ -314,10 +314,20 @@ impl Rows {
                 }
             }
         };
-        // Lines of spaces only, which the file holds at its end alone (a blank line before a
-        // row is refused on opening), are blank lines, not rows of one empty cell.
+        // Lines of spaces at the file's end are blank lines, not rows of one empty cell;
+        // one with a row after it (`""`, which the blank-line check counts as text) is not.
         if record.len() == 1 && record[0].is_empty() {
-            return self.next_record();
+            let mut next = csv::StringRecord::new();
+            loop {
+                match self.reader.read_record(&mut next) {
+                    Ok(false) => return None,
+                    Ok(true) if next.len() == 1 && next[0].is_empty() => continue,
+                    Ok(true) => break,
+                    Err(e) => return Some(Err(csv_error(&self.file, e))),
+                }
+            }
+            let line = record.position().map_or(0, |p| p.line());
+            return Some(Err(self.problem(line, format!("1 columns, the header has {}", self.names.len()))));
         }
         let line = record.position().map_or(0, |p| p.line());
         let columns = self.names.len();

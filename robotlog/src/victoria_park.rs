@@ -40,7 +40,6 @@ pub const ENCODER_OFFSET_M: f64 = 0.76;
 pub const LASER_X_M: f64 = 3.78;
 pub const LASER_Y_M: f64 = 0.5;
 
-/// Reads the data set in `dir` (either form, see the module documentation).
 /// The files of `dir` that [`read`] reads: the detections form where it is there, else the
 /// originals, and the GPS.
 pub fn files_read(dir: &Path) -> Vec<&'static str> {
@@ -50,6 +49,7 @@ pub fn files_read(dir: &Path) -> Vec<&'static str> {
     names
 }
 
+/// Reads the data set in `dir` (either form, see the module documentation).
 pub fn read(dir: &Path) -> Result<Log, LogError> {
     crate::format::check_dir(dir, "give the directory that holds the data set's files")?;
     let (motion, observations) = if dir.join(DETECTIONS_FILE).exists() {

@@ -132,6 +132,19 @@ fn controls_and_detections_read_back_as_written() {
     std::fs::remove_dir_all(&d).ok();
 }
 
+/// Spaces or tabs on a file's last lines are blank lines at its end, which are fine.
+#[test]
+fn lines_of_spaces_at_a_files_end_are_blank_lines() {
+    let d = dir("trailing-spaces");
+    robotlog::format::write(&d, &scan_log(vec![vec![1.0; 7], vec![2.0; 7]], vec![[0.1, 0.0, 0.0]; 3])).unwrap();
+    let before = robotlog::format::read(&d).unwrap();
+    let odometry = d.join("odometry.csv");
+    let text = std::fs::read_to_string(&odometry).unwrap();
+    std::fs::write(&odometry, text + " \n\t\n").unwrap();
+    assert_eq!(robotlog::format::read(&d).unwrap().motion, before.motion);
+    std::fs::remove_dir_all(&d).ok();
+}
+
 /// Writes a valid scan log, replaces `file` with `text`, and returns the read error.
 fn error_with(file: &str, text: &str) -> String {
     let d = dir(&format!("bad-{}", file.replace('.', "-")));
@@ -161,6 +174,11 @@ fn malformed_files_are_errors_that_name_file_and_line() {
         // Lines ended by a lone carriage return, or by CR LF, as the CSV reader ends them.
         ("odometry.csv", "t,dx,dy,dtheta\r0,1,0,0\r\r0.2,1,0,0\r", "odometry.csv:3: a blank line before the last row"),
         ("odometry.csv", "t,dx,dy,dtheta\r\n0,1,0,0\r\n\r\n0.2,1,0,0\r\n", "odometry.csv:3: a blank line"),
+        // Errors name the line whatever the line endings.
+        ("odometry.csv", "t,dx,dy,dtheta\r\n0,1,0,0\r\n0.1,NaN,0,0\r\n", "odometry.csv:3: `dx` must be finite"),
+        ("odometry.csv", "t,dx,dy,dtheta\r0,1,0,0\r0.1,NaN,0,0\r", "odometry.csv:3: `dx` must be finite"),
+        // An empty quoted cell is a row of one column, not a blank line, wherever it stands.
+        ("odometry.csv", "t,dx,dy,dtheta\n0,1,0,0\n\"\"\n0.2,1,0,0\n", "odometry.csv:3: 1 columns, the header has 4"),
         // Values no odometry gives: corrupt data, which would overflow the filter.
         ("odometry.csv", "t,dx,dy,dtheta\n0,1e300,0,0\n", "odometry.csv:2: a step of (1e300, 0e0) m is beyond 1e9 m"),
         ("odometry.csv", "t,v,omega\n0,0.5,0\n0.1,-1000,0\n", "odometry.csv:3: speed -1e3 m/s is beyond 343 m/s"),

@@ -1469,16 +1469,18 @@ pub fn summarise(plan: &StudyPlan, runs: &[RunRecord]) -> Vec<SummaryRow> {
         .collect()
 }
 
-/// `summary.json`'s `builds`: `[{"build": {...}, "runs": N}]`, as [`builds`] gives them.
+/// `summary.json`'s `builds`: `[{"build": {...} or null, "runs": N}]`, as [`builds`] gives
+/// them.
 fn builds_json(runs: &[RunRecord]) -> serde_json::Value {
     builds(runs).into_iter().map(|(build, runs)| serde_json::json!({"build": build, "runs": runs})).collect()
 }
 
 /// The builds that made `runs` (runs to retry aside), each with its number of runs, in
-/// the order they first appear; runs whose records name no build are left out.
-pub fn builds(runs: &[RunRecord]) -> Vec<(crate::build::Build, usize)> {
-    let mut out: Vec<(crate::build::Build, usize)> = Vec::new();
-    for b in runs.iter().filter(|r| !r.retryable).filter_map(|r| r.build.as_ref()) {
+/// the order they first appear; `None` for runs whose records name no build (written by
+/// a build before runs recorded theirs).
+pub fn builds(runs: &[RunRecord]) -> Vec<(Option<crate::build::Build>, usize)> {
+    let mut out: Vec<(Option<crate::build::Build>, usize)> = Vec::new();
+    for b in runs.iter().filter(|r| !r.retryable).map(|r| &r.build) {
         match out.iter_mut().find(|(known, _)| known == b) {
             Some((_, n)) => *n += 1,
             None => out.push((b.clone(), 1)),
@@ -1575,8 +1577,8 @@ mod tests {
         }
     }
 
-    /// The builds of a study's runs are counted, runs to retry and records of older builds
-    /// aside, and a run's build is no figure: a rerun or another shard's record of the same
+    /// The builds of a study's runs are counted, runs to retry aside and records of older
+    /// builds as one unknown build, and a run's build is no figure: a rerun or another shard's record of the same
     /// job by another build repeats it.
     #[test]
     fn runs_name_their_build_which_is_counted_and_no_figure() {
@@ -1595,8 +1597,10 @@ mod tests {
             record(3, None, false),
             record(4, Some(build("ccc")), true),
         ];
-        assert_eq!(builds(&runs), vec![(build("aaa"), 2), (build("bbb"), 1)]);
-        assert_eq!(builds_json(&runs)[1]["build"]["source"]["commit"], "bbb");
+        assert_eq!(builds(&runs), vec![(Some(build("aaa")), 2), (Some(build("bbb")), 1), (None, 1)]);
+        let json = builds_json(&runs);
+        assert_eq!(json[1]["build"]["source"]["commit"], "bbb");
+        assert!(json[2]["build"].is_null() && json[2]["runs"] == 1, "{json}");
         assert_eq!(runs[0].without_wall_clock(), record(0, Some(build("other")), false).without_wall_clock());
         let line = serde_json::to_string(&runs[0]).unwrap();
         assert!(line.contains(r#""build":{"version":"0.1.0","source":{"commit":"aaa""#), "{line}");

@@ -118,6 +118,20 @@ impl ParkParams {
         if !(self.aspect.is_finite() && (0.25..=4.0).contains(&self.aspect)) {
             return bad("aspect", format!("must be in [0.25, 4], got {}", self.aspect));
         }
+        // The ground is centred on the origin, and a world may reach no farther from it
+        // than the simulator resolves (crate::validate::MAX_COORDINATE_M).
+        let [w, d] = self.ground_size_m();
+        let limit = crate::validate::MAX_COORDINATE_M;
+        if w.max(d) / 2.0 > limit {
+            let most = (2.0 * limit).powi(2) / self.aspect.max(1.0 / self.aspect);
+            return bad(
+                "area_m2",
+                format!(
+                    "a ground of {w:.0} x {d:.0} m reaches more than {limit} m from the origin, farther than the simulator's f32 physics resolves a robot's motion: at most {most:.0} m² at aspect {}",
+                    self.aspect
+                ),
+            );
+        }
         let ranges: [(&str, Range, f64); 14] = [
             ("tree_radius_m", self.tree_radius_m, 0.02),
             ("tree_height_m", self.tree_height_m, 0.5),

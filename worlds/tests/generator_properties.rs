@@ -92,3 +92,16 @@ fn segments_intersect(a: [f64; 2], b: [f64; 2], c: [f64; 2], d: [f64; 2]) -> boo
     let d4 = cross(a, b, d);
     d1 * d2 < 0.0 && d3 * d4 < 0.0
 }
+
+/// Generator parameters whose ground reaches farther from the origin than a world may are
+/// refused at the parameter, with the most area the aspect allows; the largest allowed
+/// ground passes validation.
+#[test]
+fn a_ground_beyond_what_the_simulator_resolves_is_refused_at_its_parameters() {
+    let big = ParkParams { area_m2: 2e6, aspect: 4.0, trees: 4, posts: 0, palms: 0, people: 0, ..Default::default() };
+    let e = park(&big, 1).unwrap_err().to_string();
+    assert!(e.contains("area_m2") && e.contains("at most 1000000 m² at aspect 4"), "{e}");
+    let largest = ParkParams { area_m2: 1e6, ..big };
+    let world = park(&largest, 1).unwrap();
+    assert!(validate(&world, Path::new(".")).is_empty());
+}

@@ -36,6 +36,11 @@ use crate::partial_files::PartialFiles;
 /// [`ReplayError::MotionEnded`].
 const MOTION_GAP_S: f64 = 1.0;
 
+/// Most times as long as the observations (at least 1 s of them) that the motion may last
+/// (see [`ReplayError::MotionOutlastsObservations`]): a unit off by a thousand is caught,
+/// a laser stopped a while before the odometry is not.
+const MOTION_SPAN_RATIO: f64 = 100.0;
+
 /// Errors of a replay.
 #[derive(Debug, thiserror::Error)]
 pub enum ReplayError {
@@ -85,18 +90,27 @@ pub enum ReplayError {
         "the motion ends at t = {motion_end} s while observations go on to t = {t} s: a log's motion (odometry.csv of a robot log) must cover what it saw (is the file cut short?)"
     )]
     MotionEnded { motion_end: f64, t: f64 },
-    /// Observations long before the first motion are on another clock or in another unit
-    /// (odometry in milliseconds): replayed, every one of them was seen from the start pose.
+    /// Most observations before the motion's first row is motion on another clock or in
+    /// another unit: replayed, each would be seen from the start pose. (A laser started a
+    /// few seconds before the odometry, the vehicle standing, is no error.)
     #[error(
-        "observations begin at t = {t} s, before the motion's first row at t = {motion_start} s: a log's motion (odometry.csv of a robot log) must cover what it saw (are its files on one clock, in seconds?)"
+        "{before} of the {observations} observations come before the motion's first row at t = {motion_start} s: a log's motion (odometry.csv of a robot log) must cover what it saw (are its files on one clock, in seconds?)"
     )]
-    MotionStartsLate { motion_start: f64, t: f64 },
-    /// Most observations inside gaps of the motion is motion on another clock or in
-    /// another unit (odometry in ms beside scans in s): each was seen from a parked pose.
+    MotionStartsLate { before: usize, observations: usize, motion_start: f64 },
+    /// Motion that lasts a hundred times as long as the observations is motion in another
+    /// unit (odometry in ms beside scans in s: a thousand times): replayed, every
+    /// observation would be seen from a pose parked between two of its rows.
     #[error(
-        "{in_gaps} of the {observations} observations fall where the motion has no row for more than {MOTION_GAP_S} s around them: a log's motion (odometry.csv of a robot log) must cover what it saw (are its files on one clock, in seconds?)"
+        "the motion lasts {motion_s} s (t = {motion_from} to {motion_to} s), more than {MOTION_SPAN_RATIO} times the observations' {observed_s} s (t = {observed_from} to {observed_to} s): a log's motion (odometry.csv of a robot log) must be on the observations' clock, in seconds"
     )]
-    ObservationsInMotionGaps { in_gaps: usize, observations: usize },
+    MotionOutlastsObservations {
+        motion_s: f64,
+        motion_from: f64,
+        motion_to: f64,
+        observed_s: f64,
+        observed_from: f64,
+        observed_to: f64,
+    },
     #[error(
         "method {method} needs an appearance model (`objslam replay --appearance-model FILE`, from `objslam train`, or the log's own appearance_model.json); `--method nn` or `jcbb` needs none"
     )]
@@ -292,6 +306,9 @@ pub struct ReplayMetrics {
     pub log_seconds: f64,
     pub motion_messages: usize,
     pub scans: usize,
+    /// Scans (or detection sets) before the motion's first row, replayed from the start
+    /// pose: a laser started before the odometry, with the vehicle standing, or not.
+    pub scans_before_motion: usize,
     pub detections: usize,
     /// Camera frames given to the pipeline (the camera methods'; 0 for the others).
     pub camera_frames: usize,
@@ -535,9 +552,11 @@ fn replay_and_write(
     let yaw = log.manifest.sensor.yaw_rad;
     let (mut detections, mut motion_messages, mut scans, mut end) = (0, 0, 0, start);
     let mut motion_end = start;
-    // Observations between motion rows more than MOTION_GAP_S apart: a few are a dropout,
-    // most are a motion file on another clock.
-    let mut in_motion_gaps = 0usize;
+    // Whether the motion is on the observations' clock (see MotionStartsLate and
+    // MotionOutlastsObservations): observations before its first row, its first row's
+    // time, and the observations' first and last times.
+    let (mut before_motion, mut first_motion) = (0usize, None::<f64>);
+    let (mut first_observation, mut last_observation) = (None::<f64>, 0.0);
     // The time of the trajectory's last pose (written to its file where there is one).
     let mut last_written: Option<f64> = None;
     // The frames' and scans' times, and the scans a frame was recent enough for: frames on
@@ -569,6 +588,7 @@ fn replay_and_write(
             motion_messages += 1;
             end = end.max(t);
             motion_end = t;
+            first_motion.get_or_insert(t);
         } else if let (Some(tf), true) = (tf, first(tf, to)) {
             let camera = camera.expect("frames only with a camera");
             let Some(Ok(frame)) = frames.next() else { unreachable!("peeked a frame") };
@@ -584,13 +604,11 @@ fn replay_and_write(
             if tm.is_none() && motion_messages > 0 && t > motion_end + MOTION_GAP_S {
                 return Err(ReplayError::MotionEnded { motion_end, t });
             }
-            if let (0, Some(motion_start)) = (motion_messages, tm)
-                && t < motion_start - MOTION_GAP_S
-            {
-                return Err(ReplayError::MotionStartsLate { motion_start, t });
+            if motion_messages == 0 && tm.is_some_and(|first| t < first) {
+                before_motion += 1;
             }
-            in_motion_gaps +=
-                usize::from(tm.is_some_and(|next| motion_messages > 0 && next - motion_end > MOTION_GAP_S));
+            first_observation.get_or_insert(t);
+            last_observation = t;
             let tick = Instant::now();
             let report = match message {
                 // Beams in the vehicle's frame: the laser may look sideways.
@@ -636,8 +654,23 @@ fn replay_and_write(
             last_written = Some(p.t);
         }
     }
-    if 2 * in_motion_gaps > scans {
-        return Err(ReplayError::ObservationsInMotionGaps { in_gaps: in_motion_gaps, observations: scans });
+    if let Some(motion_start) = first_motion
+        && 2 * before_motion > scans
+    {
+        return Err(ReplayError::MotionStartsLate { before: before_motion, observations: scans, motion_start });
+    }
+    if let (Some(motion_from), Some(observed_from)) = (first_motion, first_observation) {
+        let (motion_s, observed_s) = (motion_end - motion_from, last_observation - observed_from);
+        if motion_s > MOTION_SPAN_RATIO * observed_s.max(1.0) {
+            return Err(ReplayError::MotionOutlastsObservations {
+                motion_s,
+                motion_from,
+                motion_to: motion_end,
+                observed_s,
+                observed_from,
+                observed_to: last_observation,
+            });
+        }
     }
     let camera_file = log.camera.file().unwrap_or(Path::new("camera.csv"));
     check_frame_times(camera_file, &frame_times, scan_span, scans_with_frame, config.image_max_age_s)?;
@@ -651,6 +684,7 @@ fn replay_and_write(
         log_seconds,
         motion_messages,
         scans,
+        scans_before_motion: before_motion,
         detections,
         camera_frames,
         appearance_model: model_provenance,
@@ -887,17 +921,17 @@ pub fn summary(m: &ReplayMetrics) -> String {
             format!("ATE {:.3} m", r.ate_rmse_m)
         } else if r.samples_scored == 0 {
             "ATE undefined: no reference sample within the estimate's time span".to_string()
-        } else if too_little_within(r.samples_scored, r.samples - r.spikes_removed) {
-            format!(
-                "ATE undefined: only {} of the {} samples (spikes aside) lie within the estimate's time span (is the reference on another clock, or in another unit?)",
-                r.samples_scored,
-                r.samples - r.spikes_removed
-            )
         } else {
             format!("ATE undefined: a rigid fit needs {MIN_ALIGNED_SAMPLES} samples")
         };
+        let few = if too_little_within(r.samples_scored, r.samples - r.spikes_removed) {
+            " (fewer than a tenth of the samples lie within the estimate's time span: a reference of a longer \
+             session, or one on another clock or in another unit?)"
+        } else {
+            ""
+        };
         format!(
-            "{ate} against {} ({} of {} samples, {} spikes removed, alignment {})",
+            "{ate} against {} ({} of {} samples, {} spikes removed, alignment {}){few}",
             match r.kind {
                 ReferenceKind::Gps => "GPS",
                 ReferenceKind::GroundTruth => "ground truth",
@@ -908,8 +942,13 @@ pub fn summary(m: &ReplayMetrics) -> String {
             r.alignment
         )
     });
+    let before = match m.scans_before_motion {
+        0 => String::new(),
+        1 => "; 1 scan before the motion's first row, replayed from the start pose".to_string(),
+        n => format!("; {n} scans before the motion's first row, replayed from the start pose"),
+    };
     format!(
-        "{} with {}: {} landmarks; {reference}; NIS mean {:.2} ({:.0}% within 95%); {:.2} ms per scan (p95 {:.2}); {:.1} s wall, {:.0}x real time",
+        "{} with {}: {} landmarks; {reference}{before}; NIS mean {:.2} ({:.0}% within 95%); {:.2} ms per scan (p95 {:.2}); {:.1} s wall, {:.0}x real time",
         m.log,
         m.method,
         m.landmarks,

@@ -409,7 +409,7 @@ pub(super) fn score_reference(
         ReferenceKind::Gps => MIN_ALIGNED_SAMPLES,
         ReferenceKind::GroundTruth => 1,
     };
-    if n < fewest || too_little_within(n, samples - spikes) {
+    if n < fewest {
         return Ok(score(f64::NAN, [f64::NAN; 2], f64::NAN, f64::NAN));
     }
     let (theta, t) = match kind {
@@ -426,11 +426,10 @@ pub(super) fn score_reference(
     Ok(score(theta, t, (squares / n as f64).sqrt(), max))
 }
 
-/// Whether `scored` of the `kept` reference samples (spikes aside) are too few to score
-/// the log: a reference recorded with it spans most of its time, so one of which not a
-/// tenth falls within the estimate's time span is on another clock or in another unit
-/// (ms), and its few samples there would make the ATE of a moment. The ATE is then
-/// undefined, as with no sample.
+/// Whether `scored` of the `kept` reference samples (spikes aside) are fewer than a tenth:
+/// the reference of a longer session than the log, or one on another clock or in another
+/// unit (ms), whose few samples there make the ATE of a moment. The summary says so; the
+/// ATE stands (a GPS log begun long before the drive is sound), with its sample count.
 pub fn too_little_within(scored: usize, kept: usize) -> bool {
     10 * scored < kept
 }
