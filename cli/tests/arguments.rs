@@ -222,10 +222,15 @@ fn a_cut_mat_file_is_an_error_without_a_crash_report() {
     let _ = std::fs::remove_dir_all(&root);
     let data = root.join("vp");
     std::fs::create_dir_all(&data).unwrap();
-    // A level-5 MAT-file header (116 bytes of text, then version and endianness fields cut).
+    // A level-5 MAT-file header (116 bytes of text, subsystem offset, version 0x0100,
+    // little-endian), then a matrix element whose tag promises 1000 bytes and holds 8.
     let mut header = b"MATLAB 5.0 MAT-file, cut short".to_vec();
     header.resize(116, b' ');
-    header.extend([0u8; 11]);
+    header.extend([0u8; 8]);
+    header.extend([0x00, 0x01, b'I', b'M']);
+    header.extend(14u32.to_le_bytes());
+    header.extend(1000u32.to_le_bytes());
+    header.extend([0u8; 8]);
     std::fs::write(data.join("aa3_dr.mat"), header).unwrap();
     std::fs::write(data.join("aa3_lsr2.mat"), b"").unwrap();
     let out = root.join("out");

@@ -176,11 +176,13 @@ impl Default for SessionConfig {
 /// (each constrains 2 of its 9 unknowns). Thousands add nothing but time.
 pub const POSES: std::ops::RangeInclusive<usize> = 5..=10_000;
 
-/// The longest line of stations a session may lay out, centred on the origin: 2 km out,
-/// a single-precision coordinate (the physics' and the renderer's) is good to 0.12 mm,
-/// well under the millimetres a calibration resolves; at 100 km it is 4 mm, and a session
+/// The longest line of stations a session may lay out, centred on the origin: as far out
+/// as a world may reach ([`worlds::validate::MAX_COORDINATE_M`]: there a single-precision
+/// coordinate, the physics' and the renderer's, is good to 0.06 mm, well under the
+/// millimetres a calibration resolves), less 100 m for the boards beside their stations
+/// and the ground around them. At 100 km a coordinate is good to 4 mm, and a session
 /// spaced that far measured 0.36 degrees of error against 0.03-0.17 at the default.
-pub const MAX_STATION_SPAN_M: f64 = 4000.0;
+pub const MAX_STATION_SPAN_M: f64 = 2.0 * (worlds::validate::MAX_COORDINATE_M - 100.0);
 
 impl SessionConfig {
     /// Checks the settings for a session run with `sim`'s sensors; `file` names the
@@ -1056,13 +1058,23 @@ mod tests {
         let _ = std::fs::remove_dir_all(&dir);
     }
 
-    /// Boards and their distractors keep apart ids up to the largest session allowed.
+    /// Boards and their distractors keep apart ids, none reserved, up to the most poses a
+    /// session may ask for (more than a line of stations at any spacing a world can hold);
+    /// the longest line allowed builds a valid world.
     #[test]
     fn the_largest_session_builds_a_valid_world() {
         let config = SessionConfig { poses: *POSES.end(), ..SessionConfig::default() };
         let st = plan_stations(&config, &SimConfig::default(), 1);
+        let ids: std::collections::BTreeSet<u16> =
+            st.iter().flat_map(|s| std::iter::once(s.board.id).chain(s.distractor.as_ref().map(|d| d.id))).collect();
+        assert_eq!(ids.len(), 2 * *POSES.end());
+        assert!(!ids.contains(&0) && !ids.contains(&worlds::validate::GROUND_INSTANCE_ID));
+        let spacing = SessionConfig::default().station_spacing_m;
+        let longest = (MAX_STATION_SPAN_M / spacing).floor() as usize + 1;
+        let config = SessionConfig { poses: longest, ..SessionConfig::default() };
+        let st = plan_stations(&config, &SimConfig::default(), 1);
         let world = range_world(&st, &worlds::generate::park(&Default::default(), 1).unwrap()).unwrap();
-        assert_eq!(world.objects.len(), 2 * *POSES.end());
+        assert_eq!(world.objects.len(), 2 * longest);
     }
 
     #[test]
@@ -1097,7 +1109,7 @@ mod tests {
         assert!(e.contains("station_spacing_m") && e.contains("190000 m") && e.contains("fewer poses"), "{e}");
         let e = SessionConfig { poses: 1001, ..Default::default() }.check(f, &sim).unwrap_err().to_string();
         assert!(e.contains("12000 m"), "{e}");
-        SessionConfig { poses: 300, ..Default::default() }.check(f, &sim).unwrap();
+        SessionConfig { poses: 150, ..Default::default() }.check(f, &sim).unwrap();
     }
 
     #[test]
