@@ -553,10 +553,9 @@ fn replay_and_write(
     let (mut detections, mut motion_messages, mut scans, mut end) = (0, 0, 0, start);
     let mut motion_end = start;
     // Whether the motion is on the observations' clock (see MotionStartsLate and
-    // MotionOutlastsObservations): observations before its first row, its first row's
-    // time, and the observations' first and last times.
+    // MotionOutlastsObservations, with the observations' span below): observations before
+    // its first row, and its first row's time.
     let (mut before_motion, mut first_motion) = (0usize, None::<f64>);
-    let (mut first_observation, mut last_observation) = (None::<f64>, 0.0);
     // The time of the trajectory's last pose (written to its file where there is one).
     let mut last_written: Option<f64> = None;
     // The frames' and scans' times, and the scans a frame was recent enough for: frames on
@@ -607,8 +606,6 @@ fn replay_and_write(
             if motion_messages == 0 && tm.is_some_and(|first| t < first) {
                 before_motion += 1;
             }
-            first_observation.get_or_insert(t);
-            last_observation = t;
             let tick = Instant::now();
             let report = match message {
                 // Beams in the vehicle's frame: the laser may look sideways.
@@ -659,8 +656,8 @@ fn replay_and_write(
     {
         return Err(ReplayError::MotionStartsLate { before: before_motion, observations: scans, motion_start });
     }
-    if let (Some(motion_from), Some(observed_from)) = (first_motion, first_observation) {
-        let (motion_s, observed_s) = (motion_end - motion_from, last_observation - observed_from);
+    if let (Some(motion_from), Some((observed_from, observed_to))) = (first_motion, scan_span) {
+        let (motion_s, observed_s) = (motion_end - motion_from, observed_to - observed_from);
         if motion_s > MOTION_SPAN_RATIO * observed_s.max(1.0) {
             return Err(ReplayError::MotionOutlastsObservations {
                 motion_s,
@@ -668,7 +665,7 @@ fn replay_and_write(
                 motion_to: motion_end,
                 observed_s,
                 observed_from,
-                observed_to: last_observation,
+                observed_to,
             });
         }
     }
