@@ -181,9 +181,8 @@ pub(crate) fn gmm_fit(data: &std::path::Path, options: &slam::gmm::VbOptions, ou
     let secs = started.elapsed().as_secs_f64();
     // The mixture, and how it was fitted (`gmm score` scores the mixture and checks `fit`
     // is whole): the same data and `fit.options` fit the same model again.
-    let mut file = serde_json::to_value(&model)?;
-    file["fit"] = serde_json::to_value(scenarios::train::GmmFitRecord::new(data, digest, options))?;
-    crate::paths::write_whole(out, serde_json::to_string_pretty(&file)?)?;
+    let record = scenarios::train::GmmFitRecord::new(data, digest, options);
+    crate::paths::write_whole(out, scenarios::train::gmm_model_file(&model, &record))?;
     println!("{} points x {} dimensions, fitted in {secs:.2} s", model.points, model.dims());
     println!(
         "  lower bound: {:.6} nats (full PRML 10.70 bound on ln p(X), all constant terms included; {:.6} per point)",

@@ -54,6 +54,7 @@ fn both_searches_fit_the_same_mixture_and_score_it_on_held_out_points() {
         let file: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&model).unwrap()).unwrap();
         let options: slam::gmm::VbOptions = serde_json::from_value(file["fit"]["options"].clone()).unwrap();
         assert_eq!(file["fit"]["data"], path(&train));
+        assert_eq!(file["format_version"], 1, "{search}");
         let digest: String = <sha2::Sha256 as sha2::Digest>::digest(std::fs::read(&train).unwrap())
             .iter()
             .map(|b| format!("{b:02x}"))
@@ -101,6 +102,25 @@ fn both_searches_fit_the_same_mixture_and_score_it_on_held_out_points() {
         let e = String::from_utf8_lossy(&out.stderr);
         assert!(!out.status.success() && e.contains("broken.json") && e.contains(named), "{key}: {e}");
     }
+    // Another version of the file is refused by its version; a file from before the
+    // version was kept (no `format_version`) is read.
+    for (bad, named) in [
+        (serde_json::json!(2), "format_version 2: this objslam reads version 1"),
+        (serde_json::json!("1"), "format_version: \"1\", where a version number belongs"),
+    ] {
+        let mut json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&model).unwrap()).unwrap();
+        json["format_version"] = bad;
+        std::fs::write(&broken, json.to_string()).unwrap();
+        let out = objslam(&["gmm", "score", path(&broken), path(&heldout)]);
+        let e = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && e.contains("broken.json") && e.contains(named), "{e}");
+    }
+    let mut json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&model).unwrap()).unwrap();
+    json.as_object_mut().unwrap().remove("format_version");
+    let unversioned = dir.join("unversioned.json");
+    std::fs::write(&unversioned, json.to_string()).unwrap();
+    let out = objslam(&["gmm", "score", path(&unversioned), path(&heldout)]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     // A record from before the digest was kept is whole.
     let mut json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&model).unwrap()).unwrap();
     let fit = json["fit"].as_object_mut().unwrap();

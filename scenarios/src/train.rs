@@ -552,6 +552,33 @@ pub fn gmm_fit_csv(path: &Path, options: &VbOptions) -> Result<(VbGmm, String), 
     Ok((model, digest))
 }
 
+/// The version of the file `objslam gmm fit` writes (its `format_version`). Files written
+/// before the key was kept have none and are read as this version: their layout is the same.
+pub const GMM_FILE_FORMAT_VERSION: u32 = 1;
+
+/// The text of a model file of `objslam gmm fit`: the mixture, its `format_version` and,
+/// under `fit`, how it was fitted.
+pub fn gmm_model_file(model: &VbGmm, record: &GmmFitRecord) -> String {
+    let mut file = serde_json::to_value(model).expect("a mixture is JSON");
+    file["format_version"] = GMM_FILE_FORMAT_VERSION.into();
+    file["fit"] = serde_json::to_value(record).expect("a fit record is JSON");
+    serde_json::to_string_pretty(&file).expect("JSON")
+}
+
+/// A model file's `format_version`, where it has one, is the version this build reads:
+/// another layout read as this one would score the wrong numbers.
+fn check_gmm_file_version(text: &str) -> Result<(), String> {
+    let raw: serde_json::Value = serde_json::from_str(text).map_err(|e| e.to_string())?;
+    match raw.get("format_version") {
+        None => Ok(()),
+        Some(v) if v.as_u64() == Some(u64::from(GMM_FILE_FORMAT_VERSION)) => Ok(()),
+        Some(v) if v.is_u64() => Err(format!(
+            "format_version {v}: this objslam reads version {GMM_FILE_FORMAT_VERSION}; fit the model again with this version (`objslam gmm fit`)"
+        )),
+        Some(v) => Err(format!("format_version: {v}, where a version number belongs")),
+    }
+}
+
 /// How `objslam gmm fit` fitted a model, kept in the model file under `fit`: the same data
 /// and options fit the same model again. Read back only to check it, so that a damaged
 /// record is not passed over as if it said how the model was made.
@@ -627,6 +654,11 @@ impl GmmFitRecord {
 /// number of points.
 pub fn gmm_score_csv(model: &Path, path: &Path) -> Result<(f64, usize), TrainError> {
     let text = std::fs::read_to_string(model).map_err(|e| file_err(model, e))?;
+    // The version first: a model of another layout would fail below with a message about
+    // a field, not about its version.
+    if serde_json::from_str::<serde_json::Value>(&text).is_ok() {
+        check_gmm_file_version(&text).map_err(|e| file_err(model, e))?;
+    }
     let fitted: VbGmm =
         slam::settings::from_json(&text).map_err(|e| file_err(model, format!("not an objslam gmm fit model: {e}")))?;
     fitted.check().map_err(|e| file_err(model, e))?;
