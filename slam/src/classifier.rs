@@ -202,51 +202,51 @@ impl AppearanceModel {
         }
         let model: AppearanceModel =
             crate::settings::from_json(text).map_err(|message| ModelError::Parse { file: file.into(), message })?;
-        let inconsistent = |message: String| ModelError::Inconsistent { file: file.into(), message };
-        model.extractor.config.validate().map_err(|e| inconsistent(format!("extractor.config.{e}")))?;
-        model
-            .extractor
-            .pca
-            .check()
-            .map_err(|(field, problem)| inconsistent(format!("extractor.pca.{field}: {problem}")))?;
+        model.check().map_err(|message| ModelError::Inconsistent { file: file.into(), message })?;
+        Ok(model)
+    }
+
+    /// Whether the model's parts fit together (what [`AppearanceModel::from_json`] checks
+    /// of a file, for a model made in code); the message names the part at fault.
+    pub fn check(&self) -> Result<(), String> {
+        let model = self;
+        model.extractor.config.validate().map_err(|e| format!("extractor.config.{e}"))?;
+        model.extractor.pca.check().map_err(|(field, problem)| format!("extractor.pca.{field}: {problem}"))?;
         for (name, class) in [("object", &model.object), ("background", &model.background)]
             .into_iter()
             .chain(model.foliage.as_ref().map(|f| ("foliage.gmm", &f.gmm)))
             .chain(model.distractors.as_ref().map(|f| ("distractors.gmm", &f.gmm)))
         {
-            class.check().map_err(|e| inconsistent(format!("{name}: {e}")))?;
+            class.check().map_err(|e| format!("{name}: {e}"))?;
         }
         let d = model.extractor.dims();
         if model.extractor.pca.input_dims() != model.extractor.config.raw_dims() {
-            return Err(inconsistent("the PCA does not match the patch size and filter bank".into()));
+            return Err("the PCA does not match the patch size and filter bank".into());
         }
         if model.object.dims() != d || model.background.dims() != d {
-            return Err(inconsistent(format!(
+            return Err(format!(
                 "class models are {}- and {}-dimensional, features are {d}-dimensional",
                 model.object.dims(),
                 model.background.dims()
-            )));
+            ));
         }
         if !(model.object_weight > 0.0 && model.object_weight < 1.0) || !(0.0..=1.0).contains(&model.threshold) {
-            return Err(inconsistent("object_weight must lie in (0, 1) and threshold in [0, 1]".into()));
+            return Err("object_weight must lie in (0, 1) and threshold in [0, 1]".into());
         }
         for (name, part, max) in [("foliage", &model.foliage, 1.0), ("distractors", &model.distractors, 0.999)] {
             let Some(f) = part else { continue };
             if f.gmm.dims() != d {
-                return Err(inconsistent(format!(
-                    "{name}.gmm is {}-dimensional, features are {d}-dimensional",
-                    f.gmm.dims()
-                )));
+                return Err(format!("{name}.gmm is {}-dimensional, features are {d}-dimensional", f.gmm.dims()));
             }
             if !(f.weight > 0.0 && f.weight <= max) {
-                return Err(inconsistent(format!("{name}.weight must lie in (0, {max}], got {}", f.weight)));
+                return Err(format!("{name}.weight must lie in (0, {max}], got {}", f.weight));
             }
         }
         if let Some(c) = &model.context {
-            c.check().map_err(|(field, problem)| inconsistent(format!("context.{field}: {problem}")))?;
+            c.check().map_err(|(field, problem)| format!("context.{field}: {problem}"))?;
         }
-        PatchClassifier::new(&model).map_err(|e| inconsistent(e.to_string()))?;
-        Ok(model)
+        PatchClassifier::new(model).map_err(|e| e.to_string())?;
+        Ok(())
     }
 
     /// The model as JSON, as [`AppearanceModel::save`] writes it.
@@ -480,6 +480,7 @@ pub fn train(
         return Err(ModelError::Training("no training images".into()));
     }
     let cfg = &options.features;
+    cfg.validate().map_err(|e| ModelError::Training(format!("features.{e}")))?;
     let l = cfg.patch_size;
     // The images the mixtures are fitted to, and those the column context is.
     let (mixture_ids, context_ids): (Vec<usize>, Vec<usize>) =

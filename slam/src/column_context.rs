@@ -61,6 +61,9 @@ pub enum ContextError {
     OneClass { object: usize, background: usize },
     #[error("the column context's fit did not converge (weights not finite)")]
     NotFinite,
+    /// A grid whose labels or log-odds are not one per patch, or a reach below 2.
+    #[error("{0}")]
+    Input(String),
 }
 
 impl ColumnContext {
@@ -84,9 +87,22 @@ impl ColumnContext {
 
     /// Fits the weights on the labelled patch grids of images.
     pub fn fit(grids: &[LabelledGrid], reach: u32) -> Result<ColumnContext, ContextError> {
+        if reach < 2 {
+            return Err(ContextError::Input(format!("reach must be at least 2 patches, got {reach}")));
+        }
         let mut x: Vec<[f64; WEIGHTS]> = Vec::new();
         let mut y: Vec<bool> = Vec::new();
-        for grid in grids {
+        for (k, grid) in grids.iter().enumerate() {
+            let patches = grid.cols * grid.rows;
+            if grid.log_odds.len() != patches || grid.object.len() != patches {
+                return Err(ContextError::Input(format!(
+                    "grid {k}: {} log-odds and {} labels for {}x{} patches",
+                    grid.log_odds.len(),
+                    grid.object.len(),
+                    grid.cols,
+                    grid.rows
+                )));
+            }
             x.extend(terms(&grid.log_odds, grid.cols, grid.rows, reach as usize));
             y.extend(&grid.object);
         }

@@ -17,6 +17,9 @@ pub enum KlError {
     CovarianceShape { component: usize, dims: usize, rows: usize, cols: usize },
     #[error("empty mixture")]
     Empty,
+    /// Weights must be finite, not negative and not all zero; means finite.
+    #[error("component {component}: {problem}")]
+    Component { component: usize, problem: String },
 }
 
 /// A Gaussian prepared for repeated KL evaluations: mean, Cholesky factor, log-determinant.
@@ -64,9 +67,15 @@ impl PreparedGmm {
         let d = g.dims();
         let total: f64 = g.components.iter().map(|c| c.weight).sum();
         let mut components = Vec::with_capacity(g.components.len());
-        for (i, Component { mean, covariance, .. }) in g.components.iter().enumerate() {
+        for (i, Component { mean, covariance, weight }) in g.components.iter().enumerate() {
             if mean.len() != d {
                 return Err(KlError::Dimension(mean.len(), d));
+            }
+            if !(weight.is_finite() && *weight >= 0.0 && total > 0.0) || !mean.iter().all(|v| v.is_finite()) {
+                let problem = format!(
+                    "weight {weight} (of {total} in all) must be finite, not negative and not all zero, and the mean finite"
+                );
+                return Err(KlError::Component { component: i, problem });
             }
             components.push(PreparedGaussian::new(mean, covariance, i)?);
         }

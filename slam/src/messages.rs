@@ -16,6 +16,24 @@ pub struct LaserScan {
 }
 
 impl LaserScan {
+    /// Whether the scan's angles and range limits describe beams: finite angles, a step
+    /// that is not zero, `0 <= range_min <= range_max` (`range_max` may be infinite).
+    pub fn check(&self) -> Result<(), String> {
+        if !(self.angle_min.is_finite() && self.angle_increment.is_finite()) || self.angle_increment == 0.0 {
+            return Err(format!(
+                "angle_min {} and angle_increment {}: the angles must be finite and the increment not zero",
+                self.angle_min, self.angle_increment
+            ));
+        }
+        if !(self.range_min >= 0.0 && self.range_min.is_finite() && self.range_max >= self.range_min) {
+            return Err(format!(
+                "range_min {} and range_max {}: need 0 <= range_min <= range_max",
+                self.range_min, self.range_max
+            ));
+        }
+        Ok(())
+    }
+
     /// Whether beam `i` returned a valid range.
     pub fn valid(&self, i: usize) -> bool {
         let r = self.ranges[i];

@@ -152,6 +152,9 @@ pub enum ObjectModelError {
     Kl(#[from] KlError),
     #[error("observation has {0} patches; an object model needs at least 2")]
     TooFewPatches(usize),
+    /// Rows hold the appearance coordinates and then dx, dy and h: at least 4 columns.
+    #[error("observation rows have {0} columns; an object model needs the 3 of a position and more")]
+    TooFewColumns(usize),
 }
 
 /// Fits the density of one observation (rows with positions relative to its centre).
@@ -167,6 +170,9 @@ pub fn fit_observation(
         return Err(ObjectModelError::TooFewPatches(n));
     }
     let d = obs.rows.ncols();
+    if d <= 3 {
+        return Err(ObjectModelError::TooFewColumns(d));
+    }
     let mut prior = VbPrior::from_data(&obs.rows)?;
     if let Some(g) = general {
         let da = g.dims().min(d - 3);

@@ -26,6 +26,25 @@ pub struct CameraGeometry {
 }
 
 impl CameraGeometry {
+    /// Whether the geometry describes a camera: positive finite focal lengths, a finite
+    /// principal point, an image of at least one pixel and finite extrinsics.
+    pub fn check(&self) -> Result<(), String> {
+        if !(self.fx > 0.0 && self.fx.is_finite() && self.fy > 0.0 && self.fy.is_finite()) {
+            return Err(format!("fx {} and fy {} must be positive and finite", self.fx, self.fy));
+        }
+        if !(self.cx.is_finite() && self.cy.is_finite()) {
+            return Err(format!("cx {} and cy {} must be finite", self.cx, self.cy));
+        }
+        if self.width == 0 || self.height == 0 {
+            return Err(format!("the image is {}x{}; it needs at least one pixel", self.width, self.height));
+        }
+        let e = &self.laser_from_camera;
+        if !e.phi.iter().flatten().chain(&e.delta).all(|v| v.is_finite()) {
+            return Err("laser_from_camera holds a value that is not finite".into());
+        }
+        Ok(())
+    }
+
     /// Pixel (u, v) of a laser-frame point, if it lies in front of the camera.
     pub fn project(&self, p_laser: &Vector3<f64>) -> Option<[f64; 2]> {
         let p = self.laser_from_camera.laser_to_camera(p_laser);
@@ -634,6 +653,27 @@ mod tests {
             ..Default::default()
         };
         train(8, |i| Ok(training_scene(i as u64 + 1)), &options, |_, _, _| {}).unwrap()
+    }
+
+    /// A model or camera made in code is checked as a file's would be, and a camera
+    /// method's pipeline takes only images of its camera's size.
+    #[test]
+    fn appearance_checks_its_model_and_camera_and_the_pipeline_the_image_size() {
+        use crate::pipeline::{Appearance, AppearanceSetupError, Pipeline, PipelineConfig, PipelineError};
+        let model = bark_model();
+        let camera = geometry();
+        let blind = CameraGeometry { fx: f64::NAN, ..geometry() };
+        assert!(matches!(Appearance::new(model.clone(), blind), Err(AppearanceSetupError::Camera(_))));
+        let odd = crate::classifier::AppearanceModel { threshold: 7.0, ..model.clone() };
+        assert!(
+            matches!(Appearance::new(odd, geometry()), Err(AppearanceSetupError::Model(m)) if m.contains("threshold"))
+        );
+        let app = Appearance::new(model, geometry()).unwrap();
+        let mut p = Pipeline::new(PipelineConfig::default(), [0.0; 3], Some(app)).unwrap();
+        let (w, h) = (camera.width, camera.height);
+        let e = p.on_image(0.0, w + 1, h, vec![0; ((w + 1) * h * 3) as usize]).unwrap_err();
+        assert!(matches!(e, PipelineError::ImageSize { .. }), "{e}");
+        p.on_image(0.0, w, h, vec![0; (w * h * 3) as usize]).unwrap();
     }
 
     /// Points of a trunk of radius `r` at laser-frame `centre`, on the arc facing the laser.

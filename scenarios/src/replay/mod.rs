@@ -115,8 +115,8 @@ pub enum ReplayError {
         "method {method} needs an appearance model (`objslam replay --appearance-model FILE`, from `objslam train`, or the log's own appearance_model.json); `--method nn` or `jcbb` needs none"
     )]
     NoAppearanceModel { method: &'static str },
-    #[error("the appearance model: {0}")]
-    Appearance(#[from] slam::gmm::GmmError),
+    #[error(transparent)]
+    Appearance(#[from] slam::pipeline::AppearanceSetupError),
 }
 
 impl From<crate::partial_files::PartialFileError> for ReplayError {
@@ -501,8 +501,8 @@ fn replay_and_write(
         None => (robotlog::stream::Rows::peekable(Box::new(std::iter::empty())), 0),
     };
     let mut pipeline = Pipeline::new(config.clone(), log.manifest.vehicle.start_pose, appearance)
-        .map_err(|source| ReplayError::Pipeline { t: start, source })?
-        .starting_at(start);
+        .and_then(|p| p.starting_at(start))
+        .map_err(|source| ReplayError::Pipeline { t: start, source })?;
     // Every output is written in the unfinished directory and moved into `out` when all are.
     let unfinished = out.map(crate::partial_files::start_unfinished).transpose()?;
     let mut streams = match &unfinished {

@@ -65,6 +65,8 @@ pub enum RunError {
     Filter(#[from] slam::pipeline::PipelineError),
     #[error("appearance model: {0}")]
     Mixture(#[from] slam::gmm::GmmError),
+    #[error(transparent)]
+    AppearanceSetup(#[from] slam::pipeline::AppearanceSetupError),
     #[error("the camera stopped during the run: {0}")]
     CameraStopped(String),
     #[error("{count} {what} in image regions the camera did not render (a bug; `--full-frames` renders whole frames)")]

@@ -41,6 +41,9 @@ pub fn jcbb(
 
 /// JCBB over the pairs `allowed[i][j]` (observation i may be landmark j) chosen by the
 /// caller, e.g. individually gated and alike in appearance.
+///
+/// # Panics
+/// When `allowed` does not have one row per observation.
 pub fn jcbb_with(
     ekf: &Ekf,
     model: &RangeBearingModel,
@@ -49,6 +52,7 @@ pub fn jcbb_with(
     confidence: f64,
 ) -> Hypothesis {
     let m = observations.len();
+    assert_eq!(allowed.len(), m, "jcbb_with: {} rows of allowed pairs for {m} observations", allowed.len());
     let n = ekf.landmark_count();
     if m == 0 {
         return vec![];

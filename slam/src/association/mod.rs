@@ -88,7 +88,12 @@ pub struct AssociationDecision {
 /// approximation. Against scipy's exact quantiles over 3..40 dof it is within 0.6% at 0.95
 /// and 0.99 and within 1.8% at 0.999 (worst at 3 dof); for the joint tests' even 4..40 dof
 /// at 0.99, within 0.22%.
+///
+/// # Panics
+/// When `dof` is 0 or `p` is not in [0, 1): no quantile exists (settings reach it
+/// checked, as `gate_probability` is).
 pub fn chi2_quantile(dof: usize, p: f64) -> f64 {
+    assert!(dof >= 1 && (0.0..1.0).contains(&p), "chi2_quantile: need dof >= 1 and 0 <= p < 1, got dof {dof}, p {p}");
     if dof == 2 {
         // Exact: the 2-dof chi-square is exponential.
         return -2.0 * (1.0 - p).ln();

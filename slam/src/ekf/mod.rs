@@ -136,6 +136,12 @@ impl Ekf {
         self.x.iter().all(|v| v.is_finite()) && (0..self.p.nrows()).all(|i| self.p[(i, i)].is_finite())
     }
 
+    /// Whether a variance on P's diagonal is negative: a covariance that is certainly no
+    /// longer positive definite (cancellation after an absurd input), found in O(n).
+    pub fn has_negative_variance(&self) -> bool {
+        (0..self.p.nrows()).any(|i| self.p[(i, i)] < 0.0)
+    }
+
     pub fn landmark_count(&self) -> usize {
         (self.x.len() - self.vehicle_dims) / 2
     }
@@ -163,20 +169,44 @@ impl Ekf {
         self.p.fixed_view::<3, 3>(0, 0).into_owned()
     }
 
+    /// The state index of landmark `i`'s x.
+    ///
+    /// # Panics
+    /// When there is no landmark `i` (as every method taking a landmark's index does).
+    fn landmark_index(&self, i: usize) -> usize {
+        let count = self.landmark_count();
+        assert!(i < count, "Ekf: no landmark with index {i} (the map holds {count})");
+        self.vehicle_dims + 2 * i
+    }
+
+    /// # Panics
+    /// When there is no landmark of that index.
     pub fn landmark(&self, i: usize) -> Vector2<f64> {
-        let li = self.vehicle_dims + 2 * i;
+        let li = self.landmark_index(i);
         Vector2::new(self.x[li], self.x[li + 1])
     }
 
+    /// # Panics
+    /// When there is no landmark of that index.
     pub fn landmark_covariance(&self, i: usize) -> Matrix2<f64> {
-        let li = self.vehicle_dims + 2 * i;
+        let li = self.landmark_index(i);
         self.p.fixed_view::<2, 2>(li, li).into_owned()
     }
 
     /// Prediction with a motion model and its control. Only the pose rows change,
     /// `P_p* <- [F Fc] P_v*` (calibration parameters, if any, are constant), and the pose
     /// block gets the process noise.
+    ///
+    /// # Panics
+    /// When `control` is not `model.control_dims()` long.
     pub fn predict(&mut self, model: &dyn MotionModel, control: &[f64]) {
+        assert_eq!(
+            control.len(),
+            model.control_dims(),
+            "Ekf::predict: a control of {} values for a motion model of {}",
+            control.len(),
+            model.control_dims()
+        );
         let vd = self.vehicle_dims;
         let n = self.x.len();
         let calibration = self.calibration().to_vec();
@@ -200,6 +230,9 @@ impl Ekf {
 
     /// Predicted observation of landmark `i`, its Jacobians (robot 2x3, landmark 2x2) and
     /// innovation covariance `S`.
+    ///
+    /// # Panics
+    /// When there is no landmark of that index.
     pub fn predict_observation(
         &self,
         model: &RangeBearingModel,
@@ -226,6 +259,9 @@ impl Ekf {
     }
 
     /// Squared Mahalanobis distance of observation `z` to landmark `i`.
+    ///
+    /// # Panics
+    /// When there is no landmark of that index.
     pub fn mahalanobis2(&self, model: &RangeBearingModel, i: usize, z: &Vector2<f64>) -> f64 {
         let (zp, _, _, s) = self.predict_observation(model, i);
         let nu = Vector2::new(z.x - zp.x, wrap_angle(z.y - zp.y));
@@ -460,8 +496,11 @@ impl Ekf {
 
     /// Squared Mahalanobis distance between landmarks `i` and `j` (the covariance of their
     /// difference, cross terms included) and that covariance.
+    ///
+    /// # Panics
+    /// When there is no landmark of that index.
     pub fn landmark_difference(&self, i: usize, j: usize) -> (f64, Matrix2<f64>) {
-        let (li, lj) = (self.vehicle_dims + 2 * i, self.vehicle_dims + 2 * j);
+        let (li, lj) = (self.landmark_index(i), self.landmark_index(j));
         let pij = self.p.fixed_view::<2, 2>(li, lj).into_owned();
         let c = self.landmark_covariance(i) + self.landmark_covariance(j) - pij - pij.transpose();
         let d = self.landmark(i) - self.landmark(j);
@@ -507,8 +546,11 @@ impl Ekf {
     }
 
     /// Removes landmark `i` (its rows and columns), shifting later indices down.
+    ///
+    /// # Panics
+    /// When there is no landmark of that index.
     pub fn remove_landmark(&mut self, i: usize) {
-        let li = self.vehicle_dims + 2 * i;
+        let li = self.landmark_index(i);
         // Shrunk in place, not copied.
         self.x = std::mem::replace(&mut self.x, DVector::zeros(0)).remove_rows(li, 2);
         self.p = std::mem::replace(&mut self.p, DMatrix::zeros(0, 0)).remove_rows(li, 2).remove_columns(li, 2);

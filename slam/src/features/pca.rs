@@ -27,6 +27,14 @@ impl Pca {
         if dims == 0 || dims > d {
             return Err(FeatureError::Training(format!("PCA dimension {dims} must be between 1 and {d}")));
         }
+        if let Some(k) = data.iter().position(|v| !v.is_finite()) {
+            // Column-major: index k is row k % n of column k / n.
+            return Err(FeatureError::Training(format!(
+                "PCA data at row {}, column {} is not a finite number",
+                k % n,
+                k / n
+            )));
+        }
         let mean = DVector::from_iterator(d, data.column_iter().map(|c| c.sum() / n as f64));
         let mut centred = data.clone();
         for (j, mut col) in centred.column_iter_mut().enumerate() {

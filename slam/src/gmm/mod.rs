@@ -129,6 +129,12 @@ impl GmmEvaluator {
                 let (rows, cols) = c.covariance.shape();
                 return Err(GmmError::CovarianceShape { component: k, dims: d, rows, cols });
             }
+            if !(c.weight.is_finite() && c.weight >= 0.0) || !c.mean.iter().all(|v| v.is_finite()) {
+                return Err(GmmError::BadModel(format!(
+                    "component {k}: its weight ({}) must be finite and not negative, and its mean finite",
+                    c.weight
+                )));
+            }
             let chol = Cholesky::new(c.covariance.clone()).ok_or(GmmError::NotPositiveDefinite { component: k })?;
             let ln_det = 2.0 * chol.l_dirty().diagonal().iter().map(|v| v.ln()).sum::<f64>();
             let whiten = chol
@@ -160,8 +166,12 @@ impl GmmEvaluator {
     /// Per component c, ln (w_c N(x; mu_c, Gamma_c)), written to `terms` (one per
     /// component); `x` has length D. Their log-sum-exp is ln p(x), and
     /// exp(terms[c] - ln p(x)) the responsibility of component c.
+    ///
+    /// # Panics
+    /// When `x` is not D long.
     pub fn log_terms(&self, x: &[f64], terms: &mut [f64]) {
         let d = self.dims;
+        assert_eq!(x.len(), d, "log_terms: a point of {} dimensions for a mixture of {d}", x.len());
         let packed = d * (d + 1) / 2;
         let mut diff = [0.0f64; STACK_DIMS];
         let mut heap = Vec::new();
@@ -196,7 +206,17 @@ impl GmmEvaluator {
     /// in the same order as in `log_terms`, so the values are identical; the points side by
     /// side let the compiler use SIMD across them instead of one long chain of dependent
     /// additions per point.
+    ///
+    /// # Panics
+    /// When `x` does not hold D coordinates.
     pub fn log_terms_lanes<const LANES: usize>(&self, x: &[[f64; LANES]], terms: &mut [[f64; LANES]]) {
+        assert_eq!(
+            x.len(),
+            self.dims,
+            "log_terms_lanes: points of {} dimensions for a mixture of {}",
+            x.len(),
+            self.dims
+        );
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx") {
             // SAFETY: the processor has AVX, checked just above.
@@ -257,7 +277,11 @@ impl GmmEvaluator {
     }
 
     /// ln p(x) for one point given as a slice of length D.
+    ///
+    /// # Panics
+    /// When `x` is not D long (a point of another feature space).
     pub fn log_density(&self, x: &[f64]) -> f64 {
+        assert_eq!(x.len(), self.dims, "log_density: a point of {} dimensions for a mixture of {}", x.len(), self.dims);
         let mut terms = [0.0f64; 64];
         let mut heap = Vec::new();
         let k = self.component_count();

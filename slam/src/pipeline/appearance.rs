@@ -30,8 +30,25 @@ pub struct Appearance {
     pub camera: CameraGeometry,
 }
 
+/// Why an [`Appearance`] could not be made of a model and a camera.
+#[derive(Debug, thiserror::Error)]
+pub enum AppearanceSetupError {
+    /// The model's parts do not fit together (see [`AppearanceModel::check`]).
+    #[error("appearance model: {0}")]
+    Model(String),
+    /// See [`CameraGeometry::check`].
+    #[error("camera geometry: {0}")]
+    Camera(String),
+    #[error("appearance model: {0}")]
+    Mixture(#[from] crate::gmm::GmmError),
+}
+
 impl Appearance {
-    pub fn new(model: AppearanceModel, camera: CameraGeometry) -> Result<Self, crate::gmm::GmmError> {
+    /// Checks the model and the camera as a file's would be checked: a model or camera
+    /// made in code skips no check by not coming from a file.
+    pub fn new(model: AppearanceModel, camera: CameraGeometry) -> Result<Self, AppearanceSetupError> {
+        model.check().map_err(AppearanceSetupError::Model)?;
+        camera.check().map_err(AppearanceSetupError::Camera)?;
         let classifier = PatchClassifier::new(&model)?;
         let general = StudentTMixture::new(&model.object)?.gaussian_approximation()?;
         Ok(Appearance { model, classifier, general, camera })

@@ -74,7 +74,10 @@ pub struct PipelineConfig {
     pub merge: MergeConfig,
     /// Combined method: after a scan that closes a loop jointly, the filter is relinearised
     /// by solving its whole history again (see [`crate::ekf::smoother`]), so landmarks
-    /// not seen since before the loop move to where the closure says they are.
+    /// not seen since before the loop move to where the closure says they are. The history
+    /// keeps every pose, control and observation of the run, so its memory and each
+    /// solve's cost grow with the run's length, unlike the rest of the pipeline's: for a
+    /// log of hours, turn it off.
     pub relinearise_loop_closures: bool,
     /// With `relinearise_loop_closures`: also relinearise once this many seconds have
     /// passed since the last time (or the start). Off by default: before a loop closes the

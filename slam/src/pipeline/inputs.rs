@@ -110,6 +110,7 @@ impl Pipeline {
     /// it is recent enough) and only objects are observed.
     pub fn on_scan(&mut self, scan: &LaserScan) -> Result<ScanReport, PipelineError> {
         self.check_time("scan", scan.t)?;
+        scan.check().map_err(|problem| PipelineError::Scan { t: scan.t, problem })?;
         self.advance_to(scan.t);
         let clusters = cluster(scan, &self.config.clustering);
         let report = if self.config.method.uses_appearance() {
@@ -145,9 +146,29 @@ impl Pipeline {
         rgb: Vec<u8>,
         regions: Option<Vec<PixelRegion>>,
     ) -> Result<Option<Vec<u8>>, PipelineError> {
+        if let Some((at, how)) = self.diverged_at {
+            return Err(how.error(at));
+        }
+        // Images may come after scans of later times (a camera's latency), but not before
+        // the image they replace: a scan would be segmented in the older one.
+        if !t.is_finite() {
+            return Err(PipelineError::NonFinite { input: "image", t });
+        }
+        if let Some(previous) = &self.image
+            && t < previous.t
+        {
+            return Err(PipelineError::ImageTimeReversed { t, previous: previous.t });
+        }
         let expected = width as usize * height as usize * 3;
         if rgb.len() != expected {
             return Err(PipelineError::Image { width, height, expected, found: rgb.len() });
+        }
+        // Segmentation projects clusters with the camera's geometry: an image of another
+        // size would be read at the wrong pixels.
+        if let Some(app) = &self.appearance
+            && (width, height) != (app.camera.width, app.camera.height)
+        {
+            return Err(PipelineError::ImageSize { width, height, camera: (app.camera.width, app.camera.height) });
         }
         Ok(self.image.replace(StoredImage { t, width, height, rgb, regions }).map(|spent| spent.rgb))
     }
@@ -200,12 +221,73 @@ mod tests {
         assert_eq!(p.on_image(0.3, 2, 1, vec![4; 6]).unwrap(), Some(vec![2; 6]));
     }
 
+    /// Images, scans, clusters and the start are checked as odometry is: a value that is
+    /// not finite, a time that goes back or a scan whose beams have no angles is an error,
+    /// not a quiet scan of no clusters or a landmark that is not finite.
+    #[test]
+    fn malformed_images_scans_clusters_and_starts_are_errors() {
+        let config = PipelineConfig { method: AssociationMethod::Nn, ..Default::default() };
+        assert!(matches!(
+            Pipeline::new(config.clone(), [f64::NAN, 0.0, 0.0], None),
+            Err(PipelineError::StartNotFinite("pose"))
+        ));
+        let fresh = || Pipeline::new(config.clone(), [0.0; 3], None).unwrap();
+        assert!(matches!(fresh().starting_at(f64::INFINITY), Err(PipelineError::StartNotFinite("time"))));
+        let mut p = fresh();
+        assert!(matches!(p.on_image(f64::NAN, 2, 1, vec![0; 6]), Err(PipelineError::NonFinite { input: "image", .. })));
+        p.on_image(1.0, 2, 1, vec![0; 6]).unwrap();
+        let e = p.on_image(0.5, 2, 1, vec![0; 6]).unwrap_err();
+        assert!(matches!(e, PipelineError::ImageTimeReversed { t: 0.5, previous: 1.0 }), "{e}");
+        // An image may lag the scans: one of an earlier time than the latest input is fine.
+        p.on_odometry(&OdometryIncrement { t: 2.0, dx: 0.0, dy: 0.0, dtheta: 0.0 }).unwrap();
+        p.on_image(1.5, 2, 1, vec![0; 6]).unwrap();
+        let scan = LaserScan {
+            t: 2.0,
+            angle_min: -1.0,
+            angle_increment: 0.01,
+            range_min: 0.0,
+            range_max: f64::INFINITY,
+            ranges: vec![5.0; 200],
+        };
+        p.on_scan(&scan).unwrap();
+        for (broken, named) in [
+            (LaserScan { angle_increment: f64::NAN, ..scan.clone() }, "angle_increment NaN"),
+            (LaserScan { angle_increment: 0.0, ..scan.clone() }, "angle_increment 0"),
+            (LaserScan { angle_min: f64::NEG_INFINITY, ..scan.clone() }, "angle_min -inf"),
+            (LaserScan { range_min: f64::NAN, ..scan.clone() }, "range_min NaN"),
+            (LaserScan { range_min: -1.0, ..scan.clone() }, "range_min -1"),
+            (LaserScan { range_min: 5.0, range_max: 1.0, ..scan.clone() }, "range_max 1"),
+        ] {
+            let e = p.on_scan(&LaserScan { t: 2.5, ..broken }).unwrap_err();
+            assert!(matches!(e, PipelineError::Scan { t: 2.5, .. }) && e.to_string().contains(named), "{e}");
+        }
+        let mut c = detection(5.0, 0.0, 0.3).as_cluster(0);
+        c.range_m = f64::NAN;
+        assert!(matches!(
+            p.on_scan_with_objects(3.0, vec![c], &[true], "tree"),
+            Err(PipelineError::NonFinite { input: "clusters", t: 3.0 })
+        ));
+        let mut c = detection(5.0, 0.0, 0.3).as_cluster(0);
+        c.diameter_m = f64::INFINITY;
+        assert!(matches!(
+            p.on_scan_with_objects(3.0, vec![c], &[true], "tree"),
+            Err(PipelineError::NonFinite { input: "clusters", t: 3.0 })
+        ));
+        // Refused inputs leave the pipeline as it was: a sound scan goes on, and a cluster
+        // of unknown diameter (NaN) is sound.
+        let unknown = Detection { range_m: 5.0, bearing_rad: 0.0, diameter_m: None }.as_cluster(1);
+        assert!(unknown.diameter_m.is_nan());
+        let both = vec![detection(5.0, 0.0, 0.3).as_cluster(0), unknown];
+        p.on_scan_with_objects(3.0, both, &[true, true], "tree").unwrap();
+    }
+
     #[test]
     fn inputs_out_of_time_order_are_errors() {
         let mut p =
             Pipeline::new(PipelineConfig { method: AssociationMethod::Nn, ..Default::default() }, [0.0; 3], None)
                 .unwrap()
-                .starting_at(100.0);
+                .starting_at(100.0)
+                .unwrap();
         assert_eq!(p.pose().t, 100.0, "the first pose is stamped at the log's start");
         let early = OdometryIncrement { t: 99.0, dx: 0.1, dy: 0.0, dtheta: 0.0 };
         assert!(matches!(p.on_odometry(&early), Err(PipelineError::TimeReversed { t: 99.0, previous: 100.0, .. })));
@@ -288,6 +370,20 @@ mod tests {
         assert!(err.to_string().contains("stopped being positive definite at t = 0.6 s"), "{err}");
         let sane = OdometryIncrement { t: 0.7, dx: 0.1, dy: 0.0, dtheta: 0.0 };
         assert!(matches!(p.on_odometry(&sane), Err(PipelineError::Indefinite { t: 0.6 })));
+    }
+
+    /// A negative variance is found without waiting for a scan to measure a distance: the
+    /// next input of any kind is refused.
+    #[test]
+    fn a_negative_variance_is_refused_at_the_next_input() {
+        let mut p =
+            Pipeline::new(PipelineConfig { method: AssociationMethod::Nn, ..Default::default() }, [0.0; 3], None)
+                .unwrap();
+        p.on_odometry(&OdometryIncrement { t: 0.1, dx: 0.1, dy: 0.0, dtheta: 0.0 }).unwrap();
+        p.ekf.p[(2, 2)] = -1.0;
+        let err = p.on_odometry(&OdometryIncrement { t: 0.2, dx: 0.1, dy: 0.0, dtheta: 0.0 }).unwrap_err();
+        assert!(matches!(err, PipelineError::Indefinite { t: 0.2 }), "{err}");
+        assert!(matches!(p.on_detections(0.3, &[]), Err(PipelineError::Indefinite { t: 0.2 })));
     }
 
     #[test]

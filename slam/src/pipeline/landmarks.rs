@@ -21,8 +21,22 @@ impl Pipeline {
         self.table.confirm_and_expire(&mut self.ekf, need, window, t);
         if self.config.merge.enabled {
             self.merge_duplicates();
+            self.prune_co_observed();
         }
         self.table.refresh(&self.ekf);
+    }
+
+    /// Drops the co-observed pairs of landmarks no longer in the map, once the pairs have
+    /// doubled since the last pruning: ids are never reused, so a gone landmark's pairs
+    /// decide nothing, yet a long log's short-lived tentative landmarks would grow them
+    /// without bound. Amortised O(1) a pair.
+    fn prune_co_observed(&mut self) {
+        if self.co_observed.len() <= 2 * self.co_observed_kept.max(4096) {
+            return;
+        }
+        let live: HashSet<u32> = self.table.meta().iter().map(|l| l.id).collect();
+        self.co_observed.retain(|(a, b)| live.contains(a) && live.contains(b));
+        self.co_observed_kept = self.co_observed.len();
     }
 
     pub(super) fn note_co_observed(&mut self, assigned: &[Option<u32>]) {
@@ -177,6 +191,34 @@ mod tests {
         let p = pair(true, 0.0, true);
         assert_eq!(p.landmarks().len(), 2);
         assert!(p.merges.is_empty());
+    }
+
+    /// Tentative landmarks that come and go leave no pairs behind: the pairs stay bounded
+    /// by the live map, not by the log's length.
+    #[test]
+    fn pairs_of_landmarks_gone_are_dropped() {
+        let config = PipelineConfig {
+            method: AssociationMethod::Nn,
+            confirm_observations: 3,
+            confirm_window_s: 0.15,
+            ..Default::default()
+        };
+        let mut p = Pipeline::new(config, [0.0; 3], None).unwrap();
+        let mut most = 0;
+        for k in 0..3000 {
+            // Twenty objects each scan, 0.2 m from where the previous scan's were (many
+            // sigmas of range noise): each is a new tentative landmark that expires.
+            let range = 2.0 + (k % 50) as f64 * 0.2;
+            let clusters: Vec<Cluster> = (0..20).map(|i| cluster_at(range, -1.0 + 0.1 * i as f64)).collect();
+            p.on_scan_with_objects(0.1 * (k + 1) as f64, clusters, &[true; 20], "tree").unwrap();
+            most = most.max(p.co_observed.len());
+        }
+        // The scans did make tens of thousands of landmarks (ids are never reused: 10 a
+        // scan) ...
+        let newest = p.table.meta().iter().map(|l| l.id).max().unwrap();
+        assert!(newest >= 25_000, "newest id {newest}");
+        // ... whose pairs would number 285,000 without the pruning.
+        assert!(most <= 2 * 4096 + 190, "{most} pairs at most");
     }
 
     #[test]

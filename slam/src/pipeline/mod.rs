@@ -23,7 +23,7 @@ mod position;
 mod records;
 mod table;
 
-pub use appearance::Appearance;
+pub use appearance::{Appearance, AppearanceSetupError};
 pub use config::{DiameterCheck, MergeConfig, PipelineConfig};
 pub use records::{
     ClusterSegmentation, Landmark, LandmarkMerge, LandmarkRetraction, PoseEstimate, ScanReport, SegmentationRecord,
@@ -91,8 +91,11 @@ pub struct Pipeline {
     /// smooth over the seconds a place lives, while the filter's pose jumps when a loop
     /// closes, which would split one object's place or join a post to a tree's.
     odometry_pose: [f64; 3],
-    /// Pairs of landmark ids (smaller first) seen in one scan: never fused.
+    /// Pairs of landmark ids (smaller first) seen in one scan: never fused. Pairs of
+    /// landmarks gone (expired, retracted, fused) are dropped now and then.
     co_observed: HashSet<(u32, u32)>,
+    /// How many pairs `co_observed` kept when it was last pruned.
+    co_observed_kept: usize,
     merges: Vec<LandmarkMerge>,
     /// What the filter was told, when loop closures are relinearised.
     history: Option<History>,
@@ -115,6 +118,21 @@ pub enum PipelineError {
     NeedsAppearance(&'static str),
     #[error("image is {width}x{height} with {found} bytes; RGB needs {expected}")]
     Image { width: u32, height: u32, expected: usize, found: usize },
+    /// Images may come after scans of later times (a camera's latency), not before the
+    /// image they replace.
+    #[error(
+        "image at t = {t} s comes before the previous image at t = {previous} s: images must be in time order (they may lag the scans)"
+    )]
+    ImageTimeReversed { t: f64, previous: f64 },
+    /// A start pose or start time that is not finite.
+    #[error("the start {0} holds a value that is not finite")]
+    StartNotFinite(&'static str),
+    /// An image whose size is not the camera's: segmentation would read the wrong pixels.
+    #[error("image is {width}x{height}; the camera's geometry is {}x{}", camera.0, camera.1)]
+    ImageSize { width: u32, height: u32, camera: (u32, u32) },
+    /// A scan whose angles or range limits cannot describe beams.
+    #[error("scan at t = {t} s: {problem}")]
+    Scan { t: f64, problem: String },
     #[error("pipeline settings: {0}")]
     Invalid(#[from] InvalidSetting),
     #[error("{input} at t = {t} s comes before the previous input at t = {previous} s: inputs must be in time order")]
@@ -134,11 +152,11 @@ pub enum PipelineError {
         "the filter's estimate stopped being finite at t = {t} s (an input far outside what the motion and sensor models describe); nothing after it can be estimated"
     )]
     Diverged { t: f64 },
-    /// A squared Mahalanobis distance came out negative: the covariance is no longer
-    /// positive definite (a corrupt odometry row of kilometres broke it while the state
-    /// stayed finite), so every later gate, distance and NIS would be meaningless.
+    /// A squared Mahalanobis distance or a variance came out negative: the covariance is no
+    /// longer positive definite (a corrupt odometry row of kilometres broke it while the
+    /// state stayed finite), so every later gate, distance and NIS would be meaningless.
     #[error(
-        "the filter's covariance stopped being positive definite at t = {t} s (a squared Mahalanobis distance came out negative after an input far outside what the motion and sensor models describe, such as an odometry step of kilometres); nothing after it can be estimated"
+        "the filter's covariance stopped being positive definite at t = {t} s (a squared Mahalanobis distance or a variance came out negative after an input far outside what the motion and sensor models describe, such as an odometry step of kilometres); nothing after it can be estimated"
     )]
     Indefinite { t: f64 },
 }
@@ -179,6 +197,9 @@ impl Pipeline {
             );
             return Err(InvalidSetting::new("object_model.appearance_dims", problem).into());
         }
+        if !pose.iter().all(|v| v.is_finite()) {
+            return Err(PipelineError::StartNotFinite("pose"));
+        }
         let mut p = Pipeline::unchecked(config, pose);
         p.appearance = appearance;
         Ok(p)
@@ -215,6 +236,7 @@ impl Pipeline {
             evidence,
             odometry_pose: pose,
             co_observed: HashSet::new(),
+            co_observed_kept: 0,
             merges: Vec::new(),
             history,
             relinearisations: Vec::new(),
@@ -229,11 +251,14 @@ impl Pipeline {
 
     /// The same pipeline with its clock starting at `t` (a log's first instant), so the
     /// first pose is stamped `t` rather than 0 and earlier inputs are errors.
-    pub fn starting_at(mut self, t: f64) -> Self {
+    pub fn starting_at(mut self, t: f64) -> Result<Self, PipelineError> {
+        if !t.is_finite() {
+            return Err(PipelineError::StartNotFinite("time"));
+        }
         self.t = t;
         self.relinearised_at = t;
         self.record_pose();
-        self
+        Ok(self)
     }
 
     /// The time of the latest input.
@@ -263,7 +288,7 @@ impl Pipeline {
         if self.diverged_at.is_none() {
             if !self.ekf.is_finite() {
                 self.diverged_at = Some((t, Divergence::NotFinite));
-            } else if self.indefinite {
+            } else if self.indefinite || self.ekf.has_negative_variance() {
                 self.diverged_at = Some((t, Divergence::Indefinite));
             }
         }

@@ -33,6 +33,16 @@ impl Pipeline {
             return Err(PipelineError::ObjectFlags { given: is_object.len(), clusters: clusters.len() });
         }
         self.check_time("scan", t)?;
+        // Where a cluster is: a value not finite would become a landmark that is not, and
+        // stop the pipeline as if it had diverged. A diameter may be NaN (unknown, as
+        // `Detection::as_cluster` writes it), not infinite or negative.
+        if clusters.iter().any(|c| {
+            let d = c.diameter_m;
+            ![c.range_m, c.bearing_rad, c.centre[0], c.centre[1]].iter().all(|v| v.is_finite())
+                || !(d.is_nan() || (d.is_finite() && d >= 0.0))
+        }) {
+            return Err(PipelineError::NonFinite { input: "clusters", t });
+        }
         self.advance_to(t);
         let report = self.observe_positions(t, clusters, is_object, class);
         self.check_state(t)?;

@@ -1,0 +1,112 @@
+//! The library's misuse: bad data is a typed error, never a quiet NaN; a caller's bug
+//! (a slice of the wrong length) is a panic that says what was wrong, never a wrong answer.
+
+use nalgebra::{DMatrix, DVector, Matrix2, Matrix3, Vector2, Vector3};
+use slam::association::{chi2_quantile, jcbb::jcbb_with};
+use slam::classifier::{ModelError, TrainingOptions, train};
+use slam::column_context::{ColumnContext, ContextError, LabelledGrid};
+use slam::ekf::{Ekf, OdometryMotionModel, RangeBearingModel};
+use slam::features::pca::Pca;
+use slam::gmm::{Component, Gmm, GmmError};
+use slam::kl::{KlError, PreparedGmm};
+use slam::object_model::{ObjectModelConfig, ObjectModelError, ObjectObservation, fit_observation};
+
+fn gaussian(weight: f64, mean: &[f64]) -> Component {
+    Component { weight, mean: DVector::from_column_slice(mean), covariance: DMatrix::identity(mean.len(), mean.len()) }
+}
+
+#[test]
+fn mixtures_with_weights_or_means_not_finite_are_refused() {
+    for bad in [
+        Gmm { components: vec![gaussian(f64::NAN, &[0.0, 0.0]), gaussian(0.5, &[1.0, 0.0])] },
+        Gmm { components: vec![gaussian(-3.0, &[0.0, 0.0]), gaussian(4.0, &[1.0, 0.0])] },
+        Gmm { components: vec![gaussian(1.0, &[f64::NAN, 0.0])] },
+    ] {
+        assert!(matches!(bad.evaluator(), Err(GmmError::BadModel(_))), "{bad:?}");
+        assert!(matches!(PreparedGmm::new(&bad), Err(KlError::Component { .. })), "{bad:?}");
+    }
+    let zero = Gmm { components: vec![gaussian(0.0, &[0.0, 0.0])] };
+    assert!(matches!(PreparedGmm::new(&zero), Err(KlError::Component { component: 0, .. })));
+    // A component emptied to weight 0 beside others is sound (VBEM leaves them).
+    let emptied = Gmm { components: vec![gaussian(0.0, &[5.0, 5.0]), gaussian(1.0, &[0.0, 0.0])] };
+    assert!(emptied.evaluator().is_ok() && PreparedGmm::new(&emptied).is_ok());
+    let sound = Gmm { components: vec![gaussian(1.0, &[0.0, 0.0])] };
+    let ln_p = sound.evaluator().unwrap().log_density(&[0.0, 0.0]);
+    assert!((ln_p + (2.0 * std::f64::consts::PI).ln()).abs() < 1e-12, "{ln_p}");
+}
+
+#[test]
+#[should_panic(expected = "a point of 3 dimensions for a mixture of 2")]
+fn a_point_of_another_dimension_is_not_scored() {
+    let g = Gmm { components: vec![gaussian(1.0, &[0.0, 0.0])] };
+    g.evaluator().unwrap().log_density(&[0.0, 0.0, 9.0]);
+}
+
+#[test]
+fn pca_of_data_not_finite_is_refused() {
+    let mut data = DMatrix::from_fn(10, 3, |i, j| (i * 3 + j) as f64);
+    data[(4, 2)] = f64::NAN;
+    let e = Pca::fit(&data, 2).unwrap_err().to_string();
+    assert!(e.contains("row 4, column 2"), "{e}");
+}
+
+#[test]
+fn training_checks_its_feature_settings_first() {
+    let mut options = TrainingOptions::default();
+    options.features.patch_size = 0;
+    let e = train(3, |_| Err(ModelError::Training("no image should be read".into())), &options, |_, _, _| {})
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("features.patch_size"), "{e}");
+}
+
+#[test]
+fn a_column_context_is_fitted_only_on_whole_grids() {
+    let grid = LabelledGrid { log_odds: vec![1.0, -1.0, 1.0, -1.0], object: vec![true, false], cols: 2, rows: 2 };
+    let e = ColumnContext::fit(std::slice::from_ref(&grid), 3).unwrap_err();
+    assert!(matches!(&e, ContextError::Input(m) if m.contains("grid 0: 4 log-odds and 2 labels for 2x2")), "{e}");
+    let whole = LabelledGrid { object: vec![true, false, true, false], ..grid };
+    assert!(matches!(ColumnContext::fit(&[whole], 0), Err(ContextError::Input(m)) if m.contains("reach")));
+}
+
+#[test]
+fn an_object_model_needs_appearance_columns() {
+    let obs = ObjectObservation {
+        centre: [0.0, 0.0],
+        rows: DMatrix::from_fn(5, 2, |i, j| (i + j) as f64),
+        appearance: vec![],
+        cells: vec![],
+        pixels: vec![],
+        centre_covariance: Matrix2::identity(),
+    };
+    let e = fit_observation(&obs, None, &ObjectModelConfig::default()).unwrap_err();
+    assert!(matches!(e, ObjectModelError::TooFewColumns(2)), "{e}");
+}
+
+#[test]
+#[should_panic(expected = "a control of 1 values for a motion model of 3")]
+fn a_control_of_the_wrong_length_is_named() {
+    let mut ekf = Ekf::new(Vector3::zeros(), Matrix3::identity());
+    ekf.predict(&OdometryMotionModel::default(), &[0.1]);
+}
+
+#[test]
+#[should_panic(expected = "1 rows of allowed pairs for 2 observations")]
+fn jcbb_needs_a_row_of_allowed_pairs_per_observation() {
+    let ekf = Ekf::new(Vector3::zeros(), Matrix3::identity());
+    let z = [Vector2::new(5.0, 0.0), Vector2::new(6.0, 0.5)];
+    jcbb_with(&ekf, &RangeBearingModel::default(), &z, &[vec![]], 0.99);
+}
+
+#[test]
+#[should_panic(expected = "need dof >= 1 and 0 <= p < 1")]
+fn a_chi_square_quantile_outside_its_domain_is_named() {
+    chi2_quantile(2, 1.5);
+}
+
+#[test]
+#[should_panic(expected = "Ekf: no landmark with index 0 (the map holds 0)")]
+fn a_landmark_past_the_map_is_named() {
+    let ekf = Ekf::new(Vector3::zeros(), Matrix3::identity());
+    ekf.mahalanobis2(&RangeBearingModel::default(), 0, &Vector2::new(5.0, 0.0));
+}
