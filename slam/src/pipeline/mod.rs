@@ -14,6 +14,55 @@
 //! relinearisation), `records` (what a scan reports), `table` (the per-landmark records,
 //! which every landmark enters and leaves the filter through, so they stay index-aligned
 //! with it).
+//!
+//! # From a robot's own code
+//!
+//! A car's speed and steering and a tree detector's range and bearing, fed as they
+//! arrive (what `objslam replay` does from a log's files). Each input must be later than
+//! the one before; a malformed one is a [`PipelineError`] and changes nothing.
+//!
+//! ```
+//! use nalgebra::{Vector2, Vector3};
+//! use slam::association::AssociationMethod;
+//! use slam::ekf::{AckermannMotionModel, MotionConfig, MotionModel};
+//! use slam::messages::{Control, Detection};
+//! use slam::pipeline::{Pipeline, PipelineConfig};
+//!
+//! let car = AckermannMotionModel::default();
+//! let config = PipelineConfig {
+//!     method: AssociationMethod::Nn,
+//!     motion: MotionConfig::Ackermann(car),
+//!     ..Default::default()
+//! };
+//! let t0 = 1000.0; // the log's clock: the first pose is stamped then
+//! let mut slam = Pipeline::new(config.clone(), [0.0; 3], None)?.starting_at(t0)?;
+//! // Made up for the example: twelve trees on a ring, the car circling inside it at a
+//! // constant speed and steering, and detections without noise within 11 m.
+//! let trees: Vec<Vector2<f64>> = (0..12)
+//!     .map(|k| {
+//!         let a = k as f64 * std::f64::consts::PI / 6.0;
+//!         Vector2::new(15.0 * a.cos(), 8.0 + 15.0 * a.sin())
+//!     })
+//!     .collect();
+//! let (speed, steering, dt) = (3.0, 0.3, 0.2);
+//! slam.on_control(t0, Control::Ackermann { speed, steering })?; // held until changed
+//! let mut truth = Vector3::zeros();
+//! for step in 1..=150 {
+//!     truth = car.predict(&truth, &[speed, steering, dt]).0;
+//!     let seen: Vec<Detection> = trees
+//!         .iter()
+//!         .map(|tree| config.sensor.observe(&truth, tree).0)
+//!         .filter(|z| z.x < 11.0)
+//!         .map(|z| Detection { range_m: z.x, bearing_rad: z.y, diameter_m: Some(0.4) })
+//!         .collect();
+//!     let report = slam.on_detections(t0 + step as f64 * dt, &seen)?;
+//!     assert_eq!(report.decisions.len(), seen.len()); // one decision per detection
+//! }
+//! let estimate = slam.pose();
+//! assert!((estimate.pose[0] - truth.x).hypot(estimate.pose[1] - truth.y) < 0.1);
+//! assert_eq!(slam.landmarks().len(), trees.len());
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
 
 mod appearance;
 mod config;
