@@ -48,7 +48,7 @@ pub fn write_objects(dir: &Path, pipeline: &Pipeline) -> Result<usize, ObjectsEr
     let pictures: Vec<Result<bool, ObjectsError>> = modelled
         .par_iter()
         .map(|(lm, model)| {
-            let Some((w, h, rgb)) = mosaic_picture(lm.id, &lm.class, model, &app.model.extractor) else {
+            let Some((w, h, rgb)) = mosaic_picture(lm.id, &lm.class, model, &app.model().extractor) else {
                 return Ok(false);
             };
             let file = out.join(format!("landmark_{}.png", lm.id));
@@ -69,7 +69,7 @@ pub fn write_objects(dir: &Path, pipeline: &Pipeline) -> Result<usize, ObjectsEr
     let json = serde_json::to_string(&ObjectModels { format_version: 1, objects: models }).expect("JSON");
     errors.extend(std::fs::write(&file, json).err().map(|e| file_err(&file, e)));
     // The appearance model too, so `objslam find` works from the run directory alone.
-    errors.extend(app.model.save(&out.join(crate::files::APPEARANCE_MODEL)).err().map(ObjectsError::from));
+    errors.extend(app.model().save(&out.join(crate::files::APPEARANCE_MODEL)).err().map(ObjectsError::from));
     crate::run::first_or_all(errors, ObjectsError::Several).map(|()| written)
 }
 

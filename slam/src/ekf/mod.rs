@@ -172,7 +172,8 @@ impl Ekf {
     /// The state index of landmark `i`'s x.
     ///
     /// # Panics
-    /// When there is no landmark `i` (as every method taking a landmark's index does).
+    /// When there is no landmark `i`, as the methods that return no `Result` do (those
+    /// that do return [`EkfError::UnknownLandmark`]).
     fn landmark_index(&self, i: usize) -> usize {
         let count = self.landmark_count();
         assert!(i < count, "Ekf: no landmark with index {i} (the map holds {count})");

@@ -23,11 +23,14 @@ pub(super) struct Plan {
 /// What the appearance methods need: the trained model, ready to classify, and the camera.
 #[derive(Clone)]
 pub struct Appearance {
-    pub model: AppearanceModel,
+    /// Read-only outside the crate ([`Appearance::model`]): the classifier and the prior
+    /// below are made from it, and it was checked.
+    pub(crate) model: AppearanceModel,
     classifier: PatchClassifier,
     /// The classifier's object density (appearance only): prior for object models.
     general: Gmm,
-    pub camera: CameraGeometry,
+    /// Read-only outside the crate ([`Appearance::camera`]): it was checked.
+    pub(crate) camera: CameraGeometry,
 }
 
 /// Why an [`Appearance`] could not be made of a model and a camera.
@@ -52,6 +55,16 @@ impl Appearance {
         let classifier = PatchClassifier::new(&model)?;
         let general = StudentTMixture::new(&model.object)?.gaussian_approximation()?;
         Ok(Appearance { model, classifier, general, camera })
+    }
+
+    /// The appearance model the classifier and the object models' prior were made from.
+    pub fn model(&self) -> &AppearanceModel {
+        &self.model
+    }
+
+    /// The camera's geometry, which segmentation projects clusters with.
+    pub fn camera(&self) -> &CameraGeometry {
+        &self.camera
     }
 }
 

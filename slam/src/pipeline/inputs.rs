@@ -97,6 +97,9 @@ impl Pipeline {
         }) {
             return Err(PipelineError::NonFinite { input: "detections", t });
         }
+        if detections.iter().any(|d| d.diameter_m.is_some_and(|v| v < 0.0)) {
+            return Err(PipelineError::NegativeDiameter { input: "detections", t });
+        }
         self.advance_to(t);
         let clusters: Vec<Cluster> = detections.iter().enumerate().map(|(k, d)| d.as_cluster(k)).collect();
         let keep = vec![true; clusters.len()];
@@ -261,6 +264,9 @@ mod tests {
             let e = p.on_scan(&LaserScan { t: 2.5, ..broken }).unwrap_err();
             assert!(matches!(e, PipelineError::Scan { t: 2.5, .. }) && e.to_string().contains(named), "{e}");
         }
+        // A refused input leaves the clock and the estimate as they were.
+        let before = p.pose();
+        assert_eq!((p.time(), before.t), (2.0, 2.0));
         let mut c = detection(5.0, 0.0, 0.3).as_cluster(0);
         c.range_m = f64::NAN;
         assert!(matches!(
@@ -270,9 +276,19 @@ mod tests {
         let mut c = detection(5.0, 0.0, 0.3).as_cluster(0);
         c.diameter_m = f64::INFINITY;
         assert!(matches!(
-            p.on_scan_with_objects(3.0, vec![c], &[true], "tree"),
+            p.on_scan_with_objects(3.0, vec![c.clone()], &[true], "tree"),
             Err(PipelineError::NonFinite { input: "clusters", t: 3.0 })
         ));
+        c.diameter_m = -0.3;
+        assert!(matches!(
+            p.on_scan_with_objects(3.0, vec![c], &[true], "tree"),
+            Err(PipelineError::NegativeDiameter { input: "clusters", t: 3.0 })
+        ));
+        assert!(matches!(
+            p.on_detections(3.0, &[detection(5.0, 0.0, -0.3)]),
+            Err(PipelineError::NegativeDiameter { input: "detections", t: 3.0 })
+        ));
+        assert_eq!((p.time(), p.pose()), (2.0, before), "refused inputs changed the pipeline");
         // Refused inputs leave the pipeline as it was: a sound scan goes on, and a cluster
         // of unknown diameter (NaN) is sound.
         let unknown = Detection { range_m: 5.0, bearing_rad: 0.0, diameter_m: None }.as_cluster(1);
@@ -373,7 +389,7 @@ mod tests {
     }
 
     /// A negative variance is found without waiting for a scan to measure a distance: the
-    /// next input of any kind is refused.
+    /// next input that moves the filter reports it, and every input after it is refused.
     #[test]
     fn a_negative_variance_is_refused_at_the_next_input() {
         let mut p =

@@ -18,8 +18,10 @@
 //! # From a robot's own code
 //!
 //! A car's speed and steering and a tree detector's range and bearing, fed as they
-//! arrive (what `objslam replay` does from a log's files). Each input must be later than
-//! the one before; a malformed one is a [`PipelineError`] and changes nothing.
+//! arrive (what `objslam replay` does from a log's files). Inputs come in time order
+//! (equal times are fine, and images may lag the scans); a malformed one is refused with
+//! a [`PipelineError`] and changes nothing. An input that breaks the filter is applied and
+//! then reported (`Diverged`, `Indefinite`), and every later input is refused.
 //!
 //! ```
 //! use nalgebra::{Vector2, Vector3};
@@ -173,6 +175,9 @@ pub enum PipelineError {
         "image at t = {t} s comes before the previous image at t = {previous} s: images must be in time order (they may lag the scans)"
     )]
     ImageTimeReversed { t: f64, previous: f64 },
+    /// A diameter below zero (NaN, where allowed, means unknown).
+    #[error("{input} at t = {t} s holds a negative diameter")]
+    NegativeDiameter { input: &'static str, t: f64 },
     /// A start pose or start time that is not finite.
     #[error("the start {0} holds a value that is not finite")]
     StartNotFinite(&'static str),

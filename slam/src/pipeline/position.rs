@@ -37,11 +37,13 @@ impl Pipeline {
         // stop the pipeline as if it had diverged. A diameter may be NaN (unknown, as
         // `Detection::as_cluster` writes it), not infinite or negative.
         if clusters.iter().any(|c| {
-            let d = c.diameter_m;
             ![c.range_m, c.bearing_rad, c.centre[0], c.centre[1]].iter().all(|v| v.is_finite())
-                || !(d.is_nan() || (d.is_finite() && d >= 0.0))
+                || c.diameter_m.is_infinite()
         }) {
             return Err(PipelineError::NonFinite { input: "clusters", t });
+        }
+        if clusters.iter().any(|c| c.diameter_m < 0.0) {
+            return Err(PipelineError::NegativeDiameter { input: "clusters", t });
         }
         self.advance_to(t);
         let report = self.observe_positions(t, clusters, is_object, class);
