@@ -95,6 +95,7 @@ pub struct CalibrationResult {
 }
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
 pub enum CalibrationError {
     #[error(
         "calibration needs at least 5 board poses with laser points (each pose constrains 2 of the 9 unknowns of the linear estimate), got {0}"
@@ -490,6 +491,7 @@ pub const MAX_TRIM: usize = 50;
 
 /// Why no board was found in a scan.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
 pub enum SegmentationError {
     #[error("no straight stretch of board length ({min:.2}-{max:.2} m) in the expected region of the scan")]
     NoCandidate { min: f64, max: f64 },

@@ -54,6 +54,7 @@ pub struct BoardDetection {
 }
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
 pub enum DetectionError {
     #[error("found {found} corner candidates, the board has {expected} inner corners")]
     TooFewCorners { found: usize, expected: usize },

@@ -37,6 +37,7 @@ use crate::gmm::{self, GmmError, GmmEvaluator, StudentTMixture, VbGmm, VbOptions
 pub const MODEL_FORMAT_VERSION: u32 = 1;
 
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum ModelError {
     #[error("{file}: {source}")]
     Io { file: String, source: std::io::Error },

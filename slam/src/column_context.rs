@@ -56,6 +56,7 @@ pub struct LabelledGrid {
 
 /// Why the context could not be fitted.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
 pub enum ContextError {
     #[error("the column context needs patches of both classes to fit on ({object} object, {background} background)")]
     OneClass { object: usize, background: usize },

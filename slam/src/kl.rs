@@ -8,6 +8,7 @@ use nalgebra::{Cholesky, DMatrix, DVector, Dyn};
 use crate::gmm::{Component, Gmm};
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
 pub enum KlError {
     #[error("covariance of component {component} is not positive definite")]
     NotPositiveDefinite { component: usize },

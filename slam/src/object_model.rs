@@ -145,6 +145,7 @@ pub struct ObjectModel {
 }
 
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum ObjectModelError {
     #[error(transparent)]
     Gmm(#[from] GmmError),

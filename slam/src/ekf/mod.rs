@@ -29,6 +29,7 @@ use crate::messages::wrap_angle;
 
 /// Errors from the filter.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
 pub enum EkfError {
     #[error("innovation covariance is not positive definite")]
     NotPositiveDefinite,

@@ -27,6 +27,7 @@ use crate::messages::wrap_angle;
 
 /// Why a relinearisation was not applied (the filter is then left as it was).
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
 pub enum SmootherError {
     #[error("the normal equations are not positive definite")]
     NotPositiveDefinite,

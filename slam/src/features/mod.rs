@@ -28,6 +28,7 @@ pub use pca::Pca;
 
 /// What can go wrong computing features.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
 pub enum FeatureError {
     #[error("image data has {found} bytes, {width}x{height} RGB needs {expected}")]
     ImageSize { width: u32, height: u32, expected: usize, found: usize },

@@ -26,6 +26,7 @@ pub use vbem::{VbComponent, VbPrior};
 
 /// What can go wrong fitting or evaluating a mixture.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
 pub enum GmmError {
     #[error("no data: a mixture needs at least one point with at least one dimension")]
     NoData,

@@ -35,6 +35,7 @@ pub struct Appearance {
 
 /// Why an [`Appearance`] could not be made of a model and a camera.
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum AppearanceSetupError {
     /// The model's parts do not fit together (see [`AppearanceModel::check`]).
     #[error("appearance model: {0}")]

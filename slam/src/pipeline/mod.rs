@@ -164,6 +164,7 @@ pub struct Pipeline {
 
 /// Errors of the online pipeline.
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum PipelineError {
     #[error("association method `{0}` needs camera images and an appearance model; give the pipeline an `Appearance`")]
     NeedsAppearance(&'static str),
