@@ -210,31 +210,38 @@ impl AppearanceModel {
     /// Whether the model's parts fit together (what [`AppearanceModel::from_json`] checks
     /// of a file, for a model made in code); the message names the part at fault.
     pub fn check(&self) -> Result<(), String> {
-        let model = self;
-        model.extractor.config.validate().map_err(|e| format!("extractor.config.{e}"))?;
-        model.extractor.pca.check().map_err(|(field, problem)| format!("extractor.pca.{field}: {problem}"))?;
-        for (name, class) in [("object", &model.object), ("background", &model.background)]
+        self.check_parts()?;
+        PatchClassifier::new(self).map_err(|e| e.to_string())?;
+        Ok(())
+    }
+
+    /// [`AppearanceModel::check`] short of building the classifier, for a caller that builds
+    /// it next anyway.
+    pub(crate) fn check_parts(&self) -> Result<(), String> {
+        self.extractor.config.validate().map_err(|e| format!("extractor.config.{e}"))?;
+        self.extractor.pca.check().map_err(|(field, problem)| format!("extractor.pca.{field}: {problem}"))?;
+        for (name, class) in [("object", &self.object), ("background", &self.background)]
             .into_iter()
-            .chain(model.foliage.as_ref().map(|f| ("foliage.gmm", &f.gmm)))
-            .chain(model.distractors.as_ref().map(|f| ("distractors.gmm", &f.gmm)))
+            .chain(self.foliage.as_ref().map(|f| ("foliage.gmm", &f.gmm)))
+            .chain(self.distractors.as_ref().map(|f| ("distractors.gmm", &f.gmm)))
         {
             class.check().map_err(|e| format!("{name}: {e}"))?;
         }
-        let d = model.extractor.dims();
-        if model.extractor.pca.input_dims() != model.extractor.config.raw_dims() {
+        let d = self.extractor.dims();
+        if self.extractor.pca.input_dims() != self.extractor.config.raw_dims() {
             return Err("the PCA does not match the patch size and filter bank".into());
         }
-        if model.object.dims() != d || model.background.dims() != d {
+        if self.object.dims() != d || self.background.dims() != d {
             return Err(format!(
                 "class models are {}- and {}-dimensional, features are {d}-dimensional",
-                model.object.dims(),
-                model.background.dims()
+                self.object.dims(),
+                self.background.dims()
             ));
         }
-        if !(model.object_weight > 0.0 && model.object_weight < 1.0) || !(0.0..=1.0).contains(&model.threshold) {
+        if !(self.object_weight > 0.0 && self.object_weight < 1.0) || !(0.0..=1.0).contains(&self.threshold) {
             return Err("object_weight must lie in (0, 1) and threshold in [0, 1]".into());
         }
-        for (name, part, max) in [("foliage", &model.foliage, 1.0), ("distractors", &model.distractors, 0.999)] {
+        for (name, part, max) in [("foliage", &self.foliage, 1.0), ("distractors", &self.distractors, 0.999)] {
             let Some(f) = part else { continue };
             if f.gmm.dims() != d {
                 return Err(format!("{name}.gmm is {}-dimensional, features are {d}-dimensional", f.gmm.dims()));
@@ -243,10 +250,9 @@ impl AppearanceModel {
                 return Err(format!("{name}.weight must lie in (0, {max}], got {}", f.weight));
             }
         }
-        if let Some(c) = &model.context {
+        if let Some(c) = &self.context {
             c.check().map_err(|(field, problem)| format!("context.{field}: {problem}"))?;
         }
-        PatchClassifier::new(model).map_err(|e| e.to_string())?;
         Ok(())
     }
 

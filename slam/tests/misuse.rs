@@ -27,6 +27,10 @@ fn mixtures_with_weights_or_means_not_finite_are_refused() {
     }
     let zero = Gmm { components: vec![gaussian(0.0, &[0.0, 0.0])] };
     assert!(matches!(PreparedGmm::new(&zero), Err(KlError::Component { component: 0, .. })));
+    // Every weight zero: no mixture at all, where every density would be the same floor.
+    let all_zero = Gmm { components: vec![gaussian(0.0, &[0.0, 0.0]), gaussian(0.0, &[1.0, 0.0])] };
+    assert!(matches!(all_zero.evaluator(), Err(GmmError::BadModel(m)) if m.contains("zero")));
+    assert!(matches!(zero.evaluator(), Err(GmmError::BadModel(_))));
     // A component emptied to weight 0 beside others is sound (VBEM leaves them).
     let emptied = Gmm { components: vec![gaussian(0.0, &[5.0, 5.0]), gaussian(1.0, &[0.0, 0.0])] };
     assert!(emptied.evaluator().is_ok() && PreparedGmm::new(&emptied).is_ok());

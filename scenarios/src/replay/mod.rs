@@ -64,7 +64,8 @@ pub enum ReplayError {
     Config { file: PathBuf, line: usize, problem: String },
     #[error("{}: {setting}", file.display())]
     Setting { file: PathBuf, setting: slam::settings::InvalidSetting },
-    #[error("replay at t = {t} s: {source}")]
+    /// `t` is the log's time when the refusal came; the message names it once.
+    #[error("replay{}: {source}", if source.time().is_some() { String::new() } else { format!(" at t = {t} s") })]
     Pipeline { t: f64, source: slam::pipeline::PipelineError },
     #[error("{}: {source}", file.display())]
     Io { file: PathBuf, source: std::io::Error },
@@ -981,6 +982,19 @@ mod tests {
         let model = SourceFile { name: files::APPEARANCE_MODEL.into(), sha256: Some(expected.into()) };
         assert_eq!(LogSource::of_robot_log(&dir, true).files, vec![manifest, model]);
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A refusal that names its input's time says it once; one that names none gets the
+    /// log's time.
+    #[test]
+    fn a_pipeline_refusal_names_its_time_once() {
+        use slam::pipeline::PipelineError;
+        let reversed = PipelineError::TimeReversed { input: "scan", t: 12.5, previous: 13.0 };
+        let e = ReplayError::Pipeline { t: 12.5, source: reversed }.to_string();
+        assert_eq!(e.matches("12.5").count(), 1, "{e}");
+        assert!(e.starts_with("replay: scan at t = 12.5 s"), "{e}");
+        let e = ReplayError::Pipeline { t: 3.0, source: PipelineError::StartNotFinite("pose") }.to_string();
+        assert_eq!(e, "replay at t = 3 s: the start pose holds a value that is not finite");
     }
 
     /// Frames a camera method could not use are refused, naming camera.csv: none within

@@ -40,7 +40,9 @@ pub fn jcbb(
 }
 
 /// JCBB over the pairs `allowed[i][j]` (observation i may be landmark j) chosen by the
-/// caller, e.g. individually gated and alike in appearance.
+/// caller, e.g. individually gated and alike in appearance. A row shorter than the map
+/// allows none of the landmarks past its end (a caller may stop a row at its last allowed
+/// landmark); entries past the map are ignored.
 ///
 /// # Panics
 /// When `allowed` does not have one row per observation.

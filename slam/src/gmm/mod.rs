@@ -121,6 +121,10 @@ impl GmmEvaluator {
             return Err(GmmError::EmptyModel);
         }
         let d = g.dims();
+        // All weights zero would make every density the floor below, silently: no mixture.
+        if !g.components.iter().any(|c| c.weight > 0.0) {
+            return Err(GmmError::BadModel("every component's weight is zero".into()));
+        }
         let mut out = GmmEvaluator { dims: d, log_norm: vec![], means: vec![], whiten: vec![] };
         for (k, c) in g.components.iter().enumerate() {
             if c.mean.len() != d {

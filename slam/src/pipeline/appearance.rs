@@ -51,7 +51,7 @@ impl Appearance {
     /// Checks the model and the camera as a file's would be checked: a model or camera
     /// made in code skips no check by not coming from a file.
     pub fn new(model: AppearanceModel, camera: CameraGeometry) -> Result<Self, AppearanceSetupError> {
-        model.check().map_err(AppearanceSetupError::Model)?;
+        model.check_parts().map_err(AppearanceSetupError::Model)?;
         camera.check().map_err(AppearanceSetupError::Camera)?;
         let classifier = PatchClassifier::new(&model)?;
         let general = StudentTMixture::new(&model.object)?.gaussian_approximation()?;

@@ -149,14 +149,9 @@ impl Pipeline {
         rgb: Vec<u8>,
         regions: Option<Vec<PixelRegion>>,
     ) -> Result<Option<Vec<u8>>, PipelineError> {
-        if let Some((at, how)) = self.diverged_at {
-            return Err(how.error(at));
-        }
         // Images may come after scans of later times (a camera's latency), but not before
         // the image they replace: a scan would be segmented in the older one.
-        if !t.is_finite() {
-            return Err(PipelineError::NonFinite { input: "image", t });
-        }
+        self.check_running("image", t)?;
         if let Some(previous) = &self.image
             && t < previous.t
         {

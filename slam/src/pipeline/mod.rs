@@ -216,6 +216,23 @@ pub enum PipelineError {
     Indefinite { t: f64 },
 }
 
+impl PipelineError {
+    /// The input time the message names, where it names one: a caller that prefixes its
+    /// own time need not say it twice.
+    pub fn time(&self) -> Option<f64> {
+        match self {
+            PipelineError::ImageTimeReversed { t, .. }
+            | PipelineError::NegativeDiameter { t, .. }
+            | PipelineError::Scan { t, .. }
+            | PipelineError::TimeReversed { t, .. }
+            | PipelineError::NonFinite { t, .. }
+            | PipelineError::Diverged { t }
+            | PipelineError::Indefinite { t } => Some(*t),
+            _ => None,
+        }
+    }
+}
+
 /// How the filter broke (see [`PipelineError::Diverged`] and [`PipelineError::Indefinite`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Divergence {
@@ -324,14 +341,21 @@ impl Pipeline {
     /// Refuses an input stamped before the previous one, and any input once the filter
     /// has diverged.
     fn check_time(&self, input: &'static str, t: f64) -> Result<(), PipelineError> {
+        self.check_running(input, t)?;
+        if t < self.t {
+            return Err(PipelineError::TimeReversed { input, t, previous: self.t });
+        }
+        Ok(())
+    }
+
+    /// Refuses any input once the filter has diverged, and an input whose time is not
+    /// finite (what every input is checked for, whatever its order rule).
+    fn check_running(&self, input: &'static str, t: f64) -> Result<(), PipelineError> {
         if let Some((at, how)) = self.diverged_at {
             return Err(how.error(at));
         }
         if !t.is_finite() {
             return Err(PipelineError::NonFinite { input, t });
-        }
-        if t < self.t {
-            return Err(PipelineError::TimeReversed { input, t, previous: self.t });
         }
         Ok(())
     }
