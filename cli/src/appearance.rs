@@ -216,6 +216,12 @@ pub(crate) fn find(
 ) -> Result<()> {
     anyhow::ensure!(top >= 1, "--top must be at least 1, got 0");
     let runs_model = run.join(files::OBJECTS_DIR).join(files::APPEARANCE_MODEL);
+    if !run.is_dir() {
+        anyhow::bail!(
+            "--run {}: no such directory; give the directory of an `objslam run` of a camera method",
+            run.display()
+        );
+    }
     if !run.join(files::OBJECTS_DIR).join(files::OBJECT_MODELS).is_file() {
         anyhow::bail!(
             "{}: no objects/models.json: give the directory of an `objslam run` of a camera method (position-only methods describe no object's appearance)",
@@ -236,14 +242,17 @@ pub(crate) fn find(
             );
         }
     }
-    let dims = slam::object_model::ObjectModelConfig::default().appearance_dims;
-    let ranked = scenarios::objects::find_similar(run, &model, image, dims)?;
+    let ranked = scenarios::objects::find_similar(run, &model, image)?;
+    if ranked.is_empty() {
+        println!("{}: the run mapped no object with a model; nothing to rank", run.display());
+        return Ok(());
+    }
     println!("mapped objects most like {} (appearance KL, nats):", image.display());
     for (id, kl) in ranked.iter().take(top) {
-        println!(
-            "  landmark {id:>4}  KL {kl:>10.2}  {}",
-            run.join(files::OBJECTS_DIR).join(format!("landmark_{id}.png")).display()
-        );
+        // A model too small for a picture has none (and a picture may have been removed).
+        let picture = run.join(files::OBJECTS_DIR).join(format!("landmark_{id}.png"));
+        let picture = if picture.is_file() { picture.display().to_string() } else { "(no picture)".into() };
+        println!("  landmark {id:>4}  KL {kl:>10.2}  {picture}");
     }
     Ok(())
 }

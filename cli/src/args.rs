@@ -152,7 +152,8 @@ pub(crate) enum Command {
         model: PathBuf,
         /// The image to classify (PNG or JPEG).
         image: PathBuf,
-        /// The picture to write (PNG), the object patches drawn over the image.
+        /// The picture to write (PNG or JPEG, by its extension), the object patches drawn
+        /// over the image.
         #[arg(long)]
         out: PathBuf,
     },

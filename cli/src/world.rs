@@ -8,6 +8,9 @@ use crate::args::WorldCommand;
 pub(crate) fn world(cmd: WorldCommand) -> Result<()> {
     match cmd {
         WorldCommand::Generate { preset, seed, params, out } => {
+            if let (Some(out), Some(params)) = (&out, &params) {
+                crate::paths::not_an_input("--out", out, &[("--params file", params)])?;
+            }
             let params = params.map(|path| scenarios::scenario::read_park_params(&path)).transpose()?;
             let world = worlds::generate::preset(&preset, params.as_ref(), seed)?;
             match out {
@@ -39,7 +42,12 @@ pub(crate) fn world(cmd: WorldCommand) -> Result<()> {
         }
         WorldCommand::Export { file, out } => {
             crate::paths::not_an_input("--out", &out, &[("world file", &file)])?;
+            // What is written is binary glTF: a `.gltf` name promises JSON glTF.
+            if !out.extension().is_some_and(|e| e.eq_ignore_ascii_case("glb")) {
+                anyhow::bail!("--out {}: the export is binary glTF; give a file name ending in .glb", out.display());
+            }
             let w = worlds::load(&file)?;
+            not_a_mesh_of("--out", &out, &file, &w)?;
             crate::paths::write_whole(&out, worlds::gltf_io::export_glb(&w))?;
             eprintln!("wrote {}", out.display());
         }
@@ -49,6 +57,7 @@ pub(crate) fn world(cmd: WorldCommand) -> Result<()> {
         WorldCommand::Plot { file, out } => {
             crate::paths::not_an_input("--out", &out, &[("world file", &file)])?;
             let w = worlds::load(&file)?;
+            not_a_mesh_of("--out", &out, &file, &w)?;
             let title = format!("{} (seed {}): {:.0} m²", w.name, w.seed, w.ground.area_m2());
             scenarios::plot::draw_map(
                 &w,
@@ -104,7 +113,10 @@ fn import(
         at.split(',').map(|v| v.trim().parse::<f64>()).collect::<Result<_, _>>().map_err(|_| bad_at())?;
     let &[x, y] = xy.as_slice() else { return Err(bad_at()) };
     anyhow::ensure!(x.is_finite() && y.is_finite() && yaw_deg.is_finite(), "--at and --yaw-deg must be finite numbers");
+    // The output may be the world file itself (the mesh added in place), never a mesh.
+    crate::paths::not_an_input("--out", out, &[("MESH", mesh)])?;
     let mut w = worlds::load(world_file)?;
+    not_a_mesh_of("--out", out, world_file, &w)?;
     let triangles = worlds::gltf_io::import_mesh(mesh)
         .map_err(|e| anyhow::anyhow!("{}: not a readable glTF/.glb mesh: {e}", mesh.display()))?;
     // The world file names the mesh relative to itself where it can.
@@ -131,6 +143,21 @@ fn import(
     let added = w.objects.last().expect("just added");
     eprintln!("added {} {id} at ({x}, {y}), {} -> {}", class.name(), added.shape.describe(), out.display());
     Ok(())
+}
+
+/// Refuses an output `out` that is one of the meshes `world` (read from `world_file`)
+/// names: writing it would change what the world renders, and the mesh would be lost.
+fn not_a_mesh_of(flag: &str, out: &std::path::Path, world_file: &std::path::Path, world: &worlds::World) -> Result<()> {
+    let base = world_file.parent().unwrap_or(std::path::Path::new("."));
+    let meshes: Vec<(String, std::path::PathBuf)> = world
+        .objects
+        .iter()
+        .filter_map(|o| {
+            o.mesh.as_ref().map(|m| (format!("mesh of object {} in {}", o.id, world_file.display()), base.join(m)))
+        })
+        .collect();
+    let inputs: Vec<(&str, &std::path::Path)> = meshes.iter().map(|(what, p)| (what.as_str(), p.as_path())).collect();
+    crate::paths::not_an_input(flag, out, &inputs)
 }
 
 /// The absolute directory that holds `file` (the working directory for a bare name).

@@ -38,6 +38,44 @@ fn find_refuses_a_model_other_than_the_runs_and_a_run_without_objects() {
         let (_, e) = find("run", model);
         assert!(!e.contains("not the model whose features"), "{e}");
     }
+    // The run's object models are read as written, checked, in their own dimensions.
+    let object = |id: u32, dims: usize| {
+        let identity: Vec<String> =
+            (0..dims * dims).map(|k| if k % (dims + 1) == 0 { "1.0" } else { "0.0" }.to_string()).collect();
+        format!(
+            r#"[{id}, {{"gmm": {{"components": [{{"weight": 1.0, "mean": [[{}], {dims}, null], "covariance": [[{}], {dims}, {dims}]}}]}}, "patches": 10.0, "observations": 2, "mosaic": {{"cells": [], "appearance": []}}}}]"#,
+            vec!["0.0"; dims].join(", "),
+            identity.join(", ")
+        )
+    };
+    let models = |version: u32, objects: &[String]| {
+        let text = format!(r#"{{"format_version": {version}, "objects": [{}]}}"#, objects.join(", "));
+        std::fs::write(objects_file(&root), text).unwrap();
+    };
+    fn objects_file(root: &std::path::Path) -> std::path::PathBuf {
+        root.join("run/objects/models.json")
+    }
+    for (version, listed, expect) in [
+        (9, vec![object(0, 5)], "format_version 9, this objslam reads version 1"),
+        (1, vec![object(0, 5), object(3, 3)], "landmark 3: a mixture of 3 dimensions"),
+        (
+            1,
+            vec![object(0, 5), object(3, 6)],
+            "landmark 3: 3 appearance dimensions where the landmarks before it have 2",
+        ),
+        (1, vec![object(0, 5), object(0, 5)], "landmark 0: listed twice"),
+        (1, vec![object(1, 9)], "describe 6 appearance coordinates; the appearance model's PCA has 4"),
+    ] {
+        models(version, &listed);
+        let (ok, e) = find("run", None);
+        assert!(!ok && e.contains("models.json") && e.contains(expect), "{expect}: {e}");
+    }
+    // Sound models of 2 appearance coordinates (a run's `appearance_dims` other than the
+    // default) get past the checks, to the example's patches.
+    models(1, &[object(0, 5), object(4, 5)]);
+    let (ok, e) = find("run", None);
+    assert!(!ok && e.contains("example.png") && e.contains("patches look like the object class"), "{e}");
+
     std::fs::remove_dir_all(&objects).unwrap();
     let (ok, e) = find("run", None);
     assert!(

@@ -216,6 +216,10 @@ fn an_output_that_is_an_input_is_refused_and_the_input_kept() {
     let before = contents(&root);
     for (args, expect) in [
         (vec!["world", "export", "w.toml", "--out", "./w.toml"], "the world file given"),
+        (
+            vec!["world", "export", "w.toml", "--out", "w.gltf"],
+            "the export is binary glTF; give a file name ending in .glb",
+        ),
         // A recording writes OUT/world.toml: not over the world file it simulates.
         (vec!["record", "world.toml", "--duration", "1", "--out", "."], "the recording writes world.toml there"),
         (vec!["record", "./world.toml", "--format", "log", "--out", "./"], "which is the world file given"),
@@ -268,6 +272,7 @@ fn an_output_that_is_an_input_is_refused_and_the_input_kept() {
         ),
         (vec!["dataset", "--classes", "tree,post,tree", "--images", "1", "--out", "twice"], "\"tree\" is named twice"),
         (vec!["find", "--run", "run", "image.png", "--top", "0"], "--top must be at least 1"),
+        (vec!["find", "--run", "nowhere", "image.png"], "--run nowhere: no such directory"),
     ] {
         let o = objslam(&root, &args);
         assert!(!o.status.success(), "{args:?} succeeded");

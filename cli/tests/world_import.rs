@@ -114,6 +114,27 @@ fn a_mesh_joins_a_world_with_a_collider_fitted_to_it() {
     assert_eq!(meshes.len(), 2);
     assert!(meshes.iter().all(|o| o.mesh_data.0.is_some()), "both meshes found from the new file");
 
+    // No command writes over a file it reads: the mesh (as MESH or named by the world) or
+    // the generator's parameters.
+    let mesh_bytes = std::fs::read(dir.join("post.glb")).unwrap();
+    std::fs::write(dir.join("params.toml"), "trees = 5\n").unwrap();
+    let (mesh, with_post, params) = (path("post.glb"), path("with_post.toml"), path("params.toml"));
+    for (call, expect) in [
+        (
+            vec!["world", "import", &mesh, "--world", &with_post, "--class", "post", "--at", "0,0", "--out", &mesh],
+            "it is the MESH given",
+        ),
+        (vec!["world", "export", &with_post, "--out", &mesh], "it is the mesh of object"),
+        (vec!["world", "plot", &with_post, "--out", &mesh], "it is the mesh of object"),
+        (vec!["world", "generate", "--params", &params, "--out", &params], "it is the --params file given"),
+    ] {
+        let out = objslam(&call);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && err.contains(expect), "{call:?}: {err}");
+    }
+    assert_eq!(std::fs::read(dir.join("post.glb")).unwrap(), mesh_bytes, "the mesh is kept");
+    assert_eq!(std::fs::read_to_string(dir.join("params.toml")).unwrap(), "trees = 5\n", "the parameters are kept");
+
     // A scenario on that world: its run's outputs score as a log (their world.toml finds
     // the meshes), and the scenario its metadata.json records runs the run again from
     // another directory.

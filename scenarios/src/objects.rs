@@ -66,7 +66,8 @@ pub fn write_objects(dir: &Path, pipeline: &Pipeline) -> Result<usize, ObjectsEr
     }
     let models: Vec<_> = modelled.iter().map(|(lm, model)| (lm.id, (*model).clone())).collect();
     let file = out.join(crate::files::OBJECT_MODELS);
-    let json = serde_json::to_string(&ObjectModels { format_version: 1, objects: models }).expect("JSON");
+    let json = serde_json::to_string(&ObjectModels { format_version: OBJECT_MODELS_FORMAT_VERSION, objects: models })
+        .expect("JSON");
     errors.extend(std::fs::write(&file, json).err().map(|e| file_err(&file, e)));
     // The appearance model too, so `objslam find` works from the run directory alone.
     errors.extend(app.model().save(&out.join(crate::files::APPEARANCE_MODEL)).err().map(ObjectsError::from));
@@ -137,19 +138,68 @@ pub fn mosaic_picture(
     Some((width, height, out))
 }
 
+/// The layout of `objects/models.json` that this build writes and reads.
+pub const OBJECT_MODELS_FORMAT_VERSION: u32 = 1;
+
+/// The object models of `objects/models.json` (`file`), checked: this layout, each landmark
+/// once, each a sound mixture over the same appearance coordinates and then dx, dy and h.
+/// Returns the models and how many appearance coordinates they describe (the run's
+/// `object_model.appearance_dims`, whatever it was).
+pub fn read_object_models(file: &Path) -> Result<(ObjectModels, usize), ObjectsError> {
+    let text = std::fs::read_to_string(file).map_err(|e| file_err(file, e))?;
+    let models: ObjectModels =
+        slam::settings::from_json(&text).map_err(|e| file_err(file, format!("not an objects/models.json: {e}")))?;
+    if models.format_version != OBJECT_MODELS_FORMAT_VERSION {
+        return Err(file_err(
+            file,
+            format!(
+                "format_version {}, this objslam reads version {OBJECT_MODELS_FORMAT_VERSION}",
+                models.format_version
+            ),
+        ));
+    }
+    let mut appearance_dims = None;
+    let mut seen = std::collections::BTreeSet::new();
+    for (id, m) in &models.objects {
+        let bad = |problem: String| file_err(file, format!("landmark {id}: {problem}"));
+        if !seen.insert(*id) {
+            return Err(bad("listed twice".into()));
+        }
+        let dims = m.gmm.dims();
+        // The appearance coordinates, then dx, dy and h (see `ObjectModel::gmm`).
+        if dims < 4 {
+            return Err(bad(format!(
+                "a mixture of {dims} dimensions; an object model has its appearance coordinates and then dx, dy and h"
+            )));
+        }
+        if *appearance_dims.get_or_insert(dims - 3) != dims - 3 {
+            return Err(bad(format!(
+                "{} appearance dimensions where the landmarks before it have {}",
+                dims - 3,
+                appearance_dims.unwrap_or_default()
+            )));
+        }
+        m.gmm.evaluator().map_err(|e| bad(e.to_string()))?;
+    }
+    Ok((models, appearance_dims.unwrap_or(0)))
+}
+
 /// "Find objects that look like this": classifies the example image's patches, fits an
 /// appearance density to its object patches, and ranks a run's mapped objects by the
-/// appearance-only KL divergence (smallest first).
-pub fn find_similar(
-    run_dir: &Path,
-    model: &AppearanceModel,
-    example: &Path,
-    appearance_dims: usize,
-) -> Result<Vec<(u32, f64)>, ObjectsError> {
+/// appearance-only KL divergence (smallest first), over the appearance coordinates the
+/// run's object models describe.
+pub fn find_similar(run_dir: &Path, model: &AppearanceModel, example: &Path) -> Result<Vec<(u32, f64)>, ObjectsError> {
     let file = run_dir.join(crate::files::OBJECTS_DIR).join(crate::files::OBJECT_MODELS);
-    let text = std::fs::read_to_string(&file).map_err(|e| file_err(&file, e))?;
-    let models: ObjectModels =
-        slam::settings::from_json(&text).map_err(|e| file_err(&file, format!("not an objects/models.json: {e}")))?;
+    let (models, appearance_dims) = read_object_models(&file)?;
+    if appearance_dims > model.extractor.pca.dims() {
+        return Err(file_err(
+            &file,
+            format!(
+                "its object models describe {appearance_dims} appearance coordinates; the appearance model's PCA has {}",
+                model.extractor.pca.dims()
+            ),
+        ));
+    }
     let rgb = crate::train::open_image_to_classify(example).map_err(|e| ObjectsError::Object(e.to_string()))?;
     let (w, h) = rgb.dimensions();
     let image = ImageRef::new(w, h, rgb.as_raw()).map_err(|e| file_err(example, e))?;
@@ -163,7 +213,10 @@ pub fn find_similar(
             format!("only {} patches look like the object class; nothing to compare", rows.len()),
         ));
     }
-    let da = appearance_dims.min(f.z.ncols());
+    let da = appearance_dims;
+    if da == 0 {
+        return Ok(Vec::new());
+    }
     let data = nalgebra::DMatrix::from_fn(rows.len(), da, |i, j| f.z[(rows[i], j)]);
     let vb = slam::gmm::fit(&data, None, &slam::gmm::VbOptions { max_components: 1, ..Default::default() })
         .map_err(|e| ObjectsError::Object(e.to_string()))?;
@@ -171,5 +224,5 @@ pub fn find_similar(
         .and_then(|t| t.gaussian_approximation())
         .map_err(|e| ObjectsError::Object(e.to_string()))?;
     let refs: Vec<(u32, &ObjectModel)> = models.objects.iter().map(|(id, m)| (*id, m)).collect();
-    object_model::rank_by_appearance(&example_model, &refs).map_err(|e| ObjectsError::Object(e.to_string()))
+    object_model::rank_by_appearance(&example_model, &refs).map_err(|e| file_err(&file, e))
 }

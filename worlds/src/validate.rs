@@ -56,6 +56,12 @@ pub fn validate(world: &World, base_dir: &Path) -> Vec<Problem> {
         }
     };
 
+    // Where an object stands and how large it is are known only when its pose and sizes
+    // are sound: one NaN is its own error, not a cascade of overlaps and clearances.
+    let placed = |o: &crate::description::StaticObject| {
+        all_finite(&[o.pose.x, o.pose.y, o.pose.yaw_deg])
+            && shape_sizes(&o.shape).iter().all(|(_, v)| v.is_finite() && *v > 0.0)
+    };
     for (i, o) in world.objects.iter().enumerate() {
         let f = format!("objects[{i}]");
         check_id(&mut push, o.id, format!("{f}.id"));
@@ -131,6 +137,9 @@ pub fn validate(world: &World, base_dir: &Path) -> Vec<Problem> {
         {
             push(format!("{f}.mesh"), msg);
         }
+        if !placed(o) {
+            continue;
+        }
         let (lo, hi) = o.shape.footprint(&o.pose).bounds();
         if lo[0] < g.min_m[0] || lo[1] < g.min_m[1] || hi[0] > g.max_m[0] || hi[1] > g.max_m[1] {
             push(format!("{f}.pose"), "object extends beyond the ground".into());
@@ -138,10 +147,17 @@ pub fn validate(world: &World, base_dir: &Path) -> Vec<Problem> {
     }
 
     // Overlaps between static objects.
-    let footprints: Vec<Footprint> = world.objects.iter().map(|o| o.shape.footprint(&o.pose)).collect();
-    for i in 0..footprints.len() {
-        for j in (i + 1)..footprints.len() {
-            if footprints[i].gap(&footprints[j]) <= 0.0 {
+    let footprints: Vec<(usize, Footprint)> = world
+        .objects
+        .iter()
+        .enumerate()
+        .filter(|(_, o)| placed(o))
+        .map(|(i, o)| (i, o.shape.footprint(&o.pose)))
+        .collect();
+    for (a, (i, fi)) in footprints.iter().enumerate() {
+        for (j, fj) in &footprints[a + 1..] {
+            let (i, j) = (*i, *j);
+            if fi.gap(fj) <= 0.0 {
                 push(
                     format!("objects[{j}]"),
                     format!("object {} overlaps object {} (objects[{i}])", world.objects[j].id, world.objects[i].id),
@@ -212,22 +228,22 @@ pub fn validate(world: &World, base_dir: &Path) -> Vec<Problem> {
         // the route's clearance too.
         let first = if r.route.looping { r.route.waypoints[1] } else { r.route.waypoints[0] };
         let start = [r.start.x, r.start.y];
-        for (i, fp) in footprints.iter().enumerate() {
+        for (i, fp) in &footprints {
             let d = fp.distance_to_segment(start, first);
             if d < ROBOT_ROUTE_CLEARANCE_M {
                 push(
                     "robot.start".into(),
                     format!(
                         "the drive from the start ({:.2}, {:.2}) to the route's first target ({:.2}, {:.2}) passes {d:.2} m from object {} (needs {ROBOT_ROUTE_CLEARANCE_M:.2} m clearance)",
-                        start[0], start[1], first[0], first[1], world.objects[i].id
+                        start[0], start[1], first[0], first[1], world.objects[*i].id
                     ),
                 );
             }
         }
     }
-    for (i, fp) in footprints.iter().enumerate() {
+    for (i, fp) in &footprints {
         if fp.distance_to_point([r.start.x, r.start.y]) < ROBOT_ROUTE_CLEARANCE_M {
-            push("robot.start".into(), format!("robot starts inside or touching object {}", world.objects[i].id));
+            push("robot.start".into(), format!("robot starts inside or touching object {}", world.objects[*i].id));
         }
     }
     out
@@ -267,7 +283,7 @@ fn check_route(
     field: &str,
     route: &crate::description::Route,
     objects: &[crate::description::StaticObject],
-    footprints: &[Footprint],
+    footprints: &[(usize, Footprint)],
     clearance: f64,
 ) {
     if route.waypoints.len() < 2 {
@@ -279,14 +295,14 @@ fn check_route(
         return;
     }
     for (k, (a, b)) in route.segments().iter().enumerate() {
-        for (i, fp) in footprints.iter().enumerate() {
+        for (i, fp) in footprints {
             let d = fp.distance_to_segment(*a, *b);
             if d < clearance {
                 push(
                     format!("{field}.waypoints[{k}]"),
                     format!(
                         "segment {k} ({:.2}, {:.2}) -> ({:.2}, {:.2}) passes {d:.2} m from object {} (needs {clearance:.2} m clearance)",
-                        a[0], a[1], b[0], b[1], objects[i].id
+                        a[0], a[1], b[0], b[1], objects[*i].id
                     ),
                 );
             }

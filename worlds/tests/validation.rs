@@ -75,6 +75,27 @@ fn zero_size_is_named() {
     assert!(msg.contains("height_m") && msg.contains("positive"), "{msg}");
 }
 
+/// An object whose pose or size is not a number is that one error: where it stands is
+/// unknown, so no overlap or clearance is claimed of it.
+#[test]
+fn an_object_nowhere_is_one_error_not_a_cascade() {
+    let good = good_text();
+    let first_x = good.find("x = ").unwrap();
+    let end = first_x + good[first_x..].find('\n').unwrap();
+    let text = format!("{}x = nan{}", &good[..first_x], &good[end..]);
+    let err = parse(&text).unwrap_err();
+    let problems: Vec<String> = err.problems().iter().map(|p| p.to_string()).collect();
+    assert_eq!(problems.len(), 1, "{problems:#?}");
+    assert!(problems[0].contains(".pose") && problems[0].contains("finite"), "{problems:?}");
+    let mut bad = park(&ParkParams::default(), 11).unwrap();
+    let i = bad.objects.iter().position(|o| o.class == worlds::ObjectClass::Tree).unwrap();
+    if let worlds::Shape::Trunk { radius_m, .. } = &mut bad.objects[i].shape {
+        *radius_m = f64::INFINITY;
+    }
+    let err = parse(&bad.to_toml()).unwrap_err();
+    assert_eq!(err.problems().len(), 1, "{:#?}", err.problems());
+}
+
 #[test]
 fn overlapping_objects_are_named() {
     let mut bad = park(&ParkParams::default(), 11).unwrap();

@@ -125,7 +125,10 @@ impl VbGmm {
         }
         for (k, c) in self.components.iter().enumerate() {
             if c.mean.len() != d {
-                return Err(GmmError::Dimension { expected: d, found: c.mean.len() });
+                return Err(GmmError::BadModel(format!(
+                    "component {k}: its mean has {} dimensions; the prior's m0 has {d}",
+                    c.mean.len()
+                )));
             }
             if c.w_inv.shape() != (d, d) {
                 let (rows, cols) = c.w_inv.shape();
@@ -161,6 +164,14 @@ impl VbGmm {
                 self.components.len()
             )));
         }
+        if let Some(k) = self.counts.iter().position(|n| !(n.is_finite() && *n >= 0.0)) {
+            return Err(GmmError::BadModel(format!("count {k} is {}; counts are numbers of points", self.counts[k])));
+        }
+        // Numbers each sound alone can still give no density (nu = 1e308 scales the
+        // predictive's covariance to nothing): a fault of the model, found here rather
+        // than when data are scored.
+        super::StudentTMixture::new(self)
+            .map_err(|e| GmmError::BadModel(format!("its predictive density cannot be formed: {e}")))?;
         Ok(())
     }
 

@@ -78,8 +78,12 @@ impl VbPrior {
 
     /// Checks that the prior is proper for data of dimension `d`.
     pub fn check(&self, d: usize) -> Result<(), GmmError> {
-        if self.m0.len() != d || self.w0_inv.shape() != (d, d) {
+        if self.m0.len() != d {
             return Err(GmmError::Dimension { expected: d, found: self.m0.len() });
+        }
+        if self.w0_inv.shape() != (d, d) {
+            let (rows, cols) = self.w0_inv.shape();
+            return Err(GmmError::BadPrior(format!("W0^-1 is {rows} x {cols}; m0 has {d} dimensions")));
         }
         if !(self.alpha0 > 0.0 && self.beta0 > 0.0 && self.alpha0.is_finite() && self.beta0.is_finite()) {
             return Err(GmmError::BadPrior("alpha0 and beta0 must be positive".into()));
