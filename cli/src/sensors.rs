@@ -248,6 +248,20 @@ pub(crate) fn calibrate(
     if out.is_dir() || out.as_os_str().to_string_lossy().ends_with(std::path::MAIN_SEPARATOR) {
         anyhow::bail!("--out {}: is a directory; give the path of the calibration file to write", out.display());
     }
+    // The pose images go into --images, replacing the earlier session's there.
+    if let Some(dir) = images
+        && scenarios::calibrate::is_pose_image_name(out)
+        && scenarios::partial_files::same_path(
+            out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(".".as_ref()),
+            dir,
+        )
+    {
+        anyhow::bail!(
+            "--out {}: a pose image's name in --images {}, which the session writes or removes; give the calibration file another name",
+            out.display(),
+            dir.display()
+        );
+    }
     let (sc, base) = scenarios::scenario::Scenario::load(scenario)?;
     // The calibration file the scenario names is not read by a session: writing it anew is
     // what a user re-estimating it wants.

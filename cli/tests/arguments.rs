@@ -98,6 +98,20 @@ fn settings_files_given_on_the_command_line_are_checked_naming_file_line_and_fie
         assert!(err.contains(&expect), "{args:?}: {err}");
     }
     assert!(!out.exists(), "nothing was recorded");
+    // A scenario's check names the scenario where the problem is a file or setting it
+    // names, and once where the message names it already.
+    let scenario = dir.join("modelled.toml");
+    std::fs::write(
+        &scenario,
+        "name = \"modelled\"\n[world]\npreset = \"park\"\n[appearance]\nmodel = \"nosuch.json\"\n",
+    )
+    .unwrap();
+    let (ok, err) = stderr_of(&["config", "check", scenario.to_str().unwrap()]);
+    assert!(!ok && err.contains(&format!("{}: ", scenario.display())) && err.contains("nosuch.json"), "{err}");
+    std::fs::write(&scenario, "name = \"modelled\"\n[world]\npreset = \"park\"\n[pipeline]\ngate_probability = 2.0\n")
+        .unwrap();
+    let (ok, err) = stderr_of(&["config", "check", scenario.to_str().unwrap()]);
+    assert!(!ok && err.matches("modelled.toml").count() == 1, "{err}");
     let _ = std::fs::remove_dir_all(&dir);
 }
 

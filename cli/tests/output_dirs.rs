@@ -213,6 +213,28 @@ fn an_output_that_is_an_input_is_refused_and_the_input_kept() {
     assert!(o.status.success(), "{}", stderr(&o));
     let o = Command::new("cp").args(["-r", "images", "copy"]).current_dir(&root).output().unwrap();
     assert!(o.status.success());
+    // Manifests edited by hand: an image listed twice (trained on twice, or trained on and
+    // held out), another layout, a file outside the dataset.
+    let manifest: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(root.join("images/dataset.json")).unwrap()).unwrap();
+    type Edit = fn(&mut serde_json::Value);
+    let edits: [(&str, Edit); 3] = [
+        ("dup_image", |m| {
+            let first = m["images"][0].clone();
+            m["images"].as_array_mut().unwrap().push(first);
+        }),
+        ("version", |m| m["format_version"] = 2.into()),
+        ("outside", |m| m["images"][0]["image"] = "../copy/images/000000.png".into()),
+    ];
+    for (name, edit) in edits {
+        let o = Command::new("cp").args(["-r", "images", name]).current_dir(&root).output().unwrap();
+        assert!(o.status.success());
+        let mut m = manifest.clone();
+        edit(&mut m);
+        std::fs::write(root.join(name).join("dataset.json"), m.to_string()).unwrap();
+    }
+    // A link to a dataset's file: writing it writes the file.
+    std::os::unix::fs::symlink(root.join("images/dataset.json"), root.join("link.json")).unwrap();
     let before = contents(&root);
     for (args, expect) in [
         (vec!["world", "export", "w.toml", "--out", "./w.toml"], "the world file given"),
@@ -233,6 +255,20 @@ fn an_output_that_is_an_input_is_refused_and_the_input_kept() {
         (
             vec!["train", "--dataset", "images", "--heldout-dataset", "copy", "--out", "m.json"],
             "shows the world of the training dataset images",
+        ),
+        (vec!["train", "--dataset", "images", "--out", "link.json"], "--out link.json: a file of the dataset images"),
+        (
+            vec!["train", "--dataset", "images", "--out", "m.json", "--export-features", "link.json"],
+            "--export-features link.json: a file of the dataset images",
+        ),
+        (
+            vec!["train", "--dataset", "dup_image", "--out", "m.json"],
+            "dup_image/dataset.json: images[1].id: 0 is listed twice",
+        ),
+        (vec!["train", "--dataset", "version", "--out", "m.json"], "format_version 2, this objslam reads version 1"),
+        (
+            vec!["train", "--dataset", "outside", "--out", "m.json"],
+            "images[0].image: \"../copy/images/000000.png\" is not a path inside the dataset",
         ),
         // Refused before training, not when the model is saved.
         (vec!["train", "--dataset", "images", "--out", "run"], "--out run: is a directory"),
@@ -271,8 +307,10 @@ fn an_output_that_is_an_input_is_refused_and_the_input_kept() {
             "a file of the dataset in images",
         ),
         (vec!["dataset", "--classes", "tree,post,tree", "--images", "1", "--out", "twice"], "\"tree\" is named twice"),
+        (vec!["dataset", "--patch-size", "65", "--images", "1", "--out", "big"], "describe patches of 1 to 64 pixels"),
         (vec!["find", "--run", "run", "image.png", "--top", "0"], "--top must be at least 1"),
         (vec!["find", "--run", "nowhere", "image.png"], "--run nowhere: no such directory"),
+        (vec!["calibrate", "--images", "run", "--out", "run/pose_00.png"], "a pose image's name in --images run"),
     ] {
         let o = objslam(&root, &args);
         assert!(!o.status.success(), "{args:?} succeeded");

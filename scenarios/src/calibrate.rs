@@ -596,13 +596,19 @@ fn remove_pose_images(dir: &Path) -> Result<(), CalibrateError> {
     };
     for entry in std::fs::read_dir(dir).map_err(io(dir))? {
         let path = entry.map_err(io(dir))?.path();
-        let name = path.file_name().and_then(|n| n.to_str()).unwrap_or_default();
-        let digits = name.strip_prefix("pose_").and_then(|n| n.strip_suffix(".png")).unwrap_or_default();
-        if !digits.is_empty() && digits.bytes().all(|b| b.is_ascii_digit()) {
+        if is_pose_image_name(&path) {
             std::fs::remove_file(&path).map_err(io(&path))?;
         }
     }
     Ok(())
+}
+
+/// Whether `file` is named as a session's pose image (`pose_NN.png`): a session with
+/// `--images` in its directory writes or removes it.
+pub fn is_pose_image_name(file: &Path) -> bool {
+    let name = file.file_name().and_then(|n| n.to_str()).unwrap_or_default();
+    let digits = name.strip_prefix("pose_").and_then(|n| n.strip_suffix(".png")).unwrap_or_default();
+    !digits.is_empty() && digits.bytes().all(|b| b.is_ascii_digit())
 }
 
 /// The simulator's exact laser <- camera extrinsics for a configuration.

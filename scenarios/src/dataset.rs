@@ -244,14 +244,16 @@ fn check_out(out: &Path) -> Result<(), DatasetError> {
 }
 
 /// Whether `file` is one of the files of the dataset in `dir`: a name of [`OUTPUTS`] there,
-/// or anything in its folders (so that no other output of a command overwrites it).
+/// or anything in its folders (so that no other output of a command overwrites it). A
+/// link is followed: writing it writes the file it names.
 pub fn owns(dir: &Path, file: &Path) -> bool {
-    let parent = file.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    let (Ok(dir), Ok(parent), Some(name)) = (dir.canonicalize(), parent.canonicalize(), file.file_name()) else {
-        return false;
-    };
-    parent
-        .join(name)
+    let Ok(dir) = dir.canonicalize() else { return false };
+    let target = file.canonicalize().ok().or_else(|| {
+        let parent = file.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+        Some(parent.canonicalize().ok()?.join(file.file_name()?))
+    });
+    let Some(target) = target else { return false };
+    target
         .strip_prefix(&dir)
         .ok()
         .and_then(|rest| rest.components().next())
@@ -269,6 +271,15 @@ pub(crate) fn check_config(world: &World, config: &DatasetConfig) -> Result<(), 
         return Err(DatasetError::Config(format!(
             "--patch-size {} does not fit a {}x{} image (give 1 to the image's shorter side)",
             config.patch_size, config.camera.width, config.camera.height
+        )));
+    }
+    // A dataset is made to be trained on: patches no model can describe would be found
+    // out only by `objslam train`.
+    let max = slam::features::FeatureConfig::MAX_PATCH_SIZE;
+    if config.patch_size > max {
+        return Err(DatasetError::Config(format!(
+            "--patch-size {}: the patch features describe patches of 1 to {max} pixels",
+            config.patch_size
         )));
     }
     if !world.objects.iter().any(|o| config.classes.contains(&o.class)) && config.background_fraction < 1.0 {

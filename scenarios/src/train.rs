@@ -37,7 +37,52 @@ const DISTRACTORS: [worlds::ObjectClass; 4] =
 pub fn read_manifest(dir: &Path) -> Result<Manifest, TrainError> {
     let path = dir.join("dataset.json");
     let text = std::fs::read_to_string(&path).map_err(|e| file_err(&path, e))?;
-    slam::settings::from_json(&text).map_err(|e| file_err(&path, format!("not an objslam dataset manifest: {e}")))
+    let manifest: Manifest = slam::settings::from_json(&text)
+        .map_err(|e| file_err(&path, format!("not an objslam dataset manifest: {e}")))?;
+    check_manifest(&manifest).map_err(|problem| file_err(&path, problem))?;
+    Ok(manifest)
+}
+
+/// What a manifest edited by hand could get wrong that no file it names would show: its
+/// layout, its classes, an image listed twice (trained on twice, or both trained on and
+/// held out), and files outside the dataset (another world's pictures read against this
+/// one's masks).
+fn check_manifest(manifest: &Manifest) -> Result<(), String> {
+    let version = crate::dataset::DATASET_FORMAT_VERSION;
+    if manifest.format_version != version {
+        return Err(format!("format_version {}, this objslam reads version {version}", manifest.format_version));
+    }
+    if manifest.classes.is_empty() {
+        return Err("classes: none; a dataset labels the patches of at least one class".into());
+    }
+    if let Some(c) = manifest.classes.iter().enumerate().find(|(i, c)| manifest.classes[..*i].contains(c)) {
+        return Err(format!("classes: {} is named twice", c.1.name()));
+    }
+    if manifest.width == 0 || manifest.height == 0 {
+        return Err(format!("width and height: {}x{} is no image", manifest.width, manifest.height));
+    }
+    let mut ids = std::collections::BTreeSet::new();
+    let mut files = std::collections::BTreeSet::new();
+    for (i, entry) in manifest.images.iter().enumerate() {
+        if !ids.insert(entry.id) {
+            return Err(format!("images[{i}].id: {} is listed twice", entry.id));
+        }
+        for (key, file) in [
+            ("image", &entry.image),
+            ("instance", &entry.instance),
+            ("class", &entry.class),
+            ("patches", &entry.patches),
+        ] {
+            let inside = Path::new(file).components().all(|c| matches!(c, std::path::Component::Normal(_)));
+            if !inside || file.is_empty() {
+                return Err(format!("images[{i}].{key}: {file:?} is not a path inside the dataset"));
+            }
+            if !files.insert(file.as_str()) {
+                return Err(format!("images[{i}].{key}: {file} is listed twice"));
+            }
+        }
+    }
+    Ok(())
 }
 
 /// Loads image `i` of a dataset with its patch labels.
@@ -67,6 +112,13 @@ fn load_image_and_class(
     let entry = &manifest.images[i];
     let img_path = dir.join(&entry.image);
     let rgb = image::open(&img_path).map_err(|e| file_err(&img_path, e))?.to_rgb8();
+    if rgb.dimensions() != (manifest.width, manifest.height) {
+        let (w, h) = rgb.dimensions();
+        return Err(file_err(
+            &img_path,
+            format!("the image is {w}x{h}; the dataset's dataset.json says {}x{}", manifest.width, manifest.height),
+        ));
+    }
     let labels_path = dir.join(&entry.patches);
     let text = std::fs::read_to_string(&labels_path).map_err(|e| file_err(&labels_path, e))?;
     let labels: PatchLabels = slam::settings::from_json(&text).map_err(|e| file_err(&labels_path, e))?;
@@ -117,6 +169,21 @@ fn load_image_and_class(
     if class.dimensions() != (w, h) {
         let (cw, ch) = class.dimensions();
         return Err(file_err(&class_path, format!("the class mask is {cw}x{ch}, its image {w}x{h}")));
+    }
+    // 0 is nothing (the sky); anything else must be a class, or its patches would be
+    // labelled as none.
+    if let Some((k, v)) =
+        class.as_raw().iter().enumerate().find(|(_, v)| **v != 0 && worlds::ObjectClass::from_id(**v).is_none())
+    {
+        return Err(file_err(
+            &class_path,
+            format!(
+                "pixel ({}, {}) holds {v}, which is no class id (0 to {})",
+                k as u32 % w,
+                k as u32 / w,
+                worlds::ObjectClass::ALL.iter().map(|c| c.id()).max().unwrap_or(0)
+            ),
+        ));
     }
     let foliage =
         crate::dataset::patch_labels(class.as_raw(), w, h, labels.patch_size, &[worlds::ObjectClass::Foliage.id()])
@@ -271,7 +338,7 @@ pub fn read_heldout_manifest(
         return Err(file_err(
             dir,
             format!(
-                "it is the training dataset {} ({}, seed {}); {another_world}",
+                "it is the training dataset {} ({}; dataset seed {}); {another_world}",
                 training.display(),
                 trained_on.world,
                 trained_on.seed

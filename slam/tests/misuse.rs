@@ -55,6 +55,18 @@ fn pca_of_data_not_finite_is_refused() {
 }
 
 #[test]
+fn pca_of_data_that_do_not_vary_enough_is_refused() {
+    // Blank images: every sample the same.
+    let e = Pca::fit(&DMatrix::from_element(10, 3, 0.5), 2).unwrap_err().to_string();
+    assert!(e.contains("do not vary"), "{e}");
+    // Points on a line in 3-D vary in one direction: a second PCA coordinate is nothing.
+    let line = DMatrix::from_fn(10, 3, |i, j| i as f64 * [1.0, 2.0, -1.0][j]);
+    assert!(Pca::fit(&line, 1).is_ok());
+    let e = Pca::fit(&line, 2).unwrap_err().to_string();
+    assert!(e.contains("vary in only 1 direction;") && e.contains("give 1 or fewer"), "{e}");
+}
+
+#[test]
 fn training_checks_its_feature_settings_first() {
     let mut options = TrainingOptions::default();
     options.features.patch_size = 0;

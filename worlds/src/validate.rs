@@ -241,7 +241,7 @@ pub fn validate(world: &World, base_dir: &Path) -> Vec<Problem> {
             }
         }
     }
-    for (i, fp) in &footprints {
+    for (i, fp) in footprints.iter().filter(|_| all_finite(&[r.start.x, r.start.y])) {
         if fp.distance_to_point([r.start.x, r.start.y]) < ROBOT_ROUTE_CLEARANCE_M {
             push("robot.start".into(), format!("robot starts inside or touching object {}", world.objects[*i].id));
         }

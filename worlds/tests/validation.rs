@@ -94,6 +94,12 @@ fn an_object_nowhere_is_one_error_not_a_cascade() {
     }
     let err = parse(&bad.to_toml()).unwrap_err();
     assert_eq!(err.problems().len(), 1, "{:#?}", err.problems());
+    // So is a robot that starts nowhere.
+    let mut bad = park(&ParkParams::default(), 11).unwrap();
+    bad.robot.start.x = f64::NAN;
+    let err = parse(&bad.to_toml()).unwrap_err();
+    assert_eq!(err.problems().len(), 1, "{:#?}", err.problems());
+    assert!(err.problems()[0].to_string().contains("robot.start"), "{:#?}", err.problems());
 }
 
 #[test]

@@ -151,11 +151,18 @@ impl Default for FeatureConfig {
 }
 
 impl FeatureConfig {
+    /// The largest patch the features describe (pixels a side).
+    pub const MAX_PATCH_SIZE: u32 = 64;
+
     /// The first setting that makes no sense, with its path (`bank.filters[1].sigma_px`).
     pub fn validate(&self) -> Result<(), crate::settings::InvalidSetting> {
         use crate::settings::InvalidSetting;
-        if !(1..=64).contains(&self.patch_size) {
-            return Err(InvalidSetting::new("patch_size", format!("must be 1 to 64 pixels, got {}", self.patch_size)));
+        let max = Self::MAX_PATCH_SIZE;
+        if !(1..=max).contains(&self.patch_size) {
+            return Err(InvalidSetting::new(
+                "patch_size",
+                format!("must be 1 to {max} pixels, got {}", self.patch_size),
+            ));
         }
         for (i, f) in self.bank.filters.iter().enumerate() {
             f.validate().map_err(|e| InvalidSetting::in_table(&format!("bank.filters[{i}]"), e))?;

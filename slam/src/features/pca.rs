@@ -57,7 +57,21 @@ impl Pca {
             basis.set_column(k, &v);
             variances.push(eig.eigenvalues[i].max(0.0));
         }
-        let explained_variance = if total > 0.0 { variances.iter().sum::<f64>() / total } else { 1.0 };
+        // Directions the data do not vary in (to rounding) would give every patch the same
+        // coordinate there, and the mixtures fitted on them a singular covariance: blank
+        // training images, or more dimensions than the patches have.
+        if !(total > 0.0) {
+            return Err(FeatureError::Training(
+                "the data do not vary: every sample is the same (are the training images blank?)".into(),
+            ));
+        }
+        if let Some(k) = variances.iter().position(|v| *v <= 1e-10 * variances[0]) {
+            let directions = if k == 1 { "direction" } else { "directions" };
+            return Err(FeatureError::Training(format!(
+                "the data vary in only {k} {directions}; a PCA of {dims} dimensions needs as many (give {k} or fewer)"
+            )));
+        }
+        let explained_variance = variances.iter().sum::<f64>() / total;
         Ok(Pca { mean, basis, variances, explained_variance })
     }
 

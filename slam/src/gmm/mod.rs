@@ -121,10 +121,6 @@ impl GmmEvaluator {
             return Err(GmmError::EmptyModel);
         }
         let d = g.dims();
-        // All weights zero would make every density the floor below, silently: no mixture.
-        if !g.components.iter().any(|c| c.weight > 0.0) {
-            return Err(GmmError::BadModel("every component's weight is zero".into()));
-        }
         let mut out = GmmEvaluator { dims: d, log_norm: vec![], means: vec![], whiten: vec![] };
         for (k, c) in g.components.iter().enumerate() {
             if c.mean.len() != d {
@@ -155,6 +151,11 @@ impl GmmEvaluator {
             for i in 0..d {
                 out.whiten.extend((0..=i).map(|j| whiten[(i, j)]));
             }
+        }
+        // All weights zero (each checked above) would make every density the floor used
+        // for a zero weight, silently: no mixture.
+        if !g.components.iter().any(|c| c.weight > 0.0) {
+            return Err(GmmError::BadModel("every component's weight is zero".into()));
         }
         Ok(out)
     }
