@@ -94,6 +94,29 @@ impl AppearanceSource {
                 return Err((field, format!("must be 1 to {max}, got {value}")));
             }
         }
+        // A model file is read as it is: a training setting beside it would be silently
+        // unused (a study varying it would vary nothing).
+        if self.model.is_some() {
+            let d = AppearanceSource::default();
+            let given = [
+                ("training_preset", self.training_preset != d.training_preset),
+                ("training_world_seed", self.training_world_seed != d.training_world_seed),
+                ("training_images", self.training_images != d.training_images),
+                ("training_seed", self.training_seed != d.training_seed),
+                ("max_patches_per_class", self.max_patches_per_class != d.max_patches_per_class),
+                ("max_components", self.max_components != d.max_components),
+                ("pca_dims", self.pca_dims != d.pca_dims),
+                ("distractors", self.distractors != d.distractors),
+                ("context", self.context != d.context),
+            ];
+            if let Some((field, _)) = given.iter().find(|(_, changed)| *changed) {
+                return Err((
+                    field,
+                    "only applies to a model trained by the run; with appearance.model the file is read as it is"
+                        .into(),
+                ));
+            }
+        }
         Ok(())
     }
 

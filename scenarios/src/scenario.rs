@@ -827,6 +827,10 @@ mod tests {
             ("[appearance]\ntraining_images = 0\n", "line 5: appearance.training_images"),
             ("[appearance]\ntraining_preset = \"jungle\"\n", "line 5: appearance.training_preset"),
             ("[appearance]\nmax_patches_per_class = 0\n", "line 5: appearance.max_patches_per_class"),
+            (
+                "[appearance]\nmodel = \"m.json\"\ntraining_seed = 3\n",
+                "line 6: appearance.training_seed: only applies to a model trained by the run",
+            ),
             ("[pipeline.sensor]\nmount_x = 1.0\n", "line 5: pipeline.sensor.mount_x"),
             ("[pipeline.object_model]\nmosaic_patches = 400\n", "line 5: pipeline.object_model.mosaic_patches"),
             ("[pipeline.motion]\nmodl = \"ackermann\"\n", "unknown field `modl`"),

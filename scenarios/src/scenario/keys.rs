@@ -588,7 +588,8 @@ pub(super) const KEYS: &[(&str, &str)] = &[
     // [appearance]
     (
         "appearance.model",
-        "A model file from objslam train, relative to the scenario file. Absent: a model is trained from \
+        "A model file from objslam train, relative to the scenario file; the keys below then keep their \
+         defaults (they are refused, since the file is read as it is). Absent: a model is trained from \
          generated images as the keys below say, and cached.",
     ),
     ("appearance.training_preset", "World generator preset of the training images: \"park\"."),
