@@ -18,6 +18,21 @@ pub(crate) fn not_an_input(flag: &str, out: &Path, inputs: &[(&str, &Path)]) -> 
     }
 }
 
+/// Refuses an output file `out` (given as `flag`) that is, or links to, a file in the
+/// input directory `dir` (`what` it is): writing it would change the input.
+pub(crate) fn not_inside(flag: &str, out: &Path, what: &str, dir: &Path) -> Result<()> {
+    let (Ok(target), Ok(dir_abs)) = (out.canonicalize(), dir.canonicalize()) else { return Ok(()) };
+    if target.starts_with(&dir_abs) {
+        anyhow::bail!(
+            "{flag} {}: {} is a file of the {what} given ({}); writing it would change the input: choose another path",
+            out.display(),
+            target.display(),
+            dir.display()
+        );
+    }
+    Ok(())
+}
+
 /// Refuses an output file `out` (given as `flag`) that cannot be written where it is: a
 /// directory standing there, or a parent directory that does not exist. Checked before a
 /// long job (training) rather than found when its result is saved.

@@ -126,6 +126,9 @@ pub(crate) fn replay(log: Option<PathBuf>, options: ReplayArgs, dataset: Option<
 
 /// `objslam score`: a system's estimate against a recorded log or a run's outputs.
 pub(crate) fn score(args: ScoreArgs) -> Result<()> {
+    if args.method.as_deref().is_some_and(|m| m.trim().is_empty()) {
+        anyhow::bail!("--method: an empty name; give the system's name, or leave --method out");
+    }
     // The log's own metrics.json (a run's) would be replaced by the system's.
     crate::paths::not_an_input("--out", &args.out, &[("log", &args.log)])?;
     let metrics = args.out.join(files::METRICS);
@@ -134,6 +137,9 @@ pub(crate) fn score(args: ScoreArgs) -> Result<()> {
     for input in inputs.into_iter().flatten() {
         crate::paths::not_an_input("--out", &metrics, &[("estimate file", input)])?;
     }
+    // Nor through a link into the log (its metadata.json, a run's metrics.json).
+    crate::paths::not_an_input("--out", &metrics, &[("log", &args.log)])?;
+    crate::paths::not_inside("--out", &metrics, "log", &args.log)?;
     let estimate = scenarios::score::log::Estimate {
         trajectory: args.trajectory,
         covariances: args.covariances,

@@ -105,12 +105,22 @@ pub(crate) fn record(
 ) -> Result<()> {
     // A JSON-lines log and a robot log write the world they simulated as OUT/world.toml:
     // where that is the world file given, it would be replaced (its comments lost).
-    if let RecordSource::World { input, .. } = &source
+    if let RecordSource::World { input, sim_config } = &source
         && format != scenarios::record::RecordFormat::Ros2
     {
         let given = std::path::Path::new(input);
         crate::paths::not_an_input("--out", &out.join(files::WORLD), &[("world file", given)])
             .map_err(|_| anyhow::anyhow!("--out {}: the recording writes world.toml there, which is the world file given ({}); record into another directory", out.display(), given.display()))?;
+        // Nor may the simulator settings be among what it replaces or removes there.
+        let names = scenarios::record::recording_files();
+        let settings = sim_config.iter().map(|f| ("--sim-config file", f.clone())).collect();
+        if let Some((what, file)) = files::input_among_outputs(out, &names, settings) {
+            anyhow::bail!(
+                "--out {}: the {what} ({}) lies among the files the recording replaces or removes there; copy it elsewhere or record into another directory",
+                out.display(),
+                file.display()
+            );
+        }
     }
     // A scenario's input files among what the recording writes or removes there would be
     // replaced or deleted when it is published.

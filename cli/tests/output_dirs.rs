@@ -235,12 +235,27 @@ fn an_output_that_is_an_input_is_refused_and_the_input_kept() {
     }
     // A link to a dataset's file: writing it writes the file.
     std::os::unix::fs::symlink(root.join("images/dataset.json"), root.join("link.json")).unwrap();
+    // A real robot's log, and simulator settings kept under a name a recording writes.
+    std::fs::create_dir_all(root.join("robot")).unwrap();
+    std::fs::write(root.join("robot/manifest.toml"), "source = \"my robot\"\n").unwrap();
+    std::fs::create_dir_all(root.join("settings")).unwrap();
+    std::fs::write(root.join("settings/odometry.csv"), "max_duration_s = 5.0\n").unwrap();
+    std::fs::create_dir_all(root.join("linked")).unwrap();
+    std::os::unix::fs::symlink(root.join("run/metrics.json"), root.join("linked/metrics.json")).unwrap();
     let before = contents(&root);
     for (args, expect) in [
         (vec!["world", "export", "w.toml", "--out", "./w.toml"], "the world file given"),
         (
             vec!["world", "export", "w.toml", "--out", "w.gltf"],
             "the export is binary glTF; give a file name ending in .glb",
+        ),
+        (
+            vec!["record", "park", "--duration", "1", "--no-camera", "--out", "robot"],
+            "holds a robot log that objslam record did not write",
+        ),
+        (
+            vec!["record", "park", "--sim-config", "settings/odometry.csv", "--format", "log", "--out", "settings"],
+            "the --sim-config file (settings/odometry.csv) lies among the files the recording replaces or removes",
         ),
         // A recording writes OUT/world.toml: not over the world file it simulates.
         (vec!["record", "world.toml", "--duration", "1", "--out", "."], "the recording writes world.toml there"),
@@ -251,6 +266,11 @@ fn an_output_that_is_an_input_is_refused_and_the_input_kept() {
         (vec!["gmm", "fit", "data.csv", "--out", "data.csv"], "the data given"),
         (vec!["score", "--log", "run", "--trajectory", "t.tum", "--out", "run/"], "the log given"),
         (vec!["score", "--log", "run", "--trajectory", "run/metrics.json", "--out", "run"], "the log given"),
+        (vec!["score", "--log", "run", "--trajectory", "t.tum", "--out", "linked"], "is a file of the log given (run)"),
+        (
+            vec!["score", "--log", "run", "--trajectory", "t.tum", "--method", " ", "--out", "s"],
+            "--method: an empty name",
+        ),
         (vec!["train", "--dataset", "images", "--heldout-dataset", "images/", "--out", "m.json"], "it is the training"),
         (
             vec!["train", "--dataset", "images", "--heldout-dataset", "copy", "--out", "m.json"],

@@ -453,6 +453,8 @@ const ACKERMANN: &[&str] = &["t", "speed", "steering"];
 /// `odometry.csv` as motion messages, its header checked against the manifest's vehicle.
 struct MotionRows {
     rows: Rows,
+    /// The previous row's time: an increment is the motion since then.
+    previous_t: Option<f64>,
 }
 
 fn open_motion(file: &Path, manifest: &Manifest) -> Result<MotionRows, LogError> {
@@ -468,7 +470,7 @@ fn open_motion(file: &Path, manifest: &Manifest) -> Result<MotionRows, LogError>
             ),
         ));
     }
-    Ok(MotionRows { rows })
+    Ok(MotionRows { rows, previous_t: None })
 }
 
 impl Iterator for MotionRows {
@@ -486,11 +488,22 @@ impl Iterator for MotionRows {
             1 => MotionMessage::Control { t, control: Control::Differential { v: v[0], omega: v[1] } },
             _ => MotionMessage::Control { t, control: Control::Ackermann { speed: v[0], steering: v[1] } },
         });
-        Some(message.and_then(|m| match m.impossibility() {
+        let previous_t = self.previous_t.replace(t);
+        Some(message.and_then(|m| match m.impossibility().or_else(|| increment_too_fast(&m, previous_t)) {
             Some(problem) => Err(self.rows.problem(line, problem)),
             None => Ok(m),
         }))
     }
+}
+
+/// Where `m` is an increment over the time since `previous_t`, whether it moves faster than
+/// any vehicle's odometry reads (as a control's speed is checked).
+fn increment_too_fast(m: &MotionMessage, previous_t: Option<f64>) -> Option<String> {
+    let (MotionMessage::Increment(o), Some(previous)) = (m, previous_t) else { return None };
+    let (dt, step) = (o.t - previous, o.dx.hypot(o.dy));
+    let max = crate::stream::MAX_SPEED_M_S;
+    (dt > 0.0 && step / dt > max)
+        .then(|| format!("a step of {step:.3} m in {dt} s is {:e} m/s, beyond {max} m/s", step / dt))
 }
 
 /// `scans.csv` as whole scans.

@@ -182,6 +182,12 @@ fn malformed_files_are_errors_that_name_file_and_line() {
         // Values no odometry gives: corrupt data, which would overflow the filter.
         ("odometry.csv", "t,dx,dy,dtheta\n0,1e300,0,0\n", "odometry.csv:2: a step of (1e300, 0e0) m is beyond 1e9 m"),
         ("odometry.csv", "t,v,omega\n0,0.5,0\n0.1,-1000,0\n", "odometry.csv:3: speed -1e3 m/s is beyond 343 m/s"),
+        // An increment as fast, over the time since the row before.
+        (
+            "odometry.csv",
+            "t,dx,dy,dtheta\n0,0,0,0\n0.05,30,40,0\n",
+            "odometry.csv:3: a step of 50.000 m in 0.05 s is 1e3 m/s, beyond 343 m/s",
+        ),
         // Huge but finite: a time, a range, a mounting (they had reached the filter).
         (
             "odometry.csv",

@@ -64,6 +64,15 @@ pub enum RecordError {
         files::METRICS
     )]
     HoldsRun { dir: PathBuf },
+    /// A robot log that no recording wrote (a real robot's, written by hand or by a
+    /// converter): the recording would replace or remove its files.
+    #[error(
+        "{} holds a robot log that objslam record did not write ({} but no {}): its files would be replaced or removed; record into another directory",
+        dir.display(),
+        robotlog::format::MANIFEST,
+        files::RECORDING
+    )]
+    HoldsRobotLog { dir: PathBuf },
 }
 
 /// What `objslam record` writes.
@@ -378,6 +387,9 @@ fn staged(
         }
         if out.join(files::METRICS).exists() {
             return Err(RecordError::HoldsRun { dir: out.to_path_buf() });
+        }
+        if out.join(robotlog::format::MANIFEST).exists() && !out.join(files::RECORDING).exists() {
+            return Err(RecordError::HoldsRobotLog { dir: out.to_path_buf() });
         }
         write(dir)
     })?;

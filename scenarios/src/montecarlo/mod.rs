@@ -774,8 +774,8 @@ mod tests {
         assert_eq!(read_runs(&f).unwrap().len(), 1);
     }
 
-    /// Records appended as runs finished are put in job order, a job's lines in the order
-    /// they were written (a retried run after its retryable record), byte for byte.
+    /// Records appended as runs finished are put in job order, byte for byte, one per job:
+    /// a retried run's record replaces the retryable one before it.
     #[test]
     fn finished_runs_file_is_put_in_job_order() {
         let scratch = tempfile::tempdir().unwrap();
@@ -790,7 +790,7 @@ mod tests {
         let (a, b1, b2, c) = (line(0, "a", false), line(1, "died", true), line(1, "b", false), line(2, "c", false));
         std::fs::write(&f, [c.as_str(), b1.as_str(), a.as_str(), b2.as_str()].concat()).unwrap();
         put_in_job_order(&f).unwrap();
-        assert_eq!(std::fs::read_to_string(&f).unwrap(), [a.as_str(), b1.as_str(), b2.as_str(), c.as_str()].concat());
+        assert_eq!(std::fs::read_to_string(&f).unwrap(), [a.as_str(), b2.as_str(), c.as_str()].concat());
         assert!(!dir.join("runs.jsonl.partial").exists());
         // A file in order is left as it is: not replaced (a rewrite is a rename, which
         // gives the path another inode).

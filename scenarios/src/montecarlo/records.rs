@@ -157,16 +157,20 @@ pub fn write_atomically(file: &Path, text: &str) -> Result<(), StudyError> {
         .map_err(|e| StudyError::Io { file: e.file, source: e.source })
 }
 
-/// Rewrites `runs.jsonl` at `path` with its lines in job order (a job's lines keeping
-/// their order), where they are not already: runs are appended as they finish, in an order
-/// that depends on how many workers ran them, and a study's files are to be the same
-/// whatever ran it. Done by the study that holds the directory, after its last append.
+/// Rewrites `runs.jsonl` at `path` with one line per job (the record [`read_runs`] keeps:
+/// a retried run's, not the retryable one before it) in job order, where it is not so
+/// already: runs are appended as they finish, in an order that depends on how many workers
+/// ran them and on whether the study was stopped and resumed, and a study's files are to
+/// be the same whatever ran it. Done by the study that holds the directory, after its last
+/// append.
 pub(super) fn put_in_job_order(path: &Path) -> Result<(), StudyError> {
     let (text, _) = complete_lines(path)?;
     let records = parse_run_lines(path, &text)?;
-    let lines: Vec<&str> = text.lines().filter(|l| !l.trim().is_empty()).collect();
-    let mut order: Vec<(usize, &str)> = records.iter().map(|(_, r)| r.job.index).zip(lines).collect();
-    if order.is_sorted_by_key(|(index, _)| *index) {
+    let written = records.len();
+    let kept = one_record_per_job(path, records)?;
+    let lines: Vec<&str> = text.lines().collect();
+    let mut order: Vec<(usize, &str)> = kept.iter().map(|(line, r)| (r.job.index, lines[line - 1])).collect();
+    if kept.len() == written && order.is_sorted_by_key(|(index, _)| *index) {
         return Ok(());
     }
     order.sort_by_key(|(index, _)| *index);
