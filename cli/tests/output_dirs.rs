@@ -240,6 +240,9 @@ fn an_output_that_is_an_input_is_refused_and_the_input_kept() {
     std::fs::write(root.join("robot/manifest.toml"), "source = \"my robot\"\n").unwrap();
     std::fs::create_dir_all(root.join("settings")).unwrap();
     std::fs::write(root.join("settings/odometry.csv"), "max_duration_s = 5.0\n").unwrap();
+    // A folder of the user's own under a name a run writes, where no run was.
+    std::fs::create_dir_all(root.join("notes/objects")).unwrap();
+    std::fs::write(root.join("notes/objects/keep.txt"), "my notes").unwrap();
     std::fs::create_dir_all(root.join("linked")).unwrap();
     std::os::unix::fs::symlink(root.join("run/metrics.json"), root.join("linked/metrics.json")).unwrap();
     let before = contents(&root);
@@ -256,6 +259,10 @@ fn an_output_that_is_an_input_is_refused_and_the_input_kept() {
         (
             vec!["record", "park", "--sim-config", "settings/odometry.csv", "--format", "log", "--out", "settings"],
             "the --sim-config file (settings/odometry.csv) lies among the files the recording replaces or removes",
+        ),
+        (
+            vec!["run", "laser_only", "--out", "notes"],
+            "it holds objects, which a run writes or removes there, but no earlier run",
         ),
         // A recording writes OUT/world.toml: not over the world file it simulates.
         (vec!["record", "world.toml", "--duration", "1", "--out", "."], "the recording writes world.toml there"),

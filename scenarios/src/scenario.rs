@@ -396,6 +396,16 @@ impl Scenario {
         if let Err(e) = self.pipeline.validate() {
             return bad(&format!("pipeline.{}", e.path), e.problem);
         }
+        // The simulated robot's odometry is body-frame increments, which the car-like
+        // model cannot use: every run would stop at its first odometry message.
+        if let slam::ekf::MotionConfig::Ackermann(_) = self.pipeline.motion {
+            return bad(
+                "pipeline.motion.model",
+                "\"ackermann\" reads a car's speed and steering, and the simulated robot's odometry gives \
+                 body-frame increments: use \"odometry\" (the car-like model is for robot logs, `objslam replay`)"
+                    .into(),
+            );
+        }
         // A run sets the filter's laser mounting from the simulator's (see
         // run::pipeline_config): another value here would be silently replaced.
         let sensor = &self.pipeline.sensor;
@@ -461,7 +471,10 @@ impl Scenario {
             if let Some(max) = max
                 && !(max > 0.0 && max.is_finite())
             {
-                return bad(field, format!("must be a positive number of metres, got {max}: no run could pass"));
+                // Infinite: no limit, which leaving the criterion out says.
+                let why =
+                    if max == f64::INFINITY { "leave the criterion out for no limit" } else { "no run could pass" };
+                return bad(field, format!("must be a positive number of metres, got {max}: {why}"));
             }
         }
         for (field, max) in [
@@ -471,7 +484,9 @@ impl Scenario {
             if let Some(max) = max
                 && !(max >= 0.0 && max.is_finite())
             {
-                return bad(field, format!("must be 0 or more, got {max}: no run could pass"));
+                let why =
+                    if max == f64::INFINITY { "leave the criterion out for no limit" } else { "no run could pass" };
+                return bad(field, format!("must be 0 or more, got {max}: {why}"));
             }
         }
         Ok(())
@@ -834,6 +849,10 @@ mod tests {
             ("[pipeline.sensor]\nmount_x = 1.0\n", "line 5: pipeline.sensor.mount_x"),
             ("[pipeline.object_model]\nmosaic_patches = 400\n", "line 5: pipeline.object_model.mosaic_patches"),
             ("[pipeline.motion]\nmodl = \"ackermann\"\n", "unknown field `modl`"),
+            (
+                "[pipeline.motion]\nmodel = \"ackermann\"\nwheelbase_m = 0.4\n",
+                "line 5: pipeline.motion.model: \"ackermann\" reads a car's speed and steering",
+            ),
             ("[calibration]\nmode = \"ture\"\n", "line 5: calibration.mode: unknown mode \"ture\""),
             // An array longer than its field, which toml alone would cut short.
             (

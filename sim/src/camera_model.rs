@@ -190,6 +190,15 @@ impl CameraConfig {
                 return Err((field, format!("must be finite and not negative, got {v}")));
             }
         }
+        // The exposure's factor is drawn from N(1, sigma), floored at 0.1: at sigma 1
+        // nearly a fifth of the frames are already at that floor, and far beyond it the
+        // factor overflows the renderer's numbers.
+        if self.exposure_sigma > 1.0 {
+            return Err((
+                "exposure_sigma",
+                format!("must be at most 1 (a spread of 100%), got {}", self.exposure_sigma),
+            ));
+        }
         if !self.mount_xyz_m.iter().all(|v| v.is_finite()) || self.mount_xyz_m[2] <= 0.0 {
             return Err((
                 "mount_xyz_m",

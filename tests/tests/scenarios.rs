@@ -201,6 +201,9 @@ fn run_writes_every_output() {
     std::fs::create_dir_all(dir.join("objects")).unwrap();
     std::fs::write(dir.join("segmentation.jsonl"), "{}\n").unwrap();
     std::fs::write(dir.join("objects/models.json"), "[]").unwrap();
+    // Its mark of a finished run (without it the directory is refused: see
+    // `files_of_a_runs_names_where_no_run_was_are_refused`).
+    std::fs::write(dir.join("metadata.json"), "{}").unwrap();
     let (mut sc, base) = Scenario::load("laser_only").unwrap();
     sc.sim.max_duration_s = Some(20.0);
     let m = run(&sc, &base, &RunOptions { seed: Some(3), out: Some(dir.clone()), ..Default::default() }, |_| {})
@@ -303,7 +306,13 @@ fn an_input_among_the_run_outputs_is_refused_and_kept() {
         }
         run(&sc, &base, &options, |_| {}).unwrap();
         assert_eq!(std::fs::read(&kept).unwrap(), before);
-        std::fs::remove_file(dir.join("metadata.json")).unwrap();
+        // The run's outputs go, so that the next refusal is seen to write nothing.
+        for entry in std::fs::read_dir(&dir).unwrap() {
+            let path = entry.unwrap().path();
+            if path.file_name().is_some_and(|n| n != "mine") {
+                if path.is_dir() { std::fs::remove_dir_all(&path) } else { std::fs::remove_file(&path) }.unwrap();
+            }
+        }
         // A link there to the file elsewhere would be removed all the same.
         #[cfg(unix)]
         {
@@ -350,10 +359,12 @@ fn an_output_that_cannot_be_written_is_named_and_the_others_are_kept() {
     for blocked in [&["metrics.json"][..], &["map.png"], &["run.mcap"], &["landmarks.json", "run.mcap"]] {
         let dir = std::env::temp_dir().join(format!("objslam-outputs-fault-{}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
-        // A directory where each blocked file should go.
+        // A directory where each blocked file should go, in the directory of an earlier run.
         for name in blocked {
             std::fs::create_dir_all(dir.join(name)).unwrap();
         }
+        let earlier = r#"{"tool": "objslam run"}"#;
+        std::fs::write(dir.join("metadata.json"), earlier).unwrap();
         let err = run(&sc, &base, &RunOptions { seed: Some(3), out: Some(dir.clone()), ..Default::default() }, |_| {})
             .err()
             .unwrap_or_else(|| panic!("{blocked:?} cannot be written"));
@@ -362,10 +373,35 @@ fn an_output_that_cannot_be_written_is_named_and_the_others_are_kept() {
         for name in outputs {
             let kept = dir.join(".unfinished").join(name);
             assert!(std::fs::metadata(&kept).is_ok_and(|m| m.is_file() && m.len() > 0), "{name} lost");
-            assert!(blocked.contains(&name) || !dir.join(name).exists(), "{name} moved beside a blocked output");
+            if name == "metadata.json" {
+                let marker = std::fs::read_to_string(dir.join(name)).unwrap();
+                assert_eq!(marker, earlier, "the earlier run's mark was replaced beside a blocked output");
+            } else {
+                assert!(blocked.contains(&name) || !dir.join(name).exists(), "{name} moved beside a blocked output");
+            }
         }
         let _ = std::fs::remove_dir_all(&dir);
     }
+}
+
+/// Files of a run's output names in a directory where no run was (no `metadata.json`) are
+/// the user's own: refused before the run, and kept.
+#[test]
+fn files_of_a_runs_names_where_no_run_was_are_refused() {
+    let dir = std::env::temp_dir().join(format!("objslam-unowned-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(dir.join("objects")).unwrap();
+    std::fs::write(dir.join("objects/keep.txt"), "my notes").unwrap();
+    std::fs::write(dir.join("trees_shown.jsonl"), "mine").unwrap();
+    let (mut sc, base) = Scenario::load("laser_only").unwrap();
+    sc.sim.max_duration_s = Some(2.0);
+    let options = RunOptions { out: Some(dir.clone()), ..Default::default() };
+    let e = run(&sc, &base, &options, |_| {}).err().expect("refused").to_string();
+    assert!(e.contains("it holds trees_shown.jsonl") && e.contains("no earlier run"), "{e}");
+    assert_eq!(std::fs::read_to_string(dir.join("objects/keep.txt")).unwrap(), "my notes");
+    assert_eq!(std::fs::read_to_string(dir.join("trees_shown.jsonl")).unwrap(), "mine");
+    assert!(!dir.join("metadata.json").exists() && !dir.join(".unfinished").exists(), "the run went ahead");
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// A bag in the run's own output directory is refused before anything is written (its

@@ -433,7 +433,11 @@ pub(super) fn set_path(node: &mut toml::Value, parts: &[&str], value: f64, new_i
             Some(toml::Value::Integer(_)) => toml::Value::Integer(value.round() as i64),
             None if new_integer => toml::Value::Integer(value as i64),
             Some(toml::Value::Float(_)) | None => toml::Value::Float(value),
-            Some(other) => return Err(format!("{} is a {}, not a number", parts[0], other.type_str())),
+            Some(other) => {
+                let kind = other.type_str();
+                let article = if kind.starts_with(['a', 'e', 'i', 'o', 'u']) { "an" } else { "a" };
+                return Err(format!("{} is {article} {kind}, not a number", parts[0]));
+            }
         };
         table.insert(parts[0].to_string(), new);
         return Ok(());

@@ -88,6 +88,14 @@ pub enum RunError {
         out.display()
     )]
     InputInOutputs { what: &'static str, file: PathBuf, out: PathBuf },
+    /// Files of a run's names where no run was published: someone's own (or what a run
+    /// stopped while publishing left), which publishing would replace or delete.
+    #[error(
+        "{}: it holds {name}, which a run writes or removes there, but no earlier run ({} is missing): it would be replaced or deleted; move it, or choose another output directory (if a stopped run left it, remove it)",
+        out.display(),
+        files::METADATA
+    )]
+    UnownedOutputs { name: &'static str, out: PathBuf },
     #[error(transparent)]
     Calibration(#[from] crate::calibrate::CalibrateError),
     #[error(transparent)]
@@ -375,6 +383,7 @@ pub fn run(
 ) -> Result<RunOutcome, RunError> {
     if let Some(out) = &options.out {
         check_inputs_outside_outputs(scenario, base_dir, out)?;
+        check_earlier_outputs_are_a_runs(out)?;
     }
     // Held until the outputs are published or abandoned.
     let lock = options.out.as_deref().map(crate::partial_files::lock_output).transpose()?;
@@ -392,6 +401,19 @@ pub fn run(
 fn check_inputs_outside_outputs(scenario: &Scenario, base_dir: &Path, out: &Path) -> Result<(), RunError> {
     match files::input_among_outputs(out, files::RUN_OUTPUTS, scenario.input_files(base_dir)) {
         Some((what, file)) => Err(RunError::InputInOutputs { what, file, out: out.to_path_buf() }),
+        None => Ok(()),
+    }
+}
+
+/// Refuses an output directory that holds a file or folder of a run's output names but no
+/// earlier run's `metadata.json`: a run replaces and removes what an earlier run wrote, not
+/// a user's own files that happen to have those names (an `objects/` folder of notes).
+fn check_earlier_outputs_are_a_runs(out: &Path) -> Result<(), RunError> {
+    if std::fs::symlink_metadata(out.join(files::METADATA)).is_ok() {
+        return Ok(());
+    }
+    match files::RUN_OUTPUTS.iter().find(|name| std::fs::symlink_metadata(out.join(name)).is_ok()) {
+        Some(name) => Err(RunError::UnownedOutputs { name, out: out.to_path_buf() }),
         None => Ok(()),
     }
 }

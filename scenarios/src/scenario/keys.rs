@@ -204,7 +204,7 @@ pub(super) const KEYS: &[(&str, &str)] = &[
     ("sim.camera.noise_sigma", "Gaussian pixel noise (grey levels on a 0-255 scale); 0 (off) or more."),
     (
         "sim.camera.exposure_sigma",
-        "Each frame's exposure is scaled by a factor drawn from N(1, this); 0 (off) or more.",
+        "Each frame's exposure is scaled by a factor drawn from N(1, this), at least 0.1; 0 (off) to 1.",
     ),
     (
         "sim.camera.depth_image",
@@ -377,7 +377,8 @@ pub(super) const KEYS: &[(&str, &str)] = &[
     (
         "pipeline.motion.model",
         "\"odometry\": body-frame increments from wheel encoders (the keys below); \"ackermann\": speed and \
-         steering of a car-like vehicle (the keys shown commented out instead).",
+         steering of a car-like vehicle (the keys shown commented out instead), for robot logs only: the \
+         simulated robot's odometry is increments.",
     ),
     (
         "pipeline.motion.a_dd",
