@@ -137,8 +137,7 @@ pub(crate) fn score(args: ScoreArgs) -> Result<()> {
     for input in inputs.into_iter().flatten() {
         crate::paths::not_an_input("--out", &metrics, &[("estimate file", input)])?;
     }
-    // Nor through a link into the log (its metadata.json, a run's metrics.json).
-    crate::paths::not_an_input("--out", &metrics, &[("log", &args.log)])?;
+    // Nor the log, or a file of it through a link (its metadata.json, a run's metrics.json).
     crate::paths::not_inside("--out", &metrics, "log", &args.log)?;
     let estimate = scenarios::score::log::Estimate {
         trajectory: args.trajectory,
