@@ -18,6 +18,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         None => f64::INFINITY,
     };
     let mut log = robotlog::victoria_park::read(std::path::Path::new(data))?;
+    // Without GPS a robot log has no [reference] table, and its estimate then describes the
+    // vehicle frame (the rear axle), not the laser.
+    if log.reference.is_empty() {
+        log.manifest.reference = None;
+    }
     let first = [
         match &log.motion {
             Motion::Increments(v) => v.first().map(|o| o.t),

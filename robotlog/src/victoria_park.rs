@@ -31,6 +31,17 @@ pub const DETECTIONS_FILE: &str = "VictoriaParkSinSincronizar.mat";
 pub const DEAD_RECKONING_FILE: &str = "aa3_dr.mat";
 pub const LASER_FILE: &str = "aa3_lsr2.mat";
 pub const GPS_FILE: &str = "aa3_gpsx.mat";
+/// Every file of the data set that [`read`] may read.
+pub const FILES: &[&str] = &[DETECTIONS_FILE, DEAD_RECKONING_FILE, LASER_FILE, GPS_FILE];
+
+/// Where the median step of each clock may lie (s), once read in seconds. The data set's
+/// controls come at 40 Hz (25 ms), its scans at about 4.7 Hz (0.21 s) and its GPS at
+/// about 1 Hz with gaps; each window reaches at least 20 times either side of those. A
+/// clock in other units (ms read as s, s as ms) is off by a thousand and lies outside, so
+/// it is refused rather than replayed into a log 1,000 times as long or as short.
+const CONTROL_STEP_S: (f64, f64) = (1e-3, 1.0);
+const SCAN_STEP_S: (f64, f64) = (1e-2, 10.0);
+const GPS_STEP_S: (f64, f64) = (1e-2, 100.0);
 
 /// Wheelbase (m).
 pub const WHEELBASE_M: f64 = 2.83;
@@ -44,7 +55,7 @@ pub const LASER_Y_M: f64 = 0.5;
 /// originals, and the GPS.
 pub fn files_read(dir: &Path) -> Vec<&'static str> {
     let mut names =
-        if dir.join(DETECTIONS_FILE).exists() { vec![DETECTIONS_FILE] } else { vec![DEAD_RECKONING_FILE, LASER_FILE] };
+        if present(&dir.join(DETECTIONS_FILE)) { vec![DETECTIONS_FILE] } else { vec![DEAD_RECKONING_FILE, LASER_FILE] };
     names.push(GPS_FILE);
     names
 }
@@ -52,9 +63,9 @@ pub fn files_read(dir: &Path) -> Vec<&'static str> {
 /// Reads the data set in `dir` (either form, see the module documentation).
 pub fn read(dir: &Path) -> Result<Log, LogError> {
     crate::format::check_dir(dir, "give the directory that holds the data set's files")?;
-    let (motion, observations) = if dir.join(DETECTIONS_FILE).exists() {
+    let (motion, observations) = if present(&dir.join(DETECTIONS_FILE)) {
         read_detections_form(&dir.join(DETECTIONS_FILE))?
-    } else if dir.join(DEAD_RECKONING_FILE).exists() && dir.join(LASER_FILE).exists() {
+    } else if present(&dir.join(DEAD_RECKONING_FILE)) && present(&dir.join(LASER_FILE)) {
         (read_dead_reckoning(&dir.join(DEAD_RECKONING_FILE))?, read_laser(&dir.join(LASER_FILE))?)
     } else {
         return Err(LogError::Missing {
@@ -64,7 +75,7 @@ pub fn read(dir: &Path) -> Result<Log, LogError> {
         });
     };
     let gps_file = dir.join(GPS_FILE);
-    let reference = if gps_file.exists() { read_gps(&gps_file)? } else { Vec::new() };
+    let reference = if present(&gps_file) { read_gps(&gps_file)? } else { Vec::new() };
     let laser = matches!(observations, Observations::Scans(_)).then(|| LaserGeometry {
         angle_min_rad: -std::f64::consts::FRAC_PI_2,
         angle_increment_rad: 0.5f64.to_radians(),
@@ -90,11 +101,18 @@ pub fn read(dir: &Path) -> Result<Log, LogError> {
             bearing_sigma_rad: None,
         },
         laser,
-        reference: (!reference.is_empty())
-            .then_some(Reference { kind: ReferenceKind::Gps, point: ReferencePoint::Sensor }),
+        // The estimate's path is the laser's, the point the GPS is compared with, whether
+        // or not the GPS file is there: a replay of the same data describes one point.
+        reference: Some(Reference { kind: ReferenceKind::Gps, point: ReferencePoint::Sensor }),
         camera: None,
     };
     Ok(Log { manifest, motion, observations, reference, camera: Vec::new() })
+}
+
+/// Whether a file of the data set is there: a link that leads nowhere is, and reading it
+/// says so, rather than another form being read in its place.
+fn present(path: &Path) -> bool {
+    path.symlink_metadata().is_ok()
 }
 
 std::thread_local! {
@@ -115,6 +133,13 @@ fn load(file: &Path) -> Result<MatFile, LogError> {
             }
         }));
     });
+    // A pipe or a device would be read for ever, or not as a file.
+    if let Ok(meta) = std::fs::metadata(file)
+        && !meta.is_file()
+        && !meta.is_dir()
+    {
+        return Err(LogError::File { file: file.to_path_buf(), problem: "not a regular file".into() });
+    }
     let mut bytes = std::fs::read(file).map_err(|source| LogError::Io { file: file.to_path_buf(), source })?;
     if bytes.len() < MAT_HEADER_BYTES {
         return Err(LogError::File {
@@ -125,6 +150,14 @@ fn load(file: &Path) -> Result<MatFile, LogError> {
             ),
         });
     }
+    if !bytes.starts_with(b"MATLAB") {
+        return Err(LogError::File {
+            file: file.to_path_buf(),
+            problem: "not a MAT-file of version 5 or 7: its header does not open with `MATLAB` (a MAT v4 file, \
+                      or not a MAT-file; MATLAB's `save -v7` and scipy's `savemat` write one that is read)"
+                .into(),
+        });
+    }
     normalise_header_text(&mut bytes);
     PARSING.with(|p| p.set(true));
     let parsed = std::panic::catch_unwind(|| matrw::load_matfile_from_u8(&bytes));
@@ -133,7 +166,7 @@ fn load(file: &Path) -> Result<MatFile, LogError> {
         Ok(Ok(mat)) => Ok(mat),
         Ok(Err(e)) => Err(LogError::File {
             file: file.to_path_buf(),
-            problem: format!("not a readable MAT-file: {}", parser_message(&e.to_string())),
+            problem: format!("not a readable MAT-file (damaged or cut short?): {}", parser_message(&e.to_string())),
         }),
         Err(_) => Err(LogError::File {
             file: file.to_path_buf(),
@@ -191,8 +224,11 @@ fn plain_text(message: &str) -> String {
     out.split_whitespace().collect::<Vec<_>>().join(" ")
 }
 
-/// A numeric variable as f64, whatever its stored type.
+/// A real numeric variable as f64, whatever its stored type.
 fn numbers(var: &MatVariable) -> Option<Vec<f64>> {
+    if var.is_complex() == Some(true) {
+        return None;
+    }
     var.to_vec::<f64>()
         .or_else(|| var.to_vec::<f32>().map(|v| v.into_iter().map(f64::from).collect()))
         .or_else(|| var.to_vec::<i32>().map(|v| v.into_iter().map(f64::from).collect()))
@@ -200,6 +236,10 @@ fn numbers(var: &MatVariable) -> Option<Vec<f64>> {
         .or_else(|| var.to_vec::<u16>().map(|v| v.into_iter().map(f64::from).collect()))
         .or_else(|| var.to_vec::<i16>().map(|v| v.into_iter().map(f64::from).collect()))
         .or_else(|| var.to_vec::<u8>().map(|v| v.into_iter().map(f64::from).collect()))
+        .or_else(|| var.to_vec::<i8>().map(|v| v.into_iter().map(f64::from).collect()))
+        // Beyond 2^53 an integer is rounded; no time, count or range here comes near.
+        .or_else(|| var.to_vec::<i64>().map(|v| v.into_iter().map(|x| x as f64).collect()))
+        .or_else(|| var.to_vec::<u64>().map(|v| v.into_iter().map(|x| x as f64).collect()))
 }
 
 /// Variable `name` of `mat` as numbers, with its dimensions.
@@ -210,7 +250,11 @@ fn variable(mat: &MatFile, file: &Path, name: &str) -> Result<(Vec<f64>, Vec<usi
     }
     let values = numbers(var).ok_or_else(|| LogError::File {
         file: file.to_path_buf(),
-        problem: format!("variable `{name}` is not a numeric array"),
+        problem: if var.is_complex() == Some(true) {
+            format!("variable `{name}` is complex; the data set's values are real")
+        } else {
+            format!("variable `{name}` is not a numeric array of real numbers")
+        },
     })?;
     Ok((values, var.dim()))
 }
@@ -241,6 +285,28 @@ fn check_times(file: &Path, name: &str, t: &[f64]) -> Result<(), LogError> {
                 problem: format!("`{name}` element {} ({}) comes before element {} ({})", k + 2, w[1], k + 1, w[0]),
             });
         }
+    }
+    Ok(())
+}
+
+/// Refuses a clock (`name`, in seconds once read) whose median step lies outside `window`
+/// (see [`CONTROL_STEP_S`]): times in other units. `unit` is what the file should hold.
+fn check_step(file: &Path, name: &str, t_s: &[f64], window: (f64, f64), unit: &str) -> Result<(), LogError> {
+    let mut steps: Vec<f64> = t_s.windows(2).map(|w| w[1] - w[0]).filter(|d| *d > 0.0).collect();
+    if steps.is_empty() {
+        return Ok(()); // One time, or all equal: no rate to judge.
+    }
+    let mid = steps.len() / 2;
+    let median = *steps.select_nth_unstable_by(mid, f64::total_cmp).1;
+    if median < window.0 || median > window.1 {
+        return Err(LogError::File {
+            file: file.to_path_buf(),
+            problem: format!(
+                "`{name}` steps by {median:.3e} s (median) once read as {unit}, outside the {}-{} s of the data set's \
+                 rate: times in another unit?",
+                window.0, window.1
+            ),
+        });
     }
     Ok(())
 }
@@ -285,8 +351,10 @@ fn read_detections_form(file: &Path) -> Result<(Motion, Observations), LogError>
     let speed: Vec<f64> = u.iter().step_by(2).copied().collect();
     let steering: Vec<f64> = u.iter().skip(1).step_by(2).copied().collect();
     let motion = controls(file, &time, &speed, &steering)?;
+    check_step(file, "time", &time, CONTROL_STEP_S, "seconds")?;
     let scan_times = vector(&mat, file, "TLsr")?;
     check_times(file, "TLsr", &scan_times)?;
+    check_step(file, "TLsr", &scan_times, SCAN_STEP_S, "seconds")?;
     let zt = &mat["zt"];
     let MatVariable::CellArray(_) = zt else {
         return Err(LogError::File { file: file.to_path_buf(), problem: "`zt` is missing or not a cell array".into() });
@@ -315,7 +383,7 @@ fn read_detections_form(file: &Path) -> Result<(Motion, Observations), LogError>
         };
         let values = numbers(cell).ok_or_else(|| LogError::File {
             file: file.to_path_buf(),
-            problem: format!("`zt` cell {} holds values of a type that is not a number", k + 1),
+            problem: format!("`zt` cell {} holds values that are not real numbers", k + 1),
         })?;
         let dim = cell.dim();
         // A scan that saw no tree (an empty cell) gives the filter nothing to do.
@@ -342,6 +410,13 @@ fn read_detections_form(file: &Path) -> Result<(Motion, Observations), LogError>
                     problem: format!("`zt` cell {} holds bearing {} beyond a turn: radians, not degrees", k + 1, d[1]),
                 });
             }
+            // A diameter of 0 is the form's "not measured"; below, no trunk.
+            if d[2] < 0.0 {
+                return Err(LogError::File {
+                    file: file.to_path_buf(),
+                    problem: format!("`zt` cell {} holds a negative diameter: {d:?}", k + 1),
+                });
+            }
             // Bearings run 0..pi from the laser's right, pi/2 straight ahead.
             let diameter_m = (d[2] > 0.0).then_some(d[2]);
             detections.push(Detection { range_m: d[0], bearing_rad: d[1] - std::f64::consts::FRAC_PI_2, diameter_m });
@@ -354,13 +429,16 @@ fn read_detections_form(file: &Path) -> Result<(Motion, Observations), LogError>
 fn read_dead_reckoning(file: &Path) -> Result<Motion, LogError> {
     let mat = load(file)?;
     let time_s: Vec<f64> = vector(&mat, file, "time")?.into_iter().map(|ms| ms / 1000.0).collect();
-    controls(file, &time_s, &vector(&mat, file, "speed")?, &vector(&mat, file, "steering")?)
+    let motion = controls(file, &time_s, &vector(&mat, file, "speed")?, &vector(&mat, file, "steering")?)?;
+    check_step(file, "time", &time_s, CONTROL_STEP_S, "milliseconds")?;
+    Ok(motion)
 }
 
 fn read_laser(file: &Path) -> Result<Observations, LogError> {
     let mat = load(file)?;
     let times: Vec<f64> = vector(&mat, file, "TLsr")?.into_iter().map(|ms| ms / 1000.0).collect();
     check_times(file, "TLsr", &times)?;
+    check_step(file, "TLsr", &times, SCAN_STEP_S, "milliseconds")?;
     let (ranges, dim) = variable(&mat, file, "LASER")?;
     if dim != [times.len(), 361] {
         return Err(LogError::File {
@@ -370,14 +448,35 @@ fn read_laser(file: &Path) -> Result<Observations, LogError> {
     }
     let n = times.len();
     if let Some(i) = ranges.iter().position(|cm| !(cm.is_finite() && *cm >= 0.0)) {
+        let why = if ranges[i].is_finite() { "not negative" } else { "a finite number" };
         return Err(LogError::File {
             file: file.to_path_buf(),
             problem: format!(
-                "`LASER` row {}, beam {} is {}: ranges are centimetres, not negative",
+                "`LASER` row {}, beam {} is {}: ranges are centimetres, {why}",
                 i % n + 1,
                 i / n + 1,
                 ranges[i]
             ),
+        });
+    }
+    // Ranges in another unit: in metres no beam reaches 100 (nor the no-return code
+    // 8000); in millimetres every beam of a park reads as no return.
+    let largest = ranges.iter().copied().fold(0.0, f64::max);
+    if !ranges.is_empty() && largest < 100.0 {
+        return Err(LogError::File {
+            file: file.to_path_buf(),
+            problem: format!(
+                "`LASER`: no range of any scan reaches 100 (the largest is {largest}), so none reaches 1 m if these \
+                 are centimetres: ranges in metres?"
+            ),
+        });
+    }
+    if !ranges.is_empty() && ranges.iter().all(|&cm| cm > 8000.0) {
+        return Err(LogError::File {
+            file: file.to_path_buf(),
+            problem: "`LASER`: every range of every scan is above 8000 cm, the code for no return, so no scan saw \
+                      anything: ranges in millimetres?"
+                .into(),
         });
     }
     let scans = times
@@ -412,6 +511,8 @@ fn read_gps(file: &Path) -> Result<Vec<ReferenceSample>, LogError> {
         });
     }
     check_times(file, "timeGps", &t)?;
+    let t_s: Vec<f64> = t.iter().map(|ms| ms / 1000.0).collect();
+    check_step(file, "timeGps", &t_s, GPS_STEP_S, "milliseconds")?;
     let max = crate::format::MAX_COORDINATE_M;
     if let Some(k) = (0..t.len()).find(|&k| x[k].abs().max(y[k].abs()) > max) {
         return Err(LogError::File {
@@ -419,10 +520,19 @@ fn read_gps(file: &Path) -> Result<Vec<ReferenceSample>, LogError> {
             problem: format!("fix {} ({:.3e}, {:.3e}) lies beyond {max:e} m", k + 1, x[k], y[k]),
         });
     }
-    Ok((0..t.len())
+    let fixes: Vec<ReferenceSample> = (0..t.len())
         .filter(|&k| x[k].is_finite() && y[k].is_finite())
-        .map(|k| ReferenceSample { t: t[k] / 1000.0, x: x[k], y: y[k], theta: None })
-        .collect())
+        .map(|k| ReferenceSample { t: t_s[k], x: x[k], y: y[k], theta: None })
+        .collect();
+    // Gaps are NaN; a file of nothing but gaps is no reference, and the run would be
+    // scored against nothing while naming the file as read.
+    if fixes.is_empty() {
+        return Err(LogError::File {
+            file: file.to_path_buf(),
+            problem: format!("none of its {} fixes has finite `Lo_m` and `La_m`", t.len()),
+        });
+    }
+    Ok(fixes)
 }
 
 /// Writes `log` in the detections form and the GPS file (`VictoriaParkSinSincronizar.mat`,

@@ -718,7 +718,9 @@ fn victoria_park_originals_are_read_as_controls_and_raw_scans() {
     assert!((scans[0].angle(360) - std::f64::consts::FRAC_PI_2).abs() < 1e-12);
     assert!(!scans[1].valid(180), "above 8000 cm is no return");
     assert!(scans[1].valid(179));
-    assert!(log.reference.is_empty() && log.manifest.reference.is_none());
+    // No GPS; the estimate still describes the laser, the point GPS would be compared with.
+    assert!(log.reference.is_empty());
+    assert_eq!(log.manifest.reference, Some(Reference { kind: ReferenceKind::Gps, point: ReferencePoint::Sensor }));
     // The same file as scipy's savemat heads it (no comma after `MAT-file`) is read alike.
     let file = d.join("aa3_dr.mat");
     let mut bytes = std::fs::read(&file).unwrap();
@@ -733,7 +735,15 @@ fn victoria_park_originals_are_read_as_controls_and_raw_scans() {
     assert!(e.contains("aa3_lsr2.mat: not a MAT-file: 0 bytes, fewer than a MAT-file's 128-byte header"), "{e}");
     std::fs::write(d.join("aa3_lsr2.mat"), [b'x'; 300]).unwrap();
     let e = robotlog::victoria_park::read(&d).unwrap_err().to_string();
-    assert!(e.contains("aa3_lsr2.mat: not a readable MAT-file: "), "{e}");
+    assert!(
+        e.contains("aa3_lsr2.mat: not a MAT-file of version 5 or 7: its header does not open with `MATLAB`"),
+        "{e}"
+    );
+    let mut header = b"MATLAB 5.0 MAT-file, cut short".to_vec();
+    header.resize(300, b'x');
+    std::fs::write(d.join("aa3_lsr2.mat"), header).unwrap();
+    let e = robotlog::victoria_park::read(&d).unwrap_err().to_string();
+    assert!(e.contains("aa3_lsr2.mat: not a readable MAT-file (damaged or cut short?): "), "{e}");
     assert!(!e.contains("Backtrace") && !e.contains(".cargo") && !e.contains('\u{2501}'), "{e}");
     std::fs::remove_dir_all(&d).ok();
 }
@@ -757,4 +767,88 @@ fn a_log_that_is_no_directory_is_refused_as_such() {
     let e = robotlog::victoria_park::read(&file).unwrap_err().to_string();
     assert!(e.contains("log.csv: not a directory: give the directory that holds the data set's files"), "{e}");
     std::fs::remove_dir_all(&root).unwrap();
+}
+
+/// Clocks, ranges or GPS in units other than the published ones, values of types the
+/// published files do not hold, and files that are not files are refused, naming the file
+/// and the variable: each had been replayed into nonsense (a log a thousand times as long,
+/// landmarks from the no-return code) or had hung.
+#[test]
+fn victoria_park_files_in_other_units_or_of_other_kinds_are_refused() {
+    use matrw::{MatFile, MatVariable, MatlabType, NumericArray};
+    let d = dir("vp-units");
+    std::fs::create_dir_all(&d).unwrap();
+    let numeric = |dim: Vec<usize>, v: MatlabType| MatVariable::NumericArray(NumericArray::new(dim, v, None).unwrap());
+    let save = |name: &str, mat: MatFile| matrw::save_matfile_v7(d.join(name).to_str().unwrap(), mat, true).unwrap();
+    let write_dr = |times_ms: MatlabType| {
+        let mut dr = MatFile::new();
+        dr.insert("time", numeric(vec![3, 1], times_ms));
+        dr.insert("speed", numeric(vec![3, 1], vec![2.0f64; 3].into()));
+        dr.insert("steering", numeric(vec![3, 1], vec![0.0f64; 3].into()));
+        save("aa3_dr.mat", dr);
+    };
+    let write_lsr = |times_ms: Vec<f64>, cm: f64| {
+        let mut lsr = MatFile::new();
+        lsr.insert("TLsr", numeric(vec![2, 1], times_ms.into()));
+        lsr.insert("LASER", numeric(vec![2, 361], vec![cm; 2 * 361].into()));
+        save("aa3_lsr2.mat", lsr);
+    };
+    let error = || robotlog::victoria_park::read(&d).unwrap_err().to_string();
+    // Sound: times as int64, as numpy saves integers; no GPS, and the path is still the laser's.
+    write_dr(vec![1000i64, 1025, 1050].into());
+    write_lsr(vec![1010.0, 1220.0], 1500.0);
+    let log = robotlog::victoria_park::read(&d).unwrap();
+    let Motion::Controls(controls) = &log.motion else { panic!("controls") };
+    assert_eq!(controls[2].0, 1.05);
+    assert_eq!(log.manifest.reference.map(|r| r.point), Some(ReferencePoint::Sensor));
+    // Times in seconds where milliseconds are published.
+    write_dr(vec![1.0f64, 1.025, 1.05].into());
+    let e = error();
+    assert!(e.contains("aa3_dr.mat: `time` steps by 2.500e-5 s (median) once read as milliseconds"), "{e}");
+    write_dr(vec![1000i64, 1025, 1050].into());
+    write_lsr(vec![1010.0e3, 1220.0e3], 1500.0);
+    assert!(error().contains("aa3_lsr2.mat: `TLsr` steps by 2.100e2 s"), "{}", error());
+    // Ranges in metres, and in millimetres.
+    write_lsr(vec![1010.0, 1220.0], 15.0);
+    assert!(error().contains("aa3_lsr2.mat: `LASER`: no range of any scan reaches 100"), "{}", error());
+    write_lsr(vec![1010.0, 1220.0], 15000.0);
+    assert!(error().contains("aa3_lsr2.mat: `LASER`: every range of every scan is above 8000 cm"), "{}", error());
+    write_lsr(vec![1010.0, 1220.0], 1500.0);
+    // GPS in seconds, and GPS with no fix.
+    let write_gps = |times: Vec<f64>, lo: Vec<f64>| {
+        let mut gps = MatFile::new();
+        let n = times.len();
+        gps.insert("timeGps", numeric(vec![n, 1], times.into()));
+        gps.insert("Lo_m", numeric(vec![n, 1], lo.into()));
+        gps.insert("La_m", numeric(vec![n, 1], vec![1.0f64; n].into()));
+        save("aa3_gpsx.mat", gps);
+    };
+    write_gps(vec![1.0, 2.0, 3.0], vec![1.0, 2.0, 3.0]);
+    assert!(error().contains("aa3_gpsx.mat: `timeGps` steps by 1.000e-3 s"), "{}", error());
+    write_gps(vec![1000.0, 2000.0, 3000.0], vec![f64::NAN; 3]);
+    assert!(error().contains("aa3_gpsx.mat: none of its 3 fixes has finite `Lo_m` and `La_m`"), "{}", error());
+    write_gps(vec![1000.0, 2000.0, 3000.0], vec![1.0, 2.0, 3.0]);
+    assert_eq!(robotlog::victoria_park::read(&d).unwrap().reference.len(), 3);
+    // A complex variable: its imaginary part would be dropped.
+    let mut dr = MatFile::new();
+    let complex = NumericArray::new(vec![3, 1], vec![1000.0f64, 1025.0, 1050.0].into(), Some(vec![0.5f64; 3].into()));
+    dr.insert("time", MatVariable::NumericArray(complex.unwrap()));
+    dr.insert("speed", numeric(vec![3, 1], vec![2.0f64; 3].into()));
+    dr.insert("steering", numeric(vec![3, 1], vec![0.0f64; 3].into()));
+    save("aa3_dr.mat", dr);
+    assert!(error().contains("aa3_dr.mat: variable `time` is complex"), "{}", error());
+    #[cfg(unix)]
+    {
+        // A link to nothing in the detections form's name is named, not passed over for
+        // the originals; a pipe is refused, not read for ever.
+        std::os::unix::fs::symlink(d.join("nowhere.mat"), d.join("VictoriaParkSinSincronizar.mat")).unwrap();
+        assert!(error().contains("VictoriaParkSinSincronizar.mat"), "{}", error());
+        std::fs::remove_file(d.join("VictoriaParkSinSincronizar.mat")).unwrap();
+        let status = std::process::Command::new("mkfifo").arg(d.join("aa3_dr.mat.fifo")).status();
+        if status.is_ok_and(|s| s.success()) {
+            std::fs::rename(d.join("aa3_dr.mat.fifo"), d.join("aa3_dr.mat")).unwrap();
+            assert!(error().contains("aa3_dr.mat: not a regular file"), "{}", error());
+        }
+    }
+    std::fs::remove_dir_all(&d).ok();
 }

@@ -71,5 +71,18 @@ pub enum Error {
     TimeOutOfRange { seconds: f64 },
 }
 
+impl Error {
+    /// The file or directory the error names, where it names one.
+    pub fn path(&self) -> Option<&std::path::Path> {
+        match self {
+            Error::DirectoryNotEmpty { path }
+            | Error::NotADirectory { path }
+            | Error::Io { path, .. }
+            | Error::Mcap { path, .. } => Some(path),
+            _ => None,
+        }
+    }
+}
+
 /// Result alias for this crate.
 pub type Result<T, E = Error> = std::result::Result<T, E>;

@@ -938,6 +938,19 @@ fn extrinsics_of(path: &Path, v: &serde_json::Value) -> Result<Extrinsics, Calib
     let bad =
         |field: &str, message: String| CalibrateError::File { file: path.to_path_buf(), field: field.into(), message };
     let obj = v.as_object().ok_or_else(|| bad("(file)", "must be a JSON object with `phi` and `delta`".into()))?;
+    // A hand-written file may leave the version out; one that gives it is read only by
+    // the version it names, since a later format may mean its fields otherwise.
+    if let Some(version) = obj.get("format_version")
+        && version.as_u64() != Some(CALIBRATION_FORMAT_VERSION as u64)
+    {
+        return Err(bad(
+            "format_version",
+            format!(
+                "is {version}, but this objslam reads version {CALIBRATION_FORMAT_VERSION} \
+                 (leave it out of a hand-written file)"
+            ),
+        ));
+    }
     let number = |field: &str, x: &serde_json::Value| -> Result<f64, CalibrateError> {
         x.as_f64().filter(|f| f.is_finite()).ok_or_else(|| bad(field, format!("must be a finite number, got {x}")))
     };

@@ -244,20 +244,10 @@ fn check_out(out: &Path) -> Result<(), DatasetError> {
 }
 
 /// Whether `file` is one of the files of the dataset in `dir`: a name of [`OUTPUTS`] there,
-/// or anything in its folders (so that no other output of a command overwrites it). A
-/// link is followed: writing it writes the file it names.
+/// or anything in its folders (so that no other output of a command overwrites it), by its
+/// path or where a link leads.
 pub fn owns(dir: &Path, file: &Path) -> bool {
-    let Ok(dir) = dir.canonicalize() else { return false };
-    let target = file.canonicalize().ok().or_else(|| {
-        let parent = file.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-        Some(parent.canonicalize().ok()?.join(file.file_name()?))
-    });
-    let Some(target) = target else { return false };
-    target
-        .strip_prefix(&dir)
-        .ok()
-        .and_then(|rest| rest.components().next())
-        .is_some_and(|first| OUTPUTS.iter().any(|n| first.as_os_str() == *n))
+    crate::files::lies_among(dir, OUTPUTS, file)
 }
 
 /// Refuses settings no dataset of `world` can be made with, before anything is written.

@@ -80,27 +80,32 @@ pub fn sha256_hex(file: &std::path::Path) -> Option<String> {
 
 /// The first of `inputs` (each with what it is) that lies in the directory `out` under one
 /// of `names`, the outputs a command writes, replaces or removes there: publishing them
-/// would replace or delete it. An input is judged both where its path puts it (a link in
-/// `out` would be removed) and where it leads.
+/// would replace or delete it.
 pub fn input_among_outputs(
     out: &std::path::Path,
     names: &[&str],
     inputs: Vec<(&'static str, std::path::PathBuf)>,
 ) -> Option<(&'static str, std::path::PathBuf)> {
+    inputs.into_iter().find(|(_, file)| lies_among(out, names, file))
+}
+
+/// Whether `file` lies in the directory `dir` under one of `names` (one of them, or
+/// anything in such a folder). A file is judged both where its path puts it (a link in
+/// `dir` would be replaced or removed) and where it leads (writing a link writes its
+/// target).
+pub fn lies_among(dir: &std::path::Path, names: &[&str], file: &std::path::Path) -> bool {
     use std::path::Path;
-    let out_dir = std::fs::canonicalize(out).ok()?;
+    let Ok(dir) = std::fs::canonicalize(dir) else { return false };
     let among = |path: &Path| {
-        path.strip_prefix(&out_dir)
+        path.strip_prefix(&dir)
             .ok()
             .and_then(|rest| rest.components().next())
             .is_some_and(|c| names.iter().any(|name| c.as_os_str() == *name))
     };
-    inputs.into_iter().find(|(_, file)| {
-        let parent = file.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-        let as_given = std::fs::canonicalize(parent).ok().zip(file.file_name()).map(|(dir, name)| dir.join(name));
-        let target = std::fs::canonicalize(file).ok();
-        [as_given, target].iter().flatten().any(|p| among(p))
-    })
+    let parent = file.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let as_given = std::fs::canonicalize(parent).ok().zip(file.file_name()).map(|(dir, name)| dir.join(name));
+    let target = std::fs::canonicalize(file).ok();
+    [as_given, target].iter().flatten().any(|p| among(p))
 }
 
 /// Every name `objslam run` writes, replaces or removes directly in its output directory:

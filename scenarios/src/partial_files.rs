@@ -87,16 +87,20 @@ impl<K> Drop for PartialFiles<K> {
 #[derive(Debug)]
 pub struct OutputLock {
     _held: File,
-    /// The directory, where taking the hold made it.
-    made: Option<PathBuf>,
+    /// The directories taking the hold made: the output directory and those of its parents
+    /// that were missing, deepest first.
+    made: Vec<PathBuf>,
 }
 
 impl OutputLock {
     /// Ends the hold of a command that failed: a directory the hold made goes again if the
     /// command left it empty, so that a refused command leaves nothing behind.
     pub fn release_failed(self) {
-        if let Some(dir) = &self.made {
-            let _ = std::fs::remove_dir(dir);
+        // Deepest first; one that is not empty stops the rest.
+        for dir in &self.made {
+            if std::fs::remove_dir(dir).is_err() {
+                break;
+            }
         }
     }
 }
@@ -104,7 +108,11 @@ impl OutputLock {
 /// Makes `out` if need be and holds it (see [`OutputLock`]); fails at once, naming `out`,
 /// where another command holds it.
 pub fn lock_output(out: &Path) -> Result<OutputLock, PartialFileError> {
-    let made = (!out.exists()).then(|| out.to_path_buf());
+    let made: Vec<PathBuf> = out
+        .ancestors()
+        .take_while(|d| !d.as_os_str().is_empty() && d.symlink_metadata().is_err())
+        .map(Path::to_path_buf)
+        .collect();
     make_output_dir(out)?;
     let held = open_lock(out).map_err(error(out))?;
     match held.try_lock() {
@@ -166,8 +174,44 @@ fn open_lock(out: &Path) -> std::io::Result<File> {
 /// `.` and `..` resolved where they exist): an output that is an input, a bag that is the
 /// run's output directory.
 pub fn same_path(a: &Path, b: &Path) -> bool {
-    let resolve = |p: &Path| p.canonicalize().or_else(|_| std::path::absolute(p)).unwrap_or_else(|_| p.to_path_buf());
-    resolve(a) == resolve(b)
+    resolved(a) == resolved(b)
+}
+
+/// Whether `inner` lies inside the directory `outer` (not at it), however each is spelled
+/// and whether or not they exist yet (see [`same_path`]).
+pub fn lies_inside(inner: &Path, outer: &Path) -> bool {
+    let (inner, outer) = (resolved(inner), resolved(outer));
+    inner != outer && inner.starts_with(&outer)
+}
+
+/// `p` made absolute, with links, `.` and `..` resolved in the part that exists and `.`
+/// and `..` in the rest.
+fn resolved(p: &Path) -> PathBuf {
+    use std::path::Component;
+    let Ok(absolute) = std::path::absolute(p) else { return p.to_path_buf() };
+    // The longest existing ancestor, resolved; then the rest, one name at a time.
+    let mut existing = absolute.as_path();
+    let mut rest = Vec::new();
+    while existing.canonicalize().is_err() {
+        match (existing.parent(), existing.components().next_back()) {
+            (Some(parent), Some(last)) => {
+                rest.push(last);
+                existing = parent;
+            }
+            _ => return absolute.clone(),
+        }
+    }
+    let mut out = existing.canonicalize().unwrap_or_else(|_| existing.to_path_buf());
+    for c in rest.into_iter().rev() {
+        match c {
+            Component::ParentDir => {
+                out.pop();
+            }
+            Component::CurDir => {}
+            other => out.push(other.as_os_str()),
+        }
+    }
+    out
 }
 
 /// Where outputs into `out` wait until all of them are written.
@@ -372,6 +416,33 @@ mod tests {
             std::os::unix::fs::symlink(dir.join("nowhere"), &link).unwrap();
             let e = lock_output(&link).unwrap_err().to_string();
             assert!(e.contains("is a link to") && e.contains("nowhere, which does not exist"), "{e}");
+        }
+        // A failed command removes the directories its hold made, parents too, and no more.
+        let nested = dir.join("new").join("deeper").join("out");
+        lock_output(&nested).unwrap().release_failed();
+        assert!(!dir.join("new").exists() && dir.is_dir());
+        std::fs::create_dir_all(dir.join("new")).unwrap();
+        std::fs::write(dir.join("new").join("kept"), "").unwrap();
+        let held = lock_output(&nested).unwrap();
+        std::fs::write(nested.join("written"), "").unwrap();
+        held.release_failed();
+        assert!(nested.join("written").exists(), "a directory that is not empty stays");
+        std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn paths_inside_others_are_found_however_spelled() {
+        let dir = std::env::temp_dir().join(format!("objslam-inside-{}", std::process::id()));
+        std::fs::create_dir_all(dir.join("bag")).unwrap();
+        assert!(lies_inside(&dir.join("bag/run"), &dir.join("bag")), "not there yet");
+        assert!(lies_inside(&dir.join("x/../bag/./run/more"), &dir.join("bag/")));
+        assert!(!lies_inside(&dir.join("bag"), &dir.join("bag")));
+        assert!(!lies_inside(&dir.join("bagged"), &dir.join("bag")));
+        assert!(!lies_inside(&dir.join("bag"), &dir.join("bag/run")));
+        #[cfg(unix)]
+        {
+            std::os::unix::fs::symlink(dir.join("bag"), dir.join("link")).unwrap();
+            assert!(lies_inside(&dir.join("link/run"), &dir.join("bag")));
         }
         std::fs::remove_dir_all(&dir).ok();
     }

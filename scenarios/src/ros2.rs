@@ -29,7 +29,8 @@ use crate::partial_files as staging;
 /// Errors while writing a bag.
 #[derive(Debug, thiserror::Error)]
 pub enum Ros2Error {
-    #[error("ROS 2 bag {}: {source}", dir.display())]
+    /// The bag's directory is named once: by the error where it names a file, else here.
+    #[error("ROS 2 bag{}: {source}", if source.path().is_some() { String::new() } else { format!(" {}", dir.display()) })]
     Bag { dir: std::path::PathBuf, source: ros2bag::Error },
     #[error(transparent)]
     Output(#[from] staging::PartialFileError),
@@ -50,17 +51,29 @@ pub struct StagedBag {
     stem: String,
 }
 
+/// Refuses a bag directory no bag can be written into: a file, or a directory that holds
+/// anything but a stopped recording's unfinished files. A command checks it before it sets
+/// anything up, and again once it holds the directory.
+pub fn check_bag_dir(out: &Path) -> Result<(), Ros2Error> {
+    let bag = |source| Err(Ros2Error::Bag { dir: out.into(), source });
+    match std::fs::metadata(out) {
+        Err(_) => return Ok(()),
+        Ok(m) if !m.is_dir() => return bag(ros2bag::Error::NotADirectory { path: out.into() }),
+        Ok(_) => {}
+    }
+    let unfinished = staging::unfinished_dir(out);
+    let listed = std::fs::read_dir(out).map_err(|source| staging::PartialFileError { file: out.into(), source })?;
+    if listed.flatten().any(|e| e.path() != unfinished && e.file_name() != ".objslam.lock") {
+        return bag(ros2bag::Error::DirectoryNotEmpty { path: out.into() });
+    }
+    Ok(())
+}
+
 impl StagedBag {
     pub fn create(out: &Path, config: &SimConfig) -> Result<Self, Ros2Error> {
+        check_bag_dir(out)?;
         let lock = staging::lock_output(out)?;
-        let unfinished = staging::unfinished_dir(out);
-        let listed = std::fs::read_dir(out).map_err(|source| staging::PartialFileError { file: out.into(), source })?;
-        if listed.flatten().any(|e| e.path() != unfinished && e.file_name() != ".objslam.lock") {
-            return Err(Ros2Error::Bag {
-                dir: out.into(),
-                source: ros2bag::Error::DirectoryNotEmpty { path: out.into() },
-            });
-        }
+        check_bag_dir(out)?;
         let stem = out
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())

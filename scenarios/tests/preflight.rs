@@ -44,5 +44,17 @@ fn files_a_run_reads_at_its_start_are_checked_without_running() {
     let yawed = write("yawed.toml", "name = \"y\"\n[world]\npreset = \"park\"\n[sim.laser]\nmount_yaw_deg = 5.0\n");
     let e = check(&yawed).unwrap_err();
     assert!(e.contains("yawed.toml") && e.contains("mount_yaw_deg"), "{e}");
+    // A calibration file of a version this build does not read, and one that gives none.
+    write("v7.json", r#"{"format_version": 7, "phi": [[0, 0, 1], [-1, 0, 0], [0, -1, 0]], "delta": [0, 0, 0]}"#);
+    let e =
+        check(&write("v7.toml", "name = \"v\"\ncalibration = \"v7.json\"\n[world]\npreset = \"park\"\n")).unwrap_err();
+    assert!(e.contains("v7.json") && e.contains("format_version") && e.contains("is 7"), "{e}");
+    write("v1.json", r#"{"format_version": 1, "phi": [[0, 0, 1], [-1, 0, 0], [0, -1, 0]], "delta": [0, 0, 0]}"#);
+    check(&write("v1.toml", "name = \"v\"\ncalibration = \"v1.json\"\n[world]\npreset = \"park\"\n")).unwrap();
+    // A recall criterion in a world without trees: no run could meet it.
+    let treeless = "name = \"t\"\n[world]\npreset = \"park\"\n[world.params]\ntrees = 0\nposts = 0\n";
+    check(&write("treeless.toml", treeless)).unwrap();
+    let e = check(&write("treeless_recall.toml", &format!("{treeless}[pass]\nmin_tree_recall = 0.9\n"))).unwrap_err();
+    assert!(e.contains("treeless_recall.toml") && e.contains("pass.min_tree_recall") && e.contains("no tree"), "{e}");
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -309,6 +309,9 @@ fn victoria_park_form_is_read_and_mapped_with_the_car_model() {
     assert_eq!(log.reference.len(), made.reference.len());
 
     let config = resolve_config(None, &log.manifest, Some(AssociationMethod::Nn), None).unwrap();
+    // Outputs among the data set's files would read as one with them.
+    let e = replay(log.clone(), config.clone(), None, Some(&dir)).err().expect("refused").to_string();
+    assert!(e.contains("holds a data set's files (VictoriaParkSinSincronizar.mat)"), "{e}");
     let result = replay(log.clone(), config, None, Some(&dir.join("replay"))).unwrap();
     let m = &result.metrics;
     let reference = m.reference.as_ref().unwrap();

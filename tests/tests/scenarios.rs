@@ -416,6 +416,21 @@ fn a_bag_in_the_runs_output_directory_is_refused() {
     let e = run(&sc, &base, &same, |_| {}).err().expect("refused").to_string();
     assert!(e.contains("--bag") && e.contains("output directory"), "{e}");
     assert!(!dir.exists(), "nothing written");
+    // The outputs inside a new bag directory: named as such, and nothing is left.
+    let inside = RunOptions { out: Some(dir.join("run")), bag: Some(dir.clone()), ..Default::default() };
+    let e = run(&sc, &base, &inside, |_| {}).err().expect("refused").to_string();
+    assert!(e.contains("--out") && e.contains("lies inside the bag's directory"), "{e}");
+    assert!(!dir.exists(), "nothing written");
+    // A bag directory that holds a file: refused before the run sets up, the path said once.
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(dir.join("notes.txt"), "mine").unwrap();
+    let elsewhere = dir.with_extension("out");
+    let taken = RunOptions { out: Some(elsewhere.clone()), bag: Some(dir.clone()), ..Default::default() };
+    let e = run(&sc, &base, &taken, |_| {}).err().expect("refused").to_string();
+    assert!(e.contains("bag directory exists and is not empty"), "{e}");
+    assert_eq!(e.matches(&*dir.display().to_string()).count(), 1, "{e}");
+    assert!(!elsewhere.exists(), "nothing written");
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// A run's bag is staged like `record --format ros2`'s: a bag directory holding only a

@@ -88,21 +88,21 @@ pub enum ReplayError {
     /// Motion that stops while the sensors go on is a cut file, not a vehicle standing
     /// still: odometry comes at tens of hertz, so a second without it is no jitter.
     #[error(
-        "the motion ends at t = {motion_end} s while observations go on to t = {t} s: a log's motion (odometry.csv of a robot log) must cover what it saw (is the file cut short?)"
+        "the motion ends at t = {motion_end} s while observations go on to t = {t} s: a log's motion (a robot log's odometry.csv; Victoria Park's `time` and speeds) must cover what it saw (is the file cut short?)"
     )]
     MotionEnded { motion_end: f64, t: f64 },
     /// Most observations before the motion's first row is motion on another clock or in
     /// another unit: replayed, each would be seen from the start pose. (A laser started a
     /// few seconds before the odometry, the vehicle standing, is no error.)
     #[error(
-        "{before} of the {observations} observations come before the motion's first row at t = {motion_start} s: a log's motion (odometry.csv of a robot log) must cover what it saw (are its files on one clock, in seconds?)"
+        "{before} of the {observations} observations come before the motion's first row at t = {motion_start} s: a log's motion (a robot log's odometry.csv; Victoria Park's `time` and speeds) must cover what it saw (are its files on one clock, in seconds?)"
     )]
     MotionStartsLate { before: usize, observations: usize, motion_start: f64 },
     /// Motion that lasts a hundred times as long as the observations is motion in another
     /// unit (odometry in ms beside scans in s: a thousand times): replayed, every
     /// observation would be seen from a pose parked between two of its rows.
     #[error(
-        "the motion lasts {motion_s} s (t = {motion_from} to {motion_to} s), more than {MOTION_SPAN_RATIO} times the observations' {observed_s} s (t = {observed_from} to {observed_to} s): a log's motion (odometry.csv of a robot log) must be on the observations' clock, in seconds"
+        "the motion lasts {motion_s} s (t = {motion_from} to {motion_to} s), more than {MOTION_SPAN_RATIO} times the observations' {observed_s} s (t = {observed_from} to {observed_to} s): a log's motion (a robot log's odometry.csv; Victoria Park's `time` and speeds) must be on the observations' clock, in seconds"
     )]
     MotionOutlastsObservations {
         motion_s: f64,
@@ -422,6 +422,9 @@ fn refuse_other_outputs(dir: &Path) -> Result<(), ReplayError> {
     let holds = |what: String| Err(ReplayError::HoldsOther { dir: dir.to_path_buf(), what });
     if dir.join(robotlog::format::MANIFEST).exists() {
         return holds("a robot log (manifest.toml)".into());
+    }
+    if let Some(name) = robotlog::victoria_park::FILES.iter().find(|n| dir.join(n).symlink_metadata().is_ok()) {
+        return holds(format!("a data set's files ({name})"));
     }
     let Ok(text) = std::fs::read_to_string(dir.join(files::METADATA)) else { return Ok(()) };
     let tool = serde_json::from_str::<serde_json::Value>(&text)
@@ -945,13 +948,16 @@ pub fn summary(m: &ReplayMetrics) -> String {
         1 => "; 1 scan before the motion's first row, replayed from the start pose".to_string(),
         n => format!("; {n} scans before the motion's first row, replayed from the start pose"),
     };
+    let nis = if m.nis.mean.is_finite() {
+        format!("NIS mean {:.2} ({:.0}% within 95%)", m.nis.mean, 100.0 * m.nis.within_95)
+    } else {
+        "NIS undefined (no observation was associated)".to_string()
+    };
     format!(
-        "{} with {}: {} landmarks; {reference}{before}; NIS mean {:.2} ({:.0}% within 95%); {:.2} ms per scan (p95 {:.2}); {:.1} s wall, {:.0}x real time",
+        "{} with {}: {} landmarks; {reference}{before}; {nis}; {:.2} ms per scan (p95 {:.2}); {:.1} s wall, {:.0}x real time",
         m.log,
         m.method,
         m.landmarks,
-        m.nis.mean,
-        100.0 * m.nis.within_95,
         m.time_per_scan_ms.mean,
         m.time_per_scan_ms.p95,
         m.wall_seconds,

@@ -82,6 +82,8 @@ pub enum RunError {
     Unpublished { dir: PathBuf, source: Box<RunError> },
     #[error("--bag {}: it is the run's output directory; a bag needs a directory of its own", .0.display())]
     BagInOutputs(PathBuf),
+    #[error("--out {}: it lies inside the bag's directory {}; a bag needs a directory of its own", out.display(), bag.display())]
+    OutputsInBag { out: PathBuf, bag: PathBuf },
     #[error(
         "{}: the {what} lies among the outputs of {}, which this run replaces or removes; copy it elsewhere or choose another output directory",
         file.display(),
@@ -324,6 +326,19 @@ pub fn preflight(
     let camera_method = config.method.uses_appearance();
     check_camera(scenario, &config)?;
     let world = scenario.world(base_dir, seed)?;
+    // The recall's denominator counts trees: with none in the world it is undefined, and
+    // every run would fail the criterion.
+    if scenario.pass.min_tree_recall.is_some()
+        && !world.objects.iter().any(|o| o.class == worlds::description::ObjectClass::Tree)
+    {
+        return Err(RunError::NamedFile {
+            scenario: scenario.describe(),
+            key: "pass.min_tree_recall",
+            message: "the world holds no tree, so the recall is undefined and no run could pass; \
+                      leave the criterion out"
+                .into(),
+        });
+    }
     let calibration = match scenario.calibration.mode.as_str() {
         "estimated" => None,
         _ => Some(resolve_calibration(scenario, base_dir, seed)?),
@@ -385,6 +400,9 @@ pub fn run(
         check_inputs_outside_outputs(scenario, base_dir, out)?;
         check_earlier_outputs_are_a_runs(out)?;
     }
+    if let Some(bag) = &options.bag {
+        check_bag_beside_outputs(bag, options.out.as_deref())?;
+    }
     // Held until the outputs are published or abandoned.
     let lock = options.out.as_deref().map(crate::partial_files::lock_output).transpose()?;
     crate::partial_files::abandon_if_failed(
@@ -392,6 +410,22 @@ pub fn run(
         options.out.as_deref(),
         run_and_write(scenario, base_dir, options, progress),
     )
+}
+
+/// Refuses a `--bag` directory before the run sets anything up (a model trained, a world
+/// built): one no bag can be written into, the run's output directory (the bag's files
+/// would sit among the run's, and the next run could not write its bag), or one that holds
+/// the output directory (which would make it a directory that is not empty).
+fn check_bag_beside_outputs(bag: &Path, out: Option<&Path>) -> Result<(), RunError> {
+    if let Some(out) = out {
+        if crate::partial_files::same_path(out, bag) {
+            return Err(RunError::BagInOutputs(bag.to_path_buf()));
+        }
+        if crate::partial_files::lies_inside(out, bag) {
+            return Err(RunError::OutputsInBag { out: out.to_path_buf(), bag: bag.to_path_buf() });
+        }
+    }
+    Ok(crate::ros2::check_bag_dir(bag)?)
 }
 
 /// Refuses a scenario whose input files (see [`Scenario::input_files`]) lie in `out` under
@@ -458,11 +492,6 @@ fn run_and_write(
         render_only_read_regions(&mut sim, &pipeline, &scorer, &config, &sim_config);
     }
     let mut bag = match &options.bag {
-        // The bag's own files would sit among the run's, and the next run could not write
-        // its bag (a bag directory must be new or empty).
-        Some(dir) if options.out.as_ref().is_some_and(|out| crate::partial_files::same_path(out, dir)) => {
-            return Err(RunError::BagInOutputs(dir.clone()));
-        }
         // Staged like `record --format ros2`: a failed or stopped run leaves no half bag.
         Some(dir) => {
             let mut bag = crate::ros2::StagedBag::create(dir, &sim_config)?;
