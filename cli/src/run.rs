@@ -52,18 +52,6 @@ pub(crate) fn run_scenario(
     Ok(())
 }
 
-/// Whether `e` or one of its causes names `name` already.
-fn report_names(e: &(dyn std::error::Error + 'static), name: &str) -> bool {
-    let mut cause = Some(e);
-    while let Some(c) = cause {
-        if c.to_string().contains(name) {
-            return true;
-        }
-        cause = c.source();
-    }
-    false
-}
-
 /// Refuses a `LOG` directory that holds another output of objslam (a JSON-lines log, a
 /// ROS 2 bag), saying what it is, rather than naming a `manifest.toml` that was never
 /// there. (A file or a missing directory is the log reader's to refuse.)
@@ -165,9 +153,8 @@ pub(crate) fn check(name: &str, method: Option<AssociationMethod>, seed: Option<
     // The settings and files it names are the scenario's: say which scenario, where the
     // message does not already.
     let found = scenarios::run::preflight(&sc, &base, method, seed).map_err(|e| {
-        let named = report_names(&e, name);
         let e = anyhow::Error::from(e);
-        if named { e } else { e.context(name.to_string()) }
+        if crate::report(&e).contains(name) { e } else { e.context(name.to_string()) }
     })?;
     println!("{name}: ok");
     println!("  method       {}", found.method.name());

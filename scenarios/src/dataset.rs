@@ -117,6 +117,51 @@ pub struct Manifest {
     pub images: Vec<ImageEntry>,
 }
 
+impl Manifest {
+    /// What a manifest edited by hand could get wrong that no file it names would show: its
+    /// layout, its classes, an image listed twice (trained on twice, or both trained on and
+    /// held out), and files outside the dataset (another world's pictures read against this
+    /// one's masks).
+    pub fn check(&self) -> Result<(), String> {
+        let manifest = self;
+        let version = DATASET_FORMAT_VERSION;
+        if manifest.format_version != version {
+            return Err(format!("format_version {}, this objslam reads version {version}", manifest.format_version));
+        }
+        if manifest.classes.is_empty() {
+            return Err("classes: none; a dataset labels the patches of at least one class".into());
+        }
+        if let Some(c) = manifest.classes.iter().enumerate().find(|(i, c)| manifest.classes[..*i].contains(c)) {
+            return Err(format!("classes: {} is named twice", c.1.name()));
+        }
+        if manifest.width == 0 || manifest.height == 0 {
+            return Err(format!("width and height: {}x{} is no image", manifest.width, manifest.height));
+        }
+        let mut ids = std::collections::BTreeSet::new();
+        let mut files = std::collections::BTreeSet::new();
+        for (i, entry) in manifest.images.iter().enumerate() {
+            if !ids.insert(entry.id) {
+                return Err(format!("images[{i}].id: {} is listed twice", entry.id));
+            }
+            for (key, file) in [
+                ("image", &entry.image),
+                ("instance", &entry.instance),
+                ("class", &entry.class),
+                ("patches", &entry.patches),
+            ] {
+                let inside = Path::new(file).components().all(|c| matches!(c, std::path::Component::Normal(_)));
+                if !inside || file.is_empty() {
+                    return Err(format!("images[{i}].{key}: {file:?} is not a path inside the dataset"));
+                }
+                if !files.insert(file.as_str()) {
+                    return Err(format!("images[{i}].{key}: {file} is listed twice"));
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
 /// Per-patch labels of one image.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PatchLabels {

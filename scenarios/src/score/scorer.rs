@@ -410,11 +410,14 @@ pub fn landmark_rmse(world: &World, landmarks: &[MapLandmark]) -> Option<f64> {
                 .collect()
         })
         .collect();
-    // Every pair beyond the gate costs the same, more than all pairs within it together:
-    // the assignment then makes as many pairs within the gate as it can, the closest of
-    // those, and a pair the gate will drop cannot take a landmark's good match.
-    let beyond = LANDMARK_MATCH_GATE_M * (landmarks.len().min(statics.len()) + 1) as f64;
-    let gated = |d: f64| if d <= LANDMARK_MATCH_GATE_M { d } else { beyond };
+    // A pair costs its squared distance, so that of the pairings the one with the least
+    // RMS is chosen (the least total distance can have a larger RMS). Every pair beyond the
+    // gate costs the same, more than all pairs within it together: the assignment then
+    // makes as many pairs within the gate as it can, and a pair the gate will drop cannot
+    // take a landmark's good match.
+    let gate_cost = LANDMARK_MATCH_GATE_M * LANDMARK_MATCH_GATE_M;
+    let beyond = gate_cost * (landmarks.len().min(statics.len()) + 1) as f64;
+    let gated = |d: f64| if d <= LANDMARK_MATCH_GATE_M { d * d } else { beyond };
     let cost: Vec<Vec<f64>> = distance.iter().map(|row| row.iter().map(|&d| gated(d)).collect()).collect();
     let assignment = super::hungarian(&cost);
     let matched: Vec<f64> = assignment
@@ -542,6 +545,14 @@ mod tests {
         // A landmark far beyond any object, or at no place at all, matches nothing.
         let far = [MapLandmark { id: 3, position: [1e200, 0.0] }, MapLandmark { id: 4, position: [f64::NAN, 0.0] }];
         assert_eq!(landmark_rmse(&world, &far), None);
+        // Of two pairings the one of least RMS, not of least total distance: trees at 0 and
+        // 1.2 m; pairing landmark 5 with the first tree gives 1.942 m and 0.412 m (total
+        // 2.354, RMS 1.404), with the second 1.603 m and 0.806 m (total 2.409, RMS 1.269).
+        (world.objects[1].pose.x, world.objects[1].pose.y) = (1.2, 0.0);
+        let map = [MapLandmark { id: 5, position: [1.1, 1.6] }, MapLandmark { id: 6, position: [0.8, -0.1] }];
+        let rmse = landmark_rmse(&world, &map).unwrap();
+        let least = ((1.603_121_954_188_14f64.powi(2) + 0.806_225_774_829_855f64.powi(2)) / 2.0).sqrt();
+        assert!((rmse - least).abs() < 1e-9, "{rmse} against {least}");
     }
 
     #[test]

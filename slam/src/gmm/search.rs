@@ -118,6 +118,12 @@ impl VbGmm {
     /// component of the prior's dimension with finite positive `alpha` and `beta`, `nu`
     /// above D - 1, a finite mean and a positive definite W^-1.
     pub fn check(&self) -> Result<(), GmmError> {
+        self.predictive().map(|_| ())
+    }
+
+    /// The posterior predictive density of a model that passes [`VbGmm::check`], formed
+    /// once: checking it forms it.
+    fn predictive(&self) -> Result<super::StudentTMixture, GmmError> {
         let d = self.dims();
         self.prior.check(d)?;
         if self.components.is_empty() {
@@ -171,8 +177,7 @@ impl VbGmm {
         // predictive's covariance to nothing): a fault of the model, found here rather
         // than when data are scored.
         super::StudentTMixture::new(self)
-            .map_err(|e| GmmError::BadModel(format!("its predictive density cannot be formed: {e}")))?;
-        Ok(())
+            .map_err(|e| GmmError::BadModel(format!("its predictive density cannot be formed: {e}")))
     }
 
     /// Mean over the rows of `data` of ln p(x | training data), the posterior predictive
@@ -180,11 +185,10 @@ impl VbGmm {
     /// that compares models fitted to the same training data, whatever their K.
     pub fn mean_log_predictive(&self, data: &DMatrix<f64>) -> Result<f64, GmmError> {
         check_data(data)?;
-        self.check()?;
+        let predictive = self.predictive()?;
         if data.ncols() != self.dims() {
             return Err(GmmError::Dimension { expected: self.dims(), found: data.ncols() });
         }
-        let predictive = super::StudentTMixture::new(self)?;
         let total: f64 = data.row_iter().map(|row| predictive.log_density(&row.transpose())).sum();
         Ok(total / data.nrows() as f64)
     }
