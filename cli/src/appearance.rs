@@ -55,6 +55,17 @@ pub(crate) fn train(args: &crate::args::TrainArgs) -> Result<()> {
     // (see `read_heldout_manifest`): not the training's own world, its classes, the
     // model's patches, and some images.
     let trained_on = scenarios::train::read_manifest(dataset)?;
+    // Scored twice, one world would count twice in the held-out figures.
+    for (i, other) in args.heldout_dataset.iter().enumerate() {
+        if let Some(earlier) = args.heldout_dataset[..i].iter().find(|e| scenarios::partial_files::same_path(e, other))
+        {
+            anyhow::bail!(
+                "--heldout-dataset {}: given twice (also as {}); each world is scored once",
+                other.display(),
+                earlier.display()
+            );
+        }
+    }
     for other in &args.heldout_dataset {
         scenarios::train::read_heldout_manifest(other, dataset, &trained_on, trained_on.patch_size)
             .map_err(|e| anyhow::anyhow!("--heldout-dataset {e}"))?;

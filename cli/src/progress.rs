@@ -132,6 +132,11 @@ impl StudyBar {
         self.runs.finish_and_clear();
     }
 
+    /// Runs that were on file before this command ran any (a resumed study's).
+    pub(crate) fn done_before(&self) -> usize {
+        self.first_done.lock().unwrap_or_else(|p| p.into_inner()).unwrap_or(0)
+    }
+
     /// Seconds since the study started.
     pub(crate) fn elapsed_s(&self) -> f64 {
         self.started.elapsed().as_secs_f64()

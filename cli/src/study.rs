@@ -245,8 +245,14 @@ fn run_plan(
     print_summary(plan, &records);
     let (retry, finished): (Vec<_>, Vec<_>) = records.iter().partition(|r| r.retryable);
     let errors = finished.iter().filter(|r| r.error.is_some()).count();
+    // A resumed study's earlier runs are counted, but not as run in this command's time.
+    let before = bar.done_before().min(finished.len());
+    let ran = match before {
+        0 => String::new(),
+        n => format!(", {n} of them done before this command ({} run now)", finished.len() - n),
+    };
     println!(
-        "{} ({} with errors) in {:.1} s; shard {}/{}; results in {}",
+        "{} ({} with errors{ran}) in {:.1} s; shard {}/{}; results in {}",
         count(finished.len(), "run", "runs"),
         errors,
         bar.elapsed_s(),

@@ -383,6 +383,11 @@ fn held_out_datasets_that_would_measure_nothing_held_out_are_refused_before_trai
         assert!(stderr(&o).contains(expect), "{held_out}: {}", stderr(&o));
         assert!(!root.join("m.json").exists(), "{held_out}: refused after training");
     }
+    let twice =
+        ["train", "--dataset", "tr", "--heldout-dataset", "post", "--heldout-dataset", "./post/", "--out", "m.json"];
+    let o = objslam(&root, &twice);
+    assert!(stderr(&o).contains("--heldout-dataset ./post/: given twice (also as post)"), "{}", stderr(&o));
+    assert!(!root.join("m.json").exists());
     let _ = std::fs::remove_dir_all(&root);
 }
 

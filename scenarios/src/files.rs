@@ -78,6 +78,13 @@ pub fn sha256_hex(file: &std::path::Path) -> Option<String> {
     Some(Sha256::digest(&bytes).iter().map(|b| format!("{b:02x}")).collect())
 }
 
+/// An input's path as a run records it (`metadata.json`, `scenario.toml`): absolute, with
+/// `.`, `..` and links resolved where the file is there (a scenario run from another
+/// directory names its world through `..`).
+pub fn recorded_path(file: &std::path::Path) -> std::path::PathBuf {
+    std::fs::canonicalize(file).or_else(|_| std::path::absolute(file)).unwrap_or_else(|_| file.to_path_buf())
+}
+
 /// The first of `inputs` (each with what it is) that lies in the directory `out` under one
 /// of `names`, the outputs a command writes, replaces or removes there: publishing them
 /// would replace or delete it.

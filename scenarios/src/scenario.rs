@@ -527,9 +527,9 @@ impl Scenario {
     /// wherever it is saved.
     pub fn with_absolute_paths(&self, base_dir: &Path) -> Scenario {
         let absolute = |relative: &str| {
-            std::path::absolute(base_dir.join(relative))
-                .ok()
-                .and_then(|p| p.to_str().map(str::to_owned))
+            crate::files::recorded_path(&base_dir.join(relative))
+                .to_str()
+                .map(str::to_owned)
                 .unwrap_or_else(|| relative.to_owned())
         };
         let mut s = self.clone();

@@ -307,6 +307,15 @@ fn studies_of_different_plans_are_never_mixed() {
     std::fs::remove_file(a.join("study.json")).unwrap();
     let e = mc::run_study(&plan(5), Shard::all(), &a, |_| {}).unwrap_err().to_string();
     assert!(e.contains("study.json is gone"), "{e}");
+    // A summary of a study's name where no study is: the user's, not replaced.
+    let mine = root.join("mine");
+    std::fs::create_dir_all(&mine).unwrap();
+    std::fs::write(mine.join("summary.csv"), "my table").unwrap();
+    let e = mc::run_study(&plan(5), Shard::all(), &mine, |_| {}).unwrap_err().to_string();
+    assert!(e.contains("summary.csv") && e.contains("holds no study"), "{e}");
+    let e = mc::merge(std::slice::from_ref(&b), &mine).unwrap_err().to_string();
+    assert!(e.contains("summary.csv") && e.contains("holds no study"), "{e}");
+    assert_eq!(std::fs::read_to_string(mine.join("summary.csv")).unwrap(), "my table");
 
     let repeated = StudyPlan { vary: vec![Vary::parse("sim.odometry.scale_sigma=0.01..0.01:3").unwrap()], ..plan(3) };
     assert!(repeated.check().unwrap_err().to_string().contains("comes twice"));

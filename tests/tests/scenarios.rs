@@ -158,7 +158,12 @@ fn recorded_scenario_runs_the_run_again() {
         out: Some(out.clone()),
         ..Default::default()
     };
-    let first = run(&sc, &inputs, &options, |_| {}).unwrap().metrics;
+    // Given through `..`, the inputs are recorded by their own paths.
+    let first = run(&sc, &inputs.join("../inputs"), &options, |_| {}).unwrap().metrics;
+    let meta: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("metadata.json")).unwrap()).unwrap();
+    let recorded_world = meta["configuration"]["inputs"].as_array().unwrap().iter().find(|i| i["what"] == "world file");
+    assert_eq!(recorded_world.unwrap()["file"], world_file.canonicalize().unwrap().to_str().unwrap());
     let written = out.join("scenario.toml");
     let (recorded, base) = Scenario::load(written.to_str().unwrap()).unwrap();
     assert_eq!((recorded.seed, recorded.pipeline.method), (3, slam::association::AssociationMethod::Nn));

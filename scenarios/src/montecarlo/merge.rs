@@ -39,6 +39,8 @@ pub(super) fn merge_held(dirs: &[PathBuf], out: &Path) -> Result<(StudyPlan, Vec
             file: out.join("runs.jsonl"),
             message: "runs without a study.json beside them: move them away or merge into a new directory".into(),
         });
+    } else {
+        super::refuse_unowned_summary(out)?;
     }
     let mut plan: Option<StudyFile> = None;
     let mut by_key: BTreeMap<String, RunRecord> = BTreeMap::new();

@@ -281,6 +281,23 @@ pub fn check_study_dir(plan: &StudyPlan, out: &Path) -> Result<(), StudyError> {
 
 /// Whether `out` holds `plan`'s study already (`false`: it holds none); an error where it
 /// holds another, runs without their plan, or a generalisation benchmark.
+/// What [`write_summary`] writes beside a study's `study.json` and `runs.jsonl`.
+const SUMMARY_FILES: &[&str] = &["summary.csv", "summary.json", "failure_rate.png", "failure_rate.svg"];
+
+/// Refuses a directory without a study that holds files of a summary's names: someone's
+/// own, which the study's summary would replace.
+pub(super) fn refuse_unowned_summary(out: &Path) -> Result<(), StudyError> {
+    match SUMMARY_FILES.iter().find(|n| out.join(n).symlink_metadata().is_ok()) {
+        Some(name) => Err(StudyError::File {
+            file: out.join(name),
+            message: "a study writes this file, but the directory holds no study (no study.json); move it away or \
+                      use a new --out directory"
+                .into(),
+        }),
+        None => Ok(()),
+    }
+}
+
 fn existing_study(plan: &StudyPlan, pin: &ScenarioPin, out: &Path) -> Result<bool, StudyError> {
     refuse_benchmark_dir(out)?;
     let plan_file = out.join("study.json");
@@ -306,6 +323,7 @@ fn existing_study(plan: &StudyPlan, pin: &ScenarioPin, out: &Path) -> Result<boo
                         .into(),
                 });
             }
+            refuse_unowned_summary(out)?;
             Ok(false)
         }
         Err(StudyError::Io { source, .. }) => {

@@ -656,7 +656,7 @@ fn input_digests(scenario: &Scenario, base_dir: &Path, world: &worlds::World) ->
     inputs
         .into_iter()
         .map(|(what, file)| {
-            let file = std::path::absolute(&file).unwrap_or(file);
+            let file = files::recorded_path(&file);
             json!({"what": what, "file": file, "sha256": files::sha256_hex(&file)})
         })
         .collect()
@@ -680,7 +680,7 @@ pub fn recorded_run(scenario_file: &Path) -> Option<serde_json::Value> {
 pub fn changed_inputs(scenario_file: &Path, scenario: &Scenario, base_dir: &Path) -> Vec<String> {
     let Some(metadata) = recorded_run(scenario_file) else { return Vec::new() };
     let named: Vec<PathBuf> =
-        scenario.input_files(base_dir).into_iter().map(|(_, f)| std::path::absolute(&f).unwrap_or(f)).collect();
+        scenario.input_files(base_dir).into_iter().map(|(_, f)| files::recorded_path(&f)).collect();
     let recorded = metadata["configuration"]["inputs"].as_array().cloned().unwrap_or_default();
     recorded
         .iter()
