@@ -254,7 +254,20 @@ pub fn open_image_to_classify(path: &Path) -> Result<image::RgbImage, TrainError
     if u64::from(w) * u64::from(h) > MAX_SEGMENT_PIXELS {
         return Err(file_err(path, format!("{w}x{h} is more than {MAX_SEGMENT_PIXELS} pixels; crop or scale it down")));
     }
-    Ok(image::open(path).map_err(|e| file_err(path, e))?.to_rgb8())
+    let image = image::open(path).map_err(|e| file_err(path, e))?;
+    // A patch's features hold its colour: a grey image, read as colour, would be judged by
+    // a model that learnt from colours it does not have.
+    if !image.color().has_color() {
+        return Err(file_err(
+            path,
+            format!(
+                "a greyscale image ({:?}); the appearance model's features include each pixel's colour, so \
+                 give a colour image",
+                image.color()
+            ),
+        ));
+    }
+    Ok(image.to_rgb8())
 }
 
 /// True class -> (patches, patches called object).
@@ -703,6 +716,22 @@ pub fn gmm_score_csv(model: &Path, path: &Path) -> Result<(f64, usize), TrainErr
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// An image to classify must hold colour, which the features read; a colour image is
+    /// read as it is.
+    #[test]
+    fn a_greyscale_image_to_classify_is_refused() {
+        let dir = std::env::temp_dir().join(format!("objslam-grey-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let grey = dir.join("grey.png");
+        image::GrayImage::from_pixel(20, 10, image::Luma([90])).save(&grey).unwrap();
+        let e = open_image_to_classify(&grey).unwrap_err().to_string();
+        assert!(e.contains("grey.png") && e.contains("a greyscale image"), "{e}");
+        let colour = dir.join("colour.png");
+        image::RgbImage::from_pixel(20, 10, image::Rgb([90, 90, 90])).save(&colour).unwrap();
+        assert_eq!(open_image_to_classify(&colour).unwrap().dimensions(), (20, 10));
+        std::fs::remove_dir_all(&dir).ok();
+    }
 
     /// A CSV's errors name its line: bytes that are not UTF-8 as well as fields that are
     /// not numbers; a good file gives its values and the digest of its bytes.

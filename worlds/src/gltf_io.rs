@@ -174,8 +174,25 @@ fn glb_bytes(root: &Value, bin: &[u8]) -> Vec<u8> {
 pub fn import_mesh(path: &Path) -> Result<TriMesh, String> {
     let gltf = open_checked(path)?;
     let base = path.parent().unwrap_or(Path::new("."));
-    let buffers = gltf::import_buffers(&gltf.document, Some(base), gltf.blob).map_err(|e| e.to_string())?;
+    let buffers = gltf::import_buffers(&gltf.document, Some(base), gltf.blob)
+        .map_err(|e| format!("a buffer could not be read: {e}"))?;
     import_document(&gltf.document, &buffers)
+}
+
+/// Why a file could not be opened as glTF, in a user's terms: the parser says only what
+/// it met ("failed to fill whole buffer", a JSON position), not what the file is.
+fn unreadable(path: &Path, e: gltf::Error) -> String {
+    use std::io::Read;
+    let mut head = [0u8; 4];
+    let read = std::fs::File::open(path).and_then(|mut f| f.read(&mut head)).unwrap_or(0);
+    let head = &head[..read];
+    if head == b"glTF" {
+        format!("a binary glTF (.glb) that cannot be read, cut short or damaged: {e}")
+    } else if head.first().is_some_and(|b| *b == b'{') {
+        format!("not glTF 2.0 JSON: {e}")
+    } else {
+        format!("not a glTF 2.0 file (JSON .gltf or binary .glb; OBJ, STL and PLY are not read): {e}")
+    }
 }
 
 /// Opens a glTF/.glb file after refusing one, or a buffer it names, that is not a regular
@@ -190,7 +207,7 @@ fn open_checked(path: &Path) -> Result<gltf::Gltf, String> {
         Err(e) => return Err(e.to_string()),
     }
     // The JSON (or the .glb's JSON chunk and its binary chunk).
-    let gltf = gltf::Gltf::open(path).map_err(|e| e.to_string())?;
+    let gltf = gltf::Gltf::open(path).map_err(|e| unreadable(path, e))?;
     let base = path.parent().unwrap_or(Path::new("."));
     for buffer in gltf.buffers() {
         let gltf::buffer::Source::Uri(uri) = buffer.source() else { continue };
@@ -330,6 +347,10 @@ fn add_node_meshes(
             Some(_) => reader.read_tex_coords(0).ok_or_else(|| unread("TEXCOORD_0"))?.into_f32().collect(),
             None => vec![[0.0, 0.0]; n],
         };
+        // The renderer refuses them later, naming no file; a .glb may not hold them.
+        if let Some(k) = uvs.iter().position(|uv| uv.iter().any(|v| !v.is_finite())) {
+            return Err(format!("{}: TEXCOORD_0 value {k} is not finite ({:?})", at(), uvs[k]));
+        }
         let vertices: Vec<u32> = match prim.indices() {
             Some(a) => {
                 check_accessor(&a, &format!("{}: indices", at()), Dimensions::Scalar, INDEX_TYPES, buffers)?;
@@ -903,8 +924,44 @@ mod tests {
     }
 
     #[test]
+    fn non_finite_texture_coordinates_are_refused() {
+        let mut bin = square();
+        let uv: Vec<f32> = vec![0.0, 0.0, 1.0, 0.0, f32::NAN, 1.0, 1.0, 1.0];
+        bin.extend(f32_bytes(uv.iter()));
+        let views =
+            serde_json::json!([{"buffer": 0, "byteLength": 48}, {"buffer": 0, "byteOffset": 48, "byteLength": 32}]);
+        let uvs = serde_json::json!({"bufferView": 1, "componentType": 5126, "count": 4, "type": "VEC2"});
+        let e = import_mesh_slice(&glb_with(
+            &bin,
+            views,
+            serde_json::json!([positions(4), uvs]),
+            serde_json::json!({"attributes": {"POSITION": 0, "TEXCOORD_0": 1}, "mode": 5}),
+        ))
+        .unwrap_err();
+        assert!(e.starts_with("mesh 0 primitive 0: TEXCOORD_0 value 2 is not finite"), "{e}");
+    }
+
+    #[test]
     fn not_a_gltf_file_is_a_clear_error() {
         let err = import_mesh_slice(b"solid cube\nfacet normal 0 0 1\n").unwrap_err();
         assert!(!err.is_empty());
+        // From a file: what it is, not only where the parser stopped.
+        let dir = std::env::temp_dir().join(format!("objslam-gltf-unreadable-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let stl = dir.join("cube.stl");
+        std::fs::write(&stl, b"solid cube\nfacet normal 0 0 1\n").unwrap();
+        let e = import_mesh(&stl).unwrap_err();
+        assert!(e.starts_with("not a glTF 2.0 file (JSON .gltf or binary .glb; OBJ, STL and PLY are not read)"), "{e}");
+        let glb = glb_with(
+            &square(),
+            serde_json::json!([{"buffer": 0, "byteLength": 48}]),
+            serde_json::json!([positions(4)]),
+            serde_json::json!({"attributes": {"POSITION": 0}, "mode": 5}),
+        );
+        let cut = dir.join("cut.glb");
+        std::fs::write(&cut, &glb[..glb.len() - 10]).unwrap();
+        let e = import_mesh(&cut).unwrap_err();
+        assert!(e.starts_with("a binary glTF (.glb) that cannot be read, cut short or damaged"), "{e}");
+        std::fs::remove_dir_all(&dir).ok();
     }
 }

@@ -8,51 +8,103 @@ use crate::mesh::TriMesh;
 /// part a laser a few decimetres up sees.
 pub const BASE_SLICE_M: f64 = 1.0;
 
-/// What the mesh's vertices say of its size, in its own frame (z up, origin on the ground
-/// at the object's pose).
+/// Triangles smaller than this (m²) are left out of a mesh's extent: no camera or laser
+/// sees a square micrometre, and a triangle of three points on a line (a modelling slip)
+/// would otherwise size the collider with a surface that is not drawn.
+const MIN_TRIANGLE_AREA_M2: f64 = 1e-12;
+
+/// What the mesh's surface says of its size, in its own frame (z up, origin on the ground
+/// at the object's pose): only triangles with area count, so vertices no triangle uses
+/// and triangles of no area change nothing.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct MeshExtent {
-    /// Farthest vertex from the vertical axis, below [`BASE_SLICE_M`] (m).
+    /// Farthest point of the surface from the vertical axis between the ground and
+    /// [`BASE_SLICE_M`] (m): the triangles are cut to that slice, so a trunk sunk a little
+    /// into the ground, whose vertices lie only below and far above it, is measured too.
     pub base_radius_m: f64,
-    /// Farthest vertex from the vertical axis anywhere (m).
+    /// Farthest point of the surface from the vertical axis anywhere (m).
     pub radius_m: f64,
-    /// Highest vertex (m).
+    /// Highest point (m).
     pub top_m: f64,
     /// Half extents along x and y (m), about the origin.
     pub half_x_m: f64,
     pub half_y_m: f64,
 }
 
-/// The mesh's extent; an error for a mesh with no vertex above the ground or none in the
-/// base slice (a mesh not standing on its origin).
+/// The mesh's extent; an error for a mesh with no surface, none above the ground or none
+/// in the base slice (a mesh not standing on its origin).
 pub fn extent(mesh: &TriMesh) -> Result<MeshExtent, String> {
+    if mesh.positions.iter().flatten().any(|v| !v.is_finite()) {
+        return Err("the mesh has a vertex that is not a finite number".into());
+    }
     let mut e =
         MeshExtent { base_radius_m: 0.0, radius_m: 0.0, top_m: f64::NEG_INFINITY, half_x_m: 0.0, half_y_m: 0.0 };
-    let mut in_base = 0usize;
-    for p in &mesh.positions {
-        let [x, y, z] = p.map(f64::from);
-        if !(x.is_finite() && y.is_finite() && z.is_finite()) {
-            return Err("the mesh has a vertex that is not a finite number".into());
+    let (mut surfaces, mut in_base) = (0usize, false);
+    for t in mesh.indices.chunks_exact(3) {
+        let mut triangle = [[0.0f64; 3]; 3];
+        for (corner, &i) in triangle.iter_mut().zip(t) {
+            let p = mesh.positions.get(i as usize).ok_or_else(|| format!("the mesh's index {i} names no vertex"))?;
+            *corner = p.map(f64::from);
         }
-        let r = x.hypot(y);
-        e.radius_m = e.radius_m.max(r);
-        e.top_m = e.top_m.max(z);
-        e.half_x_m = e.half_x_m.max(x.abs());
-        e.half_y_m = e.half_y_m.max(y.abs());
-        if (0.0..=BASE_SLICE_M).contains(&z) {
-            e.base_radius_m = e.base_radius_m.max(r);
-            in_base += 1;
+        if area(&triangle) <= MIN_TRIANGLE_AREA_M2 {
+            continue;
         }
+        surfaces += 1;
+        for [x, y, z] in triangle {
+            e.radius_m = e.radius_m.max(x.hypot(y));
+            e.top_m = e.top_m.max(z);
+            e.half_x_m = e.half_x_m.max(x.abs());
+            e.half_y_m = e.half_y_m.max(y.abs());
+        }
+        for [x, y, _] in clip_to_heights(&triangle, 0.0, BASE_SLICE_M) {
+            e.base_radius_m = e.base_radius_m.max(x.hypot(y));
+            in_base = true;
+        }
+    }
+    if surfaces == 0 {
+        return Err("the mesh has no triangle of any area: nothing for a camera or a laser to see".into());
     }
     if !(e.top_m > 0.0) {
-        return Err("the mesh has no vertex above the ground (glTF's +y is up, the origin on the ground)".into());
+        return Err("no part of the mesh is above the ground (glTF's +y is up, the origin on the ground)".into());
     }
-    if in_base == 0 {
+    if !in_base || e.base_radius_m <= 0.0 {
         return Err(format!(
-            "no vertex of the mesh lies within {BASE_SLICE_M} m of the ground: it must stand on its origin (z up)"
+            "no part of the mesh lies within {BASE_SLICE_M} m of the ground away from its axis: it must stand on its origin (z up)"
         ));
     }
     Ok(e)
+}
+
+/// A triangle's area (m²).
+fn area([a, b, c]: &[[f64; 3]; 3]) -> f64 {
+    let (u, v) = ([b[0] - a[0], b[1] - a[1], b[2] - a[2]], [c[0] - a[0], c[1] - a[1], c[2] - a[2]]);
+    let n = [u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0]];
+    0.5 * (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt()
+}
+
+/// The corners of the part of `triangle` between heights `low` and `high` (a convex
+/// polygon, empty where the triangle misses the slice).
+fn clip_to_heights(triangle: &[[f64; 3]; 3], low: f64, high: f64) -> Vec<[f64; 3]> {
+    // Sutherland-Hodgman against each of the two planes.
+    let clip = |polygon: Vec<[f64; 3]>, inside: &dyn Fn(f64) -> bool, plane: f64| {
+        let mut out = Vec::with_capacity(polygon.len() + 1);
+        for (k, &p) in polygon.iter().enumerate() {
+            let q = polygon[(k + 1) % polygon.len()];
+            if inside(p[2]) {
+                out.push(p);
+            }
+            if inside(p[2]) != inside(q[2]) {
+                let s = (plane - p[2]) / (q[2] - p[2]);
+                out.push([p[0] + s * (q[0] - p[0]), p[1] + s * (q[1] - p[1]), plane]);
+            }
+        }
+        out
+    };
+    let above = clip(triangle.to_vec(), &|z| z >= low, low);
+    if above.is_empty() {
+        return above;
+    }
+    clip(above, &|z| z <= high, high)
 }
 
 /// The shape of an object of `class` fitted to the mesh: a trunk or post as wide as the
@@ -125,17 +177,35 @@ pub fn add_object(
 mod tests {
     use super::*;
 
-    /// A mesh of the given vertices (no triangles: the extent only reads vertices).
-    fn points(p: &[[f32; 3]]) -> TriMesh {
-        TriMesh { positions: p.to_vec(), ..Default::default() }
+    /// A surface of revolution through `(radius, height)` rings of `sections` vertices,
+    /// the first vertex of each ring on the +x axis, closed by a vertex on the axis where a
+    /// radius is 0.
+    fn lathe(profile: &[(f32, f32)], sections: u32) -> TriMesh {
+        let mut m = TriMesh::default();
+        for &(r, z) in profile {
+            for k in 0..sections {
+                let a = std::f32::consts::TAU * k as f32 / sections as f32;
+                m.positions.push([r * a.cos(), r * a.sin(), z]);
+            }
+        }
+        for ring in 0..profile.len() as u32 - 1 {
+            for k in 0..sections {
+                let (a, b) = (ring * sections + k, ring * sections + (k + 1) % sections);
+                m.indices.extend([a, b, b + sections, a, b + sections, a + sections]);
+            }
+        }
+        m
     }
 
     #[test]
     fn a_tree_mesh_gives_a_trunk_as_wide_as_its_base_and_a_canopy_as_wide_as_its_crown() {
         // A 0.25 m trunk to 4 m, crown 2 m wide up to 6 m.
-        let m = points(&[[0.25, 0.0, 0.0], [0.0, -0.25, 0.9], [0.0, 0.2, 4.0], [2.0, 0.0, 5.0], [0.0, 0.0, 6.0]]);
-        let e = extent(&m).unwrap();
-        assert_eq!((e.base_radius_m, e.radius_m, e.top_m), (0.25, 2.0, 6.0));
+        let m = lathe(&[(0.25, 0.0), (0.25, 4.0), (2.0, 5.0), (0.0, 6.0)], 4);
+        let mut e = extent(&m).unwrap();
+        // Single-precision vertices: off the axes, a radius is exact to about 1e-14.
+        let near = |a: f64, b: f64| (a - b).abs() < 1e-12;
+        assert!(near(e.base_radius_m, 0.25) && near(e.radius_m, 2.0) && e.top_m == 6.0, "{e:?}");
+        (e.base_radius_m, e.radius_m) = (0.25, 2.0);
         let Shape::Trunk { radius_m, height_m, canopy_radius_m, canopy_height_m } =
             fitted_shape(ObjectClass::Tree, &e).unwrap()
         else {
@@ -149,9 +219,40 @@ mod tests {
 
     #[test]
     fn a_mesh_that_does_not_stand_on_its_origin_is_refused() {
-        assert!(extent(&points(&[[0.0, 0.0, 2.0], [0.5, 0.0, 3.0]])).unwrap_err().contains("stand on its origin"));
-        assert!(extent(&points(&[[0.0, 0.0, -1.0]])).unwrap_err().contains("above the ground"));
-        assert!(extent(&points(&[[f32::NAN, 0.0, 0.5]])).is_err());
-        assert!(extent(&TriMesh::default()).is_err());
+        let e = extent(&lathe(&[(0.5, 2.0), (0.5, 3.0)], 8)).unwrap_err();
+        assert!(e.contains("stand on its origin"), "{e}");
+        assert!(extent(&lathe(&[(0.5, -2.0), (0.5, -1.0)], 8)).unwrap_err().contains("above the ground"));
+        let mut nan = lathe(&[(0.5, 0.0), (0.5, 1.0)], 8);
+        nan.positions[3][0] = f32::NAN;
+        assert!(extent(&nan).unwrap_err().contains("not a finite number"));
+        assert!(extent(&TriMesh::default()).unwrap_err().contains("no triangle of any area"));
+    }
+
+    /// The extent is the drawn surface's: a trunk sunk into the ground is measured where it
+    /// crosses the base slice, not by stray vertices; unused vertices and triangles of no
+    /// area change nothing.
+    #[test]
+    fn the_extent_is_measured_on_the_surface_that_is_drawn() {
+        // Vertices only at -5 cm and 3.95 m: the slice cuts the sides.
+        let sunk = lathe(&[(0.3, -0.05), (0.3, 3.95)], 16);
+        let e = extent(&sunk).unwrap();
+        assert!((e.base_radius_m - 0.3).abs() < 1e-6 && (e.top_m - 3.95).abs() < 1e-6, "{e:?}");
+        // A small knot inside the trunk does not make it thin.
+        let mut knot = sunk.clone();
+        knot.append(&lathe(&[(0.05, 0.4), (0.05, 0.6)], 4));
+        assert_eq!(extent(&knot).unwrap().base_radius_m, e.base_radius_m);
+        // A vertex no triangle uses, and a sliver of three points on a line, far out.
+        let mut stray = sunk.clone();
+        stray.positions.push([5.0, 4.0, 0.0]);
+        let n = stray.positions.len() as u32;
+        stray.positions.extend([[0.0, 3.0, 1.0], [3.0, 3.0, 1.0], [1.5, 3.0, 1.0]]);
+        stray.indices.extend([n, n + 1, n + 2]);
+        assert_eq!(extent(&stray).unwrap(), e);
+        let flat = TriMesh {
+            positions: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 1.0], [2.0, 0.0, 2.0]],
+            indices: vec![0, 1, 2],
+            ..Default::default()
+        };
+        assert!(extent(&flat).unwrap_err().contains("no triangle of any area"));
     }
 }

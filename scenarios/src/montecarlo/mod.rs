@@ -614,6 +614,12 @@ mod tests {
         let _ = std::fs::remove_dir_all(&out);
         check_values_differ(&plan("world.seed=5..6:2"), &s).unwrap();
         check_values_differ(&plan("sim.odometry.scale_sigma=0..0.02:3"), &s).unwrap();
+        // A camera setting where no method reads the camera: every value's runs alike.
+        let e = check_values_differ(&plan("sim.camera.exposure_sigma=0..0.2:2"), &s).unwrap_err().to_string();
+        assert!(e.contains("--vary sim.camera.exposure_sigma: no method of the study (nn) reads the camera"), "{e}");
+        let with_camera =
+            StudyPlan { methods: vec!["nn".into(), "combined".into()], ..plan("appearance.training_seed=1..2:2") };
+        check_values_differ(&with_camera, &s).unwrap();
     }
 
     #[test]

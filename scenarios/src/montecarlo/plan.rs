@@ -346,6 +346,25 @@ pub fn jobs(plan: &StudyPlan) -> Vec<Job> {
 /// values that differ as typed could be one job run twice under two keys. A value the
 /// scenario refuses is left to the check of each job, which names it.
 pub(super) fn check_values_differ(plan: &StudyPlan, base: &Scenario) -> Result<(), StudyError> {
+    // Settings that only a method reading the camera uses: the position-only methods run
+    // without the camera and its segmentation, and train no appearance model.
+    const CAMERA_ONLY: [&str; 3] = ["appearance.", "sim.camera.", "pipeline.segmentation."];
+    let methods: Vec<slam::association::AssociationMethod> = if plan.methods.is_empty() {
+        vec![base.pipeline.method]
+    } else {
+        plan.methods.iter().filter_map(|m| slam::association::AssociationMethod::from_name(m)).collect()
+    };
+    for v in &plan.vary {
+        if CAMERA_ONLY.iter().any(|p| v.param.starts_with(p)) && !methods.iter().any(|m| m.uses_appearance()) {
+            let names: Vec<&str> = methods.iter().map(|m| m.name()).collect();
+            return Err(StudyError::Plan(format!(
+                "--vary {}: no method of the study ({}) reads the camera, so every value's runs would be alike; \
+                 add a camera method (--methods combined,...) or vary another setting",
+                v.param,
+                names.join(", ")
+            )));
+        }
+    }
     for v in &plan.vary {
         let mut seen: BTreeMap<String, f64> = BTreeMap::new();
         for &x in &v.values {
