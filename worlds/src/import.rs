@@ -111,6 +111,15 @@ fn clip_to_heights(triangle: &[[f64; 3]; 3], low: f64, high: f64) -> Vec<[f64; 3
 /// mesh's base, as tall as the mesh, a tree's canopy or a palm's crown as wide as the mesh;
 /// a wall as its box.
 pub fn fitted_shape(class: ObjectClass, e: &MeshExtent) -> Result<Shape, String> {
+    // To the micrometre: a mesh's single-precision vertices would write 0.30000001192092896.
+    let um = |m: f64| (m * 1e6).round() / 1e6;
+    let e = &MeshExtent {
+        base_radius_m: um(e.base_radius_m),
+        radius_m: um(e.radius_m),
+        top_m: um(e.top_m),
+        half_x_m: um(e.half_x_m),
+        half_y_m: um(e.half_y_m),
+    };
     Ok(match class {
         ObjectClass::Tree => {
             // The canopy fills the upper third, centred on the trunk's top.
@@ -202,10 +211,11 @@ mod tests {
         // A 0.25 m trunk to 4 m, crown 2 m wide up to 6 m.
         let m = lathe(&[(0.25, 0.0), (0.25, 4.0), (2.0, 5.0), (0.0, 6.0)], 4);
         let mut e = extent(&m).unwrap();
-        // Single-precision vertices: off the axes, a radius is exact to about 1e-14.
+        // Single-precision vertices: off the axes, a radius is exact to about 1e-14; the
+        // fitted shape is given to the micrometre.
         let near = |a: f64, b: f64| (a - b).abs() < 1e-12;
         assert!(near(e.base_radius_m, 0.25) && near(e.radius_m, 2.0) && e.top_m == 6.0, "{e:?}");
-        (e.base_radius_m, e.radius_m) = (0.25, 2.0);
+        (e.base_radius_m, e.radius_m) = (0.25 + 1e-9, 2.0 - 1e-9);
         let Shape::Trunk { radius_m, height_m, canopy_radius_m, canopy_height_m } =
             fitted_shape(ObjectClass::Tree, &e).unwrap()
         else {
