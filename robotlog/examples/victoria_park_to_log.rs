@@ -18,11 +18,6 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         None => f64::INFINITY,
     };
     let mut log = robotlog::victoria_park::read(std::path::Path::new(data))?;
-    // Without GPS a robot log has no [reference] table, and its estimate then describes the
-    // vehicle frame (the rear axle), not the laser.
-    if log.reference.is_empty() {
-        log.manifest.reference = None;
-    }
     let first = [
         match &log.motion {
             Motion::Increments(v) => v.first().map(|o| o.t),
@@ -46,6 +41,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         Observations::Detections(v) => v.retain(|s| s.t < until),
     }
     log.reference.retain(|r| r.t < until);
+    // Without GPS (none in the files, or none in the part kept) a robot log has no
+    // [reference] table, and its replay's estimate then describes the vehicle frame (the
+    // rear axle), not the laser as `objslam replay victoria-park` does.
+    if log.reference.is_empty() {
+        log.manifest.reference = None;
+    }
     robotlog::format::write(std::path::Path::new(out), &log)?;
     println!("{} controls and {} scans of Victoria Park written to {out}", log.motion.len(), log.observations.len());
     Ok(())

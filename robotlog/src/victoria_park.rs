@@ -158,6 +158,12 @@ fn load(file: &Path) -> Result<MatFile, LogError> {
                 .into(),
         });
     }
+    if bytes.starts_with(b"MATLAB 7.3") {
+        return Err(LogError::File {
+            file: file.to_path_buf(),
+            problem: "a MAT-file of version 7.3 (HDF5), which is not read: save it with MATLAB's `save -v7`".into(),
+        });
+    }
     normalise_header_text(&mut bytes);
     PARSING.with(|p| p.set(true));
     let parsed = std::panic::catch_unwind(|| matrw::load_matfile_from_u8(&bytes));
@@ -460,7 +466,9 @@ fn read_laser(file: &Path) -> Result<Observations, LogError> {
         });
     }
     // Ranges in another unit: in metres no beam reaches 100 (nor the no-return code
-    // 8000); in millimetres every beam of a park reads as no return.
+    // above 8000); in millimetres the no-return code (8183 cm) reads 81,830, more than the
+    // 65,535 a uint16 reading in centimetres holds, and where no beam saw nothing, every
+    // beam beyond 8 m reads as no return.
     let largest = ranges.iter().copied().fold(0.0, f64::max);
     if !ranges.is_empty() && largest < 100.0 {
         return Err(LogError::File {
@@ -468,6 +476,15 @@ fn read_laser(file: &Path) -> Result<Observations, LogError> {
             problem: format!(
                 "`LASER`: no range of any scan reaches 100 (the largest is {largest}), so none reaches 1 m if these \
                  are centimetres: ranges in metres?"
+            ),
+        });
+    }
+    if largest > f64::from(u16::MAX) {
+        return Err(LogError::File {
+            file: file.to_path_buf(),
+            problem: format!(
+                "`LASER`: a range of {largest}, more than the 65535 the data set's 16-bit centimetres hold (no return \
+                 is 8183): ranges in millimetres?"
             ),
         });
     }

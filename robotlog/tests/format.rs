@@ -739,6 +739,11 @@ fn victoria_park_originals_are_read_as_controls_and_raw_scans() {
         e.contains("aa3_lsr2.mat: not a MAT-file of version 5 or 7: its header does not open with `MATLAB`"),
         "{e}"
     );
+    let mut v73 = b"MATLAB 7.3 MAT-file, Platform: GLNXA64, Created on: Mon Dec  7 2026 HDF5 schema 1.00 .".to_vec();
+    v73.resize(600, b' ');
+    std::fs::write(d.join("aa3_lsr2.mat"), v73).unwrap();
+    let e = robotlog::victoria_park::read(&d).unwrap_err().to_string();
+    assert!(e.contains("aa3_lsr2.mat: a MAT-file of version 7.3 (HDF5), which is not read"), "{e}");
     let mut header = b"MATLAB 5.0 MAT-file, cut short".to_vec();
     header.resize(300, b'x');
     std::fs::write(d.join("aa3_lsr2.mat"), header).unwrap();
@@ -813,6 +818,8 @@ fn victoria_park_files_in_other_units_or_of_other_kinds_are_refused() {
     assert!(error().contains("aa3_lsr2.mat: `LASER`: no range of any scan reaches 100"), "{}", error());
     write_lsr(vec![1010.0, 1220.0], 15000.0);
     assert!(error().contains("aa3_lsr2.mat: `LASER`: every range of every scan is above 8000 cm"), "{}", error());
+    write_lsr(vec![1010.0, 1220.0], 81830.0);
+    assert!(error().contains("aa3_lsr2.mat: `LASER`: a range of 81830, more than the 65535"), "{}", error());
     write_lsr(vec![1010.0, 1220.0], 1500.0);
     // GPS in seconds, and GPS with no fix.
     let write_gps = |times: Vec<f64>, lo: Vec<f64>| {

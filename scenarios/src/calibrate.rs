@@ -941,7 +941,7 @@ fn extrinsics_of(path: &Path, v: &serde_json::Value) -> Result<Extrinsics, Calib
     // A hand-written file may leave the version out; one that gives it is read only by
     // the version it names, since a later format may mean its fields otherwise.
     if let Some(version) = obj.get("format_version")
-        && version.as_u64() != Some(CALIBRATION_FORMAT_VERSION as u64)
+        && version.as_f64() != Some(f64::from(CALIBRATION_FORMAT_VERSION))
     {
         return Err(bad(
             "format_version",

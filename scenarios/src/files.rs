@@ -79,10 +79,15 @@ pub fn sha256_hex(file: &std::path::Path) -> Option<String> {
 }
 
 /// An input's path as a run records it (`metadata.json`, `scenario.toml`): absolute, with
-/// `.`, `..` and links resolved where the file is there (a scenario run from another
-/// directory names its world through `..`).
+/// `.`, `..` and links resolved in its directory where that is there (a scenario run from
+/// another directory names its world through `..`). The file's own name is kept, link or
+/// not: a world finds its meshes beside the name it was read by.
 pub fn recorded_path(file: &std::path::Path) -> std::path::PathBuf {
-    std::fs::canonicalize(file).or_else(|_| std::path::absolute(file)).unwrap_or_else(|_| file.to_path_buf())
+    let absolute = std::path::absolute(file).unwrap_or_else(|_| file.to_path_buf());
+    match (absolute.parent().map(std::fs::canonicalize), absolute.file_name()) {
+        (Some(Ok(dir)), Some(name)) => dir.join(name),
+        _ => absolute,
+    }
 }
 
 /// The first of `inputs` (each with what it is) that lies in the directory `out` under one

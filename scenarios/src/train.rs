@@ -260,11 +260,8 @@ pub fn open_image_to_classify(path: &Path) -> Result<image::RgbImage, TrainError
     if !image.color().has_color() {
         return Err(file_err(
             path,
-            format!(
-                "a greyscale image ({:?}); the appearance model's features include each pixel's colour, so \
-                 give a colour image",
-                image.color()
-            ),
+            "stored as a greyscale image; the appearance model's features include each pixel's colour, so give a \
+             colour image",
         ));
     }
     Ok(image.to_rgb8())
@@ -726,7 +723,7 @@ mod tests {
         let grey = dir.join("grey.png");
         image::GrayImage::from_pixel(20, 10, image::Luma([90])).save(&grey).unwrap();
         let e = open_image_to_classify(&grey).unwrap_err().to_string();
-        assert!(e.contains("grey.png") && e.contains("a greyscale image"), "{e}");
+        assert!(e.contains("grey.png") && e.contains("stored as a greyscale image"), "{e}");
         let colour = dir.join("colour.png");
         image::RgbImage::from_pixel(20, 10, image::Rgb([90, 90, 90])).save(&colour).unwrap();
         assert_eq!(open_image_to_classify(&colour).unwrap().dimensions(), (20, 10));

@@ -180,6 +180,17 @@ fn recorded_scenario_runs_the_run_again() {
         changed.len() == 1 && changed[0].starts_with("world file ") && changed[0].contains("has changed"),
         "{changed:?}"
     );
+    // A run recorded before paths were resolved named its inputs as given, `..` and all.
+    let mut meta: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("metadata.json")).unwrap()).unwrap();
+    for input in meta["configuration"]["inputs"].as_array_mut().unwrap() {
+        if input["what"] == "world file" {
+            input["file"] = serde_json::json!(inputs.join("../inputs/w.toml"));
+        }
+    }
+    std::fs::write(out.join("metadata.json"), meta.to_string()).unwrap();
+    let again = scenarios::run::changed_inputs(&written, &recorded, &base);
+    assert!(again.len() == 1 && again[0].contains("/inputs/../inputs/w.toml has changed"), "{again:?}");
     // The model a camera run used is compared after the new run: another cache's is named.
     let mut meta: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("metadata.json")).unwrap()).unwrap();

@@ -8,10 +8,12 @@ use crate::mesh::TriMesh;
 /// part a laser a few decimetres up sees.
 pub const BASE_SLICE_M: f64 = 1.0;
 
-/// Triangles smaller than this (m²) are left out of a mesh's extent: no camera or laser
-/// sees a square micrometre, and a triangle of three points on a line (a modelling slip)
-/// would otherwise size the collider with a surface that is not drawn.
-const MIN_TRIANGLE_AREA_M2: f64 = 1e-12;
+/// Triangles whose area is at most this fraction of their longest edge squared are left
+/// out of a mesh's extent: three points on a line (a modelling slip), which the
+/// single-precision vertices of a file leave about 1e-7 of an edge off the line, draw
+/// nothing, and would size the collider with a surface no camera sees. A blade of grass
+/// 1 m long and 1 mm wide is 5e-4 of its edge squared.
+const MIN_TRIANGLE_AREA_PER_EDGE2: f64 = 1e-6;
 
 /// What the mesh's surface says of its size, in its own frame (z up, origin on the ground
 /// at the object's pose): only triangles with area count, so vertices no triangle uses
@@ -46,7 +48,10 @@ pub fn extent(mesh: &TriMesh) -> Result<MeshExtent, String> {
             let p = mesh.positions.get(i as usize).ok_or_else(|| format!("the mesh's index {i} names no vertex"))?;
             *corner = p.map(f64::from);
         }
-        if area(&triangle) <= MIN_TRIANGLE_AREA_M2 {
+        let [a, b, c] = triangle;
+        let edge2 = |p: [f64; 3], q: [f64; 3]| (0..3).map(|k| (p[k] - q[k]).powi(2)).sum::<f64>();
+        let longest2 = edge2(a, b).max(edge2(b, c)).max(edge2(c, a));
+        if area(&triangle) <= MIN_TRIANGLE_AREA_PER_EDGE2 * longest2 {
             continue;
         }
         surfaces += 1;
@@ -251,12 +256,14 @@ mod tests {
         let mut knot = sunk.clone();
         knot.append(&lathe(&[(0.05, 0.4), (0.05, 0.6)], 4));
         assert_eq!(extent(&knot).unwrap().base_radius_m, e.base_radius_m);
-        // A vertex no triangle uses, and a sliver of three points on a line, far out.
+        // A vertex no triangle uses, and slivers of three points on a line far out: exactly,
+        // and as single-precision vertices leave them.
         let mut stray = sunk.clone();
         stray.positions.push([5.0, 4.0, 0.0]);
         let n = stray.positions.len() as u32;
         stray.positions.extend([[0.0, 3.0, 1.0], [3.0, 3.0, 1.0], [1.5, 3.0, 1.0]]);
-        stray.indices.extend([n, n + 1, n + 2]);
+        stray.positions.extend([[5.0, 4.0, 0.3], [0.1, 0.7, 0.9], [-4.8, -2.6, 1.5]]);
+        stray.indices.extend([n, n + 1, n + 2, n + 3, n + 4, n + 5]);
         assert_eq!(extent(&stray).unwrap(), e);
         let flat = TriMesh {
             positions: vec![[0.0, 0.0, 0.0], [1.0, 0.0, 1.0], [2.0, 0.0, 2.0]],

@@ -127,113 +127,125 @@ pub fn run_study_with(
     progress: impl Fn(StudyProgress) + Sync,
 ) -> Result<Vec<RunRecord>, StudyError> {
     plan.check()?;
+    // The plan against its scenario, before anything is made.
+    let (pin, base_scenario, base_dir) = pin_scenario(&plan.scenario)?;
+    check_values_differ(plan, &base_scenario)?;
     // One study at a time per directory, as for any output directory: the hold goes with
     // the process, however it ends.
     let held = hold(out)?;
-    let plan_file = out.join("study.json");
-    let (pin, base_scenario, base_dir) = pin_scenario(&plan.scenario)?;
-    check_values_differ(plan, &base_scenario)?;
-    if !existing_study(plan, &pin, out)? {
-        let study =
-            StudyFile { plan: plan.clone(), scenario_pin: Some(pin.clone()), build: Some(crate::build::current()) };
-        write_atomically(&plan_file, &serde_json::to_string_pretty(&study).expect("JSON"))?
-    }
-    let models = StudyModels::new(&base_dir);
-    let runs_file = out.join("runs.jsonl");
-    let existing: Vec<RunRecord> =
-        read_runs_of(&runs_file, plan, Repair::TornLastLine)?.into_iter().filter(|r| !r.retryable).collect();
-    let done: BTreeSet<String> = existing.iter().map(|r| r.key.clone()).collect();
-    let mine: Vec<Job> = jobs(plan).into_iter().filter(|j| shard.contains(j)).collect();
-    let todo: Vec<&Job> = mine.iter().filter(|j| !done.contains(&j.key())).collect();
-    // Every job's scenario and method are checked before the first run, so a bad setting
-    // fails the study at once instead of every run. Every appearance model the jobs need
-    // (one per setting of the training and the camera a study varies) is resolved here
-    // too, trained and cached if need be, so runs and worker processes only load them.
-    for job in &todo {
-        let scenario = job_scenario(&base_scenario, job)?;
-        let method = AssociationMethod::from_name(&job.method)
-            .ok_or_else(|| StudyError::Job { key: job.key(), message: format!("unknown method {:?}", job.method) })?;
-        crate::run::run_config(&scenario, Some(method))
-            .map_err(|e| StudyError::Job { key: job.key(), message: e.to_string() })?;
-        if let Some((setting, problem)) = scenario.camera_too_small_for(method) {
-            let message = format!("{}: {setting}: {problem}", scenario.describe());
-            return Err(StudyError::Job { key: job.key(), message });
+    // A study refused before its first run leaves no directory it made.
+    let studied = (|| -> Result<Vec<RunRecord>, StudyError> {
+        let plan_file = out.join("study.json");
+        if !existing_study(plan, &pin, out)? {
+            let study =
+                StudyFile { plan: plan.clone(), scenario_pin: Some(pin.clone()), build: Some(crate::build::current()) };
+            write_atomically(&plan_file, &serde_json::to_string_pretty(&study).expect("JSON"))?
         }
-        if job_needs_appearance(job, &scenario) {
-            models
-                .resolve(&scenario, |stage, done, total| progress(StudyProgress::Training { stage, done, total }))
-                .map_err(|e| StudyError::Appearance(Box::new(e)))?;
-        }
-    }
-    let total = mine.len();
-    let finished = std::sync::atomic::AtomicUsize::new(total - todo.len());
-    progress(StudyProgress::Runs { done: finished.load(std::sync::atomic::Ordering::Relaxed), total });
-    let file = Mutex::new(
-        OpenOptions::new()
-            .create(true)
-            .append(true)
-            .open(&runs_file)
-            .map_err(|e| StudyError::Io { file: runs_file.clone(), source: e })?,
-    );
-    // Appends a finished run at once, in one synced write of the whole line: a kill leaves
-    // at most one partial line, which the next start drops; a failed write is cut back and
-    // fails the study once the other runs are done (the run is redone on resume).
-    let append_failures: Mutex<(usize, String)> = Mutex::new((0, String::new()));
-    let record_finished = |record: &RunRecord| {
-        {
-            let mut f = file.lock().unwrap_or_else(|p| p.into_inner());
-            if let Err(e) = append_record(&mut f, record) {
-                let mut failed = append_failures.lock().unwrap_or_else(|p| p.into_inner());
-                failed.0 += 1;
-                failed.1 = e.to_string();
+        let models = StudyModels::new(&base_dir);
+        let runs_file = out.join("runs.jsonl");
+        let existing: Vec<RunRecord> =
+            read_runs_of(&runs_file, plan, Repair::TornLastLine)?.into_iter().filter(|r| !r.retryable).collect();
+        let done: BTreeSet<String> = existing.iter().map(|r| r.key.clone()).collect();
+        let mine: Vec<Job> = jobs(plan).into_iter().filter(|j| shard.contains(j)).collect();
+        let todo: Vec<&Job> = mine.iter().filter(|j| !done.contains(&j.key())).collect();
+        // Every job's scenario and method are checked before the first run, so a bad setting
+        // fails the study at once instead of every run. Every appearance model the jobs need
+        // (one per setting of the training and the camera a study varies) is resolved here
+        // too, trained and cached if need be, so runs and worker processes only load them.
+        for job in &todo {
+            let scenario = job_scenario(&base_scenario, job)?;
+            let method = AssociationMethod::from_name(&job.method).ok_or_else(|| StudyError::Job {
+                key: job.key(),
+                message: format!("unknown method {:?}", job.method),
+            })?;
+            crate::run::run_config(&scenario, Some(method))
+                .map_err(|e| StudyError::Job { key: job.key(), message: e.to_string() })?;
+            if let Some((setting, problem)) = scenario.camera_too_small_for(method) {
+                let message = format!("{}: {setting}: {problem}", scenario.describe());
+                return Err(StudyError::Job { key: job.key(), message });
+            }
+            if job_needs_appearance(job, &scenario) {
+                models
+                    .resolve(&scenario, |stage, done, total| progress(StudyProgress::Training { stage, done, total }))
+                    .map_err(|e| StudyError::Appearance(Box::new(e)))?;
             }
         }
-        let n = finished.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
-        progress(StudyProgress::Runs { done: n, total });
-    };
-    let new: Vec<RunRecord> = match workers {
-        Workers::Threads => todo
-            .par_iter()
-            .map(|job| {
-                let record = run_job(&base_scenario, &base_dir, job, &models);
-                record_finished(&record);
-                record
-            })
-            .collect(),
-        Workers::Processes { exe, count, run_timeout } => {
-            // Workers load the scenario themselves: they are told which one the study pinned.
-            let start = StudyFile { plan: plan.clone(), scenario_pin: Some(pin.clone()), build: None };
-            workers::run_in_processes(&start, &todo, exe, *count, *run_timeout, &record_finished)?
+        let total = mine.len();
+        let finished = std::sync::atomic::AtomicUsize::new(total - todo.len());
+        progress(StudyProgress::Runs { done: finished.load(std::sync::atomic::Ordering::Relaxed), total });
+        let file = Mutex::new(
+            OpenOptions::new()
+                .create(true)
+                .append(true)
+                .open(&runs_file)
+                .map_err(|e| StudyError::Io { file: runs_file.clone(), source: e })?,
+        );
+        // Appends a finished run at once, in one synced write of the whole line: a kill leaves
+        // at most one partial line, which the next start drops; a failed write is cut back and
+        // fails the study once the other runs are done (the run is redone on resume).
+        let append_failures: Mutex<(usize, String)> = Mutex::new((0, String::new()));
+        let record_finished = |record: &RunRecord| {
+            {
+                let mut f = file.lock().unwrap_or_else(|p| p.into_inner());
+                if let Err(e) = append_record(&mut f, record) {
+                    let mut failed = append_failures.lock().unwrap_or_else(|p| p.into_inner());
+                    failed.0 += 1;
+                    failed.1 = e.to_string();
+                }
+            }
+            let n = finished.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+            progress(StudyProgress::Runs { done: n, total });
+        };
+        let new: Vec<RunRecord> = match workers {
+            Workers::Threads => todo
+                .par_iter()
+                .map(|job| {
+                    let record = run_job(&base_scenario, &base_dir, job, &models);
+                    record_finished(&record);
+                    record
+                })
+                .collect(),
+            Workers::Processes { exe, count, run_timeout } => {
+                // Workers load the scenario themselves: they are told which one the study pinned.
+                let start = StudyFile { plan: plan.clone(), scenario_pin: Some(pin.clone()), build: None };
+                workers::run_in_processes(&start, &todo, exe, *count, *run_timeout, &record_finished)?
+            }
+        };
+        let (count, message) = append_failures.into_inner().unwrap_or_else(|p| p.into_inner());
+        if count > 0 {
+            return Err(StudyError::Append { file: runs_file, count, message });
         }
-    };
-    let (count, message) = append_failures.into_inner().unwrap_or_else(|p| p.into_inner());
-    if count > 0 {
-        return Err(StudyError::Append { file: runs_file, count, message });
-    }
-    // The append handle goes before its file is replaced. A failure here loses nothing:
-    // every run is on file, in the order the runs finished.
-    drop(file);
-    put_in_job_order(&runs_file).map_err(|e| StudyError::File {
-        file: runs_file.clone(),
-        message: format!(
-            "every run is recorded here, in the order the runs finished, but putting them in job order failed ({e}); run the same command again to finish"
-        ),
-    })?;
-    let keys: BTreeSet<String> = mine.iter().map(|j| j.key()).collect();
-    let mut all: Vec<RunRecord> = existing.into_iter().filter(|r| keys.contains(&r.key)).chain(new).collect();
-    all.sort_by_key(|r| r.job.index);
-    // The summary is the study's too: written while the directory is still held, so that
-    // another study starting there cannot write its own between.
-    if let Err(e) = one_model_per_setting(&all, &runs_file) {
-        // An earlier summary no longer describes the runs beside it.
-        for name in ["summary.csv", "summary.json"] {
-            let _ = std::fs::remove_file(out.join(name));
+        // The append handle goes before its file is replaced. A failure here loses nothing:
+        // every run is on file, in the order the runs finished.
+        drop(file);
+        put_in_job_order(&runs_file).map_err(|e| StudyError::File {
+            file: runs_file.clone(),
+            message: format!(
+                "every run is recorded here, in the order the runs finished, but putting them in job order failed ({e}); run the same command again to finish"
+            ),
+        })?;
+        let keys: BTreeSet<String> = mine.iter().map(|j| j.key()).collect();
+        let mut all: Vec<RunRecord> = existing.into_iter().filter(|r| keys.contains(&r.key)).chain(new).collect();
+        all.sort_by_key(|r| r.job.index);
+        // The summary is the study's too: written while the directory is still held, so that
+        // another study starting there cannot write its own between.
+        if let Err(e) = one_model_per_setting(&all, &runs_file) {
+            // An earlier summary no longer describes the runs beside it.
+            for name in ["summary.csv", "summary.json"] {
+                let _ = std::fs::remove_file(out.join(name));
+            }
+            return Err(e);
         }
-        return Err(e);
+        write_summary(plan, &all, out)?;
+        Ok(all)
+    })();
+    match studied {
+        Ok(all) => Ok(all),
+        Err(e) => {
+            held.release_failed();
+            Err(e)
+        }
     }
-    write_summary(plan, &all, out)?;
-    drop(held);
-    Ok(all)
 }
 
 /// Refuses runs of one setting (method and parameter values) made with different
@@ -279,8 +291,6 @@ pub fn check_study_dir(plan: &StudyPlan, out: &Path) -> Result<(), StudyError> {
     existing_study(plan, &pin, out).map(|_| ())
 }
 
-/// Whether `out` holds `plan`'s study already (`false`: it holds none); an error where it
-/// holds another, runs without their plan, or a generalisation benchmark.
 /// What [`write_summary`] writes beside a study's `study.json` and `runs.jsonl`.
 const SUMMARY_FILES: &[&str] = &["summary.csv", "summary.json", "failure_rate.png", "failure_rate.svg"];
 
@@ -298,6 +308,8 @@ pub(super) fn refuse_unowned_summary(out: &Path) -> Result<(), StudyError> {
     }
 }
 
+/// Whether `out` holds `plan`'s study already (`false`: it holds none); an error where it
+/// holds another, runs without their plan, or a generalisation benchmark.
 fn existing_study(plan: &StudyPlan, pin: &ScenarioPin, out: &Path) -> Result<bool, StudyError> {
     refuse_benchmark_dir(out)?;
     let plan_file = out.join("study.json");
@@ -610,7 +622,7 @@ mod tests {
         let out = std::env::temp_dir().join(format!("objslam-mc-alike-{}", std::process::id()));
         let e = run_study(&alike, Shard::all(), &out, |_| {}).unwrap_err().to_string();
         assert!(e.contains("set it alike"), "{e}");
-        assert!(!out.join("runs.jsonl").exists() && !out.join("study.json").exists(), "refused before the study began");
+        assert!(!out.exists(), "refused before the study began, leaving no directory");
         let _ = std::fs::remove_dir_all(&out);
         check_values_differ(&plan("world.seed=5..6:2"), &s).unwrap();
         check_values_differ(&plan("sim.odometry.scale_sigma=0..0.02:3"), &s).unwrap();

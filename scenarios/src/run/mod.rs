@@ -688,7 +688,8 @@ pub fn changed_inputs(scenario_file: &Path, scenario: &Scenario, base_dir: &Path
         .filter_map(|input| {
             let (what, file, then) = (input["what"].as_str()?, input["file"].as_str()?, input["sha256"].as_str()?);
             // A file the scenario no longer names is no longer this run's; a mesh is the world's.
-            if what != "mesh file" && !named.iter().any(|n| n == Path::new(file)) {
+            // Runs recorded before paths were resolved name them as given.
+            if what != "mesh file" && !named.iter().any(|n| *n == files::recorded_path(Path::new(file))) {
                 return None;
             }
             let by = scenario_file.display();
