@@ -252,7 +252,39 @@ pub fn import_object_mesh(world_file: &Path, mesh: &str) -> Result<TriMesh, Worl
     import_mesh(&path).map_err(|message| WorldError::Mesh { file: world_file.to_path_buf(), mesh: path, message })
 }
 
+/// Refuses what glTF 2.0 forbids and a file could still hold, which would be read as
+/// some other placement: another version, a node with both a matrix and
+/// translation/rotation/scale (the matrix would win silently), a matrix that is not affine,
+/// a rotation that is not a unit quaternion.
+fn check_document(doc: &gltf::Document) -> Result<(), String> {
+    let json = doc.as_json();
+    if !json.asset.version.starts_with("2.") {
+        return Err(format!("asset.version is {:?}; glTF 2.0 files are read", json.asset.version));
+    }
+    for (i, node) in json.nodes.iter().enumerate() {
+        if let Some(m) = node.matrix {
+            if node.translation.is_some() || node.rotation.is_some() || node.scale.is_some() {
+                return Err(format!(
+                    "node {i}: both a matrix and translation, rotation or scale; glTF allows one or the other"
+                ));
+            }
+            if [m[3], m[7], m[11], m[15]] != [0.0, 0.0, 0.0, 1.0] {
+                return Err(format!("node {i}: the matrix's last row is not (0, 0, 0, 1)"));
+            }
+        }
+        if let Some(q) = &node.rotation {
+            let length = q.0.iter().map(|v| v * v).sum::<f32>().sqrt();
+            // Exporters write unit quaternions to single precision.
+            if !((length - 1.0).abs() <= 1e-3) {
+                return Err(format!("node {i}: rotation {:?} is not a unit quaternion (length {length})", q.0));
+            }
+        }
+    }
+    Ok(())
+}
+
 fn import_document(doc: &gltf::Document, buffers: &[gltf::buffer::Data]) -> Result<TriMesh, String> {
+    check_document(doc)?;
     let scene = doc.default_scene().or_else(|| doc.scenes().next()).ok_or("the file has no scene")?;
     let mut out = TriMesh::default();
     let identity = [[1.0f32, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]];
@@ -921,6 +953,31 @@ mod tests {
         ))
         .unwrap_err();
         assert!(e.starts_with("mesh 0 primitive 0: a position is not finite"), "{e}");
+    }
+
+    #[test]
+    fn node_transforms_gltf_forbids_are_refused() {
+        let with_node = |node: serde_json::Value, version: &str| {
+            let root = serde_json::json!({
+                "asset": {"version": version}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [node],
+                "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "mode": 5}]}],
+                "accessors": [positions(4)], "bufferViews": [{"buffer": 0, "byteLength": 48}],
+                "buffers": [{"byteLength": 48}]
+            });
+            import_mesh_slice(&glb_bytes(&root, &square()))
+        };
+        let identity = [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1];
+        with_node(serde_json::json!({"mesh": 0, "matrix": identity}), "2.0").unwrap();
+        with_node(serde_json::json!({"mesh": 0, "rotation": [0, 0.6, 0, 0.8]}), "2.0").unwrap();
+        let e = with_node(serde_json::json!({"mesh": 0, "matrix": identity, "translation": [1, 0, 0]}), "2.0");
+        assert!(e.unwrap_err().contains("node 0: both a matrix and translation"));
+        let w0 = [1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 0];
+        let e = with_node(serde_json::json!({"mesh": 0, "matrix": w0}), "2.0");
+        assert!(e.unwrap_err().contains("the matrix's last row is not (0, 0, 0, 1)"));
+        let e = with_node(serde_json::json!({"mesh": 0, "rotation": [0, 0, 0, 0]}), "2.0");
+        assert!(e.unwrap_err().contains("is not a unit quaternion"));
+        let e = with_node(serde_json::json!({"mesh": 0}), "1.0");
+        assert!(e.unwrap_err().contains("asset.version is \"1.0\"; glTF 2.0 files are read"));
     }
 
     #[test]
