@@ -278,7 +278,7 @@ fn check_out(out: &Path) -> Result<(), DatasetError> {
     if out.join("dataset.json").is_file() || unfinished.join("dataset.json").is_file() {
         return Ok(());
     }
-    match OUTPUTS.iter().find(|name| std::fs::symlink_metadata(out.join(name)).is_ok()) {
+    match files::first_present(out, OUTPUTS) {
         Some(name) => Err(DatasetError::Config(format!(
             "--out {}: holds {name} but no dataset.json, so it is not an earlier dataset, and a dataset would replace \
              it; give a new or empty directory",

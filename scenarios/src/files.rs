@@ -78,6 +78,12 @@ pub fn sha256_hex(file: &std::path::Path) -> Option<String> {
     Some(Sha256::digest(&bytes).iter().map(|b| format!("{b:02x}")).collect())
 }
 
+/// The first of `names` that stands in `dir` (a file, a folder, or a link, even one to
+/// nothing): what a command that writes those names there would replace or remove.
+pub fn first_present<'a>(dir: &std::path::Path, names: &[&'a str]) -> Option<&'a str> {
+    names.iter().copied().find(|name| dir.join(name).symlink_metadata().is_ok())
+}
+
 /// An input's path as a run records it (`metadata.json`, `scenario.toml`): absolute, with
 /// `.`, `..` and links resolved in its directory where that is there (a scenario run from
 /// another directory names its world through `..`). The file's own name is kept, link or

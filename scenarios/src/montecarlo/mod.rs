@@ -297,7 +297,7 @@ const SUMMARY_FILES: &[&str] = &["summary.csv", "summary.json", "failure_rate.pn
 /// Refuses a directory without a study that holds files of a summary's names: someone's
 /// own, which the study's summary would replace.
 pub(super) fn refuse_unowned_summary(out: &Path) -> Result<(), StudyError> {
-    match SUMMARY_FILES.iter().find(|n| out.join(n).symlink_metadata().is_ok()) {
+    match crate::files::first_present(out, SUMMARY_FILES) {
         Some(name) => Err(StudyError::File {
             file: out.join(name),
             message: "a study writes this file, but the directory holds no study (no study.json); move it away or \

@@ -423,7 +423,7 @@ fn refuse_other_outputs(dir: &Path) -> Result<(), ReplayError> {
     if dir.join(robotlog::format::MANIFEST).exists() {
         return holds("a robot log (manifest.toml)".into());
     }
-    if let Some(name) = robotlog::victoria_park::FILES.iter().find(|n| dir.join(n).symlink_metadata().is_ok()) {
+    if let Some(name) = files::first_present(dir, robotlog::victoria_park::FILES) {
         return holds(format!("a data set's files ({name})"));
     }
     let Ok(text) = std::fs::read_to_string(dir.join(files::METADATA)) else { return Ok(()) };

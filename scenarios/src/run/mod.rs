@@ -446,7 +446,7 @@ fn check_earlier_outputs_are_a_runs(out: &Path) -> Result<(), RunError> {
     if std::fs::symlink_metadata(out.join(files::METADATA)).is_ok() {
         return Ok(());
     }
-    match files::RUN_OUTPUTS.iter().find(|name| std::fs::symlink_metadata(out.join(name)).is_ok()) {
+    match files::first_present(out, files::RUN_OUTPUTS) {
         Some(name) => Err(RunError::UnownedOutputs { name, out: out.to_path_buf() }),
         None => Ok(()),
     }
