@@ -525,6 +525,12 @@ impl Iterator for ScanRows {
             .iter()
             .map(|r| match r {
                 Some(v) if v.is_nan() => Err(self.rows.problem(line, "a range is NaN: write no return as `inf`")),
+                // A finite negative range is no distance at all: a sign or unit slip, not a
+                // reading to be taken as too close.
+                Some(v) if v.is_finite() && *v < 0.0 => Err(self.rows.problem(
+                    line,
+                    format!("a range of {v} m is negative: write a return too close to measure as `-inf`"),
+                )),
                 Some(v) => Ok(*v),
                 None => Ok(f64::INFINITY),
             })

@@ -209,6 +209,7 @@ fn malformed_files_are_errors_that_name_file_and_line() {
         ("scans.csv", "t\n0\n", "scans.csv:1: no beam column after `t`"),
         ("odometry.csv", "t,speed,steering\n0,1,0\n", "needs `t,dx,dy,dtheta` or `t,v,omega`"),
         ("scans.csv", "t,r0,r1\n0,1,NaN\n", "scans.csv:2: a range is NaN"),
+        ("scans.csv", "t,r0,r1\n0,1,1\n0.2,-2.5,1\n", "scans.csv:3: a range of -2.5 m is negative"),
         ("reference.csv", "t,x,y\n0,1,inf\n", "reference.csv:2: `y` must be finite"),
         (
             "manifest.toml",

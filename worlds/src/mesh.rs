@@ -147,7 +147,14 @@ pub fn ellipsoid(c: [f64; 3], r: [f64; 3], segments: usize, rings: usize, tile: 
     for j in 0..rings as u32 {
         for i in 0..segments as u32 {
             let (a, b, c2, d) = (j * w + i, j * w + i + 1, (j + 1) * w + i, (j + 1) * w + i + 1);
-            m.indices.extend_from_slice(&[a, c2, d, a, d, b]);
+            // At a pole a ring is one point: of each quad only the triangle that spans the
+            // next ring has an area (the other would be a zero-area sliver in an export).
+            if j + 1 < rings as u32 {
+                m.indices.extend_from_slice(&[a, c2, d]);
+            }
+            if j > 0 {
+                m.indices.extend_from_slice(&[a, d, b]);
+            }
         }
     }
     m
@@ -502,16 +509,15 @@ mod tests {
 
     /// Renderers may skip back faces of these meshes and light the rest with their normals
     /// as given (see `render::MeshData::cull_back_faces`): every triangle must be
-    /// counter-clockwise seen from the side its vertex normals point to.
+    /// counter-clockwise seen from the side its vertex normals point to, and have an area.
     fn assert_wound_outwards(m: &TriMesh, name: &str) {
         for t in m.indices.chunks(3) {
             let t = [t[0], t[1], t[2]];
             let [a, b, c] = t.map(|i| m.positions[i as usize]);
             let n = winding_normal(a, b, c);
             let area2 = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-            if area2 < 1e-9 {
-                continue; // degenerate (ellipsoid poles): covers no pixel
-            }
+            // A zero-area triangle covers no pixel, but an exported mesh should hold none.
+            assert!(area2 > 1e-9, "{name}: triangle {t:?} has no area");
             let vn: [f64; 3] = std::array::from_fn(|k| t.iter().map(|&i| m.normals[i as usize][k] as f64).sum());
             let agree = n[0] * vn[0] + n[1] * vn[1] + n[2] * vn[2] > 0.0;
             assert!(agree, "{name}: triangle {t:?} is wound against its normals");
