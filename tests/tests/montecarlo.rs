@@ -321,3 +321,40 @@ fn studies_of_different_plans_are_never_mixed() {
     assert!(repeated.check().unwrap_err().to_string().contains("comes twice"));
     std::fs::remove_dir_all(&root).ok();
 }
+
+/// A world file edited while a study runs stops the study at the next finished run: the
+/// runs recorded before are kept, no run of the edited world is pooled with them, and the
+/// study resumes once the file is restored.
+#[test]
+fn a_world_file_edited_mid_study_stops_it_without_pooling_two_worlds() {
+    let root: PathBuf = std::env::temp_dir().join(format!("objslam-mc-edited-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+    let scenario = short_scenario(&root);
+    let (mut sc, _) = scenarios::scenario::Scenario::load(&scenario).unwrap();
+    let world = |seed| worlds::generate::park(&Default::default(), seed).unwrap().to_toml();
+    std::fs::write(root.join("w.toml"), world(1)).unwrap();
+    sc.world.preset = None;
+    sc.world.seed = None;
+    sc.world.params = None;
+    sc.world.file = Some("w.toml".into());
+    std::fs::write(&scenario, toml::to_string(&sc).unwrap()).unwrap();
+    let plan = StudyPlan { scenario, base_seed: 5, runs: 3, methods: vec!["nn".into()], vary: vec![] };
+    let out = root.join("study");
+    // One thread, so that the edit after the first run falls before the second is recorded.
+    let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+    let edit = |p: mc::StudyProgress| {
+        if let mc::StudyProgress::Runs { done: 1, .. } = p {
+            std::fs::write(root.join("w.toml"), world(2)).unwrap();
+        }
+    };
+    let e = one.install(|| mc::run_study(&plan, Shard::all(), &out, edit)).unwrap_err().to_string();
+    assert!(e.contains("has changed") && e.contains("the study stopped there"), "{e}");
+    let recorded = std::fs::read_to_string(out.join("runs.jsonl")).unwrap();
+    assert_eq!(recorded.lines().count(), 1, "only the run before the edit: {recorded}");
+    // Restored, the study resumes and finishes on the world it began with.
+    std::fs::write(root.join("w.toml"), world(1)).unwrap();
+    let all = one.install(|| mc::run_study(&plan, Shard::all(), &out, |_| {})).unwrap();
+    assert_eq!(all.len(), 3);
+    assert!(all.iter().all(|r| r.error.is_none()), "{:?}", all.iter().map(|r| &r.error).collect::<Vec<_>>());
+    let _ = std::fs::remove_dir_all(&root);
+}

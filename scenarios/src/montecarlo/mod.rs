@@ -184,7 +184,11 @@ pub fn run_study_with(
         // at most one partial line, which the next start drops; a failed write is cut back and
         // fails the study once the other runs are done (the run is redone on resume).
         let append_failures: Mutex<(usize, String)> = Mutex::new((0, String::new()));
-        let record_finished = |record: &RunRecord| {
+        // Each run read the scenario's files when it began: a record is kept only while they
+        // are still the ones pinned, so that a file edited mid-study stops the study there
+        // rather than pooling two worlds' runs under one setting.
+        let record_finished = |record: &RunRecord| -> Result<(), StudyError> {
+            still_pinned(plan, &pin)?;
             {
                 let mut f = file.lock().unwrap_or_else(|p| p.into_inner());
                 if let Err(e) = append_record(&mut f, record) {
@@ -195,16 +199,32 @@ pub fn run_study_with(
             }
             let n = finished.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
             progress(StudyProgress::Runs { done: n, total });
+            Ok(())
         };
         let new: Vec<RunRecord> = match workers {
-            Workers::Threads => todo
-                .par_iter()
-                .map(|job| {
-                    let record = run_job(&base_scenario, &base_dir, job, &models);
-                    record_finished(&record);
-                    record
-                })
-                .collect(),
+            Workers::Threads => {
+                let changed: Mutex<Option<StudyError>> = Mutex::new(None);
+                let new: Vec<RunRecord> = todo
+                    .par_iter()
+                    .filter_map(|job| {
+                        if changed.lock().unwrap_or_else(|p| p.into_inner()).is_some() {
+                            return None;
+                        }
+                        let record = run_job(&base_scenario, &base_dir, job, &models);
+                        match record_finished(&record) {
+                            Ok(()) => Some(record),
+                            Err(e) => {
+                                changed.lock().unwrap_or_else(|p| p.into_inner()).get_or_insert(e);
+                                None
+                            }
+                        }
+                    })
+                    .collect();
+                if let Some(e) = changed.into_inner().unwrap_or_else(|p| p.into_inner()) {
+                    return Err(e);
+                }
+                new
+            }
             Workers::Processes { exe, count, run_timeout } => {
                 // Workers load the scenario themselves: they are told which one the study pinned.
                 let start = StudyFile { plan: plan.clone(), scenario_pin: Some(pin.clone()), build: None };
@@ -245,6 +265,19 @@ pub fn run_study_with(
             held.release_failed();
             Err(e)
         }
+    }
+}
+
+/// Whether the scenario `plan` names (its file, world file, model and calibration files)
+/// is still the one `pin` recorded when the study began.
+fn still_pinned(plan: &StudyPlan, pin: &ScenarioPin) -> Result<(), StudyError> {
+    let (now, _, _) = pin_scenario(&plan.scenario)?;
+    match pin.changed_to(&plan.scenario, &now) {
+        Some(changed) => Err(StudyError::Plan(format!(
+            "{changed}: the study stopped there, keeping the runs recorded before; restore the scenario and run \
+             the same command again, or start a new study"
+        ))),
+        None => Ok(()),
     }
 }
 
@@ -601,6 +634,10 @@ mod tests {
         let e = apply_param(&s, "pass.max_false_landmarks", 0.0).unwrap_err().to_string();
         assert!(e.contains("is above pass.max_false_landmarks = 0"), "{e}");
         assert!(!e.contains("float"), "{e}");
+        // The refused value came from --vary, not a line of the scenario file.
+        let e = apply_param(&s, "sim.odometry.scale_sigma", -0.05).unwrap_err().to_string();
+        assert!(e.contains("sim.odometry.scale_sigma: must be finite and not negative"), "{e}");
+        assert!(!e.contains("line "), "{e}");
     }
 
     /// Values that differ as typed but set a whole-number setting alike would be one job
@@ -625,6 +662,10 @@ mod tests {
         assert!(!out.exists(), "refused before the study began, leaving no directory");
         let _ = std::fs::remove_dir_all(&out);
         check_values_differ(&plan("world.seed=5..6:2"), &s).unwrap();
+        let e = check_values_differ(&plan("sim.odometry.scale_sigma=0.01..0.0100000000000001:2"), &s)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("differ only beyond twelve significant digits"), "{e}");
         check_values_differ(&plan("sim.odometry.scale_sigma=0..0.02:3"), &s).unwrap();
         // A camera setting where no method reads the camera: every value's runs alike.
         let e = check_values_differ(&plan("sim.camera.exposure_sigma=0..0.2:2"), &s).unwrap_err().to_string();
@@ -632,6 +673,19 @@ mod tests {
         let with_camera =
             StudyPlan { methods: vec!["nn".into(), "combined".into()], ..plan("appearance.training_seed=1..2:2") };
         check_values_differ(&with_camera, &s).unwrap();
+        // Other settings a position-only study never reads.
+        for key in ["pipeline.object_model.kl_threshold=10..80:2", "pipeline.evidence.min_frames=2..4:2"] {
+            let e = check_values_differ(&plan(key), &s).unwrap_err().to_string();
+            assert!(e.contains("no method of the study (nn) reads the camera"), "{e}");
+        }
+        let e = check_values_differ(&plan("pipeline.diameter.max_sigmas=1..3:2"), &s).unwrap_err().to_string();
+        assert!(e.contains("use the trunk diameter only with pipeline.diameter.for_position_methods = true"), "{e}");
+        let mut diameter = s.clone();
+        diameter.pipeline.diameter.for_position_methods = true;
+        check_values_differ(&plan("pipeline.diameter.max_sigmas=1..3:2"), &diameter).unwrap();
+        let session = StudyPlan { methods: vec!["combined".into()], ..plan("calibration.session.poses=5..10:2") };
+        let e = check_values_differ(&session, &s).unwrap_err().to_string();
+        assert!(e.contains("runs only with calibration mode \"estimated\", and this scenario's is \"true\""), "{e}");
     }
 
     #[test]
@@ -783,8 +837,12 @@ mod tests {
         let e = read_runs(&f).unwrap_err().to_string();
         assert!(e.contains("line 3: not UTF-8 text"), "{e}");
         // Records no study writes are refused by their line, not counted.
-        let job = Job { index: 0, method: "nn".into(), params: vec![], run: 0, seed: 1 };
+        let job = Job { index: 0, method: "combined".into(), params: vec![], run: 0, seed: 1 };
         let metrics: Metrics = serde_json::from_str(include_str!("../../tests/data/metrics_sample.json")).unwrap();
+        let mut other_seed = metrics.clone();
+        other_seed.seed = 2;
+        let mut other_method = metrics.clone();
+        other_method.method = "nn".into();
         let record = |metrics: Option<Metrics>, error: Option<&str>, retryable: bool| RunRecord {
             key: job.key(),
             job: job.clone(),
@@ -800,6 +858,8 @@ mod tests {
             (record(Some(metrics.clone()), Some("x"), false), "both metrics and an error"),
             (record(Some(metrics.clone()), None, true), "a run to retry that has metrics"),
             (record(Some(beyond), None, false), "map.tree_recall 7.5 is not a fraction"),
+            (record(Some(other_seed), None, false), "metrics.seed 2 is not its job's seed 1"),
+            (record(Some(other_method), None, false), "metrics.method \"nn\" is not its job's method \"combined\""),
         ] {
             std::fs::write(&f, format!("{line}\n{}\n", serde_json::to_string(&bad).unwrap())).unwrap();
             let e = read_runs(&f).unwrap_err().to_string();

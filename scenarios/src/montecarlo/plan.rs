@@ -347,22 +347,74 @@ pub fn jobs(plan: &StudyPlan) -> Vec<Job> {
 /// scenario refuses is left to the check of each job, which names it.
 pub(super) fn check_values_differ(plan: &StudyPlan, base: &Scenario) -> Result<(), StudyError> {
     // Settings that only a method reading the camera uses: the position-only methods run
-    // without the camera and its segmentation, and train no appearance model.
-    const CAMERA_ONLY: [&str; 3] = ["appearance.", "sim.camera.", "pipeline.segmentation."];
+    // without the camera, its calibration, segmentation, evidence and object models, and
+    // train no appearance model; the joint loop closing and its relinearisation are the
+    // combined method's.
+    const CAMERA_ONLY: [&str; 11] = [
+        "appearance.",
+        "sim.camera.",
+        "calibration.",
+        "pipeline.segmentation.",
+        "pipeline.evidence.",
+        "pipeline.object_model.",
+        "pipeline.joint_loop_closing",
+        "pipeline.joint_loop_free_space",
+        "pipeline.defer_near_lookalike",
+        "pipeline.relinearise_loop_closures",
+        "pipeline.relinearise_every_s",
+    ];
     let methods: Vec<slam::association::AssociationMethod> = if plan.methods.is_empty() {
         vec![base.pipeline.method]
     } else {
         plan.methods.iter().filter_map(|m| slam::association::AssociationMethod::from_name(m)).collect()
     };
+    let names: Vec<&str> = methods.iter().map(|m| m.name()).collect();
+    let camera_method = methods.iter().any(|m| m.uses_appearance());
+    let unread = |param: &str, why: String| {
+        StudyError::Plan(format!("--vary {param}: {why}, so every value's runs would be alike; vary another setting"))
+    };
     for v in &plan.vary {
-        if CAMERA_ONLY.iter().any(|p| v.param.starts_with(p)) && !methods.iter().any(|m| m.uses_appearance()) {
-            let names: Vec<&str> = methods.iter().map(|m| m.name()).collect();
-            return Err(StudyError::Plan(format!(
-                "--vary {}: no method of the study ({}) reads the camera, so every value's runs would be alike; \
-                 add a camera method (--methods combined,...) or vary another setting",
-                v.param,
-                names.join(", ")
-            )));
+        let p = v.param.as_str();
+        if CAMERA_ONLY.iter().any(|prefix| p.starts_with(prefix)) && !camera_method {
+            return Err(unread(
+                p,
+                format!(
+                    "no method of the study ({}) reads the camera (add a camera method: --methods combined,...)",
+                    names.join(", ")
+                ),
+            ));
+        }
+        if p.starts_with("calibration.session.") && base.calibration.mode != "estimated" {
+            return Err(unread(
+                p,
+                format!(
+                    "the calibration session runs only with calibration mode \"estimated\", and this scenario's is \"{}\"",
+                    base.calibration.mode
+                ),
+            ));
+        }
+        if p.starts_with("pipeline.diameter.") && !camera_method && !base.pipeline.diameter.for_position_methods {
+            return Err(unread(
+                p,
+                format!(
+                    "the study's methods ({}) use the trunk diameter only with pipeline.diameter.for_position_methods = true",
+                    names.join(", ")
+                ),
+            ));
+        }
+    }
+    // Tables and plots name a value by twelve significant digits: two values that differ only
+    // beyond them would read as one setting, and share a plot's series.
+    for v in &plan.vary {
+        let mut labels: BTreeMap<String, f64> = BTreeMap::new();
+        for &x in &v.values {
+            if let Some(first) = labels.insert(short_number(x), x) {
+                return Err(StudyError::Plan(format!(
+                    "--vary {}: the values {first} and {x} differ only beyond twelve significant digits, so tables and plots would show them as one ({}); give values that differ more",
+                    v.param,
+                    short_number(x)
+                )));
+            }
         }
     }
     for v in &plan.vary {
@@ -414,7 +466,13 @@ pub fn apply_param(scenario: &Scenario, path: &str, value: f64) -> Result<Scenar
         let mut root = root.clone();
         set_path(&mut root, &parts, value, new_integer).map_err(&bad)?;
         let text = toml::to_string(&root).map_err(|e| bad(e.to_string()))?;
-        Scenario::parse(&text, Path::new(&format!("{}[{path}={value}]", scenario.name))).map_err(|e| bad(e.to_string()))
+        // The text is generated, so a line of it would point into no file the user has.
+        Scenario::parse(&text, Path::new(&format!("{}[{path}={value}]", scenario.name))).map_err(|e| match e {
+            crate::scenario::ScenarioError::Invalid { file, field, message, .. } => {
+                bad(crate::scenario::ScenarioError::Invalid { file, line: None, field, message }.to_string())
+            }
+            other => bad(other.to_string()),
+        })
     };
     // A setting the scenario leaves out has no type to follow: a number, unless only a
     // whole one will do (a count the scenario did not set). Where the whole number is

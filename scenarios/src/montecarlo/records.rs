@@ -37,13 +37,23 @@ impl RunRecord {
     }
 
     /// Whether the record is one a study could have written: a run's metrics or its error,
-    /// never both or neither, only an error to retry, and a recall that is a fraction.
+    /// never both or neither, only an error to retry, metrics of its job's seed and method,
+    /// and a recall that is a fraction.
     pub(super) fn check(&self) -> Result<(), String> {
         match (&self.metrics, &self.error) {
             (Some(_), Some(_)) => return Err("a run record with both metrics and an error".into()),
             (None, None) => return Err("a run record with neither metrics nor an error".into()),
             (Some(_), None) if self.retryable => return Err("a run to retry that has metrics".into()),
             _ => {}
+        }
+        // The metrics are the run of its job: the same seed and method.
+        if let Some(m) = &self.metrics {
+            if m.seed != self.job.seed {
+                return Err(format!("metrics.seed {} is not its job's seed {}", m.seed, self.job.seed));
+            }
+            if m.method != self.job.method {
+                return Err(format!("metrics.method {:?} is not its job's method {:?}", m.method, self.job.method));
+            }
         }
         if let Some(r) = self.metrics.as_ref().and_then(|m| m.map.tree_recall)
             && !(0.0..=1.0).contains(&r)

@@ -171,14 +171,16 @@ fn error_record(job: &Job, error: String) -> RunRecord {
 
 /// Runs `todo` on `count` child processes of `exe`, calling `finished` for each record as
 /// it arrives; a child that takes longer than `run_timeout` over a run is killed and the
-/// run recorded as retryable. Fails only when no child can be started at all.
+/// run recorded as retryable. Fails when no child can be started at all, or when
+/// `finished` refuses a record (the scenario changed under the study): no job more is
+/// given out, and the refused record is not returned.
 pub(super) fn run_in_processes(
     start: &StudyFile,
     todo: &[&Job],
     exe: &Path,
     count: usize,
     run_timeout: Option<Duration>,
-    finished: &(dyn Fn(&RunRecord) + Sync),
+    finished: &(dyn Fn(&RunRecord) -> Result<(), StudyError> + Sync),
 ) -> Result<Vec<RunRecord>, StudyError> {
     if todo.is_empty() {
         return Ok(Vec::new());
@@ -223,7 +225,10 @@ pub(super) fn run_in_processes(
                         }
                         None => error_record(job, format!("cannot start {} montecarlo-worker", exe.display())),
                     };
-                    finished(&record);
+                    if let Err(e) = finished(&record) {
+                        changed.lock().unwrap_or_else(|p| p.into_inner()).get_or_insert(e);
+                        break;
+                    }
                     records.lock().unwrap_or_else(|p| p.into_inner()).push(record);
                 }
                 if let Some(w) = worker {
