@@ -285,8 +285,7 @@ impl Scenario {
         // whatever files the working directory holds.
         let explicit = name_or_path.strip_prefix(BUILT_IN_PREFIX);
         if explicit.is_none() && path.exists() {
-            let text = std::fs::read_to_string(path)
-                .map_err(|source| ScenarioError::Read { file: path.to_path_buf(), source })?;
+            let text = read_settings_text(path)?;
             let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
             return Ok((Scenario::parse(&text, path)?, base));
         }
@@ -319,6 +318,10 @@ impl Scenario {
             && self.name.chars().all(|c| c.is_ascii_alphanumeric() || matches!(c, '_' | '-' | '.'));
         if !name_ok {
             return bad("name", format!("must be letters, digits, '_', '-' and '.' (not first), got {:?}", self.name));
+        }
+        // Within a file name's 255 bytes with the seed and what studies add to it.
+        if self.name.len() > MAX_NAME_CHARS {
+            return bad("name", format!("must be at most {MAX_NAME_CHARS} characters, got {}", self.name.len()));
         }
         match (&self.world.preset, &self.world.file) {
             (Some(_), Some(_)) => return bad("world", "give either `preset` or `file`, not both".into()),
@@ -630,8 +633,7 @@ fn read_settings<T: serde::de::DeserializeOwned>(
     file: &Path,
     check: impl Fn(&T) -> Result<(), (String, String)>,
 ) -> Result<T, ScenarioError> {
-    let text =
-        std::fs::read_to_string(file).map_err(|source| ScenarioError::Read { file: file.to_path_buf(), source })?;
+    let text = read_settings_text(file)?;
     let settings: T = toml_strict::from_str(&text).map_err(|e| ScenarioError::Parse {
         file: file.to_path_buf(),
         message: e.to_string().trim_end().to_string(),
@@ -663,6 +665,29 @@ pub fn read_park_params(file: &Path) -> Result<worlds::generate::ParkParams, Sce
     })
 }
 
+/// Longest scenario name: it names output directories (`runs/<name>-<seed>`).
+const MAX_NAME_CHARS: usize = 100;
+
+/// Largest settings file read: a hand-written scenario is a few kilobytes, and a path to a
+/// device or a log given by mistake (`/dev/zero`) would otherwise be read without end.
+const MAX_SETTINGS_BYTES: u64 = 16 << 20;
+
+/// The text of a scenario or settings file, refusing one larger than [`MAX_SETTINGS_BYTES`].
+fn read_settings_text(file: &Path) -> Result<String, ScenarioError> {
+    use std::io::Read;
+    let read = |source| ScenarioError::Read { file: file.to_path_buf(), source };
+    let mut bytes = Vec::new();
+    std::fs::File::open(file).map_err(read)?.take(MAX_SETTINGS_BYTES + 1).read_to_end(&mut bytes).map_err(read)?;
+    if bytes.len() as u64 > MAX_SETTINGS_BYTES {
+        return Err(ScenarioError::Parse {
+            file: file.to_path_buf(),
+            message: format!("larger than {} MiB: not a settings file", MAX_SETTINGS_BYTES >> 20),
+        });
+    }
+    String::from_utf8(bytes)
+        .map_err(|_| read(std::io::Error::new(std::io::ErrorKind::InvalidData, "stream did not contain valid UTF-8")))
+}
+
 /// The line (1-based) of the dotted key `path` in TOML `text`, where it is written as
 /// `key = ...` under its table's header (`[a.b]` then `c = ...` for `a.b.c`); `None` when
 /// it is spelled another way or not written (a default).
@@ -689,6 +714,21 @@ pub fn line_of(text: &str, path: &str) -> Option<usize> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A file far larger than any scenario (a device, a log given by mistake) is refused
+    /// after a bounded read, not read without end.
+    #[test]
+    fn a_huge_file_is_not_read_as_a_scenario() {
+        let e = Scenario::load("/dev/zero").unwrap_err().to_string();
+        assert!(e.contains("/dev/zero") && e.contains("larger than 16 MiB"), "{e}");
+    }
+
+    #[test]
+    fn a_name_too_long_for_its_output_directory_is_refused() {
+        let text = format!("name = \"{}\"\n[world]\npreset = \"park\"\n", "a".repeat(300));
+        let e = Scenario::parse(&text, Path::new("long.toml")).unwrap_err().to_string();
+        assert!(e.contains("long.toml: line 1: name: must be at most 100 characters, got 300"), "{e}");
+    }
 
     #[test]
     fn every_library_scenario_parses_and_builds_its_world() {

@@ -53,6 +53,15 @@ fn absurd_rates_and_filter_widths_are_errors() {
     let sim = sim::SimConfig { physics_rate_hz: 1e7, ..Default::default() };
     let e = sim.check().unwrap_err().to_string();
     assert!(e.contains("physics_rate_hz"), "{e}");
+    // A sensor faster than physics is named by its own key.
+    let mut sim = sim::SimConfig::default();
+    sim.laser.rate_hz = 200.0;
+    let e = sim.check().unwrap_err().to_string();
+    assert!(e.contains("laser.rate_hz") && e.contains("200 Hz is faster than physics"), "{e}");
+    let mut sim = sim::SimConfig::default();
+    sim.laser.fov_deg = 100.3;
+    let e = sim.check().unwrap_err().to_string();
+    assert!(e.contains("laser.fov_deg") && e.contains("not a whole number of"), "{e}");
     let mut features = slam::features::FeatureConfig::default();
     features.bank.filters[0].sigma_px = 1e6;
     let e = features.validate().unwrap_err().to_string();

@@ -56,5 +56,13 @@ fn files_a_run_reads_at_its_start_are_checked_without_running() {
     check(&write("treeless.toml", treeless)).unwrap();
     let e = check(&write("treeless_recall.toml", &format!("{treeless}[pass]\nmin_tree_recall = 0.9\n"))).unwrap_err();
     assert!(e.contains("treeless_recall.toml") && e.contains("pass.min_tree_recall") && e.contains("no tree"), "{e}");
+    // A landmark RMSE bound with nothing a landmark could be paired with.
+    let bare = format!("{treeless}palms = 0\n");
+    let e = check(&write("bare_rmse.toml", &format!("{bare}[pass]\nmax_landmark_rmse_m = 0.2\n"))).unwrap_err();
+    assert!(
+        e.contains("bare_rmse.toml") && e.contains("pass.max_landmark_rmse_m") && e.contains("no tree, post or palm"),
+        "{e}"
+    );
+    check(&write("palms_rmse.toml", &format!("{treeless}[pass]\nmax_landmark_rmse_m = 0.2\n"))).unwrap();
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -255,11 +255,17 @@ impl SimConfig {
                 format!("must be at most {MAX_PHYSICS_RATE_HZ} Hz, got {}", self.physics_rate_hz),
             );
         }
-        if self.laser.rate_hz > self.physics_rate_hz || self.odometry.rate_hz > self.physics_rate_hz {
-            return bad(
-                "physics_rate_hz",
-                format!("{} Hz is slower than a sensor; sensors cannot outpace physics", self.physics_rate_hz),
-            );
+        // Named by the sensor's key, as the camera's is: that is the setting a user raised.
+        for (field, rate) in [("laser.rate_hz", self.laser.rate_hz), ("odometry.rate_hz", self.odometry.rate_hz)] {
+            if rate > self.physics_rate_hz {
+                return bad(
+                    field,
+                    format!(
+                        "{rate} Hz is faster than physics (physics_rate_hz {} Hz); sensors cannot outpace it",
+                        self.physics_rate_hz
+                    ),
+                );
+            }
         }
         if ![8.0, 16.0, 32.0, 80.0].contains(&self.laser.max_range_m) {
             return bad(
@@ -269,6 +275,19 @@ impl SimConfig {
         }
         if self.laser.fov_deg > 180.0 {
             return bad("laser.fov_deg", format!("an LMS2xx sees at most 180 deg, got {}", self.laser.fov_deg));
+        }
+        // The beams span the field of view from edge to edge, a whole number of steps apart:
+        // another field of view would be rounded to one, and the scan not centred.
+        let steps = self.laser.fov_deg / self.laser.resolution_deg.degrees();
+        if (steps - steps.round()).abs() > 1e-6 {
+            return bad(
+                "laser.fov_deg",
+                format!(
+                    "{} deg is not a whole number of {} deg steps",
+                    self.laser.fov_deg,
+                    self.laser.resolution_deg.degrees()
+                ),
+            );
         }
         if self.laser.beam_count() < 2 {
             return bad("laser.fov_deg", "fewer than 2 beams".into());

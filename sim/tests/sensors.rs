@@ -266,3 +266,15 @@ fn bad_settings_are_named() {
     let e = worlds::load(std::path::Path::new("/no/such/world.toml")).unwrap_err().to_string();
     assert!(e.contains("/no/such/world.toml"));
 }
+
+/// Without `max_duration_s` a run may take three times the route's driving time and 30 s
+/// more (people may block it); with it, exactly that.
+#[test]
+fn the_time_limit_is_the_set_one_or_derived_from_the_route() {
+    let world = empty_world();
+    let s = Simulation::new(&world, &cfg(), 1).unwrap();
+    let expected = 3.0 * s.nominal_duration_s() + 30.0;
+    assert!((s.time_limit_s() - expected).abs() < 1e-9, "{} against {expected}", s.time_limit_s());
+    let set = Simulation::new(&world, &SimConfig { max_duration_s: Some(12.5), ..cfg() }, 1).unwrap();
+    assert_eq!(set.time_limit_s(), 12.5);
+}

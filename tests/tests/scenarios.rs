@@ -260,6 +260,9 @@ fn run_writes_every_output() {
     assert!(meta["configuration"]["world"]["objects"].is_array());
     // The simulator as it ran: no camera for a position-only method, so no renderer.
     assert_eq!(meta["configuration"]["sim"]["camera"]["enabled"], false);
+    // The time limit the run ran under (the scenario's here; derived from the route where
+    // none is set, `sim::Simulation::time_limit_s`).
+    assert_eq!(meta["configuration"]["time_limit_s"], 20.0);
     assert!(
         meta.get("renderer").is_some_and(|r| r.is_null()) && meta.get("appearance_model").is_some_and(|r| r.is_null())
     );

@@ -132,7 +132,7 @@ impl ParkParams {
                 ),
             );
         }
-        let ranges: [(&str, Range, f64); 14] = [
+        let ranges: [(&str, Range, f64); 13] = [
             ("tree_radius_m", self.tree_radius_m, 0.02),
             ("tree_height_m", self.tree_height_m, 0.5),
             ("canopy_radius_m", self.canopy_radius_m, 0.1),
@@ -146,8 +146,13 @@ impl ParkParams {
             ("person_speed_mps", self.person_speed_mps, 0.1),
             ("person_height_m", self.person_height_m, 0.8),
             ("person_walk_half_length_m", self.person_walk_half_length_m, 0.5),
-            ("person_start_time_max_s", [0.0, self.person_start_time_max_s], 0.0),
         ];
+        if !(self.person_start_time_max_s.is_finite() && self.person_start_time_max_s >= 0.0) {
+            return bad(
+                "person_start_time_max_s",
+                format!("must be finite and 0 or more, got {}", self.person_start_time_max_s),
+            );
+        }
         for (field, r, min) in ranges {
             if !(r[0].is_finite() && r[1].is_finite() && r[0] >= min && r[1] >= r[0]) {
                 return bad(field, format!("must be a range [min, max] with {min} <= min <= max, got {r:?}"));
@@ -173,7 +178,25 @@ impl ParkParams {
         }
         let [w, d] = self.ground_size_m();
         if 2.0 * self.route_margin_m + 2.0 * self.route_corner_radius_m >= w.min(d) {
-            return bad("route_margin_m", format!("the loop does not fit a {w:.1} x {d:.1} m ground"));
+            // Either setting may be the one to change: the message names both.
+            return bad(
+                "route_corner_radius_m",
+                format!(
+                    "with route_margin_m {} m, the loop's two margins and two corner radii ({:.1} m) do not fit the {w:.1} x {d:.1} m ground's shorter side",
+                    self.route_margin_m,
+                    2.0 * self.route_margin_m + 2.0 * self.route_corner_radius_m
+                ),
+            );
+        }
+        if self.wall && self.wall_length_m[1] > w - 2.0 {
+            return bad(
+                "wall_length_m",
+                format!(
+                    "a wall up to {} m long does not fit along the {w:.1} m ground with a metre either side: at most {:.1} m",
+                    self.wall_length_m[1],
+                    w - 2.0
+                ),
+            );
         }
         if !(1..=crate::MAX_LAPS).contains(&self.laps) {
             return bad("laps", format!("must be 1 to {}, got {}", crate::MAX_LAPS, self.laps));

@@ -180,6 +180,14 @@ fn bad_generator_parameters_are_named() {
     assert!(err.to_string().contains("tree_radius_m"), "{err}");
     let crowded = ParkParams { area_m2: 120.0, trees: 400, ..Default::default() };
     assert!(park(&crowded, 1).is_err());
+    // A wall longer than the ground is refused, not cut to fit without a word.
+    let err = park(&ParkParams { wall_length_m: [100.0, 200.0], ..Default::default() }, 1).unwrap_err().to_string();
+    assert!(err.contains("wall_length_m") && err.contains("does not fit"), "{err}");
+    // The loop's size: the message names both settings that make it.
+    let err = park(&ParkParams { route_corner_radius_m: 6.5, ..Default::default() }, 1).unwrap_err().to_string();
+    assert!(err.contains("route_corner_radius_m") && err.contains("route_margin_m"), "{err}");
+    let err = park(&ParkParams { person_start_time_max_s: -1.0, ..Default::default() }, 1).unwrap_err().to_string();
+    assert!(err.contains("person_start_time_max_s") && err.contains("0 or more, got -1"), "{err}");
 }
 
 /// A park with one checkerboard placed in a free spot, written as TOML.

@@ -339,6 +339,22 @@ pub fn preflight(
                 .into(),
         });
     }
+    // The landmark RMSE pairs landmarks with trees, posts and palms: with none of them it
+    // is undefined in every run.
+    if scenario.pass.max_landmark_rmse_m.is_some()
+        && !world.objects.iter().any(|o| {
+            use worlds::description::ObjectClass::{Palm, Post, Tree};
+            matches!(o.class, Tree | Post | Palm)
+        })
+    {
+        return Err(RunError::NamedFile {
+            scenario: scenario.describe(),
+            key: "pass.max_landmark_rmse_m",
+            message: "the world holds no tree, post or palm, so the landmark RMSE is undefined and no run \
+                      could pass; leave the criterion out"
+                .into(),
+        });
+    }
     let calibration = match scenario.calibration.mode.as_str() {
         "estimated" => None,
         _ => Some(resolve_calibration(scenario, base_dir, seed)?),
@@ -605,6 +621,9 @@ fn run_and_write(
         // The simulator as it ran: the scenario's, with the camera off for position-only
         // methods and without the depth image nobody reads.
         "sim": sim_config,
+        // The limit the run stopped at, derived from the route where sim.max_duration_s is
+        // not set.
+        "time_limit_s": sim.time_limit_s(),
         "pipeline": config,
         "calibration": calibration,
     });
