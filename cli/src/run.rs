@@ -127,6 +127,16 @@ pub(crate) fn score(args: ScoreArgs) -> Result<()> {
     }
     // Nor the log, or a file of it through a link (its metadata.json, a run's metrics.json).
     crate::paths::not_inside("--out", &metrics, "log", &args.log)?;
+    // Nor any other run's or log's directory: its metrics.json is that run's, and the
+    // directory is read as a log by it.
+    if args.out.join(files::METADATA).exists() {
+        anyhow::bail!(
+            "--out {}: holds the outputs of a run or a recorded log ({}), whose {} the score would replace; give a directory of its own",
+            args.out.display(),
+            files::METADATA,
+            files::METRICS
+        );
+    }
     let estimate = scenarios::score::log::Estimate {
         trajectory: args.trajectory,
         covariances: args.covariances,

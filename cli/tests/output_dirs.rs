@@ -245,6 +245,10 @@ fn an_output_that_is_an_input_is_refused_and_the_input_kept() {
     std::fs::write(root.join("notes/objects/keep.txt"), "my notes").unwrap();
     std::fs::create_dir_all(root.join("linked")).unwrap();
     std::os::unix::fs::symlink(root.join("run/metrics.json"), root.join("linked/metrics.json")).unwrap();
+    // Another run's directory, not the log scored.
+    std::fs::create_dir_all(root.join("other_run")).unwrap();
+    std::fs::write(root.join("other_run/metadata.json"), "{}").unwrap();
+    std::fs::write(root.join("other_run/metrics.json"), "{\"method\": \"mine\"}").unwrap();
     let before = contents(&root);
     for (args, expect) in [
         (vec!["world", "export", "w.toml", "--out", "./w.toml"], "the world file given"),
@@ -274,6 +278,10 @@ fn an_output_that_is_an_input_is_refused_and_the_input_kept() {
         (vec!["score", "--log", "run", "--trajectory", "t.tum", "--out", "run/"], "the log given"),
         (vec!["score", "--log", "run", "--trajectory", "run/metrics.json", "--out", "run"], "the log given"),
         (vec!["score", "--log", "run", "--trajectory", "t.tum", "--out", "linked"], "is a file of the log given (run)"),
+        (
+            vec!["score", "--log", "run", "--trajectory", "t.tum", "--out", "other_run"],
+            "--out other_run: holds the outputs of a run or a recorded log (metadata.json), whose metrics.json",
+        ),
         (
             vec!["score", "--log", "run", "--trajectory", "t.tum", "--method", " ", "--out", "s"],
             "--method: an empty name",

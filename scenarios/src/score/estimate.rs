@@ -65,12 +65,16 @@ pub fn read_tum_3d(file: &Path) -> Result<(PlanarPoses, OffPlane), ScoreError> {
         }
         // A quaternion q stands for the rotation of q / |q| (as other tools read it); one
         // already of unit length to rounding is used as written, so that a run's own file
-        // scores to the last bit. A zero one is no rotation at all.
-        let norm = (qx * qx + qy * qy + qz * qz + qw * qw).sqrt();
-        if !(norm > 1e-6) {
+        // scores to the last bit. A zero one is no rotation at all. The norm is taken of q
+        // scaled by its largest component, which neither overflows nor underflows.
+        let largest = [qx, qy, qz, qw].iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        if largest == 0.0 {
             return Err(invalid(file, Some(i + 1), "the quaternion (qx qy qz qw) is zero: it gives no heading"));
         }
-        let q = if (norm - 1.0).abs() > 1e-9 { [qx, qy, qz, qw].map(|v| v / norm) } else { [qx, qy, qz, qw] };
+        let scaled = [qx, qy, qz, qw].map(|v| v / largest);
+        let scaled_norm = scaled.iter().map(|v| v * v).sum::<f64>().sqrt();
+        let q =
+            if (largest * scaled_norm - 1.0).abs() > 1e-9 { scaled.map(|v| v / scaled_norm) } else { [qx, qy, qz, qw] };
         if let Some((last, _)) = poses.last()
             && t <= *last
         {
@@ -184,8 +188,11 @@ impl DecisionLine {
             _ => None,
         };
         match (self.landmark, self.choice) {
+            (Some(a), Some(_)) if chosen.is_none() => {
+                Err(format!("`landmark` {a} beside a `choice` that names no landmark (rejected or deferred)"))
+            }
             (Some(a), Some(_)) if chosen != Some(a) => {
-                Err(format!("`landmark` {a} and `choice` {:?} disagree", self.choice.unwrap()))
+                Err(format!("`landmark` {a} and `choice`'s landmark {} disagree", chosen.expect("checked above")))
             }
             (Some(a), _) => Ok(Some(a)),
             (None, _) => Ok(chosen),
@@ -329,7 +336,13 @@ fn read_association_lines(file: &Path) -> Result<Vec<(usize, f64, AssociationEnt
     // A byte-order mark, as some editors write, read past as in the other inputs.
     for (n, line) in numbered_lines(text.strip_prefix('\u{feff}').unwrap_or(&text)) {
         let bad = |e: serde_json::Error| invalid(file, Some(n), e.to_string());
-        let v: serde_json::Value = serde_json::from_str(line).map_err(bad)?;
+        let v: serde_json::Value = serde_json::from_str(line).map_err(|e| {
+            invalid(
+                file,
+                Some(n),
+                format!("{e} (read as JSON lines, its name not ending in .csv: CSV associations go in a .csv file)"),
+            )
+        })?;
         let entry = if v.get("observations").is_some() {
             let b: BeamsLine = serde_json::from_value(v).map_err(bad)?;
             (b.t, AssociationEntry::Beams(b.observations, b.fusions))
@@ -466,7 +479,13 @@ pub(super) fn read_landmarks(file: &Path) -> Result<Vec<MapLandmark>, ScoreError
     } else {
         // A byte-order mark (some editors' UTF-8) is read past, as in TUM and CSV files.
         let text = read_text(file)?;
-        slam::settings::from_json(text.strip_prefix('\u{feff}').unwrap_or(&text)).map_err(|e| invalid(file, None, e))?
+        slam::settings::from_json(text.strip_prefix('\u{feff}').unwrap_or(&text)).map_err(|e| {
+            invalid(
+                file,
+                None,
+                format!("{e} (read as JSON, its name not ending in .csv: a CSV map is `id,x,y` in a .csv file)"),
+            )
+        })?
     };
     let mut seen = std::collections::HashSet::new();
     for l in &landmarks {
@@ -601,9 +620,33 @@ mod tests {
         assert!(e.as_ref().is_err_and(|e| e.contains(":1") && e.contains("into itself")), "{e:?}");
         let e = read("\n");
         assert!(e.as_ref().is_err_and(|e| e.contains("no entry")), "{e:?}");
+        let e = read("{\"t\": 0.1, \"observation\": 0, \"landmark\": 3, \"choice\": {\"kind\": \"rejected\"}}\n");
+        assert!(e.as_ref().is_err_and(|e| e.contains(":1") && e.contains("names no landmark")), "{e:?}");
+        let e = read(
+            "{\"t\": 0.1, \"observation\": 0, \"landmark\": 3, \"choice\": {\"kind\": \"new\", \"landmark\": 4}}\n",
+        );
+        assert!(e.as_ref().is_err_and(|e| e.contains("`landmark` 3 and `choice`'s landmark 4 disagree")), "{e:?}");
+        let e = read("t,observation,landmark\n0.1,0,2\n");
+        assert!(e.as_ref().is_err_and(|e| e.contains(":1") && e.contains("its name not ending in .csv")), "{e:?}");
         let e = read("{\"t\": 0.1, \"observation\": 0, \"landmark\": 2, \"weight\": 1}\n");
         assert!(e.as_ref().is_err_and(|e| e.contains(":1") && e.contains("weight")), "{e:?}");
         std::fs::remove_dir_all(&dir).ok();
+    }
+
+    /// A quaternion at any scale is its rotation: neither 1e155 times a unit one (whose
+    /// squared norm overflows) nor 1e-6 times one is misread or refused.
+    #[test]
+    fn a_quaternion_is_read_at_any_scale() {
+        let dir = tempfile::tempdir().unwrap();
+        let file = dir.path().join("scaled.tum");
+        let (s, c) = (0.3f64.sin(), 0.3f64.cos()); // a heading of 0.6 rad
+        for scale in [1.0, 1e155, 1e-6, 1e-300] {
+            std::fs::write(&file, format!("0 1 2 0 0 0 {} {}\n", s * scale, c * scale)).unwrap();
+            let poses = read_tum(&file).unwrap();
+            assert!((poses[0].1[2] - 0.6).abs() < 1e-12, "scale {scale}: heading {}", poses[0].1[2]);
+        }
+        std::fs::write(&file, "0 1 2 0 0 0 0 0\n").unwrap();
+        assert!(read_tum(&file).unwrap_err().to_string().contains("is zero"));
     }
 
     #[test]

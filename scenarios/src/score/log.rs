@@ -280,8 +280,17 @@ fn read_metadata(log: &Path) -> Result<LogMetadata, ScoreError> {
 }
 
 /// The true pose at `t`: the recorded one at that time, else linear between its
-/// neighbours; `None` outside the recording.
+/// neighbours; `None` outside the recording (by more than a microsecond).
 fn truth_at(truth: &[(f64, [f64; 3])], t: f64) -> Option<[f64; 3]> {
+    // Within a microsecond of either end (times summed in steps of 0.05 s end at
+    // 258.9000000000246) is at that end, as covariances and associations are matched.
+    let (first, last) = (truth.first()?, truth.last()?);
+    if t < first.0 && first.0 - t <= 1e-6 {
+        return Some(first.1);
+    }
+    if t > last.0 && t - last.0 <= 1e-6 {
+        return Some(last.1);
+    }
     let i = truth.partition_point(|(ti, _)| *ti < t);
     let (t1, p1) = truth.get(i)?;
     if *t1 == t {
@@ -934,6 +943,10 @@ mod tests {
         assert!(mid[2].abs() > 3.1, "the heading goes the short way round: {}", mid[2]);
         assert_eq!(truth_at(&truth, 0.5), None);
         assert_eq!(truth_at(&truth, 2.5), None);
+        // A rounding error past either end is that end.
+        assert_eq!(truth_at(&truth, 2.000_000_000_024_6), Some([2.0, 4.0, -3.1]));
+        assert_eq!(truth_at(&truth, 1.0 - 1e-9), Some([0.0, 0.0, 3.1]));
+        assert_eq!(truth_at(&truth, 2.000_01), None);
     }
 
     /// Regression: frames out of time order were skipped by the scans' cursor without a
