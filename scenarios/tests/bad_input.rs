@@ -59,6 +59,14 @@ fn absurd_rates_and_filter_widths_are_errors() {
     let e = sim.check().unwrap_err().to_string();
     assert!(e.contains("laser.rate_hz") && e.contains("200 Hz is faster than physics"), "{e}");
     let mut sim = sim::SimConfig::default();
+    sim.robot.length_m = 1e300;
+    let e = sim.check().unwrap_err().to_string();
+    assert!(e.contains("robot.length_m") && e.contains("at most 5 m"), "{e}");
+    let mut sim = sim::SimConfig::default();
+    sim.robot.safety_stop_m = 1000.0;
+    let e = sim.check().unwrap_err().to_string();
+    assert!(e.contains("robot.safety_stop_m") && e.contains("not within the laser's range"), "{e}");
+    let mut sim = sim::SimConfig::default();
     sim.laser.fov_deg = 100.3;
     let e = sim.check().unwrap_err().to_string();
     assert!(e.contains("laser.fov_deg") && e.contains("not a whole number of"), "{e}");

@@ -207,6 +207,9 @@ impl OdometryConfig {
 /// Fastest physics step rate a simulation may be set to.
 pub const MAX_PHYSICS_RATE_HZ: f64 = 10_000.0;
 
+/// Largest body of the simulated robot, each dimension.
+pub const MAX_ROBOT_SIZE_M: f64 = 5.0;
+
 impl SimConfig {
     /// Checks every setting; the error names the field.
     pub fn check(&self) -> Result<(), SimError> {
@@ -291,6 +294,28 @@ impl SimConfig {
         }
         if self.laser.beam_count() < 2 {
             return bad("laser.fov_deg", "fewer than 2 beams".into());
+        }
+        // A Pioneer-class ground robot: a body of metres is another vehicle, or a typo (1e300
+        // m left the f32 physics unable to move it).
+        for (field, v) in [
+            ("robot.length_m", self.robot.length_m),
+            ("robot.width_m", self.robot.width_m),
+            ("robot.body_height_m", self.robot.body_height_m),
+        ] {
+            if v > MAX_ROBOT_SIZE_M {
+                return bad(field, format!("at most {MAX_ROBOT_SIZE_M} m for the simulated ground robot, got {v}"));
+            }
+        }
+        // The stop watches the laser's returns: beyond its range it would see an obstacle in
+        // every beam without one and never drive.
+        if self.robot.safety_stop_m >= self.laser.max_range_m {
+            return bad(
+                "robot.safety_stop_m",
+                format!(
+                    "{} m is not within the laser's range ({} m), which it watches",
+                    self.robot.safety_stop_m, self.laser.max_range_m
+                ),
+            );
         }
         if self.laser.min_range_m >= self.laser.max_range_m {
             return bad("laser.min_range_m", "must be below max_range_m".into());

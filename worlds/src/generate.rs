@@ -158,6 +158,26 @@ impl ParkParams {
                 return bad(field, format!("must be a range [min, max] with {min} <= min <= max, got {r:?}"));
             }
         }
+        if self.person_speed_mps[1] > crate::validate::MAX_PERSON_SPEED_MPS {
+            return bad(
+                "person_speed_mps",
+                format!(
+                    "people walk at most {} m/s, got {}",
+                    crate::validate::MAX_PERSON_SPEED_MPS,
+                    self.person_speed_mps[1]
+                ),
+            );
+        }
+        if self.person_height_m[1] > crate::validate::MAX_PERSON_HEIGHT_M {
+            return bad(
+                "person_height_m",
+                format!(
+                    "people are at most {} m tall, got {}",
+                    crate::validate::MAX_PERSON_HEIGHT_M,
+                    self.person_height_m[1]
+                ),
+            );
+        }
         if self.tree_radius_m[1] > 1.0 || self.post_radius_m[1] > 1.0 || self.palm_radius_m[1] > 1.0 {
             return bad("tree_radius_m", "trunk, post and palm radii must stay under 1 m".into());
         }

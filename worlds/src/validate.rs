@@ -6,6 +6,11 @@ use std::path::Path;
 use crate::description::{Footprint, Material, ObjectClass, Shape, WORLD_FORMAT_VERSION, World};
 use crate::error::Problem;
 
+/// Tallest person a world may hold (the tallest people measured are about 2.7 m).
+pub const MAX_PERSON_HEIGHT_M: f64 = 2.75;
+/// Fastest a person may walk (a sprinter's top speed is about 12 m/s).
+pub const MAX_PERSON_SPEED_MPS: f64 = 12.0;
+
 /// Instance id reserved for the ground in instance images.
 pub const GROUND_INSTANCE_ID: u16 = u16::MAX;
 
@@ -185,6 +190,19 @@ pub fn validate(world: &World, base_dir: &Path) -> Vec<Problem> {
         }
         if p.height_m.is_finite() && p.height_m < 0.8 {
             push(format!("{f}.height_m"), "a person shorter than 0.8 m has no legs at the laser's height".into());
+        }
+        // What people are: none runs faster or stands taller (a typo, or another unit).
+        if p.height_m.is_finite() && p.height_m > MAX_PERSON_HEIGHT_M {
+            push(
+                format!("{f}.height_m"),
+                format!("{} m is taller than a person: at most {MAX_PERSON_HEIGHT_M} m", p.height_m),
+            );
+        }
+        if p.speed_mps.is_finite() && p.speed_mps > MAX_PERSON_SPEED_MPS {
+            push(
+                format!("{f}.speed_mps"),
+                format!("{} m/s is faster than a person runs: at most {MAX_PERSON_SPEED_MPS} m/s", p.speed_mps),
+            );
         }
         check_colour(&mut push, &format!("{f}.shirt.colour"), &p.shirt.colour);
         check_colour(&mut push, &format!("{f}.trousers.colour"), &p.trousers.colour);

@@ -266,6 +266,11 @@ fn routes_off_the_ground_or_that_cannot_be_driven_are_named() {
         // A person wider than the route's usual clearance needs more room.
         let m = check(&|w| w.people[0].leg_radius_m = 5.0);
         assert!(m.contains("people[0].route") && m.contains("clearance"), "{m}");
+        // No person runs at 1e6 m/s or stands 100 m tall.
+        let m = check(&|w| w.people[0].speed_mps = 1e6);
+        assert!(m.contains("people[0].speed_mps") && m.contains("faster than a person runs"), "{m}");
+        let m = check(&|w| w.people[0].height_m = 100.0);
+        assert!(m.contains("people[0].height_m") && m.contains("taller than a person"), "{m}");
     }
     // A world moved 100 km from the origin: its robot's steps would round away in the
     // physics' f32 (it never moved, and scored a perfect ATE).
