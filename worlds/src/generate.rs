@@ -245,6 +245,9 @@ const ATTEMPTS: usize = 20_000;
 /// Most objects and people a generated park may hold.
 pub const MAX_OBJECTS: usize = 2000;
 
+/// How far [`r3`] of both coordinates can move a point: half a millimetre each way.
+const ROUNDING_M: f64 = 0.000_5 * std::f64::consts::SQRT_2;
+
 fn r3(v: f64) -> f64 {
     (v * 1000.0).round() / 1000.0
 }
@@ -396,8 +399,10 @@ pub fn park(params: &ParkParams, seed: u64) -> Result<World, WorldError> {
             let angle = rng.random_range(0.0..std::f64::consts::TAU);
             let dist = sample(&mut rng, params.post_distance_m);
             let p = [r3(tree.pose.x + dist * angle.cos()), r3(tree.pose.y + dist * angle.sin())];
+            // Rounding each coordinate to the millimetre moves the post by up to 0.71 mm: a
+            // distance within that of the range is in it (a range [d, d] is met, not missed).
             let cd = ((p[0] - tree.pose.x).powi(2) + (p[1] - tree.pose.y).powi(2)).sqrt();
-            if cd < params.post_distance_m[0] || cd > params.post_distance_m[1] {
+            if cd < params.post_distance_m[0] - ROUNDING_M || cd > params.post_distance_m[1] + ROUNDING_M {
                 continue;
             }
             let shape = Shape::Post {

@@ -186,6 +186,20 @@ fn bad_generator_parameters_are_named() {
     // The loop's size: the message names both settings that make it.
     let err = park(&ParkParams { route_corner_radius_m: 6.5, ..Default::default() }, 1).unwrap_err().to_string();
     assert!(err.contains("route_corner_radius_m") && err.contains("route_margin_m"), "{err}");
+    // A post distance of exactly d (as a study varying it sets [d, d]) is met within the
+    // millimetre positions are rounded to, whatever d is.
+    for d in [0.9, 0.999, 1.0, 1.0000000000001, 1.7000000000000002, 2.3999999999999995] {
+        let w = park(&ParkParams { post_distance_m: [d, d], ..Default::default() }, 2006).unwrap();
+        for post in w.objects.iter().filter(|o| o.class == worlds::ObjectClass::Post) {
+            let gap = w
+                .objects
+                .iter()
+                .filter(|o| o.class == worlds::ObjectClass::Tree)
+                .map(|t| ((t.pose.x - post.pose.x).powi(2) + (t.pose.y - post.pose.y).powi(2)).sqrt());
+            let nearest = gap.fold(f64::INFINITY, f64::min);
+            assert!(nearest <= d + 0.001, "post {} is {nearest} m from the nearest tree, asked {d}", post.id);
+        }
+    }
     let err = park(&ParkParams { person_start_time_max_s: -1.0, ..Default::default() }, 1).unwrap_err().to_string();
     assert!(err.contains("person_start_time_max_s") && err.contains("0 or more, got -1"), "{err}");
 }
