@@ -229,8 +229,9 @@ pub(crate) fn find(
     let runs_model = run.join(files::OBJECTS_DIR).join(files::APPEARANCE_MODEL);
     if !run.is_dir() {
         anyhow::bail!(
-            "--run {}: no such directory; give the directory of an `objslam run` of a camera method",
-            run.display()
+            "--run {}: {}; give the directory of an `objslam run` of a camera method",
+            run.display(),
+            if run.exists() { "not a directory" } else { "no such directory" }
         );
     }
     if !run.join(files::OBJECTS_DIR).join(files::OBJECT_MODELS).is_file() {

@@ -312,6 +312,19 @@ impl SessionConfig {
             Err(CalibrateError::Session { file: file.to_path_buf(), field: field.into(), message })
         };
         // The laser's plane must cut every board, away from its edges.
+        // Both sensors must see every board: its centre within the camera's half field of
+        // view of straight ahead (the camera looks along the laser's axis), which is also
+        // within the laser's.
+        let half_fov = (sim.camera.hfov_deg / 2.0).min(sim.laser.fov_deg / 2.0);
+        if self.bearing_deg[0] < -half_fov || self.bearing_deg[1] > half_fov {
+            return bad(
+                "bearing_deg",
+                format!(
+                    "boards must stand where the camera sees them, within +-{half_fov} deg of straight ahead, got {:?}",
+                    self.bearing_deg
+                ),
+            );
+        }
         let laser_z = sim.laser.mount_xyz_m[2];
         let max_tilt = self.tilt_deg[0].abs().max(self.tilt_deg[1].abs()).to_radians();
         let reach = 0.4 * self.board_height_m * max_tilt.cos();
@@ -1119,6 +1132,9 @@ mod tests {
         let e =
             SessionConfig { centre_height_m: [1.5, 1.6], ..Default::default() }.check(f, &sim).unwrap_err().to_string();
         assert!(e.contains("centre_height_m") && e.contains("laser"), "{e}");
+        let e =
+            SessionConfig { bearing_deg: [-90.0, 90.0], ..Default::default() }.check(f, &sim).unwrap_err().to_string();
+        assert!(e.contains("calibration.session.bearing_deg") && e.contains("within +-30 deg"), "{e}");
         let e = SessionConfig { poses: 0, ..Default::default() }.check(f, &sim).unwrap_err().to_string();
         assert!(e.contains("poses"), "{e}");
         let e = SessionConfig { station_spacing_m: 3.0, ..Default::default() }.check(f, &sim).unwrap_err().to_string();

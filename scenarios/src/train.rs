@@ -69,7 +69,16 @@ fn load_image_and_class(
 ) -> Result<(LabelledImage, image::GrayImage), TrainError> {
     let entry = &manifest.images[i];
     let img_path = dir.join(&entry.image);
-    let rgb = image::open(&img_path).map_err(|e| file_err(&img_path, e))?.to_rgb8();
+    let opened = image::open(&img_path).map_err(|e| file_err(&img_path, e))?;
+    // As for an image to classify: the features hold each pixel's colour.
+    if !opened.color().has_color() {
+        return Err(file_err(
+            &img_path,
+            "stored as a greyscale image; the appearance model's features include each pixel's colour, so a \
+             dataset's images are colour images",
+        ));
+    }
+    let rgb = opened.to_rgb8();
     if rgb.dimensions() != (manifest.width, manifest.height) {
         let (w, h) = rgb.dimensions();
         return Err(file_err(
@@ -123,7 +132,16 @@ fn load_image_and_class(
     // Foliage labels come from the class mask (a dataset's labels file holds only the
     // object classes' fractions).
     let class_path = dir.join(&entry.class);
-    let class = image::open(&class_path).map_err(|e| file_err(&class_path, e))?.to_luma8();
+    let class = image::open(&class_path).map_err(|e| file_err(&class_path, e))?;
+    // Class ids are 8-bit grey values: another format would be converted, and 16-bit ids
+    // divided by 257 read as 0, the sky.
+    if class.color() != image::ColorType::L8 {
+        return Err(file_err(
+            &class_path,
+            format!("stored as {:?}; a class mask is an 8-bit greyscale image of class ids", class.color()),
+        ));
+    }
+    let class = class.into_luma8();
     if class.dimensions() != (w, h) {
         let (cw, ch) = class.dimensions();
         return Err(file_err(&class_path, format!("the class mask is {cw}x{ch}, its image {w}x{h}")));
@@ -140,6 +158,23 @@ fn load_image_and_class(
                 k as u32 % w,
                 k as u32 / w,
                 worlds::ObjectClass::ALL.iter().map(|c| c.id()).max().unwrap_or(0)
+            ),
+        ));
+    }
+    // The labels are the class mask's, patch by patch: a labels file of another image (or
+    // edited) would score and train on what the image does not show.
+    let wanted: Vec<u8> = manifest.classes.iter().map(|c| c.id()).collect();
+    let from_mask = crate::dataset::patch_labels(class.as_raw(), w, h, labels.patch_size, &wanted).fractions;
+    if let Some(k) = from_mask.iter().zip(&labels.fractions).position(|(a, b)| (a - b).abs() > 1e-5) {
+        return Err(file_err(
+            &labels_path,
+            format!(
+                "fractions[{k}] (patch column {}, row {}) is {}, where the class mask {} gives {}: the labels are not this image's",
+                k as u32 % labels.cols,
+                k as u32 / labels.cols,
+                labels.fractions[k],
+                class_path.display(),
+                from_mask[k]
             ),
         ));
     }
@@ -223,6 +258,16 @@ pub fn train_from_dataset(
     })?;
     let (train_ids, test_ids): (Vec<usize>, Vec<usize>) =
         (0..manifest.images.len()).partition(|i| heldout_every == 0 || i % heldout_every != heldout_every - 1);
+    // Say why no image is left to train on, where the learner could only say that none is.
+    if manifest.images.is_empty() {
+        return Err(file_err(&dir.join("dataset.json"), "images: the dataset lists no image"));
+    }
+    if train_ids.is_empty() {
+        return Err(file_err(
+            dir,
+            format!("--heldout-every {heldout_every} holds out every image of the dataset, leaving none to train on"),
+        ));
+    }
     let load = |k: usize| load_image(dir, &manifest, train_ids[k]).map_err(model_error);
     let mut model = classifier::train(train_ids.len(), load, options, &progress)?;
     model.training.renderer = Some(manifest.renderer.clone());
@@ -524,6 +569,8 @@ fn parse_csv(path: &Path, text: &str) -> Result<DMatrix<f64>, TrainError> {
     let mut cols = None;
     let mut rows = 0;
     let mut first = true;
+    // The header's line and its number of names, which the rows must match.
+    let mut header: Option<(usize, usize)> = None;
     for (i, line) in text.lines().enumerate() {
         let line = line.trim();
         if line.is_empty() || line.starts_with('#') {
@@ -540,7 +587,10 @@ fn parse_csv(path: &Path, text: &str) -> Result<DMatrix<f64>, TrainError> {
         let may_be_header = std::mem::take(&mut first);
         let row = match parsed {
             Ok(r) => r,
-            Err(_) if may_be_header && fields.iter().all(|f| f.parse::<f64>().is_err()) => continue,
+            Err(_) if may_be_header && fields.iter().all(|f| f.parse::<f64>().is_err()) => {
+                header = Some((i + 1, fields.len()));
+                continue;
+            }
             Err(_) => {
                 let bad = fields.iter().position(|f| f.parse::<f64>().is_err()).unwrap_or(0);
                 return Err(TrainError::Csv {
@@ -558,7 +608,16 @@ fn parse_csv(path: &Path, text: &str) -> Result<DMatrix<f64>, TrainError> {
             });
         }
         match cols {
-            None => cols = Some(row.len()),
+            None => {
+                if let Some((line, names)) = header.filter(|(_, names)| *names != row.len()) {
+                    return Err(TrainError::Csv {
+                        file: path.into(),
+                        line,
+                        message: format!("the header names {names} columns, and the rows have {} fields", row.len()),
+                    });
+                }
+                cols = Some(row.len())
+            }
             Some(c) if c != row.len() => {
                 return Err(TrainError::Csv {
                     file: path.into(),
@@ -755,6 +814,10 @@ mod tests {
         std::fs::write(&file, "x,y\na,b\n3,4\n").unwrap();
         let e = read_csv(&file).unwrap_err().to_string();
         assert!(e.contains("points.csv: line 2: field 1"), "{e}");
+        // A header of more (or fewer) names than the rows' fields: columns mislabelled.
+        std::fs::write(&file, "x,y,z\n1,2\n3,4\n").unwrap();
+        let e = read_csv(&file).unwrap_err().to_string();
+        assert!(e.contains("points.csv: line 1: the header names 3 columns, and the rows have 2 fields"), "{e}");
         let _ = std::fs::remove_dir_all(&dir);
     }
 }

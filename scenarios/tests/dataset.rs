@@ -134,3 +134,54 @@ fn a_dataset_holds_its_directory_and_replaces_an_earlier_one_whole() {
     assert!(!dir.join(".unfinished").exists() && !dir.join(".dataset.json.partial").exists());
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// What training reads of a dataset is checked against what the dataset says: a greyscale
+/// image (colour is a feature), a class mask in another pixel format (16-bit ids read as
+/// 0, the sky) and patch labels of another image are refused, naming the file.
+#[test]
+fn training_refuses_images_masks_and_labels_that_are_not_the_datasets() {
+    let dir = std::env::temp_dir().join(format!("objslam-dataset-damaged-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let world = worlds::generate::park(&Default::default(), 4).unwrap();
+    let mut config = DatasetConfig { images: 2, seed: 2, ..Default::default() };
+    config.camera.width = 90;
+    config.camera.height = 72;
+    make_dataset(&world, "park seed 4", &config, &dir, |_, _| {}).unwrap();
+    let manifest = scenarios::train::read_manifest(&dir).unwrap();
+    let load = |i| scenarios::train::load_image(&dir, &manifest, i).map(|_| ()).map_err(|e| e.to_string());
+    load(0).unwrap();
+    load(1).unwrap();
+    let options = slam::classifier::TrainingOptions::default();
+    let e = scenarios::train::train_from_dataset(&dir, &options, 1, |_, _, _| {}).unwrap_err().to_string();
+    assert!(e.contains("--heldout-every 1 holds out every image"), "{e}");
+    let (first, second) = (&manifest.images[0], &manifest.images[1]);
+
+    let image = dir.join(&first.image);
+    let colour = std::fs::read(&image).unwrap();
+    image::open(&image).unwrap().to_luma8().save(&image).unwrap();
+    let e = load(0).unwrap_err();
+    assert!(e.contains(&first.image) && e.contains("stored as a greyscale image"), "{e}");
+    std::fs::write(&image, colour).unwrap();
+
+    let mask = dir.join(&first.class);
+    let eight_bit = std::fs::read(&mask).unwrap();
+    let wide = image::open(&mask).unwrap().to_luma16();
+    image::ImageBuffer::<image::Luma<u16>, _>::from_fn(wide.width(), wide.height(), |x, y| {
+        image::Luma([wide.get_pixel(x, y)[0] / 257])
+    })
+    .save(&mask)
+    .unwrap();
+    let e = load(0).unwrap_err();
+    assert!(e.contains(&first.class) && e.contains("a class mask is an 8-bit greyscale image"), "{e}");
+    std::fs::write(&mask, eight_bit).unwrap();
+
+    // The two images' labels swapped (they differ: one is aimed at a tree).
+    let (a, b) = (dir.join(&first.patches), dir.join(&second.patches));
+    let (text_a, text_b) = (std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap());
+    assert_ne!(text_a, text_b);
+    std::fs::write(&a, &text_b).unwrap();
+    std::fs::write(&b, &text_a).unwrap();
+    let e = load(0).unwrap_err();
+    assert!(e.contains(&first.patches) && e.contains("the labels are not this image's"), "{e}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
