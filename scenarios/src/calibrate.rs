@@ -312,15 +312,18 @@ impl SessionConfig {
             Err(CalibrateError::Session { file: file.to_path_buf(), field: field.into(), message })
         };
         // The laser's plane must cut every board, away from its edges.
-        // Both sensors must see every board: its centre within the camera's half field of
-        // view of straight ahead (the camera looks along the laser's axis), which is also
-        // within the laser's.
-        let half_fov = (sim.camera.hfov_deg / 2.0).min(sim.laser.fov_deg / 2.0);
-        if self.bearing_deg[0] < -half_fov || self.bearing_deg[1] > half_fov {
+        // Both sensors must see every board: its centre (a bearing from the laser's axis)
+        // within the camera's half field of view of the camera's axis, and the laser's of
+        // its own.
+        let camera_axis = sim.camera.mount_yaw_deg - sim.laser.mount_yaw_deg;
+        let half_camera = sim.camera.hfov_deg / 2.0;
+        let half_laser = sim.laser.fov_deg / 2.0;
+        let seen = |b: f64| (b - camera_axis).abs() <= half_camera && b.abs() <= half_laser;
+        if !(seen(self.bearing_deg[0]) && seen(self.bearing_deg[1])) {
             return bad(
                 "bearing_deg",
                 format!(
-                    "boards must stand where the camera sees them, within +-{half_fov} deg of straight ahead, got {:?}",
+                    "boards must stand where both sensors see them: within +-{half_camera} deg of the camera's axis ({camera_axis} deg from the laser's) and +-{half_laser} deg of the laser's, got {:?}",
                     self.bearing_deg
                 ),
             );
@@ -1134,7 +1137,14 @@ mod tests {
         assert!(e.contains("centre_height_m") && e.contains("laser"), "{e}");
         let e =
             SessionConfig { bearing_deg: [-90.0, 90.0], ..Default::default() }.check(f, &sim).unwrap_err().to_string();
-        assert!(e.contains("calibration.session.bearing_deg") && e.contains("within +-30 deg"), "{e}");
+        assert!(
+            e.contains("calibration.session.bearing_deg") && e.contains("within +-30 deg of the camera's axis"),
+            "{e}"
+        );
+        // A camera turned 20 deg sees boards at 20-40 deg from the laser's axis.
+        let mut turned = SimConfig::default();
+        turned.camera.mount_yaw_deg = 20.0;
+        SessionConfig { bearing_deg: [20.0, 40.0], ..Default::default() }.check(f, &turned).unwrap();
         let e = SessionConfig { poses: 0, ..Default::default() }.check(f, &sim).unwrap_err().to_string();
         assert!(e.contains("poses"), "{e}");
         let e = SessionConfig { station_spacing_m: 3.0, ..Default::default() }.check(f, &sim).unwrap_err().to_string();

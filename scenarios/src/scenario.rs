@@ -264,9 +264,20 @@ pub const DEFAULT_SCENARIO: &str = "paper_park";
 impl Scenario {
     /// Parses and checks scenario text; `file` names it in errors.
     pub fn parse(text: &str, file: &Path) -> Result<Scenario, ScenarioError> {
-        let mut s: Scenario = toml_strict::from_str(text).map_err(|e| ScenarioError::Parse {
-            file: file.to_path_buf(),
-            message: e.to_string().trim_end().to_string(),
+        let mut s: Scenario = toml_strict::from_str(text).map_err(|e| {
+            // A scenario's tables are single: `[[sim.laser]]` would otherwise be reported
+            // as a type error inside it ("expected f64").
+            let array_of_tables = text.lines().enumerate().find_map(|(i, line)| {
+                let name = line.trim().strip_prefix("[[")?.split("]]").next()?.trim().to_string();
+                Some((i + 1, name))
+            });
+            let message = match array_of_tables {
+                Some((line, name)) => format!(
+                    "line {line}: `[[{name}]]` starts an array of tables, and a scenario has none: write `[{name}]`"
+                ),
+                None => e.to_string().trim_end().to_string(),
+            };
+            ScenarioError::Parse { file: file.to_path_buf(), message }
         })?;
         s.source = SourceFile(file.to_path_buf());
         s.check(file).map_err(|e| match e {
@@ -721,6 +732,17 @@ mod tests {
     fn a_huge_file_is_not_read_as_a_scenario() {
         let e = Scenario::load("/dev/zero").unwrap_err().to_string();
         assert!(e.contains("/dev/zero") && e.contains("larger than 16 MiB"), "{e}");
+    }
+
+    #[test]
+    fn an_array_of_tables_is_named_as_such() {
+        let text = "name = \"t\"\n[world]\npreset = \"park\"\n[[sim.laser]]\nrate_hz = 5.0\n";
+        let e = Scenario::parse(text, Path::new("arr.toml")).unwrap_err().to_string();
+        assert!(
+            e.contains("arr.toml: line 4: `[[sim.laser]]` starts an array of tables")
+                && e.contains("write `[sim.laser]`"),
+            "{e}"
+        );
     }
 
     #[test]

@@ -279,6 +279,9 @@ impl SimConfig {
         if self.laser.fov_deg > 180.0 {
             return bad("laser.fov_deg", format!("an LMS2xx sees at most 180 deg, got {}", self.laser.fov_deg));
         }
+        if self.laser.beam_count() < 2 {
+            return bad("laser.fov_deg", "fewer than 2 beams".into());
+        }
         // The beams span the field of view from edge to edge, a whole number of steps apart:
         // another field of view would be rounded to one, and the scan not centred.
         let steps = self.laser.fov_deg / self.laser.resolution_deg.degrees();
@@ -291,9 +294,6 @@ impl SimConfig {
                     self.laser.resolution_deg.degrees()
                 ),
             );
-        }
-        if self.laser.beam_count() < 2 {
-            return bad("laser.fov_deg", "fewer than 2 beams".into());
         }
         // A Pioneer-class ground robot: a body of metres is another vehicle, or a typo (1e300
         // m left the f32 physics unable to move it).

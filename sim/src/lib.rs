@@ -240,13 +240,13 @@ impl Simulation {
         self.follower.progress() / self.follower.total_length().max(1e-9)
     }
 
-    /// Nominal duration of the run: route length over cruise speed (for progress bars).
     /// The simulated time after which the run stops, finished or not: `max_duration_s`,
     /// or the limit derived from the route when it is not set.
     pub fn time_limit_s(&self) -> f64 {
         self.max_duration_s
     }
 
+    /// Nominal duration of the run: route length over cruise speed (for progress bars).
     pub fn nominal_duration_s(&self) -> f64 {
         self.follower.total_length() / self.config.robot.cruise_speed_mps
     }

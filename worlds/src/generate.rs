@@ -208,12 +208,14 @@ impl ParkParams {
                 ),
             );
         }
-        if self.wall && self.wall_length_m[1] > w - 2.0 {
+        // A drawn length beyond the ground's width less a metre either side is cut to it (a
+        // narrow park keeps the default range); a range all of which is longer is refused.
+        if self.wall && self.wall_length_m[0] > w - 2.0 {
             return bad(
                 "wall_length_m",
                 format!(
-                    "a wall up to {} m long does not fit along the {w:.1} m ground with a metre either side: at most {:.1} m",
-                    self.wall_length_m[1],
+                    "no wall of {:?} m fits along the {w:.1} m ground with a metre either side: at most {:.1} m",
+                    self.wall_length_m,
                     w - 2.0
                 ),
             );

@@ -184,9 +184,10 @@ pub fn run_study_with(
         // at most one partial line, which the next start drops; a failed write is cut back and
         // fails the study once the other runs are done (the run is redone on resume).
         let append_failures: Mutex<(usize, String)> = Mutex::new((0, String::new()));
-        // Each run read the scenario's files when it began: a record is kept only while they
-        // are still the ones pinned, so that a file edited mid-study stops the study there
-        // rather than pooling two worlds' runs under one setting.
+        // Each run reads the scenario's world, calibration and model files as it begins (a
+        // worker process the scenario too): a record is kept only while they are still the
+        // ones pinned, so that a file edited mid-study stops the study there rather than
+        // pooling two worlds' runs under one setting.
         let record_finished = |record: &RunRecord| -> Result<(), StudyError> {
             still_pinned(plan, &pin)?;
             {
@@ -638,6 +639,10 @@ mod tests {
         let e = apply_param(&s, "sim.odometry.scale_sigma", -0.05).unwrap_err().to_string();
         assert!(e.contains("sim.odometry.scale_sigma: must be finite and not negative"), "{e}");
         assert!(!e.contains("line "), "{e}");
+        // A value the setting's type cannot hold: the reader's words, not its quote of the
+        // generated text.
+        let e = apply_param(&s, "pipeline.confirm_observations", -2.0).unwrap_err().to_string();
+        assert!(!e.contains("line ") && !e.contains("|"), "{e}");
     }
 
     /// Values that differ as typed but set a whole-number setting alike would be one job

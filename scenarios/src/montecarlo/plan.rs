@@ -348,15 +348,18 @@ pub fn jobs(plan: &StudyPlan) -> Vec<Job> {
 pub(super) fn check_values_differ(plan: &StudyPlan, base: &Scenario) -> Result<(), StudyError> {
     // Settings that only a method reading the camera uses: the position-only methods run
     // without the camera, its calibration, segmentation, evidence and object models, and
-    // train no appearance model; the joint loop closing and its relinearisation are the
-    // combined method's.
-    const CAMERA_ONLY: [&str; 11] = [
+    // train no appearance model.
+    const CAMERA_ONLY: [&str; 6] = [
         "appearance.",
         "sim.camera.",
         "calibration.",
         "pipeline.segmentation.",
         "pipeline.evidence.",
         "pipeline.object_model.",
+    ];
+    // The combined method's alone: its joint loop closing, the relinearisation after it,
+    // and its deferral of look-alikes.
+    const COMBINED_ONLY: [&str; 5] = [
         "pipeline.joint_loop_closing",
         "pipeline.joint_loop_free_space",
         "pipeline.defer_near_lookalike",
@@ -382,6 +385,14 @@ pub(super) fn check_values_differ(plan: &StudyPlan, base: &Scenario) -> Result<(
                     "no method of the study ({}) reads the camera (add a camera method: --methods combined,...)",
                     names.join(", ")
                 ),
+            ));
+        }
+        if COMBINED_ONLY.iter().any(|prefix| p.starts_with(prefix))
+            && !methods.contains(&slam::association::AssociationMethod::Combined)
+        {
+            return Err(unread(
+                p,
+                format!("only the combined method reads it, and the study runs {}", names.join(", ")),
             ));
         }
         if p.starts_with("calibration.session.") && base.calibration.mode != "estimated" {
@@ -470,6 +481,11 @@ pub fn apply_param(scenario: &Scenario, path: &str, value: f64) -> Result<Scenar
         Scenario::parse(&text, Path::new(&format!("{}[{path}={value}]", scenario.name))).map_err(|e| match e {
             crate::scenario::ScenarioError::Invalid { file, field, message, .. } => {
                 bad(crate::scenario::ScenarioError::Invalid { file, line: None, field, message }.to_string())
+            }
+            // The TOML reader's rendering quotes the generated text; its last line says what
+            // is wrong with the value (e.g. "invalid value: integer `-1`, expected u64").
+            crate::scenario::ScenarioError::Parse { message, .. } => {
+                bad(message.lines().rev().find(|l| !l.trim().is_empty()).unwrap_or_default().trim().to_string())
             }
             other => bad(other.to_string()),
         })

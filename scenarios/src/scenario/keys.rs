@@ -44,7 +44,7 @@ pub(super) const KEYS: &[(&str, &str)] = &[
     (
         "name",
         "Scenario name (required): letters, digits, '_', '-' and '.', not starting with '.'; a run's output goes \
-         to runs/<name>-<seed> unless told otherwise.",
+         to runs/<name>-<seed> unless told otherwise; at most 100 characters.",
     ),
     ("description", "Free text: what the scenario is for."),
     (
@@ -74,11 +74,15 @@ pub(super) const KEYS: &[(&str, &str)] = &[
     ("world.params.palm_radius_m", "Palm trunk radius range (m); min at least 0.02, max at most 1."),
     ("world.params.palm_height_m", "Palm height range (m); min at least 0.5."),
     ("world.params.wall", "Whether to place a wall of bark-like brick along the far side."),
-    ("world.params.wall_length_m", "Wall length range (m); min at least 0.5."),
+    (
+        "world.params.wall_length_m",
+        "Wall length range (m); min at least 0.5 and at most the ground's width less 2 m; a longer draw is cut to \
+         that.",
+    ),
     ("world.params.wall_height_m", "Wall height range (m); min at least 0.5."),
     ("world.params.people", "Number of people walking back and forth across the robot's route."),
-    ("world.params.person_speed_mps", "Walking speed range (m/s); min at least 0.1."),
-    ("world.params.person_height_m", "Person height range (m); min at least 0.8."),
+    ("world.params.person_speed_mps", "Walking speed range (m/s); min at least 0.1, max at most 12."),
+    ("world.params.person_height_m", "Person height range (m); min at least 0.8, max at most 2.75."),
     (
         "world.params.person_walk_half_length_m",
         "Range of the half-length of a person's walk across the route (m); min at least 0.5.",
@@ -116,9 +120,9 @@ pub(super) const KEYS: &[(&str, &str)] = &[
          the route's driving time at cruise speed, plus 30 s.",
     ),
     // [sim.robot]
-    ("sim.robot.length_m", "Body length, front to back (m); positive."),
-    ("sim.robot.width_m", "Body width (m); positive."),
-    ("sim.robot.body_height_m", "Height of the body's collision box (m); positive."),
+    ("sim.robot.length_m", "Body length, front to back (m); positive, at most 5."),
+    ("sim.robot.width_m", "Body width (m); positive, at most 5."),
+    ("sim.robot.body_height_m", "Height of the body's collision box (m); positive, at most 5."),
     (
         "sim.robot.max_speed_mps",
         "Speed limit of the path follower (m/s); positive, at least cruise_speed_mps, at most the Pioneer 2-AT's 1.2.",
@@ -136,10 +140,14 @@ pub(super) const KEYS: &[(&str, &str)] = &[
     (
         "sim.robot.safety_stop_m",
         "Stop while the laser sees something closer than this ahead of the robot's front, within 30 deg of \
-         straight ahead (m; people crossing); 0 or more.",
+         straight ahead (m; people crossing); 0 or more, below the laser's max_range_m.",
     ),
     // [sim.laser]
-    ("sim.laser.fov_deg", "Field of view, centred straight ahead (deg); positive, at most 180, at least 2 beams."),
+    (
+        "sim.laser.fov_deg",
+        "Field of view, centred straight ahead (deg); positive, at most 180, a whole number of resolution_deg \
+         steps, at least 2 beams.",
+    ),
     ("sim.laser.resolution_deg", "Angle between beams (deg), a string: \"0.25\", \"0.5\" or \"1\"."),
     (
         "sim.laser.max_range_m",
@@ -236,7 +244,11 @@ pub(super) const KEYS: &[(&str, &str)] = &[
         "Checker squares across and down; 3 to 100 each way, and the squares must come out square.",
     ),
     ("calibration.session.distance_m", "Range of the distance from the laser to the board centre (m); above 0.3."),
-    ("calibration.session.bearing_deg", "Range of the bearing of the board centre from the laser's x axis (deg)."),
+    (
+        "calibration.session.bearing_deg",
+        "Range of the bearing of the board centre from the laser's x axis (deg); within both sensors' fields of \
+         view.",
+    ),
     (
         "calibration.session.centre_height_m",
         "Range of the board centre's height above the ground (m): the laser's plane must cut every board well \
