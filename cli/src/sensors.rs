@@ -167,8 +167,13 @@ pub(crate) fn record(
     };
     bar.finish_and_clear();
     println!(
-        "recorded {:.1} s in {:.2} s ({:.0}x real time): {} scans, {} odometry messages, {} camera frames, {} collisions -> {}",
-        summary.sim_seconds,
+        "recorded {} s in {:.2} s ({:.0}x real time): {} scans, {} odometry messages, {} camera frames, {} collisions -> {}",
+        // A tenth of a second would print a recording of 0.04 s as "0.0 s".
+        if summary.sim_seconds >= 1.0 {
+            format!("{:.1}", summary.sim_seconds)
+        } else {
+            format!("{:.3}", summary.sim_seconds)
+        },
         summary.wall_seconds,
         summary.sim_seconds / summary.wall_seconds.max(1e-9),
         summary.scans,

@@ -224,6 +224,13 @@ impl Manifest {
                         format!("must be finite and positive, got {wheelbase}"),
                     ));
                 }
+                // Like the sensor's offset: longer than any vehicle is millimetres for metres.
+                if wheelbase > MAX_SENSOR_OFFSET_M {
+                    return Err((
+                        "vehicle.wheelbase_m".into(),
+                        format!("{wheelbase} m: at most {MAX_SENSOR_OFFSET_M} m (metres, not millimetres)"),
+                    ));
+                }
                 let offset = self.vehicle.encoder_offset_m.unwrap_or(0.0);
                 if !(offset.is_finite() && offset.abs() < wheelbase) {
                     return Err((
@@ -241,6 +248,11 @@ impl Manifest {
         }
         if let Some((i, v)) = self.vehicle.start_pose.iter().enumerate().find(|(_, v)| !v.is_finite()) {
             return Err((format!("vehicle.start_pose[{i}]"), format!("must be finite, got {v}")));
+        }
+        // On Earth, as reference positions are: 1e15 m had cost the filter its precision.
+        let max = crate::format::MAX_COORDINATE_M;
+        if let Some((i, v)) = self.vehicle.start_pose[..2].iter().enumerate().find(|(_, v)| v.abs() > max) {
+            return Err((format!("vehicle.start_pose[{i}]"), format!("{v:e} m lies beyond {max:e} m")));
         }
         for (name, v) in [("x_m", self.sensor.x_m), ("y_m", self.sensor.y_m), ("yaw_rad", self.sensor.yaw_rad)] {
             if !v.is_finite() {

@@ -22,6 +22,10 @@ pub enum MotionMessage {
 /// overflows the filter's variances.
 pub const MAX_SPEED_M_S: f64 = 343.0;
 
+/// Fastest turn a vehicle's odometry may read: a turn a second (a Pioneer 2-AT turns at
+/// most 300 deg/s). A rate in degrees per second read as radians goes far past it.
+pub const MAX_TURN_RATE_RAD_S: f64 = std::f64::consts::TAU;
+
 impl MotionMessage {
     /// What makes this message impossible, if anything: a speed beyond [`MAX_SPEED_M_S`],
     /// a step beyond [`crate::format::MAX_COORDINATE_M`], or steering at or past a right
@@ -35,8 +39,21 @@ impl MotionMessage {
                 let max = crate::format::MAX_COORDINATE_M;
                 (o.dx.abs().max(o.dy.abs()) > max)
                     .then(|| format!("a step of ({:e}, {:e}) m is beyond {max:e} m", o.dx, o.dy))
+                    .or_else(|| {
+                        // Odometry reads each step's turn, never more than half a turn of it.
+                        (o.dtheta.abs() > std::f64::consts::PI)
+                            .then(|| format!("dtheta {} rad is more than half a turn in one step (degrees?)", o.dtheta))
+                    })
             }
-            MotionMessage::Control { control: Control::Differential { v, .. }, .. } => too_fast("speed", v),
+            MotionMessage::Control { control: Control::Differential { v, omega }, .. } => {
+                too_fast("speed", v).or_else(|| {
+                    (omega.abs() > MAX_TURN_RATE_RAD_S).then(|| {
+                        format!(
+                            "omega {omega} rad/s is beyond a turn a second, {MAX_TURN_RATE_RAD_S:.3} rad/s (degrees?)"
+                        )
+                    })
+                })
+            }
             MotionMessage::Control { control: Control::Ackermann { speed, steering }, .. } => too_fast("speed", speed)
                 .or_else(|| {
                     (steering.abs() >= std::f64::consts::FRAC_PI_2)

@@ -188,6 +188,24 @@ fn malformed_files_are_errors_that_name_file_and_line() {
             "t,dx,dy,dtheta\n0,0,0,0\n0.05,30,40,0\n",
             "odometry.csv:3: a step of 50.000 m in 0.05 s is 1e3 m/s, beyond 343 m/s",
         ),
+        // A step at a repeated time: a teleport, whatever its length.
+        (
+            "odometry.csv",
+            "t,dx,dy,dtheta\n0,0,0,0\n2.45,0.02,0,0\n2.45,100,0,0\n",
+            "odometry.csv:4: a step of 100.000 m and 0 rad in no time",
+        ),
+        // Turns in degrees read as radians.
+        (
+            "odometry.csv",
+            "t,dx,dy,dtheta\n0,0,0,0\n0.05,0.02,0,45\n",
+            "odometry.csv:3: dtheta 45 rad is more than half a turn in one step",
+        ),
+        (
+            "odometry.csv",
+            "t,dx,dy,dtheta\n0,0,0,0\n0.05,0.02,0,1.0\n",
+            "odometry.csv:3: a turn of 1 rad in 0.05 s is 2e1 rad/s, beyond a turn a second",
+        ),
+        ("odometry.csv", "t,v,omega\n0,0.5,45\n", "odometry.csv:2: omega 45 rad/s is beyond a turn a second"),
         // Huge but finite: a time, a range, a mounting (they had reached the filter).
         (
             "odometry.csv",
@@ -235,6 +253,16 @@ fn malformed_files_are_errors_that_name_file_and_line() {
             "manifest.toml",
             "format_version = 1\n[vehicle]\nmotion = \"ackermann\"\n[sensor]\nx_m = 0\ny_m = 0\n",
             "vehicle.wheelbase_m: is needed",
+        ),
+        (
+            "manifest.toml",
+            "format_version = 1\n[vehicle]\nmotion = \"ackermann\"\nwheelbase_m = 2830.0\n[sensor]\nx_m = 0\ny_m = 0\n",
+            "vehicle.wheelbase_m: 2830 m: at most 50 m (metres, not millimetres)",
+        ),
+        (
+            "manifest.toml",
+            "format_version = 1\n[vehicle]\nstart_pose = [1e15, -6.0, 0.0]\n[sensor]\nx_m = 0\ny_m = 0\n",
+            "vehicle.start_pose[0]: 1e15 m lies beyond 1e9 m",
         ),
         (
             "manifest.toml",

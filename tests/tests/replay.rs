@@ -66,6 +66,11 @@ fn a_recorded_log_replays_to_the_runs_estimate() {
     let log = robotlog::format::open(&dir.join("log")).unwrap();
     let config = resolve_config(Some(&dir.join("log")), &log.manifest, None, None).unwrap();
     assert_eq!(config, pipeline, "the log's pipeline.toml is the scenario's settings");
+    // A mounting other than the log's own would filter one point and write another.
+    let moved = dir.join("moved.toml");
+    std::fs::write(&moved, "[pipeline.sensor]\nmount_x = 0.5\n").unwrap();
+    let e = resolve_config(Some(&dir.join("log")), &log.manifest, None, Some(&moved)).unwrap_err().to_string();
+    assert!(e.contains("moved.toml") && e.contains("disagree with the log's manifest.toml"), "{e}");
     let replayed = replay(log, config, None, Some(&dir.join("replay"))).unwrap();
     assert_same_estimate(&out, &dir.join("replay"), &replayed);
     assert!(!dir.join("replay/.unfinished").exists(), "every output moved into place");

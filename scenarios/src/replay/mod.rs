@@ -88,7 +88,7 @@ pub enum ReplayError {
     /// Motion that stops while the sensors go on is a cut file, not a vehicle standing
     /// still: odometry comes at tens of hertz, so a second without it is no jitter.
     #[error(
-        "the motion ends at t = {motion_end} s while observations go on to t = {t} s: a log's motion (a robot log's odometry.csv; Victoria Park's `time` and speeds) must cover what it saw (is the file cut short?)"
+        "the motion ends at t = {motion_end} s while observations go on to t = {t} s (and maybe beyond): a log's motion (a robot log's odometry.csv; Victoria Park's `time` and speeds) must cover what it saw (is the motion file cut short, or are the observations' times on another clock or in milliseconds?)"
     )]
     MotionEnded { motion_end: f64, t: f64 },
     /// Most observations before the motion's first row is motion on another clock or in
@@ -183,6 +183,9 @@ pub fn resolve_config(
     // Where the motion model was last set: a model that cannot read the log's motion is
     // that file's error, found before the replay starts.
     let mut motion_set_in: Option<(PathBuf, usize)> = None;
+    // Where the sensor's mounting was last set: it must be the log's own, which places
+    // the path written and scored.
+    let mut mount_set_in: Option<(PathBuf, usize)> = None;
     let mut files = Vec::new();
     if let Some(dir) = log_dir
         && dir.join(files::PIPELINE).exists()
@@ -215,6 +218,12 @@ pub fn resolve_config(
             }
             _ => (table, &[]),
         };
+        if let Some(key) =
+            ["mount_x", "mount_y"].into_iter().find(|k| table.get("sensor").and_then(|s| s.get(k)).is_some())
+        {
+            let at: Vec<&str> = under.iter().copied().chain(["sensor", key]).collect();
+            mount_set_in = Some((file.clone(), toml_strict::line_of_path(&text, &at).unwrap_or(1)));
+        }
         // Another motion model replaces the whole table: the two models' keys differ.
         let new_model = table.get("motion").and_then(|m| m.get("model")).cloned();
         if new_model.is_some() {
@@ -239,6 +248,19 @@ pub fn resolve_config(
         config.validate().map_err(|setting| ReplayError::Setting { file: file.clone(), setting })?;
     }
     let mut config: PipelineConfig = value.try_into().expect("checked above");
+    let (mx, my) = (manifest.sensor.x_m, manifest.sensor.y_m);
+    if let Some((file, line)) =
+        mount_set_in.filter(|_| (config.sensor.mount_x - mx).abs() > 1e-9 || (config.sensor.mount_y - my).abs() > 1e-9)
+    {
+        return Err(ReplayError::Config {
+            file,
+            line,
+            problem: format!(
+                "pipeline.sensor.mount_x, mount_y = ({}, {}) disagree with the log's manifest.toml, whose [sensor] puts it at ({mx}, {my}): the mounting is the log's, which also places the path written and scored; leave them out or mend the manifest",
+                config.sensor.mount_x, config.sensor.mount_y
+            ),
+        });
+    }
     let car_log = manifest.vehicle.motion == "ackermann";
     if let Some((file, line)) = motion_set_in.filter(|_| matches!(config.motion, MotionConfig::Ackermann(_)) != car_log)
     {
