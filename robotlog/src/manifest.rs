@@ -294,6 +294,13 @@ impl Manifest {
                 return Err((format!("sensor.{name}"), format!("must be {what}, got {v}")));
             }
         }
+        // As the filter's observation model checks it, but named here, in the manifest.
+        if let Some(v) = self.sensor.bearing_sigma_rad.filter(|v| *v > std::f64::consts::PI) {
+            return Err((
+                "sensor.bearing_sigma_rad".into(),
+                format!("must be at most pi (radians, not degrees), got {v:e}"),
+            ));
+        }
         if let Some(l) = &self.laser {
             // Beyond a turn either way an angle is a unit mistake (degrees for radians).
             let turn = std::f64::consts::TAU;

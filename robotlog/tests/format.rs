@@ -266,6 +266,11 @@ fn malformed_files_are_errors_that_name_file_and_line() {
         ),
         (
             "manifest.toml",
+            "format_version = 1\n[sensor]\nx_m = 0\ny_m = 0\nbearing_sigma_rad = 4.0\n",
+            "sensor.bearing_sigma_rad: must be at most pi (radians, not degrees), got 4e0",
+        ),
+        (
+            "manifest.toml",
             "format_version = 1\n[vehicle]\nmotion = \"ackermann\"\nwheelbase_m = nan\n[sensor]\nx_m = 0\ny_m = 0\n",
             "vehicle.wheelbase_m: must be finite and positive",
         ),
