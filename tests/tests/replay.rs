@@ -71,9 +71,19 @@ fn a_recorded_log_replays_to_the_runs_estimate() {
     std::fs::write(&moved, "[pipeline.sensor]\nmount_x = 0.5\n").unwrap();
     let e = resolve_config(Some(&dir.join("log")), &log.manifest, None, Some(&moved)).unwrap_err().to_string();
     assert!(e.contains("moved.toml") && e.contains("disagree with the log's manifest.toml"), "{e}");
-    let replayed = replay(log, config, None, Some(&dir.join("replay"))).unwrap();
+    let replayed = replay(log, config.clone(), None, Some(&dir.join("replay"))).unwrap();
     assert_same_estimate(&out, &dir.join("replay"), &replayed);
     assert!(!dir.join("replay/.unfinished").exists(), "every output moved into place");
+    assert!(replayed.metrics.returns_in_range.is_some_and(|n| n > 1000), "{:?}", replayed.metrics.returns_in_range);
+    // The same ranges in millimetres: every beam beyond the laser's range, said so.
+    let mut millimetres = robotlog::format::read(&dir.join("log")).unwrap();
+    let robotlog::Observations::Scans(scans) = &mut millimetres.observations else { panic!("whole scans") };
+    for scan in scans {
+        scan.ranges.iter_mut().for_each(|r| *r *= 1000.0);
+    }
+    let m = replay(millimetres, config, None, None).unwrap().metrics;
+    assert_eq!(m.returns_in_range, Some(0));
+    assert!(scenarios::replay::summary(&m).contains("ranges in millimetres"), "{}", scenarios::replay::summary(&m));
     let mut written: Vec<String> = std::fs::read_dir(dir.join("replay"))
         .unwrap()
         .map(|f| f.unwrap().file_name().to_string_lossy().into_owned())

@@ -333,6 +333,10 @@ pub struct ReplayMetrics {
     /// pose: a laser started before the odometry, with the vehicle standing, or not.
     pub scans_before_motion: usize,
     pub detections: usize,
+    /// Beams of whole scans that returned within the laser's `[range_min_m, range_max_m]`
+    /// (null for a log of detections): 0 over every scan is ranges in another unit, or a
+    /// sensor that saw nothing.
+    pub returns_in_range: Option<usize>,
     /// Camera frames given to the pipeline (the camera methods'; 0 for the others).
     pub camera_frames: usize,
     /// The appearance model the camera methods used (null for the others).
@@ -577,6 +581,7 @@ fn replay_and_write(
     let mut scan_ms = ScanTimeHistogram::default();
     let yaw = log.manifest.sensor.yaw_rad;
     let (mut detections, mut motion_messages, mut scans, mut end) = (0, 0, 0, start);
+    let mut returns_in_range: Option<usize> = None;
     let mut motion_end = start;
     // Whether the motion is on the observations' clock (see MotionStartsLate and
     // MotionOutlastsObservations, with the observations' span below): observations before
@@ -636,6 +641,9 @@ fn replay_and_write(
             let report = match message {
                 // Beams in the vehicle's frame: the laser may look sideways.
                 ObservationMessage::Scan(scan) => {
+                    let returned =
+                        scan.ranges.iter().filter(|r| r.is_finite() && (scan.range_min..=scan.range_max).contains(*r));
+                    *returns_in_range.get_or_insert(0) += returned.count();
                     let turned = slam::messages::LaserScan { angle_min: scan.angle_min + yaw, ..scan };
                     pipeline.on_scan(&turned).map_err(error(t))?
                 }
@@ -709,6 +717,7 @@ fn replay_and_write(
         scans,
         scans_before_motion: before_motion,
         detections,
+        returns_in_range,
         camera_frames,
         appearance_model: model_provenance,
         landmarks: landmarks.len(),
@@ -970,13 +979,19 @@ pub fn summary(m: &ReplayMetrics) -> String {
         1 => "; 1 scan before the motion's first row, replayed from the start pose".to_string(),
         n => format!("; {n} scans before the motion's first row, replayed from the start pose"),
     };
+    let no_return = if m.returns_in_range == Some(0) {
+        "; no beam of any scan returned within the laser's range_min_m to range_max_m (ranges in millimetres, or in \
+         another unit?)"
+    } else {
+        ""
+    };
     let nis = if m.nis.mean.is_finite() {
         format!("NIS mean {:.2} ({:.0}% within 95%)", m.nis.mean, 100.0 * m.nis.within_95)
     } else {
         "NIS undefined (no observation was associated)".to_string()
     };
     format!(
-        "{} with {}: {} landmarks; {reference}{before}; {nis}; {:.2} ms per scan (p95 {:.2}); {:.1} s wall, {:.0}x real time",
+        "{} with {}: {} landmarks; {reference}{before}{no_return}; {nis}; {:.2} ms per scan (p95 {:.2}); {:.1} s wall, {:.0}x real time",
         m.log,
         m.method,
         m.landmarks,
