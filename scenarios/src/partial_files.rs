@@ -378,7 +378,19 @@ pub fn publish(unfinished: &Path, out: &Path, stale: &[&str], marker: &str) -> R
         } else {
             std::fs::rename(&from, &to)
         };
-        errors.extend(moved.err().map(|source| PartialFileError { file: to, source }));
+        // By now the earlier outputs' marker is gone and some new files are in: say so, and
+        // where the rest waits.
+        errors.extend(moved.err().map(|source| PartialFileError {
+            file: to,
+            source: std::io::Error::new(
+                source.kind(),
+                format!(
+                    "{source} (while moving the new outputs in: the earlier outputs' {marker} had been removed and some new files moved, so {} holds a mix; the new outputs not moved, {marker} among them, are in {}: move them in to finish)",
+                    out.display(),
+                    unfinished.display()
+                ),
+            ),
+        }));
     }
     if errors.is_empty() {
         std::fs::remove_dir(unfinished).map_err(one(unfinished))?;

@@ -219,7 +219,7 @@ fn run_writes_every_output() {
     std::fs::write(dir.join("objects/models.json"), "[]").unwrap();
     // Its mark of a finished run (without it the directory is refused: see
     // `files_of_a_runs_names_where_no_run_was_are_refused`).
-    std::fs::write(dir.join("metadata.json"), "{}").unwrap();
+    std::fs::write(dir.join("metadata.json"), r#"{"tool": "objslam run"}"#).unwrap();
     let (mut sc, base) = Scenario::load("laser_only").unwrap();
     sc.sim.max_duration_s = Some(20.0);
     let m = run(&sc, &base, &RunOptions { seed: Some(3), out: Some(dir.clone()), ..Default::default() }, |_| {})
@@ -420,6 +420,42 @@ fn files_of_a_runs_names_where_no_run_was_are_refused() {
     assert_eq!(std::fs::read_to_string(dir.join("objects/keep.txt")).unwrap(), "my notes");
     assert_eq!(std::fs::read_to_string(dir.join("trees_shown.jsonl")).unwrap(), "mine");
     assert!(!dir.join("metadata.json").exists() && !dir.join(".unfinished").exists(), "the run went ahead");
+    // A metadata.json another command (or a user) wrote marks no earlier run.
+    std::fs::write(dir.join("metadata.json"), r#"{"tool": "objslam record"}"#).unwrap();
+    let e = run(&sc, &base, &options, |_| {}).err().expect("refused").to_string();
+    assert!(e.contains("written by `objslam record`, not by an objslam run"), "{e}");
+    std::fs::write(dir.join("metadata.json"), r#"{"my": "data"}"#).unwrap();
+    let e = run(&sc, &base, &options, |_| {}).err().expect("refused").to_string();
+    assert!(e.contains("written by no objslam command"), "{e}");
+    assert_eq!(std::fs::read_to_string(dir.join("trees_shown.jsonl")).unwrap(), "mine");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A mesh file the world reads, kept among an earlier run's outputs (its `objects/`), is
+/// refused: the run would remove it and could not be repeated.
+#[test]
+fn a_mesh_file_among_the_outputs_is_refused() {
+    let dir = std::env::temp_dir().join(format!("objslam-mesh-in-outputs-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let out = dir.join("out");
+    std::fs::create_dir_all(out.join("objects")).unwrap();
+    std::fs::write(out.join("metadata.json"), r#"{"tool": "objslam run"}"#).unwrap();
+    let mut world = worlds::generate::park(&Default::default(), 1).unwrap();
+    let post = world.objects.iter_mut().find(|o| o.class == worlds::ObjectClass::Post).unwrap();
+    let parts = worlds::mesh::object_parts(post);
+    std::fs::write(out.join("objects/post.glb"), worlds::gltf_io::parts_to_glb(&parts)).unwrap();
+    post.mesh = Some("out/objects/post.glb".into());
+    std::fs::write(dir.join("w.toml"), world.to_toml()).unwrap();
+    std::fs::write(dir.join("s.toml"), "name = \"m\"\n[world]\nfile = \"w.toml\"\n[pipeline]\nmethod = \"nn\"\n")
+        .unwrap();
+    let (mut sc, base) = Scenario::load(dir.join("s.toml").to_str().unwrap()).unwrap();
+    sc.sim.max_duration_s = Some(2.0);
+    let e = run(&sc, &base, &RunOptions { out: Some(out.clone()), ..Default::default() }, |_| {})
+        .err()
+        .expect("refused")
+        .to_string();
+    assert!(e.contains("post.glb: the mesh file lies among the outputs"), "{e}");
+    assert!(out.join("objects/post.glb").is_file(), "the mesh is kept");
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -90,6 +90,11 @@ pub enum RunError {
         out.display()
     )]
     InputInOutputs { what: &'static str, file: PathBuf, out: PathBuf },
+    #[error(
+        "{}: its metadata.json was written by {tool}, not by an objslam run, so its files are not a run's to replace; choose another output directory",
+        out.display()
+    )]
+    NotARunsMetadata { out: PathBuf, tool: String },
     /// Files of a run's names where no run was published: someone's own (or what a run
     /// stopped while publishing left), which publishing would replace or delete.
     #[error(
@@ -459,8 +464,20 @@ fn check_inputs_outside_outputs(scenario: &Scenario, base_dir: &Path, out: &Path
 /// earlier run's `metadata.json`: a run replaces and removes what an earlier run wrote, not
 /// a user's own files that happen to have those names (an `objects/` folder of notes).
 fn check_earlier_outputs_are_a_runs(out: &Path) -> Result<(), RunError> {
-    if std::fs::symlink_metadata(out.join(files::METADATA)).is_ok() {
-        return Ok(());
+    // An earlier run's own `metadata.json` (one another command or a user wrote is not).
+    let metadata = out.join(files::METADATA);
+    if std::fs::symlink_metadata(&metadata).is_ok() {
+        let tool = std::fs::read_to_string(&metadata)
+            .ok()
+            .and_then(|text| serde_json::from_str::<serde_json::Value>(&text).ok())
+            .and_then(|v| v.get("tool").and_then(|t| t.as_str()).map(str::to_owned));
+        return match tool.as_deref() {
+            Some("objslam run") => Ok(()),
+            other => Err(RunError::NotARunsMetadata {
+                out: out.to_path_buf(),
+                tool: other.map_or_else(|| "no objslam command".to_string(), |t| format!("`{t}`")),
+            }),
+        };
     }
     match files::first_present(out, files::RUN_OUTPUTS) {
         Some(name) => Err(RunError::UnownedOutputs { name, out: out.to_path_buf() }),
@@ -480,6 +497,12 @@ fn run_and_write(
     let camera_method = config.method.uses_appearance();
     let appearance_model = appearance_for(scenario, base_dir, options, &config, &mut progress)?;
     let world = scenario.world(base_dir, seed)?;
+    // The world's mesh files are inputs too: known once the world is read.
+    if let Some(out) = &options.out
+        && let Some((what, file)) = files::input_among_outputs(out, files::RUN_OUTPUTS, mesh_files(&world))
+    {
+        return Err(RunError::InputInOutputs { what, file, out: out.clone() });
+    }
     let calibration = resolve_calibration(scenario, base_dir, seed)?;
     let started = std::time::Instant::now();
     let sim_config = simulated_for(scenario, &config);
@@ -666,10 +689,9 @@ fn run_and_write(
 /// run): the scenario's files and the world's mesh files.
 fn input_digests(scenario: &Scenario, base_dir: &Path, world: &worlds::World) -> Vec<serde_json::Value> {
     let mut inputs: Vec<(&str, PathBuf)> = scenario.input_files(base_dir);
-    for mesh in world.objects.iter().filter_map(|o| o.mesh.as_ref()) {
-        let mesh = PathBuf::from(mesh);
-        if !inputs.iter().any(|(_, f)| *f == mesh) {
-            inputs.push(("mesh file", mesh));
+    for mesh in mesh_files(world) {
+        if !inputs.iter().any(|(_, f)| *f == mesh.1) {
+            inputs.push(mesh);
         }
     }
     inputs
@@ -679,6 +701,11 @@ fn input_digests(scenario: &Scenario, base_dir: &Path, world: &worlds::World) ->
             json!({"what": what, "file": file, "sha256": files::sha256_hex(&file)})
         })
         .collect()
+}
+
+/// The mesh files `world`'s objects are drawn from (as the world file resolved them).
+fn mesh_files(world: &worlds::World) -> Vec<(&'static str, PathBuf)> {
+    world.objects.iter().filter_map(|o| o.mesh.as_ref()).map(|m| ("mesh file", PathBuf::from(m))).collect()
 }
 
 /// The `metadata.json` of the run that wrote `scenario_file`, where that is a run's
