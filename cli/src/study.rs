@@ -83,6 +83,17 @@ pub(crate) fn montecarlo(args: MontecarloArgs) -> Result<()> {
         };
         let mut retry = Retry::default();
         let studies = mc::builtin_study(runs, seed);
+        if out.is_file() {
+            anyhow::bail!("--out {}: is a file, not a directory", out.display());
+        }
+        // Its studies go in subdirectories, beside no benchmark's report.
+        if out.join(mc::BENCHMARK_WORLDS).exists() {
+            anyhow::bail!(
+                "--out {}: holds a generalisation benchmark ({}); the built-in study needs a directory of its own",
+                out.display(),
+                mc::BENCHMARK_WORLDS
+            );
+        }
         // Each study's directory is checked before the first runs: a later one holding
         // another study would otherwise be found only after the earlier ones' runs.
         for (name, plan) in &studies {
@@ -170,7 +181,32 @@ fn generalisation(
         let seed = mc::generalisation::world_seed(split, i);
         drawn.push(serde_json::json!({ "index": i, "seed": seed, "params": params }));
     }
-    mc::write_atomically(&out.join(mc::BENCHMARK_WORLDS), &serde_json::to_string_pretty(&drawn)?)?;
+    let drawn = serde_json::to_string_pretty(&drawn)?;
+    // What the directory holds must be this benchmark's, begun (the same draws, to the
+    // byte) or not: not someone's files of the report's names, nor the built-in study.
+    let worlds_file = out.join(mc::BENCHMARK_WORLDS);
+    match std::fs::read_to_string(&worlds_file) {
+        Ok(text) if text != drawn => anyhow::bail!(
+            "{}: not the worlds this benchmark draws ({} {}); use a new --out directory",
+            worlds_file.display(),
+            count(worlds, "world", "worlds"),
+            split.name()
+        ),
+        Ok(_) => {}
+        Err(_) => {
+            if let Some(name) = ["summary.json", "generalisation.png", "odometry", "post_distance"]
+                .into_iter()
+                .find(|n| std::fs::symlink_metadata(out.join(n)).is_ok())
+            {
+                anyhow::bail!(
+                    "--out {}: holds {name} but no benchmark (no {}): someone's files or the built-in study's, which the benchmark's report would sit among or replace; use a new --out directory",
+                    out.display(),
+                    mc::BENCHMARK_WORLDS
+                );
+            }
+        }
+    }
+    mc::write_atomically(&worlds_file, &drawn)?;
     let mut retry = Retry::default();
     for (name, plan) in &plans {
         println!(

@@ -463,6 +463,22 @@ fn a_benchmark_directory_and_a_study_directory_are_not_taken_for_each_other() {
     let o = objslam(&root, &["montecarlo", "generalisation", "--runs", "1", "--shard", "5/6", "--out", "s"]);
     assert!(!o.status.success() && stderr(&o).contains("holds a Monte Carlo study"), "{}", stderr(&o));
     assert!(!root.join("s/worlds.json").exists());
+    // Files of the report's names without a benchmark, another worlds.json, the built-in
+    // study's directories: refused, nothing replaced.
+    for (dir, file, expect) in [
+        ("mine", "summary.json", "holds summary.json but no benchmark"),
+        ("other", "worlds.json", "not the worlds this benchmark draws"),
+        ("built_in", "odometry/study.json", "holds odometry but no benchmark"),
+    ] {
+        std::fs::create_dir_all(root.join(dir).join(file).parent().unwrap()).unwrap();
+        std::fs::write(root.join(dir).join(file), "my own").unwrap();
+        let o = objslam(&root, &["montecarlo", "generalisation", "--runs", "1", "--shard", "5/6", "--out", dir]);
+        assert!(!o.status.success() && stderr(&o).contains(expect), "{dir}: {}", stderr(&o));
+        assert_eq!(std::fs::read_to_string(root.join(dir).join(file)).unwrap(), "my own");
+    }
+    let o = objslam(&root, &["montecarlo", "study", "--runs", "1", "--out", "g"]);
+    assert!(!o.status.success() && stderr(&o).contains("holds a generalisation benchmark"), "{}", stderr(&o));
+    assert!(!root.join("g/odometry").exists());
     let _ = std::fs::remove_dir_all(&root);
 }
 

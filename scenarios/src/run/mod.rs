@@ -439,7 +439,13 @@ pub fn run(
 /// the output directory (which would make it a directory that is not empty).
 fn check_bag_beside_outputs(bag: &Path, out: Option<&Path>) -> Result<(), RunError> {
     if let Some(out) = out {
-        if crate::partial_files::same_path(out, bag) {
+        // The output directory, or the folder its outputs are written in first (which
+        // each run starts anew).
+        let staging = crate::partial_files::unfinished_dir(out);
+        if crate::partial_files::same_path(out, bag)
+            || crate::partial_files::same_path(&staging, bag)
+            || crate::partial_files::lies_inside(bag, &staging)
+        {
             return Err(RunError::BagInOutputs(bag.to_path_buf()));
         }
         if crate::partial_files::lies_inside(out, bag) {
