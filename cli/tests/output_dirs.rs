@@ -478,6 +478,9 @@ fn a_benchmark_directory_and_a_study_directory_are_not_taken_for_each_other() {
     }
     let o = objslam(&root, &["montecarlo", "study", "--runs", "1", "--out", "g"]);
     assert!(!o.status.success() && stderr(&o).contains("holds a generalisation benchmark"), "{}", stderr(&o));
+    // A benchmark's directory given where one study's goes: said, with where its studies are.
+    let o = objslam(&root, &["montecarlo", "merge", "g", "--out", "m"]);
+    assert!(!o.status.success() && stderr(&o).contains("whose studies are its combined/ and jcbb/"), "{}", stderr(&o));
     assert!(!root.join("g/odometry").exists());
     let _ = std::fs::remove_dir_all(&root);
 }

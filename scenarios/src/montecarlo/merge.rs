@@ -45,8 +45,7 @@ pub(super) fn merge_held(dirs: &[PathBuf], out: &Path) -> Result<(StudyPlan, Vec
     let mut plan: Option<StudyFile> = None;
     let mut by_key: BTreeMap<String, RunRecord> = BTreeMap::new();
     for d in &dirs {
-        let f = d.join("study.json");
-        let p = read_study_file(&f, "")?;
+        let p = super::plan::read_study_dir(d)?;
         match &plan {
             Some(existing) if !same_study(existing, &p) => {
                 let what = if crate::partial_files::same_path(d, out) { "the output directory" } else { "this shard" };

@@ -79,7 +79,7 @@ pub(super) fn differences_from_record(
 /// (it must still be the same scenario).
 pub fn rerun(dir: &Path, job: &str, out: &Path, scenario: Option<&str>) -> Result<Rerun, StudyError> {
     let plan_file = dir.join("study.json");
-    let study = read_study_file(&plan_file, "")?;
+    let study = super::plan::read_study_dir(dir)?;
     let plan = &study.plan;
     plan.check()
         .map_err(|e| StudyError::File { file: plan_file.clone(), message: format!("not a plan that can run ({e})") })?;
