@@ -185,14 +185,19 @@ fn generalisation(
     // What the directory holds must be this benchmark's, begun (the same draws, to the
     // byte) or not: not someone's files of the report's names, nor the built-in study.
     let worlds_file = out.join(mc::BENCHMARK_WORLDS);
+    let as_json = |text: &str| serde_json::from_str::<serde_json::Value>(text).ok();
     match std::fs::read_to_string(&worlds_file) {
-        Ok(text) if text != drawn => anyhow::bail!(
+        // Compared as JSON: the same draws with other line ends or spacing are the same.
+        Ok(text) if as_json(&text).is_none() || as_json(&text) != as_json(&drawn) => anyhow::bail!(
             "{}: not the worlds this benchmark draws ({} {}); use a new --out directory",
             worlds_file.display(),
-            count(worlds, "world", "worlds"),
-            split.name()
+            worlds,
+            if worlds == 1 { format!("{} world", split.name()) } else { format!("{} worlds", split.name()) }
         ),
         Ok(_) => {}
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+            anyhow::bail!("{}: cannot read: {e}; use a new --out directory", worlds_file.display())
+        }
         Err(_) => {
             if let Some(name) = ["summary.json", "generalisation.png", "odometry", "post_distance"]
                 .into_iter()

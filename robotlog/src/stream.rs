@@ -22,14 +22,16 @@ pub enum MotionMessage {
 /// overflows the filter's variances.
 pub const MAX_SPEED_M_S: f64 = 343.0;
 
-/// Fastest turn a vehicle's odometry may read: a turn a second (a Pioneer 2-AT turns at
-/// most 300 deg/s). A rate in degrees per second read as radians goes far past it.
-pub const MAX_TURN_RATE_RAD_S: f64 = std::f64::consts::TAU;
+/// Fastest turn rate a control may give: two turns a second, well past what ground
+/// robots turn (a Pioneer 2-AT at most 300 deg/s) with their odometry's errors. Most rates
+/// in degrees per second read as radians go past it.
+pub const MAX_TURN_RATE_RAD_S: f64 = 2.0 * std::f64::consts::TAU;
 
 impl MotionMessage {
     /// What makes this message impossible, if anything: a speed beyond [`MAX_SPEED_M_S`],
-    /// a step beyond [`crate::format::MAX_COORDINATE_M`], or steering at or past a right
-    /// angle, where a car's turning geometry (tan of the angle) has no value.
+    /// a step beyond [`crate::format::MAX_COORDINATE_M`] or turning more than half a turn,
+    /// a turn rate beyond [`MAX_TURN_RATE_RAD_S`], or steering at or past a right angle,
+    /// where a car's turning geometry (tan of the angle) has no value.
     pub fn impossibility(&self) -> Option<String> {
         let too_fast = |name: &str, v: f64| {
             (v.abs() > MAX_SPEED_M_S).then(|| format!("{name} {v:e} m/s is beyond {MAX_SPEED_M_S} m/s"))
@@ -42,14 +44,14 @@ impl MotionMessage {
                     .or_else(|| {
                         // Odometry reads each step's turn, never more than half a turn of it.
                         (o.dtheta.abs() > std::f64::consts::PI)
-                            .then(|| format!("dtheta {} rad is more than half a turn in one step (degrees?)", o.dtheta))
+                            .then(|| format!("dtheta {} rad is more than half a turn in one step (degrees, or headings subtracted without wrapping?)", o.dtheta))
                     })
             }
             MotionMessage::Control { control: Control::Differential { v, omega }, .. } => {
                 too_fast("speed", v).or_else(|| {
                     (omega.abs() > MAX_TURN_RATE_RAD_S).then(|| {
                         format!(
-                            "omega {omega} rad/s is beyond a turn a second, {MAX_TURN_RATE_RAD_S:.3} rad/s (degrees?)"
+                            "omega {omega} rad/s is beyond two turns a second, {MAX_TURN_RATE_RAD_S:.3} rad/s (degrees?)"
                         )
                     })
                 })

@@ -360,15 +360,19 @@ pub fn publish(unfinished: &Path, out: &Path, stale: &[&str], marker: &str) -> R
     if !blocked.is_empty() {
         return Err(blocked);
     }
+    // What this removes of the earlier outputs, for the words of a failure below.
+    let mut removed_names = Vec::new();
     for name in std::iter::once(&marker).chain(stale) {
         let path = out.join(name);
         let removed = if path.is_dir() { std::fs::remove_dir_all(&path) } else { std::fs::remove_file(&path) };
         match removed {
             Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(one(&path)(e)),
-            _ => {}
+            Err(_) => {}
+            Ok(()) => removed_names.push(*name),
         }
     }
-    let mut errors = Vec::new();
+    let mut errors: Vec<PartialFileError> = Vec::new();
+    let mut moved_count = 0;
     for (from, to) in entries {
         if !errors.is_empty() && from.file_name().is_some_and(|n| n == marker) {
             break;
@@ -378,19 +382,28 @@ pub fn publish(unfinished: &Path, out: &Path, stale: &[&str], marker: &str) -> R
         } else {
             std::fs::rename(&from, &to)
         };
-        // By now the earlier outputs' marker is gone and some new files are in: say so, and
-        // where the rest waits.
-        errors.extend(moved.err().map(|source| PartialFileError {
-            file: to,
-            source: std::io::Error::new(
-                source.kind(),
-                format!(
-                    "{source} (while moving the new outputs in: the earlier outputs' {marker} had been removed and some new files moved, so {} holds a mix; the new outputs not moved, {marker} among them, are in {}: move them in to finish)",
-                    out.display(),
-                    unfinished.display()
-                ),
+        match moved {
+            Ok(()) => moved_count += 1,
+            Err(source) => errors.push(PartialFileError { file: to, source }),
+        }
+    }
+    // Said once, on the first failure: what of the earlier outputs is gone, what of the new
+    // is in, and where the rest waits.
+    if let Some(first) = errors.first_mut() {
+        let gone = if removed_names.is_empty() {
+            String::new()
+        } else {
+            format!("the earlier outputs' {} removed; ", removed_names.join(", "))
+        };
+        first.source = std::io::Error::new(
+            first.source.kind(),
+            format!(
+                "{} (while moving the new outputs in: {gone}{moved_count} new moved in; the rest, {marker} among them, wait in {}: move them into {} to finish)",
+                first.source,
+                unfinished.display(),
+                out.display()
             ),
-        }));
+        );
     }
     if errors.is_empty() {
         std::fs::remove_dir(unfinished).map_err(one(unfinished))?;

@@ -70,7 +70,10 @@ fn a_recorded_log_replays_to_the_runs_estimate() {
     let moved = dir.join("moved.toml");
     std::fs::write(&moved, "[pipeline.sensor]\nmount_x = 0.5\n").unwrap();
     let e = resolve_config(Some(&dir.join("log")), &log.manifest, None, Some(&moved)).unwrap_err().to_string();
-    assert!(e.contains("moved.toml") && e.contains("disagree with the log's manifest.toml"), "{e}");
+    assert!(
+        e.contains("moved.toml") && e.contains("sensor.mount_x = 0.5 disagrees with the log's manifest.toml"),
+        "{e}"
+    );
     let replayed = replay(log, config.clone(), None, Some(&dir.join("replay"))).unwrap();
     assert_same_estimate(&out, &dir.join("replay"), &replayed);
     assert!(!dir.join("replay/.unfinished").exists(), "every output moved into place");

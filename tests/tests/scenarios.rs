@@ -474,7 +474,7 @@ fn a_bag_in_the_runs_output_directory_is_refused() {
     // Nor the folder the run writes its outputs in first.
     let staged = RunOptions { out: Some(dir.clone()), bag: Some(dir.join(".unfinished/bag")), ..Default::default() };
     let e = run(&sc, &base, &staged, |_| {}).err().expect("refused").to_string();
-    assert!(e.contains("--bag") && e.contains("output directory"), "{e}");
+    assert!(e.contains("--bag") && e.contains("where the run writes its outputs first"), "{e}");
     assert!(!dir.exists(), "nothing written");
     // The outputs inside a new bag directory: named as such, and nothing is left.
     let inside = RunOptions { out: Some(dir.join("run")), bag: Some(dir.clone()), ..Default::default() };

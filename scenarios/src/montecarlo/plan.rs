@@ -117,15 +117,14 @@ pub(super) struct StudyFile {
     pub(super) build: Option<crate::build::Build>,
 }
 
-/// Reads `file`, a `study.json`; `hint` is added to the message where it is not a plan.
 /// [`read_study_file`] of `dir`'s `study.json`, for a command given a study's directory
 /// (`merge`, `rerun`): a directory of several studies (the generalisation benchmark's, the
 /// built-in study's) is named as such, with where its studies are.
 pub(super) fn read_study_dir(dir: &Path) -> Result<StudyFile, StudyError> {
     let file = dir.join("study.json");
     read_study_file(&file, "").map_err(|e| {
-        let holds = |names: [&str; 2]| names.iter().all(|n| dir.join(n).join("study.json").is_file());
-        let studies = if holds(["combined", "jcbb"]) {
+        let holds = |names: [&str; 2]| names.iter().any(|n| dir.join(n).join("study.json").is_file());
+        let studies = if dir.join(super::BENCHMARK_WORLDS).is_file() || holds(["combined", "jcbb"]) {
             Some("a generalisation benchmark's, whose studies are its combined/ and jcbb/")
         } else if holds(["odometry", "post_distance"]) {
             Some("the built-in study's, whose studies are its odometry/ and post_distance/")
@@ -144,6 +143,7 @@ pub(super) fn read_study_dir(dir: &Path) -> Result<StudyFile, StudyError> {
     })
 }
 
+/// Reads `file`, a `study.json`; `hint` is added to the message where it is not a plan.
 pub(super) fn read_study_file(file: &Path, hint: &str) -> Result<StudyFile, StudyError> {
     let bytes = std::fs::read(file).map_err(|e| StudyError::Io { file: file.into(), source: e })?;
     let study: StudyFile = serde_json::from_slice(&bytes)

@@ -183,9 +183,9 @@ pub fn resolve_config(
     // Where the motion model was last set: a model that cannot read the log's motion is
     // that file's error, found before the replay starts.
     let mut motion_set_in: Option<(PathBuf, usize)> = None;
-    // Where the sensor's mounting was last set: it must be the log's own, which places
-    // the path written and scored.
-    let mut mount_set_in: Option<(PathBuf, usize)> = None;
+    // Where each of the sensor's mounting keys was last set: it must be the log's own,
+    // which places the path written and scored.
+    let mut mount_set_in: [Option<(PathBuf, usize)>; 2] = [None, None];
     let mut files = Vec::new();
     if let Some(dir) = log_dir
         && dir.join(files::PIPELINE).exists()
@@ -218,11 +218,11 @@ pub fn resolve_config(
             }
             _ => (table, &[]),
         };
-        if let Some(key) =
-            ["mount_x", "mount_y"].into_iter().find(|k| table.get("sensor").and_then(|s| s.get(k)).is_some())
-        {
-            let at: Vec<&str> = under.iter().copied().chain(["sensor", key]).collect();
-            mount_set_in = Some((file.clone(), toml_strict::line_of_path(&text, &at).unwrap_or(1)));
+        for (k, key) in ["mount_x", "mount_y"].into_iter().enumerate() {
+            if table.get("sensor").and_then(|s| s.get(key)).is_some() {
+                let at: Vec<&str> = under.iter().copied().chain(["sensor", key]).collect();
+                mount_set_in[k] = Some((file.clone(), toml_strict::line_of_path(&text, &at).unwrap_or(1)));
+            }
         }
         // Another motion model replaces the whole table: the two models' keys differ.
         let new_model = table.get("motion").and_then(|m| m.get("model")).cloned();
@@ -248,18 +248,20 @@ pub fn resolve_config(
         config.validate().map_err(|setting| ReplayError::Setting { file: file.clone(), setting })?;
     }
     let mut config: PipelineConfig = value.try_into().expect("checked above");
-    let (mx, my) = (manifest.sensor.x_m, manifest.sensor.y_m);
-    if let Some((file, line)) =
-        mount_set_in.filter(|_| (config.sensor.mount_x - mx).abs() > 1e-9 || (config.sensor.mount_y - my).abs() > 1e-9)
-    {
-        return Err(ReplayError::Config {
-            file,
-            line,
-            problem: format!(
-                "pipeline.sensor.mount_x, mount_y = ({}, {}) disagree with the log's manifest.toml, whose [sensor] puts it at ({mx}, {my}): the mounting is the log's, which also places the path written and scored; leave them out or mend the manifest",
-                config.sensor.mount_x, config.sensor.mount_y
-            ),
-        });
+    let mounts = [
+        ("mount_x", config.sensor.mount_x, "x_m", manifest.sensor.x_m),
+        ("mount_y", config.sensor.mount_y, "y_m", manifest.sensor.y_m),
+    ];
+    for ((key, set, manifest_key, logged), set_in) in mounts.into_iter().zip(mount_set_in) {
+        if let Some((file, line)) = set_in.filter(|_| (set - logged).abs() > 1e-9) {
+            return Err(ReplayError::Config {
+                file,
+                line,
+                problem: format!(
+                    "sensor.{key} = {set} disagrees with the log's manifest.toml, whose [sensor] {manifest_key} = {logged}: the mounting is the log's, which also places the path written and scored; leave it out or mend the manifest"
+                ),
+            });
+        }
     }
     let car_log = manifest.vehicle.motion == "ackermann";
     if let Some((file, line)) = motion_set_in.filter(|_| matches!(config.motion, MotionConfig::Ackermann(_)) != car_log)

@@ -82,6 +82,12 @@ pub enum RunError {
     Unpublished { dir: PathBuf, source: Box<RunError> },
     #[error("--bag {}: it is the run's output directory; a bag needs a directory of its own", .0.display())]
     BagInOutputs(PathBuf),
+    #[error(
+        "--bag {}: it lies in {}, where the run writes its outputs first and which each run starts anew; a bag needs a directory of its own",
+        bag.display(),
+        staging.display()
+    )]
+    BagInStaging { bag: PathBuf, staging: PathBuf },
     #[error("--out {}: it lies inside the bag's directory {}; a bag needs a directory of its own", out.display(), bag.display())]
     OutputsInBag { out: PathBuf, bag: PathBuf },
     #[error(
@@ -441,12 +447,12 @@ fn check_bag_beside_outputs(bag: &Path, out: Option<&Path>) -> Result<(), RunErr
     if let Some(out) = out {
         // The output directory, or the folder its outputs are written in first (which
         // each run starts anew).
-        let staging = crate::partial_files::unfinished_dir(out);
-        if crate::partial_files::same_path(out, bag)
-            || crate::partial_files::same_path(&staging, bag)
-            || crate::partial_files::lies_inside(bag, &staging)
-        {
+        if crate::partial_files::same_path(out, bag) {
             return Err(RunError::BagInOutputs(bag.to_path_buf()));
+        }
+        let staging = crate::partial_files::unfinished_dir(out);
+        if crate::partial_files::same_path(&staging, bag) || crate::partial_files::lies_inside(bag, &staging) {
+            return Err(RunError::BagInStaging { bag: bag.to_path_buf(), staging });
         }
         if crate::partial_files::lies_inside(out, bag) {
             return Err(RunError::OutputsInBag { out: out.to_path_buf(), bag: bag.to_path_buf() });
