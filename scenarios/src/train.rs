@@ -70,15 +70,7 @@ fn load_image_and_class(
     let entry = &manifest.images[i];
     let img_path = dir.join(&entry.image);
     let opened = image::open(&img_path).map_err(|e| file_err(&img_path, e))?;
-    // As for an image to classify: the features hold each pixel's colour.
-    if !opened.color().has_color() {
-        return Err(file_err(
-            &img_path,
-            "stored as a greyscale image; the appearance model's features include each pixel's colour, so a \
-             dataset's images are colour images",
-        ));
-    }
-    let rgb = opened.to_rgb8();
+    let rgb = colour_pixels(&img_path, opened)?;
     if rgb.dimensions() != (manifest.width, manifest.height) {
         let (w, h) = rgb.dimensions();
         return Err(file_err(
@@ -300,8 +292,13 @@ pub fn open_image_to_classify(path: &Path) -> Result<image::RgbImage, TrainError
         return Err(file_err(path, format!("{w}x{h} is more than {MAX_SEGMENT_PIXELS} pixels; crop or scale it down")));
     }
     let image = image::open(path).map_err(|e| file_err(path, e))?;
-    // A patch's features hold its colour: a grey image, read as colour, would be judged by
-    // a model that learnt from colours it does not have.
+    colour_pixels(path, image)
+}
+
+/// The RGB pixels of `image`, read from `path`: refused if it is stored as greyscale. A
+/// patch's features hold its colour, so a grey image, read as colour, would be judged (or
+/// trained on) by colours it does not have.
+fn colour_pixels(path: &Path, image: image::DynamicImage) -> Result<image::RgbImage, TrainError> {
     if !image.color().has_color() {
         return Err(file_err(
             path,

@@ -114,10 +114,7 @@ fn bad_dataset_settings_are_errors() {
 fn a_dataset_holds_its_directory_and_replaces_an_earlier_one_whole() {
     let dir = std::env::temp_dir().join(format!("objslam-dataset-held-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
-    let world = worlds::generate::park(&Default::default(), 4).unwrap();
-    let mut config = DatasetConfig { images: 2, seed: 2, ..Default::default() };
-    config.camera.width = 90;
-    config.camera.height = 72;
+    let (world, config) = (small_world(), small_config());
     make_dataset(&world, "park seed 4", &config, &dir, |_, _| {}).unwrap();
     let earlier = std::fs::read_to_string(dir.join("dataset.json")).unwrap();
     let one = DatasetConfig { images: 1, seed: 3, ..config };
@@ -142,10 +139,7 @@ fn a_dataset_holds_its_directory_and_replaces_an_earlier_one_whole() {
 fn training_refuses_images_masks_and_labels_that_are_not_the_datasets() {
     let dir = std::env::temp_dir().join(format!("objslam-dataset-damaged-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
-    let world = worlds::generate::park(&Default::default(), 4).unwrap();
-    let mut config = DatasetConfig { images: 2, seed: 2, ..Default::default() };
-    config.camera.width = 90;
-    config.camera.height = 72;
+    let (world, config) = (small_world(), small_config());
     make_dataset(&world, "park seed 4", &config, &dir, |_, _| {}).unwrap();
     let manifest = scenarios::train::read_manifest(&dir).unwrap();
     let load = |i| scenarios::train::load_image(&dir, &manifest, i).map(|_| ()).map_err(|e| e.to_string());
@@ -184,4 +178,17 @@ fn training_refuses_images_masks_and_labels_that_are_not_the_datasets() {
     let e = load(0).unwrap_err();
     assert!(e.contains(&first.patches) && e.contains("the labels are not this image's"), "{e}");
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The park of world seed 4, which the small datasets here show.
+fn small_world() -> worlds::World {
+    worlds::generate::park(&Default::default(), 4).unwrap()
+}
+
+/// A dataset of two 90 x 72 images: enough for what a test reads of one, made in a blink.
+fn small_config() -> DatasetConfig {
+    let mut config = DatasetConfig { images: 2, seed: 2, ..Default::default() };
+    config.camera.width = 90;
+    config.camera.height = 72;
+    config
 }

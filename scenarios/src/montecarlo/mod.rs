@@ -129,6 +129,7 @@ pub fn run_study_with(
     plan.check()?;
     // The plan against its scenario, before anything is made.
     let (pin, base_scenario, base_dir) = pin_scenario(&plan.scenario)?;
+    check_varied_settings_are_read(plan, &base_scenario)?;
     check_values_differ(plan, &base_scenario)?;
     // One study at a time per directory, as for any output directory: the hold goes with
     // the process, however it ends.
@@ -189,7 +190,12 @@ pub fn run_study_with(
         // ones pinned, so that a file edited mid-study stops the study there rather than
         // pooling two worlds' runs under one setting.
         let record_finished = |record: &RunRecord| -> Result<(), StudyError> {
-            still_pinned(plan, &pin)?;
+            still_pinned(
+                plan,
+                &pin,
+                ": the study stopped there, keeping the runs recorded before; restore the scenario and run the same \
+                 command again, or start a new study",
+            )?;
             {
                 let mut f = file.lock().unwrap_or_else(|p| p.into_inner());
                 if let Err(e) = append_record(&mut f, record) {
@@ -270,14 +276,12 @@ pub fn run_study_with(
 }
 
 /// Whether the scenario `plan` names (its file, world file, model and calibration files)
-/// is still the one `pin` recorded when the study began.
-fn still_pinned(plan: &StudyPlan, pin: &ScenarioPin) -> Result<(), StudyError> {
+/// is still the one `pin` recorded when the study began; if not, the words of what
+/// changed followed by `then`, what the study did about it.
+pub(super) fn still_pinned(plan: &StudyPlan, pin: &ScenarioPin, then: &str) -> Result<(), StudyError> {
     let (now, _, _) = pin_scenario(&plan.scenario)?;
     match pin.changed_to(&plan.scenario, &now) {
-        Some(changed) => Err(StudyError::Plan(format!(
-            "{changed}: the study stopped there, keeping the runs recorded before; restore the scenario and run \
-             the same command again, or start a new study"
-        ))),
+        Some(changed) => Err(StudyError::Plan(format!("{changed}{then}"))),
         None => Ok(()),
     }
 }
@@ -673,23 +677,25 @@ mod tests {
         assert!(e.contains("differ only beyond twelve significant digits"), "{e}");
         check_values_differ(&plan("sim.odometry.scale_sigma=0..0.02:3"), &s).unwrap();
         // A camera setting where no method reads the camera: every value's runs alike.
-        let e = check_values_differ(&plan("sim.camera.exposure_sigma=0..0.2:2"), &s).unwrap_err().to_string();
+        let e =
+            check_varied_settings_are_read(&plan("sim.camera.exposure_sigma=0..0.2:2"), &s).unwrap_err().to_string();
         assert!(e.contains("--vary sim.camera.exposure_sigma: no method of the study (nn) reads the camera"), "{e}");
         let with_camera =
             StudyPlan { methods: vec!["nn".into(), "combined".into()], ..plan("appearance.training_seed=1..2:2") };
-        check_values_differ(&with_camera, &s).unwrap();
+        check_varied_settings_are_read(&with_camera, &s).unwrap();
         // Other settings a position-only study never reads.
         for key in ["pipeline.object_model.kl_threshold=10..80:2", "pipeline.evidence.min_frames=2..4:2"] {
-            let e = check_values_differ(&plan(key), &s).unwrap_err().to_string();
+            let e = check_varied_settings_are_read(&plan(key), &s).unwrap_err().to_string();
             assert!(e.contains("no method of the study (nn) reads the camera"), "{e}");
         }
-        let e = check_values_differ(&plan("pipeline.diameter.max_sigmas=1..3:2"), &s).unwrap_err().to_string();
+        let e =
+            check_varied_settings_are_read(&plan("pipeline.diameter.max_sigmas=1..3:2"), &s).unwrap_err().to_string();
         assert!(e.contains("use the trunk diameter only with pipeline.diameter.for_position_methods = true"), "{e}");
         let mut diameter = s.clone();
         diameter.pipeline.diameter.for_position_methods = true;
-        check_values_differ(&plan("pipeline.diameter.max_sigmas=1..3:2"), &diameter).unwrap();
+        check_varied_settings_are_read(&plan("pipeline.diameter.max_sigmas=1..3:2"), &diameter).unwrap();
         let session = StudyPlan { methods: vec!["combined".into()], ..plan("calibration.session.poses=5..10:2") };
-        let e = check_values_differ(&session, &s).unwrap_err().to_string();
+        let e = check_varied_settings_are_read(&session, &s).unwrap_err().to_string();
         assert!(e.contains("runs only with calibration mode \"estimated\", and this scenario's is \"true\""), "{e}");
     }
 

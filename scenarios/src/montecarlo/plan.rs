@@ -367,11 +367,9 @@ pub fn jobs(plan: &StudyPlan) -> Vec<Job> {
     out
 }
 
-/// Refuses a plan two of whose values of one parameter give `base` the same settings: a
-/// whole-number setting takes 5.000000001 as 5 (to rounding in a range's steps), so
-/// values that differ as typed could be one job run twice under two keys. A value the
-/// scenario refuses is left to the check of each job, which names it.
-pub(super) fn check_values_differ(plan: &StudyPlan, base: &Scenario) -> Result<(), StudyError> {
+/// Refuses a plan that varies a setting none of its methods reads (or `base` makes unread):
+/// every value's runs would be alike.
+pub(super) fn check_varied_settings_are_read(plan: &StudyPlan, base: &Scenario) -> Result<(), StudyError> {
     // Settings that only a method reading the camera uses: the position-only methods run
     // without the camera, its calibration, segmentation, evidence and object models, and
     // train no appearance model.
@@ -440,6 +438,14 @@ pub(super) fn check_values_differ(plan: &StudyPlan, base: &Scenario) -> Result<(
             ));
         }
     }
+    Ok(())
+}
+
+/// Refuses a plan two of whose values of one parameter give `base` the same settings: a
+/// whole-number setting takes 5.000000001 as 5 (to rounding in a range's steps), so
+/// values that differ as typed could be one job run twice under two keys. A value the
+/// scenario refuses is left to the check of each job, which names it.
+pub(super) fn check_values_differ(plan: &StudyPlan, base: &Scenario) -> Result<(), StudyError> {
     // Tables and plots name a value by twelve significant digits: two values that differ only
     // beyond them would read as one setting, and share a plot's series.
     for v in &plan.vary {

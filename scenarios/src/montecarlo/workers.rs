@@ -247,14 +247,14 @@ pub(super) fn run_in_processes(
 
 /// Whether the scenario the study names still is the one it pinned when it began.
 fn check_pin(start: &StudyFile) -> Result<(), StudyError> {
-    let (pin, _, _) = super::pin_scenario(&start.plan.scenario)?;
-    match start.scenario_pin.as_ref().and_then(|began| began.changed_to(&start.plan.scenario, &pin)) {
-        // The words of what changed name the scenario's file already.
-        Some(changed) => Err(StudyError::Plan(format!(
-            "{changed} (a worker that had died was not restarted); the finished runs are kept: restore the scenario and run the same command again, or start a new study"
-        ))),
-        None => Ok(()),
-    }
+    // A study begun before scenarios were pinned has nothing to check against.
+    let Some(began) = &start.scenario_pin else { return Ok(()) };
+    super::still_pinned(
+        &start.plan,
+        began,
+        " (a worker that had died was not restarted); the finished runs are kept: restore the scenario and run the \
+         same command again, or start a new study",
+    )
 }
 
 #[cfg(test)]

@@ -477,13 +477,10 @@ fn check_inputs_outside_outputs(scenario: &Scenario, base_dir: &Path, out: &Path
 /// a user's own files that happen to have those names (an `objects/` folder of notes).
 fn check_earlier_outputs_are_a_runs(out: &Path) -> Result<(), RunError> {
     // An earlier run's own `metadata.json` (one another command or a user wrote is not).
-    let metadata = out.join(files::METADATA);
-    if std::fs::symlink_metadata(&metadata).is_ok() {
-        let tool = std::fs::read_to_string(&metadata)
-            .ok()
-            .and_then(|text| serde_json::from_str::<serde_json::Value>(&text).ok())
-            .and_then(|v| v.get("tool").and_then(|t| t.as_str()).map(str::to_owned));
-        return match tool.as_deref() {
+    if std::fs::symlink_metadata(out.join(files::METADATA)).is_ok() {
+        let metadata = read_metadata(out);
+        let tool = metadata.as_ref().and_then(|v| v.get("tool")).and_then(|t| t.as_str());
+        return match tool {
             Some("objslam run") => Ok(()),
             other => Err(RunError::NotARunsMetadata {
                 out: out.to_path_buf(),
@@ -726,9 +723,13 @@ pub fn recorded_run(scenario_file: &Path) -> Option<serde_json::Value> {
     if scenario_file.file_name().is_none_or(|n| n != files::SCENARIO) {
         return None;
     }
-    let text = std::fs::read_to_string(scenario_file.parent()?.join(files::METADATA)).ok()?;
-    let metadata: serde_json::Value = serde_json::from_str(&text).ok()?;
+    let metadata = read_metadata(scenario_file.parent()?)?;
     (metadata["tool"] == "objslam run").then_some(metadata)
+}
+
+/// `dir`'s `metadata.json` as JSON, where it can be read as such.
+fn read_metadata(dir: &Path) -> Option<serde_json::Value> {
+    serde_json::from_str(&std::fs::read_to_string(dir.join(files::METADATA)).ok()?).ok()
 }
 
 /// Where `scenario_file` is the `scenario.toml` a run wrote, the files that run read which
