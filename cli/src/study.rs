@@ -378,6 +378,15 @@ fn rerun(dir: &std::path::Path, job: &str, out: &std::path::Path, scenario: Opti
     };
     match rerun.repeats_record() {
         Some(true) => println!("  the same as the study's record in {}", dir.join("runs.jsonl").display()),
+        // A run that failed (a refused output directory, say) has no figures to set beside the record's.
+        Some(false) if failed => println!(
+            "  so nothing is compared with the study's record in {}, which {}",
+            dir.join("runs.jsonl").display(),
+            match rerun.recorded.as_ref().is_some_and(|r| r.metrics.is_some()) {
+                true => "has figures for this job",
+                false => "records another failure for this job",
+            }
+        ),
         Some(false) => {
             println!(
                 "  NOT the figures the study recorded in {} (same build, renderer and settings?); they differ in {}",

@@ -258,6 +258,7 @@ pub fn make_dataset(
     use crate::partial_files as staging;
     check_config(world, config)?;
     check_out(out)?;
+    finish_stopped_publish(out)?;
     let (manifest, _held) =
         staging::write_unfinished(out, |dir| write_dataset(world, world_name, config, dir, progress))?;
     // The manifest is the marker: the earlier one removed first, this one moved in last,
@@ -275,8 +276,16 @@ fn check_out(out: &Path) -> Result<(), DatasetError> {
     // An earlier dataset, or one stopped while it was moved in (its manifest still waits
     // in the unfinished directory, where it goes last).
     let unfinished = crate::partial_files::unfinished_dir(out);
-    if out.join("dataset.json").is_file() || unfinished.join("dataset.json").is_file() {
+    let manifest = out.join("dataset.json");
+    if is_dataset_manifest(&manifest) || is_dataset_manifest(&unfinished.join("dataset.json")) {
         return Ok(());
+    }
+    if manifest.symlink_metadata().is_ok() {
+        return Err(DatasetError::Config(format!(
+            "--out {}: holds a dataset.json that is no objslam dataset's manifest, and a dataset would replace it \
+             and the images/, masks/ and labels/ beside it; give a new or empty directory",
+            out.display()
+        )));
     }
     match files::first_present(out, OUTPUTS) {
         Some(name) => Err(DatasetError::Config(format!(
@@ -286,6 +295,31 @@ fn check_out(out: &Path) -> Result<(), DatasetError> {
         ))),
         None => Ok(()),
     }
+}
+
+/// Whether `file` reads as an objslam dataset's manifest (a `dataset.json` another tool
+/// wrote beside its own `images/` does not).
+fn is_dataset_manifest(file: &Path) -> bool {
+    std::fs::read(file).is_ok_and(|bytes| serde_json::from_slice::<Manifest>(&bytes).is_ok())
+}
+
+/// Finishes moving in a dataset whose move into `out` was stopped (its manifest, which
+/// goes last, still waits in the unfinished directory): the next dataset starts its
+/// unfinished directory anew, and without this a second stop would leave `out` with a
+/// dataset's files and no manifest, which no dataset command would take again.
+fn finish_stopped_publish(out: &Path) -> Result<(), DatasetError> {
+    use crate::partial_files as staging;
+    let stopped = |out: &Path| {
+        !out.join("dataset.json").exists() && is_dataset_manifest(&staging::unfinished_dir(out).join("dataset.json"))
+    };
+    if !stopped(out) {
+        return Ok(());
+    }
+    let _held = staging::lock_output(out)?;
+    if stopped(out) {
+        staging::publish(&staging::unfinished_dir(out), out, &[], "dataset.json").map_err(DatasetError::Publish)?;
+    }
+    Ok(())
 }
 
 /// Whether `file` is one of the files of the dataset in `dir`: a name of [`OUTPUTS`] there,
@@ -302,19 +336,20 @@ pub(crate) fn check_config(world: &World, config: &DatasetConfig) -> Result<(), 
     if !(1..=1_000_000).contains(&config.images) {
         return Err(DatasetError::Config(format!("--images must be 1..1000000, got {}", config.images)));
     }
-    if config.patch_size == 0 || config.patch_size > config.camera.width.min(config.camera.height) {
-        return Err(DatasetError::Config(format!(
-            "--patch-size {} does not fit a {}x{} image (give 1 to the image's shorter side)",
-            config.patch_size, config.camera.width, config.camera.height
-        )));
-    }
     // A dataset is made to be trained on: patches no model can describe would be found
-    // out only by `objslam train`.
-    let max = slam::features::FeatureConfig::MAX_PATCH_SIZE;
-    if config.patch_size > max {
+    // out only by `objslam train`. One limit, the tighter of the two, said once.
+    let features_max = slam::features::FeatureConfig::MAX_PATCH_SIZE;
+    let image_max = config.camera.width.min(config.camera.height);
+    if config.patch_size == 0 || config.patch_size > features_max.min(image_max) {
+        let why = if image_max < features_max {
+            format!("the {}x{} image's shorter side", config.camera.width, config.camera.height)
+        } else {
+            "the largest patch the patch features describe".to_string()
+        };
         return Err(DatasetError::Config(format!(
-            "--patch-size {}: the patch features describe patches of 1 to {max} pixels",
-            config.patch_size
+            "--patch-size {}: give 1 to {} pixels ({why})",
+            config.patch_size,
+            features_max.min(image_max)
         )));
     }
     if !world.objects.iter().any(|o| config.classes.contains(&o.class)) && config.background_fraction < 1.0 {
@@ -578,11 +613,32 @@ mod tests {
         assert!(e.contains("holds images but no dataset.json"), "{e}");
         let unfinished = crate::partial_files::unfinished_dir(&out);
         std::fs::create_dir_all(&unfinished).unwrap();
-        std::fs::write(unfinished.join("dataset.json"), "{}").unwrap();
+        let manifest = Manifest {
+            format_version: DATASET_FORMAT_VERSION,
+            seed: 1,
+            world: "w".into(),
+            classes: vec![ObjectClass::Tree],
+            patch_size: 9,
+            width: 64,
+            height: 48,
+            k: [[50.0, 0.0, 32.0], [0.0, 50.0, 24.0], [0.0, 0.0, 1.0]],
+            renderer: "r".into(),
+            images: Vec::new(),
+        };
+        let manifest = serde_json::to_string(&manifest).unwrap();
+        std::fs::write(unfinished.join("dataset.json"), &manifest).unwrap();
         check_out(&out).unwrap();
-        std::fs::remove_dir_all(&unfinished).unwrap();
-        std::fs::write(out.join("dataset.json"), "{}").unwrap();
+        // A stopped move is finished before the next dataset starts its own.
+        std::fs::create_dir_all(unfinished.join("masks")).unwrap();
+        finish_stopped_publish(&out).unwrap();
+        assert!(out.join("masks").is_dir() && out.join("dataset.json").is_file() && !unfinished.exists());
         check_out(&out).unwrap();
+        // Another tool's dataset.json beside its images is no earlier dataset.
+        std::fs::write(out.join("dataset.json"), "{\"name\": \"my own data\"}").unwrap();
+        let e = check_out(&out).unwrap_err().to_string();
+        assert!(e.contains("holds a dataset.json that is no objslam dataset's manifest"), "{e}");
+        finish_stopped_publish(&out).unwrap();
+        assert!(out.join("masks").is_dir(), "nothing moved");
         std::fs::remove_dir_all(&out).unwrap();
         // Unrelated files alone are no dataset's names.
         std::fs::create_dir_all(&out).unwrap();

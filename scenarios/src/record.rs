@@ -73,6 +73,15 @@ pub enum RecordError {
         files::RECORDING
     )]
     HoldsRobotLog { dir: PathBuf },
+    /// Files of a recording's names where no recording was made (a user's `camera/`, another
+    /// command's `world.toml`): the recording would replace or remove them.
+    #[error(
+        "{} holds {name}, which a recording writes or removes, but no earlier recording (no {} of objslam record, no {}): it would be replaced or removed; record into another directory",
+        dir.display(),
+        files::METADATA,
+        files::RECORDING
+    )]
+    HoldsOtherFiles { dir: PathBuf, name: &'static str },
 }
 
 /// What `objslam record` writes.
@@ -381,6 +390,7 @@ fn staged(
     write: impl FnOnce(&Path) -> Result<RecordSummary, RecordError>,
 ) -> Result<RecordSummary, RecordError> {
     use crate::partial_files as staging;
+    finish_stopped_recording(out)?;
     let (summary, _held) = staging::write_unfinished(out, |dir| {
         if out.join(ros2bag::METADATA_FILE).exists() {
             return Err(RecordError::HoldsBag { dir: out.to_path_buf() });
@@ -391,15 +401,57 @@ fn staged(
         if out.join(robotlog::format::MANIFEST).exists() && !out.join(files::RECORDING).exists() {
             return Err(RecordError::HoldsRobotLog { dir: out.to_path_buf() });
         }
+        // Files of a recording's names with no recording's marker are someone's own.
+        if !holds_recording(out)
+            && let Some(name) = files::first_present(out, &recording_files())
+        {
+            return Err(RecordError::HoldsOtherFiles { dir: out.to_path_buf(), name });
+        }
         write(dir)
     })?;
-    // A robot log is marked finished by its manifest, a JSON-lines log by its metadata;
-    // the stale names, both markers among them, go before anything moves.
-    let unfinished = staging::unfinished_dir(out);
+    publish_recording(out)?;
+    Ok(summary)
+}
+
+/// Moves a finished recording from `out`'s unfinished directory into `out`. A robot log is
+/// marked finished by its manifest, a JSON-lines log by its metadata; the stale names, both
+/// markers among them, go before anything moves.
+fn publish_recording(out: &Path) -> Result<(), RecordError> {
+    let unfinished = crate::partial_files::unfinished_dir(out);
     let marker =
         if unfinished.join(robotlog::format::MANIFEST).exists() { robotlog::format::MANIFEST } else { files::METADATA };
-    staging::publish(&unfinished, out, &recording_files(), marker).map_err(RecordError::Publish)?;
-    Ok(summary)
+    crate::partial_files::publish(&unfinished, out, &recording_files(), marker).map_err(RecordError::Publish)
+}
+
+/// Whether `dir` holds a recording's marker: a JSON-lines log's `metadata.json` written by
+/// `objslam record`, or a robot log's manifest with the `recording.json` that record writes.
+fn holds_recording(dir: &Path) -> bool {
+    let by_record = std::fs::read(dir.join(files::METADATA))
+        .ok()
+        .and_then(|bytes| serde_json::from_slice::<serde_json::Value>(&bytes).ok())
+        .is_some_and(|m| m["tool"] == "objslam record");
+    by_record || (dir.join(robotlog::format::MANIFEST).is_file() && dir.join(files::RECORDING).is_file())
+}
+
+/// Finishes moving in a recording whose move into `out` was stopped (its marker, which goes
+/// last, still waits in the unfinished directory, and `out` has none): the next recording
+/// starts the unfinished directory anew, and without this a second stop would leave `out`
+/// with a recording's files and no marker, which no recording would take again.
+fn finish_stopped_recording(out: &Path) -> Result<(), RecordError> {
+    // The unfinished directory is objslam's own: a marker there is a recording's (its
+    // `recording.json` may have been moved in already).
+    let stopped = |out: &Path| {
+        let unfinished = crate::partial_files::unfinished_dir(out);
+        !holds_recording(out) && (holds_recording(&unfinished) || unfinished.join(robotlog::format::MANIFEST).is_file())
+    };
+    if !stopped(out) {
+        return Ok(());
+    }
+    let _held = crate::partial_files::lock_output(out)?;
+    if stopped(out) {
+        publish_recording(out)?;
+    }
+    Ok(())
 }
 
 /// What a robot log recorded from a scenario carries beside the sensor data, so that

@@ -358,3 +358,35 @@ fn a_world_file_edited_mid_study_stops_it_without_pooling_two_worlds() {
     assert!(all.iter().all(|r| r.error.is_none()), "{:?}", all.iter().map(|r| &r.error).collect::<Vec<_>>());
     let _ = std::fs::remove_dir_all(&root);
 }
+
+/// A study's pin covers the mesh files its world draws objects from: a mesh edited during
+/// a study changes what the camera sees, so the study must see it as another scenario.
+#[test]
+fn the_scenario_pin_covers_the_worlds_mesh_files() {
+    let dir = std::env::temp_dir().join(format!("objslam-pin-mesh-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut world = worlds::generate::park(&Default::default(), 1).unwrap();
+    let mut posts = world.objects.iter().filter(|o| o.class == worlds::ObjectClass::Post);
+    let first = posts.next().unwrap().clone();
+    let glb = |o: &worlds::StaticObject| worlds::gltf_io::parts_to_glb(&worlds::mesh::object_parts(o));
+    std::fs::write(dir.join("post.glb"), glb(&first)).unwrap();
+    world.objects.iter_mut().find(|o| o.id == first.id).unwrap().mesh = Some("post.glb".into());
+    std::fs::write(dir.join("w.toml"), world.to_toml()).unwrap();
+    std::fs::write(dir.join("s.toml"), "name = \"m\"\n[world]\nfile = \"w.toml\"\n[pipeline]\nmethod = \"nn\"\n")
+        .unwrap();
+    let scenario = dir.join("s.toml").to_string_lossy().into_owned();
+    let (pin, _, _) = mc::pin_scenario(&scenario).unwrap();
+    assert_eq!(mc::pin_scenario(&scenario).unwrap().0, pin, "the same files give the same pin");
+    // A taller post in the same file: the world file itself is unchanged.
+    let mut other = first.clone();
+    other.shape = match other.shape {
+        worlds::Shape::Post { radius_m, height_m } => worlds::Shape::Post { radius_m, height_m: height_m + 0.5 },
+        shape => panic!("a post is a post, not {shape:?}"),
+    };
+    std::fs::write(dir.join("post.glb"), glb(&other)).unwrap();
+    let (now, _, _) = mc::pin_scenario(&scenario).unwrap();
+    assert_ne!(now.sha256, pin.sha256, "an edited mesh changes the pin");
+    assert!(pin.changed_to(&scenario, &now).is_some());
+    let _ = std::fs::remove_dir_all(&dir);
+}

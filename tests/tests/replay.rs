@@ -84,9 +84,12 @@ fn a_recorded_log_replays_to_the_runs_estimate() {
     for scan in scans {
         scan.ranges.iter_mut().for_each(|r| *r *= 1000.0);
     }
+    // A log may leave its name empty: the summary still names it.
+    millimetres.manifest.name = String::new();
     let m = replay(millimetres, config, None, None).unwrap().metrics;
     assert_eq!(m.returns_in_range, Some(0));
-    assert!(scenarios::replay::summary(&m).contains("ranges in millimetres"), "{}", scenarios::replay::summary(&m));
+    let line = scenarios::replay::summary(&m);
+    assert!(line.contains("ranges in millimetres") && line.starts_with("the log with "), "{line}");
     let mut written: Vec<String> = std::fs::read_dir(dir.join("replay"))
         .unwrap()
         .map(|f| f.unwrap().file_name().to_string_lossy().into_owned())
@@ -400,6 +403,28 @@ fn too_little_reference_gives_an_undefined_ate() {
         let line = scenarios::replay::summary(&m);
         assert!(line.contains("ATE undefined"), "{case}: {line}");
     }
+}
+
+/// Detections in millimetres are replayed as given, and the metrics and summary say how
+/// many lie beyond any mapping laser's reach or any trunk's width.
+#[test]
+fn detections_in_millimetres_are_counted_and_named() {
+    let mut log = synthetic_park();
+    log.manifest.vehicle.wheelbase_m = Some(2.83);
+    let config = resolve_config(None, &log.manifest, Some(AssociationMethod::Nn), None).unwrap();
+    let m = replay(log.clone(), config.clone(), None, None).unwrap().metrics;
+    assert_eq!(m.detections_beyond_reach, Some(0));
+    assert!(!scenarios::replay::summary(&m).contains("millimetres"));
+    let Observations::Detections(scans) = &mut log.observations else { panic!("detections") };
+    let last = scans.last_mut().unwrap();
+    last.detections.iter_mut().for_each(|d| d.diameter_m = d.diameter_m.map(|w| w * 1000.0));
+    last.detections[0].range_m *= 1000.0;
+    let wide = last.detections.iter().filter(|d| d.diameter_m.is_some_and(|w| w > 20.0) || d.range_m > 1000.0).count();
+    assert!(wide > 0, "the last scan holds a detection with a diameter or a far one");
+    let m = replay(log, config, None, None).unwrap().metrics;
+    assert_eq!(m.detections_beyond_reach, Some(wide));
+    let line = scenarios::replay::summary(&m);
+    assert!(line.contains(&format!("{wide} of {} detections lie beyond 1000 m", m.detections)), "{line}");
 }
 
 #[test]

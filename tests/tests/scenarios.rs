@@ -427,6 +427,9 @@ fn files_of_a_runs_names_where_no_run_was_are_refused() {
     std::fs::write(dir.join("metadata.json"), r#"{"my": "data"}"#).unwrap();
     let e = run(&sc, &base, &options, |_| {}).err().expect("refused").to_string();
     assert!(e.contains("written by no objslam command"), "{e}");
+    std::fs::write(dir.join("metadata.json"), "{\"tool\": \"objslam ru").unwrap();
+    let e = run(&sc, &base, &options, |_| {}).err().expect("refused").to_string();
+    assert!(e.contains("metadata.json: it cannot be read (not JSON: EOF"), "{e}");
     assert_eq!(std::fs::read_to_string(dir.join("trees_shown.jsonl")).unwrap(), "mine");
     let _ = std::fs::remove_dir_all(&dir);
 }
@@ -446,8 +449,10 @@ fn a_mesh_file_among_the_outputs_is_refused() {
     std::fs::write(out.join("objects/post.glb"), worlds::gltf_io::parts_to_glb(&parts)).unwrap();
     post.mesh = Some("out/objects/post.glb".into());
     std::fs::write(dir.join("w.toml"), world.to_toml()).unwrap();
-    std::fs::write(dir.join("s.toml"), "name = \"m\"\n[world]\nfile = \"w.toml\"\n[pipeline]\nmethod = \"nn\"\n")
-        .unwrap();
+    // A camera method whose model is missing: the mesh is refused first, as it would be
+    // before a model is trained.
+    let settings = "name = \"m\"\n[world]\nfile = \"w.toml\"\n[appearance]\nmodel = \"missing.json\"\n";
+    std::fs::write(dir.join("s.toml"), settings).unwrap();
     let (mut sc, base) = Scenario::load(dir.join("s.toml").to_str().unwrap()).unwrap();
     sc.sim.max_duration_s = Some(2.0);
     let e = run(&sc, &base, &RunOptions { out: Some(out.clone()), ..Default::default() }, |_| {})

@@ -440,3 +440,51 @@ fn inputs_that_do_not_fit_the_log_are_errors_naming_file_and_line() {
     assert!(e.contains("ROS 2 bag") && e.contains("metadata.json"), "{e}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A recording replaces an earlier recording's files, never files of its names that no
+/// recording wrote; a recording whose move into place was stopped is finished by the
+/// next, so that two stops in a row leave a directory the next recording takes.
+#[test]
+fn a_recording_replaces_only_an_earlier_recording() {
+    let dir = std::env::temp_dir().join(format!("objslam-record-over-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let (mut sc, base) = Scenario::load("laser_only").unwrap();
+    sc.sim.max_duration_s = Some(1.0);
+    let world = sc.world(&base, 1).unwrap();
+    let record = |out: &Path| {
+        scenarios::record::record(
+            &world,
+            &sc.sim,
+            1,
+            &LogScoring::of_scenario(&sc, 1),
+            out,
+            scenarios::record::RecordFormat::Jsonl,
+            |_, _| {},
+        )
+    };
+    // Someone's own camera/ and world.toml.
+    let mine = dir.join("mine");
+    std::fs::create_dir_all(mine.join("camera")).unwrap();
+    std::fs::write(mine.join("camera/photo.png"), "mine").unwrap();
+    std::fs::write(mine.join("world.toml"), "mine").unwrap();
+    let e = record(&mine).expect_err("refused").to_string();
+    assert!(e.contains("holds camera, which a recording writes or removes, but no earlier recording"), "{e}");
+    assert_eq!(std::fs::read_to_string(mine.join("camera/photo.png")).unwrap(), "mine");
+    // A metadata.json of another command is no recording's either.
+    let other = dir.join("other");
+    std::fs::create_dir_all(&other).unwrap();
+    std::fs::write(other.join("metadata.json"), r#"{"tool": "objslam score"}"#).unwrap();
+    let e = record(&other).expect_err("refused").to_string();
+    assert!(e.contains("holds metadata.json"), "{e}");
+    // An earlier recording is replaced; one stopped while moved in (its marker still in the
+    // unfinished directory) is finished, then replaced.
+    let log = dir.join("log");
+    record(&log).unwrap();
+    record(&log).unwrap();
+    let unfinished = log.join(".unfinished");
+    std::fs::create_dir_all(&unfinished).unwrap();
+    std::fs::rename(log.join("metadata.json"), unfinished.join("metadata.json")).unwrap();
+    record(&log).unwrap();
+    assert!(log.join("metadata.json").is_file() && !unfinished.exists());
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -746,6 +746,12 @@ mod tests {
         let e = Shard::parse("3/3").unwrap_err().to_string();
         assert!(e.contains("makes shard 3 of 3, and shards are numbered 0 to 2"), "{e}");
         assert!(Shard::parse("0/0").unwrap_err().to_string().contains("a count of 0"));
+        // A count too large to hold is named as such, not as no number.
+        let e = Shard::parse("1/99999999999999999999999").unwrap_err().to_string();
+        assert!(e.contains("N is too large"), "{e}");
+        assert!(Shard::parse("x/2").unwrap_err().to_string().contains("K is not a whole number"));
+        let e = Shard::from_env(env(&[("JOB_COMPLETION_INDEX", "1e3")]), Some(3)).unwrap_err().to_string();
+        assert!(e.contains("JOB_COMPLETION_INDEX=1e3") && e.contains("the value is not a whole number"), "{e}");
         let e = Shard::from_env(env(&[("JOB_COMPLETION_INDEX", "3")]), Some(3)).unwrap_err().to_string();
         assert!(e.contains("makes shard 3 of 3, and shards are numbered 0 to 2"), "{e}");
         // A stepped array (--array=0-4:2: tasks 0, 2, 4) gives shards 0, 1, 2 of 3.

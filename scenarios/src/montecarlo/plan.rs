@@ -15,6 +15,15 @@ pub struct Vary {
     pub values: Vec<f64>,
 }
 
+/// `text` as a count, or why it is none, naming it `what`: a number too large to count
+/// is not called "not a whole number".
+fn whole_number(text: &str, what: &str) -> Result<usize, String> {
+    text.trim().parse().map_err(|e: std::num::ParseIntError| match e.kind() {
+        std::num::IntErrorKind::PosOverflow => format!("{what} is too large (at most {})", usize::MAX),
+        _ => format!("{what} is not a whole number"),
+    })
+}
+
 impl Vary {
     /// Parses `PARAM=A..B:STEPS` (STEPS values evenly spaced from A to B inclusive).
     pub fn parse(spec: &str) -> Result<Vary, StudyError> {
@@ -24,7 +33,7 @@ impl Vary {
         let (a, b) = range.split_once("..").ok_or_else(|| bad("missing 'A..B'"))?;
         let a: f64 = a.trim().parse().map_err(|_| bad("A is not a number"))?;
         let b: f64 = b.trim().parse().map_err(|_| bad("B is not a number"))?;
-        let steps: usize = steps.trim().parse().map_err(|_| bad("STEPS is not a whole number"))?;
+        let steps = whole_number(steps, "STEPS").map_err(|m| bad(&m))?;
         if steps == 0 || !a.is_finite() || !b.is_finite() || !(b - a).is_finite() {
             return Err(bad("STEPS must be at least 1 and A, B finite (and B - A too)"));
         }
@@ -87,7 +96,7 @@ pub struct ScenarioPin {
 impl ScenarioPin {
     /// `None` where `now` (the scenario `named` reads today) is the one this pin was taken
     /// of; else the words of what changed, for each caller to wrap with its own remedy.
-    pub(crate) fn changed_to(&self, named: &str, now: &ScenarioPin) -> Option<String> {
+    pub fn changed_to(&self, named: &str, now: &ScenarioPin) -> Option<String> {
         (self.sha256 != now.sha256).then(|| {
             if now.file == self.file {
                 format!(
@@ -180,6 +189,10 @@ pub fn pin_scenario(name_or_path: &str) -> Result<(ScenarioPin, Scenario, PathBu
         // As loaded, so that a glTF world's buffers count; a file world ignores the seed.
         let world = scenario.world(&base_dir, 0)?;
         digest.update(serde_json::to_string(&world).expect("a world is JSON").as_bytes());
+        // The JSON names an object's mesh file; what the camera draws is the triangles read.
+        for mesh in world.objects.iter().filter_map(|o| o.mesh_data.0.as_deref()) {
+            digest_mesh(&mut digest, mesh);
+        }
     }
     let calibration_file = scenario.calibration_file();
     for named in [scenario.appearance.model.as_deref(), calibration_file].into_iter().flatten() {
@@ -191,6 +204,22 @@ pub fn pin_scenario(name_or_path: &str) -> Result<(ScenarioPin, Scenario, PathBu
     }
     let sha256 = digest.finalize().iter().map(|b| format!("{b:02x}")).collect();
     Ok((ScenarioPin { file, sha256 }, scenario, base_dir))
+}
+
+/// Feeds `mesh`'s vertices and triangles to `digest`, so that a mesh file edited under a
+/// study changes its pin.
+fn digest_mesh(digest: &mut sha2::Sha256, mesh: &worlds::mesh::TriMesh) {
+    use sha2::Digest;
+    for len in [mesh.positions.len(), mesh.normals.len(), mesh.uvs.len(), mesh.indices.len()] {
+        digest.update((len as u64).to_le_bytes());
+    }
+    for v in mesh.positions.iter().chain(&mesh.normals) {
+        v.iter().for_each(|x| digest.update(x.to_le_bytes()));
+    }
+    for uv in &mesh.uvs {
+        uv.iter().for_each(|x| digest.update(x.to_le_bytes()));
+    }
+    mesh.indices.iter().for_each(|i| digest.update(i.to_le_bytes()));
 }
 
 /// Loads the scenario of a study whose `study.json` is `plan_file`: from the file it was
@@ -586,8 +615,8 @@ impl Shard {
     pub fn parse(spec: &str) -> Result<Shard, StudyError> {
         let bad = |message: &str| StudyError::Shard { spec: spec.into(), message: message.into() };
         let (k, n) = spec.split_once('/').ok_or_else(|| bad("missing '/'"))?;
-        let index: usize = k.trim().parse().map_err(|_| bad("K is not a whole number"))?;
-        let count: usize = n.trim().parse().map_err(|_| bad("N is not a whole number"))?;
+        let index = whole_number(k, "K").map_err(|m| bad(&m))?;
+        let count = whole_number(n, "N").map_err(|m| bad(&m))?;
         Shard::numbered(index, count).map_err(|m| bad(&m))
     }
 
@@ -610,10 +639,8 @@ impl Shard {
         let num = |name: &str| -> Result<Option<usize>, StudyError> {
             env(name)
                 .map(|v| {
-                    v.trim().parse::<usize>().map_err(|_| StudyError::ShardEnv {
-                        spec: format!("{name}={v}"),
-                        message: "not a whole number".into(),
-                    })
+                    whole_number(&v, "the value")
+                        .map_err(|message| StudyError::ShardEnv { spec: format!("{name}={v}"), message })
                 })
                 .transpose()
         };

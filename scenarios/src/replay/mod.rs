@@ -339,6 +339,10 @@ pub struct ReplayMetrics {
     /// (null for a log of detections): 0 over every scan is ranges in another unit, or a
     /// sensor that saw nothing.
     pub returns_in_range: Option<usize>,
+    /// Detections farther than [`DETECTION_REACH_M`] or wider than [`TRUNK_DIAMETER_MAX_M`]
+    /// (null for a log of whole scans): more than none is ranges or diameters in another
+    /// unit (millimetres), which the filter would take as metres.
+    pub detections_beyond_reach: Option<usize>,
     /// Camera frames given to the pipeline (the camera methods'; 0 for the others).
     pub camera_frames: usize,
     /// The appearance model the camera methods used (null for the others).
@@ -584,6 +588,7 @@ fn replay_and_write(
     let yaw = log.manifest.sensor.yaw_rad;
     let (mut detections, mut motion_messages, mut scans, mut end) = (0, 0, 0, start);
     let mut returns_in_range: Option<usize> = None;
+    let mut detections_beyond_reach: Option<usize> = None;
     let mut motion_end = start;
     // Whether the motion is on the observations' clock (see MotionStartsLate and
     // MotionOutlastsObservations, with the observations' span below): observations before
@@ -651,6 +656,10 @@ fn replay_and_write(
                 }
                 ObservationMessage::Detections(scan) => {
                     detections += scan.detections.len();
+                    let beyond = scan.detections.iter().filter(|d| {
+                        d.range_m > DETECTION_REACH_M || d.diameter_m.is_some_and(|w| w > TRUNK_DIAMETER_MAX_M)
+                    });
+                    *detections_beyond_reach.get_or_insert(0) += beyond.count();
                     // Bearings in the vehicle's frame: the sensor may look sideways.
                     let turned: Vec<_> = scan
                         .detections
@@ -720,6 +729,7 @@ fn replay_and_write(
         scans_before_motion: before_motion,
         detections,
         returns_in_range,
+        detections_beyond_reach,
         camera_frames,
         appearance_model: model_provenance,
         landmarks: landmarks.len(),
@@ -934,7 +944,7 @@ fn write_outputs(
     // The fixes scoring dropped as spikes are drawn as such, the others as the reference.
     let title = format!(
         "{}: {} ({} landmarks{})",
-        if manifest.name.is_empty() { "log" } else { &manifest.name },
+        shown_name(&manifest.name),
         replay.metrics.method,
         marks.len(),
         replay
@@ -987,14 +997,22 @@ pub fn summary(m: &ReplayMetrics) -> String {
     } else {
         ""
     };
+    let beyond = match m.detections_beyond_reach {
+        Some(n) if n > 0 => format!(
+            "; {n} of {} detections lie beyond {DETECTION_REACH_M} m or are wider than {TRUNK_DIAMETER_MAX_M} m \
+             (ranges or diameters in millimetres, or in another unit?)",
+            m.detections
+        ),
+        _ => String::new(),
+    };
     let nis = if m.nis.mean.is_finite() {
         format!("NIS mean {:.2} ({:.0}% within 95%)", m.nis.mean, 100.0 * m.nis.within_95)
     } else {
         "NIS undefined (no observation was associated)".to_string()
     };
     format!(
-        "{} with {}: {} landmarks; {reference}{before}{no_return}; {nis}; {:.2} ms per scan (p95 {:.2}); {:.1} s wall, {:.0}x real time",
-        m.log,
+        "{} with {}: {} landmarks; {reference}{before}{no_return}{beyond}; {nis}; {:.2} ms per scan (p95 {:.2}); {:.1} s wall, {:.0}x real time",
+        shown_name(&m.log),
         m.method,
         m.landmarks,
         m.time_per_scan_ms.mean,
@@ -1002,6 +1020,19 @@ pub fn summary(m: &ReplayMetrics) -> String {
         m.wall_seconds,
         m.real_time_factor
     )
+}
+
+/// Farther than any laser used for mapping sees a trunk (a SICK LMS reaches 80 m, a
+/// long-range lidar a few hundred metres): a detection beyond it is in another unit.
+pub const DETECTION_REACH_M: f64 = 1000.0;
+
+/// Wider than any tree's trunk (the widest known are about 11 m across): a detection's
+/// diameter beyond it is in another unit.
+pub const TRUNK_DIAMETER_MAX_M: f64 = 20.0;
+
+/// The manifest's `name` as summaries show it: a log may leave it empty.
+fn shown_name(name: &str) -> &str {
+    if name.trim().is_empty() { "the log" } else { name }
 }
 
 #[cfg(test)]

@@ -101,6 +101,11 @@ pub enum RunError {
         out.display()
     )]
     NotARunsMetadata { out: PathBuf, tool: String },
+    #[error(
+        "{}: it cannot be read ({problem}), so whether the directory holds an earlier run's outputs is unknown; repair or remove it, or choose another output directory",
+        file.display()
+    )]
+    UnreadableMetadata { file: PathBuf, problem: String },
     /// Files of a run's names where no run was published: someone's own (or what a run
     /// stopped while publishing left), which publishing would replace or delete.
     #[error(
@@ -477,10 +482,16 @@ fn check_inputs_outside_outputs(scenario: &Scenario, base_dir: &Path, out: &Path
 /// a user's own files that happen to have those names (an `objects/` folder of notes).
 fn check_earlier_outputs_are_a_runs(out: &Path) -> Result<(), RunError> {
     // An earlier run's own `metadata.json` (one another command or a user wrote is not).
-    if std::fs::symlink_metadata(out.join(files::METADATA)).is_ok() {
-        let metadata = read_metadata(out);
-        let tool = metadata.as_ref().and_then(|v| v.get("tool")).and_then(|t| t.as_str());
-        return match tool {
+    let file = out.join(files::METADATA);
+    if std::fs::symlink_metadata(&file).is_ok() {
+        let read = std::fs::read_to_string(&file)
+            .map_err(|e| e.to_string())
+            .and_then(|text| serde_json::from_str::<serde_json::Value>(&text).map_err(|e| format!("not JSON: {e}")));
+        let metadata = match read {
+            Ok(metadata) => metadata,
+            Err(problem) => return Err(RunError::UnreadableMetadata { file, problem }),
+        };
+        return match metadata.get("tool").and_then(|t| t.as_str()) {
             Some("objslam run") => Ok(()),
             other => Err(RunError::NotARunsMetadata {
                 out: out.to_path_buf(),
@@ -504,7 +515,8 @@ fn run_and_write(
     let seed = options.seed.unwrap_or(scenario.seed);
     let config = run_config(scenario, options.method)?;
     let camera_method = config.method.uses_appearance();
-    let appearance_model = appearance_for(scenario, base_dir, options, &config, &mut progress)?;
+    // The world before the model: a world that cannot be read, or a mesh file among the
+    // outputs, is refused before minutes of training.
     let world = scenario.world(base_dir, seed)?;
     // The world's mesh files are inputs too: known once the world is read.
     if let Some(out) = &options.out
@@ -512,6 +524,7 @@ fn run_and_write(
     {
         return Err(RunError::InputInOutputs { what, file, out: out.clone() });
     }
+    let appearance_model = appearance_for(scenario, base_dir, options, &config, &mut progress)?;
     let calibration = resolve_calibration(scenario, base_dir, seed)?;
     let started = std::time::Instant::now();
     let sim_config = simulated_for(scenario, &config);
