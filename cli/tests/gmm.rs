@@ -126,6 +126,13 @@ fn both_searches_fit_the_same_mixture_and_score_it_on_held_out_points() {
         let e = String::from_utf8_lossy(&out.stderr);
         assert!(!out.status.success() && e.contains("broken.json") && e.contains(named), "{key}: {e}");
     }
+    // A field every version writes, missing, is damage, not a default.
+    let mut json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&model).unwrap()).unwrap();
+    json["fit"]["options"].as_object_mut().unwrap().remove("seed");
+    std::fs::write(&broken, json.to_string()).unwrap();
+    let out = objslam(&["gmm", "score", path(&broken), path(&heldout)]);
+    let e = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && e.contains("broken.json") && e.contains("fit.options.seed: missing"), "{e}");
     // Another version of the file is refused by its version; a file from before the
     // version was kept (no `format_version`) is read.
     for (bad, named) in [
@@ -164,5 +171,44 @@ fn both_searches_fit_the_same_mixture_and_score_it_on_held_out_points() {
     let out = objslam(&["gmm", "score", path(&broken), path(&heldout)]);
     let e = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && e.contains("broken.json") && e.contains("not an objslam gmm fit model"), "{e}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Data at the edges of floating point: a point so far out that its squared distance
+/// overflows scores a finite log-likelihood; values whose differences' squares underflow
+/// are refused for fitting; a byte-order mark before the first field is no part of it.
+#[test]
+fn extreme_scales_score_finite_or_are_refused() {
+    let dir = std::env::temp_dir().join(format!("objslam-gmm-scales-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let (train, model, far) = (dir.join("train.csv"), dir.join("model.json"), dir.join("far.csv"));
+    // Points a thousandth apart, as a mixture of them is narrow.
+    let small: String = two_clusters(3, 200)
+        .lines()
+        .skip(1)
+        .map(|l| {
+            let v: Vec<f64> = l.split(',').map(|f| f.parse::<f64>().unwrap() * 1e-3).collect();
+            format!("{},{}\n", v[0], v[1])
+        })
+        .collect();
+    std::fs::write(&train, format!("\u{feff}{small}")).unwrap();
+    let out = objslam(&["gmm", "fit", path(&train), "--out", path(&model)]);
+    assert!(out.status.success(), "a byte-order mark is read past: {}", String::from_utf8_lossy(&out.stderr));
+    std::fs::write(&far, "1e153,0\n0,0\n").unwrap();
+    let out = objslam(&["gmm", "score", path(&model), path(&far)]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let score = score_of(&out.stdout);
+    assert!(score.is_finite() && score < -1e4, "{score}");
+    let tiny: String = small
+        .lines()
+        .map(|l| {
+            let v: Vec<f64> = l.split(',').map(|f| f.parse::<f64>().unwrap() * 1e-167).collect();
+            format!("{:e},{:e}\n", v[0], v[1])
+        })
+        .collect();
+    std::fs::write(&train, tiny).unwrap();
+    let out = objslam(&["gmm", "fit", path(&train), "--out", path(&model)]);
+    let e = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && e.contains("train.csv") && e.contains("underflow"), "{e}");
     let _ = std::fs::remove_dir_all(&dir);
 }

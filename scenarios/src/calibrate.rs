@@ -47,6 +47,13 @@ pub enum CalibrateError {
     Session { file: PathBuf, field: String, message: String },
     #[error("calibration range world: {0}")]
     World(String),
+    /// A session whose settings pass their checks, but whose stations drawn with this seed
+    /// cannot stand where they were drawn: named by the file and the settings to change.
+    #[error(
+        "{}: calibration.session: the stations drawn with seed {seed} cannot be laid out ({problems}): a board too near the robot's path needs a larger distance_m (or a narrower bearing_deg or turn_deg), objects of neighbouring stations touching a larger station_spacing_m",
+        file.display()
+    )]
+    Layout { file: PathBuf, seed: u64, problems: String },
     #[error(transparent)]
     Sim(#[from] sim::SimError),
     #[error("calibration camera: {0}")]
@@ -262,7 +269,10 @@ impl SessionConfig {
         if self.turn_deg[0] <= -80.0 || self.turn_deg[1] >= 80.0 {
             return bad(
                 "turn_deg",
-                format!("must be within +-80 deg (the camera must see the board's face), got {:?}", self.turn_deg),
+                format!(
+                    "must lie strictly between -80 and 80 deg (the camera must see the board's face), got {:?}",
+                    self.turn_deg
+                ),
             );
         }
         let max_tilt = self.tilt_deg[0].abs().max(self.tilt_deg[1].abs()).to_radians();
@@ -512,9 +522,12 @@ pub fn range_world(stations: &[Station], base: &World) -> Result<World, Calibrat
     };
     let problems = worlds::validate::validate(&world, Path::new("."));
     if !problems.is_empty() {
-        return Err(CalibrateError::World(
-            problems.iter().map(|p| format!("{}: {}", p.field, p.message)).collect::<Vec<_>>().join("; "),
-        ));
+        // The first few: one cause (boards drawn too near) repeats at every station.
+        let mut said: Vec<String> = problems.iter().take(3).map(|p| format!("{}: {}", p.field, p.message)).collect();
+        if problems.len() > 3 {
+            said.push(format!("and {} more", problems.len() - 3));
+        }
+        return Err(CalibrateError::World(said.join("; ")));
     }
     Ok(world)
 }
@@ -686,7 +699,10 @@ pub fn run_session(
     config.check(&file, &scenario.sim)?;
     let stations = plan_stations(&config, &scenario.sim, seed);
     // The range's ground looks like the scenario's world's ground.
-    let world = range_world(&stations, &scenario.world(base_dir, seed)?)?;
+    let world = range_world(&stations, &scenario.world(base_dir, seed)?).map_err(|e| match e {
+        CalibrateError::World(problems) => CalibrateError::Layout { file: file.clone(), seed, problems },
+        e => e,
+    })?;
     let mut report = calibrate_stations(&world, &stations, &config, &scenario.sim, seed, images)?;
     report.scenario = scenario.name.clone();
     Ok(report)
@@ -1155,6 +1171,23 @@ mod tests {
         let e = SessionConfig { poses: 1001, ..Default::default() }.check(f, &sim).unwrap_err().to_string();
         assert!(e.contains("12000 m"), "{e}");
         SessionConfig { poses: 150, ..Default::default() }.check(f, &sim).unwrap();
+        let e = SessionConfig { turn_deg: [-80.0, 80.0], ..Default::default() }.check(f, &sim).unwrap_err().to_string();
+        assert!(e.contains("strictly between -80 and 80 deg"), "{e}");
+    }
+
+    /// Boards that pass the session's checks but stand, as drawn, where the robot cannot
+    /// pass are named by the file and the settings to change, not as an inner world.
+    #[test]
+    fn stations_that_cannot_be_laid_out_are_named_by_their_settings() {
+        let (mut sc, base) = crate::scenario::Scenario::load("paper_park").unwrap();
+        sc.calibration.session.distance_m = [0.5, 0.6];
+        let e = run_session(&sc, &base, 1, None, None).unwrap_err().to_string();
+        assert!(
+            e.contains("paper_park.toml: calibration.session: the stations drawn with seed 1 cannot be laid out")
+                && e.contains("and 8 more")
+                && e.contains("a larger distance_m"),
+            "{e}"
+        );
     }
 
     #[test]

@@ -17,6 +17,21 @@ pub struct McapError {
     pub message: String,
 }
 
+/// `e`'s words and those of its causes, each not already said: the MCAP writer's own words
+/// ("I/O error from writing") leave out why (a full disk).
+fn with_causes(e: &dyn std::error::Error) -> String {
+    let mut message = e.to_string();
+    let mut cause = e.source();
+    while let Some(c) = cause {
+        let said = c.to_string();
+        if !message.contains(&said) {
+            message = format!("{message}: {said}");
+        }
+        cause = c.source();
+    }
+    message
+}
+
 /// Writes Foxglove-schema JSON messages to an MCAP file.
 pub struct McapWriter {
     writer: mcap::Writer<BufWriter<File>>,
@@ -108,14 +123,14 @@ fn schema(name: &str) -> Value {
 
 impl McapWriter {
     pub fn create(path: &Path) -> Result<Self, McapError> {
-        let err = |e: &dyn std::fmt::Display| McapError { file: path.to_path_buf(), message: e.to_string() };
+        let err = |e: &dyn std::error::Error| McapError { file: path.to_path_buf(), message: with_causes(e) };
         let file = File::create(path).map_err(|e| err(&e))?;
         let writer = mcap::Writer::new(BufWriter::new(file)).map_err(|e| err(&e))?;
         Ok(McapWriter { writer, channels: BTreeMap::new(), sequence: 0, file: path.to_path_buf() })
     }
 
-    fn err(&self, e: &dyn std::fmt::Display) -> McapError {
-        McapError { file: self.file.clone(), message: e.to_string() }
+    fn err(&self, e: &dyn std::error::Error) -> McapError {
+        McapError { file: self.file.clone(), message: with_causes(e) }
     }
 
     /// Writes one message on `topic` with Foxglove schema `schema_name`, logged at `t`.
@@ -144,7 +159,21 @@ impl McapWriter {
     }
 
     pub fn finish(mut self) -> Result<(), McapError> {
-        self.writer.finish().map_err(|e| McapError { file: self.file.clone(), message: e.to_string() })?;
+        self.writer.finish().map_err(|e| McapError { file: self.file.clone(), message: with_causes(&e) })?;
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    /// The writer's own words say that a write failed; its cause says why.
+    #[test]
+    fn an_mcap_error_carries_its_cause() {
+        let full = mcap::McapError::Io(std::io::Error::from_raw_os_error(28));
+        let said = super::with_causes(&full);
+        assert!(said.starts_with("I/O error from writing") && said.contains("No space left on device"), "{said}");
+        // A cause already in the words is not said twice.
+        let io = std::io::Error::other("disk full");
+        assert_eq!(super::with_causes(&io), "disk full");
     }
 }

@@ -557,7 +557,9 @@ pub fn read_csv_with_digest(path: &Path) -> Result<(DMatrix<f64>, String), Train
         let line = valid.iter().filter(|&&b| b == b'\n').count() + 1;
         TrainError::Csv { file: path.into(), line, message: "not UTF-8 text".into() }
     })?;
-    Ok((parse_csv(path, &text)?, digest))
+    // Spreadsheets' "CSV UTF-8" starts with a byte-order mark, which is no part of a field.
+    let text = text.strip_prefix('\u{feff}').unwrap_or(&text);
+    Ok((parse_csv(path, text)?, digest))
 }
 
 /// Parses `text`, the contents of the numeric CSV `path` (named in errors).
@@ -637,7 +639,9 @@ pub fn gmm_fit_csv(path: &Path, options: &VbOptions) -> Result<(VbGmm, String), 
     let (data, digest) = read_csv_with_digest(path)?;
     let model = gmm::fit(&data, None, options).map_err(|e| match e {
         // A problem of the data is the file's.
-        gmm::GmmError::TooLarge { .. } | gmm::GmmError::NotFinite { .. } => file_err(path, e),
+        gmm::GmmError::TooLarge { .. } | gmm::GmmError::TooSmall { .. } | gmm::GmmError::NotFinite { .. } => {
+            file_err(path, e)
+        }
         e => e.into(),
     })?;
     Ok((model, digest))
@@ -727,6 +731,25 @@ impl GmmFitRecord {
                 }
                 if record.contains_key("data_sha256") != record.contains_key("data_absolute") {
                     return Err("fit: data_sha256 and data_absolute come together (both, or neither in files of versions before them): the record is damaged".into());
+                }
+                // Every version wrote these; a default read in their place would describe
+                // another fit (`search` and `component_cost_nats` are left out at their
+                // defaults, so their absence says what they were).
+                if let Some(serde_json::Value::Object(options)) = record.get("options") {
+                    const WRITTEN: [&str; 7] = [
+                        "max_components",
+                        "fixed_k",
+                        "tolerance",
+                        "max_iterations",
+                        "split_gain",
+                        "min_points",
+                        "seed",
+                    ];
+                    if let Some(key) = WRITTEN.iter().find(|k| !options.contains_key(**k)) {
+                        return Err(format!(
+                            "fit.options.{key}: missing; every `gmm fit` writes it, so the record is damaged"
+                        ));
+                    }
                 }
             }
             _ => {}

@@ -74,6 +74,12 @@ pub fn validate(world: &World, base_dir: &Path) -> Vec<Problem> {
             push(format!("{f}.pose"), "pose must be finite".into());
         } else if let Some(c) = [o.pose.x, o.pose.y].iter().find(|c| c.abs() > MAX_COORDINATE_M) {
             push(format!("{f}.pose"), far_from_origin(*c));
+        } else if o.pose.yaw_deg.abs() > 360.0 {
+            // As the robot's: beyond a few turns, degrees lose the heading to rounding.
+            push(
+                format!("{f}.pose.yaw_deg"),
+                format!("must be within a turn (-360 to 360 degrees), got {}", o.pose.yaw_deg),
+            );
         }
         for (name, v) in shape_sizes(&o.shape) {
             if !(v.is_finite() && v > 0.0) {

@@ -306,6 +306,8 @@ fn routes_off_the_ground_or_that_cannot_be_driven_are_named() {
     assert!(m.contains("objects[0].pose") && m.contains(&format!("-{far} m is more than 1000 m")), "{m}");
     let m = check(&|w| w.robot.start.yaw_deg = 1e12);
     assert!(m.contains("robot.start.yaw_deg") && m.contains("within a turn"), "{m}");
+    let m = check(&|w| w.objects[0].pose.yaw_deg = 1e300);
+    assert!(m.contains("objects[0].pose.yaw_deg") && m.contains("within a turn"), "{m}");
     let m = check(&|w| {
         w.robot.route.looping = false;
         w.robot.laps = 3;

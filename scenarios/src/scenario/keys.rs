@@ -256,7 +256,7 @@ pub(super) const KEYS: &[(&str, &str)] = &[
     ),
     (
         "calibration.session.turn_deg",
-        "Range of the board's turn about the vertical away from facing the laser (deg); within +-80.",
+        "Range of the board's turn about the vertical away from facing the laser (deg); strictly between -80 and 80.",
     ),
     (
         "calibration.session.tilt_deg",

@@ -36,6 +36,10 @@ pub enum GmmError {
         "data values of column {column} (up to {largest:e} in size) are too large: their squares and distances overflow; rescale the data"
     )]
     TooLarge { column: usize, largest: f64 },
+    #[error(
+        "data values of column {column} differ by at most {range:e}: the squares of their differences underflow; rescale the data"
+    )]
+    TooSmall { column: usize, range: f64 },
     #[error("dimension mismatch: expected {expected}, found {found}")]
     Dimension { expected: usize, found: usize },
     #[error("component {component}: a {rows}x{cols} covariance for a mean of {dims} dimensions")]

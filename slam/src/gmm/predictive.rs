@@ -25,7 +25,14 @@ impl StudentT {
         // dx^T L dx with L = U^T U from the Cholesky factor of L (L = C C^T).
         let y = self.chol.l().transpose() * &dx;
         let maha = y.norm_squared();
-        self.log_norm - 0.5 * (self.dof + d) * (maha / self.dof).ln_1p()
+        if maha.is_finite() {
+            return self.log_norm - 0.5 * (self.dof + d) * (maha / self.dof).ln_1p();
+        }
+        // A point so far out that its squared distance overflows: ln(1 + q) from ln q,
+        // with q's square root taken apart from its scale, so the density stays finite.
+        let scale = y.amax();
+        let ln_q = 2.0 * (scale.ln() + (&y / scale).norm().ln()) - self.dof.ln();
+        self.log_norm - 0.5 * (self.dof + d) * (ln_q + (-ln_q).exp().ln_1p())
     }
 }
 

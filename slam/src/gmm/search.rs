@@ -206,6 +206,7 @@ pub fn fit_with_history(
     options: &VbOptions,
 ) -> Result<(VbGmm, Vec<f64>), GmmError> {
     check_data(data)?;
+    super::vbem::check_spread(data)?;
     if options.max_components == 0 {
         return Err(GmmError::BadOptions("max_components must be at least 1".into()));
     }

@@ -149,6 +149,19 @@ pub(crate) fn check_data(data: &DMatrix<f64>) -> Result<(), GmmError> {
     Ok(())
 }
 
+/// Refuses data to fit whose values differ, but by so little that the squares of their
+/// differences underflow: the covariances would be the prior's alone, and the bound that
+/// of other data. (Scored data need no spread.)
+pub(crate) fn check_spread(data: &DMatrix<f64>) -> Result<(), GmmError> {
+    for (column, values) in data.column_iter().enumerate() {
+        let range = values.max() - values.min();
+        if range > 0.0 && range * range < f64::MIN_POSITIVE {
+            return Err(GmmError::TooSmall { column, range });
+        }
+    }
+    Ok(())
+}
+
 /// Below this many responsibilities (N x K) a step runs on one thread: the online
 /// phase's small per-observation fits would only pay the threads' overhead.
 const PARALLEL_MIN_CELLS: usize = 1 << 16;
