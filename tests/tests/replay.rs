@@ -405,6 +405,43 @@ fn too_little_reference_gives_an_undefined_ate() {
     }
 }
 
+/// Ground truth in another frame (UTM) is scored as given, and the summary says that a
+/// rigid fit would take the error away.
+#[test]
+fn ground_truth_in_another_frame_is_named() {
+    let mut log = synthetic_park();
+    log.manifest.vehicle.wheelbase_m = Some(2.83);
+    log.manifest.vehicle.encoder_offset_m = Some(0.76);
+    log.manifest.reference = Some(robotlog::manifest::Reference {
+        kind: robotlog::ReferenceKind::Gps,
+        point: robotlog::ReferencePoint::Sensor,
+    });
+    let config = resolve_config(None, &log.manifest, Some(AssociationMethod::Nn), None).unwrap();
+    // The synthetic GPS is in a frame of its own: brought into the estimate's by the
+    // inverse of the fit, it is ground truth there.
+    let fit = replay(log.clone(), config.clone(), None, None).unwrap().metrics.reference.unwrap();
+    let (s, c) = fit.alignment_rotation_rad.sin_cos();
+    let t = fit.alignment_translation_m;
+    log.reference.iter_mut().for_each(|g| {
+        let (dx, dy) = (g.x - t[0], g.y - t[1]);
+        (g.x, g.y) = (c * dx + s * dy, -s * dx + c * dy);
+    });
+    log.manifest.reference.as_mut().unwrap().kind = robotlog::ReferenceKind::GroundTruth;
+    let m = replay(log.clone(), config.clone(), None, None).unwrap().metrics;
+    let r = m.reference.as_ref().unwrap();
+    assert!(r.ate_rmse_m < 10.0 && !r.in_another_frame(), "{r:?}");
+    assert!(!scenarios::replay::summary(&m).contains("another frame"));
+    log.reference.iter_mut().for_each(|s| {
+        s.x += 334_000.0;
+        s.y += 6_252_000.0;
+    });
+    let m = replay(log, config, None, None).unwrap().metrics;
+    let r = m.reference.as_ref().unwrap();
+    assert!(r.ate_rmse_m > 1e6 && r.in_another_frame(), "{r:?}");
+    let line = scenarios::replay::summary(&m);
+    assert!(line.contains("ground truth in another frame") && line.contains("kind = \"gps\""), "{line}");
+}
+
 /// Detections in millimetres are replayed as given, and the metrics and summary say how
 /// many lie beyond any mapping laser's reach or any trunk's width.
 #[test]

@@ -974,8 +974,15 @@ pub fn summary(m: &ReplayMetrics) -> String {
         } else {
             ""
         };
+        let frame = match (r.in_another_frame(), r.ate_rmse_if_aligned_m) {
+            (true, Some(aligned)) => format!(
+                " (a rigid fit takes it to {aligned:.3} m: ground truth in another frame, a map's or UTM? declare it \
+                 kind = \"gps\" in manifest.toml to have it aligned)"
+            ),
+            _ => String::new(),
+        };
         format!(
-            "{ate} against {} ({} of {} samples, {} spikes removed, alignment {}){few}",
+            "{ate} against {} ({} of {} samples, {} spikes removed, alignment {}){few}{frame}",
             match r.kind {
                 ReferenceKind::Gps => "GPS",
                 ReferenceKind::GroundTruth => "ground truth",

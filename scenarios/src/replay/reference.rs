@@ -39,6 +39,19 @@ pub struct ReferenceScore {
     pub alignment_translation_m: [f64; 2],
     pub ate_rmse_m: f64,
     pub ate_max_m: f64,
+    /// Ground truth only: the ATE after a rigid 2-D fit, as GPS is scored (null for GPS, and
+    /// with fewer than [`MIN_ALIGNED_SAMPLES`]). Far below `ate_rmse_m`, it says the ground
+    /// truth is in another frame (UTM, a map's), which the summary names.
+    pub ate_rmse_if_aligned_m: Option<f64>,
+}
+
+impl ReferenceScore {
+    /// Whether ground truth scored as given is in another frame than the estimate's: a rigid
+    /// fit takes its ATE to under a tenth, from more than 10 m. In one frame a fit only
+    /// removes what the start pose's error turned, which cannot take 10 m of error to 1.
+    pub fn in_another_frame(&self) -> bool {
+        self.ate_rmse_if_aligned_m.is_some_and(|aligned| self.ate_rmse_m > 10.0 && self.ate_rmse_m > 10.0 * aligned)
+    }
 }
 
 /// Indices of GPS fixes that are spikes, decided from the GPS alone, never from the
@@ -402,6 +415,7 @@ pub(super) fn score_reference(
         alignment_translation_m: t,
         ate_rmse_m,
         ate_max_m,
+        ate_rmse_if_aligned_m: None,
     };
     // Nothing scored, or too few for a rigid fit to leave an error to measure: undefined,
     // written as null, never a perfect score.
@@ -416,14 +430,27 @@ pub(super) fn score_reference(
         ReferenceKind::Gps => pairs.rigid_alignment()?,
         ReferenceKind::GroundTruth => (0.0, [0.0, 0.0]),
     };
+    let (rmse, max) = errors(pairs, theta, t)?;
+    let mut scored = score(theta, t, rmse, max);
+    if kind == ReferenceKind::GroundTruth && n >= MIN_ALIGNED_SAMPLES {
+        let (theta, t) = pairs.rigid_alignment()?;
+        scored.ate_rmse_if_aligned_m = Some(errors(pairs, theta, t)?.0);
+    }
+    Ok(scored)
+}
+
+/// The RMS and largest distance between the reference and the estimate moved by `theta`
+/// and `t`, over `pairs`.
+fn errors(pairs: &mut PairStore, theta: f64, t: [f64; 2]) -> Result<(f64, f64), ReplayError> {
     let (s, c) = theta.sin_cos();
-    let (mut squares, mut max) = (0.0, 0.0f64);
+    let (mut squares, mut max, mut n) = (0.0, 0.0f64, 0usize);
     pairs.pass(|e, g| {
         let error = (c * e[0] - s * e[1] + t[0] - g[0]).hypot(s * e[0] + c * e[1] + t[1] - g[1]);
         squares += error * error;
         max = max.max(error);
+        n += 1;
     })?;
-    Ok(score(theta, t, (squares / n as f64).sqrt(), max))
+    Ok(((squares / n as f64).sqrt(), max))
 }
 
 /// Whether `scored` of the `kept` reference samples (spikes aside) are fewer than a tenth:
