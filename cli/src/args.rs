@@ -505,7 +505,7 @@ pub(crate) enum WorldCommand {
         /// Where it stands: X,Y in metres.
         #[arg(long, allow_hyphen_values = true)]
         at: String,
-        /// Its heading (deg, counter-clockwise).
+        /// Its heading (deg, counter-clockwise, -360 to 360).
         #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
         yaw_deg: f64,
         /// The new world file (may be --world itself).

@@ -342,7 +342,10 @@ fn an_output_that_is_an_input_is_refused_and_the_input_kept() {
             "a file of the dataset in images",
         ),
         (vec!["dataset", "--classes", "tree,post,tree", "--images", "1", "--out", "twice"], "\"tree\" is named twice"),
-        (vec!["dataset", "--patch-size", "65", "--images", "1", "--out", "big"], "describe patches of 1 to 64 pixels"),
+        (
+            vec!["dataset", "--patch-size", "65", "--images", "1", "--out", "big"],
+            "give 1 to 64 pixels (the largest patch the patch features describe)",
+        ),
         (vec!["find", "--run", "run", "image.png", "--top", "0"], "--top must be at least 1"),
         (vec!["find", "--run", "nowhere", "image.png"], "--run nowhere: no such directory"),
         (vec!["calibrate", "--images", "run", "--out", "run/pose_00.png"], "a pose image's name in --images run"),

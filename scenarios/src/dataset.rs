@@ -257,10 +257,13 @@ pub fn make_dataset(
 ) -> Result<Manifest, DatasetError> {
     use crate::partial_files as staging;
     check_config(world, config)?;
-    check_out(out)?;
-    finish_stopped_publish(out)?;
+    // Under the hold, before the unfinished directory is started anew.
+    let check = || {
+        finish_stopped_publish(out)?;
+        check_out(out)
+    };
     let (manifest, _held) =
-        staging::write_unfinished(out, |dir| write_dataset(world, world_name, config, dir, progress))?;
+        staging::write_unfinished_after(out, check, |dir| write_dataset(world, world_name, config, dir, progress))?;
     // The manifest is the marker: the earlier one removed first, this one moved in last,
     // so a publish stopped midway leaves no manifest, not a mix.
     staging::publish(&staging::unfinished_dir(out), out, &[], "dataset.json").map_err(DatasetError::Publish)?;
@@ -312,10 +315,8 @@ fn finish_stopped_publish(out: &Path) -> Result<(), DatasetError> {
     let stopped = |out: &Path| {
         !out.join("dataset.json").exists() && is_dataset_manifest(&staging::unfinished_dir(out).join("dataset.json"))
     };
-    if !stopped(out) {
-        return Ok(());
-    }
-    let _held = staging::lock_output(out)?;
+    // Called under the hold. The stopped move removed the earlier dataset's manifest
+    // before it moved anything: what `out` holds of the dataset's names is this one's.
     if stopped(out) {
         staging::publish(&staging::unfinished_dir(out), out, &[], "dataset.json").map_err(DatasetError::Publish)?;
     }
@@ -558,7 +559,6 @@ pub(crate) fn write_dataset(
         std::fs::write(out.join(name), serde_json::to_string_pretty(v).expect("JSON"))
             .map_err(|e| DatasetError::Io { file: out.join(name), source: e })
     };
-    write("dataset.json", &serde_json::to_value(&manifest).expect("JSON"))?;
     let categories: Vec<_> = ObjectClass::ALL
         .iter()
         .filter(|c| **c != ObjectClass::Ground)
@@ -570,6 +570,9 @@ pub(crate) fn write_dataset(
     )?;
     std::fs::write(out.join(files::WORLD), world.to_toml())
         .map_err(|e| DatasetError::Io { file: out.join(files::WORLD), source: e })?;
+    // The manifest last: it marks the dataset whole, so one stopped before it is never
+    // taken for a finished one.
+    write("dataset.json", &serde_json::to_value(&manifest).expect("JSON"))?;
     Ok(manifest)
 }
 

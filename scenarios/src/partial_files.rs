@@ -252,7 +252,22 @@ pub fn write_unfinished<T, E: From<PartialFileError>>(
     out: &Path,
     write: impl FnOnce(&Path) -> Result<T, E>,
 ) -> Result<(T, OutputLock), E> {
+    write_unfinished_after(out, || Ok(()), write)
+}
+
+/// [`write_unfinished`], with `check` run first under the hold, before the unfinished
+/// directory is started anew: a command refused there (an `out` that is not its own)
+/// leaves another command's unfinished outputs as they were.
+pub fn write_unfinished_after<T, E: From<PartialFileError>>(
+    out: &Path,
+    check: impl FnOnce() -> Result<(), E>,
+    write: impl FnOnce(&Path) -> Result<T, E>,
+) -> Result<(T, OutputLock), E> {
     let lock = lock_output(out)?;
+    if let Err(e) = check() {
+        lock.release_failed();
+        return Err(e);
+    }
     match start_unfinished(out).map_err(E::from).and_then(|dir| write(&dir)) {
         Ok(value) => Ok((value, lock)),
         Err(e) => {

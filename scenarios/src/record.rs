@@ -390,8 +390,10 @@ fn staged(
     write: impl FnOnce(&Path) -> Result<RecordSummary, RecordError>,
 ) -> Result<RecordSummary, RecordError> {
     use crate::partial_files as staging;
-    finish_stopped_recording(out)?;
-    let (summary, _held) = staging::write_unfinished(out, |dir| {
+    // Checked under the hold, before the unfinished directory is started anew: a refused
+    // recording leaves what another command left there.
+    let check = || {
+        finish_stopped_recording(out)?;
         if out.join(ros2bag::METADATA_FILE).exists() {
             return Err(RecordError::HoldsBag { dir: out.to_path_buf() });
         }
@@ -407,20 +409,21 @@ fn staged(
         {
             return Err(RecordError::HoldsOtherFiles { dir: out.to_path_buf(), name });
         }
-        write(dir)
-    })?;
-    publish_recording(out)?;
+        Ok(())
+    };
+    let (summary, _held) = staging::write_unfinished_after(out, check, write)?;
+    publish_recording(out, &recording_files())?;
     Ok(summary)
 }
 
-/// Moves a finished recording from `out`'s unfinished directory into `out`. A robot log is
-/// marked finished by its manifest, a JSON-lines log by its metadata; the stale names, both
-/// markers among them, go before anything moves.
-fn publish_recording(out: &Path) -> Result<(), RecordError> {
+/// Moves a finished recording from `out`'s unfinished directory into `out`, after removing
+/// the `stale` names there. A robot log is marked finished by its manifest, a JSON-lines
+/// log by its metadata, and the marker goes last.
+fn publish_recording(out: &Path, stale: &[&str]) -> Result<(), RecordError> {
     let unfinished = crate::partial_files::unfinished_dir(out);
     let marker =
         if unfinished.join(robotlog::format::MANIFEST).exists() { robotlog::format::MANIFEST } else { files::METADATA };
-    crate::partial_files::publish(&unfinished, out, &recording_files(), marker).map_err(RecordError::Publish)
+    crate::partial_files::publish(&unfinished, out, stale, marker).map_err(RecordError::Publish)
 }
 
 /// Whether `dir` holds a recording's marker: a JSON-lines log's `metadata.json` written by
@@ -438,18 +441,16 @@ fn holds_recording(dir: &Path) -> bool {
 /// starts the unfinished directory anew, and without this a second stop would leave `out`
 /// with a recording's files and no marker, which no recording would take again.
 fn finish_stopped_recording(out: &Path) -> Result<(), RecordError> {
+    // Called under the hold. The stopped move removed the earlier recording's names before
+    // it moved anything: what `out` holds of them now is this recording's, moved in.
     // The unfinished directory is objslam's own: a marker there is a recording's (its
     // `recording.json` may have been moved in already).
     let stopped = |out: &Path| {
         let unfinished = crate::partial_files::unfinished_dir(out);
         !holds_recording(out) && (holds_recording(&unfinished) || unfinished.join(robotlog::format::MANIFEST).is_file())
     };
-    if !stopped(out) {
-        return Ok(());
-    }
-    let _held = crate::partial_files::lock_output(out)?;
     if stopped(out) {
-        publish_recording(out)?;
+        publish_recording(out, &[])?;
     }
     Ok(())
 }
@@ -612,7 +613,6 @@ fn write_log(
         reference,
         camera: frames,
     };
-    robotlog::format::write(out, &log)?;
     let write = |name: &str, text: String| {
         let file = out.join(name);
         std::fs::write(&file, text).map_err(|source| RecordError::Io { file, source })
@@ -634,6 +634,9 @@ fn write_log(
     if let Some(m) = appearance_model.filter(|_| !log.camera.is_empty()) {
         m.save(&out.join(files::APPEARANCE_MODEL))?;
     }
+    // The log itself last, its manifest last of all: the manifest marks a log finished, so
+    // one stopped before it is never taken for a whole recording.
+    robotlog::format::write(out, &log)?;
     progress(sim.time(), nominal);
     Ok(RecordSummary {
         sim_seconds: sim.time(),

@@ -405,10 +405,9 @@ fn too_little_reference_gives_an_undefined_ate() {
     }
 }
 
-/// Ground truth in another frame (UTM) is scored as given, and the summary says that a
-/// rigid fit would take the error away.
-#[test]
-fn ground_truth_in_another_frame_is_named() {
+/// The synthetic park's log as a car's (wheelbase and encoder offset given) with its
+/// reference read as GPS at the sensor.
+fn synthetic_car_with_gps() -> Log {
     let mut log = synthetic_park();
     log.manifest.vehicle.wheelbase_m = Some(2.83);
     log.manifest.vehicle.encoder_offset_m = Some(0.76);
@@ -416,6 +415,14 @@ fn ground_truth_in_another_frame_is_named() {
         kind: robotlog::ReferenceKind::Gps,
         point: robotlog::ReferencePoint::Sensor,
     });
+    log
+}
+
+/// Ground truth in another frame (UTM) is scored as given, and the summary says that a
+/// rigid fit would take the error away.
+#[test]
+fn ground_truth_in_another_frame_is_named() {
+    let mut log = synthetic_car_with_gps();
     let config = resolve_config(None, &log.manifest, Some(AssociationMethod::Nn), None).unwrap();
     // The synthetic GPS is in a frame of its own: brought into the estimate's by the
     // inverse of the fit, it is ground truth there.
@@ -590,13 +597,7 @@ fn motion_in_milliseconds_is_refused_and_held_controls_are_not() {
 /// the samples fall within the replayed poses' times: scored, and the summary says so.
 #[test]
 fn a_reference_mostly_outside_the_log_is_named() {
-    let mut log = synthetic_park();
-    log.manifest.vehicle.wheelbase_m = Some(2.83);
-    log.manifest.vehicle.encoder_offset_m = Some(0.76);
-    log.manifest.reference = Some(robotlog::manifest::Reference {
-        kind: robotlog::ReferenceKind::Gps,
-        point: robotlog::ReferencePoint::Sensor,
-    });
+    let mut log = synthetic_car_with_gps();
     let config = resolve_config(None, &log.manifest, Some(AssociationMethod::Nn), None).unwrap();
     let whole = replay(log.clone(), config.clone(), None, None).unwrap().metrics;
     assert!(!scenarios::replay::summary(&whole).contains("fewer than a tenth"));

@@ -467,9 +467,14 @@ fn a_recording_replaces_only_an_earlier_recording() {
     std::fs::create_dir_all(mine.join("camera")).unwrap();
     std::fs::write(mine.join("camera/photo.png"), "mine").unwrap();
     std::fs::write(mine.join("world.toml"), "mine").unwrap();
+    // Another command's outputs stopped while moved in wait in the unfinished directory:
+    // a refused recording leaves them there.
+    std::fs::create_dir_all(mine.join(".unfinished")).unwrap();
+    std::fs::write(mine.join(".unfinished/dataset.json"), "{}").unwrap();
     let e = record(&mine).expect_err("refused").to_string();
     assert!(e.contains("holds camera, which a recording writes or removes, but no earlier recording"), "{e}");
     assert_eq!(std::fs::read_to_string(mine.join("camera/photo.png")).unwrap(), "mine");
+    assert!(mine.join(".unfinished/dataset.json").is_file(), "another command's unfinished outputs are kept");
     // A metadata.json of another command is no recording's either.
     let other = dir.join("other");
     std::fs::create_dir_all(&other).unwrap();
@@ -481,9 +486,21 @@ fn a_recording_replaces_only_an_earlier_recording() {
     let log = dir.join("log");
     record(&log).unwrap();
     record(&log).unwrap();
+    let recorded: Vec<_> = std::fs::read_dir(&log).unwrap().map(|f| f.unwrap().file_name()).collect();
     let unfinished = log.join(".unfinished");
     std::fs::create_dir_all(&unfinished).unwrap();
-    std::fs::rename(log.join("metadata.json"), unfinished.join("metadata.json")).unwrap();
+    for moved_last in ["laser.jsonl", "metadata.json"] {
+        std::fs::rename(log.join(moved_last), unfinished.join(moved_last)).unwrap();
+    }
+    // Finished before the checks: a run's metrics.json found after it leaves the stopped
+    // recording whole, what it had moved in kept.
+    std::fs::write(log.join("metrics.json"), "{}").unwrap();
+    let e = record(&log).expect_err("a run's outputs").to_string();
+    assert!(e.contains("holds a run's outputs"), "{e}");
+    std::fs::remove_file(log.join("metrics.json")).unwrap();
+    for name in &recorded {
+        assert!(log.join(name).exists(), "{name:?} is in place");
+    }
     record(&log).unwrap();
     assert!(log.join("metadata.json").is_file() && !unfinished.exists());
     let _ = std::fs::remove_dir_all(&dir);

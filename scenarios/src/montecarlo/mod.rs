@@ -750,6 +750,8 @@ mod tests {
         let e = Shard::parse("1/99999999999999999999999").unwrap_err().to_string();
         assert!(e.contains("N is too large"), "{e}");
         assert!(Shard::parse("x/2").unwrap_err().to_string().contains("K is not a whole number"));
+        let e = Vary::parse("odometry.noise=0..1:99999999999999999999999").unwrap_err().to_string();
+        assert!(e.contains(&format!("STEPS is too large (at most {})", MAX_VARY_STEPS)), "{e}");
         let e = Shard::from_env(env(&[("JOB_COMPLETION_INDEX", "1e3")]), Some(3)).unwrap_err().to_string();
         assert!(e.contains("JOB_COMPLETION_INDEX=1e3") && e.contains("the value is not a whole number"), "{e}");
         let e = Shard::from_env(env(&[("JOB_COMPLETION_INDEX", "3")]), Some(3)).unwrap_err().to_string();

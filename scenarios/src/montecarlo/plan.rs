@@ -16,10 +16,10 @@ pub struct Vary {
 }
 
 /// `text` as a count, or why it is none, naming it `what`: a number too large to count
-/// is not called "not a whole number".
-fn whole_number(text: &str, what: &str) -> Result<usize, String> {
+/// is not called "not a whole number", and is told the most it may be, `most`.
+fn whole_number(text: &str, what: &str, most: usize) -> Result<usize, String> {
     text.trim().parse().map_err(|e: std::num::ParseIntError| match e.kind() {
-        std::num::IntErrorKind::PosOverflow => format!("{what} is too large (at most {})", usize::MAX),
+        std::num::IntErrorKind::PosOverflow => format!("{what} is too large (at most {most})"),
         _ => format!("{what} is not a whole number"),
     })
 }
@@ -33,7 +33,7 @@ impl Vary {
         let (a, b) = range.split_once("..").ok_or_else(|| bad("missing 'A..B'"))?;
         let a: f64 = a.trim().parse().map_err(|_| bad("A is not a number"))?;
         let b: f64 = b.trim().parse().map_err(|_| bad("B is not a number"))?;
-        let steps = whole_number(steps, "STEPS").map_err(|m| bad(&m))?;
+        let steps = whole_number(steps, "STEPS", MAX_VARY_STEPS).map_err(|m| bad(&m))?;
         if steps == 0 || !a.is_finite() || !b.is_finite() || !(b - a).is_finite() {
             return Err(bad("STEPS must be at least 1 and A, B finite (and B - A too)"));
         }
@@ -615,8 +615,8 @@ impl Shard {
     pub fn parse(spec: &str) -> Result<Shard, StudyError> {
         let bad = |message: &str| StudyError::Shard { spec: spec.into(), message: message.into() };
         let (k, n) = spec.split_once('/').ok_or_else(|| bad("missing '/'"))?;
-        let index = whole_number(k, "K").map_err(|m| bad(&m))?;
-        let count = whole_number(n, "N").map_err(|m| bad(&m))?;
+        let index = whole_number(k, "K", usize::MAX).map_err(|m| bad(&m))?;
+        let count = whole_number(n, "N", usize::MAX).map_err(|m| bad(&m))?;
         Shard::numbered(index, count).map_err(|m| bad(&m))
     }
 
@@ -639,7 +639,7 @@ impl Shard {
         let num = |name: &str| -> Result<Option<usize>, StudyError> {
             env(name)
                 .map(|v| {
-                    whole_number(&v, "the value")
+                    whole_number(&v, "the value", usize::MAX)
                         .map_err(|message| StudyError::ShardEnv { spec: format!("{name}={v}"), message })
                 })
                 .transpose()
