@@ -490,7 +490,7 @@ pub(crate) enum WorldCommand {
         out: PathBuf,
     },
     /// Add a glTF/.glb mesh to a world as an object: the camera renders the mesh, and a
-    /// shape fitted to it (trunk or post as wide as its lowest metre, as tall as the mesh)
+    /// shape fitted to it (trunk or post as wide as its lowest metre, reaching the mesh's top)
     /// is the collider the laser sees. The mesh stands on its origin, in metres, with
     /// glTF's up (+y) turned to the world's z.
     Import {
