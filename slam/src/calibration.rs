@@ -119,8 +119,11 @@ pub const WARN_TRANSLATION_SIGMA_M: f64 = 0.02;
 
 /// Solves for the extrinsics from board observations.
 pub fn calibrate(observations: &[BoardObservation]) -> Result<CalibrationResult, CalibrationError> {
+    // A plane covariance that is not finite would make the reported uncertainty zero.
     let finite = |o: &BoardObservation| {
-        o.plane.iter().all(|v| v.is_finite()) && o.laser_points.iter().flatten().all(|v| v.is_finite())
+        o.plane.iter().all(|v| v.is_finite())
+            && o.laser_points.iter().flatten().all(|v| v.is_finite())
+            && o.plane_covariance.is_none_or(|c| c.iter().all(|v| v.is_finite()))
     };
     let used: Vec<&BoardObservation> =
         observations.iter().filter(|o| !o.laser_points.is_empty() && o.plane.norm() > 1e-9 && finite(o)).collect();
@@ -154,7 +157,10 @@ pub fn calibrate(observations: &[BoardObservation]) -> Result<CalibrationResult,
     let initial = linear_estimate(&used)?;
     let (extrinsics, iterations, rms, cov) = refine(&used, &initial);
     let points_used: usize = used.iter().map(|o| o.laser_points.len()).sum();
-    let sd = |c: &Option<DMatrix<f64>>, i: usize| c.as_ref().map_or(f64::NAN, |c| c[(i, i)].max(0.0).sqrt());
+    // A NaN variance stays unknown (`f64::max` would turn it into a certain 0).
+    let sd = |c: &Option<DMatrix<f64>>, i: usize| {
+        c.as_ref().map_or(f64::NAN, |c| if c[(i, i)].is_nan() { f64::NAN } else { c[(i, i)].max(0.0).sqrt() })
+    };
     let laser_cov = cov.as_ref().map(|c| c.laser.clone());
     let total_cov = cov.as_ref().map(|c| c.total.clone());
     let rotation_sigma_deg =
@@ -799,6 +805,12 @@ mod tests {
             assert!(with_planes.translation_sigma_m[a] > with_planes.laser_translation_sigma_m[a]);
         }
         assert_eq!(with_planes.extrinsics, laser_only.extrinsics, "the covariance does not change the estimate");
+        // A pose whose plane covariance is not finite is not used: it would have made the
+        // reported uncertainty zero.
+        obs[0].plane_covariance = Some(Matrix3::identity() * f64::NAN);
+        let without = calibrate(&obs).unwrap();
+        assert_eq!(without.poses_used, 19);
+        assert!(without.rotation_sigma_deg.iter().all(|s| s.is_finite() && *s > 0.0), "{without:?}");
     }
 
     /// A scan of a board (0.8 m, 1.9 m away, turned), a post beside it, a long wall in the

@@ -287,6 +287,9 @@ pub struct PatchClassifier {
 
 impl PatchClassifier {
     pub fn new(model: &AppearanceModel) -> Result<Self, GmmError> {
+        // A model built in code rather than loaded (which checks it) is checked here: one
+        // whose parts disagree would panic at the first patch, or give NaN.
+        model.check_parts().map_err(GmmError::BadModel)?;
         let object = StudentTMixture::new(&model.object)?.gaussian_approximation()?.evaluator()?;
         let background = StudentTMixture::new(&model.background)?.gaussian_approximation()?.evaluator()?;
         let distractors = match &model.distractors {

@@ -38,6 +38,10 @@ impl PreparedGaussian {
             let (rows, cols) = covariance.shape();
             return Err(KlError::CovarianceShape { component, dims: mean.len(), rows, cols });
         }
+        if !mean.iter().chain(covariance.iter()).all(|v| v.is_finite()) {
+            let problem = "the mean and covariance must be finite".to_string();
+            return Err(KlError::Component { component, problem });
+        }
         let chol = Cholesky::new(covariance.clone()).ok_or(KlError::NotPositiveDefinite { component })?;
         let log_det = 2.0 * chol.l_dirty().diagonal().iter().map(|d| d.ln()).sum::<f64>();
         Ok(PreparedGaussian { mean: mean.clone(), chol, log_det, covariance: covariance.clone() })
@@ -66,7 +70,11 @@ impl PreparedGmm {
             return Err(KlError::Empty);
         }
         let d = g.dims();
-        let total: f64 = g.components.iter().map(|c| c.weight).sum();
+        // Weights whose sum overflows are taken relative to the largest (each weight alone
+        // is checked finite below); others as they are, bit for bit.
+        let sum: f64 = g.components.iter().map(|c| c.weight).sum();
+        let scale = if sum.is_finite() { 1.0 } else { g.components.iter().map(|c| c.weight).fold(0.0, f64::max) };
+        let total: f64 = g.components.iter().map(|c| c.weight / scale).sum();
         let mut components = Vec::with_capacity(g.components.len());
         for (i, Component { mean, covariance, weight }) in g.components.iter().enumerate() {
             if mean.len() != d {
@@ -80,7 +88,8 @@ impl PreparedGmm {
             }
             components.push(PreparedGaussian::new(mean, covariance, i)?);
         }
-        Ok(PreparedGmm { log_weights: g.components.iter().map(|c| (c.weight / total).ln()).collect(), components })
+        let log_weights = g.components.iter().map(|c| (c.weight / scale / total).ln()).collect();
+        Ok(PreparedGmm { log_weights, components })
     }
 
     pub fn dims(&self) -> usize {

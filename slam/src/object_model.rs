@@ -156,6 +156,10 @@ pub enum ObjectModelError {
     /// Rows hold the appearance coordinates and then dx, dy and h: at least 4 columns.
     #[error("observation rows have {0} columns; an object model needs the 3 of a position and more")]
     TooFewColumns(usize),
+    /// An observation fitted in another feature space than the model's (another
+    /// appearance model's PCA): a divergence between them would compare unlike numbers.
+    #[error("observation of {observation} dimensions against an object model of {model}")]
+    Dimension { observation: usize, model: usize },
 }
 
 /// Fits the density of one observation (rows with positions relative to its centre).
@@ -273,6 +277,12 @@ impl ObjectModel {
         appearance_only: bool,
     ) -> Result<f64, ObjectModelError> {
         let d = self.gmm.dims();
+        if fitted_obs.dims() != d {
+            return Err(ObjectModelError::Dimension { observation: fitted_obs.dims(), model: d });
+        }
+        if d <= 3 {
+            return Err(ObjectModelError::TooFewColumns(d));
+        }
         let (f, g) = if appearance_only {
             (marginal(fitted_obs, d - 3), marginal(&self.gmm, d - 3))
         } else {

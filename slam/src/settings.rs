@@ -7,6 +7,12 @@
 /// thousand scans are 100 s of the SICK's 10 Hz), small enough that a typo is caught.
 pub const MAX_COUNT: usize = 1000;
 
+/// Largest standard deviation a noise setting may have (metres, or metres per metre): no
+/// sensor or start is a thousand kilometres uncertain, and beyond this the variance's
+/// products with ranges and Jacobians overflow within a few steps, so the filter would
+/// stop as diverged at its first input rather than at the setting.
+pub const MAX_SIGMA: f64 = 1e6;
+
 /// Parses JSON into `T`; an error says where, as the JSON path of the value
 /// (`extractor.pca.variances[3]`) beside the line and column, and what is wrong with it.
 pub fn from_json<T: serde::de::DeserializeOwned>(text: &str) -> Result<T, String> {

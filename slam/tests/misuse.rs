@@ -126,3 +126,44 @@ fn a_landmark_past_the_map_is_named() {
     let ekf = Ekf::new(Vector3::zeros(), Matrix3::identity());
     ekf.mahalanobis2(&RangeBearingModel::default(), 0, &Vector2::new(5.0, 0.0));
 }
+
+#[test]
+fn an_observation_of_another_feature_space_is_no_divergence() {
+    use slam::object_model::{MosaicView, ObjectModel};
+    let model = ObjectModel {
+        gmm: Gmm { components: vec![gaussian(1.0, &[0.0; 6])] },
+        patches: 10.0,
+        observations: 1,
+        mosaic: MosaicView { cells: vec![], appearance: vec![], pixels: vec![] },
+    };
+    let other = Gmm { components: vec![gaussian(1.0, &[0.0; 5])] };
+    for appearance_only in [false, true] {
+        let e = model
+            .kl_from(&other, [0.0; 2], [0.0; 2], &Matrix2::identity(), &ObjectModelConfig::default(), appearance_only)
+            .unwrap_err();
+        assert!(matches!(e, ObjectModelError::Dimension { observation: 5, model: 6 }), "{e}");
+    }
+    let same = Gmm { components: vec![gaussian(1.0, &[0.0; 6])] };
+    let kl = model.kl_from(&same, [0.0; 2], [0.0; 2], &Matrix2::identity(), &ObjectModelConfig::default(), true);
+    assert!(kl.unwrap().abs() < 1e-9);
+}
+
+#[test]
+fn weights_whose_sum_overflows_weigh_as_their_ratios() {
+    use slam::kl::kl_variational;
+    let huge = Gmm { components: vec![gaussian(1e308, &[0.0, 0.0]), gaussian(1e308, &[3.0, 0.0])] };
+    let halves = Gmm { components: vec![gaussian(0.5, &[0.0, 0.0]), gaussian(0.5, &[3.0, 0.0])] };
+    let other = Gmm { components: vec![gaussian(1.0, &[1.0, 1.0])] };
+    let (huge, halves, other) =
+        (PreparedGmm::new(&huge).unwrap(), PreparedGmm::new(&halves).unwrap(), PreparedGmm::new(&other).unwrap());
+    let (a, b) = (kl_variational(&huge, &other).unwrap(), kl_variational(&halves, &other).unwrap());
+    assert!(a.is_finite() && (a - b).abs() < 1e-12, "{a} against {b}");
+}
+
+#[test]
+fn a_gaussian_not_finite_is_no_divergence() {
+    use slam::kl::PreparedGaussian;
+    let mean = DVector::from_column_slice(&[f64::NAN, 0.0]);
+    let e = PreparedGaussian::new(&mean, &DMatrix::identity(2, 2), 3).unwrap_err();
+    assert!(matches!(e, KlError::Component { component: 3, .. }), "{e}");
+}

@@ -60,6 +60,11 @@ impl RangeBearingModel {
                 format!("must be finite and not negative, got {}", self.range_sigma_per_m),
             ));
         }
+        for (name, v) in [("range_sigma_m", self.range_sigma_m), ("range_sigma_per_m", self.range_sigma_per_m)] {
+            if v > crate::settings::MAX_SIGMA {
+                return Err((name, format!("must be at most {:e}, got {v}", crate::settings::MAX_SIGMA)));
+            }
+        }
         Ok(())
     }
 

@@ -514,4 +514,10 @@ fn range_dependent_noise_widens_far_observations() {
     // Degrees given for radians.
     let (field, problem) = RangeBearingModel { bearing_sigma_rad: 10.0, ..m }.validate().unwrap_err();
     assert!(field == "bearing_sigma_rad" && problem.contains("radians, not degrees"), "{problem}");
+    // A noise whose square and products overflow is refused at the setting.
+    let (field, problem) = RangeBearingModel { range_sigma_per_m: 1e300, ..m }.validate().unwrap_err();
+    assert!(field == "range_sigma_per_m" && problem.contains("at most 1e6"), "{problem}");
+    let config = crate::pipeline::PipelineConfig { initial_pose_sigma: [1e-3, 1e200, 1e-3], ..Default::default() };
+    let e = config.validate().unwrap_err();
+    assert!(e.path == "initial_pose_sigma[1]" && e.problem.contains("at most 1e6"), "{e:?}");
 }

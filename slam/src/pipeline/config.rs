@@ -247,6 +247,13 @@ impl PipelineConfig {
                 format!("must be a positive standard deviation, got {s}"),
             ));
         }
+        if let Some((i, s)) = self.initial_pose_sigma.iter().enumerate().find(|(_, s)| **s > crate::settings::MAX_SIGMA)
+        {
+            return Err(InvalidSetting::new(
+                format!("initial_pose_sigma[{i}]"),
+                format!("must be at most {:e}, got {s}", crate::settings::MAX_SIGMA),
+            ));
+        }
         if !(self.image_max_age_s.is_finite() && self.image_max_age_s >= 0.0) {
             return Err(InvalidSetting::new(
                 "image_max_age_s",

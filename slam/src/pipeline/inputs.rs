@@ -100,6 +100,9 @@ impl Pipeline {
         if detections.iter().any(|d| d.diameter_m.is_some_and(|v| v < 0.0)) {
             return Err(PipelineError::NegativeDiameter { input: "detections", t });
         }
+        if detections.iter().any(|d| d.range_m < 0.0) {
+            return Err(PipelineError::NegativeRange { input: "detections", t });
+        }
         self.advance_to(t);
         let clusters: Vec<Cluster> = detections.iter().enumerate().map(|(k, d)| d.as_cluster(k)).collect();
         let keep = vec![true; clusters.len()];
@@ -282,6 +285,16 @@ mod tests {
         assert!(matches!(
             p.on_detections(3.0, &[detection(5.0, 0.0, -0.3)]),
             Err(PipelineError::NegativeDiameter { input: "detections", t: 3.0 })
+        ));
+        assert!(matches!(
+            p.on_detections(3.0, &[detection(-5.0, 0.0, 0.3)]),
+            Err(PipelineError::NegativeRange { input: "detections", t: 3.0 })
+        ));
+        let mut behind = detection(5.0, 0.0, 0.3).as_cluster(0);
+        behind.range_m = -5.0;
+        assert!(matches!(
+            p.on_scan_with_objects(3.0, vec![behind], &[true], "tree"),
+            Err(PipelineError::NegativeRange { input: "clusters", t: 3.0 })
         ));
         assert_eq!((p.time(), p.pose()), (2.0, before), "refused inputs changed the pipeline");
         // Refused inputs leave the pipeline as it was: a sound scan goes on, and a cluster

@@ -179,6 +179,10 @@ pub enum PipelineError {
     /// A diameter below zero (NaN, where allowed, means unknown).
     #[error("{input} at t = {t} s holds a negative diameter")]
     NegativeDiameter { input: &'static str, t: f64 },
+    /// A range below zero: no sensor measures one; a landmark would be put behind the
+    /// sensor, where no later observation can reach it.
+    #[error("{input} at t = {t} s hold a negative range")]
+    NegativeRange { input: &'static str, t: f64 },
     /// A start pose or start time that is not finite.
     #[error("the start {0} holds a value that is not finite")]
     StartNotFinite(&'static str),
@@ -223,6 +227,7 @@ impl PipelineError {
         match self {
             PipelineError::ImageTimeReversed { t, .. }
             | PipelineError::NegativeDiameter { t, .. }
+            | PipelineError::NegativeRange { t, .. }
             | PipelineError::Scan { t, .. }
             | PipelineError::TimeReversed { t, .. }
             | PipelineError::NonFinite { t, .. }
