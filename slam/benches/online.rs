@@ -21,7 +21,7 @@ fn filter_with(n: usize) -> (Ekf, RangeBearingModel) {
     let mut ekf = Ekf::new(Vector3::zeros(), Matrix3::identity() * 0.01);
     let mut rng = ChaCha8Rng::seed_from_u64(1);
     for _ in 0..n {
-        ekf.add_landmark(&model, &Vector2::new(rng.random_range(2.0..30.0), rng.random_range(-3.0..3.0)));
+        ekf.add_landmark(&model, &Vector2::new(rng.random_range(2.0..30.0), rng.random_range(-3.0..3.0))).unwrap();
     }
     (ekf, model)
 }

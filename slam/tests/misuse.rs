@@ -103,7 +103,7 @@ fn an_object_model_needs_appearance_columns() {
 #[should_panic(expected = "a control of 1 values for a motion model of 3")]
 fn a_control_of_the_wrong_length_is_named() {
     let mut ekf = Ekf::new(Vector3::zeros(), Matrix3::identity());
-    ekf.predict(&OdometryMotionModel::default(), &[0.1]);
+    ekf.predict(&OdometryMotionModel::default(), &[0.1]).unwrap();
 }
 
 #[test]
@@ -166,4 +166,24 @@ fn a_gaussian_not_finite_is_no_divergence() {
     let mean = DVector::from_column_slice(&[f64::NAN, 0.0]);
     let e = PreparedGaussian::new(&mean, &DMatrix::identity(2, 2), 3).unwrap_err();
     assert!(matches!(e, KlError::Component { component: 3, .. }), "{e}");
+}
+
+#[test]
+fn a_control_or_landmark_not_finite_leaves_the_filter_as_it_was() {
+    use slam::ekf::{AckermannMotionModel, EkfError};
+    let mut ekf = Ekf::new(Vector3::zeros(), Matrix3::identity());
+    let model = RangeBearingModel::default();
+    ekf.add_landmark(&model, &Vector2::new(5.0, 0.1)).unwrap();
+    let before = ekf.clone();
+    let odometry = OdometryMotionModel::default();
+    assert!(matches!(ekf.predict(&odometry, &[f64::NAN, 0.0, 0.0]), Err(EkfError::NonFinite)));
+    // A car model of no wheelbase predicts no pose.
+    let car = AckermannMotionModel { wheelbase_m: 0.0, ..Default::default() };
+    assert!(matches!(ekf.predict(&car, &[1.0, 0.1, 0.1]), Err(EkfError::NonFinite)));
+    assert!(matches!(ekf.add_landmark(&model, &Vector2::new(f64::NAN, 0.0)), Err(EkfError::NonFinite)));
+    let one_far = [Vector2::new(4.0, 0.0), Vector2::new(f64::INFINITY, 0.0)];
+    assert!(matches!(ekf.add_landmarks(&model, &one_far), Err(EkfError::NonFinite)));
+    assert_eq!(ekf, before, "refused inputs changed the filter");
+    ekf.predict(&odometry, &[0.5, 0.0, 0.0]).unwrap();
+    assert!(ekf.x.iter().all(|v| v.is_finite()));
 }

@@ -224,7 +224,7 @@ mod tests {
         let mut ekf =
             Ekf::new(Vector3::new(0.0, 0.0, 0.0), Matrix3::new(1e-6, 0.0, 0.0, 0.0, 1e-6, 0.0, 0.0, 0.0, 0.02));
         for bearing in [0.0f64, 0.20, 0.28] {
-            ekf.add_landmark(&model, &Vector2::new(5.0, bearing));
+            ekf.add_landmark(&model, &Vector2::new(5.0, bearing)).unwrap();
         }
         for i in 3..ekf.x.len() {
             for k in 0..ekf.x.len() {
@@ -246,8 +246,8 @@ mod tests {
     fn jcbb_leaves_spurious_observations_unpaired() {
         let model = RangeBearingModel { bearing_sigma_rad: 0.01, ..precise_model() };
         let mut ekf = Ekf::new(Vector3::zeros(), Matrix3::identity() * 1e-4);
-        ekf.add_landmark(&model, &Vector2::new(4.0, 0.5));
-        ekf.add_landmark(&model, &Vector2::new(6.0, -0.5));
+        ekf.add_landmark(&model, &Vector2::new(4.0, 0.5)).unwrap();
+        ekf.add_landmark(&model, &Vector2::new(6.0, -0.5)).unwrap();
         let obs = vec![Vector2::new(4.01, 0.5), Vector2::new(3.0, 1.2), Vector2::new(6.0, -0.49)];
         assert_eq!(jcbb(&ekf, &model, &obs, 9.21, 0.99), vec![Some(0), None, Some(1)]);
     }
@@ -262,7 +262,7 @@ mod tests {
         let place = |bearings: &[f64]| {
             let mut ekf = Ekf::new(Vector3::zeros(), Matrix3::zeros());
             for &b in bearings {
-                ekf.add_landmark(&model, &Vector2::new(5.0, b));
+                ekf.add_landmark(&model, &Vector2::new(5.0, b)).unwrap();
             }
             ekf.p.view_mut((0, 0), (3, 3)).copy_from(&pose_cov);
             ekf

@@ -35,7 +35,9 @@ pub enum EkfError {
     NotPositiveDefinite,
     #[error("no landmark with index {0}")]
     UnknownLandmark(usize),
-    #[error("observation is not finite")]
+    /// An observation or control that is not finite, or a prediction that would make the
+    /// pose not finite: refused, the filter left as it was.
+    #[error("an observation or control is not finite, or the pose it predicts would not be")]
     NonFinite,
 }
 
@@ -199,9 +201,13 @@ impl Ekf {
     /// `P_p* <- [F Fc] P_v*` (calibration parameters, if any, are constant), and the pose
     /// block gets the process noise.
     ///
+    /// A control that is not finite, or one whose predicted pose, Jacobians or noise are
+    /// not (a motion model of zero wheelbase, a step of 1e308 m), is refused with
+    /// [`EkfError::NonFinite`], the filter left as it was.
+    ///
     /// # Panics
     /// When `control` is not `model.control_dims()` long.
-    pub fn predict(&mut self, model: &dyn MotionModel, control: &[f64]) {
+    pub fn predict(&mut self, model: &dyn MotionModel, control: &[f64]) -> Result<(), EkfError> {
         assert_eq!(
             control.len(),
             model.control_dims(),
@@ -209,10 +215,17 @@ impl Ekf {
             control.len(),
             model.control_dims()
         );
+        if !control.iter().all(|v| v.is_finite()) {
+            return Err(EkfError::NonFinite);
+        }
         let vd = self.vehicle_dims;
         let n = self.x.len();
         let calibration = self.calibration().to_vec();
         let mut pred = model.predict_calibrated(&self.pose(), &calibration, control);
+        let finite = pred.pose.iter().chain(pred.f.iter()).chain(pred.f_calibration.iter()).chain(pred.q.iter());
+        if !finite.copied().all(f64::is_finite) {
+            return Err(EkfError::NonFinite);
+        }
         self.first_estimate_transition(&pred.pose, &mut pred.f);
         self.x[0] = pred.pose.x;
         self.x[1] = pred.pose.y;
@@ -228,6 +241,7 @@ impl Ekf {
         self.p.view_mut((0, 0), (3, n)).copy_from(&new_rows);
         self.p.view_mut((0, 0), (n, 3)).copy_from(&new_rows.transpose());
         self.p.view_mut((0, 0), (3, 3)).copy_from(&(0.5 * (new_pp + new_pp.transpose())));
+        Ok(())
     }
 
     /// Predicted observation of landmark `i`, its Jacobians (robot 2x3, landmark 2x2) and
@@ -447,17 +461,26 @@ impl Ekf {
     }
 
     /// Adds a landmark from observation `z` with full cross-covariances; returns its index.
-    pub fn add_landmark(&mut self, model: &RangeBearingModel, z: &Vector2<f64>) -> usize {
-        self.add_landmarks(model, std::slice::from_ref(z)).start
+    /// An observation that is not finite is refused ([`EkfError::NonFinite`]).
+    pub fn add_landmark(&mut self, model: &RangeBearingModel, z: &Vector2<f64>) -> Result<usize, EkfError> {
+        Ok(self.add_landmarks(model, std::slice::from_ref(z))?.start)
     }
 
     /// Adds one landmark per observation in `zs`, all seen from the current pose, with one
     /// growth of the covariance (adding them one by one copies it once each); returns their
     /// indices. The result is the same as adding them one at a time, to rounding.
-    pub fn add_landmarks(&mut self, model: &RangeBearingModel, zs: &[Vector2<f64>]) -> std::ops::Range<usize> {
+    /// An observation that is not finite is refused ([`EkfError::NonFinite`]), none added.
+    pub fn add_landmarks(
+        &mut self,
+        model: &RangeBearingModel,
+        zs: &[Vector2<f64>],
+    ) -> Result<std::ops::Range<usize>, EkfError> {
         let first = self.landmark_count();
+        if !zs.iter().all(|z| z.iter().all(|v| v.is_finite())) {
+            return Err(EkfError::NonFinite);
+        }
         if zs.is_empty() {
-            return first..first;
+            return Ok(first..first);
         }
         let n = self.x.len();
         let m = 2 * zs.len();
@@ -493,7 +516,7 @@ impl Ekf {
         }
         self.x = x;
         self.p = p;
-        first..self.landmark_count()
+        Ok(first..self.landmark_count())
     }
 
     /// Squared Mahalanobis distance between landmarks `i` and `j` (the covariance of their

@@ -54,7 +54,7 @@ pub fn drive(route: &Route, landmarks: &[Vector2<f64>]) -> Drive {
         let u = [route.step_m * (1.0 + route.scale), 0.0, route.turn * (1.0 + route.turn_scale)];
         let (s, c) = truth.z.sin_cos();
         truth = Vector3::new(truth.x + c * route.step_m, truth.y + s * route.step_m, wrap_angle(truth.z + route.turn));
-        ekf.predict(&motion, &u);
+        ekf.predict(&motion, &u).unwrap();
         history.push_control(u, ekf.pose());
         if step % route.observe_every == route.observe_every - 1 {
             for (j, l) in landmarks.iter().enumerate() {
@@ -66,7 +66,7 @@ pub fn drive(route: &Route, landmarks: &[Vector2<f64>]) -> Drive {
                 match ids.iter().position(|&i| i == id) {
                     Some(slot) => ekf.update(&sensor, slot, &z).expect("exact measurements of a known landmark"),
                     None => {
-                        ekf.add_landmark(&sensor, &z);
+                        ekf.add_landmark(&sensor, &z).unwrap();
                         ids.push(id);
                     }
                 }

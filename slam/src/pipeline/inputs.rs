@@ -74,7 +74,12 @@ impl Pipeline {
 
     /// The prediction with control `u` of the motion model, up to time `t`.
     pub(super) fn predict(&mut self, u: [f64; 3], t: f64) {
-        self.ekf.predict(&self.config.motion, &u);
+        // A prediction the filter refuses (a pose it would make not finite) stops the
+        // pipeline as a diverged one: the next input is refused, naming this time.
+        if self.ekf.predict(&self.config.motion, &u).is_err() {
+            self.diverged_at.get_or_insert((t, super::Divergence::NotFinite));
+            return;
+        }
         if let Some(h) = &mut self.history {
             h.push_control(u, self.ekf.pose());
         }
@@ -421,7 +426,7 @@ mod tests {
         let err = p.on_odometry(&absurd).unwrap_err();
         assert!(matches!(err, PipelineError::Diverged { t: 0.2 }), "{err}");
         assert!(err.to_string().contains("stopped being finite at t = 0.2 s"), "{err}");
-        assert!(!p.ekf.is_finite());
+        assert!(p.ekf.is_finite(), "the refused prediction left the filter as it was");
         // Sticky: sane inputs later are refused, naming the same instant.
         let sane = OdometryIncrement { t: 0.3, dx: 0.1, dy: 0.0, dtheta: 0.0 };
         assert!(matches!(p.on_odometry(&sane), Err(PipelineError::Diverged { t: 0.2 })));

@@ -208,7 +208,7 @@ pub enum PipelineError {
     /// m/s, finite but absurd) overflowed the filter: nothing estimated after it means
     /// anything, so this input and every later one are refused.
     #[error(
-        "the filter's estimate stopped being finite at t = {t} s (an input far outside what the motion and sensor models describe); nothing after it can be estimated"
+        "the filter's estimate stopped being finite at t = {t} s, or would have (an input far outside what the motion and sensor models describe); nothing after it can be estimated"
     )]
     Diverged { t: f64 },
     /// A squared Mahalanobis distance or a variance came out negative: the covariance is no

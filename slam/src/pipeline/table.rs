@@ -80,12 +80,14 @@ impl LandmarkTable {
         together: bool,
         confirm_observations: usize,
     ) -> Vec<(u32, usize)> {
+        // The pipeline refuses observations that are not finite before any association.
+        const FINITE: &str = "the pipeline adds only observations it has checked finite";
         if together {
             let zs: Vec<Vector2<f64>> = new.iter().map(|n| n.z).collect();
-            ekf.add_landmarks(sensor, &zs);
+            ekf.add_landmarks(sensor, &zs).expect(FINITE);
         } else {
             for n in new {
-                ekf.add_landmark(sensor, &n.z);
+                ekf.add_landmark(sensor, &n.z).expect(FINITE);
             }
         }
         let added = new
