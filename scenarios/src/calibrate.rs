@@ -793,6 +793,10 @@ pub fn calibrate_stations(
         let camera_range = (det.rotation * board_centre + det.translation).norm();
         let s = crate::run::slam_scan(&scan);
         match slam::calibration::segment_board(&s, &segmentation, Some(camera_range)) {
+            // The calibration leaves out a pose whose plane has no covariance: said here.
+            Ok(_) if !det.plane_covariance.iter().all(|v| v.is_finite()) => {
+                pr.skipped = Some("the board's plane fit gives no covariance (a singular fit)".into());
+            }
             Ok(cut) => {
                 pr.laser_points = cut.points.len();
                 observations.push(BoardObservation {

@@ -318,7 +318,7 @@ pub(super) const KEYS: &[(&str, &str)] = &[
          landmark exceeds the chi-square quantile at this probability; in (0, 1).",
     ),
     ("pipeline.jcbb_probability", "Joint compatibility probability for JCBB; in (0, 1)."),
-    ("pipeline.initial_pose_sigma", "Initial pose standard deviations (m, m, rad); each positive."),
+    ("pipeline.initial_pose_sigma", "Initial pose standard deviations (m, m, rad); each positive, at most 1e6."),
     (
         "pipeline.image_max_age_s",
         "A scan is segmented with the latest camera image only if it is at most this old (s); 0 or more.",
@@ -463,8 +463,8 @@ pub(super) const KEYS: &[(&str, &str)] = &[
         "Sensor position left of the robot's origin (m); finite. A scenario's runs take it from \
          sim.laser.mount_xyz_m: leave it out (another value is an error).",
     ),
-    ("pipeline.sensor.range_sigma_m", "Standard deviation of an observation's range (m); positive."),
-    ("pipeline.sensor.range_sigma_per_m", "Added to range_sigma_m per metre of range (m/m); 0 or more."),
+    ("pipeline.sensor.range_sigma_m", "Standard deviation of an observation's range (m); positive, at most 1e6."),
+    ("pipeline.sensor.range_sigma_per_m", "Added to range_sigma_m per metre of range (m/m); 0 to 1e6."),
     ("pipeline.sensor.bearing_sigma_rad", "Standard deviation of an observation's bearing (rad); positive."),
     // [pipeline.segmentation]
     (

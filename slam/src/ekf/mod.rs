@@ -201,9 +201,9 @@ impl Ekf {
     /// `P_p* <- [F Fc] P_v*` (calibration parameters, if any, are constant), and the pose
     /// block gets the process noise.
     ///
-    /// A control that is not finite, or one whose predicted pose, Jacobians or noise are
-    /// not (a motion model of zero wheelbase, a step of 1e308 m), is refused with
-    /// [`EkfError::NonFinite`], the filter left as it was.
+    /// A control that is not finite, or one whose predicted pose, Jacobians, noise or
+    /// covariance are not (a motion model of zero wheelbase, a speed of 1e300 m/s), is
+    /// refused with [`EkfError::NonFinite`], the filter left as it was.
     ///
     /// # Panics
     /// When `control` is not `model.control_dims()` long.
@@ -226,10 +226,8 @@ impl Ekf {
         if !finite.copied().all(f64::is_finite) {
             return Err(EkfError::NonFinite);
         }
+        let linearised_at = self.first_estimates.as_ref().map(|fe| fe.predicted_pose);
         self.first_estimate_transition(&pred.pose, &mut pred.f);
-        self.x[0] = pred.pose.x;
-        self.x[1] = pred.pose.y;
-        self.x[2] = pred.pose.z;
         // The pose rows of the vehicle transition [F Fc; 0 I].
         let mut fv = DMatrix::zeros(3, vd);
         fv.view_mut((0, 0), (3, 3)).copy_from(&pred.f);
@@ -238,6 +236,16 @@ impl Ekf {
         // the transition on the right: P_pp' = ([F Fc] P_vv) [F Fc]ᵀ + Q.
         let new_rows = &fv * self.p.view((0, 0), (vd, n));
         let new_pp = new_rows.view((0, 0), (3, vd)) * fv.transpose() + pred.q;
+        // A covariance the prediction would overflow: refused, the filter as it was.
+        if !new_rows.iter().chain(new_pp.iter()).all(|v| v.is_finite()) {
+            if let (Some(fe), Some(at)) = (&mut self.first_estimates, linearised_at) {
+                fe.predicted_pose = at;
+            }
+            return Err(EkfError::NonFinite);
+        }
+        self.x[0] = pred.pose.x;
+        self.x[1] = pred.pose.y;
+        self.x[2] = pred.pose.z;
         self.p.view_mut((0, 0), (3, n)).copy_from(&new_rows);
         self.p.view_mut((0, 0), (n, 3)).copy_from(&new_rows.transpose());
         self.p.view_mut((0, 0), (3, 3)).copy_from(&(0.5 * (new_pp + new_pp.transpose())));

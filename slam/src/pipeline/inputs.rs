@@ -14,7 +14,7 @@ impl Pipeline {
         if !matches!(self.config.motion, MotionConfig::Odometry(_)) {
             return Err(PipelineError::MotionInput { model: self.config.motion.name(), input: "odometry increments" });
         }
-        self.predict([o.dx, o.dy, o.dtheta], o.t);
+        self.predict([o.dx, o.dy, o.dtheta], o.t)?;
         self.check_state(o.t)
     }
 
@@ -40,7 +40,7 @@ impl Pipeline {
                 return Err(PipelineError::MotionInput { model: m.name(), input: "speed and steering controls" });
             }
         }
-        self.advance_to(t);
+        self.advance_to(t)?;
         // The new control holds from t, also when none held before (the vehicle stood).
         self.t = t;
         self.record_pose();
@@ -50,11 +50,11 @@ impl Pipeline {
 
     /// Moves the filter on to `t` with the control held since the previous input (nothing
     /// when there is none, as with odometry increments).
-    pub(super) fn advance_to(&mut self, t: f64) {
-        let Some((_, control)) = self.control else { return };
+    pub(super) fn advance_to(&mut self, t: f64) -> Result<(), PipelineError> {
+        let Some((_, control)) = self.control else { return Ok(()) };
         let dt = t - self.t;
         if dt <= 0.0 {
-            return;
+            return Ok(());
         }
         let u = match control {
             // Along the arc of constant speeds, in the robot frame at the start.
@@ -69,16 +69,17 @@ impl Pipeline {
             }
             Control::Ackermann { speed, steering } => [speed, steering, dt],
         };
-        self.predict(u, t);
+        self.predict(u, t)
     }
 
-    /// The prediction with control `u` of the motion model, up to time `t`.
-    pub(super) fn predict(&mut self, u: [f64; 3], t: f64) {
-        // A prediction the filter refuses (a pose it would make not finite) stops the
-        // pipeline as a diverged one: the next input is refused, naming this time.
+    /// The prediction with control `u` of the motion model, up to time `t`. One the
+    /// filter refuses (a pose it would make not finite) stops the pipeline as a diverged
+    /// one, before the input that asked for it changes anything: this input and every one
+    /// after it are refused, naming this time.
+    pub(super) fn predict(&mut self, u: [f64; 3], t: f64) -> Result<(), PipelineError> {
         if self.ekf.predict(&self.config.motion, &u).is_err() {
-            self.diverged_at.get_or_insert((t, super::Divergence::NotFinite));
-            return;
+            let (at, how) = *self.diverged_at.get_or_insert((t, super::Divergence::NotFinite));
+            return Err(how.error(at));
         }
         if let Some(h) = &mut self.history {
             h.push_control(u, self.ekf.pose());
@@ -88,6 +89,7 @@ impl Pipeline {
         self.odometry_pose = [next.x, next.y, next.z];
         self.t = t;
         self.record_pose();
+        Ok(())
     }
 
     /// Point features already extracted from a scan (range, bearing and, where known,
@@ -108,7 +110,7 @@ impl Pipeline {
         if detections.iter().any(|d| d.range_m < 0.0) {
             return Err(PipelineError::NegativeRange { input: "detections", t });
         }
-        self.advance_to(t);
+        self.advance_to(t)?;
         let clusters: Vec<Cluster> = detections.iter().enumerate().map(|(k, d)| d.as_cluster(k)).collect();
         let keep = vec![true; clusters.len()];
         let report = self.observe_positions(t, clusters, &keep, "unknown");
@@ -122,7 +124,7 @@ impl Pipeline {
     pub fn on_scan(&mut self, scan: &LaserScan) -> Result<ScanReport, PipelineError> {
         self.check_time("scan", scan.t)?;
         scan.check().map_err(|problem| PipelineError::Scan { t: scan.t, problem })?;
-        self.advance_to(scan.t);
+        self.advance_to(scan.t)?;
         let clusters = cluster(scan, &self.config.clustering);
         let report = if self.config.method.uses_appearance() {
             self.on_scan_with_appearance(scan, clusters)
@@ -413,6 +415,17 @@ mod tests {
         let err = p.on_odometry(&OdometryIncrement { t: 0.2, dx: 0.1, dy: 0.0, dtheta: 0.0 }).unwrap_err();
         assert!(matches!(err, PipelineError::Indefinite { t: 0.2 }), "{err}");
         assert!(matches!(p.on_detections(0.3, &[]), Err(PipelineError::Indefinite { t: 0.2 })));
+    }
+
+    #[test]
+    fn a_control_that_overflows_the_prediction_changes_nothing_after_it() {
+        let mut p = Pipeline::new(car_config(AssociationMethod::Nn), [0.0; 3], None).unwrap();
+        p.on_control(0.0, Control::Ackermann { speed: 1e300, steering: 0.0 }).unwrap();
+        let (time, pose, landmarks) = (p.time(), p.pose(), p.landmarks().len());
+        let err = p.on_detections(1.0, &[detection(5.0, 0.0, 0.3)]).unwrap_err();
+        assert!(matches!(err, PipelineError::Diverged { t: 1.0 }), "{err}");
+        assert_eq!((p.time(), p.pose(), p.landmarks().len()), (time, pose, landmarks), "the scan was not applied");
+        assert!(matches!(p.on_detections(2.0, &[]), Err(PipelineError::Diverged { t: 1.0 })));
     }
 
     #[test]

@@ -20,8 +20,10 @@
 //! A car's speed and steering and a tree detector's range and bearing, fed as they
 //! arrive (what `objslam replay` does from a log's files). Inputs come in time order
 //! (equal times are fine, and images may lag the scans); a malformed one is refused with
-//! a [`PipelineError`] and changes nothing. An input that breaks the filter is applied and
-//! then reported (`Diverged`, `Indefinite`), and every later input is refused.
+//! a [`PipelineError`] and changes nothing. An input that breaks the filter is reported
+//! (`Diverged`, `Indefinite`): one whose prediction the filter refuses changes nothing,
+//! one that breaks it in an update is applied first; either way every later input is
+//! refused.
 //!
 //! ```
 //! use nalgebra::{Vector2, Vector3};
@@ -181,7 +183,7 @@ pub enum PipelineError {
     NegativeDiameter { input: &'static str, t: f64 },
     /// A range below zero: no sensor measures one; a landmark would be put behind the
     /// sensor, where no later observation can reach it.
-    #[error("{input} at t = {t} s hold a negative range")]
+    #[error("{input} at t = {t} s holds a negative range")]
     NegativeRange { input: &'static str, t: f64 },
     /// A start pose or start time that is not finite.
     #[error("the start {0} holds a value that is not finite")]

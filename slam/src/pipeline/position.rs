@@ -48,7 +48,7 @@ impl Pipeline {
         if clusters.iter().any(|c| c.range_m < 0.0) {
             return Err(PipelineError::NegativeRange { input: "clusters", t });
         }
-        self.advance_to(t);
+        self.advance_to(t)?;
         let report = self.observe_positions(t, clusters, is_object, class);
         self.check_state(t)?;
         Ok(report)
