@@ -187,3 +187,21 @@ fn a_control_or_landmark_not_finite_leaves_the_filter_as_it_was() {
     ekf.predict(&odometry, &[0.5, 0.0, 0.0]).unwrap();
     assert!(ekf.x.iter().all(|v| v.is_finite()));
 }
+
+#[test]
+fn an_image_built_field_by_field_is_checked_before_its_features() {
+    use slam::features::{FeatureConfig, FeatureError, FeatureExtractor, ImageRef};
+    let config = FeatureConfig::default();
+    let dims = config.raw_dims();
+    let data = DMatrix::from_fn(40, dims, |i, j| ((i * 7 + j * 3) % 11) as f64 + (i as f64).sin());
+    let extractor = FeatureExtractor::new(config, Pca::fit(&data, 3).unwrap()).unwrap();
+    let short = vec![0u8; 10];
+    let image = ImageRef { width: 64, height: 48, rgb: &short };
+    let e = extractor.features(&image, None).unwrap_err();
+    assert!(matches!(e, FeatureError::ImageSize { expected: 9216, found: 10, .. }), "{e}");
+    let mut no_patches = extractor.clone();
+    no_patches.config.patch_size = 0;
+    let whole = vec![0u8; 64 * 48 * 3];
+    let e = no_patches.features(&ImageRef::new(64, 48, &whole).unwrap(), None).unwrap_err();
+    assert!(e.to_string().contains("patch_size"), "{e}");
+}

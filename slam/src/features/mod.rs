@@ -361,6 +361,17 @@ impl FeatureExtractor {
     /// Features of the patches in `rect` (the whole grid when `None`). A neighbour outside
     /// the grid contributes the patch's own norm.
     pub fn features(&self, image: &ImageRef, rect: Option<PatchRect>) -> Result<PatchFeatures, FeatureError> {
+        // An image or extractor built field by field rather than by `new` is checked here:
+        // a buffer shorter than its size, or no patch size, would panic below.
+        let expected = image.width as usize * image.height as usize * 3;
+        if image.rgb.len() != expected {
+            let (width, height, found) = (image.width, image.height, image.rgb.len());
+            return Err(FeatureError::ImageSize { width, height, expected, found });
+        }
+        if self.config.patch_size == 0 || self.pca.input_dims() != self.config.raw_dims() {
+            self.config.validate()?;
+            return Err(FeatureError::PcaMismatch { expected: self.pca.input_dims(), found: self.config.raw_dims() });
+        }
         let l = self.config.patch_size;
         let rect = rect.unwrap_or_else(|| PatchRect::whole(image, l));
         rect.check(image, l)?;
