@@ -260,6 +260,7 @@ pub fn make_dataset(
     // Under the hold, before the unfinished directory is started anew.
     let check = || {
         finish_stopped_publish(out)?;
+        crate::partial_files::check_no_other_stopped_move(out, &[])?;
         check_out(out)
     };
     let (manifest, _held) =

@@ -219,6 +219,81 @@ pub fn unfinished_dir(out: &Path) -> PathBuf {
     out.join(".unfinished")
 }
 
+/// The kinds of outputs whose move into a directory can be stopped with their marker still
+/// waiting in its unfinished directory, each named by the command that writes them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum StoppedMove {
+    /// `dataset.json`: `objslam dataset`.
+    Dataset,
+    /// `metadata.json` of `objslam record`, or a robot log's `manifest.toml`.
+    Recording,
+    /// `metadata.yaml`: a ROS 2 bag (`objslam record --format ros2`, `objslam run --bag`).
+    Bag,
+    /// `metadata.json` of `objslam run`.
+    Run,
+}
+
+impl StoppedMove {
+    /// The command to run into the directory again to finish it.
+    pub fn command(self) -> &'static str {
+        match self {
+            StoppedMove::Dataset => "objslam dataset",
+            StoppedMove::Recording => "objslam record",
+            StoppedMove::Bag => "objslam record --format ros2",
+            StoppedMove::Run => "objslam run",
+        }
+    }
+}
+
+/// Which command's outputs wait, finished, in `out`'s unfinished directory (their marker,
+/// moved last, is there): a move into `out` stopped midway. `None` where none do (nothing
+/// there, or a command stopped while still writing, whose files are only a draft).
+pub fn stopped_move(out: &Path) -> Option<StoppedMove> {
+    let dir = unfinished_dir(out);
+    let json =
+        |name: &str| -> Option<serde_json::Value> { serde_json::from_slice(&std::fs::read(dir.join(name)).ok()?).ok() };
+    if json("dataset.json").is_some() {
+        return Some(StoppedMove::Dataset);
+    }
+    if dir.join("metadata.yaml").is_file() {
+        return Some(StoppedMove::Bag);
+    }
+    match json(crate::files::METADATA).as_ref().and_then(|m| m["tool"].as_str().map(str::to_owned)).as_deref() {
+        Some("objslam record") => return Some(StoppedMove::Recording),
+        Some("objslam run") => return Some(StoppedMove::Run),
+        _ => {}
+    }
+    let manifest = std::fs::read_to_string(dir.join(robotlog::format::MANIFEST)).ok()?;
+    toml::from_str::<robotlog::Manifest>(&manifest).is_ok().then_some(StoppedMove::Recording)
+}
+
+/// Refuses to start `out`'s unfinished directory anew where another command's finished
+/// outputs wait there to be moved in (`own`: the kinds the caller finishes itself): they
+/// would be lost.
+pub fn check_no_other_stopped_move(out: &Path, own: &[StoppedMove]) -> Result<(), PartialFileError> {
+    let dir = unfinished_dir(out);
+    let remedy = |kind: StoppedMove| match kind {
+        // A bag is never written over, so no command finishes one: the user does.
+        StoppedMove::Bag => format!(
+            "move its metadata.yaml into {} to finish that bag (a bag is not replaced: record into another directory)",
+            out.display()
+        ),
+        _ => format!("run `{}` into {} again to finish the move", kind.command(), out.display()),
+    };
+    match stopped_move(out) {
+        Some(kind) if !own.contains(&kind) => Err(PartialFileError {
+            file: dir.clone(),
+            source: std::io::Error::other(format!(
+                "holds finished outputs stopped while they were moved into {}: {}, or remove {} to drop them",
+                out.display(),
+                remedy(kind),
+                dir.display()
+            )),
+        }),
+        _ => Ok(()),
+    }
+}
+
 /// Makes `out`'s unfinished directory anew (one stopped on the way may have left one) and
 /// returns it. The caller holds `out` ([`lock_output`]) until it has published or abandoned
 /// what it wrote there.
@@ -430,6 +505,36 @@ pub fn publish(unfinished: &Path, out: &Path, stale: &[&str], marker: &str) -> R
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Each command's marker waiting in the unfinished directory names its stopped move; a
+    /// draft (a marker cut short) names none; a command refuses another's, not its own.
+    #[test]
+    fn stopped_moves_are_told_apart_and_kept_from_other_commands() {
+        let out = std::env::temp_dir().join(format!("objslam-stopped-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&out);
+        let dir = unfinished_dir(&out);
+        std::fs::create_dir_all(&dir).unwrap();
+        assert_eq!(stopped_move(&out), None);
+        for (name, text, kind) in [
+            ("dataset.json", "{}", Some(StoppedMove::Dataset)),
+            ("metadata.yaml", "rosbag2_bagfile_information: {}", Some(StoppedMove::Bag)),
+            ("metadata.json", r#"{"tool": "objslam record"}"#, Some(StoppedMove::Recording)),
+            ("metadata.json", r#"{"tool": "objslam run"}"#, Some(StoppedMove::Run)),
+            ("metadata.json", r#"{"tool": "objslam rec"#, None),
+            ("manifest.toml", "", None),
+        ] {
+            std::fs::write(dir.join(name), text).unwrap();
+            assert_eq!(stopped_move(&out), kind, "{name}: {text}");
+            if let Some(kind) = kind {
+                check_no_other_stopped_move(&out, &[kind]).unwrap();
+                let e = check_no_other_stopped_move(&out, &[]).unwrap_err().to_string();
+                assert!(e.contains("stopped while they were moved"), "{e}");
+                assert_eq!(kind == StoppedMove::Bag, e.contains("move its metadata.yaml"), "{e}");
+            }
+            std::fs::remove_file(dir.join(name)).unwrap();
+        }
+        let _ = std::fs::remove_dir_all(&out);
+    }
 
     #[test]
     fn an_output_directory_is_held_by_one_command_at_a_time() {

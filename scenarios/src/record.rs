@@ -357,7 +357,9 @@ pub fn record(
 pub fn recording_files() -> [&'static str; 21] {
     use robotlog::format as f;
     [
+        // Both kinds' markers first: a move stopped after them leaves no marker over a mix.
         f::MANIFEST,
+        files::METADATA,
         f::ODOMETRY,
         f::SCANS,
         f::DETECTIONS,
@@ -377,7 +379,6 @@ pub fn recording_files() -> [&'static str; 21] {
         files::MCAP,
         files::CAMERA_LOG,
         files::COLLISIONS,
-        files::METADATA,
     ]
 }
 
@@ -394,6 +395,7 @@ fn staged(
     // recording leaves what another command left there.
     let check = || {
         finish_stopped_recording(out)?;
+        staging::check_no_other_stopped_move(out, &[])?;
         if out.join(ros2bag::METADATA_FILE).exists() {
             return Err(RecordError::HoldsBag { dir: out.to_path_buf() });
         }
@@ -443,11 +445,11 @@ fn holds_recording(dir: &Path) -> bool {
 fn finish_stopped_recording(out: &Path) -> Result<(), RecordError> {
     // Called under the hold. The stopped move removed the earlier recording's names before
     // it moved anything: what `out` holds of them now is this recording's, moved in.
-    // The unfinished directory is objslam's own: a marker there is a recording's (its
-    // `recording.json` may have been moved in already).
+    // A whole marker in the unfinished directory (a robot log's `recording.json` may have
+    // been moved in already); one cut short by a stop while written is no finished move.
     let stopped = |out: &Path| {
-        let unfinished = crate::partial_files::unfinished_dir(out);
-        !holds_recording(out) && (holds_recording(&unfinished) || unfinished.join(robotlog::format::MANIFEST).is_file())
+        !holds_recording(out)
+            && crate::partial_files::stopped_move(out) == Some(crate::partial_files::StoppedMove::Recording)
     };
     if stopped(out) {
         publish_recording(out, &[])?;

@@ -61,6 +61,7 @@ pub fn check_bag_dir(out: &Path) -> Result<(), Ros2Error> {
         Ok(m) if !m.is_dir() => return bag(ros2bag::Error::NotADirectory { path: out.into() }),
         Ok(_) => {}
     }
+    staging::check_no_other_stopped_move(out, &[])?;
     let unfinished = staging::unfinished_dir(out);
     let listed = std::fs::read_dir(out).map_err(|source| staging::PartialFileError { file: out.into(), source })?;
     if listed.flatten().any(|e| e.path() != unfinished && e.file_name() != ".objslam.lock") {

@@ -472,9 +472,14 @@ fn a_recording_replaces_only_an_earlier_recording() {
     std::fs::create_dir_all(mine.join(".unfinished")).unwrap();
     std::fs::write(mine.join(".unfinished/dataset.json"), "{}").unwrap();
     let e = record(&mine).expect_err("refused").to_string();
+    assert!(e.contains("holds finished outputs stopped while") && e.contains("run `objslam dataset`"), "{e}");
+    assert!(mine.join(".unfinished/dataset.json").is_file(), "another command's unfinished outputs are kept");
+    // A draft cut short (a manifest written in part) is no finished move.
+    std::fs::remove_file(mine.join(".unfinished/dataset.json")).unwrap();
+    std::fs::write(mine.join(".unfinished/manifest.toml"), "").unwrap();
+    let e = record(&mine).expect_err("refused").to_string();
     assert!(e.contains("holds camera, which a recording writes or removes, but no earlier recording"), "{e}");
     assert_eq!(std::fs::read_to_string(mine.join("camera/photo.png")).unwrap(), "mine");
-    assert!(mine.join(".unfinished/dataset.json").is_file(), "another command's unfinished outputs are kept");
     // A metadata.json of another command is no recording's either.
     let other = dir.join("other");
     std::fs::create_dir_all(&other).unwrap();
@@ -503,5 +508,8 @@ fn a_recording_replaces_only_an_earlier_recording() {
     }
     record(&log).unwrap();
     assert!(log.join("metadata.json").is_file() && !unfinished.exists());
+    // Both kinds' markers go first when a recording replaces another.
+    let names = scenarios::record::recording_files();
+    assert_eq!(names[..2], ["manifest.toml", "metadata.json"]);
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -539,7 +539,11 @@ fn replay_and_write(
     let mut pipeline = Pipeline::new(config.clone(), log.manifest.vehicle.start_pose, appearance)
         .and_then(|p| p.starting_at(start))
         .map_err(|source| ReplayError::Pipeline { t: start, source })?;
-    // Every output is written in the unfinished directory and moved into `out` when all are.
+    // Every output is written in the unfinished directory and moved into `out` when all are
+    // (another command's finished outputs waiting there are not dropped for it).
+    if let Some(out) = out {
+        crate::partial_files::check_no_other_stopped_move(out, &[])?;
+    }
     let unfinished = out.map(crate::partial_files::start_unfinished).transpose()?;
     let mut streams = match &unfinished {
         Some(dir) => Some(PartialFiles::create(

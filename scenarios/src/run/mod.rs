@@ -481,6 +481,9 @@ fn check_inputs_outside_outputs(scenario: &Scenario, base_dir: &Path, out: &Path
 /// earlier run's `metadata.json`: a run replaces and removes what an earlier run wrote, not
 /// a user's own files that happen to have those names (an `objects/` folder of notes).
 fn check_earlier_outputs_are_a_runs(out: &Path) -> Result<(), RunError> {
+    // Another command's finished outputs waiting to be moved in would be lost when the
+    // run starts the unfinished directory anew (a run's own are only replaced).
+    crate::partial_files::check_no_other_stopped_move(out, &[crate::partial_files::StoppedMove::Run])?;
     // An earlier run's own `metadata.json` (one another command or a user wrote is not).
     let file = out.join(files::METADATA);
     if std::fs::symlink_metadata(&file).is_ok() {
