@@ -319,7 +319,8 @@ fn finish_stopped_publish(out: &Path) -> Result<(), DatasetError> {
     // Called under the hold. The stopped move removed the earlier dataset's manifest
     // before it moved anything: what `out` holds of the dataset's names is this one's.
     if stopped(out) {
-        staging::publish(&staging::unfinished_dir(out), out, &[], "dataset.json").map_err(DatasetError::Publish)?;
+        staging::finish_publish(&staging::unfinished_dir(out), out, &[], "dataset.json")
+            .map_err(DatasetError::Publish)?;
     }
     Ok(())
 }

@@ -407,6 +407,30 @@ fn partial_name(file: &Path) -> PathBuf {
     name.into()
 }
 
+/// The file in an unfinished directory naming what a move into the output directory brings
+/// in, while it runs.
+const MOVING: &str = ".moving.json";
+
+/// The names a stopped move was bringing in (its [`MOVING`] file), if it began.
+fn read_moving(unfinished: &Path) -> Option<Vec<String>> {
+    serde_json::from_slice(&std::fs::read(unfinished.join(MOVING)).ok()?).ok()
+}
+
+/// Finishes a move into `out` that was stopped (its marker still in `unfinished`), as
+/// [`publish`] would have: where it had begun, the earlier outputs' `stale` names it does
+/// not bring in are removed (a stop while they were being removed left some), and nothing
+/// it moved in already; where it had not, it is published whole.
+pub fn finish_publish(
+    unfinished: &Path,
+    out: &Path,
+    stale: &[&str],
+    marker: &str,
+) -> Result<(), Vec<PartialFileError>> {
+    let Some(bringing) = read_moving(unfinished) else { return publish(unfinished, out, stale, marker) };
+    let left: Vec<&str> = stale.iter().copied().filter(|s| !bringing.iter().any(|b| b == s)).collect();
+    publish(unfinished, out, &left, marker)
+}
+
 /// Moves finished outputs from `unfinished` into `out`, each replacing the file (or
 /// directory) of the same name, after removing the `stale` names (outputs an earlier one
 /// may hold that this one does not write). `marker` is the file that makes `out` read as
@@ -424,7 +448,9 @@ pub fn publish(unfinished: &Path, out: &Path, stale: &[&str], marker: &str) -> R
     let mut entries = Vec::new();
     for entry in std::fs::read_dir(unfinished).map_err(one(unfinished))? {
         let entry = entry.map_err(one(unfinished))?;
-        entries.push((entry.path(), out.join(entry.file_name())));
+        if entry.file_name() != MOVING {
+            entries.push((entry.path(), out.join(entry.file_name())));
+        }
     }
     // The marker last.
     entries.sort_by_key(|(from, _)| from.file_name().is_some_and(|n| n == marker));
@@ -450,6 +476,19 @@ pub fn publish(unfinished: &Path, out: &Path, stale: &[&str], marker: &str) -> R
     if !blocked.is_empty() {
         return Err(blocked);
     }
+    // Which names this move brings in, kept beside them until it ends: a move stopped
+    // while the earlier outputs were removed is finished from it (see [`finish_publish`]).
+    // A move that is itself a finish writes it again with the names still to move; the
+    // names moved already stay in the first list.
+    let journal = unfinished.join(MOVING);
+    let mut names: Vec<String> = read_moving(unfinished).unwrap_or_default();
+    for (from, _) in &entries {
+        let name = from.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        if !names.contains(&name) {
+            names.push(name);
+        }
+    }
+    std::fs::write(&journal, serde_json::to_string(&names).expect("names are JSON")).map_err(one(&journal))?;
     // What this removes of the earlier outputs, for the words of a failure below.
     let mut removed_names = Vec::new();
     for name in std::iter::once(&marker).chain(stale) {
@@ -496,6 +535,7 @@ pub fn publish(unfinished: &Path, out: &Path, stale: &[&str], marker: &str) -> R
         );
     }
     if errors.is_empty() {
+        std::fs::remove_file(&journal).map_err(one(&journal))?;
         std::fs::remove_dir(unfinished).map_err(one(unfinished))?;
         return Ok(());
     }
@@ -505,6 +545,48 @@ pub fn publish(unfinished: &Path, out: &Path, stale: &[&str], marker: &str) -> R
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A move stopped while the earlier outputs were removed leaves some of them; one
+    /// stopped while moving has moved some new files in. Finishing either removes the
+    /// earlier outputs' leftovers the move does not bring in, and keeps what it moved.
+    #[test]
+    fn a_stopped_move_is_finished_from_its_list_of_names() {
+        let out = std::env::temp_dir().join(format!("objslam-finish-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&out);
+        let dir = unfinished_dir(&out);
+        std::fs::create_dir_all(&dir).unwrap();
+        let stale = ["marker", "old_only", "shared", "new_only"];
+        // Stopped while removing: the earlier marker gone, its other files still there.
+        for name in ["old_only", "shared"] {
+            std::fs::write(out.join(name), "old").unwrap();
+        }
+        for name in ["marker", "shared", "new_only"] {
+            std::fs::write(dir.join(name), "new").unwrap();
+        }
+        std::fs::write(dir.join(MOVING), r#"["shared","new_only","marker"]"#).unwrap();
+        finish_publish(&dir, &out, &stale, "marker").unwrap();
+        assert!(!out.join("old_only").exists(), "the earlier output's leftover is removed");
+        for name in ["marker", "shared", "new_only"] {
+            assert_eq!(std::fs::read_to_string(out.join(name)).unwrap(), "new", "{name}");
+        }
+        assert!(!dir.exists());
+        // Stopped while moving: what it moved stays.
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::remove_file(out.join("marker")).unwrap();
+        std::fs::write(dir.join("marker"), "newer").unwrap();
+        std::fs::write(dir.join(MOVING), r#"["shared","new_only","marker"]"#).unwrap();
+        finish_publish(&dir, &out, &stale, "marker").unwrap();
+        assert_eq!(std::fs::read_to_string(out.join("new_only")).unwrap(), "new", "moved already, kept");
+        assert_eq!(std::fs::read_to_string(out.join("marker")).unwrap(), "newer");
+        // Stopped before it began: published whole, the stale names removed.
+        std::fs::create_dir_all(&dir).unwrap();
+        std::fs::remove_file(out.join("marker")).unwrap();
+        std::fs::write(out.join("old_only"), "old").unwrap();
+        std::fs::write(dir.join("marker"), "m").unwrap();
+        finish_publish(&dir, &out, &stale, "marker").unwrap();
+        assert!(!out.join("old_only").exists() && !out.join("new_only").exists() && out.join("marker").is_file());
+        let _ = std::fs::remove_dir_all(&out);
+    }
 
     /// Each command's marker waiting in the unfinished directory names its stopped move; a
     /// draft (a marker cut short) names none; a command refuses another's, not its own.

@@ -414,18 +414,21 @@ fn staged(
         Ok(())
     };
     let (summary, _held) = staging::write_unfinished_after(out, check, write)?;
-    publish_recording(out, &recording_files())?;
+    publish_recording(out, false)?;
     Ok(summary)
 }
 
 /// Moves a finished recording from `out`'s unfinished directory into `out`, after removing
-/// the `stale` names there. A robot log is marked finished by its manifest, a JSON-lines
-/// log by its metadata, and the marker goes last.
-fn publish_recording(out: &Path, stale: &[&str]) -> Result<(), RecordError> {
-    let unfinished = crate::partial_files::unfinished_dir(out);
+/// the earlier recording's names there; `finishing`, one whose move was stopped. A robot
+/// log is marked finished by its manifest, a JSON-lines log by its metadata, and the
+/// marker goes last.
+fn publish_recording(out: &Path, finishing: bool) -> Result<(), RecordError> {
+    use crate::partial_files::{finish_publish, publish, unfinished_dir};
+    let unfinished = unfinished_dir(out);
     let marker =
         if unfinished.join(robotlog::format::MANIFEST).exists() { robotlog::format::MANIFEST } else { files::METADATA };
-    crate::partial_files::publish(&unfinished, out, stale, marker).map_err(RecordError::Publish)
+    let move_in = if finishing { finish_publish } else { publish };
+    move_in(&unfinished, out, &recording_files(), marker).map_err(RecordError::Publish)
 }
 
 /// Whether `dir` holds a recording's marker: a JSON-lines log's `metadata.json` written by
@@ -444,7 +447,8 @@ fn holds_recording(dir: &Path) -> bool {
 /// with a recording's files and no marker, which no recording would take again.
 fn finish_stopped_recording(out: &Path) -> Result<(), RecordError> {
     // Called under the hold. The stopped move removed the earlier recording's names before
-    // it moved anything: what `out` holds of them now is this recording's, moved in.
+    // it moved anything, or was stopped while it did: its list of what it brings in tells
+    // the earlier outputs' leftovers from what it moved in already.
     // A whole marker in the unfinished directory (a robot log's `recording.json` may have
     // been moved in already); one cut short by a stop while written is no finished move.
     let stopped = |out: &Path| {
@@ -452,7 +456,7 @@ fn finish_stopped_recording(out: &Path) -> Result<(), RecordError> {
             && crate::partial_files::stopped_move(out) == Some(crate::partial_files::StoppedMove::Recording)
     };
     if stopped(out) {
-        publish_recording(out, &[])?;
+        publish_recording(out, true)?;
     }
     Ok(())
 }

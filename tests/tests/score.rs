@@ -497,6 +497,9 @@ fn a_recording_replaces_only_an_earlier_recording() {
     for moved_last in ["laser.jsonl", "metadata.json"] {
         std::fs::rename(log.join(moved_last), unfinished.join(moved_last)).unwrap();
     }
+    // The move's list of what it brings in, as a move writes it before it removes anything.
+    let names: Vec<String> = recorded.iter().map(|n| n.to_string_lossy().into_owned()).collect();
+    std::fs::write(unfinished.join(".moving.json"), serde_json::to_string(&names).unwrap()).unwrap();
     // Finished before the checks: a run's metrics.json found after it leaves the stopped
     // recording whole, what it had moved in kept.
     std::fs::write(log.join("metrics.json"), "{}").unwrap();
