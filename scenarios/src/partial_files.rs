@@ -410,6 +410,8 @@ fn partial_name(file: &Path) -> PathBuf {
 /// The file in an unfinished directory naming what a move into the output directory brings
 /// in, while it runs.
 const MOVING: &str = ".moving.json";
+/// Where [`write_whole`] writes [`MOVING`] before it takes its name.
+const MOVING_PARTIAL: &str = ".moving.json.partial";
 
 /// The names a stopped move was bringing in (its [`MOVING`] file), if it began.
 fn read_moving(unfinished: &Path) -> Option<Vec<String>> {
@@ -448,8 +450,10 @@ pub fn publish(unfinished: &Path, out: &Path, stale: &[&str], marker: &str) -> R
     let mut entries = Vec::new();
     for entry in std::fs::read_dir(unfinished).map_err(one(unfinished))? {
         let entry = entry.map_err(one(unfinished))?;
-        if entry.file_name() != MOVING {
-            entries.push((entry.path(), out.join(entry.file_name())));
+        // The list of names, and a copy of it cut short by a stop while it was written.
+        let name = entry.file_name();
+        if name != MOVING && name != MOVING_PARTIAL {
+            entries.push((entry.path(), out.join(name)));
         }
     }
     // The marker last.
@@ -488,7 +492,8 @@ pub fn publish(unfinished: &Path, out: &Path, stale: &[&str], marker: &str) -> R
             names.push(name);
         }
     }
-    std::fs::write(&journal, serde_json::to_string(&names).expect("names are JSON")).map_err(one(&journal))?;
+    // Whole or not at all: a list cut short would read as no list.
+    write_whole(&journal, serde_json::to_string(&names).expect("names are JSON").as_bytes()).map_err(|e| vec![e])?;
     // What this removes of the earlier outputs, for the words of a failure below.
     let mut removed_names = Vec::new();
     for name in std::iter::once(&marker).chain(stale) {
@@ -536,6 +541,7 @@ pub fn publish(unfinished: &Path, out: &Path, stale: &[&str], marker: &str) -> R
     }
     if errors.is_empty() {
         std::fs::remove_file(&journal).map_err(one(&journal))?;
+        let _ = std::fs::remove_file(unfinished.join(MOVING_PARTIAL));
         std::fs::remove_dir(unfinished).map_err(one(unfinished))?;
         return Ok(());
     }
@@ -583,8 +589,11 @@ mod tests {
         std::fs::remove_file(out.join("marker")).unwrap();
         std::fs::write(out.join("old_only"), "old").unwrap();
         std::fs::write(dir.join("marker"), "m").unwrap();
+        // A list cut short while written (a stop then) is no list, and is not moved in.
+        std::fs::write(dir.join(MOVING_PARTIAL), "[\"sha").unwrap();
         finish_publish(&dir, &out, &stale, "marker").unwrap();
         assert!(!out.join("old_only").exists() && !out.join("new_only").exists() && out.join("marker").is_file());
+        assert!(!out.join(MOVING_PARTIAL).exists() && !dir.exists());
         let _ = std::fs::remove_dir_all(&out);
     }
 
