@@ -107,11 +107,17 @@ fn a_control_of_the_wrong_length_is_named() {
 }
 
 #[test]
-#[should_panic(expected = "1 rows of allowed pairs for 2 observations")]
-fn jcbb_needs_a_row_of_allowed_pairs_per_observation() {
+fn jcbb_needs_a_row_of_allowed_pairs_per_observation_and_a_probability() {
+    use slam::association::jcbb::{JcbbError, jcbb};
     let ekf = Ekf::new(Vector3::zeros(), Matrix3::identity());
     let z = [Vector2::new(5.0, 0.0), Vector2::new(6.0, 0.5)];
-    jcbb_with(&ekf, &RangeBearingModel::default(), &z, &[vec![]], 0.99);
+    let e = jcbb_with(&ekf, &RangeBearingModel::default(), &z, &[vec![]], 0.99).unwrap_err();
+    assert_eq!(e, JcbbError::AllowedRows { rows: 1, observations: 2 });
+    for percentage in [99.0, 1.0, 0.0, f64::NAN] {
+        let e = jcbb(&ekf, &RangeBearingModel::default(), &z, 9.21, percentage).unwrap_err();
+        assert!(matches!(e, JcbbError::Confidence(_)), "{e}");
+    }
+    assert_eq!(jcbb(&ekf, &RangeBearingModel::default(), &z, 9.21, 0.99).unwrap(), vec![None, None]);
 }
 
 #[test]

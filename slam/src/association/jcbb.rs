@@ -15,6 +15,18 @@ use crate::messages::wrap_angle;
 /// Per-observation landmark index (`None`: unpaired).
 pub type Hypothesis = Vec<Option<usize>>;
 
+/// Why JCBB could not search.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum JcbbError {
+    /// The joint test's probability must lie strictly between 0 and 1: at 1 every joint
+    /// gate is infinite, at 0 empty (a percentage, 99, given for 0.99).
+    #[error("confidence {0}: the joint test needs a probability strictly between 0 and 1 (0.99, not 99)")]
+    Confidence(f64),
+    #[error("{rows} rows of allowed pairs for {observations} observations: one row per observation")]
+    AllowedRows { rows: usize, observations: usize },
+}
+
 struct Prepared {
     /// Innovation of observation i against landmark j (predicted observation and
     /// Jacobians are per landmark; innovations per pair).
@@ -30,7 +42,7 @@ pub fn jcbb(
     observations: &[Vector2<f64>],
     individual_gate: f64,
     confidence: f64,
-) -> Hypothesis {
+) -> Result<Hypothesis, JcbbError> {
     let n = ekf.landmark_count();
     let allowed: Vec<Vec<bool>> = observations
         .iter()
@@ -42,22 +54,24 @@ pub fn jcbb(
 /// JCBB over the pairs `allowed[i][j]` (observation i may be landmark j) chosen by the
 /// caller, e.g. individually gated and alike in appearance. A row shorter than the map
 /// allows none of the landmarks past its end (a caller may stop a row at its last allowed
-/// landmark); entries past the map are ignored.
-///
-/// # Panics
-/// When `allowed` does not have one row per observation.
+/// landmark); entries past the map are ignored. `allowed` needs one row per observation.
 pub fn jcbb_with(
     ekf: &Ekf,
     model: &RangeBearingModel,
     observations: &[Vector2<f64>],
     allowed: &[Vec<bool>],
     confidence: f64,
-) -> Hypothesis {
+) -> Result<Hypothesis, JcbbError> {
     let m = observations.len();
-    assert_eq!(allowed.len(), m, "jcbb_with: {} rows of allowed pairs for {m} observations", allowed.len());
+    if allowed.len() != m {
+        return Err(JcbbError::AllowedRows { rows: allowed.len(), observations: m });
+    }
+    if !(confidence > 0.0 && confidence < 1.0) {
+        return Err(JcbbError::Confidence(confidence));
+    }
     let n = ekf.landmark_count();
     if m == 0 {
-        return vec![];
+        return Ok(vec![]);
     }
     let pred: Vec<_> = (0..n).map(|j| model.observe(&ekf.pose(), &ekf.landmark(j))).collect();
     let individual = allowed.iter().map(|row| (0..n).map(|j| row.get(j).copied().unwrap_or(false)).collect()).collect();
@@ -75,7 +89,7 @@ pub fn jcbb_with(
     };
     let mut current = vec![None; m];
     search.recurse(0, &mut current, 0);
-    search.best
+    Ok(search.best)
 }
 
 /// The JCBB hypothesis over `allowed` if no other hypothesis pairs as many observations:
@@ -87,22 +101,22 @@ pub fn unambiguous_jcbb(
     observations: &[Vector2<f64>],
     allowed: &[Vec<bool>],
     confidence: f64,
-) -> Option<Hypothesis> {
-    let best = jcbb_with(ekf, model, observations, allowed, confidence);
+) -> Result<Option<Hypothesis>, JcbbError> {
+    let best = jcbb_with(ekf, model, observations, allowed, confidence)?;
     let pairs = |h: &Hypothesis| h.iter().flatten().count();
     let k = pairs(&best);
     if k == 0 {
-        return None;
+        return Ok(None);
     }
     for (i, j) in best.iter().enumerate() {
         let Some(j) = *j else { continue };
         let mut without = allowed.to_vec();
         without[i][j] = false;
-        if pairs(&jcbb_with(ekf, model, observations, &without, confidence)) >= k {
-            return None;
+        if pairs(&jcbb_with(ekf, model, observations, &without, confidence)?) >= k {
+            return Ok(None);
         }
     }
-    Some(best)
+    Ok(Some(best))
 }
 
 struct Search<'a> {
@@ -238,7 +252,7 @@ mod tests {
         let obs = vec![Vector2::new(5.0, 0.20 - 0.12), Vector2::new(5.0, 0.28 - 0.12)];
         let nn: Vec<Option<usize>> = nearest_neighbour(&ekf, &model, &obs, 9.21).iter().map(|r| r.landmark).collect();
         assert_eq!(nn, vec![Some(0), Some(1)], "nearest neighbour takes the individually closest");
-        let h = jcbb(&ekf, &model, &obs, 9.21, 0.99);
+        let h = jcbb(&ekf, &model, &obs, 9.21, 0.99).unwrap();
         assert_eq!(h, vec![Some(1), Some(2)], "JCBB pairs with the common heading error");
     }
 
@@ -249,7 +263,7 @@ mod tests {
         ekf.add_landmark(&model, &Vector2::new(4.0, 0.5)).unwrap();
         ekf.add_landmark(&model, &Vector2::new(6.0, -0.5)).unwrap();
         let obs = vec![Vector2::new(4.01, 0.5), Vector2::new(3.0, 1.2), Vector2::new(6.0, -0.49)];
-        assert_eq!(jcbb(&ekf, &model, &obs, 9.21, 0.99), vec![Some(0), None, Some(1)]);
+        assert_eq!(jcbb(&ekf, &model, &obs, 9.21, 0.99).unwrap(), vec![Some(0), None, Some(1)]);
     }
 
     /// Guards the loop-closing test: a constellation that fits one way is taken, one that
@@ -271,15 +285,15 @@ mod tests {
         let all = |ekf: &Ekf| vec![vec![true; ekf.landmark_count()]; 2];
         // Landmarks at 0, 0.3 and 0.9 rad: only (0, 0.3) is 0.3 rad apart like the pair seen.
         let unique = place(&[0.0, 0.3, 0.9]);
-        assert_eq!(unambiguous_jcbb(&unique, &model, &obs, &all(&unique), 0.99), Some(vec![Some(0), Some(1)]));
+        assert_eq!(unambiguous_jcbb(&unique, &model, &obs, &all(&unique), 0.99).unwrap(), Some(vec![Some(0), Some(1)]));
         // Landmarks at 0, 0.3, 0.6: (0, 0.3) and (0.3, 0.6) fit alike.
         let twice = place(&[0.0, 0.3, 0.6]);
-        assert_eq!(jcbb_with(&twice, &model, &obs, &all(&twice), 0.99).iter().flatten().count(), 2);
-        assert_eq!(unambiguous_jcbb(&twice, &model, &obs, &all(&twice), 0.99), None);
+        assert_eq!(jcbb_with(&twice, &model, &obs, &all(&twice), 0.99).unwrap().iter().flatten().count(), 2);
+        assert_eq!(unambiguous_jcbb(&twice, &model, &obs, &all(&twice), 0.99).unwrap(), None);
         // The caller's mask rules pairs out: without landmark 2 the pair is unique again.
         let mut masked = all(&twice);
         masked[0][2] = false;
         masked[1][2] = false;
-        assert_eq!(unambiguous_jcbb(&twice, &model, &obs, &masked, 0.99), Some(vec![Some(0), Some(1)]));
+        assert_eq!(unambiguous_jcbb(&twice, &model, &obs, &masked, 0.99).unwrap(), Some(vec![Some(0), Some(1)]));
     }
 }

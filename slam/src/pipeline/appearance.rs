@@ -245,7 +245,8 @@ impl Pipeline {
             return none;
         }
         let zs: Vec<Vector2<f64>> = plans.iter().map(|p| p.z).collect();
-        let Some(h) = unambiguous_jcbb(&self.ekf, &self.config.sensor, &zs, &allowed, self.config.jcbb_probability)
+        let searched = unambiguous_jcbb(&self.ekf, &self.config.sensor, &zs, &allowed, self.config.jcbb_probability);
+        let Some(h) = searched.expect("a row per plan, and a probability the settings' check keeps within (0, 1)")
         else {
             return none;
         };

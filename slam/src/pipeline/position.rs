@@ -114,6 +114,7 @@ impl Pipeline {
                 let allowed: Vec<Vec<bool>> =
                     distances.iter().map(|row| row.iter().map(|d| *d < gate).collect()).collect();
                 jcbb_with(&self.ekf, &self.config.sensor, &zs, &allowed, self.config.jcbb_probability)
+                    .expect("a row per observation, and a probability the settings' check keeps within (0, 1)")
             }
             // Nearest neighbour; appearance methods fall back to it until their
             // observations carry object models.
