@@ -264,7 +264,7 @@ pub fn make_dataset(
         check_out(out)
     };
     let (manifest, _held) =
-        staging::write_unfinished_after(out, check, |dir| write_dataset(world, world_name, config, dir, progress))?;
+        staging::write_unfinished(out, check, |dir| write_dataset(world, world_name, config, dir, progress))?;
     // The manifest is the marker: the earlier one removed first, this one moved in last,
     // so a publish stopped midway leaves no manifest, not a mix.
     staging::publish(&staging::unfinished_dir(out), out, &[], "dataset.json").map_err(DatasetError::Publish)?;
@@ -312,15 +312,10 @@ fn is_dataset_manifest(file: &Path) -> bool {
 /// unfinished directory anew, and without this a second stop would leave `out` with a
 /// dataset's files and no manifest, which no dataset command would take again.
 fn finish_stopped_publish(out: &Path) -> Result<(), DatasetError> {
-    use crate::partial_files as staging;
-    let stopped = |out: &Path| {
-        !out.join("dataset.json").exists() && is_dataset_manifest(&staging::unfinished_dir(out).join("dataset.json"))
-    };
-    // Called under the hold. The stopped move removed the earlier dataset's manifest
-    // before it moved anything: what `out` holds of the dataset's names is this one's.
-    if stopped(out) {
-        staging::finish_publish(&staging::unfinished_dir(out), out, &[], "dataset.json")
-            .map_err(DatasetError::Publish)?;
+    // Called under the hold: no dataset is in `out`, and a whole manifest waits.
+    let unfinished = crate::partial_files::unfinished_dir(out);
+    if !out.join("dataset.json").exists() && is_dataset_manifest(&unfinished.join("dataset.json")) {
+        crate::partial_files::finish_publish(&unfinished, out, &[], "dataset.json").map_err(DatasetError::Publish)?;
     }
     Ok(())
 }

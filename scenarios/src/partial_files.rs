@@ -320,20 +320,13 @@ pub fn start_unfinished(out: &Path) -> Result<PathBuf, PartialFileError> {
     Ok(dir)
 }
 
-/// Holds `out` and runs `write` on its fresh unfinished directory. On success the hold is
-/// returned with what `write` gave, for the caller to publish under; on failure what was
-/// written is removed and the hold released (a directory the hold made goes again).
+/// Holds `out`, runs `check` (under the hold, before the unfinished directory is started
+/// anew: a command refused there, an `out` that is not its own, leaves another command's
+/// unfinished outputs as they were), then `write` on its fresh unfinished directory. On
+/// success the hold is returned with what `write` gave, for the caller to publish under; on
+/// failure what was written is removed and the hold released (a directory the hold made
+/// goes again).
 pub fn write_unfinished<T, E: From<PartialFileError>>(
-    out: &Path,
-    write: impl FnOnce(&Path) -> Result<T, E>,
-) -> Result<(T, OutputLock), E> {
-    write_unfinished_after(out, || Ok(()), write)
-}
-
-/// [`write_unfinished`], with `check` run first under the hold, before the unfinished
-/// directory is started anew: a command refused there (an `out` that is not its own)
-/// leaves another command's unfinished outputs as they were.
-pub fn write_unfinished_after<T, E: From<PartialFileError>>(
     out: &Path,
     check: impl FnOnce() -> Result<(), E>,
     write: impl FnOnce(&Path) -> Result<T, E>,

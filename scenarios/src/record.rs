@@ -413,7 +413,7 @@ fn staged(
         }
         Ok(())
     };
-    let (summary, _held) = staging::write_unfinished_after(out, check, write)?;
+    let (summary, _held) = staging::write_unfinished(out, check, write)?;
     publish_recording(out, false)?;
     Ok(summary)
 }
@@ -446,16 +446,12 @@ fn holds_recording(dir: &Path) -> bool {
 /// starts the unfinished directory anew, and without this a second stop would leave `out`
 /// with a recording's files and no marker, which no recording would take again.
 fn finish_stopped_recording(out: &Path) -> Result<(), RecordError> {
-    // Called under the hold. The stopped move removed the earlier recording's names before
-    // it moved anything, or was stopped while it did: its list of what it brings in tells
-    // the earlier outputs' leftovers from what it moved in already.
-    // A whole marker in the unfinished directory (a robot log's `recording.json` may have
-    // been moved in already); one cut short by a stop while written is no finished move.
-    let stopped = |out: &Path| {
-        !holds_recording(out)
-            && crate::partial_files::stopped_move(out) == Some(crate::partial_files::StoppedMove::Recording)
-    };
-    if stopped(out) {
+    // Called under the hold: no recording is in `out`, and a whole marker waits (a robot
+    // log's `recording.json` may have been moved in already; a marker cut short by a stop
+    // while written is no finished move). The move's list of what it brings in tells the
+    // earlier outputs' leftovers from what it moved in already.
+    use crate::partial_files::{StoppedMove, stopped_move};
+    if !holds_recording(out) && stopped_move(out) == Some(StoppedMove::Recording) {
         publish_recording(out, true)?;
     }
     Ok(())

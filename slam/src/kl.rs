@@ -73,8 +73,12 @@ impl PreparedGmm {
         // Weights whose sum overflows are taken relative to the largest (each weight alone
         // is checked finite below); others as they are, bit for bit.
         let sum: f64 = g.components.iter().map(|c| c.weight).sum();
-        let scale = if sum.is_finite() { 1.0 } else { g.components.iter().map(|c| c.weight).fold(0.0, f64::max) };
-        let total: f64 = g.components.iter().map(|c| c.weight / scale).sum();
+        let (scale, total) = if sum.is_finite() {
+            (1.0, sum)
+        } else {
+            let largest = g.components.iter().map(|c| c.weight).fold(0.0, f64::max);
+            (largest, g.components.iter().map(|c| c.weight / largest).sum())
+        };
         let mut components = Vec::with_capacity(g.components.len());
         for (i, Component { mean, covariance, weight }) in g.components.iter().enumerate() {
             if mean.len() != d {

@@ -487,13 +487,7 @@ fn check_earlier_outputs_are_a_runs(out: &Path) -> Result<(), RunError> {
     // An earlier run's own `metadata.json` (one another command or a user wrote is not).
     let file = out.join(files::METADATA);
     if std::fs::symlink_metadata(&file).is_ok() {
-        let read = std::fs::read_to_string(&file)
-            .map_err(|e| e.to_string())
-            .and_then(|text| serde_json::from_str::<serde_json::Value>(&text).map_err(|e| format!("not JSON: {e}")));
-        let metadata = match read {
-            Ok(metadata) => metadata,
-            Err(problem) => return Err(RunError::UnreadableMetadata { file, problem }),
-        };
+        let metadata = read_metadata(out).map_err(|problem| RunError::UnreadableMetadata { file, problem })?;
         return match metadata.get("tool").and_then(|t| t.as_str()) {
             Some("objslam run") => Ok(()),
             other => Err(RunError::NotARunsMetadata {
@@ -739,13 +733,14 @@ pub fn recorded_run(scenario_file: &Path) -> Option<serde_json::Value> {
     if scenario_file.file_name().is_none_or(|n| n != files::SCENARIO) {
         return None;
     }
-    let metadata = read_metadata(scenario_file.parent()?)?;
+    let metadata = read_metadata(scenario_file.parent()?).ok()?;
     (metadata["tool"] == "objslam run").then_some(metadata)
 }
 
-/// `dir`'s `metadata.json` as JSON, where it can be read as such.
-fn read_metadata(dir: &Path) -> Option<serde_json::Value> {
-    serde_json::from_str(&std::fs::read_to_string(dir.join(files::METADATA)).ok()?).ok()
+/// `dir`'s `metadata.json` as JSON, or why it cannot be read as such.
+fn read_metadata(dir: &Path) -> Result<serde_json::Value, String> {
+    let text = std::fs::read_to_string(dir.join(files::METADATA)).map_err(|e| e.to_string())?;
+    serde_json::from_str(&text).map_err(|e| format!("not JSON: {e}"))
 }
 
 /// Where `scenario_file` is the `scenario.toml` a run wrote, the files that run read which
