@@ -25,6 +25,12 @@ pub struct AppearanceSource {
     /// World generator preset and seed of the training images.
     pub training_preset: String,
     pub training_world_seed: u64,
+    /// Worlds the training images are spread over. 1: the preset's park of
+    /// `training_world_seed`. More: that many parks drawn, from `training_world_seed`, from
+    /// the generalisation benchmark's distribution (trunks, trees, posts and crowds of
+    /// every size it holds), none of them a benchmark world; the paper's first lever
+    /// against a model that knows only one park.
+    pub training_worlds: usize,
     pub training_images: usize,
     pub training_seed: u64,
     pub max_patches_per_class: usize,
@@ -46,6 +52,7 @@ impl Default for AppearanceSource {
             model: None,
             training_preset: "park".into(),
             training_world_seed: 1001,
+            training_worlds: 1,
             training_images: 60,
             training_seed: 1,
             max_patches_per_class: 10_000,
@@ -89,10 +96,20 @@ impl AppearanceSource {
             ("max_patches_per_class", self.max_patches_per_class, 10_000_000),
             ("max_components", self.max_components, 100),
             ("pca_dims", self.pca_dims, 1000),
+            ("training_worlds", self.training_worlds, 1000),
         ] {
             if !(1..=max).contains(&value) {
                 return Err((field, format!("must be 1 to {max}, got {value}")));
             }
+        }
+        if self.training_worlds > self.training_images {
+            return Err((
+                "training_worlds",
+                format!(
+                    "{} worlds for {} training images: each world needs an image at least",
+                    self.training_worlds, self.training_images
+                ),
+            ));
         }
         // A model file is read as it is: a training setting beside it would be silently
         // unused (a study varying it would vary nothing).
@@ -101,6 +118,7 @@ impl AppearanceSource {
             let given = [
                 ("training_preset", self.training_preset != d.training_preset),
                 ("training_world_seed", self.training_world_seed != d.training_world_seed),
+                ("training_worlds", self.training_worlds != d.training_worlds),
                 ("training_images", self.training_images != d.training_images),
                 ("training_seed", self.training_seed != d.training_seed),
                 ("max_patches_per_class", self.max_patches_per_class != d.max_patches_per_class),
@@ -143,13 +161,16 @@ impl AppearanceSource {
 
     /// The cache file name for this source and camera.
     pub fn cache_key(&self, camera: &sim::camera::CameraConfig) -> String {
-        /// The source as hashed: without the model file, and `distractors` only when set,
-        /// so models cached before that setting existed keep their keys.
+        /// The source as hashed: without the model file, and `distractors`, `context` and
+        /// `training_worlds` only when not their defaults, so models cached before those
+        /// settings existed keep their keys.
         #[derive(Serialize)]
         struct Key<'a> {
             model: Option<&'a str>,
             training_preset: &'a str,
             training_world_seed: u64,
+            #[serde(skip_serializing_if = "is_one")]
+            training_worlds: usize,
             training_images: usize,
             training_seed: u64,
             max_patches_per_class: usize,
@@ -166,6 +187,7 @@ impl AppearanceSource {
             model: _,
             training_preset,
             training_world_seed,
+            training_worlds,
             training_images,
             training_seed,
             max_patches_per_class,
@@ -178,6 +200,7 @@ impl AppearanceSource {
             model: None,
             training_preset,
             training_world_seed: *training_world_seed,
+            training_worlds: *training_worlds,
             training_images: *training_images,
             training_seed: *training_seed,
             max_patches_per_class: *max_patches_per_class,
@@ -247,26 +270,77 @@ impl AppearanceSource {
         // Held while this training lives: the sign to other processes' cleaning that it is.
         let _scratch_held = crate::partial_files::lock_output(&scratch)
             .map_err(|e| AppearanceError::Io { file: e.file, source: e.source })?;
-        let world = worlds::generate::preset(&self.training_preset, None, self.training_world_seed)?;
-        let config = self.dataset_config(camera);
-        crate::dataset::check_config(&world, &config)?;
-        // Straight into the scratch this training holds, not staged within it.
-        crate::dataset::write_dataset(
-            &world,
-            &format!("preset {}, seed {}", self.training_preset, self.training_world_seed),
-            &config,
-            &scratch,
-            |done, total| progress("rendering", done, total),
-        )?;
-        let trained = crate::train::train_from_dataset(&scratch, &self.training_options(), 0, &progress);
+        let datasets = self.write_training_datasets(camera, &scratch, &progress);
+        let trained = datasets
+            .and_then(|dirs| Ok(crate::train::train_from_datasets(&dirs, &self.training_options(), &progress)?));
         let _ = std::fs::remove_dir_all(&scratch);
-        let (model, _) = trained?;
+        let model = trained?;
         // Write then rename, so parallel runs never read a half-written model.
         let tmp = dir.join(format!(".{}.{}", std::process::id(), self.cache_key(camera)));
         model.save(&tmp)?;
         std::fs::rename(&tmp, &path).map_err(|e| AppearanceError::Io { file: path.clone(), source: e })?;
         Ok(model)
     }
+
+    /// Renders the training images into `scratch` (held by the caller): one dataset, or
+    /// with several training worlds one dataset per world in `scratch/world-<k>`, the
+    /// images shared out as evenly as they go. Returns the datasets' directories.
+    fn write_training_datasets(
+        &self,
+        camera: &sim::camera::CameraConfig,
+        scratch: &Path,
+        progress: &impl Fn(&str, usize, usize),
+    ) -> Result<Vec<PathBuf>, AppearanceError> {
+        let config = self.dataset_config(camera);
+        if self.training_worlds <= 1 {
+            let world = worlds::generate::preset(&self.training_preset, None, self.training_world_seed)?;
+            crate::dataset::check_config(&world, &config)?;
+            // Straight into the scratch this training holds, not staged within it.
+            crate::dataset::write_dataset(
+                &world,
+                &format!("preset {}, seed {}", self.training_preset, self.training_world_seed),
+                &config,
+                scratch,
+                |done, total| progress("rendering", done, total),
+            )?;
+            return Ok(vec![scratch.to_path_buf()]);
+        }
+        let n = self.training_worlds;
+        let mut dirs = Vec::with_capacity(n);
+        let mut done_before = 0;
+        for k in 0..n {
+            let (seed, params) = crate::montecarlo::generalisation::training_world(self.training_world_seed, k)
+                .ok_or_else(|| {
+                    AppearanceError::Dataset(crate::dataset::DatasetError::Config(format!(
+                        "appearance.training_worlds: training world {k} of seed {} has no layout that fits its ground",
+                        self.training_world_seed
+                    )))
+                })?;
+            let world = worlds::generate::park(&params, seed)?;
+            let images = self.training_images / n + usize::from(k < self.training_images % n);
+            let config = DatasetConfig {
+                images,
+                seed: sim::derive_seed(self.training_seed, &format!("training-world-{k}")),
+                ..config.clone()
+            };
+            crate::dataset::check_config(&world, &config)?;
+            let dir = scratch.join(format!("world-{k}"));
+            crate::dataset::write_dataset(
+                &world,
+                &format!("training world {k} of seed {}", self.training_world_seed),
+                &config,
+                &dir,
+                |done, _| progress("rendering", done_before + done, self.training_images),
+            )?;
+            done_before += images;
+            dirs.push(dir);
+        }
+        Ok(dirs)
+    }
+}
+
+fn is_one(n: &usize) -> bool {
+    *n == 1
 }
 
 /// Removes what trainings killed midway left in the cache `dir`: their scratch datasets

@@ -904,6 +904,11 @@ mod tests {
             ("[appearance]\ntraining_images = 0\n", "line 5: appearance.training_images"),
             ("[appearance]\ntraining_preset = \"jungle\"\n", "line 5: appearance.training_preset"),
             ("[appearance]\nmax_patches_per_class = 0\n", "line 5: appearance.max_patches_per_class"),
+            ("[appearance]\ntraining_worlds = 0\n", "line 5: appearance.training_worlds: must be 1 to 1000"),
+            (
+                "[appearance]\ntraining_images = 4\ntraining_worlds = 5\n",
+                "line 6: appearance.training_worlds: 5 worlds for 4 training images",
+            ),
             (
                 "[appearance]\nmodel = \"m.json\"\ntraining_seed = 3\n",
                 "line 6: appearance.training_seed: only applies to a model trained by the run",

@@ -276,6 +276,56 @@ pub fn train_from_dataset(
     Ok((model, classes))
 }
 
+/// Trains on every image of the datasets in `dirs` together, holding none out: the model a
+/// run trains on images of several worlds. The datasets must share their patch size and
+/// image size (one camera rendered them all); the first one's patch size is the model's.
+pub fn train_from_datasets(
+    dirs: &[PathBuf],
+    options: &TrainingOptions,
+    progress: impl Fn(&str, usize, usize),
+) -> Result<AppearanceModel, TrainError> {
+    let [first, rest @ ..] = dirs else {
+        return Err(file_err(Path::new("."), "no dataset to train on"));
+    };
+    if rest.is_empty() {
+        return Ok(train_from_dataset(first, options, 0, progress)?.0);
+    }
+    let manifests = dirs.iter().map(|d| read_manifest(d)).collect::<Result<Vec<_>, _>>()?;
+    let lead = &manifests[0];
+    for (dir, m) in dirs.iter().zip(&manifests) {
+        check_patch_size(dir, m, lead.patch_size)?;
+        if (m.width, m.height) != (lead.width, lead.height) {
+            return Err(file_err(
+                &dir.join("dataset.json"),
+                format!(
+                    "{}x{} images, where {} holds {}x{}",
+                    m.width,
+                    m.height,
+                    first.display(),
+                    lead.width,
+                    lead.height
+                ),
+            ));
+        }
+    }
+    let options = &TrainingOptions {
+        features: slam::features::FeatureConfig { patch_size: lead.patch_size, ..options.features.clone() },
+        ..options.clone()
+    };
+    let images: Vec<(usize, usize)> =
+        manifests.iter().enumerate().flat_map(|(d, m)| (0..m.images.len()).map(move |i| (d, i))).collect();
+    if images.is_empty() {
+        return Err(file_err(&first.join("dataset.json"), "images: the datasets list no image"));
+    }
+    let load = |k: usize| {
+        let (d, i) = images[k];
+        load_image(&dirs[d], &manifests[d], i).map_err(model_error)
+    };
+    let mut model = classifier::train(images.len(), load, options, &progress)?;
+    model.training.renderer = Some(lead.renderer.clone());
+    Ok(model)
+}
+
 /// Largest image `objslam segment` and `objslam find` classify: 16 megapixels, under 1 GB
 /// of features.
 pub const MAX_SEGMENT_PIXELS: u64 = 16_000_000;

@@ -169,3 +169,47 @@ fn concurrent_requests_for_an_uncached_model_train_it_once() {
     assert_eq!(files, vec![source.cache_key(&camera)], "only the model is left in the cache");
     let _ = std::fs::remove_dir_all(&cache);
 }
+
+/// A model trained over several worlds: the images are shared out among parks drawn from
+/// the generalisation benchmark's distribution (none of them a benchmark world), all of
+/// them trained on, and the model is another than the one-world model of the same settings.
+#[test]
+fn training_images_spread_over_several_worlds_are_all_trained_on() {
+    use scenarios::montecarlo::generalisation::{Split, training_world, world_seed};
+    let cache = std::env::temp_dir().join(format!("objslam-cache-worlds-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&cache);
+    let one = scenarios::appearance::AppearanceSource {
+        training_images: 5,
+        max_patches_per_class: 300,
+        max_components: 3,
+        pca_dims: 4,
+        ..Default::default()
+    };
+    let three = scenarios::appearance::AppearanceSource { training_worlds: 3, ..one.clone() };
+    let camera = sim::camera::CameraConfig::default();
+    assert_ne!(one.cache_key(&camera), three.cache_key(&camera));
+    let rendered = std::sync::Mutex::new(Vec::new());
+    let spread = three
+        .resolve_in(&cache, std::path::Path::new("."), &camera, |stage, done, total| {
+            if stage == "rendering" {
+                rendered.lock().unwrap().push((done, total));
+            }
+        })
+        .unwrap();
+    assert_eq!(spread.training.images, 5, "every image of the three worlds");
+    // Images 2, 2 and 1 to the three worlds, counted as one training's progress.
+    let rendered = rendered.into_inner().unwrap();
+    assert_eq!(rendered.last(), Some(&(5, 5)), "{rendered:?}");
+    assert!(rendered.windows(2).all(|w| w[0].0 <= w[1].0), "progress only goes forward: {rendered:?}");
+    let single = one.resolve_in(&cache, std::path::Path::new("."), &camera, |_, _, _| {}).unwrap();
+    assert_eq!(single.training.images, 5);
+    assert_ne!(spread, single, "other worlds, another model");
+    // The training worlds are the benchmark's kind of park, yet none of its worlds.
+    let benchmark: Vec<u64> = (0..64).flat_map(|i| [world_seed(Split::Tune, i), world_seed(Split::Test, i)]).collect();
+    let (seed0, params0) = training_world(one.training_world_seed, 0).unwrap();
+    assert!(!benchmark.contains(&seed0));
+    assert!((0..3).all(|k| training_world(one.training_world_seed, k).is_some_and(|(s, _)| !benchmark.contains(&s))));
+    assert_ne!(params0, worlds::generate::ParkParams::default(), "drawn, not the preset's");
+    assert_ne!(training_world(one.training_world_seed, 1).unwrap().0, seed0);
+    let _ = std::fs::remove_dir_all(&cache);
+}

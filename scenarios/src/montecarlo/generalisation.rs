@@ -88,18 +88,27 @@ const DRAW_ATTEMPTS: usize = 64;
 /// A draw the generator cannot lay out is drawn again from the same stream, so every index
 /// names one valid world.
 pub fn world_params(split: Split, index: usize) -> Result<ParkParams, StudyError> {
-    let seed = world_seed(split, index);
-    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x9e37_79b9_7f4a_7c15);
-    for _ in 0..DRAW_ATTEMPTS {
-        let p = draw(&mut rng);
-        if worlds::generate::park(&p, seed).is_ok() {
-            return Ok(p);
-        }
-    }
-    Err(StudyError::Job {
+    params_of_seed(world_seed(split, index)).ok_or_else(|| StudyError::Job {
         key: format!("{}={index}", split.world_param()),
         message: format!("no layout of {DRAW_ATTEMPTS} parameter draws fits its ground"),
     })
+}
+
+/// The parameters of the world of layout seed `seed` drawn from the benchmark's
+/// distribution ([`world_params`]); `None` where no draw fits its ground.
+fn params_of_seed(seed: u64) -> Option<ParkParams> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x9e37_79b9_7f4a_7c15);
+    (0..DRAW_ATTEMPTS).map(|_| draw(&mut rng)).find(|p| worlds::generate::park(p, seed).is_ok())
+}
+
+/// Training world `index` of the worlds drawn from `base_seed` (an appearance source's
+/// `training_world_seed`): a park from the same distribution as the benchmark's worlds
+/// ([`world_params`]), as (layout seed, parameters). Its seeds are derived under another
+/// name than the splits', so no training world is a `tune` or `test` world: a model
+/// trained on them meets the benchmark's worlds unseen. `None` where no draw fits.
+pub fn training_world(base_seed: u64, index: usize) -> Option<(u64, ParkParams)> {
+    let seed = sim::derive_seed(base_seed, &format!("appearance-training-world-{index}")) & (i64::MAX as u64);
+    params_of_seed(seed).map(|p| (seed, p))
 }
 
 /// A range of width `width` starting at `lo`, capped at `max`.
