@@ -111,6 +111,15 @@ impl AppearanceSource {
                 ),
             ));
         }
+        // Every training world laid out now, not when the model is first trained.
+        if self.model.is_none()
+            && let Some(k) = self.training_worlds_drawn().iter().position(Option::is_none)
+        {
+            return Err((
+                "training_worlds",
+                format!("training world {k} of seed {} has no layout that fits its ground", self.training_world_seed),
+            ));
+        }
         // A model file is read as it is: a training setting beside it would be silently
         // unused (a study varying it would vary nothing).
         if self.model.is_some() {
@@ -136,6 +145,17 @@ impl AppearanceSource {
             }
         }
         Ok(())
+    }
+
+    /// The training worlds as (layout seed, parameters), `None` for one that cannot be laid
+    /// out; empty with one training world (the preset's park).
+    fn training_worlds_drawn(&self) -> Vec<Option<(u64, worlds::generate::ParkParams)>> {
+        if self.training_worlds <= 1 {
+            return Vec::new();
+        }
+        (0..self.training_worlds)
+            .map(|k| crate::montecarlo::generalisation::training_world(self.training_world_seed, k))
+            .collect()
     }
 
     fn training_options(&self) -> TrainingOptions {
@@ -171,6 +191,10 @@ impl AppearanceSource {
             training_world_seed: u64,
             #[serde(skip_serializing_if = "is_one")]
             training_worlds: usize,
+            /// The worlds themselves, so that a change to the distribution they are drawn
+            /// from trains anew rather than reusing models of other worlds.
+            #[serde(skip_serializing_if = "Vec::is_empty")]
+            drawn_worlds: Vec<Option<(u64, worlds::generate::ParkParams)>>,
             training_images: usize,
             training_seed: u64,
             max_patches_per_class: usize,
@@ -201,6 +225,7 @@ impl AppearanceSource {
             training_preset,
             training_world_seed: *training_world_seed,
             training_worlds: *training_worlds,
+            drawn_worlds: self.training_worlds_drawn(),
             training_images: *training_images,
             training_seed: *training_seed,
             max_patches_per_class: *max_patches_per_class,
@@ -308,14 +333,13 @@ impl AppearanceSource {
         let n = self.training_worlds;
         let mut dirs = Vec::with_capacity(n);
         let mut done_before = 0;
-        for k in 0..n {
-            let (seed, params) = crate::montecarlo::generalisation::training_world(self.training_world_seed, k)
-                .ok_or_else(|| {
-                    AppearanceError::Dataset(crate::dataset::DatasetError::Config(format!(
-                        "appearance.training_worlds: training world {k} of seed {} has no layout that fits its ground",
-                        self.training_world_seed
-                    )))
-                })?;
+        for (k, drawn) in self.training_worlds_drawn().into_iter().enumerate() {
+            let (seed, params) = drawn.ok_or_else(|| {
+                AppearanceError::Dataset(crate::dataset::DatasetError::Config(format!(
+                    "appearance.training_worlds: training world {k} of seed {} has no layout that fits its ground",
+                    self.training_world_seed
+                )))
+            })?;
             let world = worlds::generate::park(&params, seed)?;
             let images = self.training_images / n + usize::from(k < self.training_images % n);
             let config = DatasetConfig {

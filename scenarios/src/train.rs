@@ -312,6 +312,12 @@ pub fn train_from_datasets(
         features: slam::features::FeatureConfig { patch_size: lead.patch_size, ..options.features.clone() },
         ..options.clone()
     };
+    options.features.validate().map_err(|e| {
+        file_err(
+            &first.join("dataset.json"),
+            format!("patch_size: a model of {} px patches cannot be made ({})", lead.patch_size, e.problem),
+        )
+    })?;
     let images: Vec<(usize, usize)> =
         manifests.iter().enumerate().flat_map(|(d, m)| (0..m.images.len()).map(move |i| (d, i))).collect();
     if images.is_empty() {

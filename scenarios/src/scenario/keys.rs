@@ -606,10 +606,13 @@ pub(super) const KEYS: &[(&str, &str)] = &[
          generated images as the keys below say, and cached.",
     ),
     ("appearance.training_preset", "World generator preset of the training images: \"park\"."),
-    ("appearance.training_world_seed", "World seed of the training images."),
+    (
+        "appearance.training_world_seed",
+        "World seed of the training images (with several training worlds, the seed they are drawn from).",
+    ),
     (
         "appearance.training_worlds",
-        "Worlds the training images are spread over: 1, the preset's park; more, parks drawn from the generalisation benchmark's distribution.",
+        "Worlds the training images are spread over, 1 to 1000 and at most training_images: 1, the preset's park; more, parks drawn from the generalisation benchmark's distribution (the preset unused).",
     ),
     ("appearance.training_images", "Number of training images rendered; 1 to 100000."),
     ("appearance.training_seed", "Seed of the training images' views and of the training's patch sampling."),
