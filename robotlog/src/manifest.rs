@@ -293,6 +293,14 @@ impl Manifest {
                 let what = if zero_allowed { "finite and not negative" } else { "finite and positive" };
                 return Err((format!("sensor.{name}"), format!("must be {what}, got {v}")));
             }
+            // As the filter's observation model bounds it (its square must not overflow), but
+            // named here, in the manifest (the bearing's tighter bound follows).
+            if let Some(v) = v.filter(|v| name != "bearing_sigma_rad" && *v > slam::settings::MAX_SIGMA) {
+                return Err((
+                    format!("sensor.{name}"),
+                    format!("must be at most {:e}, got {v:e}", slam::settings::MAX_SIGMA),
+                ));
+            }
         }
         // As the filter's observation model checks it, but named here, in the manifest.
         if let Some(v) = self.sensor.bearing_sigma_rad.filter(|v| *v > std::f64::consts::PI) {

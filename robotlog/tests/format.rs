@@ -218,6 +218,11 @@ fn malformed_files_are_errors_that_name_file_and_line() {
             "format_version = 1\n[sensor]\nx_m = 0\ny_m = 0\nyaw_rad = 90.0\n",
             "sensor.yaw_rad: must be within a turn",
         ),
+        (
+            "manifest.toml",
+            "format_version = 1\n[sensor]\nx_m = 0\ny_m = 0\nrange_sigma_m = 1e200\n",
+            "sensor.range_sigma_m: must be at most 1e6, got 1e200",
+        ),
         ("scans.csv", "t,r0\n", "scans.csv: a header and no row"),
         ("scans.csv", "t\n0\n", "scans.csv:1: no beam column after `t`"),
         ("odometry.csv", "t,speed,steering\n0,1,0\n", "needs `t,dx,dy,dtheta` or `t,v,omega`"),
