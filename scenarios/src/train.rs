@@ -219,6 +219,27 @@ pub fn image_patches<'a>(
     }))
 }
 
+/// `options` with the patches of the dataset in `dir` (its `manifest`): its labels are per
+/// patch of that size. Refused, naming the dataset, where no model of such patches can be
+/// made.
+fn options_for_dataset(
+    dir: &Path,
+    manifest: &Manifest,
+    options: &TrainingOptions,
+) -> Result<TrainingOptions, TrainError> {
+    let options = TrainingOptions {
+        features: slam::features::FeatureConfig { patch_size: manifest.patch_size, ..options.features.clone() },
+        ..options.clone()
+    };
+    options.features.validate().map_err(|e| {
+        file_err(
+            &dir.join("dataset.json"),
+            format!("patch_size: a model of {} px patches cannot be made ({})", manifest.patch_size, e.problem),
+        )
+    })?;
+    Ok(options)
+}
+
 fn model_error(e: TrainError) -> ModelError {
     match e {
         TrainError::Model(m) => m,
@@ -237,17 +258,7 @@ pub fn train_from_dataset(
     progress: impl Fn(&str, usize, usize),
 ) -> Result<(AppearanceModel, ClassTable), TrainError> {
     let manifest = read_manifest(dir)?;
-    // The model's patches are the dataset's: its labels are per patch of that size.
-    let options = &TrainingOptions {
-        features: slam::features::FeatureConfig { patch_size: manifest.patch_size, ..options.features.clone() },
-        ..options.clone()
-    };
-    options.features.validate().map_err(|e| {
-        file_err(
-            &dir.join("dataset.json"),
-            format!("patch_size: a model of {} px patches cannot be made ({})", manifest.patch_size, e.problem),
-        )
-    })?;
+    let options = &options_for_dataset(dir, &manifest, options)?;
     let (train_ids, test_ids): (Vec<usize>, Vec<usize>) =
         (0..manifest.images.len()).partition(|i| heldout_every == 0 || i % heldout_every != heldout_every - 1);
     // Say why no image is left to train on, where the learner could only say that none is.
@@ -308,16 +319,7 @@ pub fn train_from_datasets(
             ));
         }
     }
-    let options = &TrainingOptions {
-        features: slam::features::FeatureConfig { patch_size: lead.patch_size, ..options.features.clone() },
-        ..options.clone()
-    };
-    options.features.validate().map_err(|e| {
-        file_err(
-            &first.join("dataset.json"),
-            format!("patch_size: a model of {} px patches cannot be made ({})", lead.patch_size, e.problem),
-        )
-    })?;
+    let options = &options_for_dataset(first, lead, options)?;
     let images: Vec<(usize, usize)> =
         manifests.iter().enumerate().flat_map(|(d, m)| (0..m.images.len()).map(move |i| (d, i))).collect();
     if images.is_empty() {
