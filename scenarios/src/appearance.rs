@@ -280,7 +280,8 @@ impl AppearanceSource {
         // Whenever the cache is used, not only when it trains: a cache whose models are
         // all trained would otherwise keep a killed training's scratch for good.
         remove_stale_scratch(dir);
-        let path = dir.join(self.cache_key(camera));
+        let key = self.cache_key(camera);
+        let path = dir.join(&key);
         if path.exists() {
             return Ok(AppearanceModel::load(&path)?);
         }
@@ -301,7 +302,7 @@ impl AppearanceSource {
         let _ = std::fs::remove_dir_all(&scratch);
         let model = trained?;
         // Write then rename, so parallel runs never read a half-written model.
-        let tmp = dir.join(format!(".{}.{}", std::process::id(), self.cache_key(camera)));
+        let tmp = dir.join(format!(".{}.{key}", std::process::id()));
         model.save(&tmp)?;
         std::fs::rename(&tmp, &path).map_err(|e| AppearanceError::Io { file: path.clone(), source: e })?;
         Ok(model)

@@ -131,6 +131,18 @@ fn tree_patches_are_found_on_held_out_rendered_images() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// A run's model source small enough to train in seconds: `images` images, 300 patches a
+/// class, 3 components, 4 PCA dimensions.
+fn small_source(images: usize) -> scenarios::appearance::AppearanceSource {
+    scenarios::appearance::AppearanceSource {
+        training_images: images,
+        max_patches_per_class: 300,
+        max_components: 3,
+        pca_dims: 4,
+        ..Default::default()
+    }
+}
+
 /// Regression: two runs of one test process asked for the same uncached model at once;
 /// both trained it into one scratch folder and the second rename found its temporary file
 /// gone ("No such file or directory" on the cached model), failing CI. Now the model is
@@ -139,13 +151,7 @@ fn tree_patches_are_found_on_held_out_rendered_images() {
 fn concurrent_requests_for_an_uncached_model_train_it_once() {
     let cache = std::env::temp_dir().join(format!("objslam-cache-race-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&cache);
-    let source = scenarios::appearance::AppearanceSource {
-        training_images: 3,
-        max_patches_per_class: 300,
-        max_components: 3,
-        pca_dims: 4,
-        ..Default::default()
-    };
+    let source = small_source(3);
     let camera = sim::camera::CameraConfig::default();
     let trained = std::sync::atomic::AtomicUsize::new(0);
     let models: Vec<_> = std::thread::scope(|scope| {
@@ -178,13 +184,7 @@ fn training_images_spread_over_several_worlds_are_all_trained_on() {
     use scenarios::montecarlo::generalisation::{Split, training_world, world_seed};
     let cache = std::env::temp_dir().join(format!("objslam-cache-worlds-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&cache);
-    let one = scenarios::appearance::AppearanceSource {
-        training_images: 5,
-        max_patches_per_class: 300,
-        max_components: 3,
-        pca_dims: 4,
-        ..Default::default()
-    };
+    let one = small_source(5);
     let three = scenarios::appearance::AppearanceSource { training_worlds: 3, ..one.clone() };
     let camera = sim::camera::CameraConfig::default();
     assert_ne!(one.cache_key(&camera), three.cache_key(&camera));
