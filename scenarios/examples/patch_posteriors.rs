@@ -22,9 +22,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     writeln!(out, "image,col,row,posterior,foliage_p,fraction,class")?;
     for patches in image_patches(dir, &manifest, &model.extractor, 0..manifest.images.len())? {
         let p = patches?;
-        for (k, posterior) in classifier.posteriors(&p.features).iter().enumerate() {
+        for (k, posterior) in classifier.posteriors(&p.features)?.iter().enumerate() {
             let (c, r) = p.cells[k];
-            let foliage = classifier.foliage_probability(p.features.z.row(k).transpose().as_slice()).unwrap_or(0.0);
+            let foliage = classifier.foliage_probability(p.features.z.row(k).transpose().as_slice())?.unwrap_or(0.0);
             writeln!(out, "{},{c},{r},{posterior},{foliage},{},{}", p.index, p.fractions[k], p.classes[k])?;
         }
     }

@@ -48,10 +48,11 @@ pub fn write_objects(dir: &Path, pipeline: &Pipeline) -> Result<usize, ObjectsEr
     let pictures: Vec<Result<bool, ObjectsError>> = modelled
         .par_iter()
         .map(|(lm, model)| {
-            let Some((w, h, rgb)) = mosaic_picture(lm.id, &lm.class, model, &app.model().extractor) else {
+            let file = out.join(format!("landmark_{}.png", lm.id));
+            let picture = mosaic_picture(lm.id, &lm.class, model, &app.model().extractor);
+            let Some((w, h, rgb)) = picture.map_err(|e| file_err(&file, e))? else {
                 return Ok(false);
             };
-            let file = out.join(format!("landmark_{}.png", lm.id));
             image::save_buffer(&file, &rgb, w, h, image::ExtendedColorType::Rgb8).map_err(|e| file_err(&file, e))?;
             Ok(true)
         })
@@ -82,17 +83,18 @@ const CAPTION_H: u32 = 48;
 /// to a readable size with the patch grid drawn, under a caption with its id and class.
 /// The reconstruction keeps only the d leading principal components of colour and texture
 /// together, so its colours lean towards the training images' mean (bark comes out olive
-/// among grass and leaves); the view as seen shows the true colours. `None` without patches.
+/// among grass and leaves); the view as seen shows the true colours. `None` without patches; a model whose mosaic does
+/// not fit `extractor`, or a caption that cannot be drawn, is an error.
 pub fn mosaic_picture(
     id: u32,
     class: &str,
     model: &ObjectModel,
     extractor: &slam::features::FeatureExtractor,
-) -> Option<(u32, u32, Vec<u8>)> {
+) -> Result<Option<(u32, u32, Vec<u8>)>, String> {
     let l = extractor.config.patch_size;
-    let (mw, mh, modelled) = object_model::render_mosaic(&model.mosaic, extractor);
+    let (mw, mh, modelled) = object_model::render_mosaic(&model.mosaic, extractor).map_err(|e| e.to_string())?;
     if mw == 0 || mh == 0 {
-        return None;
+        return Ok(None);
     }
     let seen = object_model::render_mosaic_as_seen(&model.mosaic, l);
     let scale = 160u32.div_ceil(mw).clamp(3, 8);
@@ -122,20 +124,21 @@ pub fn mosaic_picture(
     crate::plot::register_fonts();
     {
         use plotters::prelude::*;
+        let caption = |e: DrawingAreaErrorKind<_>| format!("drawing the caption: {e}");
         let root = BitMapBackend::with_buffer(&mut out, (width, height)).into_drawing_area();
         let title = format!(
             "landmark {id} ({class}): {} patches of {l} px, {} views",
             model.mosaic.cells.len(),
             model.observations
         );
-        root.draw(&Text::new(title, (margin as i32, 6), ("sans-serif", 14).into_font())).ok()?;
+        root.draw(&Text::new(title, (margin as i32, 6), ("sans-serif", 14).into_font())).map_err(caption)?;
         for (k, (label, _)) in panels.iter().enumerate() {
             let x0 = (margin + k as u32 * (pw + gap)) as i32;
-            root.draw(&Text::new(label.to_string(), (x0, 26), ("sans-serif", 13).into_font())).ok()?;
+            root.draw(&Text::new(label.to_string(), (x0, 26), ("sans-serif", 13).into_font())).map_err(caption)?;
         }
-        root.present().ok()?;
+        root.present().map_err(caption)?;
     }
-    Some((width, height, out))
+    Ok(Some((width, height, out)))
 }
 
 /// The layout of `objects/models.json` that this build writes and reads.
@@ -205,8 +208,14 @@ pub fn find_similar(run_dir: &Path, model: &AppearanceModel, example: &Path) -> 
     let image = ImageRef::new(w, h, rgb.as_raw()).map_err(|e| file_err(example, e))?;
     let f = model.extractor.features(&image, None).map_err(|e| file_err(example, e))?;
     let classifier = PatchClassifier::new(model).map_err(ModelError::from)?;
-    let rows: Vec<usize> =
-        classifier.classify(&f).into_iter().enumerate().filter(|(_, o)| *o).map(|(i, _)| i).collect();
+    let rows: Vec<usize> = classifier
+        .classify(&f)
+        .map_err(|e| file_err(example, e))?
+        .into_iter()
+        .enumerate()
+        .filter(|(_, o)| *o)
+        .map(|(i, _)| i)
+        .collect();
     if rows.len() < 2 {
         return Err(file_err(
             example,

@@ -501,7 +501,7 @@ fn score_images(
     let mut out = ClassTable::default();
     for patches in image_patches(dir, manifest, &model.extractor, ids.iter().copied())? {
         let p = patches?;
-        for (k, predicted) in classifier.classify(&p.features).into_iter().enumerate() {
+        for (k, predicted) in classifier.classify(&p.features).map_err(ModelError::from)?.into_iter().enumerate() {
             scores.add(predicted, p.fractions[k] as f64 >= label_fraction);
             let id = p.classes[k];
             let name = worlds::ObjectClass::from_id(id).map_or_else(
@@ -573,7 +573,7 @@ pub fn segment_image(model: &AppearanceModel, image_path: &Path, out: &Path) -> 
         model.extractor.features(&image, None).map_err(|e| file_err(image_path, e))?
     };
     let l = model.extractor.config.patch_size;
-    let decisions = classifier.classify(&f);
+    let decisions = classifier.classify(&f).map_err(|e| file_err(image_path, e))?;
     for (k, &object) in decisions.iter().enumerate() {
         if !object {
             continue;

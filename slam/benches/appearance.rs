@@ -40,7 +40,7 @@ fn park_like_image() -> Vec<u8> {
 
 fn extractor(image: &ImageRef) -> FeatureExtractor {
     let config = FeatureConfig::default();
-    let raw = raw_patches(image, &config, &PatchRect::whole(image, 9));
+    let raw = raw_patches(image, &config, &PatchRect::whole(image, 9)).unwrap();
     FeatureExtractor::new(config, Pca::fit(&raw.rows(0, 2000).into_owned(), 10).unwrap()).unwrap()
 }
 

@@ -30,7 +30,7 @@ fn filter_with(n: usize) -> (Ekf, RangeBearingModel) {
 fn ekf_update(bencher: Bencher, n: usize) {
     let (ekf, model) = filter_with(n);
     bencher.with_inputs(|| ekf.clone()).bench_local_values(|mut e| {
-        let (z, _, _, _) = e.predict_observation(&model, n / 2);
+        let (z, _, _, _) = e.predict_observation(&model, n / 2).unwrap();
         e.update(&model, n / 2, &Vector2::new(z.x + 0.01, z.y)).unwrap();
         e
     });
@@ -45,7 +45,7 @@ fn scan_update_500_landmarks(bencher: Bencher, batched: bool) {
     let pairs: Vec<(usize, Vector2<f64>)> = landmarks
         .iter()
         .map(|&i| {
-            let (z, _, _, _) = ekf.predict_observation(&model, i);
+            let (z, _, _, _) = ekf.predict_observation(&model, i).unwrap();
             (i, Vector2::new(z.x + 0.01, z.y))
         })
         .collect();

@@ -14,10 +14,10 @@ fn main() {
     let rect = PatchRect::whole(&image, 9);
     let t = Instant::now();
     for _ in 0..10 {
-        let _ = raw_patches(&image, &config, &rect);
+        let _ = raw_patches(&image, &config, &rect).unwrap();
     }
     println!("raw (incl bank) {:?}", t.elapsed() / 10);
-    let raw = raw_patches(&image, &config, &rect);
+    let raw = raw_patches(&image, &config, &rect).unwrap();
     let pca = Pca::fit(&raw.rows(0, 1000).into_owned(), 10).unwrap();
     let fx = FeatureExtractor::new(config.clone(), pca.clone()).unwrap();
     let t = Instant::now();
@@ -27,7 +27,7 @@ fn main() {
     println!("features whole {:?}", t.elapsed() / 10);
     let t = Instant::now();
     for _ in 0..10 {
-        let _ = pca.project(&raw);
+        let _ = pca.project(&raw).unwrap();
     }
     println!("project {:?}", t.elapsed() / 10);
     let data = slam::gmm::bench_data::mixture_20000x14();

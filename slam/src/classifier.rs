@@ -53,6 +53,19 @@ pub enum ModelError {
     Gmm(#[from] GmmError),
     #[error("training: {0}")]
     Training(String),
+    #[error(transparent)]
+    Classify(#[from] ClassifyError),
+}
+
+/// Patch features that do not fit a classifier: another feature space's, or rows that are
+/// not one per patch of their rectangle.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum ClassifyError {
+    #[error("features of {found} dimensions for a classifier of {expected}")]
+    Dimension { expected: usize, found: usize },
+    #[error("{rows} feature rows for a rectangle of {patches} patches")]
+    Rows { rows: usize, patches: usize },
 }
 
 /// Patch precision, recall and F1 against ground-truth labels.
@@ -320,19 +333,39 @@ impl PatchClassifier {
     /// P(foliage | z), `None` without a foliage model. Foliage is part of the background,
     /// so P(fol | z) = P(bg | z) P(fol | bg, z), with P(fol | bg, z) = w_fol|bg p(z | fol) /
     /// p(z | bg) capped at 1 (the two densities are fitted apart, so their ratio can pass it).
-    pub fn foliage_probability(&self, z: &[f64]) -> Option<f64> {
+    /// A row of another dimension is [`ClassifyError::Dimension`].
+    pub fn foliage_probability(&self, z: &[f64]) -> Result<Option<f64>, ClassifyError> {
+        self.check_dims(z.len())?;
+        Ok(self.foliage_probability_prechecked(z))
+    }
+
+    /// [`PatchClassifier::foliage_probability`] of a row the caller has checked is the
+    /// classifier's dimension.
+    pub(crate) fn foliage_probability_prechecked(&self, z: &[f64]) -> Option<f64> {
         let (foliage, ln_w_fol) = self.foliage.as_ref()?;
-        let a = self.ln_w_obj + self.object.log_density(z);
+        let a = self.ln_w_obj + self.object.log_density_prechecked(z);
         let ln_p_bg = self.background_log_density(z);
         let b = self.ln_w_bg + ln_p_bg;
         let p_bg = 1.0 / (1.0 + (a - b).exp());
-        let within = (ln_w_fol + foliage.log_density(z) - ln_p_bg).min(0.0).exp();
+        let within = (ln_w_fol + foliage.log_density_prechecked(z) - ln_p_bg).min(0.0).exp();
         Some(p_bg * within)
+    }
+
+    /// The dimension of the feature rows the classifier takes (the model's parts share it).
+    pub fn dims(&self) -> usize {
+        self.object.dims()
+    }
+
+    fn check_dims(&self, found: usize) -> Result<(), ClassifyError> {
+        if found == self.dims() { Ok(()) } else { Err(ClassifyError::Dimension { expected: self.dims(), found }) }
     }
 
     /// ln p(z | bg): the background's density, with its distractors' part when it has one.
     fn background_log_density(&self, z: &[f64]) -> f64 {
-        self.mix_background(self.background.log_density(z), self.distractors.as_ref().map(|(d, _)| d.log_density(z)))
+        self.mix_background(
+            self.background.log_density_prechecked(z),
+            self.distractors.as_ref().map(|(d, _)| d.log_density_prechecked(z)),
+        )
     }
 
     /// ln p(z | bg) from the rest's ln density and the distractors' (`None` where the model
@@ -345,25 +378,33 @@ impl PatchClassifier {
     }
 
     /// R for one feature row, from the mixtures alone (without the column context, which
-    /// needs the patch's column).
-    pub fn posterior(&self, z: &[f64]) -> f64 {
-        let a = self.ln_w_obj + self.object.log_density(z);
+    /// needs the patch's column). A row of another dimension is
+    /// [`ClassifyError::Dimension`].
+    pub fn posterior(&self, z: &[f64]) -> Result<f64, ClassifyError> {
+        self.check_dims(z.len())?;
+        let a = self.ln_w_obj + self.object.log_density_prechecked(z);
         let b = self.ln_w_bg + self.background_log_density(z);
-        1.0 / (1.0 + (b - a).exp())
+        Ok(1.0 / (1.0 + (b - a).exp()))
     }
 
     /// R for every patch of `features`: with a column context, the context's probability
     /// over the rectangle's columns; without, the values [`PatchClassifier::posterior`]
-    /// gives.
-    pub fn posteriors(&self, features: &PatchFeatures) -> Vec<f64> {
+    /// gives. Features of another dimension, or not one row per patch of their
+    /// rectangle, are a [`ClassifyError`].
+    pub fn posteriors(&self, features: &PatchFeatures) -> Result<Vec<f64>, ClassifyError> {
+        self.check_dims(features.z.ncols())?;
+        let (rows, patches) = (features.z.nrows(), (features.rect.cols() * features.rect.rows()) as usize);
+        if rows != patches {
+            return Err(ClassifyError::Rows { rows, patches });
+        }
         let minus_log_odds = self.minus_log_odds(features);
-        match &self.context {
+        Ok(match &self.context {
             None => minus_log_odds.into_iter().map(|m| 1.0 / (1.0 + m.exp())).collect(),
             Some(context) => {
                 let log_odds: Vec<f64> = minus_log_odds.into_iter().map(|m| -m).collect();
-                context.apply(&log_odds, features.rect.cols() as usize, features.rect.rows() as usize)
+                context.apply_prechecked(&log_odds, features.rect.cols() as usize, features.rect.rows() as usize)
             }
-        }
+        })
     }
 
     /// The mixtures' ln(w_bg p(z | bg)) - ln(w_obj p(z | obj)) of every row, four rows at a
@@ -389,10 +430,10 @@ impl PatchClassifier {
                     *v = features.z[((first + l).min(n - 1), j)];
                 }
             }
-            self.object.log_terms_lanes(&x, &mut object);
-            self.background.log_terms_lanes(&x, &mut background);
+            self.object.log_terms_lanes_prechecked(&x, &mut object);
+            self.background.log_terms_lanes_prechecked(&x, &mut background);
             if let Some((d, _)) = &self.distractors {
-                d.log_terms_lanes(&x, &mut distractors);
+                d.log_terms_lanes_prechecked(&x, &mut distractors);
             }
             for l in 0..LANES.min(n - first) {
                 let a = self.ln_w_obj + density(&object, l);
@@ -405,9 +446,10 @@ impl PatchClassifier {
         out
     }
 
-    /// Object / background decision for every row.
-    pub fn classify(&self, features: &PatchFeatures) -> Vec<bool> {
-        self.posteriors(features).into_iter().map(|r| r > self.threshold).collect()
+    /// Object / background decision for every row (checked as
+    /// [`PatchClassifier::posteriors`] checks).
+    pub fn classify(&self, features: &PatchFeatures) -> Result<Vec<bool>, ClassifyError> {
+        Ok(self.posteriors(features)?.into_iter().map(|r| r > self.threshold).collect())
     }
 }
 
@@ -511,7 +553,7 @@ pub fn train(
         let img = images(i)?;
         let image = ImageRef::new(img.width, img.height, &img.rgb)?;
         let rect = PatchRect::whole(&image, l);
-        let raw = raw_patches(&image, cfg, &rect);
+        let raw = raw_patches(&image, cfg, &rect)?;
         let mut idx: Vec<usize> = (0..raw.nrows()).collect();
         idx.shuffle(&mut rng);
         for &r in idx.iter().take(per_image) {
@@ -723,7 +765,7 @@ pub fn evaluate_foliage(
         let (f, cols) = labelled_features(&model.extractor, &img, i)?;
         for k in 0..f.z.nrows() {
             let (c, r) = f.rect.patch(k);
-            let p = classifier.foliage_probability(f.z.row(k).transpose().as_slice()).expect("has foliage");
+            let p = classifier.foliage_probability(f.z.row(k).transpose().as_slice())?.expect("has foliage");
             scores.add(p > 0.5, img.foliage[(r * cols + c) as usize] as f64 >= label_fraction);
         }
     }
@@ -742,7 +784,7 @@ pub fn evaluate(
     for i in 0..count {
         let img = images(i)?;
         let (f, cols) = labelled_features(&model.extractor, &img, i)?;
-        for (k, predicted) in classifier.classify(&f).into_iter().enumerate() {
+        for (k, predicted) in classifier.classify(&f)?.into_iter().enumerate() {
             let (c, r) = f.rect.patch(k);
             scores.add(predicted, img.fractions[(r * cols + c) as usize] as f64 >= label_fraction);
         }
@@ -822,9 +864,10 @@ mod tests {
         let features = model.extractor.features(&ImageRef::new(120, 90, &image.rgb).unwrap(), None).unwrap();
         // 13 x 10 patches: 130 rows, not a multiple of the four lanes.
         assert_eq!(features.z.nrows() % 4, 2);
-        let together = classifier.posteriors(&features);
-        let one_by_one: Vec<f64> =
-            (0..features.z.nrows()).map(|i| classifier.posterior(features.z.row(i).transpose().as_slice())).collect();
+        let together = classifier.posteriors(&features).unwrap();
+        let one_by_one: Vec<f64> = (0..features.z.nrows())
+            .map(|i| classifier.posterior(features.z.row(i).transpose().as_slice()).unwrap())
+            .collect();
         assert_eq!(together.len(), one_by_one.len());
         for (i, (a, b)) in together.iter().zip(&one_by_one).enumerate() {
             assert_eq!(a.to_bits(), b.to_bits(), "row {i}: {a} against {b}");
@@ -902,7 +945,7 @@ mod tests {
         let (plain, split) = (PatchClassifier::new(&model).unwrap(), PatchClassifier::new(&loaded).unwrap());
         let img = scene(1, 90, 63);
         let f = model.extractor.features(&ImageRef::new(90, 63, &img.rgb).unwrap(), None).unwrap();
-        let (r_plain, r_split) = (plain.posteriors(&f), split.posteriors(&f));
+        let (r_plain, r_split) = (plain.posteriors(&f).unwrap(), split.posteriors(&f).unwrap());
         let mut object_patches = 0;
         for (k, (&a, &b)) in r_plain.iter().zip(&r_split).enumerate() {
             // Where the object's density is the higher (every object patch, as w_obj < w_bg).
@@ -910,7 +953,7 @@ mod tests {
                 assert!(b < a, "patch {k}: R {b} with an object-like distractor part, {a} without");
                 object_patches += 1;
             }
-            assert!((split.posterior(f.z.row(k).transpose().as_slice()) - b).abs() < 1e-9);
+            assert!((split.posterior(f.z.row(k).transpose().as_slice()).unwrap() - b).abs() < 1e-9);
         }
         assert!(object_patches > 0);
         for weight in [0.0, 1.0] {

@@ -80,8 +80,17 @@ impl ColumnContext {
     }
 
     /// Probabilities that each patch of a `cols` x `rows` grid (row-major) is object, from
-    /// the mixtures' log-odds of every patch.
-    pub fn apply(&self, log_odds: &[f64], cols: usize, rows: usize) -> Vec<f64> {
+    /// the mixtures' log-odds of every patch; log-odds that are not one per patch are
+    /// [`ContextError::Input`].
+    pub fn apply(&self, log_odds: &[f64], cols: usize, rows: usize) -> Result<Vec<f64>, ContextError> {
+        if cols.checked_mul(rows) != Some(log_odds.len()) {
+            return Err(ContextError::Input(format!("{} log-odds for a {cols}x{rows} grid", log_odds.len())));
+        }
+        Ok(self.apply_prechecked(log_odds, cols, rows))
+    }
+
+    /// [`ColumnContext::apply`] to log-odds the caller has checked are one per patch.
+    pub(crate) fn apply_prechecked(&self, log_odds: &[f64], cols: usize, rows: usize) -> Vec<f64> {
         let terms = terms(log_odds, cols, rows, self.reach as usize);
         terms.iter().map(|t| sigmoid(dot(&self.weights, t))).collect()
     }
@@ -125,9 +134,9 @@ fn dot(a: &[f64; WEIGHTS], b: &[f64; WEIGHTS]) -> f64 {
 }
 
 /// The regression's terms of every patch. A neighbour past the grid's edge counts as
-/// log-odds 0 (no evidence either way), and a mean over no patches is 0.
+/// log-odds 0 (no evidence either way), and a mean over no patches is 0. `log_odds`
+/// holds one per patch (the callers check).
 fn terms(log_odds: &[f64], cols: usize, rows: usize, reach: usize) -> Vec<[f64; WEIGHTS]> {
-    assert_eq!(log_odds.len(), cols * rows, "one log-odds per patch");
     let lo = |c: usize, r: usize| log_odds[r * cols + c].clamp(-MAX_LOG_ODDS, MAX_LOG_ODDS);
     let mut out = vec![[0.0; WEIGHTS]; cols * rows];
     // Prefix sums down each column: sum[r] = rows 0..r.
@@ -222,7 +231,8 @@ mod tests {
             test.iter().map(|g| decide(g).iter().zip(&g.object).filter(|(p, t)| p != t).count()).sum()
         };
         let alone = errors(&|g| g.log_odds.iter().map(|&l| l > 0.0).collect());
-        let with_context = errors(&|g| context.apply(&g.log_odds, g.cols, g.rows).iter().map(|&p| p > 0.5).collect());
+        let with_context =
+            errors(&|g| context.apply(&g.log_odds, g.cols, g.rows).unwrap().iter().map(|&p| p > 0.5).collect());
         assert!(alone > 100, "the patches alone err often ({alone})");
         assert!(with_context * 4 < alone, "{with_context} errors with the context, {alone} without");
     }

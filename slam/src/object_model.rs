@@ -11,7 +11,7 @@
 use nalgebra::{DMatrix, DVector, Matrix2};
 use serde::{Deserialize, Serialize};
 
-use crate::features::FeatureExtractor;
+use crate::features::{FeatureError, FeatureExtractor};
 use crate::gmm::{self, Component, Gmm, GmmError, StudentTMixture, VbOptions, VbPrior};
 use crate::kl::{self, KlError, PreparedGmm};
 
@@ -317,6 +317,12 @@ impl ObjectModel {
         pca_dims: usize,
     ) -> Result<(), ObjectModelError> {
         let d = self.gmm.dims();
+        if obs.rows.ncols() != d {
+            return Err(ObjectModelError::Dimension { observation: obs.rows.ncols(), model: d });
+        }
+        if d < 4 {
+            return Err(ObjectModelError::TooFewColumns(d));
+        }
         let (xy, m) = (d - 3, obs.rows.nrows());
         let shift = [obs.centre[0] - landmark[0], obs.centre[1] - landmark[1]];
         let eval = self.gmm.evaluator()?;
@@ -332,7 +338,7 @@ impl ObjectModel {
             }
             x[xy] += shift[0];
             x[xy + 1] += shift[1];
-            eval.log_terms(&x, &mut terms);
+            eval.log_terms_prechecked(&x, &mut terms);
             let total = crate::gmm::log_sum_exp(&terms);
             for s in 0..k {
                 let r = (terms[s] - total).exp();
@@ -382,11 +388,16 @@ fn mosaic_view(obs: &ObjectObservation, _pca_dims: usize) -> MosaicView {
 
 /// Figure 3 (right): the mosaic's patches back-projected through the PCA eigenvectors into
 /// RGB, laid out as they were seen. Returns (width, height, RGB8); empty cells are black.
-pub fn render_mosaic(view: &MosaicView, extractor: &FeatureExtractor) -> (u32, u32, Vec<u8>) {
+/// A view whose cells and appearance vectors do not pair up, or whose vectors are shorter
+/// than the extractor's PCA dimension, is a [`FeatureError`].
+pub fn render_mosaic(view: &MosaicView, extractor: &FeatureExtractor) -> Result<(u32, u32, Vec<u8>), FeatureError> {
     let (pca, patch_size, channels) = (&extractor.pca, extractor.config.patch_size, 3 + extractor.config.bank.len());
     let gains = extractor.config.gains();
+    if view.cells.len() != view.appearance.len() {
+        return Err(FeatureError::Mosaic { cells: view.cells.len(), appearance: view.appearance.len() });
+    }
     if view.cells.is_empty() {
-        return (0, 0, Vec::new());
+        return Ok((0, 0, Vec::new()));
     }
     let l = patch_size as usize;
     let (c0, c1) =
@@ -396,7 +407,7 @@ pub fn render_mosaic(view: &MosaicView, extractor: &FeatureExtractor) -> (u32, u
     let (w, h) = (((c1 - c0 + 1) as usize * l), ((r1 - r0 + 1) as usize * l));
     let mut rgb = vec![0u8; w * h * 3];
     for (cell, z) in view.cells.iter().zip(&view.appearance) {
-        let raw = pca.back_project(z);
+        let raw = pca.back_project(z)?;
         let (ox, oy) = ((cell.0 - c0) as usize * l, (cell.1 - r0) as usize * l);
         for py in 0..l {
             for px in 0..l {
@@ -408,7 +419,7 @@ pub fn render_mosaic(view: &MosaicView, extractor: &FeatureExtractor) -> (u32, u
             }
         }
     }
-    (w as u32, h as u32, rgb)
+    Ok((w as u32, h as u32, rgb))
 }
 
 /// The mosaic's patches as the camera saw them, laid out as [`render_mosaic`] lays out

@@ -420,7 +420,7 @@ pub fn segment_located(
     let l = extractor.config.patch_size;
     let ClusterInImage { hits, point_cells, rect, at_image_edge } = located;
     let features = extractor.features(image, Some(rect))?;
-    let posteriors = classifier.posteriors(&features);
+    let posteriors = classifier.posteriors(&features)?;
     let threshold = config.patch_threshold.unwrap_or(classifier.threshold);
     let object: Vec<bool> = posteriors.iter().map(|&r| r > threshold).collect();
     let hit_objects = hits.iter().filter(|&&(c, r)| features.index(c, r).is_some_and(|i| object[i])).count();
@@ -474,7 +474,7 @@ pub fn segment_located(
         0.0
     } else {
         let is_foliage = |i: usize| {
-            classifier.foliage_probability(features.z.row(i).transpose().as_slice()).is_some_and(|p| p > 0.5)
+            classifier.foliage_probability_prechecked(features.z.row(i).transpose().as_slice()).is_some_and(|p| p > 0.5)
         };
         let band_bottom_row = *band_rows.iter().max().expect("a visible band has rows");
         let at = |line: &VerticalLine, row: u32| line.patch_col(row, l).and_then(|c| features.index(c, row));
@@ -788,7 +788,9 @@ mod tests {
         let leaves = leaf_rows
             .clone()
             .filter_map(|row| seen.features.index(35, row))
-            .filter(|&i| classifier.foliage_probability(seen.features.z.row(i).transpose().as_slice()).unwrap() > 0.5)
+            .filter(|&i| {
+                classifier.foliage_probability(seen.features.z.row(i).transpose().as_slice()).unwrap().unwrap() > 0.5
+            })
             .count();
         assert!(
             leaves >= 2 && 3 * leaves >= 2 * leaf_rows.len(),

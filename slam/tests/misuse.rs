@@ -1,5 +1,6 @@
-//! The library's misuse: bad data is a typed error, never a quiet NaN; a caller's bug
-//! (a slice of the wrong length) is a panic that says what was wrong, never a wrong answer.
+//! The library's misuse: bad data, and a caller's slip (a slice of the wrong length, an
+//! index past the map, a probability out of range), is a typed error that says what was
+//! wrong: never a panic, a quiet NaN or a wrong answer.
 
 use nalgebra::{DMatrix, DVector, Matrix2, Matrix3, Vector2, Vector3};
 use slam::association::{chi2_quantile, jcbb::jcbb_with};
@@ -35,15 +36,99 @@ fn mixtures_with_weights_or_means_not_finite_are_refused() {
     let emptied = Gmm { components: vec![gaussian(0.0, &[5.0, 5.0]), gaussian(1.0, &[0.0, 0.0])] };
     assert!(emptied.evaluator().is_ok() && PreparedGmm::new(&emptied).is_ok());
     let sound = Gmm { components: vec![gaussian(1.0, &[0.0, 0.0])] };
-    let ln_p = sound.evaluator().unwrap().log_density(&[0.0, 0.0]);
+    let ln_p = sound.evaluator().unwrap().log_density(&[0.0, 0.0]).unwrap();
     assert!((ln_p + (2.0 * std::f64::consts::PI).ln()).abs() < 1e-12, "{ln_p}");
 }
 
 #[test]
-#[should_panic(expected = "a point of 3 dimensions for a mixture of 2")]
 fn a_point_of_another_dimension_is_not_scored() {
-    let g = Gmm { components: vec![gaussian(1.0, &[0.0, 0.0])] };
-    g.evaluator().unwrap().log_density(&[0.0, 0.0, 9.0]);
+    let g = Gmm { components: vec![gaussian(1.0, &[0.0, 0.0]), gaussian(1.0, &[1.0, 0.0])] };
+    let e = g.evaluator().unwrap();
+    let wrong = GmmError::Dimension { expected: 2, found: 3 };
+    assert_eq!(e.log_density(&[0.0, 0.0, 9.0]), Err(wrong.clone()));
+    assert_eq!(e.log_terms(&[0.0, 0.0, 9.0], &mut [0.0; 2]), Err(wrong.clone()));
+    assert_eq!(e.log_terms_lanes(&[[0.0; 4]; 3], &mut [[0.0; 4]; 2]), Err(wrong));
+    // Fewer slots than components would leave a component out of the sum.
+    let short = GmmError::TermSlots { slots: 1, components: 2 };
+    assert_eq!(e.log_terms(&[0.0, 0.0], &mut [0.0; 1]), Err(short.clone()));
+    assert_eq!(e.log_terms_lanes(&[[0.0; 4]; 2], &mut [[0.0; 4]; 1]), Err(short));
+    let mut terms = [0.0; 2];
+    e.log_terms(&[0.0, 0.0], &mut terms).unwrap();
+    assert!(terms.iter().all(|t| t.is_finite()));
+    let fitted =
+        slam::gmm::fit(&DMatrix::from_fn(40, 2, |i, j| ((i * 7 + j * 3) % 11) as f64), None, &Default::default());
+    let student = slam::gmm::StudentTMixture::new(&fitted.unwrap()).unwrap();
+    assert_eq!(student.log_density(&DVector::zeros(3)), Err(GmmError::Dimension { expected: 2, found: 3 }));
+    assert!(student.log_density(&DVector::zeros(2)).unwrap().is_finite());
+}
+
+#[test]
+fn pca_of_vectors_of_another_length_is_refused() {
+    use slam::features::FeatureError;
+    let data = DMatrix::from_fn(10, 3, |i, j| ((i * 5 + j * 2) % 7) as f64);
+    let pca = Pca::fit(&data, 2).unwrap();
+    assert!(pca.project(&data).is_ok());
+    let e = pca.project(&DMatrix::zeros(4, 5)).unwrap_err();
+    assert!(matches!(e, FeatureError::PcaMismatch { expected: 3, found: 5 }), "{e}");
+    let e = pca.back_project(&[1.0]).unwrap_err();
+    assert!(matches!(e, FeatureError::AppearanceLength { expected: 2, found: 1 }), "{e}");
+    // A feature row (appearance, then its neighbours' norms) back-projects by its head.
+    assert_eq!(pca.back_project(&[1.0, 2.0, 9.0, 9.0]).unwrap(), pca.back_project(&[1.0, 2.0]).unwrap());
+}
+
+#[test]
+fn image_regions_and_patch_rectangles_outside_the_image_are_refused() {
+    use slam::features::gabor::{GaborBank, Plane};
+    use slam::features::{FeatureConfig, FeatureError, ImageRef, PatchRect, raw_patches};
+    let plane = Plane { width: 8, height: 6, data: vec![0.5; 48] };
+    let bank = GaborBank::default();
+    assert_eq!(bank.apply_within(&plane, (2, 1, 6, 5)).unwrap().len(), bank.len());
+    for region in [(3, 0, 6, 1), (0, 2, 1, 5), (usize::MAX, 0, 2, 1)] {
+        let e = bank.apply_within(&plane, region).unwrap_err();
+        assert!(matches!(e, FeatureError::Region { width: 8, height: 6, .. }), "{e}");
+    }
+    let rgb = vec![100u8; 20 * 20 * 3];
+    let image = ImageRef::new(20, 20, &rgb).unwrap();
+    let config = FeatureConfig { patch_size: 4, ..FeatureConfig::default() };
+    let whole = PatchRect::whole(&image, 4);
+    assert_eq!(raw_patches(&image, &config, &whole).unwrap().shape(), (25, config.raw_dims()));
+    let past = PatchRect { col1: 6, ..whole };
+    assert!(matches!(raw_patches(&image, &config, &past), Err(FeatureError::Rect { cols: 5, rows: 5, .. })));
+    let zero = FeatureConfig { patch_size: 0, ..FeatureConfig::default() };
+    assert!(matches!(raw_patches(&image, &zero, &whole), Err(FeatureError::Settings(_))));
+}
+
+#[test]
+fn a_mosaic_whose_cells_and_vectors_do_not_pair_is_refused() {
+    use slam::features::gabor::GaborBank;
+    use slam::features::{FeatureConfig, FeatureError, FeatureExtractor};
+    use slam::object_model::{MosaicView, render_mosaic};
+    let config = FeatureConfig { patch_size: 2, bank: GaborBank { filters: vec![] }, channel_gain: vec![] };
+    let data = DMatrix::from_fn(30, config.raw_dims(), |i, j| ((i * 7 + j * 5) % 13) as f64 / 13.0);
+    let extractor = FeatureExtractor::new(config, Pca::fit(&data, 3).unwrap()).unwrap();
+    let view = |appearance: Vec<Vec<f64>>| MosaicView { cells: vec![(0, 0), (1, 0)], appearance, pixels: vec![] };
+    let (w, h, rgb) = render_mosaic(&view(vec![vec![0.0; 3], vec![0.1; 3]]), &extractor).unwrap();
+    assert_eq!((w, h, rgb.len()), (4, 2, 24));
+    let e = render_mosaic(&view(vec![vec![0.0; 3]]), &extractor).unwrap_err();
+    assert!(matches!(e, FeatureError::Mosaic { cells: 2, appearance: 1 }), "{e}");
+    let e = render_mosaic(&view(vec![vec![0.0; 3], vec![0.0; 2]]), &extractor).unwrap_err();
+    assert!(matches!(e, FeatureError::AppearanceLength { expected: 3, found: 2 }), "{e}");
+}
+
+#[test]
+fn a_column_context_applies_only_to_whole_grids() {
+    let grid = LabelledGrid {
+        log_odds: (0..12).map(|k| if k % 3 == 0 { 2.0 } else { -2.0 }).collect(),
+        object: (0..12).map(|k| k % 3 == 0).collect(),
+        cols: 3,
+        rows: 4,
+    };
+    let context = ColumnContext::fit(std::slice::from_ref(&grid), 2).unwrap();
+    assert_eq!(context.apply(&grid.log_odds, 3, 4).unwrap().len(), 12);
+    for (cols, rows) in [(4, 4), (usize::MAX, 2)] {
+        let e = context.apply(&grid.log_odds, cols, rows).unwrap_err();
+        assert!(matches!(&e, ContextError::Input(m) if m.contains("12 log-odds")), "{e}");
+    }
 }
 
 #[test]
@@ -100,10 +185,14 @@ fn an_object_model_needs_appearance_columns() {
 }
 
 #[test]
-#[should_panic(expected = "a control of 1 values for a motion model of 3")]
 fn a_control_of_the_wrong_length_is_named() {
+    use slam::ekf::EkfError;
     let mut ekf = Ekf::new(Vector3::zeros(), Matrix3::identity());
-    ekf.predict(&OdometryMotionModel::default(), &[0.1]).unwrap();
+    let before = ekf.clone();
+    let e = ekf.predict(&OdometryMotionModel::default(), &[0.1]).unwrap_err();
+    assert_eq!(e, EkfError::ControlLength { control: 1, model: 3 });
+    assert!(e.to_string().contains("a control of 1 values for a motion model of 3"), "{e}");
+    assert_eq!(ekf, before);
 }
 
 #[test]
@@ -121,16 +210,37 @@ fn jcbb_needs_a_row_of_allowed_pairs_per_observation_and_a_probability() {
 }
 
 #[test]
-#[should_panic(expected = "need dof >= 1 and 0 <= p < 1")]
 fn a_chi_square_quantile_outside_its_domain_is_named() {
-    chi2_quantile(2, 1.5);
+    use slam::association::Chi2DomainError;
+    for (dof, p) in [(2, 1.5), (2, 1.0), (3, -0.1), (0, 0.5), (4, f64::NAN)] {
+        let e = chi2_quantile(dof, p).unwrap_err();
+        assert_eq!(e.dof, dof);
+        assert!(e.to_string().contains("need dof >= 1 and 0 <= p < 1"), "{e}");
+    }
+    assert_eq!(chi2_quantile(2, 0.0), Ok(0.0));
+    assert!((chi2_quantile(2, 0.95).unwrap() - 5.991).abs() < 1e-3);
+    assert!(matches!(chi2_quantile(0, 0.5), Err(Chi2DomainError { dof: 0, .. })));
 }
 
 #[test]
-#[should_panic(expected = "Ekf: no landmark with index 0 (the map holds 0)")]
 fn a_landmark_past_the_map_is_named() {
-    let ekf = Ekf::new(Vector3::zeros(), Matrix3::identity());
-    ekf.mahalanobis2(&RangeBearingModel::default(), 0, &Vector2::new(5.0, 0.0));
+    use slam::ekf::EkfError;
+    let model = RangeBearingModel::default();
+    let mut ekf = Ekf::new(Vector3::zeros(), Matrix3::identity());
+    let z = Vector2::new(5.0, 0.0);
+    let missing = EkfError::UnknownLandmark(0);
+    assert_eq!(ekf.mahalanobis2(&model, 0, &z), Err(missing.clone()));
+    assert_eq!(ekf.landmark(0), Err(missing.clone()));
+    assert_eq!(ekf.landmark_covariance(0), Err(missing.clone()));
+    assert_eq!(ekf.predict_observation(&model, 0).map(|p| p.0), Err(missing.clone()));
+    assert_eq!(ekf.remove_landmark(0), Err(missing));
+    let a = ekf.add_landmark(&model, &z).unwrap();
+    assert_eq!(ekf.landmark_difference(a, 1).map(|d| d.0), Err(EkfError::UnknownLandmark(1)));
+    assert!(ekf.mahalanobis2(&model, a, &z).unwrap() < 1e-9);
+    assert_eq!(ekf.mahalanobis2_to_all(&model, &z).len(), 1);
+    assert_eq!(ekf.landmarks().collect::<Vec<_>>(), vec![ekf.landmark(a).unwrap()]);
+    assert_eq!(ekf.remove_landmark(a), Ok(()));
+    assert_eq!(ekf.landmark_count(), 0);
 }
 
 #[test]

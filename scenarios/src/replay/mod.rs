@@ -823,7 +823,7 @@ struct NisSums {
 
 impl NisSums {
     fn add(&mut self, decisions: &[AssociationDecision]) {
-        let q95 = slam::association::chi2_quantile(2, 0.95);
+        let q95 = slam::association::chi2_quantile(2, 0.95).expect("a quantile at 2 dof and 0.95 exists");
         for d in decisions {
             if let Choice::Existing { landmark } = d.choice
                 && let Some(c) = d.candidates.iter().find(|c| c.landmark == landmark)

@@ -8,7 +8,7 @@
 
 use nalgebra::{DMatrix, DVector, Matrix2, Matrix2x3, Vector2};
 
-use super::chi2_quantile;
+use super::chi2_quantile_in_domain;
 use crate::ekf::{Ekf, RangeBearingModel};
 use crate::messages::wrap_angle;
 
@@ -43,10 +43,9 @@ pub fn jcbb(
     individual_gate: f64,
     confidence: f64,
 ) -> Result<Hypothesis, JcbbError> {
-    let n = ekf.landmark_count();
     let allowed: Vec<Vec<bool>> = observations
         .iter()
-        .map(|z| (0..n).map(|j| ekf.mahalanobis2(model, j, z) < individual_gate).collect())
+        .map(|z| ekf.mahalanobis2_to_all(model, z).into_iter().map(|m2| m2 < individual_gate).collect())
         .collect();
     jcbb_with(ekf, model, observations, &allowed, confidence)
 }
@@ -73,7 +72,7 @@ pub fn jcbb_with(
     if m == 0 {
         return Ok(vec![]);
     }
-    let pred: Vec<_> = (0..n).map(|j| model.observe(&ekf.pose(), &ekf.landmark(j))).collect();
+    let pred: Vec<_> = ekf.landmarks().map(|l| model.observe(&ekf.pose(), &l)).collect();
     let individual = allowed.iter().map(|row| (0..n).map(|j| row.get(j).copied().unwrap_or(false)).collect()).collect();
     let prep = Prepared { pred, individual };
     let mut search = Search {
@@ -156,7 +155,7 @@ impl Search<'_> {
                 continue;
             }
             h[i] = Some(j);
-            let ok = self.joint_d2(h).is_some_and(|d2| d2 < chi2_quantile(2 * (pairs + 1), self.confidence));
+            let ok = self.joint_d2(h).is_some_and(|d2| d2 < chi2_quantile_in_domain(2 * (pairs + 1), self.confidence));
             if ok {
                 self.recurse(i + 1, h, pairs + 1);
             }

@@ -87,13 +87,29 @@ pub struct AssociationDecision {
 /// probability `p`: exact for 2 dof (the individual gates), else by the Wilson-Hilferty
 /// approximation. Against scipy's exact quantiles over 3..40 dof it is within 0.6% at 0.95
 /// and 0.99 and within 1.8% at 0.999 (worst at 3 dof); for the joint tests' even 4..40 dof
-/// at 0.99, within 0.22%.
-///
-/// # Panics
-/// When `dof` is 0 or `p` is not in [0, 1): no quantile exists (settings reach it
-/// checked, as `gate_probability` is).
-pub fn chi2_quantile(dof: usize, p: f64) -> f64 {
-    assert!(dof >= 1 && (0.0..1.0).contains(&p), "chi2_quantile: need dof >= 1 and 0 <= p < 1, got dof {dof}, p {p}");
+/// at 0.99, within 0.22%. Where no quantile exists (`dof` 0, `p` outside [0, 1)) it
+/// returns [`Chi2DomainError`].
+pub fn chi2_quantile(dof: usize, p: f64) -> Result<f64, Chi2DomainError> {
+    if !(dof >= 1 && (0.0..1.0).contains(&p)) {
+        return Err(Chi2DomainError { dof, p });
+    }
+    Ok(chi2_quantile_in_domain(dof, p))
+}
+
+/// A chi-square quantile asked for where none exists.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+#[error("no chi-square quantile at {dof} degrees of freedom and probability {p}: need dof >= 1 and 0 <= p < 1")]
+pub struct Chi2DomainError {
+    pub dof: usize,
+    pub p: f64,
+}
+
+/// Why the pipeline's gates have a quantile: their probabilities are settings checked to
+/// lie in (0, 1), at 2 degrees of freedom.
+pub(crate) const CHECKED_GATE: &str = "gate probabilities are checked to lie in (0, 1)";
+
+/// [`chi2_quantile`] for `dof >= 1` and `p` in [0, 1).
+fn chi2_quantile_in_domain(dof: usize, p: f64) -> f64 {
     if dof == 2 {
         // Exact: the 2-dof chi-square is exponential.
         return -2.0 * (1.0 - p).ln();
@@ -158,7 +174,7 @@ mod tests {
             (10, 0.99, 23.209),
             (20, 0.95, 31.410),
         ] {
-            let approx = chi2_quantile(dof, p);
+            let approx = chi2_quantile(dof, p).unwrap();
             assert!((approx - exact).abs() / exact < 0.01, "{dof} dof at {p}: {approx} vs {exact}");
         }
     }

@@ -26,7 +26,7 @@ pub fn nearest_neighbour(
     observations
         .iter()
         .map(|z| {
-            let distances: Vec<f64> = (0..ekf.landmark_count()).map(|i| ekf.mahalanobis2(model, i, z)).collect();
+            let distances = ekf.mahalanobis2_to_all(model, z);
             let best = distances
                 .iter()
                 .enumerate()

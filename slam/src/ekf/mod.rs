@@ -39,6 +39,9 @@ pub enum EkfError {
     /// pose not finite: refused, the filter left as it was.
     #[error("an observation or control is not finite, or the pose it predicts would not be")]
     NonFinite,
+    /// A control whose length is not the motion model's (`MotionModel::control_dims`).
+    #[error("a control of {control} values for a motion model of {model}")]
+    ControlLength { control: usize, model: usize },
 }
 
 /// The filter state.
@@ -106,7 +109,7 @@ impl Ekf {
     /// the pose and the landmarks already in the state take their current positions as
     /// first estimates. Observability constraints, if on, stay on.
     pub fn use_first_estimates(&mut self) {
-        let landmarks = (0..self.landmark_count()).map(|i| self.landmark(i)).collect();
+        let landmarks = self.landmarks().collect();
         let observability_constrained = self.first_estimates.as_ref().is_some_and(|fe| fe.observability_constrained);
         self.first_estimates =
             Some(FirstEstimates { predicted_pose: self.pose(), landmarks, observability_constrained });
@@ -172,29 +175,30 @@ impl Ekf {
         self.p.fixed_view::<3, 3>(0, 0).into_owned()
     }
 
-    /// The state index of landmark `i`'s x.
-    ///
-    /// # Panics
-    /// When there is no landmark `i`, as the methods that return no `Result` do (those
-    /// that do return [`EkfError::UnknownLandmark`]).
-    fn landmark_index(&self, i: usize) -> usize {
-        let count = self.landmark_count();
-        assert!(i < count, "Ekf: no landmark with index {i} (the map holds {count})");
-        self.vehicle_dims + 2 * i
+    /// The state index of landmark `i`'s x, or [`EkfError::UnknownLandmark`].
+    fn landmark_index(&self, i: usize) -> Result<usize, EkfError> {
+        if i < self.landmark_count() { Ok(self.vehicle_dims + 2 * i) } else { Err(EkfError::UnknownLandmark(i)) }
     }
 
-    /// # Panics
-    /// When there is no landmark of that index.
-    pub fn landmark(&self, i: usize) -> Vector2<f64> {
-        let li = self.landmark_index(i);
+    /// Landmark `i`'s position, or [`EkfError::UnknownLandmark`].
+    pub fn landmark(&self, i: usize) -> Result<Vector2<f64>, EkfError> {
+        Ok(self.landmark_at(self.landmark_index(i)?))
+    }
+
+    /// Every landmark's position, in index order.
+    pub fn landmarks(&self) -> impl Iterator<Item = Vector2<f64>> + '_ {
+        (0..self.landmark_count()).map(|i| self.landmark_at(self.vehicle_dims + 2 * i))
+    }
+
+    /// The landmark whose x is at state index `li` (a valid landmark's).
+    fn landmark_at(&self, li: usize) -> Vector2<f64> {
         Vector2::new(self.x[li], self.x[li + 1])
     }
 
-    /// # Panics
-    /// When there is no landmark of that index.
-    pub fn landmark_covariance(&self, i: usize) -> Matrix2<f64> {
-        let li = self.landmark_index(i);
-        self.p.fixed_view::<2, 2>(li, li).into_owned()
+    /// Landmark `i`'s covariance, or [`EkfError::UnknownLandmark`].
+    pub fn landmark_covariance(&self, i: usize) -> Result<Matrix2<f64>, EkfError> {
+        let li = self.landmark_index(i)?;
+        Ok(self.p.fixed_view::<2, 2>(li, li).into_owned())
     }
 
     /// Prediction with a motion model and its control. Only the pose rows change,
@@ -203,18 +207,12 @@ impl Ekf {
     ///
     /// A control that is not finite, or one whose predicted pose, Jacobians, noise or
     /// covariance are not (a motion model of zero wheelbase, a speed of 1e300 m/s), is
-    /// refused with [`EkfError::NonFinite`], the filter left as it was.
-    ///
-    /// # Panics
-    /// When `control` is not `model.control_dims()` long.
+    /// refused with [`EkfError::NonFinite`], the filter left as it was; so is a control
+    /// that is not `model.control_dims()` long ([`EkfError::ControlLength`]).
     pub fn predict(&mut self, model: &dyn MotionModel, control: &[f64]) -> Result<(), EkfError> {
-        assert_eq!(
-            control.len(),
-            model.control_dims(),
-            "Ekf::predict: a control of {} values for a motion model of {}",
-            control.len(),
-            model.control_dims()
-        );
+        if control.len() != model.control_dims() {
+            return Err(EkfError::ControlLength { control: control.len(), model: model.control_dims() });
+        }
         if !control.iter().all(|v| v.is_finite()) {
             return Err(EkfError::NonFinite);
         }
@@ -253,16 +251,15 @@ impl Ekf {
     }
 
     /// Predicted observation of landmark `i`, its Jacobians (robot 2x3, landmark 2x2) and
-    /// innovation covariance `S`.
-    ///
-    /// # Panics
-    /// When there is no landmark of that index.
-    pub fn predict_observation(
-        &self,
-        model: &RangeBearingModel,
-        i: usize,
-    ) -> (Vector2<f64>, nalgebra::Matrix2x3<f64>, Matrix2<f64>, Matrix2<f64>) {
-        let (z, mut hr, mut hl) = model.observe(&self.pose(), &self.landmark(i));
+    /// innovation covariance `S`, or [`EkfError::UnknownLandmark`].
+    pub fn predict_observation(&self, model: &RangeBearingModel, i: usize) -> Result<PredictedObservation, EkfError> {
+        let li = self.landmark_index(i)?;
+        Ok(self.predict_observation_at(model, i, li))
+    }
+
+    /// [`Ekf::predict_observation`] of landmark `i`, whose x is at state index `li`.
+    fn predict_observation_at(&self, model: &RangeBearingModel, i: usize, li: usize) -> PredictedObservation {
+        let (z, mut hr, mut hl) = model.observe(&self.pose(), &self.landmark_at(li));
         if let Some(fe) = &self.first_estimates {
             if fe.observability_constrained {
                 (hr, hl) = observability_constrained(&hr, &hl, &fe.predicted_pose, &fe.landmarks[i]);
@@ -270,9 +267,8 @@ impl Ekf {
                 (_, hr, hl) = model.observe(&fe.predicted_pose, &fe.landmarks[i]);
             }
         }
-        let li = self.vehicle_dims + 2 * i;
         let prr = self.pose_covariance();
-        let pll = self.landmark_covariance(i);
+        let pll = self.p.fixed_view::<2, 2>(li, li).into_owned();
         let prl = self.p.fixed_view::<3, 2>(0, li).into_owned();
         let s = hr * prr * hr.transpose()
             + hr * prl * hl.transpose()
@@ -282,12 +278,21 @@ impl Ekf {
         (z, hr, hl, s)
     }
 
-    /// Squared Mahalanobis distance of observation `z` to landmark `i`.
-    ///
-    /// # Panics
-    /// When there is no landmark of that index.
-    pub fn mahalanobis2(&self, model: &RangeBearingModel, i: usize, z: &Vector2<f64>) -> f64 {
-        let (zp, _, _, s) = self.predict_observation(model, i);
+    /// Squared Mahalanobis distance of observation `z` to landmark `i`, or
+    /// [`EkfError::UnknownLandmark`].
+    pub fn mahalanobis2(&self, model: &RangeBearingModel, i: usize, z: &Vector2<f64>) -> Result<f64, EkfError> {
+        let li = self.landmark_index(i)?;
+        Ok(self.mahalanobis2_at(model, i, li, z))
+    }
+
+    /// Squared Mahalanobis distance of observation `z` to every landmark, in index order.
+    pub fn mahalanobis2_to_all(&self, model: &RangeBearingModel, z: &Vector2<f64>) -> Vec<f64> {
+        (0..self.landmark_count()).map(|i| self.mahalanobis2_at(model, i, self.vehicle_dims + 2 * i, z)).collect()
+    }
+
+    /// [`Ekf::mahalanobis2`] to landmark `i`, whose x is at state index `li`.
+    fn mahalanobis2_at(&self, model: &RangeBearingModel, i: usize, li: usize, z: &Vector2<f64>) -> f64 {
+        let (zp, _, _, s) = self.predict_observation_at(model, i, li);
         let nu = Vector2::new(z.x - zp.x, wrap_angle(z.y - zp.y));
         match s.try_inverse() {
             Some(si) => (nu.transpose() * si * nu)[(0, 0)],
@@ -314,20 +319,17 @@ impl Ekf {
         z: &Vector2<f64>,
         iterations: usize,
     ) -> Result<(), EkfError> {
-        if i >= self.landmark_count() {
-            return Err(EkfError::UnknownLandmark(i));
-        }
+        let li = self.landmark_index(i)?;
         if !(z.x.is_finite() && z.y.is_finite()) {
             return Err(EkfError::NonFinite);
         }
-        let li = self.vehicle_dims + 2 * i;
         let n = self.x.len();
         let prior = self.x.clone();
         let mut last = None;
         for _ in 0..iterations.max(1) {
             // Prediction and Jacobians at the current linearisation point (self.x); the
             // covariance is the prior's throughout.
-            let (zp, hr, hl, s) = self.predict_observation(model, i);
+            let (zp, hr, hl, s) = self.predict_observation_at(model, i, li);
             let mut nu = Vector2::new(z.x - zp.x, wrap_angle(z.y - zp.y));
             if last.is_some() {
                 // z - h(x_i) - H (x_prior - x_i).
@@ -406,8 +408,9 @@ impl Ekf {
         let rows: Vec<_> = pairs
             .iter()
             .map(|(i, z)| {
-                let (zp, hr, hl, _) = self.predict_observation(model, *i);
-                (self.vehicle_dims + 2 * i, Vector2::new(z.x - zp.x, wrap_angle(z.y - zp.y)), hr, hl, zp.x)
+                let li = self.vehicle_dims + 2 * i;
+                let (zp, hr, hl, _) = self.predict_observation_at(model, *i, li);
+                (li, Vector2::new(z.x - zp.x, wrap_angle(z.y - zp.y)), hr, hl, zp.x)
             })
             .collect();
         // W = P Hᵀ (n x m, column-major), from the five columns of P each observation touches.
@@ -528,17 +531,16 @@ impl Ekf {
     }
 
     /// Squared Mahalanobis distance between landmarks `i` and `j` (the covariance of their
-    /// difference, cross terms included) and that covariance.
-    ///
-    /// # Panics
-    /// When there is no landmark of that index.
-    pub fn landmark_difference(&self, i: usize, j: usize) -> (f64, Matrix2<f64>) {
-        let (li, lj) = (self.landmark_index(i), self.landmark_index(j));
-        let pij = self.p.fixed_view::<2, 2>(li, lj).into_owned();
-        let c = self.landmark_covariance(i) + self.landmark_covariance(j) - pij - pij.transpose();
-        let d = self.landmark(i) - self.landmark(j);
+    /// difference, cross terms included) and that covariance, or
+    /// [`EkfError::UnknownLandmark`].
+    pub fn landmark_difference(&self, i: usize, j: usize) -> Result<(f64, Matrix2<f64>), EkfError> {
+        let (li, lj) = (self.landmark_index(i)?, self.landmark_index(j)?);
+        let block = |r: usize, c: usize| self.p.fixed_view::<2, 2>(r, c).into_owned();
+        let pij = block(li, lj);
+        let c = block(li, li) + block(lj, lj) - pij - pij.transpose();
+        let d = self.landmark_at(li) - self.landmark_at(lj);
         let m2 = c.try_inverse().map_or(f64::INFINITY, |ci| (d.transpose() * ci * d)[(0, 0)]);
-        (m2, c)
+        Ok((m2, c))
     }
 
     /// Fuses landmark `remove` into `keep`: the constraint `l_keep - l_remove = 0`, with
@@ -559,10 +561,10 @@ impl Ekf {
                 w[(r, k)] = self.p[(r, lk + k)] - self.p[(r, lr + k)];
             }
         }
-        let (_, c) = self.landmark_difference(keep, remove);
+        let (_, c) = self.landmark_difference(keep, remove)?;
         let s = c + Matrix2::identity() * noise_sigma_m * noise_sigma_m;
         let s_inv = s.cholesky().ok_or(EkfError::NotPositiveDefinite)?.inverse();
-        let nu = -(self.landmark(keep) - self.landmark(remove));
+        let nu = -(self.landmark_at(lk) - self.landmark_at(lr));
         let g = &w * s_inv; // the gain, n x 2
         self.x += &g * nu;
         self.x[2] = wrap_angle(self.x[2]);
@@ -574,24 +576,26 @@ impl Ekf {
                 self.p[(i, j)] -= 0.5 * (a + b);
             }
         }
-        self.remove_landmark(remove);
-        Ok(())
+        self.remove_landmark(remove)
     }
 
-    /// Removes landmark `i` (its rows and columns), shifting later indices down.
-    ///
-    /// # Panics
-    /// When there is no landmark of that index.
-    pub fn remove_landmark(&mut self, i: usize) {
-        let li = self.landmark_index(i);
+    /// Removes landmark `i` (its rows and columns), shifting later indices down, or
+    /// returns [`EkfError::UnknownLandmark`].
+    pub fn remove_landmark(&mut self, i: usize) -> Result<(), EkfError> {
+        let li = self.landmark_index(i)?;
         // Shrunk in place, not copied.
         self.x = std::mem::replace(&mut self.x, DVector::zeros(0)).remove_rows(li, 2);
         self.p = std::mem::replace(&mut self.p, DMatrix::zeros(0, 0)).remove_rows(li, 2).remove_columns(li, 2);
         if let Some(fe) = &mut self.first_estimates {
             fe.landmarks.remove(i);
         }
+        Ok(())
     }
 }
+
+/// A predicted observation `(z, H_robot, H_landmark, S)`: range and bearing, the
+/// Jacobians (robot 2x3, landmark 2x2) and the innovation covariance.
+pub type PredictedObservation = (Vector2<f64>, Matrix2x3<f64>, Matrix2<f64>, Matrix2<f64>);
 
 /// The observation Jacobian `[hr hl]` (robot pose, landmark) changed as little as possible,
 /// in the least-squares sense, so that it is blind to the motions of the whole map that

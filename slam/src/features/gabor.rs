@@ -10,6 +10,8 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::FeatureError;
+
 /// One filter of the bank.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -196,15 +198,15 @@ impl GaborBank {
     /// plane with replicated borders: bit for bit the values [`GaborBank::apply`] gives
     /// there, but only those are filtered. A crop's margin is read, never filtered: with the
     /// default bank's 20 px margin around a cluster's patches that is over half the pixels.
-    pub fn apply_within(&self, grey: &Plane, region: (usize, usize, usize, usize)) -> Vec<Plane> {
+    /// A region reaching outside the plane is [`FeatureError::Region`].
+    pub fn apply_within(&self, grey: &Plane, region: (usize, usize, usize, usize)) -> Result<Vec<Plane>, FeatureError> {
         let (x0, y0, rw, rh) = region;
-        assert!(
-            x0 + rw <= grey.width && y0 + rh <= grey.height,
-            "region {region:?} outside a {}x{} plane",
-            grey.width,
-            grey.height
-        );
-        self.filters
+        let inside = |start: usize, len: usize, limit: usize| start.checked_add(len).is_some_and(|end| end <= limit);
+        if !(inside(x0, rw, grey.width) && inside(y0, rh, grey.height)) {
+            return Err(FeatureError::Region { region, width: grey.width, height: grey.height });
+        }
+        Ok(self
+            .filters
             .iter()
             .map(|f| {
                 let mut out = match f.separable() {
@@ -221,7 +223,7 @@ impl GaborBank {
                 out.data.iter_mut().for_each(|v| *v = v.abs());
                 out
             })
-            .collect()
+            .collect())
     }
 }
 
@@ -507,7 +509,7 @@ mod tests {
                 if x0 + rw > w || y0 + rh > h {
                     continue;
                 }
-                for (k, (part, full)) in bank.apply_within(&img, region).iter().zip(&whole).enumerate() {
+                for (k, (part, full)) in bank.apply_within(&img, region).unwrap().iter().zip(&whole).enumerate() {
                     let expected: Vec<f32> =
                         (y0..y0 + rh).flat_map(|y| full.data[y * w + x0..y * w + x0 + rw].iter().copied()).collect();
                     assert_eq!((part.width, part.height), (rw, rh));

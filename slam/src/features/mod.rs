@@ -13,7 +13,7 @@
 //! let rgb = vec![128u8; 36 * 27 * 3];
 //! let image = ImageRef::new(36, 27, &rgb).unwrap();
 //! let config = FeatureConfig::default();
-//! let raw = raw_patches(&image, &config, &PatchRect::whole(&image, config.patch_size));
+//! let raw = raw_patches(&image, &config, &PatchRect::whole(&image, config.patch_size)).unwrap();
 //! assert_eq!(raw.shape(), (4 * 3, 9 * 9 * (3 + 4)));
 //! ```
 
@@ -42,6 +42,14 @@ pub enum FeatureError {
     Training(String),
     #[error("feature settings: {0}")]
     Settings(#[from] crate::settings::InvalidSetting),
+    #[error(transparent)]
+    Classify(#[from] crate::classifier::ClassifyError),
+    #[error("an appearance vector of {found} values, the PCA gives {expected}")]
+    AppearanceLength { expected: usize, found: usize },
+    #[error("a mosaic of {cells} cells and {appearance} appearance vectors: they must pair up")]
+    Mosaic { cells: usize, appearance: usize },
+    #[error("pixel region {region:?} (x, y, width, height) reaches outside a {width}x{height} plane")]
+    Region { region: (usize, usize, usize, usize), width: usize, height: usize },
 }
 
 /// A borrowed 8-bit RGB image, row-major.
@@ -242,12 +250,15 @@ fn reach(lo: usize, hi: usize, margin: usize, limit: usize) -> (usize, usize) {
 }
 
 /// Raw patch vectors (rows, row-major over `rect`): per pixel r, g, b in [0, 1] then the
-/// G Gabor magnitudes. `rect` must lie in the image's grid.
-pub fn raw_patches(image: &ImageRef, config: &FeatureConfig, rect: &PatchRect) -> DMatrix<f64> {
+/// G Gabor magnitudes. A `rect` outside the image's grid, or settings that are not valid,
+/// are a [`FeatureError`].
+pub fn raw_patches(image: &ImageRef, config: &FeatureConfig, rect: &PatchRect) -> Result<DMatrix<f64>, FeatureError> {
+    config.validate()?;
+    rect.check(image, config.patch_size)?;
     let buf = raw_patch_buffer(image, config, rect);
     let dims = config.raw_dims();
     // The buffer is row-major N x dims, i.e. column-major dims x N.
-    DMatrix::from_iterator(dims, rect.len(), buf.into_iter().map(f64::from)).transpose()
+    Ok(DMatrix::from_iterator(dims, rect.len(), buf.into_iter().map(f64::from)).transpose())
 }
 
 /// [`raw_patches`] as a row-major f32 buffer (the fast path of feature extraction).
@@ -273,7 +284,10 @@ fn raw_patch_buffer(image: &ImageRef, config: &FeatureConfig, rect: &PatchRect) 
     }
     // Responses at the patches' pixels only (the margin is read, not filtered).
     let (rw, rh) = (x1 - x0, y1 - y0);
-    let responses = config.bank.apply_within(&grey, (x0 - cx0, y0 - cy0, rw, rh));
+    let responses = config
+        .bank
+        .apply_within(&grey, (x0 - cx0, y0 - cy0, rw, rh))
+        .expect("the patches lie inside the crop grown around them");
     let stride = 3 + g;
     let gain = config.gains();
     let (gr, gg, gb) = (gain[0] / 255.0, gain[1] / 255.0, gain[2] / 255.0);
@@ -421,7 +435,7 @@ mod tests {
 
     fn extractor(image: &ImageRef) -> FeatureExtractor {
         let config = FeatureConfig::default();
-        let raw = raw_patches(image, &config, &PatchRect::whole(image, 9));
+        let raw = raw_patches(image, &config, &PatchRect::whole(image, 9)).unwrap();
         FeatureExtractor::new(config, Pca::fit(&raw, 6).unwrap()).unwrap()
     }
 
@@ -504,12 +518,12 @@ mod tests {
         let rgb = textured_image(w, h, 3);
         let image = ImageRef::new(w, h, &rgb).unwrap();
         let config = FeatureConfig::default();
-        let raw = raw_patches(&image, &config, &PatchRect::whole(&image, 9));
+        let raw = raw_patches(&image, &config, &PatchRect::whole(&image, 9)).unwrap();
         let full = Pca::fit(&raw, raw.nrows() - 1).unwrap();
         assert!((full.explained_variance - 1.0).abs() < 1e-9);
         // With all directions kept, back-projection reproduces a patch.
-        let z = full.project(&raw.rows(3, 1).into_owned());
-        let back = full.back_project(z.row(0).transpose().as_slice());
+        let z = full.project(&raw.rows(3, 1).into_owned()).unwrap();
+        let back = full.back_project(z.row(0).transpose().as_slice()).unwrap();
         assert!((back - raw.row(3).transpose()).amax() < 1e-8);
         let small = Pca::fit(&raw, 3).unwrap();
         assert!(small.explained_variance > 0.0 && small.explained_variance < 1.0);

@@ -100,19 +100,23 @@ impl Pca {
         Ok(())
     }
 
-    /// Projects rows of `data` (N x D) to N x d.
-    pub fn project(&self, data: &DMatrix<f64>) -> DMatrix<f64> {
+    /// Projects rows of `data` (N x D) to N x d; rows of another length than D are
+    /// [`FeatureError::PcaMismatch`].
+    pub fn project(&self, data: &DMatrix<f64>) -> Result<DMatrix<f64>, FeatureError> {
+        if data.ncols() != self.input_dims() {
+            return Err(FeatureError::PcaMismatch { expected: self.input_dims(), found: data.ncols() });
+        }
         let mut out = data * &self.basis;
         let shift = self.basis.tr_mul(&self.mean);
         for (j, mut col) in out.column_iter_mut().enumerate() {
             col.add_scalar_mut(-shift[j]);
         }
-        out
+        Ok(out)
     }
 
     /// Projects `n` row-major f32 raw vectors (the feature extractor's fast path: one
-    /// single-precision matrix product) to N x d.
-    pub fn project_rows_f32(&self, rows: &[f32], n: usize) -> DMatrix<f64> {
+    /// single-precision matrix product) to N x d; `rows` holds `n` x D values.
+    pub(crate) fn project_rows_f32(&self, rows: &[f32], n: usize) -> DMatrix<f64> {
         let dims = self.input_dims();
         debug_assert_eq!(rows.len(), n * dims);
         let x = nalgebra::DMatrixView::<f32>::from_slice(rows, dims, n);
@@ -122,8 +126,13 @@ impl Pca {
         DMatrix::from_fn(n, self.dims(), |i, j| zt[(j, i)] as f64 - shift[j])
     }
 
-    /// Maps a d-dimensional appearance vector back to a raw patch vector.
-    pub fn back_project(&self, z: &[f64]) -> DVector<f64> {
-        &self.mean + &self.basis * DVector::from_column_slice(&z[..self.dims()])
+    /// Maps an appearance vector back to a raw patch vector: its first d values (a patch's
+    /// feature row, which carries neighbour norms after them, will do). One shorter than d
+    /// is [`FeatureError::AppearanceLength`].
+    pub fn back_project(&self, z: &[f64]) -> Result<DVector<f64>, FeatureError> {
+        let Some(z) = z.get(..self.dims()) else {
+            return Err(FeatureError::AppearanceLength { expected: self.dims(), found: z.len() });
+        };
+        Ok(&self.mean + &self.basis * DVector::from_column_slice(z))
     }
 }

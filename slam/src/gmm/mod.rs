@@ -42,6 +42,10 @@ pub enum GmmError {
     TooSmall { column: usize, range: f64 },
     #[error("dimension mismatch: expected {expected}, found {found}")]
     Dimension { expected: usize, found: usize },
+    /// A buffer for per-component terms that holds fewer slots than the mixture has
+    /// components.
+    #[error("{slots} slots for the terms of a mixture of {components} components")]
+    TermSlots { slots: usize, components: usize },
     #[error("component {component}: a {rows}x{cols} covariance for a mean of {dims} dimensions")]
     CovarianceShape { component: usize, dims: usize, rows: usize, cols: usize },
     #[error("bad prior: {0}")]
@@ -175,13 +179,30 @@ impl GmmEvaluator {
 
     /// Per component c, ln (w_c N(x; mu_c, Gamma_c)), written to `terms` (one per
     /// component); `x` has length D. Their log-sum-exp is ln p(x), and
-    /// exp(terms[c] - ln p(x)) the responsibility of component c.
-    ///
-    /// # Panics
-    /// When `x` is not D long.
-    pub fn log_terms(&self, x: &[f64], terms: &mut [f64]) {
+    /// exp(terms[c] - ln p(x)) the responsibility of component c. A point that is not D
+    /// long, or fewer slots than components, is [`GmmError::Dimension`] or
+    /// [`GmmError::TermSlots`].
+    pub fn log_terms(&self, x: &[f64], terms: &mut [f64]) -> Result<(), GmmError> {
+        self.check_shape(x.len(), terms.len())?;
+        self.log_terms_prechecked(x, terms);
+        Ok(())
+    }
+
+    /// A point of `dims` coordinates and `slots` term slots, or the error that says which
+    /// does not fit the mixture.
+    fn check_shape(&self, dims: usize, slots: usize) -> Result<(), GmmError> {
+        if dims != self.dims {
+            return Err(GmmError::Dimension { expected: self.dims, found: dims });
+        }
+        if slots < self.component_count() {
+            return Err(GmmError::TermSlots { slots, components: self.component_count() });
+        }
+        Ok(())
+    }
+
+    /// [`GmmEvaluator::log_terms`] where the caller has checked the shapes.
+    pub(crate) fn log_terms_prechecked(&self, x: &[f64], terms: &mut [f64]) {
         let d = self.dims;
-        assert_eq!(x.len(), d, "log_terms: a point of {} dimensions for a mixture of {d}", x.len());
         let packed = d * (d + 1) / 2;
         let mut diff = [0.0f64; STACK_DIMS];
         let mut heap = Vec::new();
@@ -215,18 +236,23 @@ impl GmmEvaluator {
     /// point l, `terms[c][l]` gets component c's term for point l. Each point's sums run
     /// in the same order as in `log_terms`, so the values are identical; the points side by
     /// side let the compiler use SIMD across them instead of one long chain of dependent
-    /// additions per point.
-    ///
-    /// # Panics
-    /// When `x` does not hold D coordinates.
-    pub fn log_terms_lanes<const LANES: usize>(&self, x: &[[f64; LANES]], terms: &mut [[f64; LANES]]) {
-        assert_eq!(
-            x.len(),
-            self.dims,
-            "log_terms_lanes: points of {} dimensions for a mixture of {}",
-            x.len(),
-            self.dims
-        );
+    /// additions per point. Shapes are checked as in `log_terms`.
+    pub fn log_terms_lanes<const LANES: usize>(
+        &self,
+        x: &[[f64; LANES]],
+        terms: &mut [[f64; LANES]],
+    ) -> Result<(), GmmError> {
+        self.check_shape(x.len(), terms.len())?;
+        self.log_terms_lanes_prechecked(x, terms);
+        Ok(())
+    }
+
+    /// [`GmmEvaluator::log_terms_lanes`] where the caller has checked the shapes.
+    pub(crate) fn log_terms_lanes_prechecked<const LANES: usize>(
+        &self,
+        x: &[[f64; LANES]],
+        terms: &mut [[f64; LANES]],
+    ) {
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx") {
             // SAFETY: the processor has AVX, checked just above.
@@ -286,12 +312,15 @@ impl GmmEvaluator {
         }
     }
 
-    /// ln p(x) for one point given as a slice of length D.
-    ///
-    /// # Panics
-    /// When `x` is not D long (a point of another feature space).
-    pub fn log_density(&self, x: &[f64]) -> f64 {
-        assert_eq!(x.len(), self.dims, "log_density: a point of {} dimensions for a mixture of {}", x.len(), self.dims);
+    /// ln p(x) for one point given as a slice of length D; a point of another length (of
+    /// another feature space) is [`GmmError::Dimension`].
+    pub fn log_density(&self, x: &[f64]) -> Result<f64, GmmError> {
+        self.check_shape(x.len(), self.component_count())?;
+        Ok(self.log_density_prechecked(x))
+    }
+
+    /// [`GmmEvaluator::log_density`] of a point the caller has checked is D long.
+    pub(crate) fn log_density_prechecked(&self, x: &[f64]) -> f64 {
         let mut terms = [0.0f64; 64];
         let mut heap = Vec::new();
         let k = self.component_count();
@@ -301,7 +330,7 @@ impl GmmEvaluator {
             heap.resize(k, 0.0);
             &mut heap
         };
-        self.log_terms(x, buf);
+        self.log_terms_prechecked(x, buf);
         log_sum_exp(buf)
     }
 }

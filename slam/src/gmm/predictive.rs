@@ -18,8 +18,15 @@ pub struct StudentT {
 }
 
 impl StudentT {
-    /// ln St(x | mean, L, dof).
-    pub fn log_density(&self, x: &DVector<f64>) -> f64 {
+    /// ln St(x | mean, L, dof); a point of another dimension is [`GmmError::Dimension`].
+    pub fn log_density(&self, x: &DVector<f64>) -> Result<f64, GmmError> {
+        if x.len() != self.mean.len() {
+            return Err(GmmError::Dimension { expected: self.mean.len(), found: x.len() });
+        }
+        Ok(self.log_density_prechecked(x))
+    }
+
+    fn log_density_prechecked(&self, x: &DVector<f64>) -> f64 {
         let d = self.mean.len() as f64;
         let dx = x - &self.mean;
         // dx^T L dx with L = U^T U from the Cholesky factor of L (L = C C^T).
@@ -71,10 +78,11 @@ impl StudentTMixture {
         Ok(StudentTMixture { components })
     }
 
-    /// ln p(x | data), by log-sum-exp over the components.
-    pub fn log_density(&self, x: &DVector<f64>) -> f64 {
-        let terms: Vec<f64> = self.components.iter().map(|c| c.weight.ln() + c.log_density(x)).collect();
-        super::log_sum_exp(&terms)
+    /// ln p(x | data), by log-sum-exp over the components; a point of another dimension
+    /// is [`GmmError::Dimension`].
+    pub fn log_density(&self, x: &DVector<f64>) -> Result<f64, GmmError> {
+        let terms = self.components.iter().map(|c| Ok(c.weight.ln() + c.log_density(x)?));
+        Ok(super::log_sum_exp(&terms.collect::<Result<Vec<f64>, GmmError>>()?))
     }
 
     /// The moment-matched Gaussian mixture: each Student-t becomes a Gaussian with its

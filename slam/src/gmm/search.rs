@@ -189,7 +189,7 @@ impl VbGmm {
         if data.ncols() != self.dims() {
             return Err(GmmError::Dimension { expected: self.dims(), found: data.ncols() });
         }
-        let total: f64 = data.row_iter().map(|row| predictive.log_density(&row.transpose())).sum();
+        let total: f64 = data.row_iter().map(|row| predictive.log_density(&row.transpose())).sum::<Result<f64, _>>()?;
         Ok(total / data.nrows() as f64)
     }
 }

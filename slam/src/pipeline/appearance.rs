@@ -281,7 +281,7 @@ impl Pipeline {
             if h.contains(&Some(k)) || !self.table.get(k).confirmed {
                 continue;
             }
-            let (zp, _, _, s) = trial.predict_observation(&self.config.sensor, k);
+            let (zp, _, _, s) = trial.predict_observation(&self.config.sensor, k).expect(MAPPED);
             let (r, b) = (zp.x, zp.y);
             if !(r > MIN_FREE_SPACE_RANGE_M && r <= self.config.clustering.max_range_m) {
                 continue;
@@ -328,7 +328,7 @@ impl Pipeline {
     /// Covariance (map frame) of the offset between an observation at (range, bearing) and
     /// landmark `j`: the innovation covariance mapped through the polar-to-Cartesian Jacobian.
     pub(super) fn offset_covariance(&self, j: usize, z: &Vector2<f64>) -> Matrix2<f64> {
-        let (_, _, _, s) = self.ekf.predict_observation(&self.config.sensor, j);
+        let (_, _, _, s) = self.ekf.predict_observation(&self.config.sensor, j).expect(MAPPED);
         let theta = self.ekf.pose().z;
         let (r, b) = (z.x, z.y);
         let (sb, cb) = b.sin_cos();
@@ -348,8 +348,8 @@ impl Pipeline {
         let mut assigned = vec![None; clusters.len()];
         let method = self.config.method;
         let cfg = self.config.object_model.clone();
-        let gate = chi2_quantile(2, self.config.new_landmark_probability);
-        let assoc_gate = chi2_quantile(2, self.config.gate_probability);
+        let gate = chi2_quantile(2, self.config.new_landmark_probability).expect(CHECKED_GATE);
+        let assoc_gate = chi2_quantile(2, self.config.gate_probability).expect(CHECKED_GATE);
         let n_before = self.ekf.landmark_count();
         let pca_dims = self.appearance.as_ref().map_or(0, |a| a.model.extractor.pca.dims());
         // Decide every observation against the landmarks that existed before this scan.
@@ -359,8 +359,8 @@ impl Pipeline {
             let Ok(fitted) = fit_observation(&obs, general.as_ref(), &cfg) else { continue };
             let z = Vector2::new(clusters[ci].range_m, clusters[ci].bearing_rad);
             let mut candidates = Vec::new();
-            for j in 0..n_before {
-                let m2 = self.ekf.mahalanobis2(&self.config.sensor, j, &z);
+            for (j, m2) in self.ekf.mahalanobis2_to_all(&self.config.sensor, &z).into_iter().enumerate().take(n_before)
+            {
                 self.note_distance(m2);
                 if method == AssociationMethod::Combined && m2 > gate {
                     continue;
@@ -382,7 +382,7 @@ impl Pipeline {
                 if !fully_judged && !known.confirmed {
                     continue;
                 }
-                let lm = self.ekf.landmark(j);
+                let lm = self.ekf.landmark(j).expect(MAPPED);
                 let kl = model
                     .kl_from(
                         &fitted,
@@ -424,7 +424,7 @@ impl Pipeline {
             let choice = match best {
                 Some((id, j)) => {
                     if self.ekf.update_iterated(&self.config.sensor, j, &z, iterations).is_ok() {
-                        let lm = self.ekf.landmark(j);
+                        let lm = self.ekf.landmark(j).expect(MAPPED);
                         if let Some(m) = self.table.object_mut(j) {
                             let _ = m.update(&obs, [lm.x, lm.y], pca_dims);
                         }
@@ -465,7 +465,7 @@ impl Pipeline {
             let (id, j) =
                 self.table.add(&mut self.ekf, &self.config.sensor, t, &[new], false, self.config.confirm_observations)
                     [0];
-            let lm = self.ekf.landmark(j);
+            let lm = self.ekf.landmark(j).expect(MAPPED);
             // Re-centre the model's positions on the landmark estimate.
             let mut model = ObjectModel::new(&obs, fitted, pca_dims);
             let d = model.gmm.dims();

@@ -56,7 +56,7 @@ impl Pipeline {
     /// older one staying, until no pair qualifies.
     pub(super) fn merge_duplicates(&mut self) {
         let cfg = self.config.merge.clone();
-        let gate = chi2_quantile(2, self.config.gate_probability);
+        let gate = chi2_quantile(2, self.config.gate_probability).expect(CHECKED_GATE);
         // Past the gate and the sigma bound, two positions are at most this far apart.
         let reach = gate.sqrt() * cfg.max_sigma_m * std::f64::consts::SQRT_2;
         loop {
@@ -65,17 +65,17 @@ impl Pipeline {
             // (i, j) order as a search over all pairs would meet them.
             let mut order: Vec<(f64, usize)> = (0..self.table.len())
                 .filter(|&i| self.table.get(i).confirmed)
-                .map(|i| (self.ekf.landmark(i).x, i))
+                .map(|i| (self.ekf.landmark(i).expect(MAPPED).x, i))
                 .collect();
             order.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
             let mut near = Vec::new();
             for (k, &(xa, a)) in order.iter().enumerate() {
-                let la = self.ekf.landmark(a);
+                let la = self.ekf.landmark(a).expect(MAPPED);
                 for &(xb, b) in &order[k + 1..] {
                     if xb - xa > reach {
                         break;
                     }
-                    if (self.ekf.landmark(b) - la).norm() <= reach {
+                    if (self.ekf.landmark(b).expect(MAPPED) - la).norm() <= reach {
                         near.push((a.min(b), a.max(b)));
                     }
                 }
@@ -86,7 +86,7 @@ impl Pipeline {
                 if self.co_observed.contains(&(a.min(b), a.max(b))) {
                     return false;
                 }
-                let (m2, c) = self.ekf.landmark_difference(i, j);
+                let (m2, c) = self.ekf.landmark_difference(i, j).expect(MAPPED);
                 let widest = c.symmetric_eigenvalues().max();
                 m2 <= gate && widest <= cfg.max_sigma_m * cfg.max_sigma_m && self.look_alike(i, j)
             });
@@ -182,7 +182,7 @@ mod tests {
         assert_eq!(p.landmarks()[0].observations, 2);
         assert_eq!(p.merges, [LandmarkMerge { t: 0.2, kept: 0, removed: 1 }]);
         assert_eq!(p.ekf().landmark_count(), 1);
-        let c = p.ekf().landmark_covariance(0);
+        let c = p.ekf().landmark_covariance(0).unwrap();
         assert!(c.symmetric_eigenvalues().min() > 0.0);
     }
 

@@ -76,6 +76,10 @@ mod position;
 mod records;
 mod table;
 
+/// Why an index the pipeline takes from its own table is in the filter's map: the table
+/// and the filter add and remove landmarks together.
+const MAPPED: &str = "the pipeline's landmark table and its filter hold the same landmarks";
+
 pub use appearance::{Appearance, AppearanceSetupError};
 pub use config::{DiameterCheck, MergeConfig, PipelineConfig};
 pub use records::{
@@ -88,7 +92,8 @@ use nalgebra::{DMatrix, DVector, Matrix2, Matrix3, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::association::{
-    AssociationDecision, AssociationMethod, Candidate, Choice, chi2_quantile, jcbb::jcbb_with, jcbb::unambiguous_jcbb,
+    AssociationDecision, AssociationMethod, CHECKED_GATE, Candidate, Choice, chi2_quantile, jcbb::jcbb_with,
+    jcbb::unambiguous_jcbb,
 };
 use crate::classifier::{AppearanceModel, PatchClassifier};
 use crate::clustering::{Cluster, ClusteringConfig, cluster};

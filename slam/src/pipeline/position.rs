@@ -66,8 +66,8 @@ impl Pipeline {
         let idx: Vec<usize> = (0..clusters.len()).filter(|&i| is_object[i] && !clusters[i].occluded).collect();
         let zs: Vec<Vector2<f64>> =
             idx.iter().map(|&i| Vector2::new(clusters[i].range_m, clusters[i].bearing_rad)).collect();
-        let gate = chi2_quantile(2, self.config.gate_probability);
-        let new_gate = chi2_quantile(2, self.config.new_landmark_probability);
+        let gate = chi2_quantile(2, self.config.gate_probability).expect(CHECKED_GATE);
+        let new_gate = chi2_quantile(2, self.config.new_landmark_probability).expect(CHECKED_GATE);
         let n_before = self.ekf.landmark_count();
         let diameter = &self.config.diameter;
         let use_diameter = diameter.for_position_methods;
@@ -78,7 +78,7 @@ impl Pipeline {
         } else {
             (0..n_before)
                 .map(|j| {
-                    let (zp, _, _, s) = self.ekf.predict_observation(&self.config.sensor, j);
+                    let (zp, _, _, s) = self.ekf.predict_observation(&self.config.sensor, j).expect(MAPPED);
                     (zp, s.try_inverse())
                 })
                 .collect()

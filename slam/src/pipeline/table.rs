@@ -116,7 +116,7 @@ impl LandmarkTable {
 
     /// Takes landmark `j` out of the filter and the table.
     pub fn remove(&mut self, ekf: &mut Ekf, j: usize) -> Landmark {
-        ekf.remove_landmark(j);
+        ekf.remove_landmark(j).expect(super::MAPPED);
         self.forget(j, ekf)
     }
 
@@ -156,8 +156,8 @@ impl LandmarkTable {
     /// Copies the filter's positions and covariances into the landmarks' records.
     pub fn refresh(&mut self, ekf: &Ekf) {
         for (i, lm) in self.meta.iter_mut().enumerate() {
-            let p = ekf.landmark(i);
-            let c = ekf.landmark_covariance(i);
+            let p = ekf.landmark(i).expect(super::MAPPED);
+            let c = ekf.landmark_covariance(i).expect(super::MAPPED);
             lm.position = [p.x, p.y];
             lm.covariance = [[c[(0, 0)], c[(0, 1)]], [c[(1, 0)], c[(1, 1)]]];
         }
@@ -199,18 +199,18 @@ mod tests {
         let added = table.add(&mut ekf, &sensor, 0.0, &[at(5.0, 0.0), at(6.0, 1.0), at(7.0, -1.0)], true, 2);
         assert_eq!(added, [(0, 0), (1, 1), (2, 2)]);
         assert!(table.meta().iter().all(|l| !l.confirmed));
-        let seven = ekf.landmark(2);
+        let seven = ekf.landmark(2).unwrap();
         let gone = table.remove(&mut ekf, 1);
         assert_eq!(gone.id, 1);
         assert_eq!(table.index_of(2), Some(1));
         assert_eq!(ekf.landmark_count(), 2);
         // The record at index 1 is the filter's landmark 1: the one observed at 7 m.
-        assert_eq!(ekf.landmark(1), seven);
+        assert_eq!(ekf.landmark(1).unwrap(), seven);
         assert_eq!(table.places[1], Some([7.0, 0.0]));
         // Ids are never reused.
         let again = table.add(&mut ekf, &sensor, 1.0, &[at(8.0, 0.5)], false, 2);
         assert_eq!(again, [(3, 2)]);
-        let eight = ekf.landmark(2);
+        let eight = ekf.landmark(2).unwrap();
         table.get_mut(0).observations = 2;
         table.confirm_and_expire(&mut ekf, 2, 0.5, 1.2);
         // Landmark 0 was confirmed; landmark 2 (from t = 0) timed out; landmark 3 is young.
@@ -218,7 +218,7 @@ mod tests {
         assert_eq!(ids, [0, 3]);
         assert!(table.get(0).confirmed);
         assert_eq!(ekf.landmark_count(), 2);
-        assert_eq!(ekf.landmark(1), eight);
+        assert_eq!(ekf.landmark(1).unwrap(), eight);
         table.refresh(&ekf);
         assert_eq!(table.get(1).position, [eight.x, eight.y]);
         let fused = table.merge(&mut ekf, 0, 1, 0.05).unwrap();
@@ -241,11 +241,11 @@ mod tests {
         assert_eq!(a.meta(), b.meta());
         assert!((&together.x - &singly.x).amax() < 1e-12 && (&together.p - &singly.p).amax() < 1e-12);
         assert!(a.meta().iter().all(|l| l.confirmed), "one observation confirms");
-        let seven = together.landmark(2);
+        let seven = together.landmark(2).unwrap();
         let gone = a.remove_where(&mut together, |_, place| place == Some([6.0, 0.0]));
         assert_eq!(gone.iter().map(|l| l.id).collect::<Vec<_>>(), [1]);
         assert_eq!((a.len(), together.landmark_count()), (2, 2));
-        assert_eq!((a.index_of(2), together.landmark(1)), (Some(1), seven));
+        assert_eq!((a.index_of(2), together.landmark(1).unwrap()), (Some(1), seven));
         assert_eq!(a.places[1], Some([7.0, 0.0]));
     }
 }
