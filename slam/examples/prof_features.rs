@@ -8,7 +8,7 @@ fn main() {
     let grey = Plane { width: 640, height: 480, data: vec![0.5; 640 * 480] };
     let t = Instant::now();
     for _ in 0..10 {
-        let _ = config.bank.apply(&grey);
+        let _ = config.bank.apply(&grey).unwrap();
     }
     println!("bank {:?}", t.elapsed() / 10);
     let rect = PatchRect::whole(&image, 9);

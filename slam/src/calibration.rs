@@ -15,6 +15,8 @@
 use nalgebra::{DMatrix, DVector, Matrix3, Rotation3, SMatrix, SVD, Vector3};
 use serde::{Deserialize, Serialize};
 
+use crate::messages::BEAM;
+
 /// Laser <- camera extrinsics: `P_laser = phi * P_camera + delta` (the paper's Phi, Delta).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Extrinsics {
@@ -505,6 +507,9 @@ pub enum SegmentationError {
         "no board-like stretch at the range the camera sees the board ({expected:.2} m; nearest candidate {nearest:.2} m)"
     )]
     RangeMismatch { expected: f64, nearest: f64 },
+    /// Settings that make no sense (see [`BoardSegmentation::validate`]).
+    #[error("board segmentation setting {field}: {problem}")]
+    Setting { field: &'static str, problem: String },
 }
 
 /// A stretch of the scan taken for the board: the points (laser frame) and the fitted line.
@@ -534,6 +539,7 @@ pub fn segment_board(
     cfg: &BoardSegmentation,
     camera_range_m: Option<f64>,
 ) -> Result<BoardCut, SegmentationError> {
+    cfg.validate().map_err(|(field, problem)| SegmentationError::Setting { field, problem })?;
     let n = scan.ranges.len();
     let usable = |i: usize| {
         let a = scan.angle(i);
@@ -554,7 +560,7 @@ pub fn segment_board(
             continue;
         }
         if let Some(&prev) = current.last() {
-            let (p, q) = (scan.point(prev), scan.point(i));
+            let (p, q) = (scan.point(prev).expect(BEAM), scan.point(i).expect(BEAM));
             let gap = (p[0] - q[0]).hypot(p[1] - q[1]);
             let allowed = cfg.jump_m.max(5.0 * scan.ranges[i] * scan.angle_increment.abs());
             if prev + 1 != i || gap > allowed {
@@ -568,7 +574,7 @@ pub fn segment_board(
     }
     let mut candidates: Vec<BoardCut> = Vec::new();
     for run in runs.iter().filter(|r| r.len() >= 2 * cfg.trim + 3) {
-        let pts: Vec<[f64; 2]> = run.iter().map(|&i| scan.point(i)).collect();
+        let pts: Vec<[f64; 2]> = run.iter().map(|&i| scan.point(i).expect(BEAM)).collect();
         let Some((c, d)) = robust_line(&pts, cfg.inlier_m) else { continue };
         let dist = |p: &[f64; 2]| ((p[0] - c[0]) * -d[1] + (p[1] - c[1]) * d[0]).abs();
         // Longest unbroken stretch of inliers.

@@ -7,7 +7,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::messages::LaserScan;
+use crate::messages::{BEAM, LaserScan};
 
 /// Clustering settings.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -116,8 +116,7 @@ pub fn segment(scan: &LaserScan, config: &ClusteringConfig) -> Vec<(usize, usize
         match start {
             None => start = Some(i),
             Some(s) => {
-                let prev = scan.point(i - 1);
-                let cur = scan.point(i);
+                let (prev, cur) = (scan.point(i - 1).expect(BEAM), scan.point(i).expect(BEAM));
                 let gap = ((cur[0] - prev[0]).powi(2) + (cur[1] - prev[1]).powi(2)).sqrt();
                 let threshold = scan.ranges[i - 1] * dphi.sin() / (lambda - dphi).sin() + 3.0 * config.range_sigma_m;
                 if gap > threshold {
@@ -150,11 +149,12 @@ pub fn cluster(scan: &LaserScan, config: &ClusteringConfig) -> Vec<Cluster> {
         .collect()
 }
 
-/// Fits a circle to beams `a..=b`: the diameter from the visible chord (a trunk seen from
-/// a distance shows almost its full width) plus one beam spacing for the edges that fall
-/// between beams; the centre by least squares on the distances to that circle.
-pub fn fit(scan: &LaserScan, a: usize, b: usize) -> Cluster {
-    let points: Vec<[f64; 2]> = (a..=b).map(|i| scan.point(i)).collect();
+/// Fits a circle to beams `a..=b` of the scan (`a <= b <` the beam count): the diameter
+/// from the visible chord (a trunk seen from a distance shows almost its full width) plus
+/// one beam spacing for the edges that fall between beams; the centre by least squares on
+/// the distances to that circle.
+fn fit(scan: &LaserScan, a: usize, b: usize) -> Cluster {
+    let points: Vec<[f64; 2]> = (a..=b).map(|i| scan.point(i).expect(BEAM)).collect();
     let (p0, p1) = (points[0], points[points.len() - 1]);
     let chord = ((p1[0] - p0[0]).powi(2) + (p1[1] - p0[1]).powi(2)).sqrt();
     let mean_range = (a..=b).map(|i| scan.ranges[i]).sum::<f64>() / points.len() as f64;

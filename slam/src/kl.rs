@@ -48,8 +48,17 @@ impl PreparedGaussian {
     }
 }
 
-/// KL(N0 || N1) = 1/2 [tr(S1^-1 S0) + (m1 - m0)ᵀ S1^-1 (m1 - m0) - D + ln(|S1| / |S0|)].
-pub fn kl_gaussian(n0: &PreparedGaussian, n1: &PreparedGaussian) -> f64 {
+/// KL(N0 || N1) = 1/2 [tr(S1^-1 S0) + (m1 - m0)ᵀ S1^-1 (m1 - m0) - D + ln(|S1| / |S0|)];
+/// Gaussians of different dimensions are [`KlError::Dimension`].
+pub fn kl_gaussian(n0: &PreparedGaussian, n1: &PreparedGaussian) -> Result<f64, KlError> {
+    if n0.mean.len() != n1.mean.len() {
+        return Err(KlError::Dimension(n0.mean.len(), n1.mean.len()));
+    }
+    Ok(kl_gaussian_prechecked(n0, n1))
+}
+
+/// [`kl_gaussian`] of Gaussians the caller has checked are of one dimension.
+fn kl_gaussian_prechecked(n0: &PreparedGaussian, n1: &PreparedGaussian) -> f64 {
     let d = n0.mean.len() as f64;
     let s1_inv_s0 = n1.chol.solve(&n0.covariance);
     let dm = &n1.mean - &n0.mean;
@@ -119,8 +128,10 @@ pub fn kl_variational(f: &PreparedGmm, g: &PreparedGmm) -> Result<f64, KlError> 
     }
     let mut total = 0.0;
     for (a, fa) in f.components.iter().enumerate() {
-        let num = log_sum_exp(f.components.iter().zip(&f.log_weights).map(|(fb, lw)| lw - kl_gaussian(fa, fb)));
-        let den = log_sum_exp(g.components.iter().zip(&g.log_weights).map(|(gb, lw)| lw - kl_gaussian(fa, gb)));
+        let num =
+            log_sum_exp(f.components.iter().zip(&f.log_weights).map(|(fb, lw)| lw - kl_gaussian_prechecked(fa, fb)));
+        let den =
+            log_sum_exp(g.components.iter().zip(&g.log_weights).map(|(gb, lw)| lw - kl_gaussian_prechecked(fa, gb)));
         total += f.log_weights[a].exp() * (num - den);
     }
     Ok(total)
@@ -142,7 +153,7 @@ pub fn kl_matched_bound(f: &PreparedGmm, g: &PreparedGmm) -> Result<f64, KlError
             .components
             .iter()
             .zip(&g.log_weights)
-            .map(|(gb, lw)| (kl_gaussian(fa, gb) - lw, *lw))
+            .map(|(gb, lw)| (kl_gaussian_prechecked(fa, gb) - lw, *lw))
             .min_by(|x, y| x.0.total_cmp(&y.0))
             .map(|(score, lw)| (lw, score + lw))
             .expect("non-empty mixture");
@@ -213,7 +224,7 @@ mod tests {
             let f = PreparedGmm::new(&random_gmm(&mut rng, 3, 5, 3.0)).unwrap();
             assert!(kl_variational(&f, &f).unwrap().abs() < 1e-9);
             assert!(kl_matched_bound(&f, &f).unwrap().abs() < 1e-9);
-            assert!(kl_gaussian(&f.components[0], &f.components[0]).abs() < 1e-9);
+            assert!(kl_gaussian(&f.components[0], &f.components[0]).unwrap().abs() < 1e-9);
         }
     }
 
@@ -240,7 +251,7 @@ mod tests {
         let b = PreparedGaussian::new(&DVector::from_vec(vec![-1.0]), &DMatrix::from_vec(1, 1, vec![1.0]), 0).unwrap();
         // ln(s1/s0) + (s0² + (m0-m1)²) / (2 s1²) - 1/2 with s0 = 2, s1 = 1.
         let expected = (1.0f64 / 2.0).ln() + (4.0 + 4.0) / 2.0 - 0.5;
-        assert!((kl_gaussian(&a, &b) - expected).abs() < 1e-12);
+        assert!((kl_gaussian(&a, &b).unwrap() - expected).abs() < 1e-12);
     }
 
     #[test]

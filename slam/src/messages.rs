@@ -34,22 +34,26 @@ impl LaserScan {
         Ok(())
     }
 
-    /// Whether beam `i` returned a valid range.
+    /// Whether beam `i` returned a valid range (a beam past the scan's last did not).
     pub fn valid(&self, i: usize) -> bool {
-        let r = self.ranges[i];
-        r.is_finite() && r >= self.range_min && r <= self.range_max
+        self.ranges.get(i).is_some_and(|&r| r.is_finite() && r >= self.range_min && r <= self.range_max)
     }
 
     pub fn angle(&self, i: usize) -> f64 {
         self.angle_min + self.angle_increment * i as f64
     }
 
-    /// Beam i's end point in the laser frame.
-    pub fn point(&self, i: usize) -> [f64; 2] {
+    /// Beam i's end point in the laser frame; `None` past the scan's last beam (see
+    /// [`BEAM`]).
+    pub fn point(&self, i: usize) -> Option<[f64; 2]> {
+        let r = *self.ranges.get(i)?;
         let (s, c) = self.angle(i).sin_cos();
-        [self.ranges[i] * c, self.ranges[i] * s]
+        Some([r * c, r * s])
     }
 }
+
+/// Why a beam index the library took from a scan's own range is one of its beams.
+pub(crate) const BEAM: &str = "an index below the scan's beam count";
 
 /// Wheel odometry: motion since the previous message in the robot frame at that message.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]

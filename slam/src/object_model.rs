@@ -115,8 +115,10 @@ pub struct ObjectObservation {
 }
 
 impl ObjectObservation {
+    /// The appearance columns: those before the 3 of the position (none in rows that
+    /// hold fewer).
     pub fn appearance_dims(&self) -> usize {
-        self.rows.ncols() - 3
+        self.rows.ncols().saturating_sub(3)
     }
 }
 
@@ -181,7 +183,7 @@ pub fn fit_observation(
     let mut prior = VbPrior::from_data(&obs.rows)?;
     if let Some(g) = general {
         let da = g.dims().min(d - 3);
-        let (_, cov) = g.moments();
+        let (_, cov) = g.moments()?;
         for i in 0..da {
             for j in 0..da {
                 prior.w0_inv[(i, j)] = cov[(i, j)];
@@ -232,9 +234,14 @@ fn shifted(g: &Gmm, xy: usize, shift: [f64; 2], extra: &Matrix2<f64>) -> Gmm {
     out
 }
 
-/// The mixture's marginal over its first `dims` dimensions.
-pub fn marginal(g: &Gmm, dims: usize) -> Gmm {
-    Gmm {
+/// The mixture's marginal over its first `dims` dimensions; a component of fewer is
+/// [`GmmError::Dimension`].
+pub fn marginal(g: &Gmm, dims: usize) -> Result<Gmm, GmmError> {
+    let short = |c: &Component| c.mean.len().min(c.covariance.nrows()).min(c.covariance.ncols());
+    if let Some(found) = g.components.iter().map(short).find(|&n| n < dims) {
+        return Err(GmmError::Dimension { expected: dims, found });
+    }
+    Ok(Gmm {
         components: g
             .components
             .iter()
@@ -244,7 +251,7 @@ pub fn marginal(g: &Gmm, dims: usize) -> Gmm {
                 covariance: c.covariance.view((0, 0), (dims, dims)).into_owned(),
             })
             .collect(),
-    }
+    })
 }
 
 impl ObjectModel {
@@ -276,6 +283,8 @@ impl ObjectModel {
         config: &ObjectModelConfig,
         appearance_only: bool,
     ) -> Result<f64, ObjectModelError> {
+        self.gmm.check_shapes()?;
+        fitted_obs.check_shapes()?;
         let d = self.gmm.dims();
         if fitted_obs.dims() != d {
             return Err(ObjectModelError::Dimension { observation: fitted_obs.dims(), model: d });
@@ -284,7 +293,7 @@ impl ObjectModel {
             return Err(ObjectModelError::TooFewColumns(d));
         }
         let (f, g) = if appearance_only {
-            (marginal(fitted_obs, d - 3), marginal(&self.gmm, d - 3))
+            (marginal(fitted_obs, d - 3)?, marginal(&self.gmm, d - 3)?)
         } else {
             // The offset's uncertainty widens the observation, not the model. KL(f || g)
             // punishes an f wider than g, so the less the filter knows where the object is,
@@ -453,7 +462,7 @@ pub fn rank_by_appearance(example: &Gmm, objects: &[(u32, &ObjectModel)]) -> Res
     let f = PreparedGmm::new(example)?;
     let mut out = Vec::with_capacity(objects.len());
     for (id, m) in objects {
-        let g = marginal(&m.gmm, da);
+        let g = marginal(&m.gmm, da)?;
         out.push((*id, kl::kl_variational(&f, &PreparedGmm::new(&g)?)?));
     }
     out.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
@@ -582,7 +591,7 @@ mod tests {
         let models: Vec<ObjectModel> =
             objs.iter().map(|o| ObjectModel::new(o, fit_observation(o, None, &config).unwrap(), 3)).collect();
         let example = observation(9, [-2.0, 1.0, 0.0], [0.0, 0.0], 40);
-        let ex = marginal(&fit_observation(&example, None, &config).unwrap(), 3);
+        let ex = marginal(&fit_observation(&example, None, &config).unwrap(), 3).unwrap();
         let refs: Vec<(u32, &ObjectModel)> = models.iter().enumerate().map(|(i, m)| (i as u32, m)).collect();
         let ranked = rank_by_appearance(&ex, &refs).unwrap();
         assert_eq!(ranked[0].0, 1);

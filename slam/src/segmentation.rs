@@ -281,7 +281,8 @@ pub struct ClusterInImage {
 }
 
 /// Projects a cluster into an image of `width` x `height` pixels cut into `patch_size`
-/// patches; `None` when none of its points lands in the patch grid.
+/// patches; `None` when none of its points lands in the patch grid (patches of no size
+/// make none).
 pub fn locate_cluster(
     cluster: &Cluster,
     geometry: &CameraGeometry,
@@ -291,7 +292,7 @@ pub fn locate_cluster(
     config: &SegmentationConfig,
 ) -> Option<ClusterInImage> {
     let l = patch_size;
-    let (cols, rows) = (width / l, height / l);
+    let (cols, rows) = (width.checked_div(l).unwrap_or(0), height.checked_div(l).unwrap_or(0));
     let point_cells: Vec<Option<(u32, u32)>> = cluster
         .points
         .iter()
@@ -327,7 +328,7 @@ pub fn locate_cluster(
         hi = hi.max(col);
     }
     let c0 = lo.saturating_sub(config.column_margin);
-    let c1 = (hi + 1 + config.column_margin).min(cols);
+    let c1 = (hi + 1).saturating_add(config.column_margin).min(cols);
     // The rows from the band's top down to the laser's lowest: the judgement reads nothing
     // else, and the object model describes the trunk the laser and the band judged, not
     // the ground below it or whatever stands above the band. The top is the highest row

@@ -196,6 +196,106 @@ fn a_control_of_the_wrong_length_is_named() {
 }
 
 #[test]
+fn a_motion_model_refuses_a_control_or_calibration_of_another_length() {
+    use slam::ekf::{AckermannMotionModel, EkfError, MotionConfig, MotionModel};
+    let pose = Vector3::new(1.0, 2.0, 0.3);
+    let odometry = OdometryMotionModel::default();
+    let models: [&dyn MotionModel; 3] =
+        [&odometry, &AckermannMotionModel::default(), &MotionConfig::Ackermann(AckermannMotionModel::default())];
+    for model in models {
+        for control in [&[1.0, 0.1][..], &[1.0, 0.1, 0.2, 0.0]] {
+            let wrong = EkfError::ControlLength { control: control.len(), model: 3 };
+            assert_eq!(model.predict(&pose, control).map(|p| p.0), Err(wrong.clone()));
+            assert_eq!(model.predict_calibrated(&pose, &[], control).map(|p| p.pose), Err(wrong));
+        }
+        assert!(model.predict(&pose, &[1.0, 0.1, 0.2]).is_ok());
+    }
+    // The odometry model estimates three calibration errors or none.
+    let e = odometry.predict_calibrated(&pose, &[0.0, 0.0], &[0.5, 0.0, 0.1]).unwrap_err();
+    assert_eq!(e, EkfError::CalibrationLength { calibration: 2, model: 3 });
+    let (plain, calibrated) = (
+        odometry.predict(&pose, &[0.5, 0.0, 0.1]).unwrap(),
+        odometry.predict_calibrated(&pose, &[0.0; 3], &[0.5, 0.0, 0.1]).unwrap(),
+    );
+    assert!((plain.0 - calibrated.pose).norm() < 1e-12);
+}
+
+#[test]
+fn gaussians_and_mixtures_of_other_shapes_are_refused() {
+    use slam::kl::{PreparedGaussian, kl_gaussian};
+    use slam::object_model::marginal;
+    let a = PreparedGaussian::new(&DVector::zeros(2), &DMatrix::identity(2, 2), 0).unwrap();
+    let b = PreparedGaussian::new(&DVector::zeros(3), &DMatrix::identity(3, 3), 0).unwrap();
+    assert_eq!(kl_gaussian(&a, &b).unwrap_err(), KlError::Dimension(2, 3));
+    assert!(kl_gaussian(&a, &a).unwrap().abs() < 1e-12);
+    let two = Gmm { components: vec![gaussian(1.0, &[0.0, 1.0])] };
+    assert_eq!(marginal(&two, 3).unwrap_err(), GmmError::Dimension { expected: 3, found: 2 });
+    assert_eq!(marginal(&two, 1).unwrap().dims(), 1);
+    // A mixture whose components disagree in shape has no moments.
+    let mixed = Gmm { components: vec![gaussian(0.5, &[0.0, 1.0]), gaussian(0.5, &[0.0, 1.0, 2.0])] };
+    assert_eq!(mixed.moments().unwrap_err(), GmmError::Dimension { expected: 2, found: 3 });
+    let mut wide = two.clone();
+    wide.components[0].covariance = DMatrix::identity(3, 3);
+    assert!(matches!(wide.moments(), Err(GmmError::CovarianceShape { component: 0, dims: 2, rows: 3, cols: 3 })));
+    assert!(matches!(slam::gmm::VbPrior::from_gmm(&mixed, 5.0), Err(GmmError::Dimension { .. })));
+    // A variational model whose W^-1 disagrees with its mean has no predictive density.
+    let mut fitted =
+        slam::gmm::fit(&DMatrix::from_fn(40, 2, |i, j| ((i * 7 + j * 3) % 11) as f64), None, &Default::default())
+            .unwrap();
+    fitted.components[0].w_inv = DMatrix::identity(3, 3);
+    assert!(matches!(slam::gmm::StudentTMixture::new(&fitted), Err(GmmError::CovarianceShape { component: 0, .. })));
+}
+
+#[test]
+fn beams_past_the_scan_and_patches_of_no_size_are_named_or_none() {
+    use slam::calibration::{BoardSegmentation, SegmentationError, segment_board};
+    use slam::features::{ImageRef, PatchRect};
+    use slam::messages::LaserScan;
+    let scan = LaserScan {
+        t: 0.0,
+        angle_min: -0.5,
+        angle_increment: 0.01,
+        range_min: 0.1,
+        range_max: 30.0,
+        ranges: vec![2.0; 101],
+    };
+    assert!(scan.valid(100) && !scan.valid(101));
+    assert!(scan.point(100).is_some() && scan.point(101).is_none());
+    let bad = BoardSegmentation { range_m: [5.0, 1.0], ..Default::default() };
+    assert!(matches!(segment_board(&scan, &bad, None), Err(SegmentationError::Setting { field: "range_m", .. })));
+    let rgb = vec![0u8; 30 * 20 * 3];
+    let image = ImageRef::new(30, 20, &rgb).unwrap();
+    assert_eq!(image.grid(0), (0, 0));
+    assert!(PatchRect::whole(&image, 0).is_empty());
+    let inverted = PatchRect { col0: 4, col1: 2, row0: 3, row1: 1 };
+    assert_eq!((inverted.cols(), inverted.rows(), inverted.len()), (0, 0, 0));
+    // An image built field by field, its buffer short: named, not read past its end.
+    let short = ImageRef { width: 30, height: 20, rgb: &rgb[..100] };
+    let config = slam::features::FeatureConfig::default();
+    let e = slam::features::raw_patches(&short, &config, &PatchRect::whole(&image, 9)).unwrap_err();
+    assert!(matches!(e, slam::features::FeatureError::ImageSize { found: 100, .. }), "{e}");
+    let huge = ImageRef { width: u32::MAX, height: u32::MAX, rgb: &rgb };
+    assert!(slam::features::raw_patches(&huge, &config, &PatchRect::whole(&image, 9)).is_err());
+}
+
+#[test]
+fn a_plane_whose_data_is_not_its_size_is_refused() {
+    use slam::features::FeatureError;
+    use slam::features::gabor::{GaborBank, Plane};
+    let bank = GaborBank::default();
+    for plane in [Plane { width: 4, height: 3, data: vec![0.0; 11] }, Plane { width: 0, height: 3, data: vec![0.0; 1] }]
+    {
+        assert!(matches!(bank.apply(&plane), Err(FeatureError::PlaneSize { .. })), "{plane:?}");
+        assert!(matches!(bank.apply_within(&plane, (0, 0, 0, 0)), Err(FeatureError::PlaneSize { .. })));
+    }
+    for empty in [Plane { width: 0, height: 3, data: vec![] }, Plane { width: 5, height: 0, data: vec![] }] {
+        let out = bank.apply(&empty).unwrap();
+        assert!(out.len() == bank.len() && out.iter().all(|p| p.data.is_empty()));
+    }
+    assert_eq!(bank.apply(&Plane { width: 4, height: 3, data: vec![0.5; 12] }).unwrap().len(), bank.len());
+}
+
+#[test]
 fn jcbb_needs_a_row_of_allowed_pairs_per_observation_and_a_probability() {
     use slam::association::jcbb::{JcbbError, jcbb};
     let ekf = Ekf::new(Vector3::zeros(), Matrix3::identity());

@@ -22,7 +22,10 @@ pub mod synthetic;
 use nalgebra::{DMatrix, DVector, Matrix2, Matrix2x3, Matrix3, SMatrix, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
-pub use motion::{AckermannMotionModel, CalibratedPrediction, MotionConfig, MotionModel, OdometryMotionModel};
+pub use motion::{
+    AckermannMotionModel, CalibratedPrediction, MotionConfig, MotionModel, OdometryMotionModel, PosePrediction,
+    control_values,
+};
 pub use observation::RangeBearingModel;
 
 use crate::messages::wrap_angle;
@@ -42,6 +45,9 @@ pub enum EkfError {
     /// A control whose length is not the motion model's (`MotionModel::control_dims`).
     #[error("a control of {control} values for a motion model of {model}")]
     ControlLength { control: usize, model: usize },
+    /// Calibration parameters of another count than the motion model estimates.
+    #[error("{calibration} calibration parameters for a motion model that estimates {model}")]
+    CalibrationLength { calibration: usize, model: usize },
 }
 
 /// The filter state.
@@ -219,7 +225,7 @@ impl Ekf {
         let vd = self.vehicle_dims;
         let n = self.x.len();
         let calibration = self.calibration().to_vec();
-        let mut pred = model.predict_calibrated(&self.pose(), &calibration, control);
+        let mut pred = model.predict_calibrated(&self.pose(), &calibration, control)?;
         let finite = pred.pose.iter().chain(pred.f.iter()).chain(pred.f_calibration.iter()).chain(pred.q.iter());
         if !finite.copied().all(f64::is_finite) {
             return Err(EkfError::NonFinite);

@@ -3,15 +3,18 @@
 
 use nalgebra::{DMatrix, Matrix3, Vector3};
 
+use super::EkfError;
 use crate::messages::wrap_angle;
 
 /// A motion model: the predicted pose, its Jacobian with respect to the pose, and the
 /// process noise in pose space.
 pub trait MotionModel: Send + Sync {
-    /// Control input dimension (documentation; controls are slices).
+    /// Control input dimension: the length of the slices `predict` takes.
     fn control_dims(&self) -> usize;
-    /// Returns (predicted pose, F = d pose'/d pose, Q = process noise covariance).
-    fn predict(&self, pose: &Vector3<f64>, control: &[f64]) -> (Vector3<f64>, Matrix3<f64>, Matrix3<f64>);
+    /// Returns (predicted pose, F = d pose'/d pose, Q = process noise covariance); a
+    /// control that is not `control_dims()` long is [`EkfError::ControlLength`] (see
+    /// [`control_values`]).
+    fn predict(&self, pose: &Vector3<f64>, control: &[f64]) -> Result<PosePrediction, EkfError>;
 
     /// Prior standard deviations of calibration parameters the filter should estimate
     /// alongside the pose (empty: none; the default).
@@ -21,10 +24,24 @@ pub trait MotionModel: Send + Sync {
 
     /// Prediction with calibration parameters `calibration` applied to the control: also
     /// returns `d pose'/d calibration` (3 x `calibration.len()`). The default ignores them.
-    fn predict_calibrated(&self, pose: &Vector3<f64>, calibration: &[f64], control: &[f64]) -> CalibratedPrediction {
-        let (pose, f, q) = self.predict(pose, control);
-        CalibratedPrediction { pose, f, f_calibration: DMatrix::zeros(3, calibration.len()), q }
+    fn predict_calibrated(
+        &self,
+        pose: &Vector3<f64>,
+        calibration: &[f64],
+        control: &[f64],
+    ) -> Result<CalibratedPrediction, EkfError> {
+        let (pose, f, q) = self.predict(pose, control)?;
+        Ok(CalibratedPrediction { pose, f, f_calibration: DMatrix::zeros(3, calibration.len()), q })
     }
+}
+
+/// A prediction `(pose', F = d pose'/d pose, Q)`.
+pub type PosePrediction = (Vector3<f64>, Matrix3<f64>, Matrix3<f64>);
+
+/// A control's `N` values, or [`EkfError::ControlLength`] for a slice of another length:
+/// how a [`MotionModel`] reads its control.
+pub fn control_values<const N: usize>(control: &[f64]) -> Result<[f64; N], EkfError> {
+    control.try_into().map_err(|_| EkfError::ControlLength { control: control.len(), model: N })
 }
 
 /// A prediction with calibration parameters in the state.
@@ -172,8 +189,8 @@ impl MotionModel for OdometryMotionModel {
         3
     }
 
-    fn predict(&self, pose: &Vector3<f64>, u: &[f64]) -> (Vector3<f64>, Matrix3<f64>, Matrix3<f64>) {
-        let (dx, dy, dth) = (u[0], u[1], u[2]);
+    fn predict(&self, pose: &Vector3<f64>, u: &[f64]) -> Result<PosePrediction, EkfError> {
+        let [dx, dy, dth] = control_values(u)?;
         let (s, c) = pose.z.sin_cos();
         let next = Vector3::new(pose.x + c * dx - s * dy, pose.y + s * dx + c * dy, wrap_angle(pose.z + dth));
         let f = Matrix3::new(1.0, 0.0, -s * dx - c * dy, 0.0, 1.0, c * dx - s * dy, 0.0, 0.0, 1.0);
@@ -186,7 +203,7 @@ impl MotionModel for OdometryMotionModel {
         // Along-track noise on the translation's direction, a small lateral part.
         let m = Matrix3::new(var_d, 0.0, 0.0, 0.0, 0.1 * var_d + self.floor, 0.0, 0.0, 0.0, var_a);
         let g = Matrix3::new(c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0);
-        (next, f, g * m * g.transpose())
+        Ok((next, f, g * m * g.transpose()))
     }
 
     fn calibration_prior(&self) -> Vec<f64> {
@@ -197,18 +214,31 @@ impl MotionModel for OdometryMotionModel {
         }
     }
 
-    fn predict_calibrated(&self, pose: &Vector3<f64>, calibration: &[f64], u: &[f64]) -> CalibratedPrediction {
-        if calibration.len() != 3 {
-            let (pose, f, q) = self.predict(pose, u);
-            return CalibratedPrediction { pose, f, f_calibration: DMatrix::zeros(3, calibration.len()), q };
+    /// Calibration parameters are none (not estimated) or the three of
+    /// [`OdometryMotionModel::estimates_calibration`]; another count is
+    /// [`EkfError::CalibrationLength`].
+    fn predict_calibrated(
+        &self,
+        pose: &Vector3<f64>,
+        calibration: &[f64],
+        u: &[f64],
+    ) -> Result<CalibratedPrediction, EkfError> {
+        let [dx, dy, dth] = control_values(u)?;
+        match calibration.len() {
+            0 => {
+                let (pose, f, q) = self.predict(pose, u)?;
+                return Ok(CalibratedPrediction { pose, f, f_calibration: DMatrix::zeros(3, 0), q });
+            }
+            3 => {}
+            n => return Err(EkfError::CalibrationLength { calibration: n, model: 3 }),
         }
-        let (corrected, j) = Self::corrected(calibration, u);
-        let (next, f, q) = self.predict(pose, &corrected);
+        let (corrected, j) = Self::corrected(calibration, &[dx, dy, dth]);
+        let (next, f, q) = self.predict(pose, &corrected)?;
         // d pose'/d corrected control is the rotation into the map frame.
         let (s, c) = pose.z.sin_cos();
         let g = Matrix3::new(c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0);
         let fc = g * j;
-        CalibratedPrediction { pose: next, f, f_calibration: DMatrix::from_column_slice(3, 3, fc.as_slice()), q }
+        Ok(CalibratedPrediction { pose: next, f, f_calibration: DMatrix::from_column_slice(3, 3, fc.as_slice()), q })
     }
 }
 
@@ -296,9 +326,10 @@ impl MotionModel for AckermannMotionModel {
         3
     }
 
-    fn predict(&self, pose: &Vector3<f64>, u: &[f64]) -> (Vector3<f64>, Matrix3<f64>, Matrix3<f64>) {
-        let (steer, dt) = (u[1], u[2].max(0.0));
-        let d = self.centre_speed(u[0], steer) * dt;
+    fn predict(&self, pose: &Vector3<f64>, u: &[f64]) -> Result<PosePrediction, EkfError> {
+        let [speed, steer, dt] = control_values(u)?;
+        let dt = dt.max(0.0);
+        let d = self.centre_speed(speed, steer) * dt;
         let turn = d * steer.tan() / self.wheelbase_m;
         // Along the chord of the arc, at the mid-step heading: exact for a constant control,
         // so a long gap between controls is integrated as well as many short ones.
@@ -320,7 +351,7 @@ impl MotionModel for AckermannMotionModel {
             self.heading_var_per_m * dist + self.heading_var_per_s * dt + 1e-12,
         );
         let g = Matrix3::new(c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0);
-        (next, f, g * m * g.transpose())
+        Ok((next, f, g * m * g.transpose()))
     }
 }
 
@@ -369,13 +400,18 @@ impl MotionModel for MotionConfig {
     fn control_dims(&self) -> usize {
         self.model().control_dims()
     }
-    fn predict(&self, pose: &Vector3<f64>, control: &[f64]) -> (Vector3<f64>, Matrix3<f64>, Matrix3<f64>) {
+    fn predict(&self, pose: &Vector3<f64>, control: &[f64]) -> Result<PosePrediction, EkfError> {
         self.model().predict(pose, control)
     }
     fn calibration_prior(&self) -> Vec<f64> {
         self.model().calibration_prior()
     }
-    fn predict_calibrated(&self, pose: &Vector3<f64>, calibration: &[f64], control: &[f64]) -> CalibratedPrediction {
+    fn predict_calibrated(
+        &self,
+        pose: &Vector3<f64>,
+        calibration: &[f64],
+        control: &[f64],
+    ) -> Result<CalibratedPrediction, EkfError> {
         self.model().predict_calibrated(pose, calibration, control)
     }
 }
@@ -467,8 +503,8 @@ mod tests {
             let (mut p, mut q) = (*pose, *pose);
             p[k] += h;
             q[k] -= h;
-            let (a, _, _) = m.predict(&p, u);
-            let (b, _, _) = m.predict(&q, u);
+            let (a, _, _) = m.predict(&p, u).unwrap();
+            let (b, _, _) = m.predict(&q, u).unwrap();
             let mut d = (a - b) / (2.0 * h);
             d.z = wrap_angle(a.z - b.z) / (2.0 * h);
             f.set_column(k, &d);
@@ -480,11 +516,11 @@ mod tests {
     fn jacobians_match_numeric_differentiation() {
         let pose = Vector3::new(1.0, -2.0, 2.5);
         let odo = OdometryMotionModel::default();
-        let (_, f, q) = odo.predict(&pose, &[0.3, 0.05, 0.2]);
+        let (_, f, q) = odo.predict(&pose, &[0.3, 0.05, 0.2]).unwrap();
         assert!((f - numeric_f(&odo, &pose, &[0.3, 0.05, 0.2])).norm() < 1e-6);
         assert!(q.symmetric_eigen().eigenvalues.iter().all(|e| *e > 0.0));
         let ack = AckermannMotionModel { encoder_offset_m: 0.76, ..Default::default() };
-        let (_, f, q) = ack.predict(&pose, &[3.0, 0.1, 0.2]);
+        let (_, f, q) = ack.predict(&pose, &[3.0, 0.1, 0.2]).unwrap();
         assert!((f - numeric_f(&ack, &pose, &[3.0, 0.1, 0.2])).norm() < 1e-6);
         assert!(q.symmetric_eigen().eigenvalues.iter().all(|e| *e > 0.0));
     }
@@ -500,7 +536,7 @@ mod tests {
     ) -> (Vector3<f64>, Matrix3<f64>) {
         let (mut pose, mut p) = (Vector3::zeros(), Matrix3::zeros());
         for _ in 0..steps {
-            let (next, f, q) = model.predict(&pose, &[speed, steering, total_s / steps as f64]);
+            let (next, f, q) = model.predict(&pose, &[speed, steering, total_s / steps as f64]).unwrap();
             p = f * p * f.transpose() + q;
             pose = next;
         }
@@ -581,12 +617,13 @@ mod tests {
         let pose = Vector3::new(1.0, -2.0, 2.5);
         let u = [0.3, 0.05, 0.2];
         let c = [0.02, -0.03, 0.004];
-        let pred = m.predict_calibrated(&pose, &c, &u);
+        let pred = m.predict_calibrated(&pose, &c, &u).unwrap();
         for k in 0..3 {
             let (mut a, mut b) = (c, c);
             a[k] += 1e-6;
             b[k] -= 1e-6;
-            let (pa, pb) = (m.predict_calibrated(&pose, &a, &u).pose, m.predict_calibrated(&pose, &b, &u).pose);
+            let (pa, pb) =
+                (m.predict_calibrated(&pose, &a, &u).unwrap().pose, m.predict_calibrated(&pose, &b, &u).unwrap().pose);
             let mut d = (pa - pb) / 2e-6;
             d.z = wrap_angle(pa.z - pb.z) / 2e-6;
             assert!(
@@ -597,12 +634,12 @@ mod tests {
         }
         // Zero calibration is the plain prediction; the calibration undoes the simulator's
         // error model exactly.
-        let plain = m.predict(&pose, &u);
-        let zero = m.predict_calibrated(&pose, &[0.0; 3], &u);
+        let plain = m.predict(&pose, &u).unwrap();
+        let zero = m.predict_calibrated(&pose, &[0.0; 3], &u).unwrap();
         assert_eq!((zero.pose, zero.f, zero.q), plain);
         let d = (u[0] * u[0] + u[1] * u[1]).sqrt();
         let measured = [u[0] * (1.0 + c[0]), u[1] * (1.0 + c[0]), u[2] * (1.0 + c[1]) + c[2] * d];
-        assert!((m.predict_calibrated(&pose, &c, &measured).pose - plain.0).norm() < 1e-12);
+        assert!((m.predict_calibrated(&pose, &c, &measured).unwrap().pose - plain.0).norm() < 1e-12);
     }
 
     #[test]
@@ -618,7 +655,8 @@ mod tests {
     #[test]
     fn odometry_composes_in_the_robot_frame() {
         let (p, _, _) = OdometryMotionModel::default()
-            .predict(&Vector3::new(0.0, 0.0, std::f64::consts::FRAC_PI_2), &[1.0, 0.0, 0.0]);
+            .predict(&Vector3::new(0.0, 0.0, std::f64::consts::FRAC_PI_2), &[1.0, 0.0, 0.0])
+            .unwrap();
         assert!((p.x).abs() < 1e-12 && (p.y - 1.0).abs() < 1e-12);
     }
 }

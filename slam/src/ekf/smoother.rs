@@ -35,6 +35,9 @@ pub enum SmootherError {
     Unobserved(u32),
     #[error("the filter's state does not match the history ({0})")]
     Mismatch(&'static str),
+    /// The motion model refused a control of the history (another length than it takes).
+    #[error("the motion model refused a control of the history: {0}")]
+    Motion(#[from] super::EkfError),
 }
 
 /// One pose of the history: the odometry that led to it from the previous one, and the
@@ -267,7 +270,7 @@ impl History {
         calibration: &DVector<f64>,
         landmarks: &[Vector2<f64>],
         slot: &impl Fn(u32) -> Option<usize>,
-    ) -> Normal {
+    ) -> Result<Normal, SmootherError> {
         let k_now = poses.len() - 1;
         let nc = calibration.len();
         let nb = 3 + nc + 2 * landmarks.len();
@@ -299,7 +302,7 @@ impl History {
                 let mut psi = Matrix3xX::zeros(nc);
                 let mut q = Matrix3::zeros();
                 for u in &node.controls {
-                    let p = motion.predict_calibrated(&pose, cal, u);
+                    let p = motion.predict_calibrated(&pose, cal, u)?;
                     psi = p.f * psi + &p.f_calibration;
                     phi = p.f * phi;
                     q = p.f * q * p.f.transpose() + p.q;
@@ -337,7 +340,7 @@ impl History {
                 );
             }
         }
-        normal
+        Ok(normal)
     }
 
     /// Re-solves the history and replaces `ekf`'s state and covariance with the current
@@ -386,7 +389,7 @@ impl History {
                 if i + 1 < before.len() { Vector2::new(before[i], before[i + 1]) } else { now }
             })
             .collect();
-        let mut normal = self.linearise(motion, sensor, &poses, &calibration, &landmarks, &slot);
+        let mut normal = self.linearise(motion, sensor, &poses, &calibration, &landmarks, &slot)?;
         let initial_cost = normal.cost;
         let mut lambda = 0.0;
         let mut iterations = 0;
@@ -407,7 +410,7 @@ impl History {
                 .enumerate()
                 .map(|(j, l)| l + Vector2::new(step_border[3 + nc + 2 * j], step_border[3 + nc + 2 * j + 1]))
                 .collect();
-            let trial = self.linearise(motion, sensor, &trial_poses, &trial_calibration, &trial_landmarks, &slot);
+            let trial = self.linearise(motion, sensor, &trial_poses, &trial_calibration, &trial_landmarks, &slot)?;
             if trial.cost <= normal.cost {
                 let size = step_border.amax().max(step_chain.iter().map(|s| s.amax()).fold(0.0, f64::max));
                 (poses, calibration, landmarks, normal) = (trial_poses, trial_calibration, trial_landmarks, trial);

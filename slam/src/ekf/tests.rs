@@ -106,7 +106,7 @@ fn synthetic_run_with(
     for step in 0..steps {
         // True motion along a circle of radius 5 m, 0.1 m per step.
         let u_true = [0.1, 0.0, 0.02 + turn_swing * (std::f64::consts::TAU * step as f64 / 157.0).sin()];
-        let (next, _, _) = motion.predict(&truth, &u_true);
+        let (next, _, _) = motion.predict(&truth, &u_true).unwrap();
         truth = next;
         let d2 = u_true[0] * u_true[0];
         let a2 = u_true[2] * u_true[2];
@@ -386,7 +386,7 @@ fn first_estimates_keep_the_global_heading_unobservable() {
         for step in 0..400 {
             // Back and forth along x, turning a little, odometry noisy.
             let u_true = [if (step / 50) % 2 == 0 { 0.02 } else { -0.02 }, 0.0, 0.004 * ((step as f64) * 0.1).sin()];
-            truth = motion.predict(&truth, &u_true).0;
+            truth = motion.predict(&truth, &u_true).unwrap().0;
             let u = [u_true[0] + std(1e-6).sample(&mut rng), u_true[1], u_true[2] + std(1e-6).sample(&mut rng)];
             ekf.predict(&motion, &u).unwrap();
             for (i, l) in landmarks.iter().enumerate() {

@@ -179,9 +179,16 @@ impl GaborBank {
         self.filters.iter().map(|f| f.radius()).max().unwrap_or(0)
     }
 
-    /// |response| of every filter on a grey plane, with replicated borders.
-    pub fn apply(&self, grey: &Plane) -> Vec<Plane> {
-        self.filters
+    /// |response| of every filter on a grey plane, with replicated borders. A plane whose
+    /// data is not width x height values is [`FeatureError::PlaneSize`]; an empty plane
+    /// has empty responses.
+    pub fn apply(&self, grey: &Plane) -> Result<Vec<Plane>, FeatureError> {
+        grey.check()?;
+        if grey.data.is_empty() {
+            return Ok(self.filters.iter().map(|_| grey.clone()).collect());
+        }
+        Ok(self
+            .filters
             .iter()
             .map(|f| {
                 let mut out = match f.separable() {
@@ -191,15 +198,17 @@ impl GaborBank {
                 out.data.iter_mut().for_each(|v| *v = v.abs());
                 out
             })
-            .collect()
+            .collect())
     }
 
     /// |response| of every filter at the pixels of `region` (x, y, width, height) of a grey
     /// plane with replicated borders: bit for bit the values [`GaborBank::apply`] gives
     /// there, but only those are filtered. A crop's margin is read, never filtered: with the
     /// default bank's 20 px margin around a cluster's patches that is over half the pixels.
-    /// A region reaching outside the plane is [`FeatureError::Region`].
+    /// A region reaching outside the plane is [`FeatureError::Region`], a plane as
+    /// [`GaborBank::apply`] checks it.
     pub fn apply_within(&self, grey: &Plane, region: (usize, usize, usize, usize)) -> Result<Vec<Plane>, FeatureError> {
+        grey.check()?;
         let (x0, y0, rw, rh) = region;
         let inside = |start: usize, len: usize, limit: usize| start.checked_add(len).is_some_and(|end| end <= limit);
         if !(inside(x0, rw, grey.width) && inside(y0, rh, grey.height)) {
@@ -280,9 +289,20 @@ pub struct Plane {
     pub data: Vec<f32>,
 }
 
+impl Plane {
+    /// [`FeatureError::PlaneSize`] unless the data holds width x height values.
+    fn check(&self) -> Result<(), FeatureError> {
+        if self.width.checked_mul(self.height) == Some(self.data.len()) {
+            Ok(())
+        } else {
+            Err(FeatureError::PlaneSize { width: self.width, height: self.height, found: self.data.len() })
+        }
+    }
+}
+
 /// Horizontal 1-D convolution (correlation; the kernels are symmetric or antisymmetric and
 /// used consistently) with replicated borders.
-pub fn convolve_rows(src: &Plane, kernel: &[f32]) -> Plane {
+fn convolve_rows(src: &Plane, kernel: &[f32]) -> Plane {
     let r = kernel.len() / 2;
     let (w, h) = (src.width, src.height);
     let mut out = vec![0.0f32; w * h];
@@ -299,7 +319,7 @@ pub fn convolve_rows(src: &Plane, kernel: &[f32]) -> Plane {
 }
 
 /// Vertical 1-D convolution with replicated borders.
-pub fn convolve_cols(src: &Plane, kernel: &[f32]) -> Plane {
+fn convolve_cols(src: &Plane, kernel: &[f32]) -> Plane {
     let r = kernel.len() / 2;
     let (w, h) = (src.width, src.height);
     // Rows replicated above and below, so every output row reads whole rows.
@@ -394,7 +414,7 @@ fn convolve_line_body(src: &[f32], step: usize, kernel: &[f32], dst: &mut [f32])
 }
 
 /// Full 2-D correlation with replicated borders (orientations that are not separable).
-pub fn convolve_2d(src: &Plane, kernel: &[f32], (rx, r): (usize, usize)) -> Plane {
+fn convolve_2d(src: &Plane, kernel: &[f32], (rx, r): (usize, usize)) -> Plane {
     let side_x = 2 * rx + 1;
     let side = 2 * r + 1;
     let (w, h) = (src.width, src.height);
@@ -495,7 +515,7 @@ mod tests {
         bank.filters.push(GaborFilter { theta_deg: 45.0, lambda_px: 4.0, sigma_px: 2.0, gamma: 0.5, psi: 0.0 });
         for (w, h) in [(90, 70), (40, 31), (17, 5)] {
             let img = random_plane(w, h);
-            let whole = bank.apply(&img);
+            let whole = bank.apply(&img).unwrap();
             // Interior, touching each edge, the whole plane, one pixel, none.
             for region in [
                 (21, 20, 30, 25),
@@ -544,7 +564,7 @@ mod tests {
         }
         // A flat image gives no response.
         let flat = Plane { width: 20, height: 20, data: vec![0.7; 400] };
-        for p in GaborBank::default().apply(&flat) {
+        for p in GaborBank::default().apply(&flat).unwrap() {
             assert!(p.data.iter().all(|v| v.abs() < 1e-5));
         }
     }
@@ -555,7 +575,7 @@ mod tests {
         let (w, h) = (48, 48);
         let data = (0..w * h).map(|i| if (i % w) % 4 < 2 { 1.0 } else { 0.0 }).collect();
         let img = Plane { width: w, height: h, data };
-        let out = GaborBank::default().apply(&img);
+        let out = GaborBank::default().apply(&img).unwrap();
         let centre = |p: &Plane| p.data[24 * w + 24];
         assert!(centre(&out[0]) > 10.0 * centre(&out[1]).max(1e-6), "{} vs {}", centre(&out[0]), centre(&out[1]));
     }

@@ -48,6 +48,8 @@ pub enum FeatureError {
     AppearanceLength { expected: usize, found: usize },
     #[error("a mosaic of {cells} cells and {appearance} appearance vectors: they must pair up")]
     Mosaic { cells: usize, appearance: usize },
+    #[error("a plane of {width}x{height} pixels with {found} values")]
+    PlaneSize { width: usize, height: usize, found: usize },
     #[error("pixel region {region:?} (x, y, width, height) reaches outside a {width}x{height} plane")]
     Region { region: (usize, usize, usize, usize), width: usize, height: usize },
 }
@@ -62,16 +64,27 @@ pub struct ImageRef<'a> {
 
 impl<'a> ImageRef<'a> {
     pub fn new(width: u32, height: u32, rgb: &'a [u8]) -> Result<Self, FeatureError> {
-        let expected = width as usize * height as usize * 3;
-        if rgb.len() != expected {
-            return Err(FeatureError::ImageSize { width, height, expected, found: rgb.len() });
+        let image = ImageRef { width, height, rgb };
+        image.check()?;
+        Ok(image)
+    }
+
+    /// [`FeatureError::ImageSize`] unless the buffer holds width x height RGB pixels (an
+    /// image built field by field rather than by `new` may not).
+    fn check(&self) -> Result<(), FeatureError> {
+        // Saturated where the product overflows: no buffer is that long.
+        let expected = (self.width as usize).saturating_mul(self.height as usize).saturating_mul(3);
+        if self.rgb.len() != expected {
+            let (width, height, found) = (self.width, self.height, self.rgb.len());
+            return Err(FeatureError::ImageSize { width, height, expected, found });
         }
-        Ok(ImageRef { width, height, rgb })
+        Ok(())
     }
 
     /// Patch grid size (cols, rows); partial patches at the right and bottom are dropped.
+    /// Patches of no size make no grid.
     pub fn grid(&self, patch_size: u32) -> (u32, u32) {
-        (self.width / patch_size, self.height / patch_size)
+        (self.width.checked_div(patch_size).unwrap_or(0), self.height.checked_div(patch_size).unwrap_or(0))
     }
 }
 
@@ -96,12 +109,14 @@ impl PatchRect {
         PatchRect { col0, col1, row0: 0, row1: rows }
     }
 
+    /// Columns in the rectangle (none where `col1` is not past `col0`).
     pub fn cols(&self) -> u32 {
-        self.col1 - self.col0
+        self.col1.saturating_sub(self.col0)
     }
 
+    /// Rows in the rectangle (none where `row1` is not past `row0`).
     pub fn rows(&self) -> u32 {
-        self.row1 - self.row0
+        self.row1.saturating_sub(self.row0)
     }
 
     pub fn len(&self) -> usize {
@@ -254,6 +269,7 @@ fn reach(lo: usize, hi: usize, margin: usize, limit: usize) -> (usize, usize) {
 /// are a [`FeatureError`].
 pub fn raw_patches(image: &ImageRef, config: &FeatureConfig, rect: &PatchRect) -> Result<DMatrix<f64>, FeatureError> {
     config.validate()?;
+    image.check()?;
     rect.check(image, config.patch_size)?;
     let buf = raw_patch_buffer(image, config, rect);
     let dims = config.raw_dims();
@@ -376,14 +392,10 @@ impl FeatureExtractor {
     /// the grid contributes the patch's own norm.
     pub fn features(&self, image: &ImageRef, rect: Option<PatchRect>) -> Result<PatchFeatures, FeatureError> {
         // An image or extractor built field by field rather than by `new` is checked here:
-        // a buffer shorter than its size, or no patch size, would panic below.
-        let expected = image.width as usize * image.height as usize * 3;
-        if image.rgb.len() != expected {
-            let (width, height, found) = (image.width, image.height, image.rgb.len());
-            return Err(FeatureError::ImageSize { width, height, expected, found });
-        }
-        if self.config.patch_size == 0 || self.pca.input_dims() != self.config.raw_dims() {
-            self.config.validate()?;
+        // a buffer shorter than its size, or settings that make no sense, would panic below.
+        image.check()?;
+        self.config.validate()?;
+        if self.pca.input_dims() != self.config.raw_dims() {
             return Err(FeatureError::PcaMismatch { expected: self.pca.input_dims(), found: self.config.raw_dims() });
         }
         let l = self.config.patch_size;

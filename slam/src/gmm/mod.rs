@@ -82,8 +82,26 @@ impl Gmm {
         self.components.first().map_or(0, |c| c.mean.len())
     }
 
-    /// Mean and covariance of the whole mixture.
-    pub fn moments(&self) -> (DVector<f64>, DMatrix<f64>) {
+    /// [`GmmError::Dimension`] or [`GmmError::CovarianceShape`] unless every component has
+    /// a mean of the mixture's dimension D and a D x D covariance.
+    pub fn check_shapes(&self) -> Result<(), GmmError> {
+        let d = self.dims();
+        for (k, c) in self.components.iter().enumerate() {
+            if c.mean.len() != d {
+                return Err(GmmError::Dimension { expected: d, found: c.mean.len() });
+            }
+            if c.covariance.shape() != (d, d) {
+                let (rows, cols) = c.covariance.shape();
+                return Err(GmmError::CovarianceShape { component: k, dims: d, rows, cols });
+            }
+        }
+        Ok(())
+    }
+
+    /// Mean and covariance of the whole mixture; components of other shapes are an error
+    /// ([`Gmm::check_shapes`]).
+    pub fn moments(&self) -> Result<(DVector<f64>, DMatrix<f64>), GmmError> {
+        self.check_shapes()?;
         let d = self.dims();
         let total: f64 = self.components.iter().map(|c| c.weight).sum();
         let mut mean = DVector::zeros(d);
@@ -95,7 +113,7 @@ impl Gmm {
             let dm = &c.mean - &mean;
             cov += (&c.covariance + &dm * dm.transpose()) * (c.weight / total);
         }
-        (mean, cov)
+        Ok((mean, cov))
     }
 
     /// Prepares the mixture for fast repeated density evaluation.
@@ -128,16 +146,10 @@ impl GmmEvaluator {
         if g.components.is_empty() {
             return Err(GmmError::EmptyModel);
         }
+        g.check_shapes()?;
         let d = g.dims();
         let mut out = GmmEvaluator { dims: d, log_norm: vec![], means: vec![], whiten: vec![] };
         for (k, c) in g.components.iter().enumerate() {
-            if c.mean.len() != d {
-                return Err(GmmError::Dimension { expected: d, found: c.mean.len() });
-            }
-            if c.covariance.shape() != (d, d) {
-                let (rows, cols) = c.covariance.shape();
-                return Err(GmmError::CovarianceShape { component: k, dims: d, rows, cols });
-            }
             if !(c.weight.is_finite() && c.weight >= 0.0) || !c.mean.iter().all(|v| v.is_finite()) {
                 return Err(GmmError::BadModel(format!(
                     "component {k}: its weight ({}) must be finite and not negative, and its mean finite",

@@ -51,8 +51,19 @@ pub struct StudentTMixture {
 }
 
 impl StudentTMixture {
+    /// The predictive density of `model`; components whose mean or W^-1 is not of the
+    /// prior's dimension are an error ([`VbGmm::check`] checks the rest).
     pub fn new(model: &VbGmm) -> Result<Self, GmmError> {
         let d = model.dims();
+        for (k, c) in model.components.iter().enumerate() {
+            if c.mean.len() != d {
+                return Err(GmmError::Dimension { expected: d, found: c.mean.len() });
+            }
+            if c.w_inv.shape() != (d, d) {
+                let (rows, cols) = c.w_inv.shape();
+                return Err(GmmError::CovarianceShape { component: k, dims: d, rows, cols });
+            }
+        }
         let df = d as f64;
         let weights = model.weights();
         let mut components = Vec::with_capacity(model.components.len());

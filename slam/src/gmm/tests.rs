@@ -257,7 +257,7 @@ fn gaussian_approximation_matches_the_student_t_covariance() {
     let expected = c.precision.clone().try_inverse().unwrap() * (c.dof / (c.dof - 2.0));
     assert!((&g.components[0].covariance - expected).amax() < 1e-9);
     // And it is close to the sample covariance with 200 points.
-    let (_, cov) = g.moments();
+    let (_, cov) = g.moments().unwrap();
     let prior = VbPrior::from_data(&data).unwrap();
     assert!((&cov - &prior.w0_inv).amax() < 0.1 * prior.w0_inv.amax(), "{cov} vs {}", prior.w0_inv);
 }

@@ -66,7 +66,7 @@ impl VbPrior {
         if d == 0 {
             return Err(GmmError::EmptyModel);
         }
-        let (mean, cov) = g.moments();
+        let (mean, cov) = g.moments()?;
         let prior = VbPrior { alpha0: 1.0, beta0: 1.0, nu0, m0: mean, w0_inv: cov * nu0.max(d as f64) / d as f64 };
         prior.check(d)?;
         Ok(prior)

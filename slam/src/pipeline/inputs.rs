@@ -85,7 +85,8 @@ impl Pipeline {
             h.push_control(u, self.ekf.pose());
         }
         // The dead-reckoned pose follows the same model, without the filter's corrections.
-        let (next, _, _) = self.config.motion.predict(&Vector3::from(self.odometry_pose), &u);
+        let (next, _, _) =
+            self.config.motion.predict(&Vector3::from(self.odometry_pose), &u).expect("the filter took this control");
         self.odometry_pose = [next.x, next.y, next.z];
         self.t = t;
         self.record_pose();
@@ -167,7 +168,7 @@ impl Pipeline {
         {
             return Err(PipelineError::ImageTimeReversed { t, previous: previous.t });
         }
-        let expected = width as usize * height as usize * 3;
+        let expected = (width as usize).saturating_mul(height as usize).saturating_mul(3);
         if rgb.len() != expected {
             return Err(PipelineError::Image { width, height, expected, found: rgb.len() });
         }

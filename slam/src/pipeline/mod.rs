@@ -52,7 +52,7 @@
 //! slam.on_control(t0, Control::Ackermann { speed, steering })?; // held until changed
 //! let mut truth = Vector3::zeros();
 //! for step in 1..=150 {
-//!     truth = car.predict(&truth, &[speed, steering, dt]).0;
+//!     truth = car.predict(&truth, &[speed, steering, dt])?.0;
 //!     let seen: Vec<Detection> = trees
 //!         .iter()
 //!         .map(|tree| config.sensor.observe(&truth, tree).0)
