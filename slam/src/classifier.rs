@@ -873,6 +873,19 @@ mod tests {
             assert_eq!(a.to_bits(), b.to_bits(), "row {i}: {a} against {b}");
         }
         assert!(together.iter().any(|&r| r > 0.9) && together.iter().any(|&r| r < 0.1), "both classes present");
+        // Features that do not fit the classifier are named, not read out of bounds.
+        let d = features.z.ncols();
+        let narrow = PatchFeatures { rect: features.rect, z: features.z.columns(0, d - 1).into_owned() };
+        let wrong = ClassifyError::Dimension { expected: d, found: d - 1 };
+        assert_eq!(classifier.posteriors(&narrow), Err(wrong.clone()));
+        assert_eq!(classifier.classify(&narrow), Err(wrong.clone()));
+        assert_eq!(classifier.posterior(&vec![0.0; d - 1]), Err(wrong.clone()));
+        assert_eq!(
+            classifier.foliage_probability(&vec![0.0; d + 1]),
+            Err(ClassifyError::Dimension { expected: d, found: d + 1 })
+        );
+        let fewer = PatchFeatures { rect: features.rect, z: features.z.rows(0, 7).into_owned() };
+        assert_eq!(classifier.posteriors(&fewer), Err(ClassifyError::Rows { rows: 7, patches: 130 }));
     }
 
     #[test]

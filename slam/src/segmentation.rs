@@ -420,6 +420,10 @@ pub fn segment_located(
 ) -> Result<SegmentedCluster, FeatureError> {
     let l = extractor.config.patch_size;
     let ClusterInImage { hits, point_cells, rect, at_image_edge } = located;
+    let inside = |&(c, r): &(u32, u32)| (rect.col0..rect.col1).contains(&c) && (rect.row0..rect.row1).contains(&r);
+    if hits.is_empty() || !hits.iter().all(inside) {
+        return Err(FeatureError::Hits { rect });
+    }
     let features = extractor.features(image, Some(rect))?;
     let posteriors = classifier.posteriors(&features)?;
     let threshold = config.patch_threshold.unwrap_or(classifier.threshold);
@@ -739,6 +743,14 @@ mod tests {
         let hit_cols = located.hits.iter().map(|h| h.0).max().unwrap();
         assert!(located.rect.col1 > hit_cols + 2, "the classified columns reach the band's: {:?}", located.rect);
         let image = ImageRef::new(640, 480, &rgb).unwrap();
+        // A located cluster built by hand without hits, or with one outside its rectangle,
+        // is named rather than read out of bounds.
+        let outside = (located.rect.col1, located.rect.row0);
+        for hits in [vec![], vec![located.hits[0], outside]] {
+            let bad = ClusterInImage { hits, ..located.clone() };
+            let e = segment_located(&cluster, bad, &image, &model.extractor, &classifier, &g, &config).unwrap_err();
+            assert!(matches!(e, FeatureError::Hits { rect } if rect == located.rect), "{e}");
+        }
         let seen = segment_located(&cluster, located, &image, &model.extractor, &classifier, &g, &config).unwrap();
         assert!(seen.band_visible && seen.above_fraction >= 0.9, "band fraction {}", seen.above_fraction);
         assert!(seen.is_object);

@@ -48,6 +48,10 @@ pub enum FeatureError {
     AppearanceLength { expected: usize, found: usize },
     #[error("a mosaic of {cells} cells and {appearance} appearance vectors: they must pair up")]
     Mosaic { cells: usize, appearance: usize },
+    /// A located cluster (built field by field) without laser hits, or with one outside
+    /// its patch rectangle.
+    #[error("a located cluster needs laser hits, all inside its patch rectangle {rect:?}")]
+    Hits { rect: PatchRect },
     #[error("a plane of {width}x{height} pixels with {found} values")]
     PlaneSize { width: usize, height: usize, found: usize },
     #[error("pixel region {region:?} (x, y, width, height) reaches outside a {width}x{height} plane")]
