@@ -109,6 +109,7 @@ fn loop_drive() -> Drive {
         },
         &landmarks,
     )
+    .expect("a finite route")
 }
 
 #[divan::bench(sample_count = 10)]

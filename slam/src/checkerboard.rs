@@ -105,12 +105,15 @@ pub fn detect(
     square_m: f64,
     k: &Matrix3<f64>,
 ) -> Result<BoardDetection, DetectionError> {
-    if rgb.len() != width * height * 3 {
+    // Saturated where the products overflow: no buffer or board is that large.
+    if rgb.len() != width.saturating_mul(height).saturating_mul(3) {
         return Err(DetectionError::BadImage { len: rgb.len(), width, height });
     }
     let (w, h) = (width, height);
-    if w < 16 || h < 16 || inner.0 < 2 || inner.1 < 2 {
-        return Err(DetectionError::TooFewCorners { found: 0, expected: inner.0 * inner.1 });
+    // A board of more corners than the image has pixels cannot be in it.
+    let corners = inner.0.saturating_mul(inner.1);
+    if w < 16 || h < 16 || inner.0 < 2 || inner.1 < 2 || corners > w * h {
+        return Err(DetectionError::TooFewCorners { found: 0, expected: corners });
     }
     let img = smoothed_grey(rgb, w, h);
     let at = |x: usize, y: usize| img[y * w + x];
@@ -125,7 +128,7 @@ pub fn detect(
         }
     }
     let max = resp.iter().cloned().fold(0.0f32, f32::max);
-    let expected = inner.0 * inner.1;
+    let expected = corners;
     if max.is_nan() || max <= 1e-3 {
         // A flat image: no saddle anywhere.
         return Err(DetectionError::TooFewCorners { found: 0, expected });

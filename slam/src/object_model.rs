@@ -405,6 +405,10 @@ pub fn render_mosaic(view: &MosaicView, extractor: &FeatureExtractor) -> Result<
     if view.cells.len() != view.appearance.len() {
         return Err(FeatureError::Mosaic { cells: view.cells.len(), appearance: view.appearance.len() });
     }
+    // An extractor built field by field: its PCA must give the patches its settings cut.
+    if pca.input_dims() != extractor.config.raw_dims() {
+        return Err(FeatureError::PcaMismatch { expected: pca.input_dims(), found: extractor.config.raw_dims() });
+    }
     if view.cells.is_empty() {
         return Ok((0, 0, Vec::new()));
     }
@@ -413,7 +417,7 @@ pub fn render_mosaic(view: &MosaicView, extractor: &FeatureExtractor) -> Result<
         (view.cells.iter().map(|c| c.0).min().unwrap_or(0), view.cells.iter().map(|c| c.0).max().unwrap_or(0));
     let (r0, r1) =
         (view.cells.iter().map(|c| c.1).min().unwrap_or(0), view.cells.iter().map(|c| c.1).max().unwrap_or(0));
-    let (w, h) = (((c1 - c0 + 1) as usize * l), ((r1 - r0 + 1) as usize * l));
+    let (w, h) = (((c1 - c0) as usize + 1) * l, ((r1 - r0) as usize + 1) * l);
     let mut rgb = vec![0u8; w * h * 3];
     for (cell, z) in view.cells.iter().zip(&view.appearance) {
         let raw = pca.back_project(z)?;
@@ -443,7 +447,7 @@ pub fn render_mosaic_as_seen(view: &MosaicView, patch_size: u32) -> Option<(u32,
     }
     let (c0, c1) = (view.cells.iter().map(|c| c.0).min()?, view.cells.iter().map(|c| c.0).max()?);
     let (r0, r1) = (view.cells.iter().map(|c| c.1).min()?, view.cells.iter().map(|c| c.1).max()?);
-    let (w, h) = ((c1 - c0 + 1) as usize * l, (r1 - r0 + 1) as usize * l);
+    let (w, h) = (((c1 - c0) as usize + 1) * l, ((r1 - r0) as usize + 1) * l);
     let mut rgb = vec![0u8; w * h * 3];
     for (cell, patch) in view.cells.iter().zip(&view.pixels) {
         let (ox, oy) = ((cell.0 - c0) as usize * l, (cell.1 - r0) as usize * l);

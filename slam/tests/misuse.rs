@@ -113,6 +113,11 @@ fn a_mosaic_whose_cells_and_vectors_do_not_pair_is_refused() {
     assert!(matches!(e, FeatureError::Mosaic { cells: 2, appearance: 1 }), "{e}");
     let e = render_mosaic(&view(vec![vec![0.0; 3], vec![0.0; 2]]), &extractor).unwrap_err();
     assert!(matches!(e, FeatureError::AppearanceLength { expected: 3, found: 2 }), "{e}");
+    // An extractor put together field by field, its PCA not of its settings' patches.
+    let mut mismatched = extractor.clone();
+    mismatched.config.patch_size = 3;
+    let e = render_mosaic(&view(vec![vec![0.0; 3], vec![0.1; 3]]), &mismatched).unwrap_err();
+    assert!(matches!(e, FeatureError::PcaMismatch { expected: 12, found: 27 }), "{e}");
 }
 
 #[test]
@@ -420,4 +425,22 @@ fn an_image_built_field_by_field_is_checked_before_its_features() {
     let whole = vec![0u8; 64 * 48 * 3];
     let e = no_patches.features(&ImageRef::new(64, 48, &whole).unwrap(), None).unwrap_err();
     assert!(e.to_string().contains("patch_size"), "{e}");
+}
+
+#[test]
+fn boards_images_and_drives_of_impossible_sizes_are_refused() {
+    use slam::checkerboard::{DetectionError, detect};
+    use slam::ekf::synthetic::{Route, drive};
+    let k = Matrix3::new(500.0, 0.0, 320.0, 0.0, 500.0, 240.0, 0.0, 0.0, 1.0);
+    let rgb = vec![128u8; 32 * 32 * 3];
+    assert!(matches!(detect(&rgb, usize::MAX, 3, (7, 5), 0.1, &k), Err(DetectionError::BadImage { .. })));
+    let e = detect(&rgb, 32, 32, (usize::MAX, 2), 0.1, &k).unwrap_err();
+    assert!(matches!(e, DetectionError::TooFewCorners { found: 0, expected: usize::MAX }), "{e}");
+    assert!(matches!(detect(&rgb, 32, 32, (40, 40), 0.1, &k), Err(DetectionError::TooFewCorners { found: 0, .. })));
+    let route =
+        Route { steps: 20, step_m: 0.1, turn: 0.0, scale: 0.0, turn_scale: 0.0, observe_every: 0, max_range_m: 8.0 };
+    let d = drive(&route, &[Vector2::new(3.0, 0.0)]).unwrap();
+    assert_eq!(d.ekf.landmark_count(), 0, "observed every 0 steps: never");
+    let bad = Route { step_m: f64::NAN, observe_every: 2, ..route };
+    assert!(drive(&bad, &[Vector2::new(3.0, 0.0)]).is_err());
 }

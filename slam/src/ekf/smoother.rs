@@ -466,6 +466,7 @@ mod tests {
             &Route { steps, step_m: 0.1, turn, scale, turn_scale, observe_every: 5, max_range_m: 7.0 },
             landmarks,
         )
+        .unwrap()
     }
 
     fn square() -> Drive {

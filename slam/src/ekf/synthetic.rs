@@ -6,7 +6,7 @@
 use nalgebra::{Matrix3, Vector2, Vector3};
 
 use super::smoother::History;
-use super::{Ekf, MotionModel, OdometryMotionModel, RangeBearingModel};
+use super::{Ekf, EkfError, MotionModel, OdometryMotionModel, RangeBearingModel};
 use crate::messages::wrap_angle;
 
 /// The route and what the odometry gets wrong.
@@ -19,7 +19,7 @@ pub struct Route {
     /// The odometry reads `scale` long and turns `turn_scale` more than the robot did.
     pub scale: f64,
     pub turn_scale: f64,
-    /// Landmarks are observed every this many steps, out to `max_range_m`.
+    /// Landmarks are observed every this many steps (0: never), out to `max_range_m`.
     pub observe_every: usize,
     pub max_range_m: f64,
 }
@@ -39,8 +39,9 @@ pub struct Drive {
     pub truth: Vector3<f64>,
 }
 
-/// Drives `route` from the origin past `landmarks`.
-pub fn drive(route: &Route, landmarks: &[Vector2<f64>]) -> Drive {
+/// Drives `route` from the origin past `landmarks`; a route or landmark the filter refuses
+/// (not finite) is its error.
+pub fn drive(route: &Route, landmarks: &[Vector2<f64>]) -> Result<Drive, EkfError> {
     let motion = OdometryMotionModel::default();
     let sensor = RangeBearingModel::default();
     let (start, cov) = (Vector3::zeros(), Matrix3::identity() * 1e-6);
@@ -54,9 +55,9 @@ pub fn drive(route: &Route, landmarks: &[Vector2<f64>]) -> Drive {
         let u = [route.step_m * (1.0 + route.scale), 0.0, route.turn * (1.0 + route.turn_scale)];
         let (s, c) = truth.z.sin_cos();
         truth = Vector3::new(truth.x + c * route.step_m, truth.y + s * route.step_m, wrap_angle(truth.z + route.turn));
-        ekf.predict(&motion, &u).unwrap();
+        ekf.predict(&motion, &u)?;
         history.push_control(u, ekf.pose());
-        if step % route.observe_every == route.observe_every - 1 {
+        if route.observe_every > 0 && step % route.observe_every == route.observe_every - 1 {
             for (j, l) in landmarks.iter().enumerate() {
                 let (z, _, _) = sensor.observe(&truth, l);
                 if z.x > route.max_range_m {
@@ -64,9 +65,9 @@ pub fn drive(route: &Route, landmarks: &[Vector2<f64>]) -> Drive {
                 }
                 let id = j as u32;
                 match ids.iter().position(|&i| i == id) {
-                    Some(slot) => ekf.update(&sensor, slot, &z).expect("exact measurements of a known landmark"),
+                    Some(slot) => ekf.update(&sensor, slot, &z)?,
                     None => {
-                        ekf.add_landmark(&sensor, &z).unwrap();
+                        ekf.add_landmark(&sensor, &z)?;
                         ids.push(id);
                     }
                 }
@@ -76,5 +77,5 @@ pub fn drive(route: &Route, landmarks: &[Vector2<f64>]) -> Drive {
         }
     }
     let order = ids.iter().map(|id| landmarks[*id as usize]).collect();
-    Drive { ekf, history, ids, motion, sensor, landmarks: order, truth }
+    Ok(Drive { ekf, history, ids, motion, sensor, landmarks: order, truth })
 }
