@@ -29,7 +29,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::column_context::{self, ColumnContext, LabelledGrid};
 use crate::features::{
-    FeatureConfig, FeatureError, FeatureExtractor, ImageRef, PatchFeatures, PatchRect, Pca, raw_patches,
+    FeatureConfig, FeatureError, FeatureExtractor, IN_RECT, ImageRef, PatchFeatures, PatchRect, Pca, raw_patches,
 };
 use crate::gmm::{self, GmmError, GmmEvaluator, StudentTMixture, VbGmm, VbOptions};
 
@@ -393,7 +393,7 @@ impl PatchClassifier {
     /// rectangle, are a [`ClassifyError`].
     pub fn posteriors(&self, features: &PatchFeatures) -> Result<Vec<f64>, ClassifyError> {
         self.check_dims(features.z.ncols())?;
-        let (rows, patches) = (features.z.nrows(), (features.rect.cols() * features.rect.rows()) as usize);
+        let (rows, patches) = (features.z.nrows(), features.rect.len());
         if rows != patches {
             return Err(ClassifyError::Rows { rows, patches });
         }
@@ -604,7 +604,7 @@ pub fn train(
             )));
         }
         for k in 0..f.z.nrows() {
-            let (c, r) = f.rect.patch(k);
+            let (c, r) = f.rect.patch(k).expect(IN_RECT);
             let cell = (r * cols + c) as usize;
             if img.fractions[cell] as f64 >= options.label_fraction {
                 obj.extend(f.z.row(k).iter());
@@ -735,7 +735,7 @@ fn fit_context(
         let log_odds: Vec<f64> = classifier.minus_log_odds(&f).into_iter().map(|m| -m).collect();
         let object: Vec<bool> = (0..f.z.nrows())
             .map(|k| {
-                let (c, r) = f.rect.patch(k);
+                let (c, r) = f.rect.patch(k).expect(IN_RECT);
                 img.fractions[(r * cols + c) as usize] as f64 >= label_fraction
             })
             .collect();
@@ -764,7 +764,7 @@ pub fn evaluate_foliage(
         }
         let (f, cols) = labelled_features(&model.extractor, &img, i)?;
         for k in 0..f.z.nrows() {
-            let (c, r) = f.rect.patch(k);
+            let (c, r) = f.rect.patch(k).expect(IN_RECT);
             let p = classifier.foliage_probability(f.z.row(k).transpose().as_slice())?.expect("has foliage");
             scores.add(p > 0.5, img.foliage[(r * cols + c) as usize] as f64 >= label_fraction);
         }
@@ -785,7 +785,7 @@ pub fn evaluate(
         let img = images(i)?;
         let (f, cols) = labelled_features(&model.extractor, &img, i)?;
         for (k, predicted) in classifier.classify(&f)?.into_iter().enumerate() {
-            let (c, r) = f.rect.patch(k);
+            let (c, r) = f.rect.patch(k).expect(IN_RECT);
             scores.add(predicted, img.fractions[(r * cols + c) as usize] as f64 >= label_fraction);
         }
     }

@@ -9,7 +9,9 @@ use serde::{Deserialize, Serialize};
 use crate::calibration::Extrinsics;
 use crate::classifier::PatchClassifier;
 use crate::clustering::{Cluster, ClusteringConfig, cluster};
-use crate::features::{FeatureConfig, FeatureError, FeatureExtractor, ImageRef, PatchFeatures, PatchRect, PixelRegion};
+use crate::features::{
+    FeatureConfig, FeatureError, FeatureExtractor, IN_RECT, ImageRef, PatchFeatures, PatchRect, PixelRegion,
+};
 use crate::messages::LaserScan;
 
 /// The camera as the pipeline knows it: pinhole intrinsics K and the laser <- camera
@@ -506,7 +508,7 @@ pub fn segment_located(
                 let Some(i) = at(line, row) else { continue };
                 let by_leaves = !object[i] && ends_in_canopy && is_foliage(i);
                 let counts = object[i] || by_leaves;
-                let patch = rect.patch(i);
+                let patch = rect.patch(i).expect(IN_RECT);
                 match band.iter_mut().find(|b| b.0 == patch) {
                     Some(b) if !b.1 && counts => *b = (patch, true, by_leaves),
                     Some(_) => {}

@@ -215,7 +215,10 @@ fn a_motion_model_refuses_a_control_or_calibration_of_another_length() {
         }
         assert!(model.predict(&pose, &[1.0, 0.1, 0.2]).is_ok());
     }
-    // The odometry model estimates three calibration errors or none.
+    // A model that estimates no calibration takes none; the odometry model three or none.
+    let car = AckermannMotionModel::default();
+    let e = car.predict_calibrated(&pose, &[0.0; 3], &[1.0, 0.1, 0.2]).unwrap_err();
+    assert_eq!(e, EkfError::CalibrationLength { calibration: 3, model: 0 });
     let e = odometry.predict_calibrated(&pose, &[0.0, 0.0], &[0.5, 0.0, 0.1]).unwrap_err();
     assert_eq!(e, EkfError::CalibrationLength { calibration: 2, model: 3 });
     let (plain, calibrated) = (
@@ -273,7 +276,18 @@ fn beams_past_the_scan_and_patches_of_no_size_are_named_or_none() {
     assert_eq!(image.grid(0), (0, 0));
     assert!(PatchRect::whole(&image, 0).is_empty());
     let inverted = PatchRect { col0: 4, col1: 2, row0: 3, row1: 1 };
-    assert_eq!((inverted.cols(), inverted.rows(), inverted.len()), (0, 0, 0));
+    assert_eq!((inverted.cols(), inverted.rows(), inverted.len(), inverted.patch(0)), (0, 0, 0, None));
+    let two_by_three = PatchRect { col0: 1, col1: 3, row0: 5, row1: 8 };
+    assert_eq!(
+        (two_by_three.patch(0), two_by_three.patch(5), two_by_three.patch(6)),
+        (Some((1, 5)), Some((2, 7)), None)
+    );
+    let config = slam::features::FeatureConfig::default();
+    let far = PatchRect { col0: u32::MAX - 1, col1: u32::MAX, row0: 0, row1: 1 };
+    let region = config.pixels_read(&far, 30, 20);
+    assert!(region.columns.0 <= region.columns.1 && region.columns.1 <= 30, "{region:?}");
+    let no_patches = slam::features::FeatureConfig { patch_size: 0, ..config.clone() };
+    assert!(no_patches.pixels_read(&two_by_three, 30, 20).columns.1 <= 30);
     // An image built field by field, its buffer short: named, not read past its end.
     let short = ImageRef { width: 30, height: 20, rgb: &rgb[..100] };
     let config = slam::features::FeatureConfig::default();
@@ -293,9 +307,17 @@ fn a_plane_whose_data_is_not_its_size_is_refused() {
         assert!(matches!(bank.apply(&plane), Err(FeatureError::PlaneSize { .. })), "{plane:?}");
         assert!(matches!(bank.apply_within(&plane, (0, 0, 0, 0)), Err(FeatureError::PlaneSize { .. })));
     }
+    // A bank with a filter that is not separable (45 degrees) filters in 2-D.
+    let mut diagonal = GaborBank::default();
+    diagonal.filters[0].theta_deg = 45.0;
+    assert!(diagonal.filters[0].separable().is_none());
     for empty in [Plane { width: 0, height: 3, data: vec![] }, Plane { width: 5, height: 0, data: vec![] }] {
-        let out = bank.apply(&empty).unwrap();
-        assert!(out.len() == bank.len() && out.iter().all(|p| p.data.is_empty()));
+        for bank in [&bank, &diagonal] {
+            let out = bank.apply(&empty).unwrap();
+            assert!(out.len() == bank.len() && out.iter().all(|p| p.data.is_empty()));
+            let within = bank.apply_within(&empty, (0, 0, 0, 0)).unwrap();
+            assert!(within.len() == bank.len() && within.iter().all(|p| p.data.is_empty()));
+        }
     }
     assert_eq!(bank.apply(&Plane { width: 4, height: 3, data: vec![0.5; 12] }).unwrap().len(), bank.len());
 }
@@ -342,7 +364,12 @@ fn a_landmark_past_the_map_is_named() {
     let a = ekf.add_landmark(&model, &z).unwrap();
     assert_eq!(ekf.landmark_difference(a, 1).map(|d| d.0), Err(EkfError::UnknownLandmark(1)));
     assert!(ekf.mahalanobis2(&model, a, &z).unwrap() < 1e-9);
-    assert_eq!(ekf.mahalanobis2_to_all(&model, &z).len(), 1);
+    let b = ekf.add_landmark(&model, &Vector2::new(7.0, 0.4)).unwrap();
+    ekf.predict(&OdometryMotionModel::default(), &[0.3, 0.05, 0.1]).unwrap();
+    let all = ekf.mahalanobis2_to_all(&model, &z);
+    let one_by_one = [ekf.mahalanobis2(&model, a, &z).unwrap(), ekf.mahalanobis2(&model, b, &z).unwrap()];
+    assert_eq!(all.iter().map(|d| d.to_bits()).collect::<Vec<_>>(), one_by_one.map(f64::to_bits).to_vec());
+    ekf.remove_landmark(b).unwrap();
     assert_eq!(ekf.landmarks().collect::<Vec<_>>(), vec![ekf.landmark(a).unwrap()]);
     assert_eq!(ekf.remove_landmark(a), Ok(()));
     assert_eq!(ekf.landmark_count(), 0);
@@ -367,6 +394,25 @@ fn an_observation_of_another_feature_space_is_no_divergence() {
     let same = Gmm { components: vec![gaussian(1.0, &[0.0; 6])] };
     let kl = model.kl_from(&same, [0.0; 2], [0.0; 2], &Matrix2::identity(), &ObjectModelConfig::default(), true);
     assert!(kl.unwrap().abs() < 1e-9);
+    // Nor is an observation of another feature space merged into the model.
+    let observation = |columns: usize| ObjectObservation {
+        centre: [0.0, 0.0],
+        rows: DMatrix::from_fn(5, columns, |i, j| (i + j) as f64 * 0.1),
+        appearance: vec![],
+        cells: vec![],
+        pixels: vec![],
+        centre_covariance: Matrix2::identity(),
+    };
+    let mut merged = model.clone();
+    let e = merged.update(&observation(5), [0.0; 2], 3).unwrap_err();
+    assert!(matches!(e, ObjectModelError::Dimension { observation: 5, model: 6 }), "{e}");
+    assert_eq!(merged, model, "a refused observation changed the model");
+    merged.update(&observation(6), [0.0; 2], 3).unwrap();
+    assert_eq!(merged.observations, 2);
+    let narrow = ObjectModel { gmm: Gmm { components: vec![gaussian(1.0, &[0.0; 3])] }, ..model.clone() };
+    let e = narrow.clone().update(&observation(3), [0.0; 2], 0).unwrap_err();
+    assert!(matches!(e, ObjectModelError::TooFewColumns(3)), "{e}");
+    assert_eq!(observation(2).appearance_dims(), 0);
 }
 
 #[test]
@@ -425,6 +471,17 @@ fn an_image_built_field_by_field_is_checked_before_its_features() {
     let whole = vec![0u8; 64 * 48 * 3];
     let e = no_patches.features(&ImageRef::new(64, 48, &whole).unwrap(), None).unwrap_err();
     assert!(e.to_string().contains("patch_size"), "{e}");
+    // Settings that make no sense beside a PCA that fits them: named, not filtered with.
+    let mut no_gain = extractor.clone();
+    no_gain.config.channel_gain = vec![0.0; 7];
+    let e = no_gain.features(&ImageRef::new(64, 48, &whole).unwrap(), None).unwrap_err();
+    assert!(matches!(&e, FeatureError::Settings(s) if s.to_string().contains("channel_gain")), "{e}");
+    let mut flat_filter = extractor.clone();
+    flat_filter.config.bank.filters[0].gamma = 0.0;
+    assert!(matches!(
+        flat_filter.features(&ImageRef::new(64, 48, &whole).unwrap(), None),
+        Err(FeatureError::Settings(_))
+    ));
 }
 
 #[test]
@@ -432,15 +489,19 @@ fn boards_images_and_drives_of_impossible_sizes_are_refused() {
     use slam::checkerboard::{DetectionError, detect};
     use slam::ekf::synthetic::{Route, drive};
     let k = Matrix3::new(500.0, 0.0, 320.0, 0.0, 500.0, 240.0, 0.0, 0.0, 1.0);
-    let rgb = vec![128u8; 32 * 32 * 3];
+    // Noise, not a flat image (which has no corner candidates whatever the board).
+    let rgb: Vec<u8> = (0..32 * 32 * 3).map(|i: usize| (i.wrapping_mul(2654435761) >> 7) as u8).collect();
     assert!(matches!(detect(&rgb, usize::MAX, 3, (7, 5), 0.1, &k), Err(DetectionError::BadImage { .. })));
     let e = detect(&rgb, 32, 32, (usize::MAX, 2), 0.1, &k).unwrap_err();
     assert!(matches!(e, DetectionError::TooFewCorners { found: 0, expected: usize::MAX }), "{e}");
-    assert!(matches!(detect(&rgb, 32, 32, (40, 40), 0.1, &k), Err(DetectionError::TooFewCorners { found: 0, .. })));
+    // More corners than pixels: refused before a search (which finds candidates in noise).
+    let e = detect(&rgb, 32, 32, (40, 40), 0.1, &k).unwrap_err();
+    assert!(matches!(e, DetectionError::TooFewCorners { found: 0, expected: 1600 }), "{e}");
+    assert!(!matches!(detect(&rgb, 32, 32, (4, 4), 0.1, &k), Err(DetectionError::TooFewCorners { found: 0, .. })));
     let route =
         Route { steps: 20, step_m: 0.1, turn: 0.0, scale: 0.0, turn_scale: 0.0, observe_every: 0, max_range_m: 8.0 };
     let d = drive(&route, &[Vector2::new(3.0, 0.0)]).unwrap();
     assert_eq!(d.ekf.landmark_count(), 0, "observed every 0 steps: never");
     let bad = Route { step_m: f64::NAN, observe_every: 2, ..route };
-    assert!(drive(&bad, &[Vector2::new(3.0, 0.0)]).is_err());
+    assert!(matches!(drive(&bad, &[Vector2::new(3.0, 0.0)]), Err(slam::ekf::EkfError::NonFinite)));
 }

@@ -98,6 +98,7 @@ pub fn chi2_quantile(dof: usize, p: f64) -> Result<f64, Chi2DomainError> {
 
 /// A chi-square quantile asked for where none exists.
 #[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+#[non_exhaustive]
 #[error("no chi-square quantile at {dof} degrees of freedom and probability {p}: need dof >= 1 and 0 <= p < 1")]
 pub struct Chi2DomainError {
     pub dof: usize,

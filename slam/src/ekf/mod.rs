@@ -213,8 +213,10 @@ impl Ekf {
     ///
     /// A control that is not finite, or one whose predicted pose, Jacobians, noise or
     /// covariance are not (a motion model of zero wheelbase, a speed of 1e300 m/s), is
-    /// refused with [`EkfError::NonFinite`], the filter left as it was; so is a control
-    /// that is not `model.control_dims()` long ([`EkfError::ControlLength`]).
+    /// refused with [`EkfError::NonFinite`], the filter left as it was. A control that is
+    /// not `model.control_dims()` long is refused with [`EkfError::ControlLength`], and a
+    /// filter whose calibration parameters are not the model's with
+    /// [`EkfError::CalibrationLength`], also leaving the filter as it was.
     pub fn predict(&mut self, model: &dyn MotionModel, control: &[f64]) -> Result<(), EkfError> {
         if control.len() != model.control_dims() {
             return Err(EkfError::ControlLength { control: control.len(), model: model.control_dims() });

@@ -23,13 +23,18 @@ pub trait MotionModel: Send + Sync {
     }
 
     /// Prediction with calibration parameters `calibration` applied to the control: also
-    /// returns `d pose'/d calibration` (3 x `calibration.len()`). The default ignores them.
+    /// returns `d pose'/d calibration` (3 x `calibration.len()`). The default, for a model
+    /// that estimates none, takes no calibration parameters ([`EkfError::CalibrationLength`]
+    /// for any).
     fn predict_calibrated(
         &self,
         pose: &Vector3<f64>,
         calibration: &[f64],
         control: &[f64],
     ) -> Result<CalibratedPrediction, EkfError> {
+        if !calibration.is_empty() {
+            return Err(EkfError::CalibrationLength { calibration: calibration.len(), model: 0 });
+        }
         let (pose, f, q) = self.predict(pose, control)?;
         Ok(CalibratedPrediction { pose, f, f_calibration: DMatrix::zeros(3, calibration.len()), q })
     }

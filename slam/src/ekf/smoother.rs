@@ -35,8 +35,9 @@ pub enum SmootherError {
     Unobserved(u32),
     #[error("the filter's state does not match the history ({0})")]
     Mismatch(&'static str),
-    /// The motion model refused a control of the history (another length than it takes).
-    #[error("the motion model refused a control of the history: {0}")]
+    /// The motion model refused a prediction of the history: a control of another length
+    /// than it takes, or calibration parameters it does not estimate.
+    #[error("the motion model refused a prediction of the history: {0}")]
     Motion(#[from] super::EkfError),
 }
 
@@ -458,6 +459,7 @@ impl History {
 mod tests {
     use super::*;
     use crate::ekf::synthetic::{self, Drive, Route};
+    use crate::ekf::{EkfError, PosePrediction, control_values};
 
     /// `steps` 0.1 m steps turning `turn` rad each, landmarks seen out to 7 m every fifth
     /// step; the odometry reads `scale` long and turns `turn_scale` more.
@@ -564,6 +566,32 @@ mod tests {
             d.history.relinearise(&mut d.ekf, &start, &d.motion, &d.sensor, &ids[1..], 10),
             Err(SmootherError::Mismatch("landmark count"))
         );
+        assert_eq!(d.ekf, before);
+    }
+
+    /// A motion model of two-value controls that estimates no calibration: not the one
+    /// the history was recorded with.
+    struct TwoValues;
+
+    impl MotionModel for TwoValues {
+        fn control_dims(&self) -> usize {
+            2
+        }
+        fn predict(&self, pose: &Vector3<f64>, control: &[f64]) -> Result<PosePrediction, EkfError> {
+            let [dx, dth] = control_values(control)?;
+            Ok((pose + Vector3::new(dx, 0.0, dth), Matrix3::identity(), Matrix3::identity() * 1e-4))
+        }
+    }
+
+    #[test]
+    fn a_motion_model_that_refuses_the_history_is_an_error_and_changes_nothing() {
+        let mut d = square();
+        let before = d.ekf.clone();
+        let start = d.ekf.x.clone();
+        let e = d.history.relinearise(&mut d.ekf, &start, &TwoValues, &d.sensor, &d.ids, 10).unwrap_err();
+        // The drive's filter estimates the odometry's three calibration errors, which a
+        // model that estimates none refuses before it reads a control.
+        assert_eq!(e, SmootherError::Motion(EkfError::CalibrationLength { calibration: 3, model: 0 }));
         assert_eq!(d.ekf, before);
     }
 }

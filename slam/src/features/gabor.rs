@@ -214,6 +214,9 @@ impl GaborBank {
         if !(inside(x0, rw, grey.width) && inside(y0, rh, grey.height)) {
             return Err(FeatureError::Region { region, width: grey.width, height: grey.height });
         }
+        if rw == 0 || rh == 0 {
+            return Ok(self.filters.iter().map(|_| Plane { width: rw, height: rh, data: vec![] }).collect());
+        }
         Ok(self
             .filters
             .iter()

@@ -92,6 +92,9 @@ impl<'a> ImageRef<'a> {
     }
 }
 
+/// Why a patch index the library took from a rectangle's own rows is one of its patches.
+pub(crate) const IN_RECT: &str = "an index below the rectangle's patch count";
+
 /// A rectangle of patches: columns `col0..col1`, rows `row0..row1` (end exclusive).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub struct PatchRect {
@@ -131,17 +134,21 @@ impl PatchRect {
         self.len() == 0
     }
 
-    /// (col, row) of the i-th patch, row-major within the rectangle.
-    pub fn patch(&self, i: usize) -> (u32, u32) {
-        (self.col0 + (i as u32 % self.cols()), self.row0 + (i as u32 / self.cols()))
+    /// (col, row) of the i-th patch, row-major within the rectangle; `None` for `i` past
+    /// its last patch.
+    pub fn patch(&self, i: usize) -> Option<(u32, u32)> {
+        (i < self.len()).then(|| {
+            let cols = self.cols() as usize;
+            (self.col0 + (i % cols) as u32, self.row0 + (i / cols) as u32)
+        })
     }
 
     fn grown(&self, cols: u32, rows: u32) -> PatchRect {
         PatchRect {
             col0: self.col0.saturating_sub(1),
-            col1: (self.col1 + 1).min(cols),
+            col1: self.col1.saturating_add(1).min(cols),
             row0: self.row0.saturating_sub(1),
-            row1: (self.row1 + 1).min(rows),
+            row1: self.row1.saturating_add(1).min(rows),
         }
     }
 
@@ -219,7 +226,7 @@ impl FeatureConfig {
 
     /// Length of a raw patch vector, L * L * (3 + G).
     pub fn raw_dims(&self) -> usize {
-        (self.patch_size * self.patch_size) as usize * (3 + self.bank.len())
+        self.patch_size as usize * self.patch_size as usize * (3 + self.bank.len())
     }
 
     /// The pixels that the features of `rect` read in an image `width` x `height`: the
@@ -227,10 +234,11 @@ impl FeatureConfig {
     /// rendering only the pixels a consumer reads must render).
     pub fn pixels_read(&self, rect: &PatchRect, width: u32, height: u32) -> PixelRegion {
         let l = self.patch_size;
-        let big = rect.grown(width / l, height / l);
+        let big = rect.grown(width.checked_div(l).unwrap_or(0), height.checked_div(l).unwrap_or(0));
         let r = self.bank.radius();
-        let (x0, x1) = reach((big.col0 * l) as usize, (big.col1 * l) as usize, r, width as usize);
-        let (y0, y1) = reach((big.row0 * l) as usize, (big.row1 * l) as usize, r, height as usize);
+        let px = |patch: u32| patch as usize * l as usize;
+        let (x0, x1) = reach(px(big.col0), px(big.col1), r, width as usize);
+        let (y0, y1) = reach(px(big.row0), px(big.row1), r, height as usize);
         PixelRegion { columns: (x0 as u32, x1 as u32), rows: (y0 as u32, y1 as u32) }
     }
 }
@@ -265,7 +273,7 @@ impl PixelRegion {
 
 /// `lo..hi` widened by `margin` on both sides, within `0..limit`.
 fn reach(lo: usize, hi: usize, margin: usize, limit: usize) -> (usize, usize) {
-    (lo.saturating_sub(margin), (hi + margin).min(limit))
+    (lo.saturating_sub(margin).min(limit), hi.saturating_add(margin).min(limit))
 }
 
 /// Raw patch vectors (rows, row-major over `rect`): per pixel r, g, b in [0, 1] then the
@@ -315,7 +323,7 @@ fn raw_patch_buffer(image: &ImageRef, config: &FeatureConfig, rect: &PatchRect) 
     let n = rect.len();
     let mut rows = vec![0.0f32; n * dims];
     for (i, out) in rows.chunks_exact_mut(dims).enumerate() {
-        let (c, r) = rect.patch(i);
+        let (c, r) = rect.patch(i).expect(IN_RECT);
         let (px0, py0) = (c as usize * l, r as usize * l);
         // Each pixel's values: r, g, b, then the Gabor magnitudes.
         for (py, dst) in out.chunks_exact_mut(l * stride).enumerate() {
@@ -413,7 +421,7 @@ impl FeatureExtractor {
         let big_index = |c: u32, r: u32| ((r - big.row0) * big.cols() + (c - big.col0)) as usize;
         let mut z = DMatrix::zeros(rect.len(), d + 4);
         for i in 0..rect.len() {
-            let (c, r) = rect.patch(i);
+            let (c, r) = rect.patch(i).expect(IN_RECT);
             let me = big_index(c, r);
             for j in 0..d {
                 z[(i, j)] = za[(me, j)];
@@ -465,7 +473,7 @@ mod tests {
         for (c0, c1) in [(0, 2), (5, 8), (12, 14), (13, 14)] {
             let part = fx.features(&image, Some(PatchRect::columns(&image, 9, c0, c1))).unwrap();
             for i in 0..part.rect.len() {
-                let (c, r) = part.rect.patch(i);
+                let (c, r) = part.rect.patch(i).expect(IN_RECT);
                 let j = whole.index(c, r).unwrap();
                 let diff = (part.z.row(i) - whole.z.row(j)).amax();
                 assert!(diff < 1e-9, "patch ({c},{r}) differs by {diff}");

@@ -52,7 +52,8 @@ pub struct StudentTMixture {
 
 impl StudentTMixture {
     /// The predictive density of `model`; components whose mean or W^-1 is not of the
-    /// prior's dimension are an error ([`VbGmm::check`] checks the rest).
+    /// prior's dimension, or a W^-1 that is not positive definite, are an error (a model
+    /// read from a file passes [`VbGmm::check`] first, which checks its numbers too).
     pub fn new(model: &VbGmm) -> Result<Self, GmmError> {
         let d = model.dims();
         for (k, c) in model.components.iter().enumerate() {

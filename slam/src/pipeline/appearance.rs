@@ -119,7 +119,7 @@ impl Pipeline {
         for (ci, (c, seg)) in clusters.iter().zip(segmentations).enumerate() {
             let Some(seg) = seg else { continue };
             for (i, &o) in seg.object.iter().enumerate() {
-                let (col, row) = seg.rect.patch(i);
+                let (col, row) = seg.rect.patch(i).expect(IN_RECT);
                 if !record.cells.iter().any(|&(a, b, _)| a == col && b == row) {
                     record.cells.push((col, row, o));
                 }
@@ -179,7 +179,7 @@ impl Pipeline {
             let mut pixels = Vec::with_capacity(rows_idx.len());
             let mut n = 0;
             for &i in &rows_idx {
-                let (col, row) = seg.rect.patch(i);
+                let (col, row) = seg.rect.patch(i).expect(IN_RECT);
                 let (u, v) = ((col as f64 + 0.5) * l as f64, (row as f64 + 0.5) * l as f64);
                 let Some(p) = app.camera.point_on_object_plane(u, v, c.centre) else { continue };
                 let d = rot * Vector2::new(p.x - c.centre[0], p.y - c.centre[1]);

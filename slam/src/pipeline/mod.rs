@@ -100,7 +100,7 @@ use crate::clustering::{Cluster, ClusteringConfig, cluster};
 use crate::ekf::smoother::{History, Relinearisation, SmootherError};
 use crate::ekf::{Ekf, MotionConfig, MotionModel, RangeBearingModel};
 use crate::evidence::{EvidenceConfig, Judgement, ObjectEvidence};
-use crate::features::{ImageRef, PixelRegion};
+use crate::features::{IN_RECT, ImageRef, PixelRegion};
 use crate::gmm::{Gmm, StudentTMixture};
 use crate::messages::{Control, Detection, LaserScan, OdometryIncrement};
 use crate::object_model::{ObjectModel, ObjectModelConfig, ObjectObservation, fit_observation};
