@@ -35,9 +35,18 @@ pub trait MotionModel: Send + Sync {
         if !calibration.is_empty() {
             return Err(EkfError::CalibrationLength { calibration: calibration.len(), model: 0 });
         }
-        let (pose, f, q) = self.predict(pose, control)?;
-        Ok(CalibratedPrediction { pose, f, f_calibration: DMatrix::zeros(3, calibration.len()), q })
+        uncalibrated(self, pose, control)
     }
+}
+
+/// `model`'s prediction for a filter that holds no calibration parameters.
+fn uncalibrated(
+    model: &(impl MotionModel + ?Sized),
+    pose: &Vector3<f64>,
+    control: &[f64],
+) -> Result<CalibratedPrediction, EkfError> {
+    let (pose, f, q) = model.predict(pose, control)?;
+    Ok(CalibratedPrediction { pose, f, f_calibration: DMatrix::zeros(3, 0), q })
 }
 
 /// A prediction `(pose', F = d pose'/d pose, Q)`.
@@ -230,10 +239,7 @@ impl MotionModel for OdometryMotionModel {
     ) -> Result<CalibratedPrediction, EkfError> {
         let [dx, dy, dth] = control_values(u)?;
         match calibration.len() {
-            0 => {
-                let (pose, f, q) = self.predict(pose, u)?;
-                return Ok(CalibratedPrediction { pose, f, f_calibration: DMatrix::zeros(3, 0), q });
-            }
+            0 => return uncalibrated(self, pose, u),
             3 => {}
             n => return Err(EkfError::CalibrationLength { calibration: n, model: 3 }),
         }
