@@ -33,6 +33,17 @@ pub struct PreparedGaussian {
 }
 
 impl PreparedGaussian {
+    /// [`KlError::CovarianceShape`] unless the mean is `dims` long and the covariance and
+    /// its factor are `dims` x `dims` (one put together field by field may not be).
+    fn check_shape(&self, component: usize, dims: usize) -> Result<(), KlError> {
+        let (rows, cols) = self.covariance.shape();
+        let factor = self.chol.l_dirty().shape();
+        if self.mean.len() != dims || (rows, cols) != (dims, dims) || factor != (dims, dims) {
+            return Err(KlError::CovarianceShape { component, dims: self.mean.len(), rows, cols });
+        }
+        Ok(())
+    }
+
     pub fn new(mean: &DVector<f64>, covariance: &DMatrix<f64>, component: usize) -> Result<Self, KlError> {
         if covariance.shape() != (mean.len(), mean.len()) {
             let (rows, cols) = covariance.shape();
@@ -54,6 +65,8 @@ pub fn kl_gaussian(n0: &PreparedGaussian, n1: &PreparedGaussian) -> Result<f64, 
     if n0.mean.len() != n1.mean.len() {
         return Err(KlError::Dimension(n0.mean.len(), n1.mean.len()));
     }
+    n0.check_shape(0, n0.mean.len())?;
+    n1.check_shape(1, n1.mean.len())?;
     Ok(kl_gaussian_prechecked(n0, n1))
 }
 
@@ -105,8 +118,22 @@ impl PreparedGmm {
         Ok(PreparedGmm { log_weights, components })
     }
 
+    /// The dimension of the components (0 for none).
     pub fn dims(&self) -> usize {
-        self.components[0].mean.len()
+        self.components.first().map_or(0, |c| c.mean.len())
+    }
+
+    /// The shapes [`PreparedGmm::new`] makes: components, all of one dimension, and a log
+    /// weight each (one put together field by field may lack them).
+    fn check_shapes(&self) -> Result<(), KlError> {
+        if self.components.is_empty() {
+            return Err(KlError::Empty);
+        }
+        if self.log_weights.len() != self.components.len() {
+            let problem = format!("{} log weights for {} components", self.log_weights.len(), self.components.len());
+            return Err(KlError::Component { component: self.log_weights.len().min(self.components.len()), problem });
+        }
+        self.components.iter().enumerate().try_for_each(|(k, c)| c.check_shape(k, self.dims()))
     }
 }
 
@@ -123,6 +150,8 @@ fn log_sum_exp(v: impl Iterator<Item = f64>) -> f64 {
 /// `sum_a pi_a ln( sum_a' pi_a' exp(-KL(f_a||f_a')) / sum_b w_b exp(-KL(f_a||g_b)) )`.
 /// Zero for f = g; can be negative.
 pub fn kl_variational(f: &PreparedGmm, g: &PreparedGmm) -> Result<f64, KlError> {
+    f.check_shapes()?;
+    g.check_shapes()?;
     if f.dims() != g.dims() {
         return Err(KlError::Dimension(f.dims(), g.dims()));
     }
@@ -140,6 +169,8 @@ pub fn kl_variational(f: &PreparedGmm, g: &PreparedGmm) -> Result<f64, KlError> 
 /// Goldberger's matched bound: `sum_a pi_a [KL(f_a||g_m(a)) + ln(pi_a / w_m(a))]` with
 /// `m(a) = argmin_b KL(f_a||g_b) - ln w_b`.
 pub fn kl_matched_bound(f: &PreparedGmm, g: &PreparedGmm) -> Result<f64, KlError> {
+    f.check_shapes()?;
+    g.check_shapes()?;
     if f.dims() != g.dims() {
         return Err(KlError::Dimension(f.dims(), g.dims()));
     }

@@ -235,6 +235,24 @@ fn gaussians_and_mixtures_of_other_shapes_are_refused() {
     let a = PreparedGaussian::new(&DVector::zeros(2), &DMatrix::identity(2, 2), 0).unwrap();
     let b = PreparedGaussian::new(&DVector::zeros(3), &DMatrix::identity(3, 3), 0).unwrap();
     assert_eq!(kl_gaussian(&a, &b).unwrap_err(), KlError::Dimension(2, 3));
+    // Put together field by field: a covariance of another size than the mean.
+    let lopsided = PreparedGaussian { mean: DVector::zeros(3), ..a.clone() };
+    assert!(matches!(
+        kl_gaussian(&lopsided, &b),
+        Err(KlError::CovarianceShape { component: 0, dims: 3, rows: 2, cols: 2 })
+    ));
+    let mixture =
+        PreparedGmm::new(&Gmm { components: vec![gaussian(0.5, &[0.0, 0.0]), gaussian(0.5, &[1.0, 0.0])] }).unwrap();
+    assert!(slam::kl::kl_variational(&mixture, &mixture).unwrap().abs() < 1e-12);
+    let mut unweighted = mixture.clone();
+    unweighted.log_weights.pop();
+    let mut mixed = mixture.clone();
+    mixed.components[1] = b.clone();
+    let empty = PreparedGmm { log_weights: vec![], components: vec![] };
+    for bad in [&unweighted, &mixed, &empty] {
+        assert!(slam::kl::kl_variational(bad, &mixture).is_err() && slam::kl::kl_matched_bound(&mixture, bad).is_err());
+    }
+    assert_eq!(empty.dims(), 0);
     assert!(kl_gaussian(&a, &a).unwrap().abs() < 1e-12);
     let two = Gmm { components: vec![gaussian(1.0, &[0.0, 1.0])] };
     assert_eq!(marginal(&two, 3).unwrap_err(), GmmError::Dimension { expected: 3, found: 2 });
@@ -504,4 +522,34 @@ fn boards_images_and_drives_of_impossible_sizes_are_refused() {
     assert_eq!(d.ekf.landmark_count(), 0, "observed every 0 steps: never");
     let bad = Route { step_m: f64::NAN, observe_every: 2, ..route };
     assert!(matches!(drive(&bad, &[Vector2::new(3.0, 0.0)]), Err(slam::ekf::EkfError::NonFinite)));
+}
+
+#[test]
+fn a_filter_whose_parts_disagree_is_refused_when_read() {
+    use slam::ekf::EkfError;
+    let model = RangeBearingModel::default();
+    let mut ekf = Ekf::new(Vector3::zeros(), Matrix3::identity());
+    ekf.use_first_estimates();
+    ekf.add_landmark(&model, &Vector2::new(5.0, 0.1)).unwrap();
+    assert_eq!(ekf.check(), Ok(()));
+    let json = serde_json::to_string(&ekf).unwrap();
+    assert_eq!(serde_json::from_str::<Ekf>(&json).unwrap(), ekf);
+    let mut no_estimates = ekf.clone();
+    no_estimates.first_estimates.as_mut().unwrap().landmarks.clear();
+    let mut odd = ekf.clone();
+    odd.x = odd.x.push(1.0);
+    let mut short = ekf.clone();
+    short.vehicle_dims = 9;
+    let mut wide = ekf.clone();
+    wide.p = DMatrix::identity(5, 6);
+    for (bad, says) in [
+        (no_estimates, "first estimates of 0 landmarks for a map of 1"),
+        (odd, "3 values after the vehicle block, not two per landmark"),
+        (short, "a vehicle block of 9 values in a state of 5"),
+        (wide, "a 5x6 covariance for a state of 5"),
+    ] {
+        assert!(matches!(bad.check(), Err(EkfError::Inconsistent(m)) if m.contains(says)), "{says}");
+        let e = serde_json::from_str::<Ekf>(&serde_json::to_string(&bad).unwrap()).unwrap_err();
+        assert!(e.to_string().contains(says), "{e}");
+    }
 }

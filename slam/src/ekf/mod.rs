@@ -48,10 +48,14 @@ pub enum EkfError {
     /// Calibration parameters of another count than the motion model estimates.
     #[error("{calibration} calibration parameters for a motion model that estimates {model}")]
     CalibrationLength { calibration: usize, model: usize },
+    /// A filter whose parts disagree (read from a file, or put together field by field).
+    #[error("an inconsistent filter: {0}")]
+    Inconsistent(String),
 }
 
-/// The filter state.
+/// The filter state. One read from a file is checked ([`Ekf::check`]).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "EkfParts")]
 pub struct Ekf {
     pub x: DVector<f64>,
     pub p: DMatrix<f64>,
@@ -91,6 +95,28 @@ fn pose_dims() -> usize {
     3
 }
 
+/// An [`Ekf`] as read, before [`Ekf::check`].
+#[derive(Deserialize)]
+struct EkfParts {
+    x: DVector<f64>,
+    p: DMatrix<f64>,
+    #[serde(default = "pose_dims")]
+    vehicle_dims: usize,
+    #[serde(default)]
+    first_estimates: Option<FirstEstimates>,
+}
+
+impl TryFrom<EkfParts> for Ekf {
+    type Error = EkfError;
+
+    fn try_from(parts: EkfParts) -> Result<Self, EkfError> {
+        let EkfParts { x, p, vehicle_dims, first_estimates } = parts;
+        let ekf = Ekf { x, p, vehicle_dims, first_estimates };
+        ekf.check()?;
+        Ok(ekf)
+    }
+}
+
 impl Ekf {
     /// A filter at `pose` with covariance `pose_cov` and no landmarks.
     pub fn new(pose: Vector3<f64>, pose_cov: Matrix3<f64>) -> Self {
@@ -109,6 +135,27 @@ impl Ekf {
         let mut x = DVector::zeros(vd);
         x.rows_mut(0, 3).copy_from(&pose);
         Ekf { x, p, vehicle_dims: vd, first_estimates: None }
+    }
+
+    /// [`EkfError::Inconsistent`] unless the parts agree: a vehicle block of the pose and
+    /// more, landmarks of two values each after it, a square covariance of the state's
+    /// size, and first estimates (if on) for every landmark. A filter made by the methods
+    /// always passes; one put together field by field or read from a file may not, and
+    /// the other methods assume it does.
+    pub fn check(&self) -> Result<(), EkfError> {
+        let n = self.x.len();
+        let problem = if self.vehicle_dims < 3 || self.vehicle_dims > n {
+            Some(format!("a vehicle block of {} values in a state of {n}", self.vehicle_dims))
+        } else if !(n - self.vehicle_dims).is_multiple_of(2) {
+            Some(format!("{} values after the vehicle block, not two per landmark", n - self.vehicle_dims))
+        } else if self.p.shape() != (n, n) {
+            Some(format!("a {}x{} covariance for a state of {n}", self.p.nrows(), self.p.ncols()))
+        } else {
+            self.first_estimates.as_ref().filter(|fe| fe.landmarks.len() != self.landmark_count()).map(|fe| {
+                format!("first estimates of {} landmarks for a map of {}", fe.landmarks.len(), self.landmark_count())
+            })
+        };
+        problem.map_or(Ok(()), |p| Err(EkfError::Inconsistent(p)))
     }
 
     /// Switches to first-estimate Jacobians (see [`FirstEstimates`]), or restarts them:
