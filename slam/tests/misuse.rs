@@ -74,6 +74,13 @@ fn pca_of_vectors_of_another_length_is_refused() {
     assert!(matches!(e, FeatureError::AppearanceLength { expected: 2, found: 1 }), "{e}");
     // A feature row (appearance, then its neighbours' norms) back-projects by its head.
     assert_eq!(pca.back_project(&[1.0, 2.0, 9.0, 9.0]).unwrap(), pca.back_project(&[1.0, 2.0]).unwrap());
+    // Put together field by field: a basis of another length than the mean.
+    let lopsided = Pca { mean: DVector::zeros(4), ..pca.clone() };
+    assert!(matches!(
+        lopsided.project(&DMatrix::zeros(2, 4)),
+        Err(FeatureError::PcaMismatch { expected: 4, found: 3 })
+    ));
+    assert!(matches!(lopsided.back_project(&[1.0, 2.0]), Err(FeatureError::PcaMismatch { expected: 4, found: 3 })));
 }
 
 #[test]

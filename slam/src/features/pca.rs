@@ -83,6 +83,15 @@ impl Pca {
         self.basis.ncols()
     }
 
+    /// [`FeatureError::PcaMismatch`] unless the basis has a row per value of the mean (a
+    /// PCA put together field by field may not): cheap enough for every projection.
+    fn check_basis(&self) -> Result<(), FeatureError> {
+        if self.basis.nrows() != self.mean.len() {
+            return Err(FeatureError::PcaMismatch { expected: self.mean.len(), found: self.basis.nrows() });
+        }
+        Ok(())
+    }
+
     /// Checks a PCA read from a file: shapes that agree and finite numbers; (field, problem).
     pub fn check(&self) -> Result<(), (&'static str, String)> {
         if self.basis.nrows() != self.mean.len() {
@@ -103,6 +112,7 @@ impl Pca {
     /// Projects rows of `data` (N x D) to N x d; rows of another length than D are
     /// [`FeatureError::PcaMismatch`].
     pub fn project(&self, data: &DMatrix<f64>) -> Result<DMatrix<f64>, FeatureError> {
+        self.check_basis()?;
         if data.ncols() != self.input_dims() {
             return Err(FeatureError::PcaMismatch { expected: self.input_dims(), found: data.ncols() });
         }
@@ -130,6 +140,7 @@ impl Pca {
     /// feature row, which carries neighbour norms after them, will do). One shorter than d
     /// is [`FeatureError::AppearanceLength`].
     pub fn back_project(&self, z: &[f64]) -> Result<DVector<f64>, FeatureError> {
+        self.check_basis()?;
         let Some(z) = z.get(..self.dims()) else {
             return Err(FeatureError::AppearanceLength { expected: self.dims(), found: z.len() });
         };
