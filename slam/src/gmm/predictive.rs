@@ -55,16 +55,8 @@ impl StudentTMixture {
     /// prior's dimension, or a W^-1 that is not positive definite, are an error (a model
     /// read from a file passes [`VbGmm::check`] first, which checks its numbers too).
     pub fn new(model: &VbGmm) -> Result<Self, GmmError> {
+        model.check_shapes()?;
         let d = model.dims();
-        for (k, c) in model.components.iter().enumerate() {
-            if c.mean.len() != d {
-                return Err(GmmError::Dimension { expected: d, found: c.mean.len() });
-            }
-            if c.w_inv.shape() != (d, d) {
-                let (rows, cols) = c.w_inv.shape();
-                return Err(GmmError::CovarianceShape { component: k, dims: d, rows, cols });
-            }
-        }
         let df = d as f64;
         let weights = model.weights();
         let mut components = Vec::with_capacity(model.components.len());

@@ -121,14 +121,10 @@ impl VbGmm {
         self.predictive().map(|_| ())
     }
 
-    /// The posterior predictive density of a model that passes [`VbGmm::check`], formed
-    /// once: checking it forms it.
-    fn predictive(&self) -> Result<super::StudentTMixture, GmmError> {
+    /// Every component's mean and W^-1 of the prior's dimension D (D and D x D): what
+    /// reading them needs before anything else is checked.
+    pub(crate) fn check_shapes(&self) -> Result<(), GmmError> {
         let d = self.dims();
-        self.prior.check(d)?;
-        if self.components.is_empty() {
-            return Err(GmmError::EmptyModel);
-        }
         for (k, c) in self.components.iter().enumerate() {
             if c.mean.len() != d {
                 return Err(GmmError::BadModel(format!(
@@ -140,6 +136,20 @@ impl VbGmm {
                 let (rows, cols) = c.w_inv.shape();
                 return Err(GmmError::CovarianceShape { component: k, dims: d, rows, cols });
             }
+        }
+        Ok(())
+    }
+
+    /// The posterior predictive density of a model that passes [`VbGmm::check`], formed
+    /// once: checking it forms it.
+    fn predictive(&self) -> Result<super::StudentTMixture, GmmError> {
+        let d = self.dims();
+        self.prior.check(d)?;
+        if self.components.is_empty() {
+            return Err(GmmError::EmptyModel);
+        }
+        self.check_shapes()?;
+        for (k, c) in self.components.iter().enumerate() {
             let finite = c.alpha.is_finite() && c.beta.is_finite() && c.nu.is_finite();
             if !(finite && c.alpha > 0.0 && c.beta > 0.0 && c.nu > d as f64 - 1.0) {
                 return Err(GmmError::BadModel(format!(

@@ -350,7 +350,6 @@ impl Pipeline {
         let cfg = self.config.object_model.clone();
         let gate = chi2_quantile(2, self.config.new_landmark_probability).expect(CHECKED_GATE);
         let assoc_gate = chi2_quantile(2, self.config.gate_probability).expect(CHECKED_GATE);
-        let n_before = self.ekf.landmark_count();
         let pca_dims = self.appearance.as_ref().map_or(0, |a| a.model.extractor.pca.dims());
         // Decide every observation against the landmarks that existed before this scan.
         let mut plans = Vec::new();
@@ -359,8 +358,7 @@ impl Pipeline {
             let Ok(fitted) = fit_observation(&obs, general.as_ref(), &cfg) else { continue };
             let z = Vector2::new(clusters[ci].range_m, clusters[ci].bearing_rad);
             let mut candidates = Vec::new();
-            for (j, m2) in self.ekf.mahalanobis2_to_all(&self.config.sensor, &z).into_iter().enumerate().take(n_before)
-            {
+            for (j, m2) in self.ekf.mahalanobis2_to_all(&self.config.sensor, &z).into_iter().enumerate() {
                 self.note_distance(m2);
                 if method == AssociationMethod::Combined && m2 > gate {
                     continue;
