@@ -116,7 +116,7 @@ fn loop_drive() -> Drive {
 fn relinearise_800_poses_20_landmarks(bencher: Bencher) {
     let d = loop_drive();
     assert!(d.history.poses() > 700, "{} poses", d.history.poses());
-    let before = d.ekf.x.clone();
+    let before = d.ekf.state().clone();
     bencher.with_inputs(|| (d.ekf.clone(), d.history.clone())).bench_local_values(|(mut e, mut h)| {
         h.relinearise(&mut e, &before, &d.motion, &d.sensor, &d.ids, 10).unwrap();
         e

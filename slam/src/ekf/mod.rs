@@ -57,14 +57,16 @@ pub enum EkfError {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(try_from = "EkfParts")]
 pub struct Ekf {
-    pub x: DVector<f64>,
-    pub p: DMatrix<f64>,
+    /// The parts are read through [`Ekf::state`], [`Ekf::covariance`] and the methods:
+    /// their shapes must agree ([`Ekf::check`]), and only the crate changes them.
+    pub(crate) x: DVector<f64>,
+    pub(crate) p: DMatrix<f64>,
     /// Size of the vehicle block: the pose (3) and the calibration parameters after it.
     #[serde(default = "pose_dims")]
-    pub vehicle_dims: usize,
+    pub(crate) vehicle_dims: usize,
     /// First-estimate Jacobians, when enabled ([`Ekf::use_first_estimates`]).
     #[serde(default)]
-    pub first_estimates: Option<FirstEstimates>,
+    pub(crate) first_estimates: Option<FirstEstimates>,
 }
 
 /// The linearisation points of first-estimate Jacobians (Huang, Mourikis & Roumeliotis
@@ -140,8 +142,8 @@ impl Ekf {
     /// [`EkfError::Inconsistent`] unless the parts agree: a vehicle block of the pose and
     /// more, landmarks of two values each after it, a square covariance of the state's
     /// size, and first estimates (if on) for every landmark. A filter made by the methods
-    /// always passes; one put together field by field or read from a file may not, and
-    /// the other methods assume it does.
+    /// always passes, and one read from a file is checked as it is read (the parts are
+    /// not public, so nothing else can put one together).
     pub fn check(&self) -> Result<(), EkfError> {
         let n = self.x.len();
         let problem = if self.vehicle_dims < 3 || self.vehicle_dims > n {
@@ -199,6 +201,27 @@ impl Ekf {
     /// longer positive definite (cancellation after an absurd input), found in O(n).
     pub fn has_negative_variance(&self) -> bool {
         (0..self.p.nrows()).any(|i| self.p[(i, i)] < 0.0)
+    }
+
+    /// The state: the vehicle block (pose, then calibration parameters), then two values
+    /// per landmark.
+    pub fn state(&self) -> &DVector<f64> {
+        &self.x
+    }
+
+    /// The state's covariance.
+    pub fn covariance(&self) -> &DMatrix<f64> {
+        &self.p
+    }
+
+    /// Size of the vehicle block: the pose (3) and the calibration parameters after it.
+    pub fn vehicle_dims(&self) -> usize {
+        self.vehicle_dims
+    }
+
+    /// The linearisation points of first-estimate Jacobians, when they are on.
+    pub fn first_estimates(&self) -> Option<&FirstEstimates> {
+        self.first_estimates.as_ref()
     }
 
     pub fn landmark_count(&self) -> usize {

@@ -83,12 +83,25 @@ impl Pipeline {
     /// Segments the clusters in the stored image and builds object observations, each with
     /// its cluster's index and whether the segmentation could judge it fully
     /// ([`SegmentedCluster::fully_judged`](crate::segmentation::SegmentedCluster::fully_judged)).
-    pub(super) fn observe_objects(&mut self, t: f64, clusters: &[Cluster]) -> Vec<(usize, ObjectObservation, bool)> {
-        let (Some(app), Some(img)) = (&self.appearance, &self.image) else { return Vec::new() };
+    ///
+    /// A cluster that cannot be segmented in an image the pipeline took (a model or
+    /// settings the checks let through that the features refuse) stops the scan with
+    /// [`PipelineError::Segmentation`] before anything is pooled: dropping it would leave
+    /// an object unobserved with no word of why.
+    pub(super) fn observe_objects(
+        &mut self,
+        t: f64,
+        clusters: &[Cluster],
+    ) -> Result<Vec<(usize, ObjectObservation, bool)>, PipelineError> {
+        let (Some(app), Some(img)) = (&self.appearance, &self.image) else { return Ok(Vec::new()) };
         if (t - img.t).abs() > self.config.image_max_age_s {
-            return Vec::new();
+            return Ok(Vec::new());
         }
-        let Ok(image) = ImageRef::new(img.width, img.height, &img.rgb) else { return Vec::new() };
+        let image = ImageRef::new(img.width, img.height, &img.rgb).map_err(|source| PipelineError::Segmentation {
+            t,
+            cluster: None,
+            source,
+        })?;
         let extractor = &app.model.extractor;
         let l = extractor.config.patch_size;
         let mut record = SegmentationRecord { t_image: img.t, patch_size: l, cells: Vec::new(), clusters: Vec::new() };
@@ -96,24 +109,33 @@ impl Pipeline {
         // Each cluster's segmentation depends on nothing but the image and the cluster: they
         // run in parallel and are used in order, so results do not depend on the threads.
         let seg_config = &self.config.segmentation;
-        // Per cluster: its segmentation, or whether it was skipped for lack of rendered pixels.
-        let segmentations: Vec<Result<Option<SegmentedCluster>, ()>> = clusters
+        // Per cluster: its segmentation (`None`: occluded or outside the image), or whether
+        // it was skipped for lack of rendered pixels, or why it could not be segmented.
+        type Segmented = Result<Result<Option<SegmentedCluster>, ()>, FeatureError>;
+        let segmentations: Vec<Segmented> = clusters
             .par_iter()
             .map(|c| {
                 if c.occluded {
-                    return Ok(None);
+                    return Ok(Ok(None));
                 }
                 let Some(located) = locate_cluster(c, &app.camera, image.width, image.height, l, seg_config) else {
-                    return Ok(None);
+                    return Ok(Ok(None));
                 };
                 if let Some(regions) = &img.regions
                     && !regions_cover(regions, &extractor.config.pixels_read(&located.rect, image.width, image.height))
                 {
-                    return Err(());
+                    return Ok(Err(()));
                 }
-                Ok(segment_located(c, located, &image, extractor, &app.classifier, &app.camera, seg_config).ok())
+                segment_located(c, located, &image, extractor, &app.classifier, &app.camera, seg_config)
+                    .map(|seg| Ok(Some(seg)))
             })
             .collect();
+        // The first failure in cluster order, whatever the threads did first.
+        let segmentations: Vec<Result<Option<SegmentedCluster>, ()>> = segmentations
+            .into_iter()
+            .enumerate()
+            .map(|(i, s)| s.map_err(|source| PipelineError::Segmentation { t, cluster: Some(i), source }))
+            .collect::<Result<_, _>>()?;
         self.unrendered_reads += segmentations.iter().filter(|s| s.is_err()).count();
         let segmentations = segmentations.into_iter().map(|s| s.ok().flatten());
         for (ci, (c, seg)) in clusters.iter().zip(segmentations).enumerate() {
@@ -209,7 +231,7 @@ impl Pipeline {
         }
         self.evidence.forget_before(t);
         self.segmentations.push(record);
-        out
+        Ok(out)
     }
 
     /// Observations the KL test left without a landmark, paired by joint compatibility
@@ -339,12 +361,16 @@ impl Pipeline {
     }
 
     /// Appearance methods: segmentation, object models and KL association.
-    pub(super) fn on_scan_with_appearance(&mut self, scan: &LaserScan, clusters: Vec<Cluster>) -> ScanReport {
+    pub(super) fn on_scan_with_appearance(
+        &mut self,
+        scan: &LaserScan,
+        clusters: Vec<Cluster>,
+    ) -> Result<ScanReport, PipelineError> {
         let t = scan.t;
         self.t = t;
         // The state the recorded poses agree with, where a relinearisation starts.
         let before = self.history.as_ref().map(|_| self.ekf.x.clone());
-        let observations = self.observe_objects(t, &clusters);
+        let observations = self.observe_objects(t, &clusters)?;
         let mut assigned = vec![None; clusters.len()];
         let method = self.config.method;
         let cfg = self.config.object_model.clone();
@@ -487,7 +513,7 @@ impl Pipeline {
         if self.config.evidence.pooled {
             self.retract_landmarks();
         }
-        self.finish_scan(t, clusters, assigned)
+        Ok(self.finish_scan(t, clusters, assigned))
     }
 
     /// Whether landmarks `i` and `j` may be one object by their appearance: always for the

@@ -77,9 +77,15 @@ impl Pipeline {
     /// one, before the input that asked for it changes anything: this input and every one
     /// after it are refused, naming this time.
     pub(super) fn predict(&mut self, u: [f64; 3], t: f64) -> Result<(), PipelineError> {
-        if self.ekf.predict(&self.config.motion, &u).is_err() {
-            let (at, how) = *self.diverged_at.get_or_insert((t, super::Divergence::NotFinite));
-            return Err(how.error(at));
+        match self.ekf.predict(&self.config.motion, &u) {
+            Ok(()) => {}
+            Err(EkfError::NonFinite) => {
+                let (at, how) = *self.diverged_at.get_or_insert((t, super::Divergence::NotFinite));
+                return Err(how.error(at));
+            }
+            // A control or calibration the motion model refuses: the pipeline builds both,
+            // so this is not an input's fault, and it is named as it is.
+            Err(source) => return Err(PipelineError::Filter { t, source }),
         }
         if let Some(h) = &mut self.history {
             h.push_control(u, self.ekf.pose());
@@ -128,7 +134,7 @@ impl Pipeline {
         self.advance_to(scan.t)?;
         let clusters = cluster(scan, &self.config.clustering);
         let report = if self.config.method.uses_appearance() {
-            self.on_scan_with_appearance(scan, clusters)
+            self.on_scan_with_appearance(scan, clusters)?
         } else {
             let keep = vec![true; clusters.len()];
             self.observe_positions(scan.t, clusters, &keep, "unknown")

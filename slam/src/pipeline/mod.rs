@@ -98,9 +98,9 @@ use crate::association::{
 use crate::classifier::{AppearanceModel, PatchClassifier};
 use crate::clustering::{Cluster, ClusteringConfig, cluster};
 use crate::ekf::smoother::{History, Relinearisation, SmootherError};
-use crate::ekf::{Ekf, MotionConfig, MotionModel, RangeBearingModel};
+use crate::ekf::{Ekf, EkfError, MotionConfig, MotionModel, RangeBearingModel};
 use crate::evidence::{EvidenceConfig, Judgement, ObjectEvidence};
-use crate::features::{IN_RECT, ImageRef, PixelRegion};
+use crate::features::{FeatureError, IN_RECT, ImageRef, PixelRegion};
 use crate::gmm::{Gmm, StudentTMixture};
 use crate::messages::{Control, Detection, LaserScan, OdometryIncrement};
 use crate::object_model::{ObjectModel, ObjectModelConfig, ObjectObservation, fit_observation};
@@ -225,6 +225,15 @@ pub enum PipelineError {
         "the filter's covariance stopped being positive definite at t = {t} s (a squared Mahalanobis distance or a variance came out negative after an input far outside what the motion and sensor models describe, such as an odometry step of kilometres); nothing after it can be estimated"
     )]
     Indefinite { t: f64 },
+    /// A cluster the segmentation could not judge in an image the pipeline took (`None`:
+    /// the image itself): a model or settings the checks let through that the features
+    /// refuse. The scan is refused before its evidence is pooled.
+    #[error("segmenting {} of the scan at t = {t} s: {source}", .cluster.map_or("the image".to_string(), |c| format!("cluster {c}")))]
+    Segmentation { t: f64, cluster: Option<usize>, source: FeatureError },
+    /// The filter refused what the pipeline gave it (a control or calibration of another
+    /// size than the motion model's), the filter unchanged.
+    #[error("the filter at t = {t} s: {source}")]
+    Filter { t: f64, source: EkfError },
 }
 
 impl PipelineError {
@@ -239,7 +248,9 @@ impl PipelineError {
             | PipelineError::TimeReversed { t, .. }
             | PipelineError::NonFinite { t, .. }
             | PipelineError::Diverged { t }
-            | PipelineError::Indefinite { t } => Some(*t),
+            | PipelineError::Indefinite { t }
+            | PipelineError::Segmentation { t, .. }
+            | PipelineError::Filter { t, .. } => Some(*t),
             _ => None,
         }
     }
