@@ -86,8 +86,7 @@ pub fn jcbb_with(
         best_d2: f64::INFINITY,
         nodes: 0,
     };
-    let mut current = vec![None; m];
-    search.recurse(0, &mut current, 0);
+    search.run();
     Ok(search.best)
 }
 
@@ -133,15 +132,78 @@ struct Search<'a> {
 /// Bound on explored nodes: pathological inputs degrade to the best found so far.
 const MAX_NODES: usize = 200_000;
 
+/// A node of the search: observation `i` with `pairs` pairs made before it, and the next
+/// landmark to try for it (`n`: the unpaired branch is next; past `n`: done).
+struct Node {
+    i: usize,
+    pairs: usize,
+    next: usize,
+}
+
 impl Search<'_> {
-    fn recurse(&mut self, i: usize, h: &mut Hypothesis, pairs: usize) {
+    /// Depth first over observations, each paired with every allowed unused landmark in
+    /// turn while the set stays jointly compatible, then left unpaired if that can still
+    /// beat the best. The stack is the search's own, not the thread's: a scan of tens of
+    /// thousands of detections goes as deep as it has observations.
+    fn run(&mut self) {
+        let (m, n) = (self.obs.len(), self.ekf.landmark_count());
+        let mut h: Hypothesis = vec![None; m];
+        // The pairs of `h` in observation order, and which landmarks they use.
+        let mut made: Vec<(usize, usize)> = Vec::new();
+        let mut used = vec![false; n];
+        let mut stack: Vec<Node> = Vec::new();
+        self.enter(&mut stack, &h, &made, Node { i: 0, pairs: 0, next: 0 });
+        while let Some(node) = stack.last_mut() {
+            let i = node.i;
+            // Back from a branch that paired observation i: unpair it.
+            if let Some(j) = h[i].take() {
+                used[j] = false;
+                made.pop();
+            }
+            let mut child = None;
+            while node.next < n && child.is_none() {
+                let j = node.next;
+                node.next += 1;
+                if !self.prep.individual[i][j] || used[j] {
+                    continue;
+                }
+                made.push((i, j));
+                let gate = chi2_quantile_in_domain(2 * made.len(), self.confidence);
+                if self.joint_d2(&made).is_some_and(|d2| d2 < gate) {
+                    h[i] = Some(j);
+                    used[j] = true;
+                    child = Some(node.pairs + 1);
+                } else {
+                    made.pop();
+                }
+            }
+            if child.is_none() && node.next == n {
+                node.next = n + 1;
+                if node.pairs + (m - i - 1) >= self.best_pairs.max(1) {
+                    child = Some(node.pairs);
+                }
+            }
+            match child {
+                Some(pairs) => self.enter(&mut stack, &h, &made, Node { i: i + 1, pairs, next: 0 }),
+                None => {
+                    stack.pop();
+                }
+            }
+        }
+    }
+
+    /// Visits a node: past the last observation, a complete hypothesis (`h`, its pairs
+    /// `made`) to compare with the best; otherwise a node to search from, within the node
+    /// bound.
+    fn enter(&mut self, stack: &mut Vec<Node>, h: &Hypothesis, made: &[(usize, usize)], node: Node) {
         self.nodes += 1;
-        if i == self.obs.len() {
-            if pairs > self.best_pairs || (pairs == self.best_pairs && pairs > 0) {
-                let d2 = self.joint_d2(h).unwrap_or(f64::INFINITY);
-                if pairs > self.best_pairs || d2 < self.best_d2 {
+        if node.i == self.obs.len() {
+            let k = made.len();
+            if k > self.best_pairs || (k == self.best_pairs && k > 0) {
+                let d2 = self.joint_d2(made).unwrap_or(f64::INFINITY);
+                if k > self.best_pairs || d2 < self.best_d2 {
                     self.best = h.clone();
-                    self.best_pairs = pairs;
+                    self.best_pairs = k;
                     self.best_d2 = d2;
                 }
             }
@@ -150,26 +212,11 @@ impl Search<'_> {
         if self.nodes > MAX_NODES {
             return;
         }
-        for j in 0..self.ekf.landmark_count() {
-            if !self.prep.individual[i][j] || h.contains(&Some(j)) {
-                continue;
-            }
-            h[i] = Some(j);
-            let ok = self.joint_d2(h).is_some_and(|d2| d2 < chi2_quantile_in_domain(2 * (pairs + 1), self.confidence));
-            if ok {
-                self.recurse(i + 1, h, pairs + 1);
-            }
-            h[i] = None;
-        }
-        // Leave observation i unpaired if that can still beat the best.
-        if pairs + (self.obs.len() - i - 1) >= self.best_pairs.max(1) {
-            self.recurse(i + 1, h, pairs);
-        }
+        stack.push(node);
     }
 
-    /// Joint squared Mahalanobis distance of the pairs in `h`.
-    fn joint_d2(&self, h: &Hypothesis) -> Option<f64> {
-        let pairs: Vec<(usize, usize)> = h.iter().enumerate().filter_map(|(i, j)| j.map(|j| (i, j))).collect();
+    /// Joint squared Mahalanobis distance of `pairs` (observation, landmark).
+    fn joint_d2(&self, pairs: &[(usize, usize)]) -> Option<f64> {
         let k = pairs.len();
         if k == 0 {
             return Some(0.0);
@@ -214,6 +261,7 @@ mod tests {
     use super::*;
     use crate::association::nn::nearest_neighbour;
     use nalgebra::{Matrix3, Vector3};
+    use proptest::prelude::*;
 
     /// A laser at the robot's origin with 2 cm and 0.002 rad of noise.
     fn precise_model() -> RangeBearingModel {
@@ -294,5 +342,101 @@ mod tests {
         masked[0][2] = false;
         masked[1][2] = false;
         assert_eq!(unambiguous_jcbb(&twice, &model, &obs, &masked, 0.99).unwrap(), Some(vec![Some(0), Some(1)]));
+    }
+
+    /// The search as first written, recursively: the reference the explicit stack must
+    /// follow pair for pair.
+    fn recursive_reference(
+        ekf: &Ekf,
+        model: &RangeBearingModel,
+        obs: &[Vector2<f64>],
+        allowed: &[Vec<bool>],
+    ) -> Hypothesis {
+        fn recurse(s: &mut Search, i: usize, h: &mut Hypothesis, pairs: usize) {
+            let made = |h: &Hypothesis| -> Vec<(usize, usize)> {
+                h.iter().enumerate().filter_map(|(i, j)| j.map(|j| (i, j))).collect()
+            };
+            s.nodes += 1;
+            if i == s.obs.len() {
+                if pairs > s.best_pairs || (pairs == s.best_pairs && pairs > 0) {
+                    let d2 = s.joint_d2(&made(h)).unwrap_or(f64::INFINITY);
+                    if pairs > s.best_pairs || d2 < s.best_d2 {
+                        (s.best, s.best_pairs, s.best_d2) = (h.clone(), pairs, d2);
+                    }
+                }
+                return;
+            }
+            if s.nodes > MAX_NODES {
+                return;
+            }
+            for j in 0..s.ekf.landmark_count() {
+                if !s.prep.individual[i][j] || h.contains(&Some(j)) {
+                    continue;
+                }
+                h[i] = Some(j);
+                if s.joint_d2(&made(h)).is_some_and(|d2| d2 < chi2_quantile_in_domain(2 * (pairs + 1), s.confidence)) {
+                    recurse(s, i + 1, h, pairs + 1);
+                }
+                h[i] = None;
+            }
+            if pairs + (s.obs.len() - i - 1) >= s.best_pairs.max(1) {
+                recurse(s, i + 1, h, pairs);
+            }
+        }
+        let pred = ekf.landmarks().map(|l| model.observe(&ekf.pose(), &l)).collect();
+        let prep = Prepared { pred, individual: allowed.to_vec() };
+        let mut s = Search {
+            ekf,
+            model,
+            obs,
+            prep: &prep,
+            confidence: 0.99,
+            best: vec![None; obs.len()],
+            best_pairs: 0,
+            best_d2: f64::INFINITY,
+            nodes: 0,
+        };
+        recurse(&mut s, 0, &mut vec![None; obs.len()], 0);
+        s.best
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(64))]
+        /// Random maps and scans under a loose pose: the explicit stack pairs exactly as
+        /// the recursion did.
+        #[test]
+        fn the_search_pairs_as_the_recursion_did(
+            landmarks in prop::collection::vec((2.0f64..8.0, -1.0f64..1.0), 0..6),
+            seen in prop::collection::vec((2.0f64..8.0, -1.0f64..1.0), 0..6),
+            heading_var in 0.0001f64..0.3,
+            mask in prop::collection::vec(any::<bool>(), 36),
+        ) {
+            let model = RangeBearingModel { bearing_sigma_rad: 0.02, ..precise_model() };
+            let mut ekf = Ekf::new(Vector3::zeros(), Matrix3::new(0.01, 0.0, 0.0, 0.0, 0.01, 0.0, 0.0, 0.0, heading_var));
+            for &(r, b) in &landmarks {
+                ekf.add_landmark(&model, &Vector2::new(r, b)).unwrap();
+            }
+            let obs: Vec<Vector2<f64>> = seen.iter().map(|&(r, b)| Vector2::new(r, b)).collect();
+            let allowed: Vec<Vec<bool>> =
+                (0..obs.len()).map(|i| (0..landmarks.len()).map(|j| mask[i * 6 + j]).collect()).collect();
+            let expected = recursive_reference(&ekf, &model, &obs, &allowed);
+            prop_assert_eq!(jcbb_with(&ekf, &model, &obs, &allowed, 0.99).unwrap(), expected);
+        }
+    }
+
+    /// A scan of far more detections than a laser gives (a log's, malformed or not) is
+    /// searched on the search's own stack, not the thread's: no overflow, one pair made.
+    #[test]
+    fn tens_of_thousands_of_observations_do_not_overflow_the_stack() {
+        let model = precise_model();
+        let mut ekf = Ekf::new(Vector3::zeros(), Matrix3::identity() * 1e-4);
+        ekf.add_landmark(&model, &Vector2::new(5.0, 0.0)).unwrap();
+        let obs = vec![Vector2::new(5.0, 0.0); 50_000];
+        let run = move || jcbb(&ekf, &model, &obs, 9.21, 0.99).unwrap();
+        // A thread of rayon's or the test harness's size (2 MiB), where the recursion
+        // overflowed.
+        let h = std::thread::Builder::new().stack_size(2 << 20).spawn(run).unwrap().join().unwrap();
+        assert_eq!(h.len(), 50_000);
+        assert_eq!(h.iter().flatten().count(), 1);
     }
 }
