@@ -146,15 +146,22 @@ fn log_sum_exp(v: impl Iterator<Item = f64>) -> f64 {
     m + v.iter().map(|x| (x - m).exp()).sum::<f64>().ln()
 }
 
-/// Hershey & Olsen's variational approximation:
-/// `sum_a pi_a ln( sum_a' pi_a' exp(-KL(f_a||f_a')) / sum_b w_b exp(-KL(f_a||g_b)) )`.
-/// Zero for f = g; can be negative.
-pub fn kl_variational(f: &PreparedGmm, g: &PreparedGmm) -> Result<f64, KlError> {
+/// Both mixtures' shapes, and that they are of one dimension: what a divergence between
+/// them needs.
+fn check_pair(f: &PreparedGmm, g: &PreparedGmm) -> Result<(), KlError> {
     f.check_shapes()?;
     g.check_shapes()?;
     if f.dims() != g.dims() {
         return Err(KlError::Dimension(f.dims(), g.dims()));
     }
+    Ok(())
+}
+
+/// Hershey & Olsen's variational approximation:
+/// `sum_a pi_a ln( sum_a' pi_a' exp(-KL(f_a||f_a')) / sum_b w_b exp(-KL(f_a||g_b)) )`.
+/// Zero for f = g; can be negative.
+pub fn kl_variational(f: &PreparedGmm, g: &PreparedGmm) -> Result<f64, KlError> {
+    check_pair(f, g)?;
     let mut total = 0.0;
     for (a, fa) in f.components.iter().enumerate() {
         let num =
@@ -169,11 +176,7 @@ pub fn kl_variational(f: &PreparedGmm, g: &PreparedGmm) -> Result<f64, KlError> 
 /// Goldberger's matched bound: `sum_a pi_a [KL(f_a||g_m(a)) + ln(pi_a / w_m(a))]` with
 /// `m(a) = argmin_b KL(f_a||g_b) - ln w_b`.
 pub fn kl_matched_bound(f: &PreparedGmm, g: &PreparedGmm) -> Result<f64, KlError> {
-    f.check_shapes()?;
-    g.check_shapes()?;
-    if f.dims() != g.dims() {
-        return Err(KlError::Dimension(f.dims(), g.dims()));
-    }
+    check_pair(f, g)?;
     let mut total = 0.0;
     for (a, fa) in f.components.iter().enumerate() {
         // A component of no weight adds nothing (and 0 x -inf would be NaN).
