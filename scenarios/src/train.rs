@@ -213,7 +213,7 @@ pub fn image_patches<'a>(
         let features = extractor.features(&image, None).map_err(ModelError::from)?;
         let (cols, _) = image.grid(l);
         let cells: Vec<(u32, u32)> =
-            (0..features.z.nrows()).map(|k| features.rect.patch(k).expect("a row of the image\'s features")).collect();
+            (0..features.z.nrows()).map(|k| features.rect.patch(k).expect(slam::features::IN_RECT)).collect();
         let fractions = cells.iter().map(|&(c, r)| img.fractions[(r * cols + c) as usize]).collect();
         let classes = cells.iter().map(|&(c, r)| majority_class(&class, c, r, l)).collect();
         Ok(ImagePatches { index, features, cells, fractions, classes })
@@ -579,7 +579,7 @@ pub fn segment_image(model: &AppearanceModel, image_path: &Path, out: &Path) -> 
         if !object {
             continue;
         }
-        let (c, r) = f.rect.patch(k).expect("a row of the image\'s features");
+        let (c, r) = f.rect.patch(k).expect(slam::features::IN_RECT);
         for y in r * l..(r + 1) * l {
             for x in c * l..(c + 1) * l {
                 let p = rgb.get_pixel_mut(x, y);

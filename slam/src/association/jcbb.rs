@@ -132,11 +132,10 @@ struct Search<'a> {
 /// Bound on explored nodes: pathological inputs degrade to the best found so far.
 const MAX_NODES: usize = 200_000;
 
-/// A node of the search: observation `i` with `pairs` pairs made before it, and the next
-/// landmark to try for it (`n`: the unpaired branch is next; past `n`: done).
+/// A node of the search: observation `i`, and the next landmark to try for it (`n`: the
+/// unpaired branch is next; past `n`: done).
 struct Node {
     i: usize,
-    pairs: usize,
     next: usize,
 }
 
@@ -147,21 +146,23 @@ impl Search<'_> {
     /// thousands of detections goes as deep as it has observations.
     fn run(&mut self) {
         let (m, n) = (self.obs.len(), self.ekf.landmark_count());
-        let mut h: Hypothesis = vec![None; m];
-        // The pairs of `h` in observation order, and which landmarks they use.
+        // The hypothesis at the top node: its pairs (observation, landmark) in observation
+        // order, and which landmarks they use.
         let mut made: Vec<(usize, usize)> = Vec::new();
         let mut used = vec![false; n];
         let mut stack: Vec<Node> = Vec::new();
-        self.enter(&mut stack, &h, &made, Node { i: 0, pairs: 0, next: 0 });
+        self.enter(&mut stack, &made, 0);
         while let Some(node) = stack.last_mut() {
             let i = node.i;
             // Back from a branch that paired observation i: unpair it.
-            if let Some(j) = h[i].take() {
+            if let Some(&(last, j)) = made.last()
+                && last == i
+            {
                 used[j] = false;
                 made.pop();
             }
-            let mut child = None;
-            while node.next < n && child.is_none() {
+            let mut descend = false;
+            while node.next < n && !descend {
                 let j = node.next;
                 node.next += 1;
                 if !self.prep.individual[i][j] || used[j] {
@@ -170,39 +171,38 @@ impl Search<'_> {
                 made.push((i, j));
                 let gate = chi2_quantile_in_domain(2 * made.len(), self.confidence);
                 if self.joint_d2(&made).is_some_and(|d2| d2 < gate) {
-                    h[i] = Some(j);
                     used[j] = true;
-                    child = Some(node.pairs + 1);
+                    descend = true;
                 } else {
                     made.pop();
                 }
             }
-            if child.is_none() && node.next == n {
+            if !descend && node.next == n {
                 node.next = n + 1;
-                if node.pairs + (m - i - 1) >= self.best_pairs.max(1) {
-                    child = Some(node.pairs);
-                }
+                descend = made.len() + (m - i - 1) >= self.best_pairs.max(1);
             }
-            match child {
-                Some(pairs) => self.enter(&mut stack, &h, &made, Node { i: i + 1, pairs, next: 0 }),
-                None => {
-                    stack.pop();
-                }
+            if descend {
+                self.enter(&mut stack, &made, i + 1);
+            } else {
+                stack.pop();
             }
         }
     }
 
-    /// Visits a node: past the last observation, a complete hypothesis (`h`, its pairs
-    /// `made`) to compare with the best; otherwise a node to search from, within the node
-    /// bound.
-    fn enter(&mut self, stack: &mut Vec<Node>, h: &Hypothesis, made: &[(usize, usize)], node: Node) {
+    /// Visits observation `i`'s node: past the last observation, the hypothesis `made` is
+    /// complete and compared with the best; otherwise a node to search from, within the
+    /// node bound.
+    fn enter(&mut self, stack: &mut Vec<Node>, made: &[(usize, usize)], i: usize) {
         self.nodes += 1;
-        if node.i == self.obs.len() {
+        if i == self.obs.len() {
             let k = made.len();
             if k > self.best_pairs || (k == self.best_pairs && k > 0) {
                 let d2 = self.joint_d2(made).unwrap_or(f64::INFINITY);
                 if k > self.best_pairs || d2 < self.best_d2 {
-                    self.best = h.clone();
+                    self.best = vec![None; self.obs.len()];
+                    for &(o, j) in made {
+                        self.best[o] = Some(j);
+                    }
                     self.best_pairs = k;
                     self.best_d2 = d2;
                 }
@@ -212,7 +212,7 @@ impl Search<'_> {
         if self.nodes > MAX_NODES {
             return;
         }
-        stack.push(node);
+        stack.push(Node { i, next: 0 });
     }
 
     /// Joint squared Mahalanobis distance of `pairs` (observation, landmark).

@@ -92,8 +92,9 @@ impl<'a> ImageRef<'a> {
     }
 }
 
-/// Why a patch index the library took from a rectangle's own rows is one of its patches.
-pub(crate) const IN_RECT: &str = "an index below the rectangle's patch count";
+/// Why a patch index taken from a rectangle's own rows (`0..features.z.nrows()`) is one of
+/// its patches: the `expect` message for [`PatchRect::patch`] there.
+pub const IN_RECT: &str = "an index below the rectangle's patch count";
 
 /// A rectangle of patches: columns `col0..col1`, rows `row0..row1` (end exclusive).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

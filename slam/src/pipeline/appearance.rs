@@ -109,36 +109,53 @@ impl Pipeline {
         // Each cluster's segmentation depends on nothing but the image and the cluster: they
         // run in parallel and are used in order, so results do not depend on the threads.
         let seg_config = &self.config.segmentation;
-        // Per cluster: its segmentation (`None`: occluded or outside the image), or whether
-        // it was skipped for lack of rendered pixels, or why it could not be segmented.
-        type Segmented = Result<Result<Option<SegmentedCluster>, ()>, FeatureError>;
+        /// What became of one cluster.
+        enum Segmented {
+            Done(Box<SegmentedCluster>),
+            /// Occluded, or outside the image.
+            NotInImage,
+            /// Its pixels were not rendered (counted in `unrendered_reads`).
+            Unrendered,
+            Failed(FeatureError),
+        }
         let segmentations: Vec<Segmented> = clusters
             .par_iter()
             .map(|c| {
                 if c.occluded {
-                    return Ok(Ok(None));
+                    return Segmented::NotInImage;
                 }
                 let Some(located) = locate_cluster(c, &app.camera, image.width, image.height, l, seg_config) else {
-                    return Ok(Ok(None));
+                    return Segmented::NotInImage;
                 };
                 if let Some(regions) = &img.regions
                     && !regions_cover(regions, &extractor.config.pixels_read(&located.rect, image.width, image.height))
                 {
-                    return Ok(Err(()));
+                    return Segmented::Unrendered;
                 }
-                segment_located(c, located, &image, extractor, &app.classifier, &app.camera, seg_config)
-                    .map(|seg| Ok(Some(seg)))
+                match segment_located(c, located, &image, extractor, &app.classifier, &app.camera, seg_config) {
+                    Ok(seg) => Segmented::Done(Box::new(seg)),
+                    Err(e) => Segmented::Failed(e),
+                }
             })
             .collect();
         // The first failure in cluster order, whatever the threads did first.
-        let segmentations: Vec<Result<Option<SegmentedCluster>, ()>> = segmentations
-            .into_iter()
-            .enumerate()
-            .map(|(i, s)| s.map_err(|source| PipelineError::Segmentation { t, cluster: Some(i), source }))
-            .collect::<Result<_, _>>()?;
-        self.unrendered_reads += segmentations.iter().filter(|s| s.is_err()).count();
-        let segmentations = segmentations.into_iter().map(|s| s.ok().flatten());
-        for (ci, (c, seg)) in clusters.iter().zip(segmentations).enumerate() {
+        let mut unrendered = 0;
+        let mut segmented = Vec::with_capacity(segmentations.len());
+        for (i, s) in segmentations.into_iter().enumerate() {
+            segmented.push(match s {
+                Segmented::Done(seg) => Some(seg),
+                Segmented::NotInImage => None,
+                Segmented::Unrendered => {
+                    unrendered += 1;
+                    None
+                }
+                Segmented::Failed(source) => {
+                    return Err(PipelineError::Segmentation { t, cluster: Some(i), source });
+                }
+            });
+        }
+        self.unrendered_reads += unrendered;
+        for (ci, (c, seg)) in clusters.iter().zip(segmented).enumerate() {
             let Some(seg) = seg else { continue };
             for (i, &o) in seg.object.iter().enumerate() {
                 let (col, row) = seg.rect.patch(i).expect(IN_RECT);
