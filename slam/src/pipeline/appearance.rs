@@ -398,7 +398,8 @@ impl Pipeline {
         let mut plans = Vec::new();
         let general = self.appearance.as_ref().map(|a| a.general.clone());
         for (ci, obs, fully_judged) in observations {
-            let Ok(fitted) = fit_observation(&obs, general.as_ref(), &cfg) else { continue };
+            let fitted = fit_observation(&obs, general.as_ref(), &cfg)
+                .map_err(|source| PipelineError::ObjectModel { t, cluster: ci, landmark: None, source })?;
             let z = Vector2::new(clusters[ci].range_m, clusters[ci].bearing_rad);
             let mut candidates = Vec::new();
             for (j, m2) in self.ekf.mahalanobis2_to_all(&self.config.sensor, &z).into_iter().enumerate() {
@@ -433,8 +434,13 @@ impl Pipeline {
                         &cfg,
                         method == AssociationMethod::Appearance,
                     )
-                    .ok();
-                candidates.push(Candidate { landmark: known.id, mahalanobis2: m2, kl });
+                    .map_err(|source| PipelineError::ObjectModel {
+                        t,
+                        cluster: ci,
+                        landmark: Some(known.id),
+                        source,
+                    })?;
+                candidates.push(Candidate { landmark: known.id, mahalanobis2: m2, kl: Some(kl) });
             }
             // The combined method's candidates lie within the new-landmark gate (for the
             // deferral and the joint test); to join one by KL, an observation must also be
@@ -465,10 +471,7 @@ impl Pipeline {
             let choice = match best {
                 Some((id, j)) => {
                     if self.ekf.update_iterated(&self.config.sensor, j, &z, iterations).is_ok() {
-                        let lm = self.ekf.landmark(j).expect(MAPPED);
-                        if let Some(m) = self.table.object_mut(j) {
-                            let _ = m.update(&obs, [lm.x, lm.y], pca_dims);
-                        }
+                        self.update_object_model(t, ci, j, &obs, pca_dims)?;
                         let place = self.laser_point_in(&self.odometry_pose, clusters[ci].centre).0;
                         self.table.set_place(j, place);
                         let l = self.table.get_mut(j);
@@ -531,6 +534,29 @@ impl Pipeline {
             self.retract_landmarks();
         }
         Ok(self.finish_scan(t, clusters, assigned))
+    }
+
+    /// Folds observation `obs` of cluster `ci` into the object model of landmark slot `j`,
+    /// at the landmark's updated position.
+    fn update_object_model(
+        &mut self,
+        t: f64,
+        ci: usize,
+        j: usize,
+        obs: &ObjectObservation,
+        pca_dims: usize,
+    ) -> Result<(), PipelineError> {
+        let lm = self.ekf.landmark(j).expect(MAPPED);
+        let id = self.table.get(j).id;
+        match self.table.object_mut(j) {
+            Some(m) => m.update(obs, [lm.x, lm.y], pca_dims).map_err(|source| PipelineError::ObjectModel {
+                t,
+                cluster: ci,
+                landmark: Some(id),
+                source,
+            }),
+            None => Ok(()),
+        }
     }
 
     /// Whether landmarks `i` and `j` may be one object by their appearance: always for the
@@ -651,6 +677,36 @@ mod tests {
         // A tentative landmark (maybe a person) never holds a new tree back.
         let q = one_landmark(8);
         assert!(!q.near_lookalike(&observation(), &density(0.05), &candidate, &cfg));
+    }
+
+    #[test]
+    fn an_observation_the_object_model_cannot_take_is_refused_with_the_landmark_named() {
+        let mut p = one_landmark(1);
+        let before = p.table.object(0).cloned();
+        // Rows of 5 columns against a model of 7: another feature space.
+        let obs = ObjectObservation { rows: DMatrix::zeros(4, 5), ..observation() };
+        let e = p.update_object_model(2.5, 3, 0, &obs, 4).unwrap_err();
+        assert!(
+            matches!(
+                &e,
+                PipelineError::ObjectModel {
+                    t,
+                    cluster: 3,
+                    landmark: Some(0),
+                    source: crate::object_model::ObjectModelError::Dimension { observation: 5, model: 7 }
+                } if *t == 2.5
+            ),
+            "{e:?}"
+        );
+        assert_eq!(
+            e.to_string(),
+            "the object model of cluster 3 against landmark 0 at t = 2.5 s: observation of 5 dimensions against an object model of 7"
+        );
+        assert_eq!(p.table.object(0).cloned(), before, "a refused update changed the model");
+        // One it can take is folded in.
+        let obs = ObjectObservation { rows: DMatrix::from_element(4, 7, 0.1), ..observation() };
+        p.update_object_model(2.6, 3, 0, &obs, 4).unwrap();
+        assert_eq!(p.table.object(0).map(|m| m.observations), Some(2));
     }
 
     #[test]

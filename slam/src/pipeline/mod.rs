@@ -103,7 +103,7 @@ use crate::evidence::{EvidenceConfig, Judgement, ObjectEvidence};
 use crate::features::{FeatureError, IN_RECT, ImageRef, PixelRegion};
 use crate::gmm::{Gmm, StudentTMixture};
 use crate::messages::{Control, Detection, LaserScan, OdometryIncrement};
-use crate::object_model::{ObjectModel, ObjectModelConfig, ObjectObservation, fit_observation};
+use crate::object_model::{ObjectModel, ObjectModelConfig, ObjectModelError, ObjectObservation, fit_observation};
 use crate::segmentation::{
     CameraGeometry, ImageRegion, SegmentationConfig, SegmentedCluster, locate_cluster, regions_cover, segment_located,
 };
@@ -234,6 +234,18 @@ pub enum PipelineError {
     /// size than the motion model's), the filter unchanged.
     #[error("the filter at t = {t} s: {source}")]
     Filter { t: f64, source: EkfError },
+    /// An object model that could not be fitted to an observation, compared with one, or
+    /// updated by one (`landmark`: the mapped object's, where one was involved). Models
+    /// and observations the pipeline makes always can be; one that cannot is a model or
+    /// setting the checks let through, and skipping it would drop an observation, or
+    /// leave a landmark's appearance behind its position, with no word of why. Refused
+    /// while fitting or comparing, no observation of the scan has reached the filter;
+    /// refused while updating the landmark's model, the filter holds that observation.
+    #[error(
+        "the object model of cluster {cluster}{} at t = {t} s: {source}",
+        .landmark.map_or(String::new(), |l| format!(" against landmark {l}"))
+    )]
+    ObjectModel { t: f64, cluster: usize, landmark: Option<u32>, source: ObjectModelError },
 }
 
 impl PipelineError {
@@ -250,7 +262,8 @@ impl PipelineError {
             | PipelineError::Diverged { t }
             | PipelineError::Indefinite { t }
             | PipelineError::Segmentation { t, .. }
-            | PipelineError::Filter { t, .. } => Some(*t),
+            | PipelineError::Filter { t, .. }
+            | PipelineError::ObjectModel { t, .. } => Some(*t),
             _ => None,
         }
     }
