@@ -306,7 +306,7 @@ pub(crate) enum GmmCommand {
     /// Fit a VB-GMM (searching for the number of components up to --max-components, or
     /// fixed K).
     Fit {
-        /// A CSV of numbers, one point a row (a first row of names is skipped; fields may be quoted).
+        /// A CSV of numbers, one point a row (a first row of names, blank lines and lines starting with `#` are skipped; fields may be quoted).
         data: PathBuf,
         /// Most components the search may keep (the components VBEM starts from with
         /// --fixed-k).

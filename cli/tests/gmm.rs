@@ -92,6 +92,7 @@ fn both_searches_fit_the_same_mixture_and_score_it_on_held_out_points() {
         (serde_json::json!({"components": {"0": {"nu": 1e308}}}), "its predictive density cannot be formed"),
         (serde_json::json!({"prior": {"m0": [[1.0, 2.0, 3.0], 3, null]}}), "W0^-1 is 2 x 2; m0 has 3 dimensions"),
         (serde_json::json!({"counts": {"0": -5.0}}), "count 0 is -5"),
+        (serde_json::json!({"components": {"0": {"extra": 1}}}), "unknown field `extra`"),
     ] {
         let mut json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&model).unwrap()).unwrap();
         // Each damage names one value by its path: objects' keys, arrays' indices.
@@ -111,6 +112,17 @@ fn both_searches_fit_the_same_mixture_and_score_it_on_held_out_points() {
         assert!(!out.status.success() && e.contains("broken.json") && e.contains(named), "{damage}: {e}");
         assert!(!e.contains("heldout"), "the data are not at fault: {e}");
     }
+    // Alphas each finite whose sum is not: every weight would be zero, the score a floor.
+    let mut json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&model).unwrap()).unwrap();
+    let components = json["components"].as_array_mut().unwrap();
+    assert!(components.len() >= 2, "the fit found {} components", components.len());
+    for c in components {
+        c["alpha"] = 1e308.into();
+    }
+    std::fs::write(&broken, json.to_string()).unwrap();
+    let out = objslam(&["gmm", "score", path(&broken), path(&heldout)]);
+    let e = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && e.contains("broken.json") && e.contains("alphas sum to inf"), "{e}");
     // A damaged record of how the model was fitted is refused too, not passed over.
     for (key, bad, named) in [
         ("data_sha256", serde_json::json!(12345), "fit.data_sha256"),

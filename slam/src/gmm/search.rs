@@ -173,6 +173,14 @@ impl VbGmm {
                 return Err(GmmError::BadModel(format!("component {k}: W^-1 is not positive definite")));
             }
         }
+        // The weights are alpha over the alphas' sum: a sum past f64's range would make
+        // every weight zero and the density a floor value, with no error.
+        let alphas: f64 = self.components.iter().map(|c| c.alpha).sum();
+        if !alphas.is_finite() {
+            return Err(GmmError::BadModel(format!(
+                "the components' alphas sum to {alphas}: past what a weight can be computed from"
+            )));
+        }
         if !self.counts.is_empty() && self.counts.len() != self.components.len() {
             return Err(GmmError::BadModel(format!(
                 "{} counts for {} components",

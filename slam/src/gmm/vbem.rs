@@ -104,6 +104,7 @@ impl VbPrior {
 /// The variational posterior of one component: Dirichlet count `alpha`, mean precision
 /// scale `beta`, mean `mean` (m_k), Wishart dof `nu` and inverse scale `w_inv` (W_k^-1).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct VbComponent {
     pub alpha: f64,
     pub beta: f64,
