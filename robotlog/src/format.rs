@@ -27,17 +27,22 @@ pub const CAMERA: &str = "camera.csv";
 /// Reads the whole log in `dir`, checking every file (see [`open`] for a log read as it is
 /// replayed).
 pub fn read(dir: &Path) -> Result<Log, LogError> {
-    let parts = open_parts(dir)?;
+    let mut parts = open_parts(dir)?;
     let increments = parts.motion.rows.header == 0;
+    // The observations first: the first increment is the motion since the log's start.
+    let observations = match parts.observations {
+        ObservationRows::Scans(rows) => Observations::Scans(rows.collect::<Result<Vec<_>, _>>()?),
+        ObservationRows::Detections(rows) => Observations::Detections(rows.collect::<Result<Vec<_>, _>>()?),
+    };
+    parts.motion.first_observation_t = match &observations {
+        Observations::Scans(v) => v.first().map(|s| s.t),
+        Observations::Detections(v) => v.first().map(|d| d.t),
+    };
     let messages = parts.motion.collect::<Result<Vec<_>, _>>()?;
     let motion = if increments {
         Motion::Increments(messages.into_iter().filter_map(MotionMessage::into_increment).collect())
     } else {
         Motion::Controls(messages.into_iter().filter_map(MotionMessage::into_control).collect())
-    };
-    let observations = match parts.observations {
-        ObservationRows::Scans(rows) => Observations::Scans(rows.collect::<Result<_, _>>()?),
-        ObservationRows::Detections(rows) => Observations::Detections(rows.collect::<Result<_, _>>()?),
     };
     let (reference, camera) = (parts.reference.collect()?, parts.camera.collect()?);
     Ok(Log { manifest: parts.manifest, motion, observations, reference, camera })
@@ -48,18 +53,24 @@ pub fn read(dir: &Path) -> Result<Log, LogError> {
 /// needs them: see [`Reread`]); the motion and the observations a message at a time, a
 /// fault in them arriving as an error in the message's place.
 pub fn open(dir: &Path) -> Result<LogStream, LogError> {
-    let parts = open_parts(dir)?;
-    let motion: Box<dyn Iterator<Item = Result<MotionMessage, LogError>>> = Box::new(until_error(parts.motion));
+    let mut parts = open_parts(dir)?;
     let observations: Box<dyn Iterator<Item = Result<ObservationMessage, LogError>>> = match parts.observations {
         ObservationRows::Scans(rows) => Box::new(until_error(rows.map(|s| s.map(ObservationMessage::Scan)))),
         ObservationRows::Detections(rows) => Box::new(until_error(rows.map(|d| d.map(ObservationMessage::Detections)))),
     };
+    let mut observations = observations.peekable();
+    // A fault in the first observation comes in its place, in time order.
+    parts.motion.first_observation_t = match observations.peek() {
+        Some(Ok(m)) => Some(m.time()),
+        _ => None,
+    };
+    let motion: Box<dyn Iterator<Item = Result<MotionMessage, LogError>>> = Box::new(until_error(parts.motion));
     Ok(LogStream {
         manifest: parts.manifest,
         reference: parts.reference,
         camera: parts.camera,
         motion: motion.peekable(),
-        observations: observations.peekable(),
+        observations,
     })
 }
 
@@ -93,11 +104,32 @@ enum ObservationRows {
 /// Refuses a `dir` that is no directory, saying which: a log (or a data set as published)
 /// is a directory of files, and a file named inside it would hide what is wrong.
 pub(crate) fn check_dir(dir: &Path, what: &str) -> Result<(), LogError> {
-    if dir.is_dir() {
-        return Ok(());
+    match std::fs::metadata(dir) {
+        Ok(m) if m.is_dir() => Ok(()),
+        Ok(_) => Err(LogError::File { file: dir.to_path_buf(), problem: format!("not a directory: {what}") }),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            Err(LogError::File { file: dir.to_path_buf(), problem: format!("no such directory: {what}") })
+        }
+        // Permission denied and the like: the directory may well be there.
+        Err(source) => Err(LogError::Io { file: dir.to_path_buf(), source }),
     }
-    let problem = if dir.exists() { "not a directory" } else { "no such directory" };
-    Err(LogError::File { file: dir.to_path_buf(), problem: format!("{problem}: {what}") })
+}
+
+/// Whether the log holds `file`: a name that is there but cannot be followed (a link to
+/// nothing, a directory that may not be searched) is an error that says so, not a file
+/// the log lacks.
+fn present(file: &Path) -> Result<bool, LogError> {
+    match std::fs::symlink_metadata(file) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(false),
+        Err(source) => Err(LogError::Io { file: file.to_path_buf(), source }),
+        Ok(_) => match std::fs::metadata(file) {
+            Ok(_) => Ok(true),
+            Err(e) => Err(LogError::File {
+                file: file.to_path_buf(),
+                problem: format!("is there but cannot be read: {e} (a link to nothing?)"),
+            }),
+        },
+    }
 }
 
 fn open_parts(dir: &Path) -> Result<OpenLog, LogError> {
@@ -105,7 +137,7 @@ fn open_parts(dir: &Path) -> Result<OpenLog, LogError> {
     let manifest = read_manifest(&dir.join(MANIFEST))?;
     let motion = open_motion(&dir.join(ODOMETRY), &manifest)?;
     let (scans, detections) = (dir.join(SCANS), dir.join(DETECTIONS));
-    let observations = match (scans.exists(), detections.exists()) {
+    let observations = match (present(&scans)?, present(&detections)?) {
         (true, false) => {
             let Some(laser) = &manifest.laser else {
                 return Err(LogError::File {
@@ -158,7 +190,7 @@ fn open_parts(dir: &Path) -> Result<OpenLog, LogError> {
         }
     };
     let reference_file = dir.join(REFERENCE);
-    let reference = if reference_file.exists() {
+    let reference = if present(&reference_file)? {
         if manifest.reference.is_none() {
             return Err(LogError::File {
                 file: dir.join(MANIFEST),
@@ -175,7 +207,7 @@ fn open_parts(dir: &Path) -> Result<OpenLog, LogError> {
         Reread::in_memory(Vec::new())
     };
     let camera_file = dir.join(CAMERA);
-    let camera = match (camera_file.exists(), &manifest.camera) {
+    let camera = match (present(&camera_file)?, &manifest.camera) {
         (true, Some(_)) => Reread::checked(&camera_file, camera_rows)?,
         (true, None) => {
             return Err(LogError::File {
@@ -455,6 +487,9 @@ struct MotionRows {
     rows: Rows,
     /// The previous row's time: an increment is the motion since then.
     previous_t: Option<f64>,
+    /// The first observation's time: the first increment is the motion since the log's
+    /// start, the earlier of this and its own time.
+    first_observation_t: Option<f64>,
 }
 
 fn open_motion(file: &Path, manifest: &Manifest) -> Result<MotionRows, LogError> {
@@ -470,7 +505,7 @@ fn open_motion(file: &Path, manifest: &Manifest) -> Result<MotionRows, LogError>
             ),
         ));
     }
-    Ok(MotionRows { rows, previous_t: None })
+    Ok(MotionRows { rows, previous_t: None, first_observation_t: None })
 }
 
 impl Iterator for MotionRows {
@@ -488,24 +523,49 @@ impl Iterator for MotionRows {
             1 => MotionMessage::Control { t, control: Control::Differential { v: v[0], omega: v[1] } },
             _ => MotionMessage::Control { t, control: Control::Ackermann { speed: v[0], steering: v[1] } },
         });
-        let previous_t = self.previous_t.replace(t);
-        Some(message.and_then(|m| match m.impossibility().or_else(|| increment_too_fast(&m, previous_t)) {
+        // The first row's motion is since the log's start.
+        let start = self.first_observation_t.map_or(t, |s| s.min(t));
+        let since = match self.previous_t.replace(t) {
+            Some(previous) => Since::PreviousRow(previous),
+            None => Since::LogStart(start),
+        };
+        Some(message.and_then(|m| match m.impossibility().or_else(|| increment_too_fast(&m, since)) {
             Some(problem) => Err(self.rows.problem(line, problem)),
             None => Ok(m),
         }))
     }
 }
 
-/// Where `m` is an increment over the time since `previous_t`, whether it moves faster than
+/// What an increment's motion is since.
+#[derive(Debug, Clone, Copy)]
+enum Since {
+    PreviousRow(f64),
+    /// The first row's: the log's start (see [`MotionRows::first_observation_t`]).
+    LogStart(f64),
+}
+
+/// Where `m` is an increment over the time since `since`, whether it moves faster than
 /// any vehicle's odometry reads (as a control's speed is checked), or at all in no time.
 /// (Its turn is not held to a rate: a step's few hundredths of a radian over a jittered
 /// millisecond would read as a spin; [`MotionMessage::impossibility`] bounds the turn.)
-fn increment_too_fast(m: &MotionMessage, previous_t: Option<f64>) -> Option<String> {
-    let (MotionMessage::Increment(o), Some(previous)) = (m, previous_t) else { return None };
+fn increment_too_fast(m: &MotionMessage, since: Since) -> Option<String> {
+    let MotionMessage::Increment(o) = m else { return None };
+    let previous = match since {
+        Since::PreviousRow(t) | Since::LogStart(t) => t,
+    };
     let (dt, step) = (o.t - previous, o.dx.hypot(o.dy));
     let max = crate::stream::MAX_SPEED_M_S;
     if dt == 0.0 && (step > 0.0 || o.dtheta != 0.0) {
-        return Some(format!("a step of {step:.3} m and {} rad in no time: t repeats the previous row's", o.dtheta));
+        let why = match since {
+            Since::PreviousRow(_) => "t repeats the previous row's".to_string(),
+            // A log that starts moving has a first row of no motion (nothing before it to
+            // count from); one that does not would put the vehicle off its start pose.
+            Since::LogStart(_) => format!(
+                "the first row's motion is since the log's start, which is its own time ({}): a first row moves nothing",
+                o.t
+            ),
+        };
+        return Some(format!("a step of {step:.3} m and {} rad in no time: {why}", o.dtheta));
     }
     (dt > 0.0 && step / dt > max)
         .then(|| format!("a step of {step:.3} m in {dt} s is {:e} m/s, beyond {max} m/s", step / dt))

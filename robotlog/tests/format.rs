@@ -49,7 +49,7 @@ fn scan_log(ranges: Vec<Vec<f64>>, odometry: Vec<[f64; 3]>) -> Log {
             odometry
                 .iter()
                 .enumerate()
-                .map(|(k, o)| OdometryIncrement { t: k as f64 * 0.1, dx: o[0], dy: o[1], dtheta: o[2] })
+                .map(|(k, o)| OdometryIncrement { t: (k + 1) as f64 * 0.1, dx: o[0], dy: o[1], dtheta: o[2] })
                 .collect(),
         ),
         observations: Observations::Scans(
@@ -160,7 +160,7 @@ fn malformed_files_are_errors_that_name_file_and_line() {
     let cases = [
         (
             "odometry.csv",
-            "t,dx,dy,dtheta\n0,0.1,0,0\n-1,0.1,0,0\n",
+            "t,dx,dy,dtheta\n0,0,0,0\n-1,0.1,0,0\n",
             "odometry.csv:3: t = -1 s comes before the previous row's 0 s",
         ),
         ("odometry.csv", "t,dx,dy\n0,1,2\n", "odometry.csv:1: header `t,dx,dy`"),
@@ -169,19 +169,31 @@ fn malformed_files_are_errors_that_name_file_and_line() {
         ("odometry.csv", "t,dx,dy,dtheta\n0,1,0\n", "odometry.csv:2: 3 columns, the header has 4"),
         // A header alone, a blank line where a row was, bytes that are not text.
         ("odometry.csv", "t,dx,dy,dtheta\n", "odometry.csv: a header and no row"),
-        ("odometry.csv", "t,dx,dy,dtheta\n0,1,0,0\n\n0.2,1,0,0\n", "odometry.csv:3: a blank line before the last row"),
+        ("odometry.csv", "t,dx,dy,dtheta\n0,0,0,0\n\n0.2,1,0,0\n", "odometry.csv:3: a blank line before the last row"),
         ("odometry.csv", "t,dx,dy,dtheta\n\n0,1,0,0\n", "odometry.csv:2: a blank line before the last row"),
         // Lines ended by a lone carriage return, or by CR LF, as the CSV reader ends them.
-        ("odometry.csv", "t,dx,dy,dtheta\r0,1,0,0\r\r0.2,1,0,0\r", "odometry.csv:3: a blank line before the last row"),
-        ("odometry.csv", "t,dx,dy,dtheta\r\n0,1,0,0\r\n\r\n0.2,1,0,0\r\n", "odometry.csv:3: a blank line"),
+        ("odometry.csv", "t,dx,dy,dtheta\r0,0,0,0\r\r0.2,1,0,0\r", "odometry.csv:3: a blank line before the last row"),
+        ("odometry.csv", "t,dx,dy,dtheta\r\n0,0,0,0\r\n\r\n0.2,1,0,0\r\n", "odometry.csv:3: a blank line"),
         // Errors name the line whatever the line endings.
-        ("odometry.csv", "t,dx,dy,dtheta\r\n0,1,0,0\r\n0.1,NaN,0,0\r\n", "odometry.csv:3: `dx` must be finite"),
-        ("odometry.csv", "t,dx,dy,dtheta\r0,1,0,0\r0.1,NaN,0,0\r", "odometry.csv:3: `dx` must be finite"),
+        ("odometry.csv", "t,dx,dy,dtheta\r\n0,0,0,0\r\n0.1,NaN,0,0\r\n", "odometry.csv:3: `dx` must be finite"),
+        ("odometry.csv", "t,dx,dy,dtheta\r0,0,0,0\r0.1,NaN,0,0\r", "odometry.csv:3: `dx` must be finite"),
         // An empty quoted cell is a row of one column, not a blank line, wherever it stands.
-        ("odometry.csv", "t,dx,dy,dtheta\n0,1,0,0\n\"\"\n0.2,1,0,0\n", "odometry.csv:3: 1 columns, the header has 4"),
+        ("odometry.csv", "t,dx,dy,dtheta\n0,0,0,0\n\"\"\n0.2,1,0,0\n", "odometry.csv:3: 1 columns, the header has 4"),
         // Values no odometry gives: corrupt data, which would overflow the filter.
         ("odometry.csv", "t,dx,dy,dtheta\n0,1e300,0,0\n", "odometry.csv:2: a step of (1e300, 0e0) m is beyond 1e9 m"),
         ("odometry.csv", "t,v,omega\n0,0.5,0\n0.1,-1000,0\n", "odometry.csv:3: speed -1e3 m/s is beyond 343 m/s"),
+        // The first row's motion is since the log's start (here its own time, with the
+        // first scan's): a step there is one in no time, or as fast over the time since.
+        (
+            "odometry.csv",
+            "t,dx,dy,dtheta\n0,1000,0,0\n",
+            "odometry.csv:2: a step of 1000.000 m and 0 rad in no time: the first row's motion is since the log's start",
+        ),
+        (
+            "odometry.csv",
+            "t,dx,dy,dtheta\n0.5,1000,0,0\n",
+            "odometry.csv:2: a step of 1000.000 m in 0.5 s is 2e3 m/s, beyond 343 m/s",
+        ),
         // An increment as fast, over the time since the row before.
         (
             "odometry.csv",
@@ -202,11 +214,7 @@ fn malformed_files_are_errors_that_name_file_and_line() {
         ),
         ("odometry.csv", "t,v,omega\n0,0.5,45\n", "odometry.csv:2: omega 45 rad/s is beyond two turns a second"),
         // Huge but finite: a time, a range, a mounting (they had reached the filter).
-        (
-            "odometry.csv",
-            "t,dx,dy,dtheta\n0,0.1,0,0\n1e300,0.1,0,0\n",
-            "odometry.csv:3: t = 1e300 s lies beyond 1e10 s",
-        ),
+        ("odometry.csv", "t,dx,dy,dtheta\n0,0,0,0\n1e300,0.1,0,0\n", "odometry.csv:3: t = 1e300 s lies beyond 1e10 s"),
         ("odometry.csv", "t,dx,dy,dtheta\n-1e300,0.1,0,0\n", "odometry.csv:2: t = -1e300 s lies beyond"),
         (
             "manifest.toml",
@@ -307,7 +315,7 @@ fn bytes_that_are_not_text_a_missing_reference_and_an_empty_log_are_errors() {
     let d = dir("not-text");
     let log = scan_log(vec![vec![1.0; 7], vec![2.0; 7]], vec![[0.1, 0.0, 0.0]; 3]);
     robotlog::format::write(&d, &log).unwrap();
-    std::fs::write(d.join("odometry.csv"), b"t,dx,dy,dtheta\n0,1,0,0\n0.99,\xff\xfe,0,0\n").unwrap();
+    std::fs::write(d.join("odometry.csv"), b"t,dx,dy,dtheta\n0,0,0,0\n0.99,\xff\xfe,0,0\n").unwrap();
     let e = robotlog::format::read(&d).unwrap_err().to_string();
     assert!(e.contains("odometry.csv:3: field 2 is not UTF-8 text"), "{e}");
     std::fs::remove_dir_all(&d).ok();

@@ -556,6 +556,34 @@ fn motion_starting_after_most_observations_is_refused() {
     );
 }
 
+/// Scans in a gap of the motion's middle (rows lost, or a control held for seconds) are
+/// counted and named in the summary: the replay cannot tell the two apart, the user can.
+#[test]
+fn scans_in_a_gap_of_the_motion_are_counted() {
+    let mut log = synthetic_park();
+    log.manifest.vehicle.wheelbase_m = Some(2.83);
+    let config = resolve_config(None, &log.manifest, Some(AssociationMethod::Nn), None).unwrap();
+    let whole = replay(log.clone(), config.clone(), None, None).unwrap().metrics;
+    assert_eq!(whole.scans_in_motion_gaps, 0);
+    assert!(!scenarios::replay::summary(&whole).contains("gap in the motion"));
+    let scan_times: Vec<f64> = match &log.observations {
+        Observations::Detections(d) => d.iter().map(|s| s.t).collect(),
+        Observations::Scans(s) => s.iter().map(|s| s.t).collect(),
+    };
+    let from = scan_times[scan_times.len() / 2];
+    let Motion::Controls(controls) = &mut log.motion else { panic!("a car's controls") };
+    controls.retain(|(t, _)| !(from..from + 3.0).contains(t));
+    let last_before = controls.iter().map(|c| c.0).filter(|&t| t < from).fold(f64::NEG_INFINITY, f64::max);
+    let first_after = controls.iter().map(|c| c.0).find(|&t| t >= from).expect("controls after the gap");
+    let m = replay(log, config, None, None).unwrap().metrics;
+    // At equal times the motion comes first: a scan at the first row after the gap is past it.
+    let expected = scan_times.iter().filter(|&&t| t > last_before + 1.0 && t < first_after).count();
+    assert!(expected > 0);
+    assert_eq!(m.scans_in_motion_gaps, expected);
+    let summary = scenarios::replay::summary(&m);
+    assert!(summary.contains(&format!("{expected} scans more than 1 s after the motion row before")), "{summary}");
+}
+
 /// Motion in milliseconds beside observations in seconds lasts a thousand times as long:
 /// refused, not replayed from poses parked between its rows. Controls held for seconds
 /// between rows (a row written when a control changes) are sound.

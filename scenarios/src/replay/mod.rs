@@ -85,6 +85,10 @@ pub enum ReplayError {
         "method {method} segments camera images: the log's camera.csv lists no frame; replay it with a method that needs none (--method nn or --method jcbb)"
     )]
     NoFrames { method: &'static str },
+    /// A fault of the log as a whole (its motion against its observations), with the
+    /// log's directory.
+    #[error("{}: {source}", dir.display())]
+    InLog { dir: PathBuf, source: Box<ReplayError> },
     /// Motion that stops while the sensors go on is a cut file, not a vehicle standing
     /// still: odometry comes at tens of hertz, so a second without it is no jitter.
     #[error(
@@ -334,6 +338,10 @@ pub struct ReplayMetrics {
     /// Scans (or detection sets) before the motion's first row, replayed from the start
     /// pose: a laser started before the odometry, with the vehicle standing, or not.
     pub scans_before_motion: usize,
+    /// Scans (or detection sets) more than [`MOTION_GAP_S`] after the motion row before
+    /// them, with motion rows after them: a gap in the motion, which the next row bridges
+    /// (a control held, an increment over the whole gap) or which is rows lost.
+    pub scans_in_motion_gaps: usize,
     pub detections: usize,
     /// Beams of whole scans that returned within the laser's `[range_min_m, range_max_m]`
     /// (null for a log of detections): 0 over every scan is ranges in another unit, or a
@@ -458,6 +466,13 @@ fn refuse_other_outputs(dir: &Path) -> Result<(), ReplayError> {
     if let Some(name) = files::first_present(dir, robotlog::victoria_park::FILES) {
         return holds(format!("a data set's files ({name})"));
     }
+    // Outputs whose marker is not a metadata.json.
+    if dir.join("metadata.yaml").exists() {
+        return holds("a ROS 2 bag (metadata.yaml)".into());
+    }
+    if dir.join("dataset.json").exists() {
+        return holds("the images of `objslam dataset` (dataset.json)".into());
+    }
     let Ok(text) = std::fs::read_to_string(dir.join(files::METADATA)) else { return Ok(()) };
     let tool = serde_json::from_str::<serde_json::Value>(&text)
         .ok()
@@ -493,6 +508,14 @@ fn check_frame_times(
         });
     }
     Ok(())
+}
+
+/// `e` with the directory of the log it is about, where the log came from one.
+fn in_log(source: Option<&LogSource>, e: ReplayError) -> ReplayError {
+    match source {
+        Some(s) => ReplayError::InLog { dir: s.dir.clone(), source: Box::new(e) },
+        None => e,
+    }
 }
 
 /// The `tool` a replay's `metadata.json` names.
@@ -597,7 +620,7 @@ fn replay_and_write(
     // Whether the motion is on the observations' clock (see MotionStartsLate and
     // MotionOutlastsObservations, with the observations' span below): observations before
     // its first row, and its first row's time.
-    let (mut before_motion, mut first_motion) = (0usize, None::<f64>);
+    let (mut before_motion, mut first_motion, mut in_motion_gaps) = (0usize, None::<f64>, 0usize);
     // The time of the trajectory's last pose (written to its file where there is one).
     let mut last_written: Option<f64> = None;
     // The frames' and scans' times, and the scans a frame was recent enough for: frames on
@@ -643,10 +666,13 @@ fn replay_and_write(
             let Some(Ok(message)) = log.observations.next() else { unreachable!("peeked a message") };
             let t = message.time();
             if tm.is_none() && motion_messages > 0 && t > motion_end + MOTION_GAP_S {
-                return Err(ReplayError::MotionEnded { motion_end, t });
+                return Err(in_log(source, ReplayError::MotionEnded { motion_end, t }));
             }
             if motion_messages == 0 && tm.is_some_and(|first| t < first) {
                 before_motion += 1;
+            }
+            if motion_messages > 0 && tm.is_some() && t > motion_end + MOTION_GAP_S {
+                in_motion_gaps += 1;
             }
             let tick = Instant::now();
             let report = match message {
@@ -703,19 +729,25 @@ fn replay_and_write(
     if let Some(motion_start) = first_motion
         && 2 * before_motion > scans
     {
-        return Err(ReplayError::MotionStartsLate { before: before_motion, observations: scans, motion_start });
+        return Err(in_log(
+            source,
+            ReplayError::MotionStartsLate { before: before_motion, observations: scans, motion_start },
+        ));
     }
     if let (Some(motion_from), Some((observed_from, observed_to))) = (first_motion, scan_span) {
         let (motion_s, observed_s) = (motion_end - motion_from, observed_to - observed_from);
         if motion_s > MOTION_SPAN_RATIO * observed_s.max(1.0) {
-            return Err(ReplayError::MotionOutlastsObservations {
-                motion_s,
-                motion_from,
-                motion_to: motion_end,
-                observed_s,
-                observed_from,
-                observed_to,
-            });
+            return Err(in_log(
+                source,
+                ReplayError::MotionOutlastsObservations {
+                    motion_s,
+                    motion_from,
+                    motion_to: motion_end,
+                    observed_s,
+                    observed_from,
+                    observed_to,
+                },
+            ));
         }
     }
     let camera_file = log.camera.file().unwrap_or(Path::new("camera.csv"));
@@ -731,6 +763,7 @@ fn replay_and_write(
         motion_messages,
         scans,
         scans_before_motion: before_motion,
+        scans_in_motion_gaps: in_motion_gaps,
         detections,
         returns_in_range,
         detections_beyond_reach,
@@ -1002,6 +1035,13 @@ pub fn summary(m: &ReplayMetrics) -> String {
         1 => "; 1 scan before the motion's first row, replayed from the start pose".to_string(),
         n => format!("; {n} scans before the motion's first row, replayed from the start pose"),
     };
+    let gaps = match m.scans_in_motion_gaps {
+        0 => String::new(),
+        n => format!(
+            "; {n} scan{} more than {MOTION_GAP_S} s after the motion row before (a gap in the motion: lost rows?)",
+            if n == 1 { "" } else { "s" }
+        ),
+    };
     let no_return = if m.returns_in_range == Some(0) {
         "; no beam of any scan returned within the laser's range_min_m to range_max_m (ranges in millimetres, or in \
          another unit?)"
@@ -1022,7 +1062,7 @@ pub fn summary(m: &ReplayMetrics) -> String {
         "NIS undefined (no observation was associated)".to_string()
     };
     format!(
-        "{} with {}: {} landmarks; {reference}{before}{no_return}{beyond}; {nis}; {:.2} ms per scan (p95 {:.2}); {:.1} s wall, {:.0}x real time",
+        "{} with {}: {} landmarks; {reference}{before}{gaps}{no_return}{beyond}; {nis}; {:.2} ms per scan (p95 {:.2}); {:.1} s wall, {:.0}x real time",
         shown_name(&m.log),
         m.method,
         m.landmarks,
@@ -1123,6 +1163,16 @@ mod tests {
         std::fs::write(dir.join(robotlog::format::MANIFEST), "").unwrap();
         let e = refuse_other_outputs(&dir).unwrap_err().to_string();
         assert!(e.contains("a robot log"), "{e}");
+        std::fs::remove_file(dir.join(robotlog::format::MANIFEST)).unwrap();
+        // A bag and a data set, with a replay's metadata.json beside them all the same.
+        std::fs::write(dir.join(files::METADATA), r#"{"tool": "objslam replay"}"#).unwrap();
+        for (marker, says) in [("metadata.yaml", "a ROS 2 bag"), ("dataset.json", "`objslam dataset`")] {
+            std::fs::write(dir.join(marker), "").unwrap();
+            let e = refuse_other_outputs(&dir).unwrap_err().to_string();
+            assert!(e.contains(says), "{e}");
+            std::fs::remove_file(dir.join(marker)).unwrap();
+        }
+        refuse_other_outputs(&dir).unwrap();
         let _ = std::fs::remove_dir_all(&dir);
     }
 
