@@ -421,6 +421,43 @@ fn inputs_that_do_not_fit_the_log_are_errors_naming_file_and_line() {
     assert!(m.anees.is_nan(), "{}", m.anees);
     assert!(m.warnings.iter().any(|w| w.contains("no ANEES") && w.contains("negative.csv")), "{:?}", m.warnings);
 
+    // Covariances for part of the trajectory, one of them not positive definite: an ANEES
+    // over the rest, with a warning that says how few.
+    let second_pose_t = poses[1].split_whitespace().next().unwrap();
+    let part = bad.join("part.csv");
+    std::fs::write(
+        &part,
+        format!("t,xx,xy,xtheta,yy,ytheta,thetatheta\n{first_pose_t},1,0,0,1,0,1\n{second_pose_t},-1,0,0,-1,0,-1\n"),
+    )
+    .unwrap();
+    let m = score_log(&log, &Estimate { covariances: Some(part), ..trajectory_only(out.join("trajectory_est.tum")) })
+        .unwrap();
+    assert!(m.anees.is_finite(), "{}", m.anees);
+    let says = format!("the ANEES is over 1 of the trajectory's {} poses", poses.len());
+    assert!(
+        m.warnings.iter().any(|w| w.contains(&says)
+            && w.contains("part.csv gives 2 of them a covariance (1 not positive definite)")),
+        "{:?}",
+        m.warnings
+    );
+
+    // Scans out of time order in the log are the log's fault, also when associations
+    // (which follow the scans' times) are given.
+    let laser = std::fs::read_to_string(log.join("laser.jsonl")).unwrap();
+    let mut lines: Vec<&str> = laser.lines().collect();
+    lines.swap(9, 10);
+    std::fs::write(log.join("laser.jsonl"), lines.join("\n") + "\n").unwrap();
+    let e = error(estimate(&out, "x"));
+    assert!(e.contains("laser.jsonl:11") && e.contains("does not follow"), "{e}");
+    std::fs::write(log.join("laser.jsonl"), laser).unwrap();
+
+    // A damaged collisions.jsonl is an error naming its line, not a count of its lines.
+    let collisions = std::fs::read_to_string(log.join("collisions.jsonl")).unwrap();
+    std::fs::write(log.join("collisions.jsonl"), format!("{collisions}hello world\n")).unwrap();
+    let e = error(estimate(&out, "x"));
+    assert!(e.contains("collisions.jsonl:") && e.contains("expected"), "{e}");
+    std::fs::write(log.join("collisions.jsonl"), collisions).unwrap();
+
     // The same landmark twice.
     let lm = bad.join("lm.json");
     std::fs::write(&lm, r#"[{"id": 4, "position": [1, 2]}, {"id": 4, "position": [3, 4]}]"#).unwrap();

@@ -166,6 +166,8 @@ struct PoseScore {
     off_plane: super::estimate::OffPlane,
     /// The RPE's pose pairs, and how many of them span a gap (see `rpe_pairs_over_gaps`).
     rpe_pairs: (usize, usize),
+    /// Poses given a covariance, and of those the ones positive definite (the ANEES's).
+    covariances: (usize, usize),
 }
 
 /// The share of `truth`'s times with one of `times` (increasing) within the window.
@@ -473,6 +475,21 @@ fn observation_beams(
 }
 
 /// The file's only non-empty lines, numbered from 1.
+/// The contacts `collisions.jsonl` records: each line read as one, so that a damaged
+/// file is an error rather than a count of its lines.
+fn read_collisions(file: &Path) -> Result<usize, ScoreError> {
+    let text = read_text(file)?;
+    let mut count = 0;
+    for (n, line) in numbered_lines(&text) {
+        let c: sim::Collision = serde_json::from_str(line).map_err(|e| invalid(file, Some(n), e.to_string()))?;
+        if !c.t.is_finite() {
+            return Err(invalid(file, Some(n), format!("contact time {} is not finite", c.t)));
+        }
+        count += 1;
+    }
+    Ok(count)
+}
+
 pub(super) fn numbered_lines(text: &str) -> impl Iterator<Item = (usize, &str)> {
     text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty()).map(|(i, l)| (i + 1, l))
 }
@@ -538,7 +555,7 @@ pub fn score_log(log: &Path, estimate: &Estimate) -> Result<ScoredMetrics, Score
     let associations_given = associations.as_ref().map(|(f, a)| (*f, &a[..]));
     let merged = score_scans(log, &meta, &mut scorer, &camera_truth, camera.as_ref(), associations_given)?;
 
-    let collisions = numbered_lines(&read_text(&log.join(files::COLLISIONS))?).count();
+    let collisions = read_collisions(&log.join(files::COLLISIONS))?;
     let landmarks = match &estimate.landmarks {
         Some(file) => Some(read_landmarks(file)?),
         None => None,
@@ -598,13 +615,23 @@ pub fn score_log(log: &Path, estimate: &Estimate) -> Result<ScoredMetrics, Score
             metrics.warnings.push(words);
         }
     }
-    if let Some(file) = &covariances
-        && !metrics.anees.is_finite()
-    {
-        metrics.warnings.push(format!(
-            "no ANEES: no covariance in {} is positive definite at a pose of the trajectory",
-            file.display()
-        ));
+    if let Some(file) = &covariances {
+        let (given, definite) = pose_score.covariances;
+        if !metrics.anees.is_finite() {
+            metrics.warnings.push(format!(
+                "no ANEES: no covariance in {} is positive definite at a pose of the trajectory",
+                file.display()
+            ));
+        } else if definite < pose_score.poses {
+            // An ANEES over part of the trajectory reads like one over all of it.
+            metrics.warnings.push(format!(
+                "the ANEES is over {definite} of the trajectory's {} poses: {} gives {} a covariance{}",
+                pose_score.poses,
+                file.display(),
+                if given == pose_score.poses { "every pose".to_string() } else { format!("{given} of them") },
+                if definite < given { format!(" ({} not positive definite)", given - definite) } else { String::new() }
+            ));
+        }
     }
     let (pairs, over_gaps) = pose_score.rpe_pairs;
     if over_gaps > 0 {
@@ -638,7 +665,7 @@ fn score_poses(
         Some(f) => read_covariances(f)?,
         None => vec![],
     };
-    let mut next_covariance = 0usize;
+    let (mut next_covariance, mut given) = (0usize, 0usize);
     let no_pose_at = |line: usize, t: f64| {
         invalid(
             covariances_file.expect("rows come from a file"),
@@ -662,6 +689,7 @@ fn score_poses(
         let covariance = entry_at(&covariances, &mut next_covariance, |c| c.1, *t, 1e-6)
             .map_err(|(line, tc, _)| no_pose_at(*line, *tc))?
             .map(|(_, _, p)| *p);
+        given += usize::from(covariance.is_some());
         scorer.on_pose(*t, *pose, covariance, true_pose);
     }
     if let Some((line, tc, _)) = covariances.get(next_covariance) {
@@ -669,7 +697,13 @@ fn score_poses(
     }
     let times: Vec<f64> = trajectory.iter().map(|(t, _)| *t).collect();
     let rpe_pairs = super::scorer::rpe_pairs_over_gaps(&times, super::scorer::RPE_DELTA_S);
-    Ok(PoseScore { poses: trajectory.len(), coverage: coverage(&truth, &times), off_plane, rpe_pairs })
+    Ok(PoseScore {
+        poses: trajectory.len(),
+        coverage: coverage(&truth, &times),
+        off_plane,
+        rpe_pairs,
+        covariances: (given, scorer.nees_poses()),
+    })
 }
 
 /// The scans of the log, with their truth, the camera's evidence and the system's
@@ -696,6 +730,20 @@ fn score_scans(
     let mut fused_away = std::collections::HashSet::new();
     // Landmarks that an association has named so far.
     let mut named = std::collections::HashSet::new();
+    // The log's own order first: a fault there would otherwise show as an association at a
+    // time the log has no scan for, and be blamed on the associations' file.
+    let mut last_t = f64::NEG_INFINITY;
+    for (n, line) in numbered_lines(&laser_text) {
+        #[derive(Deserialize)]
+        struct ScanTime {
+            t: f64,
+        }
+        let t = serde_json::from_str::<ScanTime>(line).map_err(|e| invalid(&laser_file, Some(n), e.to_string()))?.t;
+        if t.is_nan() || t <= last_t {
+            return Err(invalid(&laser_file, Some(n), format!("scan time {t} does not follow {last_t}")));
+        }
+        last_t = t;
+    }
     let mut last_t = f64::NEG_INFINITY;
     for (n, line) in numbered_lines(&laser_text) {
         let scan: sim::LaserScan =

@@ -271,6 +271,11 @@ impl<'w> RunScorer<'w> {
         &self.tree_ids
     }
 
+    /// Poses whose covariance gave a NEES (positive definite): the ANEES's count.
+    pub fn nees_poses(&self) -> usize {
+        self.nees_n
+    }
+
     /// An estimated pose (x, y, theta) at time `t` with its covariance, if known, and the
     /// true pose of the same instant. A caller holding poses that were not read from TUM
     /// files passes them through [`as_written_to_tum`] first.
