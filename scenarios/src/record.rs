@@ -648,7 +648,7 @@ fn write_log(
         camera_frames: log.camera.len(),
         renderer: sim.camera_adapter().map(|a| a.to_string()),
         collisions: sim.collisions().len(),
-        route_completed: sim.route_progress() > 0.99,
+        route_completed: sim.route_completed(),
     })
 }
 
@@ -704,7 +704,7 @@ fn record_ros2(
         camera_frames,
         renderer: sim.camera_adapter().map(|a| a.to_string()),
         collisions: sim.collisions().len(),
-        route_completed: sim.route_progress() > 0.99,
+        route_completed: sim.route_completed(),
     })
 }
 
@@ -865,7 +865,7 @@ fn record_jsonl(
         camera_frames: frames,
         renderer: sim.camera_adapter().map(|a| a.to_string()),
         collisions: sim.collisions().len(),
-        route_completed: sim.route_progress() > 0.99,
+        route_completed: sim.route_completed(),
     };
     let mut metadata = provenance("objslam record", world, config, seed, Some(scoring));
     metadata["summary"] = json!(summary);

@@ -240,6 +240,14 @@ impl Simulation {
         self.follower.progress() / self.follower.total_length().max(1e-9)
     }
 
+    /// Whether the robot reached its route's end (where the controller stops, a little
+    /// short of the last waypoint): what a run's `route_completed` reports, on a route of
+    /// any length (a share of the route would ask a short one to end closer than the
+    /// controller stops).
+    pub fn route_completed(&self) -> bool {
+        self.follower.finished()
+    }
+
     /// The simulated time after which the run stops, finished or not: `max_duration_s`,
     /// or the limit derived from the route when it is not set.
     pub fn time_limit_s(&self) -> f64 {

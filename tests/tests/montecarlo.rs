@@ -56,6 +56,11 @@ fn sharded_merged_study_equals_the_unsharded_one_and_resumes() {
     let again = mc::run_study(&plan, Shard::all(), &root.join("whole"), |_| {}).unwrap();
     assert_same(&comparable(&again), &comparable(&whole));
     assert_eq!(std::fs::read_to_string(root.join("whole/runs.jsonl")).unwrap().lines().count(), lines_before);
+    // Resumed as one shard, it still summarises every run it holds, not the shard's half.
+    let summary_before = std::fs::read_to_string(root.join("whole/summary.csv")).unwrap();
+    let as_shard = mc::run_study(&plan, Shard { index: 0, count: 2 }, &root.join("whole"), |_| {}).unwrap();
+    assert_same(&comparable(&as_shard), &comparable(&whole));
+    assert_eq!(std::fs::read_to_string(root.join("whole/summary.csv")).unwrap(), summary_before);
 
     // Three shards, merged, give the same runs and the same summary.
     let dirs: Vec<PathBuf> = (0..3).map(|k| root.join(format!("shard-{k}"))).collect();

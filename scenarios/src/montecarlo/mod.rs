@@ -118,7 +118,8 @@ pub fn run_study(
 
 /// Runs (the remaining jobs of) a study into `out` on `workers`, then writes its summary
 /// ([`write_summary`]) there. `progress` hears of trainings and of runs as they finish.
-/// Returns every record of this shard's jobs.
+/// Returns every record the directory holds: this shard's jobs', and any others' it held
+/// already (a whole study resumed as one shard).
 pub fn run_study_with(
     plan: &StudyPlan,
     shard: Shard,
@@ -160,11 +161,8 @@ pub fn run_study_with(
                 message: format!("unknown method {:?}", job.method),
             })?;
             crate::run::run_config(&scenario, Some(method))
+                .and_then(|_| crate::run::check_method_needs(&scenario, method))
                 .map_err(|e| StudyError::Job { key: job.key(), message: e.to_string() })?;
-            if let Some((setting, problem)) = scenario.camera_too_small_for(method) {
-                let message = format!("{}: {setting}: {problem}", scenario.describe());
-                return Err(StudyError::Job { key: job.key(), message });
-            }
             if job_needs_appearance(job, &scenario) {
                 models
                     .resolve(&scenario, |stage, done, total| progress(StudyProgress::Training { stage, done, total }))
@@ -251,8 +249,9 @@ pub fn run_study_with(
                 "every run is recorded here, in the order the runs finished, but putting them in job order failed ({e}); run the same command again to finish"
             ),
         })?;
-        let keys: BTreeSet<String> = mine.iter().map(|j| j.key()).collect();
-        let mut all: Vec<RunRecord> = existing.into_iter().filter(|r| keys.contains(&r.key)).chain(new).collect();
+        // Every run the directory holds, this shard's and any other's it was given (a whole
+        // study resumed as one shard): a summary of part of the file would read as all of it.
+        let mut all: Vec<RunRecord> = existing.into_iter().chain(new).collect();
         all.sort_by_key(|r| r.job.index);
         // The summary is the study's too: written while the directory is still held, so that
         // another study starting there cannot write its own between.
@@ -649,6 +648,37 @@ mod tests {
         assert!(!e.contains("line ") && !e.contains("|"), "{e}");
     }
 
+    /// A method a study gives is held to what it needs of the settings before any run or
+    /// training, as the scenario's own method is when it is read.
+    #[test]
+    fn a_study_method_is_checked_against_the_settings_it_needs() {
+        let (mut s, _) = Scenario::load("laser_only").unwrap();
+        s.appearance.pca_dims = 2;
+        let e = crate::run::check_method_needs(&s, AssociationMethod::Combined).unwrap_err().to_string();
+        assert!(
+            e.contains("pipeline.object_model.appearance_dims: 4 is more than the trained appearance model's appearance.pca_dims = 2"),
+            "{e}"
+        );
+        crate::run::check_method_needs(&s, AssociationMethod::Nn).unwrap();
+        let root = std::env::temp_dir().join(format!("objslam-mc-needs-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&root);
+        std::fs::create_dir_all(&root).unwrap();
+        let file = root.join("small.toml");
+        let text = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/laser_only.toml")).unwrap();
+        std::fs::write(&file, format!("{text}\n[appearance]\npca_dims = 2\n")).unwrap();
+        let plan = StudyPlan {
+            scenario: file.display().to_string(),
+            base_seed: 1,
+            runs: 1,
+            methods: vec!["nn".into(), "combined".into()],
+            vary: vec![],
+        };
+        let e = run_study(&plan, Shard::all(), &root.join("out"), |_| {}).unwrap_err().to_string();
+        assert!(e.contains("appearance_dims"), "{e}");
+        assert!(!root.join("out/runs.jsonl").exists(), "no run was made");
+        let _ = std::fs::remove_dir_all(&root);
+    }
+
     /// Values that differ as typed but set a whole-number setting alike would be one job
     /// run twice: refused before a run, with the two values.
     #[test]
@@ -684,7 +714,11 @@ mod tests {
             StudyPlan { methods: vec!["nn".into(), "combined".into()], ..plan("appearance.training_seed=1..2:2") };
         check_varied_settings_are_read(&with_camera, &s).unwrap();
         // Other settings a position-only study never reads.
-        for key in ["pipeline.object_model.kl_threshold=10..80:2", "pipeline.evidence.min_frames=2..4:2"] {
+        for key in [
+            "pipeline.object_model.kl_threshold=10..80:2",
+            "pipeline.evidence.min_frames=2..4:2",
+            "pipeline.image_max_age_s=0.01..0.05:2",
+        ] {
             let e = check_varied_settings_are_read(&plan(key), &s).unwrap_err().to_string();
             assert!(e.contains("no method of the study (nn) reads the camera"), "{e}");
         }
@@ -694,6 +728,19 @@ mod tests {
         let mut diameter = s.clone();
         diameter.pipeline.diameter.for_position_methods = true;
         check_varied_settings_are_read(&plan("pipeline.diameter.max_sigmas=1..3:2"), &diameter).unwrap();
+        // JCBB's probability: read by jcbb, and by combined where it closes loops jointly.
+        let jcbb_p = |methods: &[&str]| StudyPlan {
+            methods: methods.iter().map(|m| m.to_string()).collect(),
+            ..plan("pipeline.jcbb_probability=0.9..0.99:2")
+        };
+        let e = check_varied_settings_are_read(&jcbb_p(&["nn"]), &s).unwrap_err().to_string();
+        assert!(e.contains("only the jcbb method and the combined method's joint loop closing read it"), "{e}");
+        check_varied_settings_are_read(&jcbb_p(&["nn", "jcbb"]), &s).unwrap();
+        check_varied_settings_are_read(&jcbb_p(&["combined"]), &s).unwrap();
+        let mut no_joint = s.clone();
+        no_joint.pipeline.joint_loop_closing = false;
+        let e = check_varied_settings_are_read(&jcbb_p(&["combined"]), &no_joint).unwrap_err().to_string();
+        assert!(e.contains("with pipeline.joint_loop_closing = false"), "{e}");
         let session = StudyPlan { methods: vec!["combined".into()], ..plan("calibration.session.poses=5..10:2") };
         let e = check_varied_settings_are_read(&session, &s).unwrap_err().to_string();
         assert!(e.contains("runs only with calibration mode \"estimated\", and this scenario's is \"true\""), "{e}");

@@ -402,13 +402,14 @@ pub(super) fn check_varied_settings_are_read(plan: &StudyPlan, base: &Scenario) 
     // Settings that only a method reading the camera uses: the position-only methods run
     // without the camera, its calibration, segmentation, evidence and object models, and
     // train no appearance model.
-    const CAMERA_ONLY: [&str; 6] = [
+    const CAMERA_ONLY: [&str; 7] = [
         "appearance.",
         "sim.camera.",
         "calibration.",
         "pipeline.segmentation.",
         "pipeline.evidence.",
         "pipeline.object_model.",
+        "pipeline.image_max_age_s",
     ];
     // The combined method's alone: its joint loop closing, the relinearisation after it,
     // and its deferral of look-alikes.
@@ -447,6 +448,21 @@ pub(super) fn check_varied_settings_are_read(plan: &StudyPlan, base: &Scenario) 
                 p,
                 format!("only the combined method reads it, and the study runs {}", names.join(", ")),
             ));
+        }
+        // JCBB's joint test: the jcbb method's, and the combined method's joint loop closing.
+        if p == "pipeline.jcbb_probability" {
+            use slam::association::AssociationMethod::{Combined, Jcbb};
+            let combined_closes = methods.contains(&Combined) && base.pipeline.joint_loop_closing;
+            if !methods.contains(&Jcbb) && !combined_closes {
+                return Err(unread(
+                    p,
+                    format!(
+                        "only the jcbb method and the combined method's joint loop closing read it, and the study runs {}{}",
+                        names.join(", "),
+                        if methods.contains(&Combined) { " with pipeline.joint_loop_closing = false" } else { "" }
+                    ),
+                ));
+            }
         }
         if p.starts_with("calibration.session.") && base.calibration.mode != "estimated" {
             return Err(unread(

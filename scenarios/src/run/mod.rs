@@ -251,18 +251,38 @@ pub fn run_config(scenario: &Scenario, method: Option<AssociationMethod>) -> Res
 
 /// A camera method needs the camera. Checked per run, not with the settings: a study's
 /// other methods still run when the scenario has no camera.
-fn check_camera(scenario: &Scenario, config: &PipelineConfig) -> Result<(), RunError> {
-    if config.method.uses_appearance() && !scenario.sim.camera.enabled {
+fn check_camera(scenario: &Scenario, method: AssociationMethod) -> Result<(), RunError> {
+    if method.uses_appearance() && !scenario.sim.camera.enabled {
         return Err(RunError::NamedFile {
             scenario: scenario.describe(),
             key: "sim.camera.enabled",
-            message: format!("false, but the method {} needs the camera", config.method.name()),
+            message: format!("false, but the method {} needs the camera", method.name()),
         });
     }
-    // Checked when the scenario was read for its own method; a method given for the run
-    // (`--method`, a study's `--methods`) is checked here.
-    if let Some((key, message)) = scenario.camera_too_small_for(config.method) {
-        return Err(RunError::NamedFile { scenario: scenario.describe(), key, message });
+    check_method_needs(scenario, method)
+}
+
+/// What `method` needs of the scenario's settings beyond a camera: a camera large enough,
+/// and object models of no more dimensions than the model it trains. Checked when the
+/// scenario was read for its own method; a method given for the run (`--method`, a
+/// study's `--methods`, before its first run) is checked here, so that a run stops before
+/// training a model it could not use.
+pub fn check_method_needs(scenario: &Scenario, method: AssociationMethod) -> Result<(), RunError> {
+    let named =
+        |key: &'static str, message: String| RunError::NamedFile { scenario: scenario.describe(), key, message };
+    if let Some((key, message)) = scenario.camera_too_small_for(method) {
+        return Err(named(key, message));
+    }
+    let dims = scenario.pipeline.object_model.appearance_dims;
+    if method.uses_appearance() && scenario.appearance.model.is_none() && dims > scenario.appearance.pca_dims {
+        return Err(named(
+            "pipeline.object_model.appearance_dims",
+            format!(
+                "{dims} is more than the trained appearance model's appearance.pca_dims = {} (the method {} fits object models)",
+                scenario.appearance.pca_dims,
+                method.name()
+            ),
+        ));
     }
     Ok(())
 }
@@ -340,7 +360,7 @@ pub fn preflight(
     let seed = seed.unwrap_or(scenario.seed);
     let config = run_config(scenario, method)?;
     let camera_method = config.method.uses_appearance();
-    check_camera(scenario, &config)?;
+    check_camera(scenario, config.method)?;
     let world = scenario.world(base_dir, seed)?;
     // The recall's denominator counts trees: with none in the world it is undefined, and
     // every run would fail the criterion.
@@ -627,7 +647,7 @@ fn run_and_write(
         odometry_calibration: odometry_calibration_score(pipeline.ekf(), sim.odometry_errors()),
         anees: scored.anees,
         collisions: sim.collisions().len(),
-        route_completed: sim.route_progress() > 0.99,
+        route_completed: sim.route_completed(),
         passed: false,
         failures: vec![],
         timing: Timing {
@@ -803,7 +823,7 @@ fn appearance_for(
     if !config.method.uses_appearance() {
         return Ok(None);
     }
-    check_camera(scenario, config)?;
+    check_camera(scenario, config.method)?;
     if let Some(m) = &options.appearance {
         return Ok(Some(m.clone()));
     }
