@@ -59,7 +59,8 @@ pub fn open(dir: &Path) -> Result<LogStream, LogError> {
         ObservationRows::Detections(rows) => Box::new(until_error(rows.map(|d| d.map(ObservationMessage::Detections)))),
     };
     let mut observations = observations.peekable();
-    // A fault in the first observation comes in its place, in time order.
+    // A fault in the first observation is left in its place, for the reader to meet
+    // first (a replay peeks the observations before the motion).
     parts.motion.first_observation_t = match observations.peek() {
         Some(Ok(m)) => Some(m.time()),
         _ => None,
@@ -567,8 +568,12 @@ fn increment_too_fast(m: &MotionMessage, since: Since) -> Option<String> {
         };
         return Some(format!("a step of {step:.3} m and {} rad in no time: {why}", o.dtheta));
     }
+    let since_start = match since {
+        Since::LogStart(start) => format!(" (the first row's motion: since the log's start at t = {start} s)"),
+        Since::PreviousRow(_) => String::new(),
+    };
     (dt > 0.0 && step / dt > max)
-        .then(|| format!("a step of {step:.3} m in {dt} s is {:e} m/s, beyond {max} m/s", step / dt))
+        .then(|| format!("a step of {step:.3} m in {dt} s is {:e} m/s, beyond {max} m/s{since_start}", step / dt))
 }
 
 /// `scans.csv` as whole scans.

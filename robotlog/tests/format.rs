@@ -192,7 +192,7 @@ fn malformed_files_are_errors_that_name_file_and_line() {
         (
             "odometry.csv",
             "t,dx,dy,dtheta\n0.5,1000,0,0\n",
-            "odometry.csv:2: a step of 1000.000 m in 0.5 s is 2e3 m/s, beyond 343 m/s",
+            "odometry.csv:2: a step of 1000.000 m in 0.5 s is 2e3 m/s, beyond 343 m/s (the first row's motion: since the log's start at t = 0 s)",
         ),
         // An increment as fast, over the time since the row before.
         (
@@ -308,6 +308,33 @@ fn malformed_files_are_errors_that_name_file_and_line() {
         assert!(e.contains(expected), "{file} with {text:?}: {e}");
         assert!(e.contains(file), "{e} names the file");
     }
+}
+
+/// A log opened to be replayed reads the first odometry row against the log's start as a
+/// log read whole does; a data file that is a link to nothing is named as such.
+#[test]
+fn the_first_odometry_row_is_the_motion_since_the_logs_start_however_the_log_is_read() {
+    let d = dir("first-row");
+    // The motion starts 0.1 s after the first scan: its first step is over that time.
+    robotlog::format::write(&d, &scan_log(vec![vec![1.0; 7], vec![2.0; 7]], vec![[0.1, 0.0, 0.0]; 3])).unwrap();
+    let mut log = robotlog::format::open(&d).unwrap();
+    assert!(log.motion.all(|m| m.is_ok()));
+    robotlog::format::read(&d).unwrap();
+    std::fs::write(d.join("odometry.csv"), "t,dx,dy,dtheta\n0,5,0,0\n0.1,0.1,0,0\n").unwrap();
+    let mut log = robotlog::format::open(&d).unwrap();
+    let opened = log.motion.next().expect("a row").expect_err("a first row moving at the log's start").to_string();
+    let read = robotlog::format::read(&d).unwrap_err().to_string();
+    for e in [opened, read] {
+        assert!(e.contains("odometry.csv:2: a step of 5.000 m and 0 rad in no time"), "{e}");
+    }
+    #[cfg(unix)]
+    {
+        std::fs::remove_file(d.join("reference.csv")).unwrap();
+        std::os::unix::fs::symlink(d.join("nowhere.csv"), d.join("reference.csv")).unwrap();
+        let e = robotlog::format::read(&d).unwrap_err().to_string();
+        assert!(e.contains("reference.csv") && e.contains("a link to nothing"), "{e}");
+    }
+    std::fs::remove_dir_all(&d).ok();
 }
 
 #[test]

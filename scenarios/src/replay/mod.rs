@@ -530,8 +530,10 @@ fn replay_and_write(
 ) -> Result<Replay, ReplayError> {
     let started = Instant::now();
     let mut log = log;
-    let first_motion = robotlog::stream::next_time(&mut log.motion, MotionMessage::time)?;
+    // The observations first: a fault in their first rows is the log's first fault, and
+    // the motion's first row is read against their start.
     let first_observation = robotlog::stream::next_time(&mut log.observations, ObservationMessage::time)?;
+    let first_motion = robotlog::stream::next_time(&mut log.motion, MotionMessage::time)?;
     // The log's first instant: its first motion message or scan.
     let start = match (first_motion, first_observation) {
         (Some(a), Some(b)) => a.min(b),
@@ -1038,7 +1040,7 @@ pub fn summary(m: &ReplayMetrics) -> String {
     let gaps = match m.scans_in_motion_gaps {
         0 => String::new(),
         n => format!(
-            "; {n} scan{} more than {MOTION_GAP_S} s after the motion row before (a gap in the motion: lost rows?)",
+            "; {n} scan{} more than {MOTION_GAP_S} s after the motion row before (a control held that long, or rows lost?)",
             if n == 1 { "" } else { "s" }
         ),
     };
