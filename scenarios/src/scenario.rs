@@ -444,17 +444,8 @@ impl Scenario {
         if let Some((field, message)) = self.camera_too_small_for(self.pipeline.method) {
             return bad(field, message);
         }
-        // A model given as a file is checked against this when it is loaded.
-        let dims = self.pipeline.object_model.appearance_dims;
-        if self.pipeline.method.uses_appearance() && self.appearance.model.is_none() && dims > self.appearance.pca_dims
-        {
-            return bad(
-                "pipeline.object_model.appearance_dims",
-                format!(
-                    "{dims} is more than the trained appearance model's appearance.pca_dims = {}",
-                    self.appearance.pca_dims
-                ),
-            );
+        if let Some((field, message)) = self.object_models_too_wide_for(self.pipeline.method) {
+            return bad(field, message);
         }
         if let Some(r) = self.pass.min_tree_recall
             && !(0.0..=1.0).contains(&r)
@@ -513,6 +504,25 @@ impl Scenario {
         } else {
             self.source.0.display().to_string()
         }
+    }
+
+    /// Where `method` fits object models of more appearance dimensions than the model it
+    /// trains has: the key and the problem. (A model given as a file is checked against
+    /// this when it is loaded.)
+    pub fn object_models_too_wide_for(
+        &self,
+        method: slam::association::AssociationMethod,
+    ) -> Option<(&'static str, String)> {
+        let dims = self.pipeline.object_model.appearance_dims;
+        (method.uses_appearance() && self.appearance.model.is_none() && dims > self.appearance.pca_dims).then(|| {
+            (
+                "pipeline.object_model.appearance_dims",
+                format!(
+                    "{dims} is more than the trained appearance model's appearance.pca_dims = {}",
+                    self.appearance.pca_dims
+                ),
+            )
+        })
     }
 
     /// Where `method` trains its appearance model on this scenario's camera images and they

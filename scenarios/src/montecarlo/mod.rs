@@ -118,8 +118,8 @@ pub fn run_study(
 
 /// Runs (the remaining jobs of) a study into `out` on `workers`, then writes its summary
 /// ([`write_summary`]) there. `progress` hears of trainings and of runs as they finish.
-/// Returns every record the directory holds: this shard's jobs', and any others' it held
-/// already (a whole study resumed as one shard).
+/// Returns every record of this shard's jobs; the summary covers every record the
+/// directory holds (a whole study resumed as one shard keeps its whole summary).
 pub fn run_study_with(
     plan: &StudyPlan,
     shard: Shard,
@@ -154,6 +154,8 @@ pub fn run_study_with(
         // fails the study at once instead of every run. Every appearance model the jobs need
         // (one per setting of the training and the camera a study varies) is resolved here
         // too, trained and cached if need be, so runs and worker processes only load them.
+        // Every job is checked before the first model is trained.
+        let mut scenarios = Vec::with_capacity(todo.len());
         for job in &todo {
             let scenario = job_scenario(&base_scenario, job)?;
             let method = AssociationMethod::from_name(&job.method).ok_or_else(|| StudyError::Job {
@@ -163,9 +165,12 @@ pub fn run_study_with(
             crate::run::run_config(&scenario, Some(method))
                 .and_then(|_| crate::run::check_method_needs(&scenario, method))
                 .map_err(|e| StudyError::Job { key: job.key(), message: e.to_string() })?;
-            if job_needs_appearance(job, &scenario) {
+            scenarios.push(scenario);
+        }
+        for (job, scenario) in todo.iter().zip(&scenarios) {
+            if job_needs_appearance(job, scenario) {
                 models
-                    .resolve(&scenario, |stage, done, total| progress(StudyProgress::Training { stage, done, total }))
+                    .resolve(scenario, |stage, done, total| progress(StudyProgress::Training { stage, done, total }))
                     .map_err(|e| StudyError::Appearance(Box::new(e)))?;
             }
         }
@@ -249,10 +254,12 @@ pub fn run_study_with(
                 "every run is recorded here, in the order the runs finished, but putting them in job order failed ({e}); run the same command again to finish"
             ),
         })?;
-        // Every run the directory holds, this shard's and any other's it was given (a whole
-        // study resumed as one shard): a summary of part of the file would read as all of it.
+        // The summary covers every run the directory holds, this shard's and any other's it
+        // was given (a whole study resumed as one shard): a summary of part of the file would
+        // read as all of it. The caller gets this shard's.
         let mut all: Vec<RunRecord> = existing.into_iter().chain(new).collect();
         all.sort_by_key(|r| r.job.index);
+        let keys: BTreeSet<String> = mine.iter().map(|j| j.key()).collect();
         // The summary is the study's too: written while the directory is still held, so that
         // another study starting there cannot write its own between.
         if let Err(e) = one_model_per_setting(&all, &runs_file) {
@@ -263,7 +270,7 @@ pub fn run_study_with(
             return Err(e);
         }
         write_summary(plan, &all, out)?;
-        Ok(all)
+        Ok(all.into_iter().filter(|r| keys.contains(&r.key)).collect())
     })();
     match studied {
         Ok(all) => Ok(all),

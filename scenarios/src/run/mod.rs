@@ -268,23 +268,10 @@ fn check_camera(scenario: &Scenario, method: AssociationMethod) -> Result<(), Ru
 /// study's `--methods`, before its first run) is checked here, so that a run stops before
 /// training a model it could not use.
 pub fn check_method_needs(scenario: &Scenario, method: AssociationMethod) -> Result<(), RunError> {
-    let named =
-        |key: &'static str, message: String| RunError::NamedFile { scenario: scenario.describe(), key, message };
-    if let Some((key, message)) = scenario.camera_too_small_for(method) {
-        return Err(named(key, message));
+    match scenario.camera_too_small_for(method).or_else(|| scenario.object_models_too_wide_for(method)) {
+        Some((key, message)) => Err(RunError::NamedFile { scenario: scenario.describe(), key, message }),
+        None => Ok(()),
     }
-    let dims = scenario.pipeline.object_model.appearance_dims;
-    if method.uses_appearance() && scenario.appearance.model.is_none() && dims > scenario.appearance.pca_dims {
-        return Err(named(
-            "pipeline.object_model.appearance_dims",
-            format!(
-                "{dims} is more than the trained appearance model's appearance.pca_dims = {} (the method {} fits object models)",
-                scenario.appearance.pca_dims,
-                method.name()
-            ),
-        ));
-    }
-    Ok(())
 }
 
 /// The simulator's scan as the pipeline's plain message (the one place the two meet).
