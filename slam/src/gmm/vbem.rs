@@ -18,6 +18,7 @@ const LN_PI: f64 = 1.144_729_885_849_400_2;
 
 /// The conjugate prior of the mixture (paper eq. 3; docs/design.md, paper symbols).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct VbPrior {
     /// Symmetric Dirichlet concentration on the weights (paper lambda_0).
     pub alpha0: f64,
