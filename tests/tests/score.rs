@@ -380,6 +380,21 @@ fn inputs_that_do_not_fit_the_log_are_errors_naming_file_and_line() {
         .unwrap();
     let e = error(Estimate { associations: Some(assoc.clone()), ..estimate(&out, "x") });
     assert!(e.contains("assoc.jsonl:1") && e.contains("disagree"), "{e}");
+    // A choice of no landmark that holds one, and a landmark new a second time.
+    std::fs::write(&assoc, r#"{"t": 0.0, "observation": 0, "choice": {"kind": "rejected", "landmark": 3}}"#).unwrap();
+    let e = error(Estimate { associations: Some(assoc.clone()), ..estimate(&out, "x") });
+    assert!(e.contains("assoc.jsonl:1") && e.contains("names no landmark, yet holds `landmark`"), "{e}");
+    std::fs::write(
+        &assoc,
+        "{\"t\": 0.0, \"observation\": 0, \"choice\": {\"kind\": \"new\", \"landmark\": 3}}\n\
+         {\"t\": 0.0, \"observation\": 1, \"choice\": {\"kind\": \"new\", \"landmark\": 3}}\n",
+    )
+    .unwrap();
+    let e = error(Estimate { associations: Some(assoc.clone()), ..estimate(&out, "x") });
+    assert!(
+        e.contains("assoc.jsonl:2") && e.contains("landmark 3 is chosen as new, but line 1 named it before"),
+        "{e}"
+    );
 
     // CSV: a header of neither form, and a cell that is not a number.
     let csv = bad.join("assoc.csv");

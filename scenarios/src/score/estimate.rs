@@ -332,6 +332,8 @@ pub(super) fn read_associations(file: &Path) -> Result<Vec<ScanAssociations>, Sc
 /// `{"t", "observation", "landmark" | "choice"}` or fusion `{"t", "fusion"}` per line.
 fn read_association_lines(file: &Path) -> Result<Vec<(usize, f64, AssociationEntry)>, ScoreError> {
     let mut entries = Vec::new();
+    // The line each landmark was first named on.
+    let mut named_at: std::collections::HashMap<u32, usize> = std::collections::HashMap::new();
     let text = read_text(file)?;
     // A byte-order mark, as some editors write, read past as in the other inputs.
     for (n, line) in numbered_lines(text.strip_prefix('\u{feff}').unwrap_or(&text)) {
@@ -347,8 +349,34 @@ fn read_association_lines(file: &Path) -> Result<Vec<(usize, f64, AssociationEnt
             let b: BeamsLine = serde_json::from_value(v).map_err(bad)?;
             (b.t, AssociationEntry::Beams(b.observations, b.fusions))
         } else if v.get("observation").is_some() {
+            // A choice that names no landmark holds nothing beside its kind: a landmark
+            // there contradicts it (serde passes over keys beside a unit variant's tag).
+            if let Some(choice) = v.get("choice").and_then(|c| c.as_object())
+                && matches!(choice.get("kind").and_then(|k| k.as_str()), Some("rejected" | "deferred"))
+                && let Some(key) = choice.keys().find(|k| *k != "kind")
+            {
+                return Err(invalid(
+                    file,
+                    Some(n),
+                    format!("`choice` of kind {} names no landmark, yet holds `{key}`", choice["kind"]),
+                ));
+            }
             let d: DecisionLine = serde_json::from_value(v).map_err(bad)?;
             let landmark = d.landmark().map_err(|m| invalid(file, Some(n), m))?;
+            // A new landmark is new once: an id named before is another system's numbering,
+            // or two files joined.
+            if let Some(slam::association::Choice::New { landmark: id }) = d.choice
+                && let Some(first) = named_at.get(&id)
+            {
+                return Err(invalid(
+                    file,
+                    Some(n),
+                    format!("landmark {id} is chosen as new, but line {first} named it before"),
+                ));
+            }
+            if let Some(id) = landmark {
+                named_at.entry(id).or_insert(n);
+            }
             (d.t, AssociationEntry::Decision(d.observation, landmark))
         } else if v.get("fusion").is_some() {
             let f: FusionLine = serde_json::from_value(v).map_err(bad)?;
