@@ -519,18 +519,29 @@ fn motion_cut_short_is_refused() {
     assert!(e.contains(&format!("the motion ends at t = {motion_end} s while observations go on")), "{e}");
 }
 
+/// The synthetic park driven by a car of 2.83 m wheelbase, and the `nn` settings for it.
+fn car_park_for_nn() -> (Log, slam::pipeline::PipelineConfig) {
+    let mut log = synthetic_park();
+    log.manifest.vehicle.wheelbase_m = Some(2.83);
+    let config = resolve_config(None, &log.manifest, Some(AssociationMethod::Nn), None).unwrap();
+    (log, config)
+}
+
+/// The times of `log`'s scans, whole or of detections.
+fn scan_times(log: &Log) -> Vec<f64> {
+    match &log.observations {
+        Observations::Detections(d) => d.iter().map(|s| s.t).collect(),
+        Observations::Scans(s) => s.iter().map(|s| s.t).collect(),
+    }
+}
+
 /// A log most of whose observations come before its motion's first row (odometry on
 /// another clock) is refused; a few seconds of scans before it (a laser started while
 /// the vehicle stood) are replayed from the start pose and counted.
 #[test]
 fn motion_starting_after_most_observations_is_refused() {
-    let mut log = synthetic_park();
-    log.manifest.vehicle.wheelbase_m = Some(2.83);
-    let config = resolve_config(None, &log.manifest, Some(AssociationMethod::Nn), None).unwrap();
-    let scan_times: Vec<f64> = match &log.observations {
-        Observations::Detections(d) => d.iter().map(|s| s.t).collect(),
-        Observations::Scans(s) => s.iter().map(|s| s.t).collect(),
-    };
+    let (log, config) = car_park_for_nn();
+    let scan_times = scan_times(&log);
     let late = |after: f64| {
         let mut log = log.clone();
         let Motion::Controls(controls) = &mut log.motion else { panic!("a car's controls") };
@@ -560,16 +571,11 @@ fn motion_starting_after_most_observations_is_refused() {
 /// counted and named in the summary: the replay cannot tell the two apart, the user can.
 #[test]
 fn scans_in_a_gap_of_the_motion_are_counted() {
-    let mut log = synthetic_park();
-    log.manifest.vehicle.wheelbase_m = Some(2.83);
-    let config = resolve_config(None, &log.manifest, Some(AssociationMethod::Nn), None).unwrap();
+    let (mut log, config) = car_park_for_nn();
     let whole = replay(log.clone(), config.clone(), None, None).unwrap().metrics;
     assert_eq!(whole.scans_in_motion_gaps, 0);
-    assert!(!scenarios::replay::summary(&whole).contains("gap in the motion"));
-    let scan_times: Vec<f64> = match &log.observations {
-        Observations::Detections(d) => d.iter().map(|s| s.t).collect(),
-        Observations::Scans(s) => s.iter().map(|s| s.t).collect(),
-    };
+    assert!(!scenarios::replay::summary(&whole).contains("after the motion row before"));
+    let scan_times = scan_times(&log);
     let from = scan_times[scan_times.len() / 2];
     let Motion::Controls(controls) = &mut log.motion else { panic!("a car's controls") };
     controls.retain(|(t, _)| !(from..from + 3.0).contains(t));
