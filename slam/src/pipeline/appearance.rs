@@ -253,13 +253,14 @@ impl Pipeline {
 
     /// Observations the KL test left without a landmark, paired by joint compatibility
     /// where that is unambiguous (see [`PipelineConfig::joint_loop_closing`]): per plan, the
-    /// (id, index) of its landmark, `None` where the KL test decides.
+    /// (id, index) of its landmark, `None` where the KL test decides. `t` is the scan's.
     pub(super) fn close_loop_jointly(
         &self,
+        t: f64,
         plans: &[Plan],
         cfg: &ObjectModelConfig,
         scan: &LaserScan,
-    ) -> Vec<Option<(u32, usize)>> {
+    ) -> Result<Vec<Option<(u32, usize)>>, PipelineError> {
         let none = vec![None; plans.len()];
         let n = self.ekf.landmark_count();
         // KL-associated observations keep their landmark (or stay out); the others may take
@@ -271,48 +272,53 @@ impl Pipeline {
                 let mut row = vec![false; n];
                 if let Some((_, j)) = p.best {
                     row[j] = true;
-                    return row;
+                    return Ok(row);
                 }
-                for j in self.confirmed_lookalikes(&p.observation, &p.fitted, &p.candidates, cfg) {
+                for j in self.confirmed_lookalikes((t, p.cluster), &p.observation, &p.fitted, &p.candidates, cfg)? {
                     row[j] = true;
                 }
                 orphans += row.iter().any(|a| *a) as usize;
-                row
+                Ok(row)
             })
-            .collect();
+            .collect::<Result<_, PipelineError>>()?;
         if orphans == 0 || plans.len() < 2 {
-            return none;
+            return Ok(none);
         }
         let zs: Vec<Vector2<f64>> = plans.iter().map(|p| p.z).collect();
         let searched = unambiguous_jcbb(&self.ekf, &self.config.sensor, &zs, &allowed, self.config.jcbb_probability);
         let Some(h) = searched.expect("a row per plan, and a probability the settings' check keeps within (0, 1)")
         else {
-            return none;
+            return Ok(none);
         };
         // Two or more of the unexplained observations must pair: one alone is only
         // individually gated, and a new tree near an uncertain old one would pass.
         if h.iter().zip(plans).filter(|(j, p)| j.is_some() && p.best.is_none()).count() < 2 {
-            return none;
+            return Ok(none);
         }
         if self.config.joint_loop_free_space && self.sees_past_a_landmark(&h, &zs, scan) {
-            return none;
+            return Ok(none);
         }
-        h.iter()
+        Ok(h.iter()
             .zip(plans)
             .map(|(j, p)| if p.best.is_some() { None } else { j.map(|j| (self.table.get(j).id, j)) })
-            .collect()
+            .collect())
     }
 
     /// Whether, with the pose corrected by hypothesis `h` (observations `zs`), a confirmed
     /// landmark that `h` leaves unpaired is predicted in plain view within the clustering
     /// range where `scan` sees past it (see [`PipelineConfig::joint_loop_free_space`] and
     /// [`free_space_probability`]). The tentative filter costs a copy of the covariance,
-    /// made only for a closure about to be accepted.
+    /// made only for a closure about to be accepted. Where the filter refuses a pairing of
+    /// `h` (an innovation covariance it cannot invert), the corrected pose is unknown and
+    /// the test cannot clear the closure: it counts as seeing past, and the closure is
+    /// refused.
     fn sees_past_a_landmark(&self, h: &[Option<usize>], zs: &[Vector2<f64>], scan: &LaserScan) -> bool {
         let mut trial = self.ekf.clone();
         for (i, j) in h.iter().enumerate() {
-            if let Some(j) = *j {
-                let _ = trial.update_iterated(&self.config.sensor, j, &zs[i], 1);
+            if let Some(j) = *j
+                && trial.update_iterated(&self.config.sensor, j, &zs[i], 1).is_err()
+            {
+                return true;
             }
         }
         let n = trial.landmark_count();
@@ -335,33 +341,41 @@ impl Pipeline {
 
     /// Indices of the confirmed candidates whose object model looks like the observation
     /// (appearance KL under the threshold).
-    pub(super) fn confirmed_lookalikes<'a>(
-        &'a self,
-        obs: &'a ObjectObservation,
-        fitted: &'a Gmm,
-        candidates: &'a [Candidate],
-        cfg: &'a ObjectModelConfig,
-    ) -> impl Iterator<Item = usize> + 'a {
-        candidates.iter().filter_map(move |c| {
-            let j = self.table.index_of(c.landmark)?;
-            let model = self.table.object(j).filter(|_| self.table.get(j).confirmed)?;
-            model
+    /// A divergence that cannot be computed is the pipeline's error (see
+    /// [`PipelineError::ObjectModel`]), not a landmark that looks unlike.
+    pub(super) fn confirmed_lookalikes(
+        &self,
+        (t, cluster): (f64, usize),
+        obs: &ObjectObservation,
+        fitted: &Gmm,
+        candidates: &[Candidate],
+        cfg: &ObjectModelConfig,
+    ) -> Result<Vec<usize>, PipelineError> {
+        let mut alike = Vec::new();
+        for c in candidates {
+            let Some(j) = self.table.index_of(c.landmark) else { continue };
+            let Some(model) = self.table.object(j).filter(|_| self.table.get(j).confirmed) else { continue };
+            let kl = model
                 .kl_from(fitted, obs.centre, [0.0; 2], &Matrix2::zeros(), cfg, true)
-                .is_ok_and(|kl| kl.is_finite() && kl < cfg.kl_threshold)
-                .then_some(j)
-        })
+                .map_err(|source| PipelineError::ObjectModel { t, cluster, landmark: Some(c.landmark), source })?;
+            if kl.is_finite() && kl < cfg.kl_threshold {
+                alike.push(j);
+            }
+        }
+        Ok(alike)
     }
 
     /// Whether a confirmed landmark that looks like the observation lies within its
     /// new-landmark gate (`candidates` holds those).
     pub(super) fn near_lookalike(
         &self,
+        at: (f64, usize),
         obs: &ObjectObservation,
         fitted: &Gmm,
         candidates: &[Candidate],
         cfg: &ObjectModelConfig,
-    ) -> bool {
-        self.confirmed_lookalikes(obs, fitted, candidates, cfg).next().is_some()
+    ) -> Result<bool, PipelineError> {
+        Ok(!self.confirmed_lookalikes(at, obs, fitted, candidates, cfg)?.is_empty())
     }
 
     /// Covariance (map frame) of the offset between an observation at (range, bearing) and
@@ -454,7 +468,7 @@ impl Pipeline {
             plans.push(Plan { cluster: ci, observation: obs, fitted, z, candidates, best, fully_judged });
         }
         let joint = if method == AssociationMethod::Combined && self.config.joint_loop_closing {
-            self.close_loop_jointly(&plans, &cfg, scan)
+            self.close_loop_jointly(t, &plans, &cfg, scan)?
         } else {
             vec![None; plans.len()]
         };
@@ -491,7 +505,7 @@ impl Pipeline {
                 None if !fully_judged => Choice::Rejected,
                 None if method == AssociationMethod::Combined
                     && self.config.defer_near_lookalike
-                    && self.near_lookalike(&obs, &fitted, &candidates, &cfg) =>
+                    && self.near_lookalike((t, ci), &obs, &fitted, &candidates, &cfg)? =>
                 {
                     Choice::Deferred
                 }
@@ -533,7 +547,7 @@ impl Pipeline {
         if self.config.evidence.pooled {
             self.retract_landmarks();
         }
-        Ok(self.finish_scan(t, clusters, assigned))
+        self.finish_scan(t, clusters, assigned)
     }
 
     /// Folds observation `obs` of cluster `ci` into the object model of landmark slot `j`,
@@ -562,14 +576,14 @@ impl Pipeline {
     /// Whether landmarks `i` and `j` may be one object by their appearance: always for the
     /// position-only methods; for the appearance methods when both have object models whose
     /// appearance KL is under the association threshold.
-    pub(super) fn look_alike(&self, i: usize, j: usize) -> bool {
+    pub(super) fn look_alike(&self, i: usize, j: usize) -> Result<bool, ObjectModelError> {
         if !self.config.method.uses_appearance() {
-            return true;
+            return Ok(true);
         }
-        let (Some(a), Some(b)) = (self.table.object(i), self.table.object(j)) else { return false };
+        let (Some(a), Some(b)) = (self.table.object(i), self.table.object(j)) else { return Ok(false) };
         let cfg = &self.config.object_model;
-        a.kl_from(&b.gmm, [0.0; 2], [0.0; 2], &Matrix2::zeros(), cfg, true)
-            .is_ok_and(|kl| kl.is_finite() && kl < cfg.kl_threshold)
+        let kl = a.kl_from(&b.gmm, [0.0; 2], [0.0; 2], &Matrix2::zeros(), cfg, true)?;
+        Ok(kl.is_finite() && kl < cfg.kl_threshold)
     }
 }
 
@@ -668,15 +682,40 @@ mod tests {
         let p = one_landmark(1);
         let cfg = ObjectModelConfig::default();
         let candidate = [Candidate { landmark: 0, mahalanobis2: 1.0, kl: Some(500.0) }];
-        assert!(p.near_lookalike(&observation(), &density(0.05), &candidate, &cfg), "same appearance, in the gate");
+        let at = (1.5, 2);
+        assert!(p.near_lookalike(at, &observation(), &density(0.05), &candidate, &cfg).unwrap(), "same appearance");
         assert!(
-            !p.near_lookalike(&observation(), &density(5.0), &candidate, &cfg),
+            !p.near_lookalike(at, &observation(), &density(5.0), &candidate, &cfg).unwrap(),
             "another kind of object starts its own landmark"
         );
-        assert!(!p.near_lookalike(&observation(), &density(0.05), &[], &cfg), "nothing in the gate");
+        assert!(!p.near_lookalike(at, &observation(), &density(0.05), &[], &cfg).unwrap(), "nothing in the gate");
         // A tentative landmark (maybe a person) never holds a new tree back.
         let q = one_landmark(8);
-        assert!(!q.near_lookalike(&observation(), &density(0.05), &candidate, &cfg));
+        assert!(!q.near_lookalike(at, &observation(), &density(0.05), &candidate, &cfg).unwrap());
+    }
+
+    #[test]
+    fn a_lookalike_that_cannot_be_compared_is_an_error_not_an_unlike_landmark() {
+        let p = one_landmark(1);
+        let cfg = ObjectModelConfig::default();
+        let candidate = [Candidate { landmark: 0, mahalanobis2: 1.0, kl: Some(500.0) }];
+        // A fitted density of 5 dimensions against the landmark's model of 7.
+        let mut other = density(0.05);
+        other.components[0].mean = DVector::zeros(5);
+        other.components[0].covariance = DMatrix::identity(5, 5);
+        let e = p.near_lookalike((1.5, 2), &observation(), &other, &candidate, &cfg).unwrap_err();
+        assert!(
+            matches!(
+                &e,
+                PipelineError::ObjectModel {
+                    cluster: 2,
+                    landmark: Some(0),
+                    source: crate::object_model::ObjectModelError::Dimension { observation: 5, model: 7 },
+                    ..
+                }
+            ),
+            "{e:?}"
+        );
     }
 
     #[test]

@@ -120,7 +120,7 @@ impl Pipeline {
         self.advance_to(t)?;
         let clusters: Vec<Cluster> = detections.iter().enumerate().map(|(k, d)| d.as_cluster(k)).collect();
         let keep = vec![true; clusters.len()];
-        let report = self.observe_positions(t, clusters, &keep, "unknown");
+        let report = self.observe_positions(t, clusters, &keep, "unknown")?;
         self.check_state(t)?;
         Ok(report)
     }
@@ -137,7 +137,7 @@ impl Pipeline {
             self.on_scan_with_appearance(scan, clusters)?
         } else {
             let keep = vec![true; clusters.len()];
-            self.observe_positions(scan.t, clusters, &keep, "unknown")
+            self.observe_positions(scan.t, clusters, &keep, "unknown")?
         };
         self.check_state(scan.t)?;
         Ok(report)

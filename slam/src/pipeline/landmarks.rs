@@ -15,15 +15,16 @@ impl Pipeline {
         self.retractions.extend(gone.into_iter().map(|l| LandmarkRetraction { t, landmark: l.id }));
     }
 
-    pub(super) fn refresh_landmarks(&mut self) {
+    pub(super) fn refresh_landmarks(&mut self) -> Result<(), PipelineError> {
         // Confirm landmarks seen often enough; delete tentative ones that timed out.
         let (need, window, t) = (self.config.confirm_observations, self.config.confirm_window_s, self.t);
         self.table.confirm_and_expire(&mut self.ekf, need, window, t);
         if self.config.merge.enabled {
-            self.merge_duplicates();
+            self.merge_duplicates()?;
             self.prune_co_observed();
         }
         self.table.refresh(&self.ekf);
+        Ok(())
     }
 
     /// Drops the co-observed pairs of landmarks no longer in the map, once the pairs have
@@ -53,8 +54,10 @@ impl Pipeline {
     }
 
     /// Fuses pairs of confirmed landmarks that are one object (see [`MergeConfig`]), the
-    /// older one staying, until no pair qualifies.
-    pub(super) fn merge_duplicates(&mut self) {
+    /// older one staying, until no pair qualifies. Models that cannot be compared, or a
+    /// fusion the filter refuses, stop it with the error rather than leave the pair apart
+    /// in silence.
+    pub(super) fn merge_duplicates(&mut self) -> Result<(), PipelineError> {
         let cfg = self.config.merge.clone();
         let gate = chi2_quantile(2, self.config.gate_probability).expect(CHECKED_GATE);
         // Past the gate and the sigma bound, two positions are at most this far apart.
@@ -81,17 +84,32 @@ impl Pipeline {
                 }
             }
             near.sort_unstable();
-            let pair = near.into_iter().find(|&(i, j)| {
+            let mut pair = None;
+            for (i, j) in near {
                 let (a, b) = (self.table.get(i).id, self.table.get(j).id);
                 if self.co_observed.contains(&(a.min(b), a.max(b))) {
-                    return false;
+                    continue;
                 }
                 let (m2, c) = self.ekf.landmark_difference(i, j).expect(MAPPED);
                 let widest = c.symmetric_eigenvalues().max();
-                m2 <= gate && widest <= cfg.max_sigma_m * cfg.max_sigma_m && self.look_alike(i, j)
-            });
-            let Some((i, j)) = pair else { break };
-            let Ok(gone) = self.table.merge(&mut self.ekf, i, j, cfg.noise_sigma_m) else { break };
+                if m2 <= gate
+                    && widest <= cfg.max_sigma_m * cfg.max_sigma_m
+                    && self.look_alike(i, j).map_err(|source| PipelineError::Fusion {
+                        t: self.t,
+                        first: a,
+                        second: b,
+                        source,
+                    })?
+                {
+                    pair = Some((i, j));
+                    break;
+                }
+            }
+            let Some((i, j)) = pair else { return Ok(()) };
+            let gone = self
+                .table
+                .merge(&mut self.ekf, i, j, cfg.noise_sigma_m)
+                .map_err(|source| PipelineError::Filter { t: self.t, source })?;
             let kept = self.table.get_mut(i);
             kept.diameter_m = (kept.diameter_m * kept.observations as f64 + gone.diameter_m * gone.observations as f64)
                 / (kept.observations + gone.observations).max(1) as f64;
@@ -170,7 +188,7 @@ mod tests {
         p.ekf.x[l1 + 1] = p.ekf.x[l0 + 1];
         p.ekf.p[(l1, l1)] += extra_variance;
         p.ekf.p[(l1 + 1, l1 + 1)] += extra_variance;
-        p.refresh_landmarks();
+        p.refresh_landmarks().unwrap();
         p
     }
 
@@ -184,6 +202,48 @@ mod tests {
         assert_eq!(p.ekf().landmark_count(), 1);
         let c = p.ekf().landmark_covariance(0).unwrap();
         assert!(c.symmetric_eigenvalues().min() > 0.0);
+    }
+
+    /// Two appearance-method landmarks about to be fused whose object models are of other
+    /// feature spaces (7 and 5 dimensions): the fusion cannot compare them.
+    #[test]
+    fn landmarks_whose_models_cannot_be_compared_stop_fusion_with_an_error() {
+        let mut p = pair(false, 0.0, false);
+        assert_eq!(p.landmarks().len(), 2);
+        let model = |dims: usize| ObjectModel {
+            gmm: Gmm {
+                components: vec![crate::gmm::Component {
+                    weight: 1.0,
+                    mean: DVector::zeros(dims),
+                    covariance: DMatrix::identity(dims, dims),
+                }],
+            },
+            patches: 20.0,
+            observations: 1,
+            mosaic: crate::object_model::MosaicView { cells: vec![], appearance: vec![], pixels: vec![] },
+        };
+        p.table.set_object(0, model(7));
+        p.table.set_object(1, model(5));
+        p.config.method = AssociationMethod::Combined;
+        p.config.merge.enabled = true;
+        let e = p.refresh_landmarks().unwrap_err();
+        assert!(
+            matches!(
+                &e,
+                PipelineError::Fusion {
+                    first: 0,
+                    second: 1,
+                    source: ObjectModelError::Dimension { observation: 5, model: 7 },
+                    ..
+                }
+            ),
+            "{e:?}"
+        );
+        assert_eq!(p.landmarks().len(), 2, "nothing was fused");
+        // Models of one feature space are compared, and these look alike: fused.
+        p.table.set_object(1, model(7));
+        p.refresh_landmarks().unwrap();
+        assert_eq!(p.landmarks().len(), 1);
     }
 
     #[test]

@@ -246,6 +246,11 @@ pub enum PipelineError {
         .landmark.map_or(String::new(), |l| format!(" against landmark {l}"))
     )]
     ObjectModel { t: f64, cluster: usize, landmark: Option<u32>, source: ObjectModelError },
+    /// Two landmarks near enough to be one object whose object models could not be
+    /// compared (see [`MergeConfig`]): fusing them anyway, or leaving them apart, would
+    /// be a decision no model made. The scan's observations are in the filter.
+    #[error("comparing the object models of landmarks {first} and {second} for fusion at t = {t} s: {source}")]
+    Fusion { t: f64, first: u32, second: u32, source: ObjectModelError },
 }
 
 impl PipelineError {
@@ -263,7 +268,8 @@ impl PipelineError {
             | PipelineError::Indefinite { t }
             | PipelineError::Segmentation { t, .. }
             | PipelineError::Filter { t, .. }
-            | PipelineError::ObjectModel { t, .. } => Some(*t),
+            | PipelineError::ObjectModel { t, .. }
+            | PipelineError::Fusion { t, .. } => Some(*t),
             _ => None,
         }
     }
@@ -422,14 +428,19 @@ impl Pipeline {
     /// The report of the scan at `t`: its observations and what it did, handed over.
     /// What every scan ends with, whichever association ran: the co-observation counts,
     /// the landmarks' records, the history's estimate, the pose log, and the report.
-    fn finish_scan(&mut self, t: f64, clusters: Vec<Cluster>, assigned: Vec<Option<u32>>) -> ScanReport {
+    fn finish_scan(
+        &mut self,
+        t: f64,
+        clusters: Vec<Cluster>,
+        assigned: Vec<Option<u32>>,
+    ) -> Result<ScanReport, PipelineError> {
         self.note_co_observed(&assigned);
-        self.refresh_landmarks();
+        self.refresh_landmarks()?;
         if let Some(h) = &mut self.history {
             h.set_estimate(self.ekf.pose());
         }
         self.record_pose();
-        self.report(t, clusters, assigned)
+        Ok(self.report(t, clusters, assigned))
     }
 
     fn report(&mut self, t: f64, clusters: Vec<Cluster>, assigned: Vec<Option<u32>>) -> ScanReport {

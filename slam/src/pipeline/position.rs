@@ -49,7 +49,7 @@ impl Pipeline {
             return Err(PipelineError::NegativeRange { input: "clusters", t });
         }
         self.advance_to(t)?;
-        let report = self.observe_positions(t, clusters, is_object, class);
+        let report = self.observe_positions(t, clusters, is_object, class)?;
         self.check_state(t)?;
         Ok(report)
     }
@@ -61,7 +61,7 @@ impl Pipeline {
         clusters: Vec<Cluster>,
         is_object: &[bool],
         class: &str,
-    ) -> ScanReport {
+    ) -> Result<ScanReport, PipelineError> {
         self.t = t;
         let idx: Vec<usize> = (0..clusters.len()).filter(|&i| is_object[i] && !clusters[i].occluded).collect();
         let zs: Vec<Vector2<f64>> =
