@@ -114,7 +114,10 @@ fn import(
     let &[x, y] = xy.as_slice() else { return Err(bad_at()) };
     anyhow::ensure!(x.is_finite() && y.is_finite() && yaw_deg.is_finite(), "--at and --yaw-deg must be finite numbers");
     // The output may be the world file itself (the mesh added in place), never a mesh.
-    crate::paths::not_an_input("--out", out, &[("MESH", mesh)])?;
+    let buffers = worlds::gltf_io::buffer_files(mesh);
+    let mut inputs = vec![("MESH", mesh)];
+    inputs.extend(buffers.iter().map(|b| ("buffer file of MESH", b.as_path())));
+    crate::paths::not_an_input("--out", out, &inputs)?;
     let mut w = worlds::load(world_file)?;
     not_a_mesh_of("--out", out, world_file, &w)?;
     let triangles = worlds::gltf_io::import_mesh(mesh)
@@ -122,6 +125,12 @@ fn import(
     // The world file names the mesh relative to itself where it can.
     let out_dir = directory_of(out)?;
     let mesh_abs = std::fs::canonicalize(mesh).with_context(|| format!("{}: cannot read", mesh.display()))?;
+    // A world file is UTF-8 text: a path that is not cannot be written into it as it is.
+    anyhow::ensure!(
+        mesh_abs.to_str().is_some() && out_dir.to_str().is_some(),
+        "{}: the path is not UTF-8 text, and a world file names its meshes in UTF-8; rename the file or its directory",
+        mesh.display()
+    );
     let relative_to_out = |p: &std::path::Path| p.strip_prefix(&out_dir).unwrap_or(p).to_string_lossy().into_owned();
     let named = relative_to_out(&mesh_abs);
     // The meshes the world already names, relative to its own file, as the new file
@@ -146,16 +155,20 @@ fn import(
 }
 
 /// Refuses an output `out` that is one of the meshes `world` (read from `world_file`)
-/// names: writing it would change what the world renders, and the mesh would be lost.
+/// names, or a buffer file such a mesh names: writing it would change what the world
+/// renders, and the mesh would be lost.
 fn not_a_mesh_of(flag: &str, out: &std::path::Path, world_file: &std::path::Path, world: &worlds::World) -> Result<()> {
     let base = world_file.parent().unwrap_or(std::path::Path::new("."));
-    let meshes: Vec<(String, std::path::PathBuf)> = world
-        .objects
-        .iter()
-        .filter_map(|o| {
-            o.mesh.as_ref().map(|m| (format!("mesh of object {} in {}", o.id, world_file.display()), base.join(m)))
-        })
-        .collect();
+    let mut meshes: Vec<(String, std::path::PathBuf)> = Vec::new();
+    for o in &world.objects {
+        let Some(m) = &o.mesh else { continue };
+        let mesh = base.join(m);
+        let what = format!("mesh of object {} in {}", o.id, world_file.display());
+        for buffer in worlds::gltf_io::buffer_files(&mesh) {
+            meshes.push((format!("buffer of the {what}"), buffer));
+        }
+        meshes.push((what, mesh));
+    }
     let inputs: Vec<(&str, &std::path::Path)> = meshes.iter().map(|(what, p)| (what.as_str(), p.as_path())).collect();
     crate::paths::not_an_input(flag, out, &inputs)
 }

@@ -133,6 +133,38 @@ fn a_mesh_joins_a_world_with_a_collider_fitted_to_it() {
         assert!(!out.status.success() && err.contains(expect), "{call:?}: {err}");
     }
     assert_eq!(std::fs::read(dir.join("post.glb")).unwrap(), mesh_bytes, "the mesh is kept");
+
+    // Nor over a buffer file that a JSON glTF mesh names (the .glb's chunks split into a
+    // .gltf and its .bin), given as MESH or named by the world.
+    let json_len = u32::from_le_bytes(mesh_bytes[12..16].try_into().unwrap()) as usize;
+    let mut gltf: serde_json::Value = serde_json::from_slice(&mesh_bytes[20..20 + json_len]).unwrap();
+    let bin = &mesh_bytes[20 + json_len + 8..];
+    let bin_len = u32::from_le_bytes(mesh_bytes[20 + json_len..24 + json_len].try_into().unwrap()) as usize;
+    gltf["buffers"] = serde_json::json!([{"uri": "post.bin", "byteLength": bin_len}]);
+    std::fs::write(dir.join("post.gltf"), serde_json::to_vec(&gltf).unwrap()).unwrap();
+    std::fs::write(dir.join("post.bin"), &bin[..bin_len]).unwrap();
+    let (gltf_mesh, buffer, with_gltf) = (path("post.gltf"), path("post.bin"), path("with_gltf.toml"));
+    let place = format!("{x},{y}");
+    let base = path("park.toml");
+    let out = objslam(&[
+        "world", "import", &gltf_mesh, "--world", &base, "--class", "post", "--at", &place, "--out", &with_gltf,
+    ]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    for (call, expect) in [
+        (
+            vec!["world", "import", &gltf_mesh, "--world", &base, "--class", "post", "--at", &place, "--out", &buffer],
+            "it is the buffer file of MESH given",
+        ),
+        (
+            vec!["world", "import", &mesh, "--world", &with_gltf, "--class", "post", "--at", "0,0", "--out", &buffer],
+            "it is the buffer of the mesh of object",
+        ),
+    ] {
+        let out = objslam(&call);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success() && err.contains(expect), "{call:?}: {err}");
+    }
+    assert_eq!(std::fs::read(dir.join("post.bin")).unwrap(), &bin[..bin_len], "the buffer is kept");
     assert_eq!(std::fs::read_to_string(dir.join("params.toml")).unwrap(), "trees = 5\n", "the parameters are kept");
 
     // A scenario on that world: its run's outputs score as a log (their world.toml finds

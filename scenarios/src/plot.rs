@@ -142,7 +142,14 @@ pub fn draw_map(world: &World, overlays: &Overlays, path: &Path) -> Result<(), P
     }
     let (min, max) = (world.ground.min_m, world.ground.max_m);
     let margin = 1.0;
-    let (x0, x1, y0, y1) = (min[0] - margin, max[0] + margin, min[1] - margin, max[1] + margin);
+    let (mut x0, mut x1, y0, y1) = (min[0] - margin, max[0] + margin, min[1] - margin, max[1] + margin);
+    // A ground far deeper than wide is drawn at most four widths tall, with x widened to
+    // keep metres square: its height would otherwise follow the ratio to millions of pixels.
+    const MAX_DEPTH_PER_WIDTH: f64 = 4.0;
+    if y1 - y0 > MAX_DEPTH_PER_WIDTH * (x1 - x0) {
+        let (centre, half) = ((x0 + x1) / 2.0, (y1 - y0) / MAX_DEPTH_PER_WIDTH / 2.0);
+        (x0, x1) = (centre - half, centre + half);
+    }
     let map_w = 1200u32;
     let plot_w = map_w - 90;
     let height_px = (((plot_w as f64) * (y1 - y0) / (x1 - x0)) as u32 + 130).max(420);
@@ -790,6 +797,20 @@ mod tests {
 
     /// A legend name too wide for its panel goes on to further rows, whole words where
     /// they fit, and loses no character.
+    /// A ground a thousand times deeper than wide is drawn at most four widths tall (it had
+    /// been a PNG a million pixels tall, gigabytes while drawn).
+    #[test]
+    fn a_narrow_ground_makes_a_picture_of_bounded_height() {
+        let scratch = tempfile::tempdir().unwrap();
+        let mut w = worlds::generate::preset("park", None, 3).unwrap();
+        w.ground.min_m = [-1.0, -1000.0];
+        w.ground.max_m = [1.0, 1000.0];
+        let file = scratch.path().join("narrow.png");
+        draw_map(&w, &Overlays::default(), &file).unwrap();
+        let (width, height) = image::image_dimensions(&file).unwrap();
+        assert!(height <= 4 * 1200 + 130, "{width} x {height}");
+    }
+
     #[test]
     fn long_legend_names_wrap_and_lose_nothing() {
         let fits = |t: &str| t.chars().count() <= 12;

@@ -157,6 +157,21 @@ impl ParkParams {
             if !(r[0].is_finite() && r[1].is_finite() && r[0] >= min && r[1] >= r[0]) {
                 return bad(field, format!("must be a range [min, max] with {min} <= min <= max, got {r:?}"));
             }
+            // No size beyond what a world holds (crate::validate::MAX_SIZE_M).
+            let most = if field == "person_speed_mps" { f64::INFINITY } else { crate::validate::MAX_SIZE_M };
+            if r[1] > most {
+                return bad(field, format!("{} is larger than a world holds: at most {most}", r[1]));
+            }
+        }
+        if self.person_start_time_max_s > crate::validate::MAX_START_TIME_S {
+            return bad(
+                "person_start_time_max_s",
+                format!(
+                    "{} s is past any run: at most {:e} s",
+                    self.person_start_time_max_s,
+                    crate::validate::MAX_START_TIME_S
+                ),
+            );
         }
         if self.person_speed_mps[1] > crate::validate::MAX_PERSON_SPEED_MPS {
             return bad(
@@ -178,8 +193,14 @@ impl ParkParams {
                 ),
             );
         }
-        if self.tree_radius_m[1] > 1.0 || self.post_radius_m[1] > 1.0 || self.palm_radius_m[1] > 1.0 {
-            return bad("tree_radius_m", "trunk, post and palm radii must stay under 1 m".into());
+        for (field, r) in [
+            ("tree_radius_m", self.tree_radius_m),
+            ("post_radius_m", self.post_radius_m),
+            ("palm_radius_m", self.palm_radius_m),
+        ] {
+            if r[1] > 1.0 {
+                return bad(field, format!("trunk, post and palm radii must stay under 1 m, got {r:?}"));
+            }
         }
         for (field, v) in [
             ("route_margin_m", self.route_margin_m),
@@ -507,7 +528,7 @@ pub fn park(params: &ParkParams, seed: u64) -> Result<World, WorldError> {
     let start = route.waypoints[0];
     let next = route.waypoints[1];
     let yaw = r3((next[1] - start[1]).atan2(next[0] - start[0]).to_degrees());
-    Ok(World {
+    let world = World {
         format_version: WORLD_FORMAT_VERSION,
         name: "park".into(),
         seed,
@@ -519,7 +540,14 @@ pub fn park(params: &ParkParams, seed: u64) -> Result<World, WorldError> {
         objects,
         people,
         robot: RobotSpec { start: Pose2 { x: start[0], y: start[1], yaw_deg: yaw }, route, laps: params.laps },
-    })
+    };
+    // The checks above keep every world valid; one that is not is refused here rather
+    // than written for `objslam world check` to refuse later.
+    let problems = crate::validate::validate(&world, std::path::Path::new("."));
+    if !problems.is_empty() {
+        return Err(WorldError::Invalid { file: format!("the generated park of seed {seed}").into(), problems });
+    }
+    Ok(world)
 }
 
 /// A rounded-rectangle loop inset from the ground's edges, counter-clockwise, starting in

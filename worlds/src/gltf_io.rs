@@ -212,16 +212,10 @@ fn open_checked(path: &Path) -> Result<gltf::Gltf, String> {
     for buffer in gltf.buffers() {
         let gltf::buffer::Source::Uri(uri) = buffer.source() else { continue };
         let named = || format!("buffer {} ({uri})", buffer.index());
-        // Resolved as the importer resolves it: `file:` names as written, other names
-        // relative to the glTF file, percent-decoded. Other schemes are its to refuse.
-        let file = if let Some(rest) = uri.strip_prefix("file://").or_else(|| uri.strip_prefix("file:")) {
-            std::path::PathBuf::from(rest)
-        } else if uri.contains(':') {
-            continue;
-        } else {
-            let decoded = urlencoding::decode(uri)
-                .map_err(|_| format!("{}: its percent-encoded name is not UTF-8 text", named()))?;
-            base.join(&*decoded)
+        let file = match buffer_file(base, uri) {
+            Some(Ok(file)) => file,
+            Some(Err(problem)) => return Err(format!("{}: {problem}", named())),
+            None => continue,
         };
         match regular(&file) {
             Ok(Some(len)) if len >= buffer.length() as u64 => {}
@@ -237,6 +231,37 @@ fn open_checked(path: &Path) -> Result<gltf::Gltf, String> {
         }
     }
     Ok(gltf)
+}
+
+/// The file a buffer's `uri` names, resolved as the importer resolves it: `file:` names
+/// as written, other names relative to the glTF file's directory `base`, percent-decoded.
+/// `None` for other schemes (data URIs), which are the importer's to read or refuse.
+fn buffer_file(base: &Path, uri: &str) -> Option<Result<std::path::PathBuf, String>> {
+    if let Some(rest) = uri.strip_prefix("file://").or_else(|| uri.strip_prefix("file:")) {
+        Some(Ok(std::path::PathBuf::from(rest)))
+    } else if uri.contains(':') {
+        None
+    } else {
+        Some(
+            urlencoding::decode(uri)
+                .map(|decoded| base.join(&*decoded))
+                .map_err(|_| "its percent-encoded name is not UTF-8 text".to_string()),
+        )
+    }
+}
+
+/// The files beside a glTF file that its buffers name (a `.gltf` with a `.bin`), which a
+/// world holding the mesh needs as much as the mesh file itself; empty for a file that
+/// cannot be opened as glTF.
+pub fn buffer_files(path: &Path) -> Vec<std::path::PathBuf> {
+    let Ok(gltf) = gltf::Gltf::open(path) else { return Vec::new() };
+    let base = path.parent().unwrap_or(Path::new("."));
+    gltf.buffers()
+        .filter_map(|b| match b.source() {
+            gltf::buffer::Source::Uri(uri) => buffer_file(base, uri)?.ok(),
+            gltf::buffer::Source::Bin => None,
+        })
+        .collect()
 }
 
 /// Like [`import_mesh`] for bytes already in memory (buffers must be embedded).

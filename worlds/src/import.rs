@@ -173,8 +173,17 @@ pub fn add_object(
     pose: Pose2,
 ) -> Result<u16, String> {
     let shape = fitted_shape(class, &extent(&mesh)?)?;
-    let used = world.objects.iter().map(|o| o.id).chain(world.people.iter().map(|p| p.id));
-    let id = used.max().unwrap_or(0).checked_add(1).ok_or("the world has no instance id left")?;
+    // The id after the largest, or where that is the ground's, the first one free.
+    let used: std::collections::BTreeSet<u16> =
+        world.objects.iter().map(|o| o.id).chain(world.people.iter().map(|p| p.id)).collect();
+    let after_largest = used.last().map_or(1, |m| m.saturating_add(1));
+    let id = if after_largest < crate::validate::GROUND_INSTANCE_ID {
+        after_largest
+    } else {
+        (1..crate::validate::GROUND_INSTANCE_ID)
+            .find(|id| !used.contains(id))
+            .ok_or("the world has no instance id left")?
+    };
     world.objects.push(StaticObject {
         id,
         class,
@@ -209,6 +218,20 @@ mod tests {
             }
         }
         m
+    }
+
+    /// A world whose largest id is the last before the ground's takes the first free one.
+    #[test]
+    fn an_added_object_takes_a_free_id_when_the_next_is_the_grounds() {
+        let mut w = crate::generate::park(&crate::generate::ParkParams::default(), 11).unwrap();
+        let post = lathe(&[(0.1, 0.0), (0.1, 1.0), (0.0, 1.0)], 12);
+        let at = Pose2 { x: 0.0, y: 0.0, yaw_deg: 0.0 };
+        let next = w.objects.iter().map(|o| o.id).chain(w.people.iter().map(|p| p.id)).max().unwrap() + 1;
+        assert_eq!(add_object(&mut w.clone(), post.clone(), "m.glb", ObjectClass::Post, at).unwrap(), next);
+        w.objects[0].id = crate::validate::GROUND_INSTANCE_ID - 1;
+        let first_free =
+            (1..).find(|id| !w.objects.iter().any(|o| o.id == *id) && !w.people.iter().any(|p| p.id == *id));
+        assert_eq!(add_object(&mut w, post, "m.glb", ObjectClass::Post, at).ok(), first_free);
     }
 
     #[test]

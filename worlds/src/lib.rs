@@ -54,9 +54,24 @@ pub fn parse(text: &str, file: &Path) -> Result<World, WorldError> {
     }
 }
 
+/// Largest world file read (bytes): a park of the generator's most objects is about 1 MiB
+/// of TOML; a larger file is something else (a device such as /dev/zero never ends).
+pub const MAX_WORLD_FILE_BYTES: u64 = 16 << 20;
+
 /// Reads, parses and validates a world file.
 pub fn load(path: &Path) -> Result<World, WorldError> {
-    let text = std::fs::read_to_string(path).map_err(|source| WorldError::Read { file: path.to_path_buf(), source })?;
+    use std::io::Read;
+    let read = |source| WorldError::Read { file: path.to_path_buf(), source };
+    let mut bytes = Vec::new();
+    std::fs::File::open(path).map_err(read)?.take(MAX_WORLD_FILE_BYTES + 1).read_to_end(&mut bytes).map_err(read)?;
+    if bytes.len() as u64 > MAX_WORLD_FILE_BYTES {
+        return Err(read(std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            format!("larger than {} MiB: not a world file", MAX_WORLD_FILE_BYTES >> 20),
+        )));
+    }
+    let text = String::from_utf8(bytes)
+        .map_err(|e| read(std::io::Error::new(std::io::ErrorKind::InvalidData, format!("not UTF-8 text: {e}"))))?;
     parse(&text, path)
 }
 

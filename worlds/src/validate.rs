@@ -30,6 +30,22 @@ pub const PERSON_ROUTE_CLEARANCE_M: f64 = 0.3;
 /// millimetres, and by 100 km a step rounds away and the robot never moves.
 pub const MAX_COORDINATE_M: f64 = 1_000.0;
 
+/// Largest size of an object (m): a world reaches at most [`MAX_COORDINATE_M`] either
+/// way from the origin, so nothing in it is longer than its whole width. Larger is a typo
+/// or another unit, and past f32's range an exported mesh holds infinities.
+pub const MAX_SIZE_M: f64 = 2.0 * MAX_COORDINATE_M;
+
+/// Most squares along a checkerboard's side: a calibration board has about ten; past a
+/// hundred its corners, 4 pixels apart at most ranges, could not be found.
+pub const MAX_BOARD_SQUARES: u32 = 100;
+
+/// Latest a person may start walking (s): about eleven days, past any run's length; a
+/// later start is a typo or another unit (milliseconds).
+pub const MAX_START_TIME_S: f64 = 1e6;
+
+/// Shortest side of the ground (m): the Pioneer 2-AT, 0.63 m long, must stand on it.
+pub const MIN_GROUND_SIDE_M: f64 = 1.0;
+
 /// Checks a world; `base_dir` resolves relative mesh paths. Returns every problem found.
 pub fn validate(world: &World, base_dir: &Path) -> Vec<Problem> {
     let mut out = Vec::new();
@@ -46,6 +62,15 @@ pub fn validate(world: &World, base_dir: &Path) -> Vec<Problem> {
         || !all_finite(&[g.min_m[0], g.min_m[1], g.max_m[0], g.max_m[1]])
     {
         push("ground".into(), "max_m must be greater than min_m in x and y".into());
+    } else if (g.max_m[0] - g.min_m[0]).min(g.max_m[1] - g.min_m[1]) < MIN_GROUND_SIDE_M {
+        push(
+            "ground".into(),
+            format!(
+                "a ground of {} x {} m: each side must be at least {MIN_GROUND_SIDE_M} m for the robot (0.63 x 0.50 m) to stand on it",
+                g.max_m[0] - g.min_m[0],
+                g.max_m[1] - g.min_m[1]
+            ),
+        );
     } else if let Some(c) = [g.min_m[0], g.min_m[1], g.max_m[0], g.max_m[1]].iter().find(|c| c.abs() > MAX_COORDINATE_M)
     {
         push("ground".into(), far_from_origin(*c));
@@ -65,7 +90,8 @@ pub fn validate(world: &World, base_dir: &Path) -> Vec<Problem> {
     // are sound: one NaN is its own error, not a cascade of overlaps and clearances.
     let placed = |o: &crate::description::StaticObject| {
         all_finite(&[o.pose.x, o.pose.y, o.pose.yaw_deg])
-            && shape_sizes(&o.shape).iter().all(|(_, v)| v.is_finite() && *v > 0.0)
+            && shape_sizes(&o.shape).iter().all(|(_, v)| size_ok(*v))
+            && board_placement_ok(&o.shape)
     };
     for (i, o) in world.objects.iter().enumerate() {
         let f = format!("objects[{i}]");
@@ -84,14 +110,23 @@ pub fn validate(world: &World, base_dir: &Path) -> Vec<Problem> {
         for (name, v) in shape_sizes(&o.shape) {
             if !(v.is_finite() && v > 0.0) {
                 push(format!("{f}.shape.{name}"), format!("must be finite and positive, got {v}"));
+            } else if v > MAX_SIZE_M {
+                push(format!("{f}.shape.{name}"), too_large(v));
             }
         }
         if let Shape::Board { bottom_m, squares, tilt_deg, roll_deg, .. } = o.shape {
             if !(bottom_m.is_finite() && bottom_m >= 0.0) {
-                push(format!("{f}.shape.bottom_m"), format!("must be >= 0, got {bottom_m}"));
+                push(format!("{f}.shape.bottom_m"), format!("must be finite and >= 0, got {bottom_m}"));
+            } else if bottom_m > MAX_SIZE_M {
+                push(format!("{f}.shape.bottom_m"), too_large(bottom_m));
             }
             if squares[0] < 2 || squares[1] < 2 {
                 push(format!("{f}.shape.squares"), "a checkerboard needs at least 2 x 2 squares".into());
+            } else if squares[0].max(squares[1]) > MAX_BOARD_SQUARES {
+                push(
+                    format!("{f}.shape.squares"),
+                    format!("{squares:?}: a checkerboard has at most {MAX_BOARD_SQUARES} squares a side"),
+                );
             }
             let tilt_ok = tilt_deg.is_finite() && tilt_deg.abs() <= MAX_BOARD_TILT_DEG;
             if !tilt_ok {
@@ -106,8 +141,8 @@ pub fn validate(world: &World, base_dir: &Path) -> Vec<Problem> {
             if !roll_ok {
                 push(format!("{f}.shape.roll_deg"), format!("must be within +-180 deg, got {roll_deg}"));
             }
-            let sizes_ok = shape_sizes(&o.shape).iter().all(|(_, v)| v.is_finite() && *v > 0.0) && bottom_m.is_finite();
-            if tilt_ok && roll_ok && sizes_ok {
+            let sizes_ok = shape_sizes(&o.shape).iter().all(|(_, v)| size_ok(*v));
+            if tilt_ok && roll_ok && sizes_ok && board_placement_ok(&o.shape) {
                 let lowest = o.shape.board_frame().expect("a board").lowest_m();
                 if lowest < 0.0 {
                     let field = if tilt_deg != 0.0 { "tilt_deg" } else { "roll_deg" };
@@ -189,10 +224,21 @@ pub fn validate(world: &World, base_dir: &Path) -> Vec<Problem> {
         ] {
             if !(v.is_finite() && v > 0.0) {
                 push(format!("{f}.{name}"), format!("must be finite and positive, got {v}"));
+            } else if name != "speed_mps" && name != "height_m" && v > MAX_PERSON_HEIGHT_M {
+                // No part of a person, nor a step, is larger than the tallest person.
+                push(
+                    format!("{f}.{name}"),
+                    format!("{} m is larger than a person: at most {MAX_PERSON_HEIGHT_M} m", metres(v)),
+                );
             }
         }
         if !(p.start_time_s.is_finite() && p.start_time_s >= 0.0) {
-            push(format!("{f}.start_time_s"), format!("must be >= 0, got {}", p.start_time_s));
+            push(format!("{f}.start_time_s"), format!("must be finite and >= 0, got {}", p.start_time_s));
+        } else if p.start_time_s > MAX_START_TIME_S {
+            push(
+                format!("{f}.start_time_s"),
+                format!("{} s is past any run: at most {MAX_START_TIME_S:e} s", p.start_time_s),
+            );
         }
         if p.height_m.is_finite() && p.height_m < 0.8 {
             push(format!("{f}.height_m"), "a person shorter than 0.8 m has no legs at the laser's height".into());
@@ -244,9 +290,6 @@ pub fn validate(world: &World, base_dir: &Path) -> Vec<Problem> {
         && all_finite(&[r.start.x, r.start.y])
         && r.route.waypoints.iter().all(|w| all_finite(w))
     {
-        if r.route.length_m() <= 0.0 {
-            push("robot.route.waypoints".into(), "the route has no length: its waypoints are all one point".into());
-        }
         // The robot drives from its start to the route's first target (the first waypoint,
         // or the second of a looping route, which returns to the first): that leg needs
         // the route's clearance too.
@@ -276,9 +319,42 @@ pub fn validate(world: &World, base_dir: &Path) -> Vec<Problem> {
 /// Why a coordinate beyond [`MAX_COORDINATE_M`] is refused, and what to do.
 fn far_from_origin(c: f64) -> String {
     format!(
-        "{c} m is more than {MAX_COORDINATE_M} m from the origin, where the simulator's f32 physics no longer \
-         resolves a robot's motion; move the world's coordinates to a local origin"
+        "{} m is more than {MAX_COORDINATE_M} m from the origin, where the simulator's f32 physics no longer \
+         resolves a robot's motion; move the world's coordinates to a local origin",
+        metres(c)
     )
+}
+
+/// Why a size beyond [`MAX_SIZE_M`] is refused.
+fn too_large(v: f64) -> String {
+    format!("{} m is larger than a world within {MAX_COORDINATE_M} m of the origin: at most {MAX_SIZE_M} m", metres(v))
+}
+
+/// A length as written in a message: in full up to a million, then in exponent form (a
+/// typo of 1e300 m would otherwise print as 301 digits).
+fn metres(v: f64) -> String {
+    if v.abs() < 1e6 { v.to_string() } else { format!("{v:e}") }
+}
+
+/// A size an object may have: finite, positive and at most [`MAX_SIZE_M`].
+fn size_ok(v: f64) -> bool {
+    v.is_finite() && v > 0.0 && v <= MAX_SIZE_M
+}
+
+/// Whether a board's placement (its bottom, tilt and roll) is sound, so that its footprint
+/// is known; true for the other shapes.
+fn board_placement_ok(shape: &Shape) -> bool {
+    match *shape {
+        Shape::Board { bottom_m, tilt_deg, roll_deg, .. } => {
+            bottom_m.is_finite()
+                && (0.0..=MAX_SIZE_M).contains(&bottom_m)
+                && tilt_deg.is_finite()
+                && tilt_deg.abs() <= MAX_BOARD_TILT_DEG
+                && roll_deg.is_finite()
+                && roll_deg.abs() <= 180.0
+        }
+        _ => true,
+    }
 }
 
 /// Refuses `points` off the ground: nothing stands or drives there.
@@ -317,6 +393,9 @@ fn check_route(
     if route.waypoints.iter().any(|w| !all_finite(w)) {
         push(format!("{field}.waypoints"), "waypoints must be finite".into());
         return;
+    }
+    if route.length_m() <= 0.0 {
+        push(format!("{field}.waypoints"), "the route has no length: its waypoints are all one point".into());
     }
     for (k, (a, b)) in route.segments().iter().enumerate() {
         for (i, fp) in footprints {
@@ -394,7 +473,7 @@ pub fn locate_line(text: &str, field: &str) -> Option<usize> {
             return text
                 .lines()
                 .position(|l| {
-                    let t = l.trim();
+                    let t = without_comment(l);
                     t == format!("[{key}]") || t.starts_with(&format!("{key} ")) || t.starts_with(&format!("{key}="))
                 })
                 .map(|i| i + 1);
@@ -403,16 +482,16 @@ pub fn locate_line(text: &str, field: &str) -> Option<usize> {
     if head.contains('.') {
         // Nested arrays (robot.route.waypoints[k]): point at the parent table.
         let table = head.rsplit_once('.').map(|(t, _)| t)?;
-        return text.lines().position(|l| l.trim() == format!("[{table}]")).map(|i| i + 1);
+        return text.lines().position(|l| without_comment(l) == format!("[{table}]")).map(|i| i + 1);
     }
     let (idx, tail) = rest.split_once(']')?;
     let idx: usize = idx.parse().ok()?;
     let header = format!("[[{head}]]");
-    let start = text.lines().enumerate().filter(|(_, l)| l.trim() == header).nth(idx)?.0;
+    let start = text.lines().enumerate().filter(|(_, l)| without_comment(l) == header).nth(idx)?.0;
     let key = tail.trim_start_matches('.').split('.').next_back().filter(|k| !k.is_empty());
     if let Some(key) = key {
         for (i, l) in text.lines().enumerate().skip(start + 1) {
-            let t = l.trim();
+            let t = without_comment(l);
             if t.starts_with("[[") && !t.starts_with(&format!("[[{head}.")) {
                 break;
             }
@@ -426,6 +505,14 @@ pub fn locate_line(text: &str, field: &str) -> Option<usize> {
         }
     }
     Some(start + 1)
+}
+
+/// A line of TOML trimmed, and a table header without its comment, for matching headers
+/// and keys (`[[objects]]  # the big oak` is the header `[[objects]]`; a world's table
+/// names hold no `#`). Key lines are matched by their start and keep their comments.
+fn without_comment(line: &str) -> &str {
+    let t = line.trim();
+    if t.starts_with('[') { t.split('#').next().unwrap_or(t).trim_end() } else { t }
 }
 
 /// Materials that make sense for each class; used by the generator and by docs.

@@ -329,3 +329,104 @@ fn routes_off_the_ground_or_that_cannot_be_driven_are_named() {
     });
     assert!(m.contains("the drive from the start"), "{m}");
 }
+
+/// Sizes past what a world within 1 km of the origin holds are refused (a typo or another
+/// unit; past f32's range an exported mesh would hold infinities), and so are people's
+/// parts larger than a person, starts past any run and boards of thousands of squares.
+#[test]
+fn sizes_beyond_any_world_are_named() {
+    let world = park(&ParkParams::default(), 11).unwrap();
+    let check = |edit: &dyn Fn(&mut worlds::World)| {
+        let mut w = world.clone();
+        edit(&mut w);
+        message(&w.to_toml())
+    };
+    let tree = world.objects.iter().position(|o| o.class == worlds::ObjectClass::Tree).unwrap();
+    let m = check(&|w| {
+        if let worlds::Shape::Trunk { height_m, .. } = &mut w.objects[tree].shape {
+            *height_m = 1e39;
+        }
+    });
+    assert!(
+        m.contains(&format!("objects[{tree}].shape.height_m: 1e39 m is larger than a world")) && m.contains("2000 m"),
+        "{m}"
+    );
+    // Where the tree stands is unknown at that size: one error, no overlaps claimed.
+    assert_eq!(m.matches("\n  - ").count(), 1, "{m}");
+    let m = check(&|w| w.people[0].stride_m = 1e30);
+    assert!(m.contains("people[0].stride_m: 1e30 m is larger than a person"), "{m}");
+    let m = check(&|w| w.people[0].start_time_s = f64::INFINITY);
+    assert!(m.contains("people[0].start_time_s: must be finite and >= 0, got inf"), "{m}");
+    let m = check(&|w| w.people[0].start_time_s = 1e307);
+    assert!(m.contains("people[0].start_time_s") && m.contains("past any run"), "{m}");
+    // A coordinate of 1e300 is written in exponent form, not in 301 digits.
+    let m = check(&|w| w.objects[0].pose.x = 1e300);
+    assert!(m.contains("objects[0].pose: 1e300 m is more than 1000 m"), "{m}");
+    let msg = message(&with_board("").replace("squares = [8, 6]", "squares = [4000000000, 6]"));
+    assert!(msg.contains("shape.squares") && msg.contains("at most 100 squares"), "{msg}");
+}
+
+/// A board whose roll or bottom is not sound is that error alone: its footprint is unknown,
+/// so no overlap or clearance is claimed of it, and a bottom below the ground is not laid
+/// on a roll the file does not give.
+#[test]
+fn a_board_placed_nowhere_is_one_error() {
+    let err = parse(&with_board(", roll_deg = nan")).unwrap_err();
+    let problems: Vec<String> = err.problems().iter().map(|p| p.to_string()).collect();
+    assert_eq!(problems.len(), 1, "{problems:#?}");
+    assert!(problems[0].contains("shape.roll_deg"), "{problems:?}");
+    let err = parse(&with_board("").replace("bottom_m = 0.3", "bottom_m = -0.3")).unwrap_err();
+    let problems: Vec<String> = err.problems().iter().map(|p| p.to_string()).collect();
+    assert_eq!(problems.len(), 1, "{problems:#?}");
+    assert!(problems[0].contains("shape.bottom_m: must be finite and >= 0, got -0.3"), "{problems:?}");
+}
+
+/// A person walking a route of one point, and a ground the robot cannot stand on.
+#[test]
+fn degenerate_routes_and_grounds_are_named() {
+    let world = park(&ParkParams::default(), 11).unwrap();
+    let mut w = world.clone();
+    let p = w.people[0].route.waypoints[0];
+    w.people[0].route.waypoints = vec![p, p];
+    let m = message(&w.to_toml());
+    assert!(m.contains("people[0].route.waypoints: the route has no length"), "{m}");
+    let mut w = world.clone();
+    w.ground.max_m = [w.ground.min_m[0] + 0.5, w.ground.max_m[1]];
+    let m = message(&w.to_toml());
+    assert!(m.contains("ground: a ground of 0.5 x") && m.contains("at least 1 m"), "{m}");
+}
+
+/// A table header with a comment after it is still the table the line numbers count.
+#[test]
+fn lines_are_found_past_commented_headers() {
+    let mut w = park(&ParkParams::default(), 11).unwrap();
+    let tree = w.objects.iter().position(|o| o.class == worlds::ObjectClass::Tree).unwrap();
+    if let worlds::Shape::Trunk { radius_m, .. } = &mut w.objects[tree].shape {
+        *radius_m = -0.2;
+    }
+    let text = w.to_toml().replace("[[objects]]", "[[objects]]  # one of the park's");
+    let plain = parse(&w.to_toml()).unwrap_err().problems()[0].line;
+    let commented = parse(&text).unwrap_err().problems()[0].line;
+    assert!(plain.is_some());
+    assert_eq!(commented, plain);
+}
+
+/// Generator parameters that would make sizes or times past what a world holds (1e306 m
+/// rounds to infinity) are refused by name; the radius named is the one given.
+#[test]
+fn generator_parameters_past_a_world_are_named() {
+    let err = park(&ParkParams { tree_height_m: [1e306, 1e306], ..Default::default() }, 1).unwrap_err().to_string();
+    assert!(err.contains("tree_height_m") && err.contains("larger than a world holds"), "{err}");
+    let err = park(&ParkParams { person_start_time_max_s: 1e307, ..Default::default() }, 1).unwrap_err().to_string();
+    assert!(err.contains("person_start_time_max_s") && err.contains("past any run"), "{err}");
+    let err = park(&ParkParams { post_radius_m: [0.1, 1.5], ..Default::default() }, 1).unwrap_err().to_string();
+    assert!(err.contains("generator parameter post_radius_m"), "{err}");
+}
+
+/// A file that never ends (a device) is refused by its size, not read until memory runs
+/// out.
+#[test]
+fn a_world_file_larger_than_any_world_is_refused() {
+    let err = worlds::load(Path::new("/dev/zero")).unwrap_err().to_string();
+    assert!(err.contains("/dev/zero") && err.contains("larger than 16 MiB"), "{err}");
+}
