@@ -213,19 +213,17 @@ pub(crate) fn dataset(
         }
         (Some(_), Some(_)) => anyhow::bail!("give either --world or --preset"),
     };
-    // The camera is aimed at standing objects; people and leaves appear in the images and
-    // their masks where they are, but are not aimed at.
-    const AIMED: [&str; 5] = ["tree", "palm", "post", "wall", "checkerboard"];
+    let aimed = scenarios::dataset::AIMED_CLASSES.map(|c| c.name());
     let classes = classes
         .split(',')
         .map(|c| match worlds::ObjectClass::from_name(c.trim()) {
-            Some(class) if AIMED.contains(&c.trim()) => Ok(class),
+            Some(class) if scenarios::dataset::AIMED_CLASSES.contains(&class) => Ok(class),
             Some(_) => Err(anyhow::anyhow!(
                 "--classes: {:?} is not aimed at (people and leaves are in the images and masks where they are); classes: {}",
                 c.trim(),
-                AIMED.join(", ")
+                aimed.join(", ")
             )),
-            None => Err(anyhow::anyhow!("--classes: unknown class {c:?}; classes: {}", AIMED.join(", "))),
+            None => Err(anyhow::anyhow!("--classes: unknown class {c:?}; classes: {}", aimed.join(", "))),
         })
         .collect::<Result<Vec<_>>>()?;
     if let Some(i) = (1..classes.len()).find(|&i| classes[..i].contains(&classes[i])) {
@@ -262,6 +260,15 @@ pub(crate) fn calibrate(
     }
     if out.is_dir() || out.as_os_str().to_string_lossy().ends_with(std::path::MAIN_SEPARATOR) {
         anyhow::bail!("--out {}: is a directory; give the path of the calibration file to write", out.display());
+    }
+    if let Some(dir) = images
+        && scenarios::partial_files::same_path(out, dir)
+    {
+        anyhow::bail!(
+            "--out {} and --images {}: one path; the calibration is a file, the pose images a directory beside it",
+            out.display(),
+            dir.display()
+        );
     }
     // The pose images go into --images, replacing the earlier session's there.
     if let Some(dir) = images

@@ -53,6 +53,10 @@ fn negative_numbers_are_values_checked_like_any_other() {
         ),
         (vec!["calibrate", "calibration", "--out", &under_a_file], "is a file, not a directory"),
         (
+            vec!["calibrate", "calibration", "--out", "c9.json", "--images", "./c9.json"],
+            "--out c9.json and --images ./c9.json: one path",
+        ),
+        (
             vec!["dataset", "--images", "1", "--classes", "tree,person", "--out", out],
             "--classes: \"person\" is not aimed at",
         ),
@@ -277,4 +281,29 @@ fn a_closed_pipe_ends_the_program_quietly() {
         .status()
         .expect("objslam runs");
     assert_eq!(failing.code(), Some(141));
+}
+
+/// A model trained on a dataset of posts is a model of posts: a run names the landmarks it
+/// maps after the model's class (it had been saved as "tree" whatever the dataset held).
+#[test]
+fn a_model_is_of_the_classes_its_dataset_labelled() {
+    let root = std::env::temp_dir().join(format!("objslam-post-model-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+    std::fs::create_dir_all(&root).unwrap();
+    let path = |name: &str| root.join(name).to_string_lossy().into_owned();
+    let (data, model) = (path("posts"), path("posts.json"));
+    let (ok, e) = stderr_of(&["dataset", "--images", "3", "--seed", "3", "--classes", "post", "--out", &data]);
+    assert!(ok, "{e}");
+    let train = ["train", "--dataset", &data, "--out", &model, "--pca-dims", "4", "--max-components", "2"];
+    // The features' CSV is written beside its place and moved in whole.
+    let features = path("features.csv");
+    std::fs::write(&features, "earlier").unwrap();
+    let (ok, e) = stderr_of(&[&train[..], &["--heldout-every", "0", "--export-features", &features]].concat());
+    assert!(ok, "{e}");
+    let saved: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&model).unwrap()).unwrap();
+    assert_eq!(saved["object_class"], "post");
+    let csv = std::fs::read_to_string(&features).unwrap();
+    assert!(csv.starts_with("image,col,row,") && csv.lines().count() > 100, "{}", &csv[..csv.len().min(200)]);
+    assert!(!root.join("features.csv.partial").exists());
+    let _ = std::fs::remove_dir_all(&root);
 }

@@ -83,8 +83,14 @@ fn default_distractor_fraction() -> f64 {
     0.7
 }
 
+/// The classes a dataset aims its camera at, and so may label: standing objects. People
+/// and leaves are in the images and masks where they are, but are not aimed at.
+pub const AIMED_CLASSES: [ObjectClass; 5] =
+    [ObjectClass::Tree, ObjectClass::Palm, ObjectClass::Post, ObjectClass::Wall, ObjectClass::Checkerboard];
+
 /// One image's entry in `dataset.json`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct ImageEntry {
     pub id: usize,
     pub image: String,
@@ -104,6 +110,7 @@ pub struct ImageEntry {
 
 /// The manifest.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Manifest {
     pub format_version: u32,
     pub seed: u64,
@@ -134,6 +141,13 @@ impl Manifest {
         if let Some(c) = manifest.classes.iter().enumerate().find(|(i, c)| manifest.classes[..*i].contains(c)) {
             return Err(format!("classes: {} is named twice", c.1.name()));
         }
+        if let Some(c) = manifest.classes.iter().find(|c| !AIMED_CLASSES.contains(c)) {
+            return Err(format!(
+                "classes: {} is not a class a dataset aims at and labels ({})",
+                c.name(),
+                AIMED_CLASSES.map(|c| c.name()).join(", ")
+            ));
+        }
         if manifest.width == 0 || manifest.height == 0 {
             return Err(format!("width and height: {}x{} is no image", manifest.width, manifest.height));
         }
@@ -142,6 +156,12 @@ impl Manifest {
         for (i, entry) in manifest.images.iter().enumerate() {
             if !ids.insert(entry.id) {
                 return Err(format!("images[{i}].id: {} is listed twice", entry.id));
+            }
+            if entry.kind != "object" && entry.kind != "background" {
+                return Err(format!(
+                    "images[{i}].kind: {:?}, where an image is \"object\" or \"background\"",
+                    entry.kind
+                ));
             }
             for (key, file) in [
                 ("image", &entry.image),
@@ -164,6 +184,7 @@ impl Manifest {
 
 /// Per-patch labels of one image.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct PatchLabels {
     pub patch_size: u32,
     pub rows: u32,
@@ -645,6 +666,43 @@ mod tests {
         std::fs::write(out.join("notes.txt"), "mine").unwrap();
         check_out(&out).unwrap();
         std::fs::remove_dir_all(&out).unwrap();
+    }
+
+    /// A manifest edited by hand is read as written or refused: an unknown key (a typo of
+    /// an optional one), a class no dataset aims at, an image of no kind.
+    #[test]
+    fn a_manifest_with_keys_classes_or_kinds_it_cannot_hold_is_refused() {
+        let entry = serde_json::json!({
+            "id": 0, "image": "images/0.png", "instance": "masks/0_instance.png", "class": "masks/0_class.png",
+            "patches": "labels/0_patches.json", "kind": "object", "target_instance": 3,
+            "world_from_camera": {"r": [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], "t": [0.0, 0.0, 0.0]},
+            "sun_direction": [0.0, 0.0, -1.0], "exposure": 1.0, "people_time_s": 0.0
+        });
+        let manifest = serde_json::json!({
+            "format_version": DATASET_FORMAT_VERSION, "seed": 1, "world": "w", "classes": ["tree"], "patch_size": 9,
+            "width": 64, "height": 48, "k": [[50.0, 0.0, 32.0], [0.0, 50.0, 24.0], [0.0, 0.0, 1.0]],
+            "renderer": "r", "images": [entry]
+        });
+        let read = |m: &serde_json::Value| {
+            serde_json::from_value::<Manifest>(m.clone()).map_err(|e| e.to_string()).and_then(|m| m.check())
+        };
+        read(&manifest).unwrap();
+        let mut typo = manifest.clone();
+        typo["bogus"] = serde_json::json!(1);
+        assert!(read(&typo).unwrap_err().contains("unknown field `bogus`"));
+        let mut typo = manifest.clone();
+        typo["images"][0]["exposur"] = serde_json::json!(1.0);
+        assert!(read(&typo).unwrap_err().contains("unknown field `exposur`"));
+        let mut person = manifest.clone();
+        person["classes"] = serde_json::json!(["person"]);
+        let e = read(&person).unwrap_err();
+        assert!(e.contains("classes: person is not a class a dataset aims at"), "{e}");
+        let mut kind = manifest.clone();
+        kind["images"][0]["kind"] = serde_json::json!("bogus");
+        let e = read(&kind).unwrap_err();
+        assert!(e.contains("images[0].kind: \"bogus\""), "{e}");
+        let labels = serde_json::json!({"patch_size": 9, "rows": 1, "cols": 1, "fractions": [0.5], "extra": 1});
+        assert!(serde_json::from_value::<PatchLabels>(labels).is_err());
     }
 
     #[test]

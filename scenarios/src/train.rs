@@ -2,7 +2,6 @@
 //! held-out scoring, export the feature matrix, draw classified patches over an image, and
 //! fit a VB-GMM to any numeric CSV.
 
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use nalgebra::DMatrix;
@@ -228,8 +227,11 @@ fn options_for_dataset(
     manifest: &Manifest,
     options: &TrainingOptions,
 ) -> Result<TrainingOptions, TrainError> {
+    // The model's object class is what the dataset labelled positive: a run names the
+    // landmarks it maps after it.
     let options = TrainingOptions {
         features: slam::features::FeatureConfig { patch_size: manifest.patch_size, ..options.features.clone() },
+        object_class: object_class_of(manifest),
         ..options.clone()
     };
     options.features.validate().map_err(|e| {
@@ -239,6 +241,12 @@ fn options_for_dataset(
         )
     })?;
     Ok(options)
+}
+
+/// The name of a dataset's positive classes, as a model's `object_class`: `tree`, or
+/// `post+palm` for several.
+fn object_class_of(manifest: &Manifest) -> String {
+    manifest.classes.iter().map(|c| c.name()).collect::<Vec<_>>().join("+")
 }
 
 fn model_error(e: TrainError) -> ModelError {
@@ -316,6 +324,20 @@ pub fn train_from_datasets(
                     first.display(),
                     lead.width,
                     lead.height
+                ),
+            ));
+        }
+    }
+    // One model learns one set of classes: datasets that label others cannot be pooled.
+    for (dir, m) in dirs.iter().zip(&manifests) {
+        if m.classes != lead.classes {
+            return Err(file_err(
+                &dir.join("dataset.json"),
+                format!(
+                    "classes: {}, where {} labels {}; a model learns one set of classes",
+                    object_class_of(m),
+                    first.display(),
+                    object_class_of(lead)
                 ),
             ));
         }
@@ -529,7 +551,9 @@ pub fn majority_class(class: &image::GrayImage, col: u32, row: u32, l: u32) -> u
     (0..256).max_by_key(|&i| counts[i]).unwrap_or(0) as u8
 }
 
-/// Writes every patch's feature row with its label fraction and label to a CSV file.
+/// Writes every patch's feature row with its label fraction and label to a CSV file,
+/// written beside it and renamed into place once whole: a failure (a full disk) leaves an
+/// earlier file as it was.
 pub fn export_features(
     dir: &Path,
     model: &AppearanceModel,
@@ -537,22 +561,23 @@ pub fn export_features(
     out: &Path,
 ) -> Result<usize, TrainError> {
     let manifest = read_manifest(dir)?;
-    let file = std::fs::File::create(out).map_err(|e| file_err(out, e))?;
-    let mut w = std::io::BufWriter::new(file);
+    let name = out.file_name().and_then(|n| n.to_str()).ok_or_else(|| file_err(out, "not a file name"))?;
+    let parent = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let partial = |e: crate::partial_files::PartialFileError| file_err(&e.file, e.source);
+    let mut csv = crate::partial_files::PartialFiles::create(parent, &[((), name)]).map_err(partial)?;
     let names = feature_names(model.extractor.pca.dims());
-    let io = |e: std::io::Error| file_err(out, e);
-    writeln!(w, "image,col,row,{},fraction,label", names.join(",")).map_err(io)?;
+    csv.write((), &format!("image,col,row,{},fraction,label\n", names.join(","))).map_err(partial)?;
     let mut rows = 0;
     for patches in image_patches(dir, &manifest, &model.extractor, 0..manifest.images.len())? {
         let p = patches?;
         for (k, (&(c, r), &frac)) in p.cells.iter().zip(&p.fractions).enumerate() {
             let values: Vec<String> = p.features.z.row(k).iter().map(|v| format!("{v}")).collect();
             let label = (frac as f64 >= label_fraction) as u8;
-            writeln!(w, "{},{c},{r},{},{frac},{label}", p.index, values.join(",")).map_err(io)?;
+            csv.write((), &format!("{},{c},{r},{},{frac},{label}\n", p.index, values.join(","))).map_err(partial)?;
             rows += 1;
         }
     }
-    w.flush().map_err(io)?;
+    csv.finish().map_err(partial)?;
     Ok(rows)
 }
 

@@ -70,6 +70,7 @@ pub enum ClassifyError {
 
 /// Patch precision, recall and F1 against ground-truth labels.
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct PatchScores {
     pub true_positives: u64,
     pub false_positives: u64,
@@ -124,6 +125,7 @@ pub fn score_text(score: Option<f64>) -> String {
 
 /// How a model was trained, recorded in the file.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct TrainingSummary {
     pub images: usize,
     pub object_patches: usize,
@@ -156,6 +158,7 @@ pub struct TrainingSummary {
 /// A part of the background (foliage, distractors): its mixture and its share of the
 /// background patches.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct BackgroundPart {
     pub gmm: VbGmm,
     /// The part's share of the background patches (w_fol|bg, w_dis|bg).
@@ -164,6 +167,7 @@ pub struct BackgroundPart {
 
 /// The output of the offline phase: features, both class models and their proportions.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct AppearanceModel {
     pub format_version: u32,
     /// Name of the object class the model finds ("tree").

@@ -367,6 +367,7 @@ impl PatchFeatures {
 
 /// The trained feature pipeline: configuration plus PCA (stored in model files).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct FeatureExtractor {
     pub config: FeatureConfig,
     pub pca: Pca,

@@ -8,6 +8,7 @@ use super::FeatureError;
 
 /// A fitted PCA: `mean` (D) and the leading eigenvectors as columns of `basis` (D x d).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct Pca {
     pub mean: DVector<f64>,
     pub basis: DMatrix<f64>,
@@ -92,7 +93,9 @@ impl Pca {
         Ok(())
     }
 
-    /// Checks a PCA read from a file: shapes that agree and finite numbers; (field, problem).
+    /// Checks a PCA read from a file: shapes that agree, numbers within f32's range (the
+    /// features are projected in single precision, where a larger value is infinite) and
+    /// a basis of orthonormal columns, as eigenvectors are; (field, problem).
     pub fn check(&self) -> Result<(), (&'static str, String)> {
         if self.basis.nrows() != self.mean.len() {
             return Err(("basis", format!("has {} rows for a {}-long mean", self.basis.nrows(), self.mean.len())));
@@ -102,6 +105,23 @@ impl Pca {
         }
         if self.mean.iter().chain(self.basis.iter()).any(|v| !v.is_finite()) {
             return Err(("basis", "mean and basis must be finite".into()));
+        }
+        if let Some(v) = self.mean.iter().find(|v| v.abs() > f32::MAX as f64) {
+            return Err(("mean", format!("{v:e} lies beyond single precision's range")));
+        }
+        // Orthonormal to well within what the f64 text of a trained basis keeps.
+        const ORTHONORMAL_TOLERANCE: f64 = 1e-6;
+        let gram = self.basis.tr_mul(&self.basis);
+        for ((i, j), g) in gram.iter().enumerate().map(|(k, g)| ((k % gram.nrows(), k / gram.nrows()), g)) {
+            let expected = if i == j { 1.0 } else { 0.0 };
+            if (g - expected).abs() > ORTHONORMAL_TOLERANCE {
+                return Err((
+                    "basis",
+                    format!(
+                        "columns {i} and {j} have a dot product of {g:e}, not {expected}: a PCA basis is orthonormal (its eigenvectors)"
+                    ),
+                ));
+            }
         }
         if self.variances.iter().any(|v| !(v.is_finite() && *v >= 0.0)) {
             return Err(("variances", "must be finite and not negative".into()));
@@ -145,5 +165,31 @@ impl Pca {
             return Err(FeatureError::AppearanceLength { expected: self.dims(), found: z.len() });
         };
         Ok(&self.mean + &self.basis * DVector::from_column_slice(z))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A fitted PCA passes its own check; a hand-edited one whose values the single-precision
+    /// projection would make infinite, or whose basis is no longer orthonormal, does not
+    /// (it had classified every patch as background without a word).
+    #[test]
+    fn a_pca_edited_past_what_it_can_be_is_refused() {
+        let data = DMatrix::from_fn(40, 5, |i, j| ((i * 7 + j * 3) % 11) as f64 + 0.1 * (i * j) as f64);
+        let pca = Pca::fit(&data, 3).unwrap();
+        pca.check().unwrap();
+        let mut wide = pca.clone();
+        wide.basis[(0, 0)] = 1e39;
+        assert_eq!(wide.check().unwrap_err().0, "basis");
+        let mut far = pca.clone();
+        far.mean[1] = 1e300;
+        let (field, problem) = far.check().unwrap_err();
+        assert_eq!(field, "mean", "{problem}");
+        let mut skewed = pca.clone();
+        skewed.basis[(2, 1)] += 0.01;
+        let (field, problem) = skewed.check().unwrap_err();
+        assert!(field == "basis" && problem.contains("orthonormal"), "{problem}");
     }
 }

@@ -85,6 +85,7 @@ impl Default for VbOptions {
 
 /// A fitted variational Bayesian GMM: the posterior over weights, means and precisions.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct VbGmm {
     pub prior: VbPrior,
     pub components: Vec<VbComponent>,
