@@ -511,3 +511,15 @@ fn inputs_among_a_recordings_outputs_are_refused_and_a_calibration_may_be_rewrit
     assert!(std::fs::read_to_string(root.join("cal.json")).unwrap().contains("\"phi\""));
     let _ = std::fs::remove_dir_all(&root);
 }
+
+/// A run's output directory named as its built-in scenario (`--out laser_only`) does not
+/// hide the scenario from the next command that names it.
+#[test]
+fn a_directory_named_as_a_built_in_scenario_does_not_hide_it() {
+    let root = std::env::temp_dir().join(format!("objslam-builtin-dir-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&root);
+    std::fs::create_dir_all(root.join("laser_only")).unwrap();
+    let o = objslam(&root, &["config", "check", "laser_only"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let _ = std::fs::remove_dir_all(&root);
+}

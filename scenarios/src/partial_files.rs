@@ -260,7 +260,9 @@ pub fn stopped_move(out: &Path) -> Option<StoppedMove> {
     }
     match json(crate::files::METADATA).as_ref().and_then(|m| m["tool"].as_str().map(str::to_owned)).as_deref() {
         Some("objslam record") => return Some(StoppedMove::Recording),
-        Some("objslam run") => return Some(StoppedMove::Run),
+        // A run writes its marker among its other files, so only the list a move writes
+        // before it moves anything tells finished outputs from a draft.
+        Some("objslam run") => return read_moving(&dir).is_some().then_some(StoppedMove::Run),
         _ => {}
     }
     let manifest = std::fs::read_to_string(dir.join(robotlog::format::MANIFEST)).ok()?;
@@ -603,7 +605,9 @@ mod tests {
             ("dataset.json", "{}", Some(StoppedMove::Dataset)),
             ("metadata.yaml", "rosbag2_bagfile_information: {}", Some(StoppedMove::Bag)),
             ("metadata.json", r#"{"tool": "objslam record"}"#, Some(StoppedMove::Recording)),
-            ("metadata.json", r#"{"tool": "objslam run"}"#, Some(StoppedMove::Run)),
+            // A run's marker is finished outputs only once a move has begun (its list there).
+            ("metadata.json", r#"{"tool": "objslam run"}"#, None),
+            (MOVING, r#"["metadata.json"]"#, None),
             ("metadata.json", r#"{"tool": "objslam rec"#, None),
             ("manifest.toml", "", None),
         ] {
@@ -617,6 +621,9 @@ mod tests {
             }
             std::fs::remove_file(dir.join(name)).unwrap();
         }
+        std::fs::write(dir.join("metadata.json"), r#"{"tool": "objslam run"}"#).unwrap();
+        std::fs::write(dir.join(MOVING), r#"["metadata.json"]"#).unwrap();
+        assert_eq!(stopped_move(&out), Some(StoppedMove::Run));
         let _ = std::fs::remove_dir_all(&out);
     }
 

@@ -295,7 +295,10 @@ impl Scenario {
         // `<built-in>/NAME` (as a study pins a built-in scenario) is the built-in alone,
         // whatever files the working directory holds.
         let explicit = name_or_path.strip_prefix(BUILT_IN_PREFIX);
-        if explicit.is_none() && path.exists() {
+        // A directory is no scenario file: one named as a built-in (a run's output
+        // directory, `objslam run laser_only --out laser_only`) does not hide it.
+        let builtin_name = LIBRARY.iter().any(|(n, _)| *n == name_or_path.trim_end_matches(".toml"));
+        if explicit.is_none() && path.exists() && !(path.is_dir() && builtin_name) {
             let text = read_settings_text(path)?;
             let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
             return Ok((Scenario::parse(&text, path)?, base));

@@ -77,6 +77,15 @@ fn sharded_merged_study_equals_the_unsharded_one_and_resumes() {
     let (merged_plan, merged) = mc::merge(&dirs, &root.join("merged")).unwrap();
     assert_eq!(merged_plan, plan);
     assert_eq!(mc::missing_runs(&plan, &merged), 0);
+    // A shard of another study (another base seed) is named with what differs.
+    let other = StudyPlan { base_seed: 6, ..plan.clone() };
+    mc::run_study(&other, Shard { index: 0, count: 3 }, &root.join("other-0"), |_| {}).unwrap();
+    let e = mc::merge(&[dirs[0].clone(), root.join("other-0")], &root.join("merged-other")).unwrap_err().to_string();
+    assert!(
+        e.contains("other-0/study.json: this shard holds another study") && e.contains("differ in base_seed"),
+        "{e}"
+    );
+    assert!(!e.contains("use a new --out"), "{e}");
     // Two of the three shards: the third's runs are missing, and said to be.
     let (_, two) = mc::merge(&dirs[..2], &root.join("merged-two")).unwrap();
     let third = mc::jobs(&plan).iter().filter(|j| Shard { index: 2, count: 3 }.contains(j)).count();

@@ -49,11 +49,21 @@ pub(super) fn merge_held(dirs: &[PathBuf], out: &Path) -> Result<(StudyPlan, Vec
         match &plan {
             Some(existing) if !same_study(existing, &p) => {
                 let what = if crate::partial_files::same_path(d, out) { "the output directory" } else { "this shard" };
-                return Err(StudyError::Mismatch {
-                    dir: d.clone(),
+                // What differs, in study.json's own keys: the one thing to look at.
+                let (a, b) = (serde_json::to_value(existing), serde_json::to_value(&p));
+                let differ: Vec<String> = match (a, b) {
+                    (Ok(serde_json::Value::Object(a)), Ok(serde_json::Value::Object(b))) => {
+                        let keys: std::collections::BTreeSet<&String> = a.keys().chain(b.keys()).collect();
+                        keys.into_iter().filter(|k| *k != "build" && a.get(*k) != b.get(*k)).cloned().collect()
+                    }
+                    _ => Vec::new(),
+                };
+                return Err(StudyError::File {
+                    file: d.join("study.json"),
                     message: format!(
-                        "{what} holds another study than {}; shards of different studies cannot be merged",
-                        dirs[0].display()
+                        "{what} holds another study than {} (they differ in {}); shards of different studies cannot be merged: give the shards of one study",
+                        dirs[0].display(),
+                        if differ.is_empty() { "the scenario's contents".to_string() } else { differ.join(", ") }
                     ),
                 });
             }

@@ -30,7 +30,7 @@ use crate::scenario::{Scenario, ScenarioError};
 use crate::score::scorer::{MapLandmark, RecallBasis, RunScorer, VisibilitySettings};
 use events::EventSource;
 use online::RunLoop;
-use outputs::{FinishedRun, publish_outputs, write_outputs};
+use outputs::{FinishedRun, finish_stopped_run, publish_outputs, write_outputs};
 
 /// Errors of a run.
 #[derive(Debug, thiserror::Error)]
@@ -433,22 +433,31 @@ pub fn run(
     scenario: &Scenario,
     base_dir: &Path,
     options: &RunOptions,
-    progress: impl FnMut(RunProgress),
+    mut progress: impl FnMut(RunProgress),
 ) -> Result<RunOutcome, RunError> {
     if let Some(out) = &options.out {
         check_inputs_outside_outputs(scenario, base_dir, out)?;
-        check_earlier_outputs_are_a_runs(out)?;
     }
     if let Some(bag) = &options.bag {
         check_bag_beside_outputs(bag, options.out.as_deref())?;
     }
     // Held until the outputs are published or abandoned.
     let lock = options.out.as_deref().map(crate::partial_files::lock_output).transpose()?;
-    crate::partial_files::abandon_if_failed(
-        lock,
-        options.out.as_deref(),
-        run_and_write(scenario, base_dir, options, progress),
-    )
+    let mut under_hold = || {
+        if let Some(out) = &options.out {
+            // An earlier run stopped while its outputs were moved in: finished first, so
+            // that its outputs are whole before this run replaces them.
+            if finish_stopped_run(out)? {
+                progress(RunProgress::Warning(format!(
+                    "{}: finished moving in the outputs of an earlier run stopped while they were moved",
+                    out.display()
+                )));
+            }
+            check_earlier_outputs_are_a_runs(out)?;
+        }
+        run_and_write(scenario, base_dir, options, &mut progress)
+    };
+    crate::partial_files::abandon_if_failed(lock, options.out.as_deref(), under_hold())
 }
 
 /// Refuses a `--bag` directory before the run sets anything up (a model trained, a world

@@ -95,6 +95,21 @@ pub(super) fn publish_outputs(unfinished: &Path, out: &Path) -> Result<(), RunEr
     })
 }
 
+/// Finishes the move of a run's finished outputs into `out` that a stop cut short (a
+/// publish had begun: its list waits beside them), before anything else looks at `out`,
+/// which then holds that run whole; true where it did. Called under `out`'s hold.
+pub(super) fn finish_stopped_run(out: &Path) -> Result<bool, RunError> {
+    use crate::partial_files::{StoppedMove, finish_publish, stopped_move, unfinished_dir};
+    if stopped_move(out) != Some(StoppedMove::Run) {
+        return Ok(false);
+    }
+    finish_publish(&unfinished_dir(out), out, &CONDITIONAL_OUTPUTS, files::METADATA).map_err(|errors| {
+        let errors: Vec<RunError> = errors.into_iter().map(RunError::from).collect();
+        super::first_or_all(errors, RunError::Outputs).expect_err("publish fails with errors")
+    })?;
+    Ok(true)
+}
+
 /// What a finished run writes out.
 pub(super) struct FinishedRun<'a> {
     pub world: &'a worlds::World,
@@ -330,6 +345,39 @@ fn scenario_file(as_run: &crate::scenario::Scenario) -> Result<String, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A run stopped while its outputs were moved in (the earlier run's marker gone, some
+    /// of its files still there, the new run whole in the unfinished directory with the
+    /// move's list) is finished by the next run into the directory, not thrown away; a
+    /// draft (a run stopped while still writing, no list) is not moved in.
+    #[test]
+    fn a_run_stopped_while_moved_in_is_finished_by_the_next() {
+        let out = std::env::temp_dir().join(format!("objslam-stopped-run-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&out);
+        std::fs::create_dir_all(&out).unwrap();
+        std::fs::write(out.join("metrics.json"), "old").unwrap();
+        std::fs::write(out.join("world.toml"), "old").unwrap();
+        let unfinished = crate::partial_files::unfinished_dir(&out);
+        std::fs::create_dir_all(&unfinished).unwrap();
+        std::fs::write(unfinished.join("metrics.json"), "new").unwrap();
+        std::fs::write(unfinished.join(files::METADATA), r#"{"tool": "objslam run"}"#).unwrap();
+        // A draft: nothing moved, nothing lost, and the directory is no earlier run's.
+        assert!(!finish_stopped_run(&out).unwrap());
+        assert_eq!(std::fs::read_to_string(out.join("metrics.json")).unwrap(), "old");
+        assert!(super::super::check_earlier_outputs_are_a_runs(&out).is_err());
+        // The move had begun: its list names what it brings in, world.toml already moved.
+        std::fs::write(unfinished.join(".moving.json"), r#"["metrics.json", "world.toml", "metadata.json"]"#).unwrap();
+        std::fs::remove_file(out.join("world.toml")).unwrap();
+        std::fs::write(out.join("world.toml"), "new").unwrap();
+        assert!(finish_stopped_run(&out).unwrap());
+        for name in ["metrics.json", "world.toml"] {
+            assert_eq!(std::fs::read_to_string(out.join(name)).unwrap(), "new", "{name}");
+        }
+        assert!(out.join(files::METADATA).is_file() && !unfinished.exists());
+        super::super::check_earlier_outputs_are_a_runs(&out).unwrap();
+        assert!(!finish_stopped_run(&out).unwrap(), "nothing more to finish");
+        let _ = std::fs::remove_dir_all(&out);
+    }
 
     #[test]
     fn finished_outputs_replace_the_earlier_ones_whole_and_a_directory_in_the_way_is_named() {
