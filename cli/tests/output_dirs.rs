@@ -315,6 +315,7 @@ fn an_output_that_is_an_input_is_refused_and_the_input_kept() {
         (vec!["gmm", "fit", "data.csv", "--out", "run"], "--out run: is a directory"),
         // A training's outputs had replaced its own dataset's manifest, or each other.
         (vec!["train", "--dataset", "images", "--out", "images/dataset.json"], "a file of the dataset images"),
+        (vec!["train", "--dataset", "images/dataset.json", "--out", "m.json"], "a dataset is given by its directory"),
         (vec!["train", "--dataset", "images", "--out", "images/labels/x.json"], "a file of the dataset images"),
         (
             vec![

@@ -34,6 +34,13 @@ const DISTRACTORS: [worlds::ObjectClass; 4] =
 
 /// Reads `DIR/dataset.json`.
 pub fn read_manifest(dir: &Path) -> Result<Manifest, TrainError> {
+    // The manifest itself given for its directory: say which to give.
+    if dir.is_file() {
+        return Err(file_err(
+            dir,
+            "a file; a dataset is given by its directory (the one holding dataset.json, images/ and labels/)",
+        ));
+    }
     let path = dir.join("dataset.json");
     let text = std::fs::read_to_string(&path).map_err(|e| file_err(&path, e))?;
     let manifest: Manifest = slam::settings::from_json(&text)
