@@ -29,6 +29,7 @@ pub fn merge(dirs: &[PathBuf], out: &Path) -> Result<(StudyPlan, Vec<RunRecord>)
 pub(super) fn merge_held(dirs: &[PathBuf], out: &Path) -> Result<(StudyPlan, Vec<RunRecord>), StudyError> {
     let mut dirs = dirs.to_vec();
     refuse_benchmark_dir(out)?;
+    super::refuse_run_dir(out)?;
     let out_plan = out.join("study.json");
     if out_plan.exists() {
         if !dirs.iter().any(|d| crate::partial_files::same_path(d, out)) {

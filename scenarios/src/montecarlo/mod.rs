@@ -352,10 +352,28 @@ pub(super) fn refuse_unowned_summary(out: &Path) -> Result<(), StudyError> {
     }
 }
 
+/// A study's plan, in its directory.
+pub const STUDY_FILE: &str = "study.json";
+
+/// Refuses a directory holding a run's or a recording's outputs (their `metadata.json`):
+/// a study's records and summaries would sit among them, and the directory read as both.
+pub(crate) fn refuse_run_dir(out: &Path) -> Result<(), StudyError> {
+    let file = out.join(crate::files::METADATA);
+    match std::fs::symlink_metadata(&file) {
+        Ok(_) => Err(StudyError::File {
+            file,
+            message: "the directory holds a run's or a recording's outputs, not a study's; use a new --out directory"
+                .into(),
+        }),
+        Err(_) => Ok(()),
+    }
+}
+
 /// Whether `out` holds `plan`'s study already (`false`: it holds none); an error where it
-/// holds another, runs without their plan, or a generalisation benchmark.
+/// holds another, runs without their plan, a run's outputs, or a generalisation benchmark.
 fn existing_study(plan: &StudyPlan, pin: &ScenarioPin, out: &Path) -> Result<bool, StudyError> {
     refuse_benchmark_dir(out)?;
+    refuse_run_dir(out)?;
     let plan_file = out.join("study.json");
     match read_study_file(&plan_file, "; remove the directory, or this file if runs.jsonl is empty, to start again") {
         Ok(existing) => {

@@ -114,6 +114,13 @@ pub enum RunError {
         files::METADATA
     )]
     UnownedOutputs { name: &'static str, out: PathBuf },
+    /// A Monte Carlo study's directory: the run's files would sit among its records, and the
+    /// directory read as both.
+    #[error(
+        "{}: it holds a Monte Carlo study (study.json), whose directory is not a run's; choose another output directory",
+        out.display()
+    )]
+    HoldsStudy { out: PathBuf },
     #[error(transparent)]
     Calibration(#[from] crate::calibrate::CalibrateError),
     #[error(transparent)]
@@ -500,6 +507,9 @@ fn check_earlier_outputs_are_a_runs(out: &Path) -> Result<(), RunError> {
     // Another command's finished outputs waiting to be moved in would be lost when the
     // run starts the unfinished directory anew (a run's own are only replaced).
     crate::partial_files::check_no_other_stopped_move(out, &[crate::partial_files::StoppedMove::Run])?;
+    if out.join(crate::montecarlo::STUDY_FILE).exists() {
+        return Err(RunError::HoldsStudy { out: out.to_path_buf() });
+    }
     // An earlier run's own `metadata.json` (one another command or a user wrote is not).
     let file = out.join(files::METADATA);
     if std::fs::symlink_metadata(&file).is_ok() {

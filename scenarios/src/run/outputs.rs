@@ -379,6 +379,23 @@ mod tests {
         let _ = std::fs::remove_dir_all(&out);
     }
 
+    /// A study's directory is no run's, and a run's no study's: neither writes among the
+    /// other's files.
+    #[test]
+    fn runs_and_studies_keep_out_of_each_others_directories() {
+        let out = std::env::temp_dir().join(format!("objslam-run-or-study-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&out);
+        std::fs::create_dir_all(&out).unwrap();
+        std::fs::write(out.join(crate::montecarlo::STUDY_FILE), "{}").unwrap();
+        let e = super::super::check_earlier_outputs_are_a_runs(&out).unwrap_err().to_string();
+        assert!(e.contains("holds a Monte Carlo study"), "{e}");
+        std::fs::remove_file(out.join(crate::montecarlo::STUDY_FILE)).unwrap();
+        std::fs::write(out.join(files::METADATA), r#"{"tool": "objslam run"}"#).unwrap();
+        let e = crate::montecarlo::refuse_run_dir(&out).unwrap_err().to_string();
+        assert!(e.contains("holds a run's or a recording's outputs"), "{e}");
+        let _ = std::fs::remove_dir_all(&out);
+    }
+
     #[test]
     fn finished_outputs_replace_the_earlier_ones_whole_and_a_directory_in_the_way_is_named() {
         let out = std::env::temp_dir().join(format!("objslam-publish-{}", std::process::id()));
