@@ -204,6 +204,7 @@ impl AppearanceModel {
     /// Parses a model from JSON text; `file` names it in errors.
     pub fn from_json(text: &str, file: &str) -> Result<Self, ModelError> {
         #[derive(Deserialize)]
+        #[serde(expecting = "an appearance model (a JSON object with a format_version)")]
         struct VersionOnly {
             format_version: Option<u32>,
         }
@@ -910,6 +911,8 @@ mod tests {
         assert!(err.starts_with("cut.json"), "{err}");
         let err = AppearanceModel::from_json("{\"format_version\":1}", "empty.json").unwrap_err().to_string();
         assert!(err.contains("empty.json") && err.contains("missing field"), "{err}");
+        let err = AppearanceModel::from_json("[]", "list.json").unwrap_err().to_string();
+        assert!(err.contains("expected an appearance model") && !err.contains("VersionOnly"), "{err}");
         // A file that cannot be read keeps the I/O error as its source.
         let err = AppearanceModel::load(Path::new("/nonexistent/model.json")).unwrap_err();
         let source = std::error::Error::source(&err).and_then(|s| s.downcast_ref::<std::io::Error>());
@@ -921,6 +924,11 @@ mod tests {
             f(&mut v);
             AppearanceModel::from_json(&v.to_string(), "m.json").unwrap_err().to_string()
         };
+        // A key the model does not have (a typo of an optional one) is refused, not dropped.
+        let err = edit(&|v| v["contxt"] = serde_json::Value::Null);
+        assert!(err.contains("m.json") && err.contains("unknown field `contxt`"), "{err}");
+        let err = edit(&|v| v["object"]["bogus"] = 1.into());
+        assert!(err.contains("unknown field `bogus`"), "{err}");
         let err = edit(&|v| v["object"]["prior"]["nu0"] = (-1.0).into());
         assert!(err.contains("object") && err.contains("nu0"), "{err}");
         let err = edit(&|v| v["background"]["prior"]["beta0"] = 0.0.into());
