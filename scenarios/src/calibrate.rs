@@ -58,8 +58,9 @@ pub enum CalibrateError {
     Sim(#[from] sim::SimError),
     #[error("calibration camera: {0}")]
     Camera(#[from] sim::camera::CameraError),
-    #[error("calibration failed ({used} of {requested} poses usable{skipped}): {reason}")]
-    Solve { requested: usize, used: usize, skipped: String, reason: slam::calibration::CalibrationError },
+    /// `kept`: where the session's pose images wait, the earlier session's left in place.
+    #[error("calibration failed ({used} of {requested} poses usable{skipped}){kept}: {reason}")]
+    Solve { requested: usize, used: usize, skipped: String, kept: String, reason: slam::calibration::CalibrationError },
     #[error("{}: cannot read: {source}", file.display())]
     Read { file: PathBuf, source: std::io::Error },
     #[error("{}: {field}: {message}", file.display())]
@@ -632,6 +633,22 @@ fn remove_pose_images(dir: &Path) -> Result<(), CalibrateError> {
     Ok(())
 }
 
+/// Moves a solved session's pose images from `staging` into `dir`, after removing the
+/// earlier session's there.
+fn publish_pose_images(staging: &Path, dir: &Path) -> Result<(), CalibrateError> {
+    let io = |file: &Path| {
+        let file = file.to_path_buf();
+        move |source| CalibrateError::Write { file, source }
+    };
+    remove_pose_images(dir)?;
+    for entry in std::fs::read_dir(staging).map_err(io(staging))? {
+        let from = entry.map_err(io(staging))?.path();
+        let to = dir.join(from.file_name().expect("a directory entry has a name"));
+        std::fs::rename(&from, &to).map_err(io(&to))?;
+    }
+    std::fs::remove_dir(staging).map_err(io(staging))
+}
+
 /// Whether `file` is named as a session's pose image (`pose_NN.png`): a session with
 /// `--images` in its directory writes or removes it.
 pub fn is_pose_image_name(file: &Path) -> bool {
@@ -718,11 +735,20 @@ pub fn calibrate_stations(
     seed: u64,
     images: Option<&Path>,
 ) -> Result<CalibrationReport, CalibrateError> {
-    if let Some(dir) = images {
-        crate::partial_files::make_output_dir(dir)
-            .map_err(|e| CalibrateError::Write { file: e.file, source: e.source })?;
-        remove_pose_images(dir)?;
-    }
+    // The pose images are written beside `images` and moved in once the session is
+    // solved: a failed or stopped session leaves the earlier session's images, which
+    // match its calibration file, as they were.
+    let staging = match images {
+        Some(dir) => {
+            let write =
+                |e: crate::partial_files::PartialFileError| CalibrateError::Write { file: e.file, source: e.source };
+            crate::partial_files::make_output_dir(dir).map_err(write)?;
+            // Another command's outputs waiting there to be moved in are not cleared away.
+            crate::partial_files::check_no_other_stopped_move(dir, &[]).map_err(write)?;
+            Some(crate::partial_files::start_unfinished(dir).map_err(write)?)
+        }
+        None => None,
+    };
     let mut cam_config = sim_config.camera.clone();
     cam_config.enabled = true;
     let mut camera = CameraSensor::new(world, &cam_config, sim::derive_seed(seed, "calibration-camera"))?;
@@ -757,7 +783,7 @@ pub fn calibrate_stations(
         };
         let detection =
             slam::checkerboard::detect(&frame.image.rgb, k.width as usize, k.height as usize, inner, square, &km);
-        if let Some(dir) = images {
+        if let Some(dir) = &staging {
             let mut rgb = frame.image.rgb.clone();
             for c in detection.as_ref().map(|d| d.corners.clone()).unwrap_or_default() {
                 let (u, v) = (c[0].floor() as i64, c[1].floor() as i64);
@@ -816,8 +842,19 @@ pub fn calibrate_stations(
         requested: stations.len(),
         used: observations.len(),
         skipped: if skipped.is_empty() { String::new() } else { format!("; skipped: {}", skipped.join("; ")) },
+        kept: match (&staging, images) {
+            (Some(s), Some(dir)) => format!(
+                "; this session's pose images are in {} (the earlier session's stay in {})",
+                s.display(),
+                dir.display()
+            ),
+            _ => String::new(),
+        },
         reason,
     })?;
+    if let (Some(staging), Some(dir)) = (&staging, images) {
+        publish_pose_images(staging, dir)?;
+    }
     let est = result.extrinsics;
     let mut max_residual: f64 = 0.0;
     for (o, &pi) in observations.iter().zip(&obs_pose) {

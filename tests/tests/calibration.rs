@@ -138,8 +138,31 @@ fn degenerate_pose_sets_are_flagged() {
     let few = SessionConfig { poses: 4, ..sc.calibration.session.clone() };
     let stations = calibrate::plan_stations(&few, &sc.sim, 3);
     let world = calibrate::range_world(&stations, &worlds::generate::park(&Default::default(), 1).unwrap()).unwrap();
-    let e = calibrate::calibrate_stations(&world, &stations, &few, &sc.sim, 3, None).unwrap_err().to_string();
+    // With pose images asked for: the earlier session's, which match its calibration file,
+    // stay; this session's wait beside them, and the error says where.
+    let dir = std::env::temp_dir().join(format!("objslam-pose-images-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    for k in [0, 19] {
+        std::fs::write(dir.join(format!("pose_{k:02}.png")), "earlier").unwrap();
+    }
+    let e = calibrate::calibrate_stations(&world, &stations, &few, &sc.sim, 3, Some(&dir)).unwrap_err().to_string();
     assert!(e.contains("at least 5 board poses") && e.contains("4 of 4"), "{e}");
+    assert!(e.contains("this session's pose images are in") && e.contains(".unfinished"), "{e}");
+    for k in [0, 19] {
+        assert_eq!(std::fs::read_to_string(dir.join(format!("pose_{k:02}.png"))).unwrap(), "earlier");
+    }
+    // A session that is solved replaces them all.
+    let good = SessionConfig { poses: 6, ..sc.calibration.session.clone() };
+    let stations = calibrate::plan_stations(&good, &sc.sim, 3);
+    let world = calibrate::range_world(&stations, &worlds::generate::park(&Default::default(), 1).unwrap()).unwrap();
+    calibrate::calibrate_stations(&world, &stations, &good, &sc.sim, 3, Some(&dir)).unwrap();
+    let mut names: Vec<String> =
+        std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    names.sort();
+    assert_eq!(names, (0..6).map(|k| format!("pose_{k:02}.png")).collect::<Vec<_>>());
+    assert!(image::open(dir.join("pose_00.png")).is_ok());
+    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// `calibration = "estimated"` runs the session first, the pipeline's camera geometry gets
