@@ -152,6 +152,10 @@ fn not_a_directory(out: &Path, source: std::io::Error) -> PartialFileError {
     if out.is_file() {
         return said("is a file, not a directory; give a directory for the outputs".into());
     }
+    // A device, a pipe or a socket (`/dev/null`).
+    if std::fs::metadata(out).is_ok_and(|m| !m.is_dir()) {
+        return said("is not a directory (a device or a pipe); give a directory for the outputs".into());
+    }
     if let Some(file) = out.ancestors().skip(1).find(|a| a.is_file()) {
         return said(format!("{} is a file, so no directory can be made inside it", file.display()));
     }
@@ -625,6 +629,14 @@ mod tests {
         std::fs::write(dir.join(MOVING), r#"["metadata.json"]"#).unwrap();
         assert_eq!(stopped_move(&out), Some(StoppedMove::Run));
         let _ = std::fs::remove_dir_all(&out);
+    }
+
+    /// A device given as the output directory is named for what it is (it had read "File
+    /// exists").
+    #[test]
+    fn a_device_is_no_output_directory() {
+        let e = make_output_dir(Path::new("/dev/null")).unwrap_err().to_string();
+        assert!(e.contains("/dev/null") && e.contains("is not a directory (a device or a pipe)"), "{e}");
     }
 
     #[test]
