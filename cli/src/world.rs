@@ -126,11 +126,12 @@ fn import(
     let out_dir = directory_of(out)?;
     let mesh_abs = std::fs::canonicalize(mesh).with_context(|| format!("{}: cannot read", mesh.display()))?;
     // A world file is UTF-8 text: a path that is not cannot be written into it as it is.
-    anyhow::ensure!(
-        mesh_abs.to_str().is_some() && out_dir.to_str().is_some(),
-        "{}: the path is not UTF-8 text, and a world file names its meshes in UTF-8; rename the file or its directory",
-        mesh.display()
-    );
+    if let Some(path) = [&mesh_abs, &out_dir].into_iter().find(|p| p.to_str().is_none()) {
+        anyhow::bail!(
+            "{}: the path is not UTF-8 text, and a world file names its meshes in UTF-8; rename the file or its directory",
+            path.display()
+        );
+    }
     let relative_to_out = |p: &std::path::Path| p.strip_prefix(&out_dir).unwrap_or(p).to_string_lossy().into_owned();
     let named = relative_to_out(&mesh_abs);
     // The meshes the world already names, relative to its own file, as the new file

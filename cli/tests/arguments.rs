@@ -305,5 +305,17 @@ fn a_model_is_of_the_classes_its_dataset_labelled() {
     let csv = std::fs::read_to_string(&features).unwrap();
     assert!(csv.starts_with("image,col,row,") && csv.lines().count() > 100, "{}", &csv[..csv.len().min(200)]);
     assert!(!root.join("features.csv.partial").exists());
+    // A device is written into as it is (nothing can be made beside /dev/null), and a link
+    // is followed, the file it names replaced and the link kept.
+    let (ok, e) = stderr_of(&[&train[..], &["--heldout-every", "0", "--export-features", "/dev/null"]].concat());
+    assert!(ok, "{e}");
+    let link = root.join("link.csv");
+    std::os::unix::fs::symlink(&features, &link).unwrap();
+    std::fs::write(&features, "earlier").unwrap();
+    let link_arg = link.to_string_lossy().into_owned();
+    let (ok, e) = stderr_of(&[&train[..], &["--heldout-every", "0", "--export-features", &link_arg]].concat());
+    assert!(ok, "{e}");
+    assert!(std::fs::symlink_metadata(&link).unwrap().file_type().is_symlink(), "the link is kept");
+    assert!(std::fs::read_to_string(&features).unwrap().starts_with("image,col,row,"));
     let _ = std::fs::remove_dir_all(&root);
 }

@@ -48,7 +48,7 @@ fn both_searches_fit_the_same_mixture_and_score_it_on_held_out_points() {
         let model = dir.join(format!("{search}.json"));
         let fit = objslam(&["gmm", "fit", path(&train), "--search", search, "--out", path(&model)]);
         assert!(fit.status.success(), "{search}: {}", String::from_utf8_lossy(&fit.stderr));
-        let fitted: slam::gmm::VbGmm = serde_json::from_str(&std::fs::read_to_string(&model).unwrap()).unwrap();
+        let fitted = scenarios::train::gmm_of_model_file(&std::fs::read_to_string(&model).unwrap()).unwrap();
         assert_eq!(fitted.effective_components(0.02), 2, "{search}");
         // The file says how it was fitted: the same data and options fit it again.
         let file: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&model).unwrap()).unwrap();

@@ -738,16 +738,18 @@ pub fn calibrate_stations(
     // The pose images are written beside `images` and moved in once the session is
     // solved: a failed or stopped session leaves the earlier session's images, which
     // match its calibration file, as they were.
-    let staging = match images {
+    // The directory is held for the session: another command writing into it keeps its
+    // unfinished files.
+    let (staging, _held) = match images {
         Some(dir) => {
             let write =
                 |e: crate::partial_files::PartialFileError| CalibrateError::Write { file: e.file, source: e.source };
-            crate::partial_files::make_output_dir(dir).map_err(write)?;
+            let held = crate::partial_files::lock_output(dir).map_err(write)?;
             // Another command's outputs waiting there to be moved in are not cleared away.
             crate::partial_files::check_no_other_stopped_move(dir, &[]).map_err(write)?;
-            Some(crate::partial_files::start_unfinished(dir).map_err(write)?)
+            (Some(crate::partial_files::start_unfinished(dir).map_err(write)?), Some(held))
         }
-        None => None,
+        None => (None, None),
     };
     let mut cam_config = sim_config.camera.clone();
     cam_config.enabled = true;

@@ -795,8 +795,6 @@ mod tests {
         assert_eq!(image::open(&file).unwrap().to_rgb8().dimensions(), (1000, 1000));
     }
 
-    /// A legend name too wide for its panel goes on to further rows, whole words where
-    /// they fit, and loses no character.
     /// A ground a thousand times deeper than wide is drawn at most four widths tall (it had
     /// been a PNG a million pixels tall, gigabytes while drawn).
     #[test]
@@ -811,6 +809,8 @@ mod tests {
         assert!(height <= 4 * 1200 + 130, "{width} x {height}");
     }
 
+    /// A legend name too wide for its panel goes on to further rows, whole words where
+    /// they fit, and loses no character.
     #[test]
     fn long_legend_names_wrap_and_lose_nothing() {
         let fits = |t: &str| t.chars().count() <= 12;

@@ -253,7 +253,10 @@ fn options_for_dataset(
 /// The name of a dataset's positive classes, as a model's `object_class`: `tree`, or
 /// `post+palm` for several.
 fn object_class_of(manifest: &Manifest) -> String {
-    manifest.classes.iter().map(|c| c.name()).collect::<Vec<_>>().join("+")
+    // In one order whatever order `--classes` gave them in.
+    let mut names: Vec<&str> = manifest.classes.iter().map(|c| c.name()).collect();
+    names.sort_unstable();
+    names.join("+")
 }
 
 fn model_error(e: TrainError) -> ModelError {
@@ -337,7 +340,7 @@ pub fn train_from_datasets(
     }
     // One model learns one set of classes: datasets that label others cannot be pooled.
     for (dir, m) in dirs.iter().zip(&manifests) {
-        if m.classes != lead.classes {
+        if object_class_of(m) != object_class_of(lead) {
             return Err(file_err(
                 &dir.join("dataset.json"),
                 format!(
@@ -560,31 +563,49 @@ pub fn majority_class(class: &image::GrayImage, col: u32, row: u32, l: u32) -> u
 
 /// Writes every patch's feature row with its label fraction and label to a CSV file,
 /// written beside it and renamed into place once whole: a failure (a full disk) leaves an
-/// earlier file as it was.
+/// earlier file as it was. As with [`crate::partial_files::write_whole`], a link is
+/// followed (the file it names is replaced) and a device or pipe is written into as it is.
 pub fn export_features(
     dir: &Path,
     model: &AppearanceModel,
     label_fraction: f64,
     out: &Path,
 ) -> Result<usize, TrainError> {
+    use std::io::Write;
     let manifest = read_manifest(dir)?;
-    let name = out.file_name().and_then(|n| n.to_str()).ok_or_else(|| file_err(out, "not a file name"))?;
-    let parent = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let target = std::fs::canonicalize(out).unwrap_or_else(|_| out.to_path_buf());
     let partial = |e: crate::partial_files::PartialFileError| file_err(&e.file, e.source);
-    let mut csv = crate::partial_files::PartialFiles::create(parent, &[((), name)]).map_err(partial)?;
+    enum Sink {
+        Staged(crate::partial_files::PartialFiles<()>),
+        Device(std::io::BufWriter<std::fs::File>),
+    }
+    let mut sink = if std::fs::metadata(&target).is_ok_and(|m| !m.is_file()) {
+        Sink::Device(std::io::BufWriter::new(std::fs::File::create(&target).map_err(|e| file_err(out, e))?))
+    } else {
+        let name = target.file_name().and_then(|n| n.to_str()).ok_or_else(|| file_err(out, "not a file name"))?;
+        let parent = target.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+        Sink::Staged(crate::partial_files::PartialFiles::create(parent, &[((), name)]).map_err(partial)?)
+    };
+    let mut line = |text: &str| match &mut sink {
+        Sink::Staged(csv) => csv.write((), text).map_err(partial),
+        Sink::Device(w) => w.write_all(text.as_bytes()).map_err(|e| file_err(out, e)),
+    };
     let names = feature_names(model.extractor.pca.dims());
-    csv.write((), &format!("image,col,row,{},fraction,label\n", names.join(","))).map_err(partial)?;
+    line(&format!("image,col,row,{},fraction,label\n", names.join(",")))?;
     let mut rows = 0;
     for patches in image_patches(dir, &manifest, &model.extractor, 0..manifest.images.len())? {
         let p = patches?;
         for (k, (&(c, r), &frac)) in p.cells.iter().zip(&p.fractions).enumerate() {
             let values: Vec<String> = p.features.z.row(k).iter().map(|v| format!("{v}")).collect();
             let label = (frac as f64 >= label_fraction) as u8;
-            csv.write((), &format!("{},{c},{r},{},{frac},{label}\n", p.index, values.join(","))).map_err(partial)?;
+            line(&format!("{},{c},{r},{},{frac},{label}\n", p.index, values.join(",")))?;
             rows += 1;
         }
     }
-    csv.finish().map_err(partial)?;
+    match sink {
+        Sink::Staged(csv) => csv.finish().map_err(partial)?,
+        Sink::Device(mut w) => w.flush().map_err(|e| file_err(out, e))?,
+    }
     Ok(rows)
 }
 
@@ -751,6 +772,39 @@ pub fn gmm_model_file(model: &VbGmm, record: &GmmFitRecord) -> String {
     serde_json::to_string_pretty(&file).expect("JSON")
 }
 
+/// The file [`gmm_model_file`] writes, as read: the mixture's own keys beside its
+/// `format_version` and `fit`, and no other (a typo is refused, not dropped).
+#[derive(serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+struct GmmModelFile {
+    prior: gmm::VbPrior,
+    components: Vec<gmm::VbComponent>,
+    lower_bound: f64,
+    iterations: usize,
+    points: usize,
+    counts: Vec<f64>,
+    #[serde(default)]
+    #[allow(dead_code)]
+    format_version: Option<serde_json::Value>,
+    #[serde(default)]
+    #[allow(dead_code)]
+    fit: Option<serde_json::Value>,
+}
+
+/// The mixture of a model file of `objslam gmm fit` (see [`gmm_model_file`]); the keys
+/// beside it are checked by [`check_gmm_file_version`] and [`GmmFitRecord::of_model`].
+pub fn gmm_of_model_file(text: &str) -> Result<VbGmm, String> {
+    let f: GmmModelFile = slam::settings::from_json(text)?;
+    Ok(VbGmm {
+        prior: f.prior,
+        components: f.components,
+        lower_bound: f.lower_bound,
+        iterations: f.iterations,
+        points: f.points,
+        counts: f.counts,
+    })
+}
+
 /// A model file's `format_version`, where it has one, is the version this build reads:
 /// another layout read as this one would score the wrong numbers.
 fn check_gmm_file_version(text: &str) -> Result<(), String> {
@@ -864,8 +918,7 @@ pub fn gmm_score_csv(model: &Path, path: &Path) -> Result<(f64, usize), TrainErr
     if serde_json::from_str::<serde_json::Value>(&text).is_ok() {
         check_gmm_file_version(&text).map_err(|e| file_err(model, e))?;
     }
-    let fitted: VbGmm =
-        slam::settings::from_json(&text).map_err(|e| file_err(model, format!("not an objslam gmm fit model: {e}")))?;
+    let fitted = gmm_of_model_file(&text).map_err(|e| file_err(model, format!("not an objslam gmm fit model: {e}")))?;
     fitted.check().map_err(|e| file_err(model, e))?;
     GmmFitRecord::of_model(&text).map_err(|e| file_err(model, e))?;
     let data = read_csv(path)?;

@@ -55,7 +55,8 @@ pub fn parse(text: &str, file: &Path) -> Result<World, WorldError> {
 }
 
 /// Largest world file read (bytes): a park of the generator's most objects is about 1 MiB
-/// of TOML; a larger file is something else (a device such as /dev/zero never ends).
+/// of TOML; a larger file is something else (a device such as /dev/zero never ends), and
+/// no more than this is read of it.
 pub const MAX_WORLD_FILE_BYTES: u64 = 16 << 20;
 
 /// Reads, parses and validates a world file.

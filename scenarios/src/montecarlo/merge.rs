@@ -55,7 +55,13 @@ pub(super) fn merge_held(dirs: &[PathBuf], out: &Path) -> Result<(StudyPlan, Vec
                 let differ: Vec<String> = match (a, b) {
                     (Ok(serde_json::Value::Object(a)), Ok(serde_json::Value::Object(b))) => {
                         let keys: std::collections::BTreeSet<&String> = a.keys().chain(b.keys()).collect();
-                        keys.into_iter().filter(|k| *k != "build" && a.get(*k) != b.get(*k)).cloned().collect()
+                        // A pinned scenario may be typed otherwise from another directory:
+                        // its digest (the pin) decides, not its spelling.
+                        let pinned = existing.scenario_pin.is_some() && p.scenario_pin.is_some();
+                        keys.into_iter()
+                            .filter(|k| *k != "build" && !(pinned && *k == "scenario") && a.get(*k) != b.get(*k))
+                            .cloned()
+                            .collect()
                     }
                     _ => Vec::new(),
                 };

@@ -93,9 +93,10 @@ impl Pca {
         Ok(())
     }
 
-    /// Checks a PCA read from a file: shapes that agree, numbers within f32's range (the
-    /// features are projected in single precision, where a larger value is infinite) and
-    /// a basis of orthonormal columns, as eigenvectors are; (field, problem).
+    /// Checks a PCA read from a file: shapes that agree, a mean within f32's range (the
+    /// raw features are single-precision numbers, so no mean of them lies beyond it) and a
+    /// basis of orthonormal columns, as eigenvectors are (a larger entry would also be
+    /// infinite in the single-precision projection); (field, problem).
     pub fn check(&self) -> Result<(), (&'static str, String)> {
         if self.basis.nrows() != self.mean.len() {
             return Err(("basis", format!("has {} rows for a {}-long mean", self.basis.nrows(), self.mean.len())));
