@@ -300,7 +300,19 @@ fn check_times(file: &Path, name: &str, t: &[f64]) -> Result<(), LogError> {
 fn check_step(file: &Path, name: &str, t_s: &[f64], window: (f64, f64), unit: &str) -> Result<(), LogError> {
     let mut steps: Vec<f64> = t_s.windows(2).map(|w| w[1] - w[0]).filter(|d| *d > 0.0).collect();
     if steps.is_empty() {
-        return Ok(()); // One time, or all equal: no rate to judge.
+        // One time has no rate to judge; several, all equal, are a clock that never ran
+        // (every scan would be at one instant, the vehicle still between them).
+        if t_s.len() > 1 {
+            return Err(LogError::File {
+                file: file.to_path_buf(),
+                problem: format!(
+                    "`{name}`: all {} times are the same ({} s); a clock that never advanced",
+                    t_s.len(),
+                    t_s[0]
+                ),
+            });
+        }
+        return Ok(());
     }
     let mid = steps.len() / 2;
     let median = *steps.select_nth_unstable_by(mid, f64::total_cmp).1;

@@ -882,6 +882,9 @@ fn victoria_park_files_in_other_units_or_of_other_kinds_are_refused() {
     write_dr(vec![1000i64, 1025, 1050].into());
     write_lsr(vec![1010.0e3, 1220.0e3], 1500.0);
     assert!(error().contains("aa3_lsr2.mat: `TLsr` steps by 2.100e2 s"), "{}", error());
+    // A scan clock that never advanced: every scan at one instant.
+    write_lsr(vec![1010.0, 1010.0], 1500.0);
+    assert!(error().contains("aa3_lsr2.mat: `TLsr`: all 2 times are the same (1.01 s)"), "{}", error());
     // Ranges in metres, and in millimetres.
     write_lsr(vec![1010.0, 1220.0], 15.0);
     assert!(error().contains("aa3_lsr2.mat: `LASER`: no range of any scan reaches 100"), "{}", error());

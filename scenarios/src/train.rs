@@ -378,11 +378,18 @@ pub fn open_image_to_classify(path: &Path) -> Result<image::RgbImage, TrainError
     if path.is_dir() {
         return Err(file_err(path, "a directory, not an image file"));
     }
-    let (w, h) = image::image_dimensions(path).map_err(|e| file_err(path, e))?;
+    use image::ImageDecoder;
+    // The format from the file's bytes, not its name (a PNG named .jpg), and the picture
+    // the way up its EXIF orientation says, as a viewer shows it.
+    let reader = image::ImageReader::open(path).and_then(|r| r.with_guessed_format()).map_err(|e| file_err(path, e))?;
+    let mut decoder = reader.into_decoder().map_err(|e| file_err(path, e))?;
+    let (w, h) = decoder.dimensions();
     if u64::from(w) * u64::from(h) > MAX_SEGMENT_PIXELS {
         return Err(file_err(path, format!("{w}x{h} is more than {MAX_SEGMENT_PIXELS} pixels; crop or scale it down")));
     }
-    let image = image::open(path).map_err(|e| file_err(path, e))?;
+    let orientation = decoder.orientation().map_err(|e| file_err(path, e))?;
+    let mut image = image::DynamicImage::from_decoder(decoder).map_err(|e| file_err(path, e))?;
+    image.apply_orientation(orientation);
     colour_pixels(path, image)
 }
 
@@ -950,6 +957,11 @@ mod tests {
         let colour = dir.join("colour.png");
         image::RgbImage::from_pixel(20, 10, image::Rgb([90, 90, 90])).save(&colour).unwrap();
         assert_eq!(open_image_to_classify(&colour).unwrap().dimensions(), (20, 10));
+        // Its format is read from its bytes: a PNG named .jpg, or named without an extension.
+        for name in ["png_named.jpg", "no_extension"] {
+            std::fs::copy(&colour, dir.join(name)).unwrap();
+            assert_eq!(open_image_to_classify(&dir.join(name)).unwrap().dimensions(), (20, 10), "{name}");
+        }
         std::fs::remove_dir_all(&dir).ok();
     }
 

@@ -455,6 +455,10 @@ impl LogSource {
     }
 }
 
+/// Every name a replay writes in its output directory.
+const REPLAY_OUTPUTS: &[&str] =
+    &[files::METRICS, files::METADATA, files::LANDMARKS, files::TRAJECTORY_EST, files::DECISIONS, files::MAP];
+
 /// Refuses an output directory that holds a robot log, or another command's outputs (a
 /// run's, a recording's): the replay's files would sit among theirs, and read as one.
 /// An earlier replay's outputs are replaced as usual.
@@ -472,6 +476,16 @@ fn refuse_other_outputs(dir: &Path) -> Result<(), ReplayError> {
     }
     if dir.join("dataset.json").exists() {
         return holds("the images of `objslam dataset` (dataset.json)".into());
+    }
+    if std::fs::symlink_metadata(dir.join(files::METADATA)).is_err() {
+        // Files of a replay's names with no replay's marker are someone's own.
+        return match files::first_present(dir, REPLAY_OUTPUTS) {
+            Some(name) => holds(format!(
+                "{name}, which a replay writes, but no earlier replay ({} is missing): it would be replaced (if a stopped replay left it, remove it)",
+                files::METADATA
+            )),
+            None => Ok(()),
+        };
     }
     let Ok(text) = std::fs::read_to_string(dir.join(files::METADATA)) else { return Ok(()) };
     let tool = serde_json::from_str::<serde_json::Value>(&text)
@@ -993,7 +1007,7 @@ fn write_outputs(
             .filter(|r| r.ate_rmse_m.is_finite())
             .map_or(String::new(), |r| format!(", ATE {:.2} m", r.ate_rmse_m))
     );
-    crate::plot::draw_replay_map(&title, &path, reference, dropped, &marks, &out.join("map.png"))?;
+    crate::plot::draw_replay_map(&title, &path, reference, dropped, &marks, &out.join(files::MAP))?;
     Ok(())
 }
 
@@ -1175,6 +1189,11 @@ mod tests {
             std::fs::remove_file(dir.join(marker)).unwrap();
         }
         refuse_other_outputs(&dir).unwrap();
+        // A user's files of a replay's names, where no replay was: kept, not replaced.
+        std::fs::remove_file(dir.join(files::METADATA)).unwrap();
+        std::fs::write(dir.join(files::LANDMARKS), "notes").unwrap();
+        let e = refuse_other_outputs(&dir).unwrap_err().to_string();
+        assert!(e.contains("landmarks.json, which a replay writes, but no earlier replay"), "{e}");
         let _ = std::fs::remove_dir_all(&dir);
     }
 
