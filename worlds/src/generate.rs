@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::description::*;
 use crate::error::WorldError;
-use crate::validate::{PERSON_ROUTE_CLEARANCE_M, ROBOT_ROUTE_CLEARANCE_M, metres};
+use crate::validate::{PERSON_ROUTE_CLEARANCE_M, ROBOT_ROUTE_CLEARANCE_M, as_written};
 
 /// An inclusive range `[min, max]` of a generator parameter.
 pub type Range = [f64; 2];
@@ -160,7 +160,7 @@ impl ParkParams {
             // No size beyond what a world holds (crate::validate::MAX_SIZE_M).
             let most = if field == "person_speed_mps" { f64::INFINITY } else { crate::validate::MAX_SIZE_M };
             if r[1] > most {
-                return bad(field, format!("{} is larger than a world holds: at most {most}", metres(r[1])));
+                return bad(field, format!("{} is larger than a world holds: at most {most}", as_written(r[1])));
             }
         }
         if self.person_start_time_max_s > crate::validate::MAX_START_TIME_S {
@@ -168,7 +168,7 @@ impl ParkParams {
                 "person_start_time_max_s",
                 format!(
                     "{} s is past any run: at most {:e} s",
-                    metres(self.person_start_time_max_s),
+                    as_written(self.person_start_time_max_s),
                     crate::validate::MAX_START_TIME_S
                 ),
             );
@@ -179,7 +179,7 @@ impl ParkParams {
                 format!(
                     "people walk at most {} m/s, got {}",
                     crate::validate::MAX_PERSON_SPEED_MPS,
-                    metres(self.person_speed_mps[1])
+                    as_written(self.person_speed_mps[1])
                 ),
             );
         }
@@ -189,7 +189,7 @@ impl ParkParams {
                 format!(
                     "people are at most {} m tall, got {}",
                     crate::validate::MAX_PERSON_HEIGHT_M,
-                    metres(self.person_height_m[1])
+                    as_written(self.person_height_m[1])
                 ),
             );
         }

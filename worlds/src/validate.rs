@@ -104,7 +104,7 @@ pub fn validate(world: &World, base_dir: &Path) -> Vec<Problem> {
             // As the robot's: beyond a few turns, degrees lose the heading to rounding.
             push(
                 format!("{f}.pose.yaw_deg"),
-                format!("must be within a turn (-360 to 360 degrees), got {}", metres(o.pose.yaw_deg)),
+                format!("must be within a turn (-360 to 360 degrees), got {}", as_written(o.pose.yaw_deg)),
             );
         }
         for (name, v) in shape_sizes(&o.shape) {
@@ -228,7 +228,7 @@ pub fn validate(world: &World, base_dir: &Path) -> Vec<Problem> {
                 // No part of a person, nor a step, is larger than the tallest person.
                 push(
                     format!("{f}.{name}"),
-                    format!("{} m is larger than a person: at most {MAX_PERSON_HEIGHT_M} m", metres(v)),
+                    format!("{} m is larger than a person: at most {MAX_PERSON_HEIGHT_M} m", as_written(v)),
                 );
             }
         }
@@ -237,7 +237,7 @@ pub fn validate(world: &World, base_dir: &Path) -> Vec<Problem> {
         } else if p.start_time_s > MAX_START_TIME_S {
             push(
                 format!("{f}.start_time_s"),
-                format!("{} s is past any run: at most {MAX_START_TIME_S:e} s", metres(p.start_time_s)),
+                format!("{} s is past any run: at most {MAX_START_TIME_S:e} s", as_written(p.start_time_s)),
             );
         }
         if p.height_m.is_finite() && p.height_m < 0.8 {
@@ -247,13 +247,16 @@ pub fn validate(world: &World, base_dir: &Path) -> Vec<Problem> {
         if p.height_m.is_finite() && p.height_m > MAX_PERSON_HEIGHT_M {
             push(
                 format!("{f}.height_m"),
-                format!("{} m is taller than a person: at most {MAX_PERSON_HEIGHT_M} m", metres(p.height_m)),
+                format!("{} m is taller than a person: at most {MAX_PERSON_HEIGHT_M} m", as_written(p.height_m)),
             );
         }
         if p.speed_mps.is_finite() && p.speed_mps > MAX_PERSON_SPEED_MPS {
             push(
                 format!("{f}.speed_mps"),
-                format!("{} m/s is faster than a person runs: at most {MAX_PERSON_SPEED_MPS} m/s", metres(p.speed_mps)),
+                format!(
+                    "{} m/s is faster than a person runs: at most {MAX_PERSON_SPEED_MPS} m/s",
+                    as_written(p.speed_mps)
+                ),
             );
         }
         check_colour(&mut push, &format!("{f}.shirt.colour"), &p.shirt.colour);
@@ -272,7 +275,7 @@ pub fn validate(world: &World, base_dir: &Path) -> Vec<Problem> {
     } else if r.start.yaw_deg.abs() > 360.0 {
         push(
             "robot.start.yaw_deg".into(),
-            format!("must be within a turn (-360 to 360 degrees), got {}", metres(r.start.yaw_deg)),
+            format!("must be within a turn (-360 to 360 degrees), got {}", as_written(r.start.yaw_deg)),
         );
     }
     check_on_ground(&mut push, "robot.start", &[[r.start.x, r.start.y]], g);
@@ -321,18 +324,21 @@ fn far_from_origin(c: f64) -> String {
     format!(
         "{} m is more than {MAX_COORDINATE_M} m from the origin, where the simulator's f32 physics no longer \
          resolves a robot's motion; move the world's coordinates to a local origin",
-        metres(c)
+        as_written(c)
     )
 }
 
 /// Why a size beyond [`MAX_SIZE_M`] is refused.
 fn too_large(v: f64) -> String {
-    format!("{} m is larger than a world within {MAX_COORDINATE_M} m of the origin: at most {MAX_SIZE_M} m", metres(v))
+    format!(
+        "{} m is larger than a world within {MAX_COORDINATE_M} m of the origin: at most {MAX_SIZE_M} m",
+        as_written(v)
+    )
 }
 
 /// A number (a length, a time, an angle) as written in a message: in full up to a million,
 /// then in exponent form (a typo of 1e300 m would otherwise print as 301 digits).
-pub(crate) fn metres(v: f64) -> String {
+pub(crate) fn as_written(v: f64) -> String {
     if v.abs() < 1e6 { v.to_string() } else { format!("{v:e}") }
 }
 

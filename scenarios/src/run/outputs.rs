@@ -89,10 +89,13 @@ const CONDITIONAL_OUTPUTS: [&str; 4] =
 /// Moves a finished run's outputs from `unfinished` into `out` (see
 /// [`crate::partial_files::publish`]), after removing an earlier run's conditional ones.
 pub(super) fn publish_outputs(unfinished: &Path, out: &Path) -> Result<(), RunError> {
-    crate::partial_files::publish(unfinished, out, &CONDITIONAL_OUTPUTS, files::METADATA).map_err(|errors| {
-        let errors: Vec<RunError> = errors.into_iter().map(RunError::from).collect();
-        super::first_or_all(errors, RunError::Outputs).expect_err("publish fails with errors")
-    })
+    crate::partial_files::publish(unfinished, out, &CONDITIONAL_OUTPUTS, files::METADATA).map_err(move_failed)
+}
+
+/// A move's failures as the run's error: the one, or all of them.
+fn move_failed(errors: Vec<crate::partial_files::PartialFileError>) -> RunError {
+    let errors: Vec<RunError> = errors.into_iter().map(RunError::from).collect();
+    super::first_or_all(errors, RunError::Outputs).expect_err("publish fails with errors")
 }
 
 /// Finishes the move of a run's finished outputs into `out` that a stop cut short (a
@@ -103,10 +106,7 @@ pub(super) fn finish_stopped_run(out: &Path) -> Result<bool, RunError> {
     if stopped_move(out) != Some(StoppedMove::Run) {
         return Ok(false);
     }
-    finish_publish(&unfinished_dir(out), out, &CONDITIONAL_OUTPUTS, files::METADATA).map_err(|errors| {
-        let errors: Vec<RunError> = errors.into_iter().map(RunError::from).collect();
-        super::first_or_all(errors, RunError::Outputs).expect_err("publish fails with errors")
-    })?;
+    finish_publish(&unfinished_dir(out), out, &CONDITIONAL_OUTPUTS, files::METADATA).map_err(move_failed)?;
     Ok(true)
 }
 
